@@ -1,0 +1,48 @@
+"""User-facing errors.
+
+Every error a user can cause is one of these.  Each carries a list of
+problems; every problem names the file, the field or element, the bad value
+and what is allowed.  The CLI prints them and exits non-zero, never a
+traceback.
+"""
+from __future__ import annotations
+
+
+class PcmmError(Exception):
+    """Base class: a list of human-readable problems, each self-contained."""
+
+    exit_code = 2
+
+    def __init__(self, problems: str | list[str]):
+        self.problems = [problems] if isinstance(problems, str) else list(problems)
+        super().__init__(self.text())
+
+    def text(self) -> str:
+        if len(self.problems) == 1:
+            return self.problems[0]
+        return f"{len(self.problems)} problems:\n" + "\n".join(f"  - {p}" for p in self.problems)
+
+
+class SceneError(PcmmError):
+    """The scene file (TOML) is malformed or inconsistent."""
+
+
+class ModelError(PcmmError):
+    """A URDF file is malformed, not planar, or has bad inertia."""
+
+
+class SimulationError(PcmmError):
+    """The run cannot continue honestly (singular posture, persistent contact, ...).
+
+    ``partial`` may hold the trajectory up to the failure so no result is lost.
+    """
+
+    exit_code = 3
+
+    def __init__(self, problems, partial=None):
+        super().__init__(problems)
+        self.partial = partial
+
+
+class UsageError(PcmmError):
+    """A command-line value is out of range."""

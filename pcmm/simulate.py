@@ -1,0 +1,187 @@
+"""The configuration-complete simulation (paper Fig. 3).
+
+Integrate the current configuration's dynamics (Eq. 1) until a guard fires;
+solve the transformation (impulse, velocity jump, configuration switch); go
+on in the next configuration until ``t_end``.  With ``impact=False`` the
+transformations switch without impulse (the paper's comparison runs).
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from .configuration import Configuration, Mechanism
+from .errors import SimulationError, UsageError
+from .guards import make_guard
+from .integrators import INTEGRATORS
+from .scene import Scene
+from .trajectory import SegmentRecord, Trajectory
+from .transitions import TRANSITIONS, Context
+
+
+@dataclass(frozen=True)
+class RunOptions:
+    """Accuracy and mode knobs; ``None`` means the scene's ``[solver]`` value."""
+
+    t_end: float | None = None
+    method: str | None = None
+    rtol: float | None = None
+    atol: float | None = None
+    max_step: float | None = None
+    step: float | None = None  # fixed-step methods (RK4)
+    accumulation_speed: float | None = None
+    accumulation_interval: float | None = None
+    max_events: int | None = None
+    impact: bool = True
+
+
+@dataclass(frozen=True)
+class _Resolved:
+    t_end: float
+    method: str
+    rtol: float
+    atol: float
+    max_step: float
+    step: float
+    accumulation_speed: float
+    accumulation_interval: float
+    max_events: int
+    impact: bool
+
+
+def resolve(scene: Scene, options: RunOptions) -> _Resolved:
+    s = scene.solver
+    pick = lambda a, b: b if a is None else a  # noqa: E731
+    r = _Resolved(
+        t_end=pick(options.t_end, scene.t_end), method=pick(options.method, s.method),
+        rtol=pick(options.rtol, s.rtol), atol=pick(options.atol, s.atol),
+        max_step=pick(options.max_step, s.max_step), step=pick(options.step, 1e-3),
+        accumulation_speed=pick(options.accumulation_speed, s.accumulation_speed),
+        accumulation_interval=pick(options.accumulation_interval, s.accumulation_interval),
+        max_events=pick(options.max_events, s.max_events), impact=options.impact)
+    problems = []
+    if r.method not in INTEGRATORS:
+        problems.append(f"method = {r.method!r}: must be one of {', '.join(INTEGRATORS)}")
+    for name in ("t_end", "rtol", "atol", "max_step", "step"):
+        val = getattr(r, name)
+        if not (isinstance(val, (int, float)) and val > 0 and not math.isnan(val)):
+            problems.append(f"{name} = {val!r}: must be a number > 0")
+    for name in ("accumulation_speed", "accumulation_interval"):
+        if not getattr(r, name) >= 0:
+            problems.append(f"{name} = {getattr(r, name)!r}: must be >= 0")
+    if problems:
+        raise UsageError(problems)
+    return r
+
+
+def initial_state(scene: Scene, cfg: Configuration):
+    q0 = cfg.vector(scene.q0)
+    v0 = cfg.vector(scene.v0)
+    return cfg.coords.project(0.0, q0, v0) if cfg.coords.constrained else (q0, v0)
+
+
+def simulate(scene: Scene, options: RunOptions = RunOptions(), progress=None) -> Trajectory:
+    """Run ``scene``; return the :class:`Trajectory`.
+
+    On an error or Ctrl-C mid-run the exception carries the trajectory up to
+    that point (``exc.partial``, status ``"partial"``) so no result is lost.
+    ``progress(t)`` is called after each segment and every few steps if given.
+    """
+    opts = resolve(scene, options)
+    mech = Mechanism(scene)
+    traj = Trajectory(scene=str(scene.path), scene_name=scene.name, impact=opts.impact)
+    ctx = Context(mech, opts.impact, opts.accumulation_speed, opts.accumulation_interval)
+    method = INTEGRATORS[opts.method]
+    stats = {"steps": 0, "rhs_evals": 0, "wall_s": 0.0, "record_s": 0.0, "impacts": 0,
+             "constraint_drift_max": 0.0, "method": opts.method, "rtol": opts.rtol, "atol": opts.atol}
+    traj.stats = stats
+    cfg = mech[scene.initial_configuration]
+    t = 0.0
+    q, v = initial_state(scene, cfg)
+    offsets: dict[str, float] = {}
+    try:
+        while True:
+            guards = [make_guard(cfg, tr) for tr in scene.transitions_from(cfg.name)]
+            y0 = cfg.coords.pack(t, q, v)
+            t0 = time.perf_counter()
+            seg = method.integrate(cfg.coords.rhs, t, y0, opts.t_end, guards, opts)
+            stats["wall_s"] += time.perf_counter() - t0
+            stats["steps"] += seg.nsteps
+            stats["rhs_evals"] += seg.nfev
+            if seg.status < 0:
+                raise SimulationError(f"the integrator ({opts.method}) failed at t = {seg.t[-1]:.9g} s in "
+                                      f"configuration '{cfg.name}': {seg.message}")
+            _record(traj, cfg, seg, offsets)
+            if progress:
+                progress(float(seg.t[-1]))
+            if seg.event is None:
+                break
+            t = float(seg.t[-1])
+            q, v = cfg.coords.unpack(t, seg.y[:, -1])
+            tr = guards[seg.event].transition
+            t0 = time.perf_counter()
+            out = TRANSITIONS[tr.type](ctx, cfg, tr, t, q, v)
+            stats["wall_s"] += time.perf_counter() - t0
+            stats["impacts"] += int(out.event.get("impact", False))
+            traj.events.append(out.event)
+            if len(traj.events) > opts.max_events:
+                raise SimulationError(f"more than {opts.max_events} events by t = {t:.9g} s (last: "
+                                      f"'{tr.name}'); raise solver.max_events or the accumulation "
+                                      "tolerances if the impacts are meant to go on")
+            if out.configuration != cfg.name:
+                offsets = {k: offsets.get(k, 0.0) + d for k, d in out.angle_offsets.items()}
+            cfg = mech[out.configuration]
+            q, v = out.q, out.v
+            if t >= opts.t_end:
+                break
+    except KeyboardInterrupt:
+        traj.status, traj.message = "partial", f"interrupted by the user at t = {_t_last(traj):.6g} s"
+        raise SimulationError(traj.message, partial=traj) from None
+    except SimulationError as exc:
+        traj.status, traj.message = "partial", exc.text()
+        exc.partial = traj
+        raise
+    stats["configurations_built"] = list(mech.built)
+    return traj
+
+
+def _t_last(traj: Trajectory) -> float:
+    return float(traj.segments[-1].t[-1]) if traj.segments else 0.0
+
+
+def _record(traj: Trajectory, cfg: Configuration, seg, offsets) -> None:
+    t0 = time.perf_counter()
+    n = len(seg.t)
+    nv, nl = cfg.nv, len(cfg.links)
+    Q, V = np.empty((n, nv)), np.empty((n, nv))
+    xy = np.empty((n, nl, 2))
+    ke, pe = np.empty(n), np.empty(n)
+    ff = np.empty((n, len(cfg.forces.names)))
+    m = len(cfg.coords.labels)
+    lam = np.empty((n, m))
+    drift = 0.0
+    for i in range(n):
+        q, v = cfg.coords.unpack(seg.t[i], seg.y[:, i])
+        Q[i], V[i] = q, v
+        xy[i] = cfg.link_poses(q)[:, :2]
+        ke[i] = cfg.kinetic_energy(q, v)
+        pe[i] = cfg.potential_energy(q)
+        ff[i] = cfg.forces.element_values(q, v)
+        if m:
+            lam[i] = cfg.coords.accelerations(seg.t[i], q, v)[1]
+            drift = max(drift, cfg.coords.residual(seg.t[i], q))
+    off = np.array([offsets.get(link, 0.0) for link in cfg.links])
+    coord_names = []
+    for name in cfg.joint_names:
+        sl = cfg.joint_slice[name]
+        coord_names += [name] if sl.stop - sl.start == 1 else [f"{name}.x", f"{name}.y", f"{name}.theta"]
+    traj.segments.append(SegmentRecord(
+        configuration=cfg.name, coordinates=coord_names, links=list(cfg.links),
+        force_names=list(cfg.forces.names), constraint_labels=list(cfg.coords.labels),
+        t=np.asarray(seg.t, float).copy(), q=Q, v=V, theta=Q @ cfg.A.T + cfg.b + off, omega=V @ cfg.A.T,
+        xy=xy, kinetic=ke, potential=pe, forces=ff, constraint_forces=lam))
+    traj.stats["constraint_drift_max"] = max(traj.stats["constraint_drift_max"], drift)
+    traj.stats["record_s"] += time.perf_counter() - t0

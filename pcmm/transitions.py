@@ -1,0 +1,210 @@
+"""Configuration transformations: what happens when a guard fires.
+
+Transition types form a registry (``TRANSITIONS``); each handler takes the
+run context, the configuration, the transition and the pre-impact state, and
+returns an :class:`Outcome`: the next configuration and its state, plus the
+event record for the summary.
+
+* ``latch``: the metamorphic joint locks on contact.  The impact is perfectly
+  plastic in the locked direction (e = 0), then the run continues in the next
+  configuration's URDF.
+* ``stop``: a unilateral stop with Newton's restitution e; the configuration
+  does not change and the bodies separate.  When the impacts accumulate
+  (post-impact normal speed or interval below the accumulation tolerances) the
+  last impact is made perfectly plastic and the bodies merge into
+  ``merge_to``.
+
+Without impact (the paper's comparison runs) a transformation switches
+configuration with no impulse: surviving joints keep their velocities, locked
+ones drop theirs.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .configuration import Configuration, Mechanism
+from .errors import SimulationError
+from .impulse import Impulse, contact_state, impact_kind, solve_impulse
+from .scene import TransitionSpec
+
+POSE_TOL = 1e-9
+
+
+@dataclass
+class Context:
+    mechanism: Mechanism
+    impact: bool
+    accumulation_speed: float
+    accumulation_interval: float
+    last_impact: dict[str, float] = field(default_factory=dict)
+
+
+@dataclass
+class Outcome:
+    configuration: str
+    q: np.ndarray
+    v: np.ndarray
+    event: dict
+    angle_offsets: dict[str, float]
+
+
+# ---- state mapping -----------------------------------------------------------------------
+def switch(src: Configuration, dst: Configuration, t: float, q: np.ndarray, v: np.ndarray):
+    """Map (q, v) of ``src`` onto ``dst`` by joint name and check the common links' poses.
+
+    Returns (q, v, dropped velocities {joint: v}, angle offsets {link: 2 pi k}).
+    """
+    q_new = dst.neutral()
+    v_new = np.zeros(dst.nv)
+    missing = []
+    for name in dst.joint_names:
+        if name in src.joint_slice:
+            q_new[dst.joint_slice[name]] = q[src.joint_slice[name]]
+            v_new[dst.joint_slice[name]] = v[src.joint_slice[name]]
+        else:
+            missing.append(name)
+    if missing:
+        q_new, v_new = _joints_from_poses(src, dst, q, v, q_new, v_new, missing)
+    dropped = {n: float(v[src.joint_slice[n]][0]) for n in src.joint_names
+               if n not in dst.joint_slice and src.joint_slice[n].stop - src.joint_slice[n].start == 1}
+    q_new, v_new = dst.coords.project(t, q_new, v_new)
+    poses_src = src.link_poses(q)
+    poses_dst = dst.link_poses(q_new)
+    offsets = {}
+    problems = []
+    for link in dst.links:
+        if link not in src.link_index:
+            continue
+        a, b = poses_src[src.link_index[link]], poses_dst[dst.link_index[link]]
+        dtheta = a[2] - b[2]
+        k = np.round(dtheta / (2 * np.pi))
+        dpos = np.linalg.norm(a[:2] - b[:2])
+        dang = abs(dtheta - 2 * np.pi * k)
+        if dpos > POSE_TOL or dang > POSE_TOL:
+            problems.append(f"link '{link}' is at (x, y, theta) = ({a[0]:.9g}, {a[1]:.9g}, {a[2]:.9g}) in "
+                            f"'{src.name}' ({src.spec.urdf.name}) but at ({b[0]:.9g}, {b[1]:.9g}, {b[2]:.9g}) "
+                            f"in '{dst.name}' ({dst.spec.urdf.name}): position differs by {dpos:.3g} m, "
+                            f"angle by {dang:.3g} rad (allowed {POSE_TOL:g})")
+        offsets[link] = float(2 * np.pi * k)
+    if problems:
+        raise SimulationError([f"t = {t:.9g} s, switching '{src.name}' -> '{dst.name}': {p}" for p in problems]
+                              + ["the two URDFs must place every shared link identically at the switch "
+                                 "(check the fixed joint's origin in the merged configuration)"])
+    return q_new, v_new, dropped, offsets
+
+
+def _joints_from_poses(src, dst, q, v, q_new, v_new, names):
+    """Values of joints that ``src`` does not have (e.g. a released latch): from the links' poses."""
+    poses = src.link_poses(q)
+    omega = src.A @ v
+    for name in names:
+        uj = dst.spec.info.joints[name]
+        if uj.type != "revolute" or uj.parent not in src.link_index or uj.child not in src.link_index:
+            raise SimulationError(f"switching '{src.name}' -> '{dst.name}': joint '{name}' appears and "
+                                  "pcmm can only derive a new revolute joint's angle from its links' poses")
+        ip, ic = src.link_index[uj.parent], src.link_index[uj.child]
+        q_new[dst.joint_slice[name]] = poses[ic, 2] - poses[ip, 2] - uj.rpy[2]
+        v_new[dst.joint_slice[name]] = omega[ic] - omega[ip]
+    return q_new, v_new
+
+
+# ---- event records -------------------------------------------------------------------
+def _by_link(cfg: Configuration, v):
+    return {link: float(w) for link, w in zip(cfg.links, cfg.A @ v)}
+
+
+def event_record(cfg: Configuration, tr: TransitionSpec, t, target, merge, imp: Impulse | None,
+                 q, v_before, v_after, contact_point, transition_type=None) -> dict:
+    M = cfg.mass_matrix(q)
+    ke = lambda v: float(0.5 * v @ M @ v)  # noqa: E731
+    if imp is None:
+        n, _, vn_b, Jn = contact_state(cfg, q, v_before, tr.contact)
+        vn_a = float(Jn @ v_after)
+        impulse = {"normal": 0.0, "vector": [0.0, 0.0]}
+        extra = {}
+        e = None
+    else:
+        n, vn_b, vn_a, e = imp.normal, imp.vn_before, imp.vn_after, imp.restitution
+        impulse = {"normal": imp.P, "vector": imp.vector.tolist()}
+        extra = {"joint_impulses": imp.joint_impulses, "cut_impulses": imp.cut_impulses,
+                 "constraint_impulses": imp.constraint_impulses}
+    return {
+        "t": float(t), "name": tr.name, "kind": impact_kind(cfg, tr.contact),
+        "transition": transition_type or tr.type, "from": cfg.name, "to": target, "restitution": e,
+        "merge": merge, "impact": imp is not None, "impulse": impulse,
+        "normal": [float(n[0]), float(n[1])], "contact_point": list(map(float, contact_point)),
+        "normal_velocity": {"before": float(vn_b), "after": float(vn_a)},
+        "omega_before": _by_link(cfg, v_before), "omega_after": _by_link(cfg, v_after),
+        "v_before": cfg.by_joint(v_before), "v_after": cfg.by_joint(v_after),
+        "joint_impulses": {}, **extra,
+        "kinetic_energy_before": ke(v_before), "kinetic_energy_after": ke(v_after),
+    }
+
+
+def _contact_point(cfg, tr):
+    return cfg.point_position(cfg.point(tr.contact.b, tr.contact.point_b))
+
+
+def _merge(ctx: Context, cfg: Configuration, tr: TransitionSpec, target: str, t, q, v, transition_type):
+    """Plastic impact (or none without impact), then switch to ``target``."""
+    if ctx.impact:
+        imp = solve_impulse(cfg, t, q, v, tr.contact, 0.0, tr.cut)
+        v_after = imp.v_after
+    else:
+        imp, v_after = None, v
+    dst = ctx.mechanism[target]
+    locked = [n for n in cfg.joint_names if n not in dst.joint_slice]
+    if imp is not None:
+        scale = max(1.0, float(np.max(np.abs(v))))
+        moving = {n: float(v_after[cfg.joint_slice[n]][0]) for n in locked
+                  if abs(v_after[cfg.joint_slice[n]][0]) > 1e-8 * scale}
+        if moving:
+            raise SimulationError(
+                f"t = {t:.9g} s, transition '{tr.name}': after the plastic impact the joints that "
+                f"'{target}' locks still move ({moving}); the contact normal of the transition does not "
+                "act along the locked joint's motion, so the merge would silently drop velocity")
+    cfg.kinematics(q, v)
+    point = _contact_point(cfg, tr)
+    record = event_record(cfg, tr, t, target, True, imp, q, v, v_after, point, transition_type)
+    q_new, v_new, dropped, offsets = switch(cfg, dst, t, q, v_after)
+    record["dropped_velocities"] = dropped
+    return Outcome(target, q_new, v_new, record, offsets)
+
+
+def handle_latch(ctx: Context, cfg: Configuration, tr: TransitionSpec, t, q, v) -> Outcome:
+    return _merge(ctx, cfg, tr, tr.target, t, q, v, "latch")
+
+
+def handle_stop(ctx: Context, cfg: Configuration, tr: TransitionSpec, t, q, v) -> Outcome:
+    if not ctx.impact:
+        if tr.merge_to is None:
+            raise SimulationError(f"transition '{tr.name}': a run without impact switches configuration at "
+                                  "the stop, so the stop needs merge_to (the merged configuration)")
+        return _merge(ctx, cfg, tr, tr.merge_to, t, q, v, "stop")
+    imp = solve_impulse(cfg, t, q, v, tr.contact, tr.restitution, tr.cut)
+    speed = tr.accumulation_speed if tr.accumulation_speed is not None else ctx.accumulation_speed
+    interval = tr.accumulation_interval if tr.accumulation_interval is not None else ctx.accumulation_interval
+    last = ctx.last_impact.get(tr.name)
+    accumulated = abs(imp.vn_after) <= speed or (last is not None and t - last <= interval)
+    ctx.last_impact[tr.name] = t
+    if accumulated:
+        if tr.merge_to is None:
+            raise SimulationError(
+                f"t = {t:.9g} s, transition '{tr.name}': the impacts accumulate (post-impact normal speed "
+                f"{abs(imp.vn_after):.3g} m/s) and the bodies come to rest in contact; give the stop a "
+                "merge_to configuration so the run can continue with the bodies merged")
+        return _merge(ctx, cfg, tr, tr.merge_to, t, q, v, "stop")
+    if imp.vn_before > 0:
+        raise SimulationError(
+            f"t = {t:.9g} s, transition '{tr.name}': the guard fired but the contact is separating "
+            f"(relative normal velocity {imp.vn_before:.3g} m/s along the declared normal); the normal "
+            "must point from link a towards link b")
+    cfg.kinematics(q, v)
+    record = event_record(cfg, tr, t, cfg.name, False, imp, q, v, imp.v_after, _contact_point(cfg, tr))
+    q_new, v_new = cfg.coords.project(t, q, imp.v_after)
+    return Outcome(cfg.name, q_new, v_new, record, {})
+
+
+TRANSITIONS = {"latch": handle_latch, "stop": handle_stop}
