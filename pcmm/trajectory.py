@@ -151,7 +151,7 @@ class Trajectory:
             f.write(",".join(["t [s]", "configuration"] + [c[0] for c in cols[1:]]) + "\n")
             data = np.column_stack([c[1] for c in cols]) if cols else np.zeros((0, 0))
             for i, row in enumerate(data):
-                f.write(f"{row[0]!r},{config[i]}," + ",".join("" if np.isnan(x) else repr(float(x))
+                f.write(f"{float(row[0])!r},{config[i]}," + ",".join("" if np.isnan(x) else repr(float(x))
                                                              for x in row[1:]) + "\n")
         return atomic_write(path, write, force=force)
 

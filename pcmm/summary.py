@@ -1,0 +1,41 @@
+"""The run summary (JSON) and the short human table of events."""
+from __future__ import annotations
+
+from .trajectory import Trajectory
+
+
+def summary(traj: Trajectory, initial_configuration: str | None = None) -> dict:
+    last = traj.segments[-1] if traj.segments else None
+    final = {}
+    if last is not None:
+        final = {"t": float(last.t[-1]), "configuration": last.configuration,
+                 "theta": {n: float(x) for n, x in zip(last.links, last.theta[-1])},
+                 "omega": {n: float(x) for n, x in zip(last.links, last.omega[-1])},
+                 "q": {n: float(x) for n, x in zip(last.coordinates, last.q[-1])},
+                 "v": {n: float(x) for n, x in zip(last.coordinates, last.v[-1])},
+                 "kinetic_energy": float(last.kinetic[-1]), "potential_energy": float(last.potential[-1])}
+    return {
+        "scene": traj.scene, "scene_name": traj.scene_name, "impact": traj.impact,
+        "status": traj.status, "message": traj.message,
+        "configuration_initial": initial_configuration or (traj.segments[0].configuration if traj.segments else None),
+        "configuration_final": last.configuration if last is not None else None,
+        "events": traj.events, "final": final, "stats": traj.stats,
+    }
+
+
+def event_table(traj: Trajectory) -> str:
+    if not traj.events:
+        return "no configuration transformation before t_end"
+    head = (f"{'t [s]':>13}  {'event':<18} {'kind':<7} {'type':<6} {'from -> to':<22} "
+            f"{'vn- [m/s]':>11} {'vn+ [m/s]':>11} {'P [N s]':>11} {'KE- [J]':>11} {'KE+ [J]':>11}")
+    rows = [head, "-" * len(head)]
+    for e in traj.events:
+        rows.append(
+            f"{e['t']:13.9f}  {e['name'][:18]:<18} {e['kind']:<7} {e['transition']:<6} "
+            f"{(e['from'] + ' -> ' + e['to'])[:22]:<22} {e['normal_velocity']['before']:11.4e} "
+            f"{e['normal_velocity']['after']:11.4e} {e['impulse']['normal']:11.4e} "
+            f"{e['kinetic_energy_before']:11.4e} {e['kinetic_energy_after']:11.4e}"
+            + ("  merge" if e["merge"] else ""))
+    if len(rows) > 42:
+        rows = rows[:22] + [f"  ... {len(rows) - 42} more events (all in the summary JSON) ..."] + rows[-20:]
+    return "\n".join(rows)
