@@ -29,6 +29,20 @@ from .scene import ConfigurationSpec, Measure, Scene, Target
 LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
 
 
+def frame_jacobian(model, data, frame_id: int, ref=LWA) -> np.ndarray:
+    """6 x nv frame Jacobian (eigenpy returns a 1-D array when nv = 1; Pinocchio
+    4.1 crashes on a model with nv = 0, so that case never reaches it)."""
+    if model.nv == 0:
+        return np.zeros((6, 0))
+    return np.asarray(pin.getFrameJacobian(model, data, frame_id, ref)).reshape(6, model.nv)
+
+
+def joint_jacobian(model, data, joint_id: int, ref) -> np.ndarray:
+    if model.nv == 0:
+        return np.zeros((6, 0))
+    return np.asarray(pin.getJointJacobian(model, data, joint_id, ref)).reshape(6, model.nv)
+
+
 @dataclass(frozen=True)
 class Point:
     """A point fixed on a link, registered as an operational frame."""
@@ -152,7 +166,7 @@ class Configuration:
         self.b = np.zeros(len(self.links))
         for i, link in enumerate(self.links):
             fid = self.link_frame[link]
-            J = pin.getFrameJacobian(self.model, self.data, fid, LWA)
+            J = frame_jacobian(self.model, self.data, fid)
             self.A[i] = J[5]
             R = self.data.oMf[fid].rotation
             self.b[i] = np.arctan2(R[1, 0], R[0, 0])
@@ -183,6 +197,9 @@ class Configuration:
     def kinematics(self, q: np.ndarray, v: np.ndarray | None = None) -> None:
         """Placements, frame placements and joint Jacobians at (q, v)."""
         qp = self.to_pin(q)
+        if self.nv == 0:
+            pin.framesForwardKinematics(self.model, self.data, qp)
+            return
         if v is None:
             pin.computeJointJacobians(self.model, self.data, qp)
         else:
@@ -196,16 +213,20 @@ class Configuration:
 
     def point_jacobian(self, p: Point) -> np.ndarray:
         """2 x nv Jacobian of the point's world velocity; needs :meth:`kinematics` first."""
-        return pin.getFrameJacobian(self.model, self.data, p.frame_id, LWA)[:2].copy()
+        return frame_jacobian(self.model, self.data, p.frame_id)[:2]
 
     def rotation(self, link: str) -> np.ndarray:
         return self.data.oMf[self.link_frame[link]].rotation[:2, :2].copy()
 
     def mass_matrix(self, q: np.ndarray) -> np.ndarray:
+        if self.nv == 0:
+            return np.zeros((0, 0))
         M = pin.crba(self.model, self.data, self.to_pin(q))
         return np.triu(M) + np.triu(M, 1).T
 
     def kinetic_energy(self, q: np.ndarray, v: np.ndarray) -> float:
+        if self.nv == 0:
+            return 0.0
         return float(pin.computeKineticEnergy(self.model, self.data, self.to_pin(q), v))
 
     def potential_energy(self, q: np.ndarray) -> float:

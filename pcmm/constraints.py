@@ -25,6 +25,7 @@ import numpy as np
 import pinocchio as pin
 import scipy.linalg as sla
 
+from .configuration import frame_jacobian
 from .errors import SimulationError
 
 LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
@@ -64,8 +65,8 @@ class ClosureRows:
         phi, rows, bias = [], [], []
         for s, fa, fb, la, lb in zip(self.specs, self.frames_a, self.frames_b, self.links_a, self.links_b):
             pa, pb = data.oMf[fa].translation[:2], data.oMf[fb].translation[:2]
-            Ja = pin.getFrameJacobian(model, data, fa, LWA)
-            Jb = pin.getFrameJacobian(model, data, fb, LWA)
+            Ja = frame_jacobian(model, data, fa)
+            Jb = frame_jacobian(model, data, fb)
             Jrel = Jb[:2] - Ja[:2]
             Ra = data.oMf[la].rotation
             th_a = np.arctan2(Ra[1, 0], Ra[0, 0])
@@ -122,6 +123,24 @@ class Drives:
         return out
 
 
+def constrained_accelerations(cfg, q, v, J, bias):
+    """Solve ``M a + h = Q + J^T lam``, ``J a + bias = 0`` (the multipliers are the
+    constraint forces: cut-joint reactions on b, driving moments, contact forces)."""
+    if cfg.nv == 0:
+        return np.zeros(0), np.zeros(J.shape[0])
+    qp = cfg.to_pin(q)
+    M = pin.crba(cfg.model, cfg.data, qp)
+    M = np.triu(M) + np.triu(M, 1).T
+    h = pin.nonLinearEffects(cfg.model, cfg.data, qp, v)
+    c = sla.cho_factor(M)
+    a0 = sla.cho_solve(c, cfg.forces.generalized(q, v) - h)
+    if J.shape[0] == 0:
+        return a0, np.zeros(0)
+    MiJt = sla.cho_solve(c, J.T)
+    lam = np.linalg.solve(J @ MiJt, -bias - J @ a0)
+    return a0 + MiJt @ lam, lam
+
+
 class TreeCoordinates:
     """A tree with no loops and no drives: ``y = [q, v]``, accelerations by ABA."""
 
@@ -141,23 +160,33 @@ class TreeCoordinates:
 
     def rhs(self, t, y):
         cfg = self.cfg
+        if self.nv == 0:
+            return y
         q, v = y[:self.nv], y[self.nv:]
         tau = cfg.forces.generalized(q, v)
         a = pin.aba(cfg.model, cfg.data, cfg.to_pin(q), v, tau)
         return np.concatenate([cfg.qdot(q, v), a])
 
     def accelerations(self, t, q, v):
+        if self.nv == 0:
+            return np.zeros(0), np.zeros(0)
         tau = self.cfg.forces.generalized(q, v)
         return pin.aba(self.cfg.model, self.cfg.data, self.cfg.to_pin(q), v, tau), np.zeros(0)
 
     def equality(self, t, model, data):
         return np.zeros((0, model.nv))
 
+    def rows(self, t, q, v):
+        return np.zeros((0, self.nv)), np.zeros(0)
+
     def residual(self, t, q) -> float:
         return 0.0
 
-    def project(self, t, q, v):
+    def project(self, t, q, v, prefer_independent=()):
         return q, v
+
+    def seed(self, q):
+        """Set the guess for the dependent coordinates (nothing to do in a tree)."""
 
 
 class PartitionedCoordinates:
@@ -215,12 +244,14 @@ class PartitionedCoordinates:
         return float(np.max(np.abs(phi))) if phi.size else 0.0
 
     # -- partition
-    def partition(self, t, q):
+    def partition(self, t, q, prefer_independent=()):
         """Choose dependent coordinates: driven joints, then the best-conditioned
-        columns of the loop rows (QR with column pivoting)."""
+        columns of the loop rows (QR with column pivoting).  Coordinates in
+        ``prefer_independent`` are kept independent when the rest allows it."""
         _, Jq, _ = self._phi(t, q)
         driven = list(self.drives.index)
-        rest = [i for i in range(self.nv) if i not in driven]
+        keep = [i for i in prefer_independent if i not in driven]
+        rest = [i for i in range(self.nv) if i not in driven and i not in keep]
         dep = list(driven)
         if self.closure.size:
             Jl = Jq[:self.closure.size][:, rest]
@@ -257,9 +288,14 @@ class PartitionedCoordinates:
             f"(residual {np.max(np.abs(phi)):.3g}): the mechanism is at or beyond a singular "
             "posture, or the initial state is far from an assembled one")
 
+    def seed(self, q):
+        """Start the Newton solve of the dependent coordinates from ``q``."""
+        self._qD = q.copy()
+
     def pack(self, t, q, v):
-        if self.I is None:
-            self.partition(t, q)
+        """State vector at an assembled (q, v); the partition is re-chosen here,
+        at the start of every segment, so it follows the posture."""
+        self.partition(t, q)
         self._qD = q.copy()
         return np.concatenate([q[self.I], v[self.I]])
 
@@ -273,25 +309,22 @@ class PartitionedCoordinates:
         v[self.D] = np.linalg.solve(Jq[:, self.D], rhs)
         return q, v
 
-    def project(self, t, q, v):
-        """Assemble (q, v) onto the constraints keeping the independent coordinates."""
+    def project(self, t, q, v, prefer_independent=()):
+        """Assemble (q, v) onto the constraints keeping the independent coordinates
+        (a new partition is chosen at q, preferring ``prefer_independent``)."""
+        self.partition(t, q, prefer_independent)
         self._qD = q.copy()
         return self.unpack(t, np.concatenate([q[self.I], v[self.I]]))
 
-    def accelerations(self, t, q, v):
-        """(a, lam): ``M a + h = Q + Phi_q^T lam`` with ``Phi_q a = -bias``."""
-        cfg = self.cfg
+    def rows(self, t, q, v):
+        """(Phi_q, bias) of every constraint at (q, v): ``Phi_q a + bias = 0``."""
         _, Jq, bias = self._phi(t, q, need_bias=True, v=v)
-        qp = cfg.to_pin(q)
-        M = pin.crba(cfg.model, cfg.data, qp)
-        M = np.triu(M) + np.triu(M, 1).T
-        h = pin.nonLinearEffects(cfg.model, cfg.data, qp, v)
-        tau = cfg.forces.generalized(q, v) - h
-        c = sla.cho_factor(M)
-        a0 = sla.cho_solve(c, tau)
-        MiJt = sla.cho_solve(c, Jq.T)
-        lam = np.linalg.solve(Jq @ MiJt, -bias - Jq @ a0)
-        return a0 + MiJt @ lam, lam
+        return Jq, bias
+
+    def accelerations(self, t, q, v):
+        """(a, lam): ``M a + h = Q + Phi_q^T lam`` with ``Phi_q a + bias = 0``."""
+        Jq, bias = self.rows(t, q, v)
+        return constrained_accelerations(self.cfg, q, v, Jq, bias)
 
     def rhs(self, t, y):
         q, v = self.unpack(t, y)

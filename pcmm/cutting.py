@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
-from .configuration import Configuration
+from .configuration import Configuration, frame_jacobian, joint_jacobian
 
 LOCAL = pin.ReferenceFrame.LOCAL
 _PLANAR_ROWS = [0, 1, 5]  # vx, vy, wz of a spatial velocity
@@ -88,7 +88,7 @@ def cut(cfg: Configuration, q: np.ndarray, joints: tuple[str, ...]) -> CutSystem
     for jid in range(1, model.njoints):
         nj = new.joints[jmap[jid]]
         if jid in cut_ids:
-            Jl = pin.getJointJacobian(model, data, jid, LOCAL)
+            Jl = joint_jacobian(model, data, jid, LOCAL)
             T[nj.idx_v:nj.idx_v + 3] = Jl[_PLANAR_ROWS]
         else:
             j = model.joints[jid]
@@ -96,8 +96,8 @@ def cut(cfg: Configuration, q: np.ndarray, joints: tuple[str, ...]) -> CutSystem
     rows, owner, dirs, rots = [], [], [], {}
     for name in joints:
         jid = cfg.joint_id[name]
-        child = pin.getJointJacobian(new, new_data, jmap[jid], LOCAL)[_PLANAR_ROWS]
-        parent = pin.getFrameJacobian(new, new_data, copies[name], LOCAL)[_PLANAR_ROWS]
+        child = joint_jacobian(new, new_data, jmap[jid], LOCAL)[_PLANAR_ROWS]
+        parent = frame_jacobian(new, new_data, copies[name], LOCAL)[_PLANAR_ROWS]
         jm = model.joints[jid]
         jd = jm.createData()
         jm.calc(jd, qp[jm.idx_q:jm.idx_q + jm.nq])

@@ -7,8 +7,11 @@ Guard types form a registry; each builder takes (configuration, transition).
 """
 from __future__ import annotations
 
+import numpy as np
+
 from .configuration import Configuration
-from .impulse import contact_state
+from .constraints import constrained_accelerations
+from .impulse import contact_row, contact_state
 from .scene import TransitionSpec
 
 
@@ -46,3 +49,37 @@ def make_guard(cfg: Configuration, tr: TransitionSpec):
 def guard_value(cfg: Configuration, tr: TransitionSpec, t, q, v) -> float:
     """The guard's value at a full state (for reports and restart checks)."""
     return make_guard(cfg, tr)(t, cfg.coords.pack(t, q, v))
+
+
+def holding_force(merged: Configuration, source: Configuration, tr: TransitionSpec, locked: dict, t, qm, vm):
+    """Normal contact force (N; > 0 compressive) that keeps a stop-merge merged.
+
+    The merged state is mapped back onto the source configuration (locked
+    joints at their values, at rest relative to each other) and the source's
+    dynamics are solved with the contact's normal row as an extra constraint.
+    """
+    qs, vs = np.zeros(source.nv), np.zeros(source.nv)
+    for name in source.joint_names:
+        sl = source.joint_slice[name]
+        if name in merged.joint_slice:
+            qs[sl], vs[sl] = qm[merged.joint_slice[name]], vm[merged.joint_slice[name]]
+        else:
+            qs[sl] = locked[name]
+    Jc, bc = source.coords.rows(t, qs, vs)
+    Jn, bn = contact_row(source, qs, vs, tr.contact)
+    _, lam = constrained_accelerations(source, qs, vs, np.vstack([Jc, Jn]), np.append(bc, bn))
+    return float(lam[-1])
+
+
+def make_release_guard(merged: Configuration, source: Configuration, tr: TransitionSpec, locked: dict):
+    """Fires when the contact force holding a stop-merge would turn tensile."""
+    unpack = merged.coords.unpack
+
+    def g(t, y):
+        qm, vm = unpack(t, y)
+        return holding_force(merged, source, tr, locked, t, qm, vm)
+    g.terminal = True
+    g.direction = -1
+    g.transition = tr
+    g.release = (source.name, locked)
+    return g

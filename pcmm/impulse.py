@@ -27,7 +27,7 @@ import numpy as np
 import pinocchio as pin
 import scipy.linalg as sla
 
-from .configuration import LWA, Configuration
+from .configuration import LWA, Configuration, frame_jacobian
 from .cutting import cut
 from .errors import SimulationError
 from .scene import ContactSpec
@@ -68,6 +68,25 @@ def contact_state(cfg: Configuration, q, v, contact: ContactSpec):
     return n, gap, float(Jn @ v), Jn
 
 
+def contact_row(cfg: Configuration, q, v, contact: ContactSpec):
+    """(J_n, bias) of the contact's normal row: ``d/dt (J_n v) = J_n a + bias``."""
+    qp = cfg.to_pin(q)
+    pin.forwardKinematics(cfg.model, cfg.data, qp, v, np.zeros(cfg.nv))
+    pin.computeJointJacobians(cfg.model, cfg.data, qp)
+    pin.updateFramePlacements(cfg.model, cfg.data)
+    pa, pb = cfg.point(contact.a, contact.point_a), cfg.point(contact.b, contact.point_b)
+    n = cfg.rotation(contact.a) @ np.asarray(contact.normal, dtype=float)
+    n /= np.linalg.norm(n)
+    Jn = n @ (cfg.point_jacobian(pb) - cfg.point_jacobian(pa))
+    acc = (pin.getFrameClassicalAcceleration(cfg.model, cfg.data, pb.frame_id, LWA).linear[:2]
+           - pin.getFrameClassicalAcceleration(cfg.model, cfg.data, pa.frame_id, LWA).linear[:2])
+    w_a = pin.getFrameVelocity(cfg.model, cfg.data, cfg.link_frame[contact.a], LWA).angular[2]
+    vrel = (pin.getFrameVelocity(cfg.model, cfg.data, pb.frame_id, LWA).linear[:2]
+            - pin.getFrameVelocity(cfg.model, cfg.data, pa.frame_id, LWA).linear[:2])
+    ndot = w_a * np.array([-n[1], n[0]])
+    return Jn, float(n @ acc + ndot @ vrel)
+
+
 def impact_kind(cfg: Configuration, contact: ContactSpec) -> str:
     return "stable" if cfg.root in (contact.a, contact.b) else "mobile"
 
@@ -83,8 +102,8 @@ def solve_impulse(cfg: Configuration, t: float, q: np.ndarray, v: np.ndarray, co
     v_f = cs.T @ v
     M_f = pin.crba(cs.model, cs.data, cs.q)
     M_f = np.triu(M_f) + np.triu(M_f, 1).T
-    J_n = (n @ (pin.getFrameJacobian(cs.model, cs.data, pb.frame_id, LWA)[:2]
-                - pin.getFrameJacobian(cs.model, cs.data, pa.frame_id, LWA)[:2]))[None, :]
+    J_n = (n @ (frame_jacobian(cs.model, cs.data, pb.frame_id)[:2]
+                - frame_jacobian(cs.model, cs.data, pa.frame_id)[:2]))[None, :]
     G = np.vstack([cs.J_cut, cfg.coords.equality(t, cs.model, cs.data)])
     chol = sla.cho_factor(M_f)
     W = sla.cho_solve(chol, np.eye(M_f.shape[0]))

@@ -145,6 +145,7 @@ class Scene:
     initial_configuration: str
     q0: dict[str, float]
     v0: dict[str, float]
+    independent: tuple[str, ...]
     forces: tuple[ForceSpec, ...]
     transitions: tuple[TransitionSpec, ...]
     drives: tuple[DriveSpec, ...]
@@ -212,6 +213,8 @@ CUT_JOINT_KEYS = [
 INITIAL_KEYS = [
     S.Key("q", "table", doc="{joint = value, ...} for every movable joint"),
     S.Key("v", "table", doc="{joint = velocity, ...} for every movable joint"),
+    S.Key("independent", "list", required=False, default=[], check=S.names_list,
+          doc="closed loops: joints whose given q and v are kept when the loop is assembled"),
 ]
 MEASURE_KEYS = [
     S.Key("joint", "str", required=False),
@@ -348,6 +351,7 @@ class _Builder:
             path=self.path, name=sc["name"], description=sc["description"],
             gravity=tuple(float(x) for x in sc["gravity"]), t_end=float(sc["t_end"]),
             configurations=configs, initial_configuration=initial, q0=q0, v0=v0,
+            independent=tuple(init["independent"] or ()),
             forces=tuple(forces), transitions=tuple(transitions), drives=tuple(drives),
             solver=SolverSettings(**{k: solver[k] for k in solver}),
         )
@@ -554,6 +558,10 @@ class _Builder:
             self._check_link(f"{where}.contact.b", t.contact.b, cfg)
             if t.contact.a == t.contact.b:
                 self.p.add(f"{where}.contact", f"a and b are the same link {t.contact.a!r}")
+        init_cfg = names.get(scene.initial_configuration)
+        for j in scene.independent:
+            if init_cfg is not None:
+                self._check_joint("initial.independent", j, init_cfg)
         for i, d in enumerate(scene.drives):
             for cfg in self._configs_for(f"drives[{i}].configurations", d.configurations, scene):
                 self._check_joint(f"drives[{i}].joint", d.joint, cfg)

@@ -15,11 +15,11 @@ import numpy as np
 
 from .configuration import Configuration, Mechanism
 from .errors import SimulationError, UsageError
-from .guards import make_guard
+from .guards import make_guard, make_release_guard
 from .integrators import INTEGRATORS
 from .scene import Scene
 from .trajectory import SegmentRecord, Trajectory
-from .transitions import TRANSITIONS, Context
+from .transitions import TRANSITIONS, Context, handle_release
 
 
 @dataclass(frozen=True)
@@ -80,7 +80,8 @@ def resolve(scene: Scene, options: RunOptions) -> _Resolved:
 def initial_state(scene: Scene, cfg: Configuration):
     q0 = cfg.vector(scene.q0)
     v0 = cfg.vector(scene.v0)
-    return cfg.coords.project(0.0, q0, v0) if cfg.coords.constrained else (q0, v0)
+    prefer = [cfg.joint_slice[j].start for j in scene.independent]
+    return cfg.coords.project(0.0, q0, v0, prefer)
 
 
 def simulate(scene: Scene, options: RunOptions = RunOptions(), progress=None) -> Trajectory:
@@ -102,18 +103,27 @@ def simulate(scene: Scene, options: RunOptions = RunOptions(), progress=None) ->
     t = 0.0
     q, v = initial_state(scene, cfg)
     offsets: dict[str, float] = {}
+    merges: list[tuple] = []  # stop-merges that a tensile holding force undoes
     try:
         while True:
             guards = [make_guard(cfg, tr) for tr in scene.transitions_from(cfg.name)]
+            if merges and scene.solver.unmerge:
+                source, mtr, locked = merges[-1]
+                guards.append(make_release_guard(cfg, mech[source], mtr, locked))
             y0 = cfg.coords.pack(t, q, v)
             t0 = time.perf_counter()
-            seg = method.integrate(cfg.coords.rhs, t, y0, opts.t_end, guards, opts)
+            if y0.size:
+                seg = method.integrate(cfg.coords.rhs, t, y0, opts.t_end, guards, opts)
+            else:  # no free coordinate: the motion is locked or fully driven; sample it and watch the guards
+                fixed = replace(opts, step=min(opts.step, max(opts.t_end - t, 1e-12) / 1000))
+                seg = INTEGRATORS["RK4"].integrate(cfg.coords.rhs, t, y0, opts.t_end, guards, fixed)
             stats["wall_s"] += time.perf_counter() - t0
             stats["steps"] += seg.nsteps
             stats["rhs_evals"] += seg.nfev
             if seg.status < 0:
                 raise SimulationError(f"the integrator ({opts.method}) failed at t = {seg.t[-1]:.9g} s in "
                                       f"configuration '{cfg.name}': {seg.message}")
+            cfg.coords.seed(q)
             _record(traj, cfg, seg, offsets)
             if progress:
                 progress(float(seg.t[-1]))
@@ -121,9 +131,18 @@ def simulate(scene: Scene, options: RunOptions = RunOptions(), progress=None) ->
                 break
             t = float(seg.t[-1])
             q, v = cfg.coords.unpack(t, seg.y[:, -1])
-            tr = guards[seg.event].transition
+            guard = guards[seg.event]
+            tr = guard.transition
             t0 = time.perf_counter()
-            out = TRANSITIONS[tr.type](ctx, cfg, tr, t, q, v)
+            if hasattr(guard, "release"):
+                out = handle_release(ctx, cfg, tr, t, q, v, guard.release)
+                merges.pop()
+            else:
+                out = TRANSITIONS[tr.type](ctx, cfg, tr, t, q, v)
+                if out.merged_from is not None:
+                    merges.append(out.merged_from)
+                elif out.configuration != cfg.name:
+                    merges.clear()
             stats["wall_s"] += time.perf_counter() - t0
             stats["impacts"] += int(out.event.get("impact", False))
             traj.events.append(out.event)

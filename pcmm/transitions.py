@@ -48,13 +48,17 @@ class Outcome:
     v: np.ndarray
     event: dict
     angle_offsets: dict[str, float]
+    merged_from: tuple | None = None  # stop-merge: (source configuration, transition, locked joint values)
 
 
 # ---- state mapping -----------------------------------------------------------------------
-def switch(src: Configuration, dst: Configuration, t: float, q: np.ndarray, v: np.ndarray):
+def switch(src: Configuration, dst: Configuration, t: float, q: np.ndarray, v: np.ndarray,
+           known: dict | None = None):
     """Map (q, v) of ``src`` onto ``dst`` by joint name and check the common links' poses.
 
-    Returns (q, v, dropped velocities {joint: v}, angle offsets {link: 2 pi k}).
+    Joints ``dst`` has and ``src`` lacks take their value from ``known`` (at rest),
+    else from the links' poses.  Returns (q, v, dropped velocities {joint: v},
+    angle offsets {link: 2 pi k}).
     """
     q_new = dst.neutral()
     v_new = np.zeros(dst.nv)
@@ -63,6 +67,8 @@ def switch(src: Configuration, dst: Configuration, t: float, q: np.ndarray, v: n
         if name in src.joint_slice:
             q_new[dst.joint_slice[name]] = q[src.joint_slice[name]]
             v_new[dst.joint_slice[name]] = v[src.joint_slice[name]]
+        elif known and name in known:
+            q_new[dst.joint_slice[name]] = known[name]
         else:
             missing.append(name)
     if missing:
@@ -170,7 +176,10 @@ def _merge(ctx: Context, cfg: Configuration, tr: TransitionSpec, target: str, t,
     record = event_record(cfg, tr, t, target, True, imp, q, v, v_after, point, transition_type)
     q_new, v_new, dropped, offsets = switch(cfg, dst, t, q, v_after)
     record["dropped_velocities"] = dropped
-    return Outcome(target, q_new, v_new, record, offsets)
+    merged_from = None
+    if transition_type == "stop":
+        merged_from = (cfg.name, tr, {n: q[cfg.joint_slice[n]].copy() for n in locked})
+    return Outcome(target, q_new, v_new, record, offsets, merged_from)
 
 
 def handle_latch(ctx: Context, cfg: Configuration, tr: TransitionSpec, t, q, v) -> Outcome:
@@ -184,6 +193,12 @@ def handle_stop(ctx: Context, cfg: Configuration, tr: TransitionSpec, t, q, v) -
                                   "the stop, so the stop needs merge_to (the merged configuration)")
         return _merge(ctx, cfg, tr, tr.merge_to, t, q, v, "stop")
     imp = solve_impulse(cfg, t, q, v, tr.contact, tr.restitution, tr.cut)
+    scale = max(1e-9, float(np.max(np.abs(v))))
+    if imp.vn_before > 1e-9 * scale:
+        raise SimulationError(
+            f"t = {t:.9g} s, transition '{tr.name}': the guard fired but the contact is separating "
+            f"(relative normal velocity {imp.vn_before:.3g} m/s along the declared normal); the normal "
+            "must point from link a towards link b")
     speed = tr.accumulation_speed if tr.accumulation_speed is not None else ctx.accumulation_speed
     interval = tr.accumulation_interval if tr.accumulation_interval is not None else ctx.accumulation_interval
     last = ctx.last_impact.get(tr.name)
@@ -196,15 +211,32 @@ def handle_stop(ctx: Context, cfg: Configuration, tr: TransitionSpec, t, q, v) -
                 f"{abs(imp.vn_after):.3g} m/s) and the bodies come to rest in contact; give the stop a "
                 "merge_to configuration so the run can continue with the bodies merged")
         return _merge(ctx, cfg, tr, tr.merge_to, t, q, v, "stop")
-    if imp.vn_before > 0:
-        raise SimulationError(
-            f"t = {t:.9g} s, transition '{tr.name}': the guard fired but the contact is separating "
-            f"(relative normal velocity {imp.vn_before:.3g} m/s along the declared normal); the normal "
-            "must point from link a towards link b")
     cfg.kinematics(q, v)
     record = event_record(cfg, tr, t, cfg.name, False, imp, q, v, imp.v_after, _contact_point(cfg, tr))
     q_new, v_new = cfg.coords.project(t, q, imp.v_after)
     return Outcome(cfg.name, q_new, v_new, record, {})
+
+
+def handle_release(ctx: Context, cfg: Configuration, tr: TransitionSpec, t, q, v, release) -> Outcome:
+    """Undo a stop-merge whose holding force turns tensile: back to the source configuration."""
+    source_name, locked = release
+    dst = ctx.mechanism[source_name]
+    q_new, v_new, _, offsets = switch(cfg, dst, t, q, v, known=locked)
+    dst.kinematics(q_new, v_new)
+    n, _, vn, _ = contact_state(dst, q_new, v_new, tr.contact)
+    M = cfg.mass_matrix(q)
+    ke = float(0.5 * v @ M @ v)
+    record = {
+        "t": float(t), "name": tr.name, "kind": impact_kind(dst, tr.contact), "transition": "release",
+        "from": cfg.name, "to": source_name, "restitution": None, "merge": False, "impact": False,
+        "impulse": {"normal": 0.0, "vector": [0.0, 0.0]}, "normal": [float(n[0]), float(n[1])],
+        "contact_point": list(map(float, _contact_point(dst, tr))),
+        "normal_velocity": {"before": float(vn), "after": float(vn)},
+        "omega_before": _by_link(cfg, v), "omega_after": _by_link(cfg, v),
+        "v_before": cfg.by_joint(v), "v_after": dst.by_joint(v_new), "joint_impulses": {},
+        "kinetic_energy_before": ke, "kinetic_energy_after": ke,
+    }
+    return Outcome(source_name, q_new, v_new, record, offsets)
 
 
 TRANSITIONS = {"latch": handle_latch, "stop": handle_stop}
