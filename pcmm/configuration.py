@@ -115,6 +115,10 @@ class Configuration:
         return self._points[key]
 
     # ---- coordinates -----------------------------------------------------------------------
+    @property
+    def has_planar(self) -> bool:
+        return bool(self._planar)
+
     def neutral(self) -> np.ndarray:
         return np.zeros(self.nv)
 

@@ -123,7 +123,7 @@ class Drives:
         return out
 
 
-def constrained_accelerations(cfg, q, v, J, bias):
+def constrained_accelerations(cfg, q, v, J, bias, extra=None):
     """Solve ``M a + h = Q + J^T lam``, ``J a + bias = 0`` (the multipliers are the
     constraint forces: cut-joint reactions on b, driving moments, contact forces)."""
     if cfg.nv == 0:
@@ -133,7 +133,10 @@ def constrained_accelerations(cfg, q, v, J, bias):
     M = np.triu(M) + np.triu(M, 1).T
     h = pin.nonLinearEffects(cfg.model, cfg.data, qp, v)
     c = sla.cho_factor(M)
-    a0 = sla.cho_solve(c, cfg.forces.generalized(q, v) - h)
+    tau = cfg.forces.generalized(q, v) - h
+    if extra is not None:
+        tau = tau + extra
+    a0 = sla.cho_solve(c, tau)
     if J.shape[0] == 0:
         return a0, np.zeros(0)
     MiJt = sla.cho_solve(c, J.T)
@@ -151,6 +154,31 @@ class TreeCoordinates:
         self.nv = cfg.nv
         self.ny = 2 * cfg.nv
         self.labels: list[str] = []
+        self.rhs = self._make_rhs()
+
+    def _make_rhs(self):
+        """The right-hand side as a closure over prebound names: per call one
+        matrix-vector product for the force elements, one ``aba`` and one
+        array; no Python attribute look-ups or planar conversions unless needed."""
+        cfg, nv = self.cfg, self.nv
+        if nv == 0:
+            return lambda t, y: y
+        model, data, aba = cfg.model, cfg.data, pin.aba
+        Q0, KD = cfg.forces.Q0, cfg.forces.KD
+        if cfg.has_planar:
+            to_pin, qdot = cfg.to_pin, cfg.qdot
+
+            def rhs_planar(t, y):
+                q, v = y[:nv], y[nv:]
+                return np.concatenate([qdot(q, v), aba(model, data, to_pin(q), v, Q0 - KD @ y)])
+            return rhs_planar
+
+        def rhs(t, y):
+            out = np.empty(2 * nv)
+            out[:nv] = y[nv:]
+            out[nv:] = aba(model, data, y[:nv], y[nv:], Q0 - KD @ y)
+            return out
+        return rhs
 
     def pack(self, t, q, v):
         return np.concatenate([q, v])
@@ -158,14 +186,15 @@ class TreeCoordinates:
     def unpack(self, t, y):
         return y[:self.nv], y[self.nv:]
 
-    def rhs(self, t, y):
-        cfg = self.cfg
-        if self.nv == 0:
-            return y
-        q, v = y[:self.nv], y[self.nv:]
-        tau = cfg.forces.generalized(q, v)
-        a = pin.aba(cfg.model, cfg.data, cfg.to_pin(q), v, tau)
-        return np.concatenate([cfg.qdot(q, v), a])
+    def rhs_with(self, extra):
+        """Right-hand side with an extra generalized force ``extra(q, v)`` (contact laws)."""
+        cfg, nv = self.cfg, self.nv
+
+        def rhs(t, y):
+            q, v = y[:nv], y[nv:]
+            tau = cfg.forces.generalized(q, v) + extra(q, v)
+            return np.concatenate([cfg.qdot(q, v), pin.aba(cfg.model, cfg.data, cfg.to_pin(q), v, tau)])
+        return rhs
 
     def accelerations(self, t, q, v):
         if self.nv == 0:
@@ -321,10 +350,18 @@ class PartitionedCoordinates:
         _, Jq, bias = self._phi(t, q, need_bias=True, v=v)
         return Jq, bias
 
-    def accelerations(self, t, q, v):
-        """(a, lam): ``M a + h = Q + Phi_q^T lam`` with ``Phi_q a + bias = 0``."""
+    def accelerations(self, t, q, v, extra=None):
+        """(a, lam): ``M a + h = Q + extra + Phi_q^T lam`` with ``Phi_q a + bias = 0``."""
         Jq, bias = self.rows(t, q, v)
-        return constrained_accelerations(self.cfg, q, v, Jq, bias)
+        return constrained_accelerations(self.cfg, q, v, Jq, bias, extra)
+
+    def rhs_with(self, extra):
+        """Right-hand side with an extra generalized force ``extra(q, v)`` (contact laws)."""
+        def rhs(t, y):
+            q, v = self.unpack(t, y)
+            a, _ = self.accelerations(t, q, v, extra(q, v))
+            return np.concatenate([self.cfg.qdot(q, v)[self.I], a[self.I]])
+        return rhs
 
     def rhs(self, t, y):
         q, v = self.unpack(t, y)

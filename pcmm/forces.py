@@ -29,6 +29,7 @@ class ForceField:
     Q0: np.ndarray  # nv
     K: np.ndarray  # nv x nv
     Dv: np.ndarray  # nv x nv
+    KD: np.ndarray  # nv x 2nv, [K Dv]: Q = Q0 - KD @ [q, v] in one product
 
     def generalized(self, q: np.ndarray, v: np.ndarray) -> np.ndarray:
         """Generalized force vector tau_a + tau_c of Eq. 1."""
@@ -60,4 +61,5 @@ def compile_forces(specs: tuple[ForceSpec, ...], measure_row, target_column, nv:
     c = np.array([f.c for f in specs], dtype=float)
     return ForceField(
         names=tuple(f.name for f in specs), B=B, C=C, d=d, f0=f0, k=k, rest=rest, c=c,
-        Q0=B @ (f0 - k * (d - rest)), K=B @ (k[:, None] * C), Dv=B @ (c[:, None] * C))
+        Q0=B @ (f0 - k * (d - rest)), K=B @ (k[:, None] * C), Dv=B @ (c[:, None] * C),
+        KD=np.hstack([B @ (k[:, None] * C), B @ (c[:, None] * C)]))

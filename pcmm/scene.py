@@ -89,6 +89,9 @@ class TransitionSpec:
     contact: ContactSpec
     accumulation_speed: float | None
     accumulation_interval: float | None
+    law: str = "impulse"  # or a continuous contact-force law (pcmm.contact_laws)
+    stiffness: float | None = None  # continuous laws: k in N / m^n
+    exponent: float | None = None  # continuous laws: n (1.5 for Hertz)
 
 
 @dataclass(frozen=True)
@@ -255,6 +258,11 @@ TRANSITION_KEYS = [
     S.Key("contact", "table"),
     S.Key("accumulation_speed", "number", required=False, check=S.non_negative),
     S.Key("accumulation_interval", "number", required=False, check=S.non_negative),
+    S.Key("law", "str", required=False, default="impulse",
+          check=S.one_of("impulse", "hunt_crossley", "lankarani_nikravesh", "flores"),
+          doc="how the impact is resolved: the instantaneous impulse or a continuous contact-force law"),
+    S.Key("stiffness", "number", required=False, check=S.positive, doc="continuous laws: k in N/m^n"),
+    S.Key("exponent", "number", required=False, check=S.positive, doc="continuous laws: n, e.g. 1.5 (Hertz)"),
 ]
 DRIVE_KEYS = [
     S.Key("joint", "str"),
@@ -443,6 +451,21 @@ class _Builder:
                                "name the merged configuration with merge_to")
                 if "restitution" not in raw:
                     self.p.add(f"{where}.restitution", "missing; a stop needs Newton's coefficient e in [0, 1]")
+            law = t["law"]
+            if law is not None and law != "impulse":
+                if t["type"] != "stop":
+                    self.p.add(f"{where}.law", f"= {law!r}: a continuous contact law resolves a stop; "
+                               "a latch locks on contact (law = 'impulse')")
+                for k in ("stiffness", "exponent"):
+                    if k not in raw:
+                        self.p.add(f"{where}.{k}", f"missing; the {law!r} contact law needs stiffness and exponent")
+                if law == "flores" and e is not None and e <= 0:
+                    self.p.add(f"{where}.restitution", f"= {e!r}: the Flores law needs e > 0 (its damping is 8(1-e)/(5e))")
+            else:
+                for k in ("stiffness", "exponent"):
+                    if k in raw:
+                        self.p.add(f"{where}.{k}", "only used with a continuous contact law (law = 'hunt_crossley', "
+                                   "'lankarani_nikravesh' or 'flores')")
             if g["type"] == "coordinate" and measure is None:
                 continue
             if None in (c["a"], c["point_a"], c["b"], c["point_b"], c["normal"], g["value"], g["direction"]):
@@ -452,7 +475,8 @@ class _Builder:
                 restitution=float(e), cut=tuple(t["cut"]),
                 guard=GuardSpec(g["type"], measure, float(g["value"]), _DIRECTIONS[g["direction"]]),
                 contact=ContactSpec(c["a"], tuple(c["point_a"]), c["b"], tuple(c["point_b"]), tuple(c["normal"])),
-                accumulation_speed=t["accumulation_speed"], accumulation_interval=t["accumulation_interval"]))
+                accumulation_speed=t["accumulation_speed"], accumulation_interval=t["accumulation_interval"],
+                law=t["law"] or "impulse", stiffness=t["stiffness"], exponent=t["exponent"]))
         return out
 
     def _drives(self, items) -> list[DriveSpec]:

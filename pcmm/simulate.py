@@ -15,7 +15,9 @@ import numpy as np
 
 from .configuration import Configuration, Mechanism
 from .errors import SimulationError, UsageError
+from .contact_laws import ContactPhase, strip
 from .guards import make_guard, make_release_guard
+from .impulse import contact_state, impact_kind
 from .integrators import INTEGRATORS
 from .scene import Scene
 from .trajectory import SegmentRecord, Trajectory
@@ -104,16 +106,22 @@ def simulate(scene: Scene, options: RunOptions = RunOptions(), progress=None) ->
     q, v = initial_state(scene, cfg)
     offsets: dict[str, float] = {}
     merges: list[tuple] = []  # stop-merges that a tensile holding force undoes
+    phase: ContactPhase | None = None  # a collision resolved by a continuous contact law
     try:
         while True:
-            guards = [make_guard(cfg, tr) for tr in scene.transitions_from(cfg.name)]
+            guards = [make_guard(cfg, tr) for tr in scene.transitions_from(cfg.name)
+                      if phase is None or tr is not phase.tr]
             if merges and scene.solver.unmerge:
                 source, mtr, locked = merges[-1]
                 guards.append(make_release_guard(cfg, mech[source], mtr, locked))
             y0 = cfg.coords.pack(t, q, v)
+            fun = cfg.coords.rhs
+            if phase is not None:
+                guards = [phase.end_guard()] + [strip(g) for g in guards]
+                y0, fun = np.append(y0, 0.0), phase.rhs()
             t0 = time.perf_counter()
             if y0.size:
-                seg = method.integrate(cfg.coords.rhs, t, y0, opts.t_end, guards, opts)
+                seg = method.integrate(fun, t, y0, opts.t_end, guards, opts)
             else:  # no free coordinate: the motion is locked or fully driven; sample it and watch the guards
                 fixed = replace(opts, step=min(opts.step, max(opts.t_end - t, 1e-12) / 1000))
                 seg = INTEGRATORS["RK4"].integrate(cfg.coords.rhs, t, y0, opts.t_end, guards, fixed)
@@ -123,6 +131,10 @@ def simulate(scene: Scene, options: RunOptions = RunOptions(), progress=None) ->
             if seg.status < 0:
                 raise SimulationError(f"the integrator ({opts.method}) failed at t = {seg.t[-1]:.9g} s in "
                                       f"configuration '{cfg.name}': {seg.message}")
+            impulse_integral = 0.0
+            if phase is not None:
+                impulse_integral = float(seg.y[-1, -1])
+                seg.y = seg.y[:-1]
             cfg.coords.seed(q)
             _record(traj, cfg, seg, offsets)
             if progress:
@@ -133,6 +145,16 @@ def simulate(scene: Scene, options: RunOptions = RunOptions(), progress=None) ->
             q, v = cfg.coords.unpack(t, seg.y[:, -1])
             guard = guards[seg.event]
             tr = guard.transition
+            if getattr(guard, "contact_end", False):
+                traj.events.append(_contact_event(phase, t, q, v, impulse_integral))
+                stats["impacts"] += 1
+                phase = None
+                continue
+            if ctx.impact and tr.type == "stop" and tr.law != "impulse":
+                _, _, vn, _ = contact_state(cfg, q, v, tr.contact)
+                phase = ContactPhase(cfg, tr, max(-vn, 1e-12), t, q.copy(), v.copy())
+                continue
+            phase = None
             t0 = time.perf_counter()
             if hasattr(guard, "release"):
                 out = handle_release(ctx, cfg, tr, t, q, v, guard.release)
@@ -165,6 +187,26 @@ def simulate(scene: Scene, options: RunOptions = RunOptions(), progress=None) ->
         raise
     stats["configurations_built"] = list(mech.built)
     return traj
+
+
+def _contact_event(phase: ContactPhase, t, q, v, impulse_integral) -> dict:
+    """The event record of a collision resolved by a continuous law (from first contact to separation)."""
+    cfg, tr = phase.cfg, phase.tr
+    n, _, vn, _ = contact_state(cfg, q, v, tr.contact)
+    M0, M1 = cfg.mass_matrix(phase.q_start), cfg.mass_matrix(q)
+    return {
+        "t": phase.t_start, "t_end": float(t), "duration": float(t - phase.t_start), "name": tr.name,
+        "kind": impact_kind(cfg, tr.contact), "transition": "stop", "law": tr.law, "from": cfg.name,
+        "to": cfg.name, "restitution": tr.restitution, "merge": False, "impact": True,
+        "impulse": {"normal": impulse_integral, "vector": (impulse_integral * n).tolist()},
+        "normal": n.tolist(), "contact_point": cfg.point_position(cfg.point(tr.contact.b, tr.contact.point_b)).tolist(),
+        "normal_velocity": {"before": -phase.v_impact, "after": float(vn)},
+        "omega_before": {k: float(w) for k, w in zip(cfg.links, cfg.A @ phase.v_start)},
+        "omega_after": {k: float(w) for k, w in zip(cfg.links, cfg.A @ v)},
+        "v_before": cfg.by_joint(phase.v_start), "v_after": cfg.by_joint(v), "joint_impulses": {},
+        "kinetic_energy_before": float(0.5 * phase.v_start @ M0 @ phase.v_start),
+        "kinetic_energy_after": float(0.5 * v @ M1 @ v),
+    }
 
 
 def _t_last(traj: Trajectory) -> float:
