@@ -110,7 +110,9 @@ def _check_outputs(paths, force):
     for p in paths:
         if p is None:
             continue
-        if p.exists() and not force and not p.is_dir():
+        if p.is_dir():
+            problems.append(f"{p}: is a folder; give a file name")
+        elif p.exists() and not force:
             problems.append(f"{p}: exists; pass --force to overwrite it")
         if not p.parent.exists():
             problems.append(f"{p}: folder {p.parent} does not exist")

@@ -347,24 +347,23 @@ class _Builder:
         from .integrators import INTEGRATORS  # registry of methods; imported late to keep scene light
         if solver.get("method") is not None and solver["method"] not in INTEGRATORS:
             self.p.add("solver.method", f"= {solver['method']!r}: must be one of {', '.join(INTEGRATORS)}")
-        if self.p:
-            raise SceneError(self.p.items)
-        initial = sc["initial_configuration"]
-        if initial not in configs:
+        initial = sc.get("initial_configuration")
+        if initial is not None and initial not in configs and top["configurations"]:
             self.p.add("scene.initial_configuration", f"= {initial!r}: no such configuration; "
-                       f"defined: {', '.join(configs)}")
-        q0 = self._joint_values(init["q"], "initial.q", configs.get(initial))
-        v0 = self._joint_values(init["v"], "initial.v", configs.get(initial))
+                       f"defined: {', '.join(configs) or '(none valid)'}")
+        q0 = self._joint_values(init.get("q"), "initial.q", configs.get(initial))
+        v0 = self._joint_values(init.get("v"), "initial.v", configs.get(initial))
+        # Built even when problems were found, so the cross-checks of every valid part
+        # run too and the user sees all that is wrong at once; never returned then.
         scene = Scene(
-            path=self.path, name=sc["name"], description=sc["description"],
-            gravity=tuple(float(x) for x in sc["gravity"]), t_end=float(sc["t_end"]),
-            configurations=configs, initial_configuration=initial, q0=q0, v0=v0,
-            independent=tuple(init["independent"] or ()),
+            path=self.path, name=sc.get("name") or "", description=sc.get("description") or "",
+            gravity=tuple(float(x) for x in (sc.get("gravity") or (0.0, 0.0))), t_end=float(sc.get("t_end") or 0.0),
+            configurations=configs, initial_configuration=initial or "", q0=q0, v0=v0,
+            independent=tuple(init.get("independent") or ()),
             forces=tuple(forces), transitions=tuple(transitions), drives=tuple(drives),
-            solver=SolverSettings(**{k: solver[k] for k in solver}),
+            solver=SolverSettings(**{k: v for k, v in solver.items() if v is not None}),
         )
-        if not self.p:
-            self._cross_check(scene)
+        self._cross_check(scene)
         if self.p:
             raise SceneError(self.p.items)
         return scene
@@ -415,7 +414,7 @@ class _Builder:
             measure = self._measure(f["measure"], f"{where}.measure") if f["measure"] is not None else None
             if needs_measure and f["measure"] is None:
                 self.p.add(f"{where}.measure", "missing; a spring or damper needs the coordinate it measures")
-            if on is None:
+            if on is None or None in (f["value"], f["k"], f["rest"], f["c"]) or (needs_measure and measure is None):
                 continue
             out.append(ForceSpec(f["name"], f["type"], on, measure, float(f["value"]), float(f["k"]),
                                  float(f["rest"]), float(f["c"]),
@@ -468,7 +467,7 @@ class _Builder:
                                    "'lankarani_nikravesh' or 'flores')")
             if g["type"] == "coordinate" and measure is None:
                 continue
-            if None in (c["a"], c["point_a"], c["b"], c["point_b"], c["normal"], g["value"], g["direction"]):
+            if None in (c["a"], c["point_a"], c["b"], c["point_b"], c["normal"], g["value"], g["direction"], e):
                 continue
             out.append(TransitionSpec(
                 name=t["name"], type=t["type"], source=t["from"], target=t["to"], merge_to=t["merge_to"],

@@ -171,7 +171,12 @@ def atomic_write(path: str | Path, write, force: bool, binary: bool = False) -> 
         raise UsageError(f"{path}: exists; pass --force to overwrite it")
     if not path.parent.exists():
         raise UsageError(f"{path}: folder {path.parent} does not exist")
+    if path.is_dir():
+        raise UsageError(f"{path}: is a folder; give a file name")
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    umask = os.umask(0)
+    os.umask(umask)
+    os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600; give the file the mode an ordinary open would
     try:
         with os.fdopen(fd, "wb" if binary else "w", **({} if binary else {"encoding": "utf-8"})) as f:
             write(f)

@@ -155,13 +155,15 @@ def _contact_point(cfg, tr):
 
 def _merge(ctx: Context, cfg: Configuration, tr: TransitionSpec, target: str, t, q, v, transition_type):
     """Plastic impact (or none without impact), then switch to ``target``."""
+    dst = ctx.mechanism[target]
+    locked = [n for n in cfg.joint_names if n not in dst.joint_slice]
     if ctx.impact:
         imp = solve_impulse(cfg, t, q, v, tr.contact, 0.0, tr.cut)
         v_after = imp.v_after
-    else:
-        imp, v_after = None, v
-    dst = ctx.mechanism[target]
-    locked = [n for n in cfg.joint_names if n not in dst.joint_slice]
+    else:  # the paper's comparison: surviving joints keep their velocities, locked ones drop theirs
+        imp, v_after = None, v.copy()
+        for n in locked:
+            v_after[cfg.joint_slice[n]] = 0.0
     if imp is not None:
         scale = max(1.0, float(np.max(np.abs(v))))
         moving = {n: float(v_after[cfg.joint_slice[n]][0]) for n in locked
@@ -174,7 +176,7 @@ def _merge(ctx: Context, cfg: Configuration, tr: TransitionSpec, target: str, t,
     cfg.kinematics(q, v)
     point = _contact_point(cfg, tr)
     record = event_record(cfg, tr, t, target, True, imp, q, v, v_after, point, transition_type)
-    q_new, v_new, dropped, offsets = switch(cfg, dst, t, q, v_after)
+    q_new, v_new, dropped, offsets = switch(cfg, dst, t, q, v if imp is None else v_after)
     record["dropped_velocities"] = dropped
     merged_from = None
     if transition_type == "stop":

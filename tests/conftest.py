@@ -105,6 +105,11 @@ def chain_urdf(bars: list[Bar], name: str = "chain", first_xyz=(0.0, 0.0)) -> st
     return robot_xml(name, body)
 
 
+def pendulum_urdf(length: float, mass: float, **bar) -> str:
+    """A compound pendulum: one bar ``link1`` on the revolute ``J1`` at the frame's origin."""
+    return chain_urdf([Bar(length, mass, **bar)], name="pendulum")
+
+
 def free_bar_urdf(mass: float, length: float, com=(0.0, 0.0), izz: float | None = None,
                   name: str = "free_bar") -> str:
     """A bar ``bar`` on a URDF ``planar`` joint ``P`` (x, y, theta) from the frame."""

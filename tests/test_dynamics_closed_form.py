@@ -13,7 +13,7 @@ import pinocchio as pin
 import pytest
 
 import pcmm
-from conftest import G, Bar, chain_urdf, free_bar_urdf, rot
+from conftest import G, Bar, chain_urdf, free_bar_urdf, pendulum_urdf, rot
 
 # ---- closed forms ------------------------------------------------------------------------
 
@@ -84,7 +84,8 @@ STATES_1 = [(0.0, 0.0), (0.7, -3.0), (-2.2, 5.5), (3.5, 0.1), (11.0, -20.0)]
 @pytest.mark.parametrize("bar", PENDULA)
 @pytest.mark.parametrize("q,v", STATES_1)
 def test_compound_pendulum_mass_and_bias(configuration, bar, q, v):
-    _, cfg = configuration({"p.urdf": chain_urdf([bar])}, q0={"J1": 0.0}, v0={"J1": 0.0})
+    _, cfg = configuration({"p.urdf": pendulum_urdf(bar.length, bar.mass, com=bar.com, izz=bar.izz)},
+                           q0={"J1": 0.0}, v0={"J1": 0.0})
     M, h = pendulum_M_h(bar, q, v)
     np.testing.assert_allclose(cfg.mass_matrix(np.array([q])), [[M]], rtol=1e-13, atol=1e-15)
     np.testing.assert_allclose(pcmm_bias(cfg, [q], [v]), [h], rtol=1e-12, atol=1e-12)
@@ -241,3 +242,32 @@ def test_free_bar_flight_is_a_parabola(make_scene, com):
     # energy: T + V constant in a conservative flight
     E = seg.kinetic + seg.potential
     np.testing.assert_allclose(E, E[0], atol=1e-8 * max(1.0, abs(E[0])))
+
+
+def test_springs_conserve_energy_along_the_run(make_scene):
+    """Gravity and springs only (on a joint, on a relative angle, on an absolute angle):
+    T + V_gravity + sum k (x - rest)^2 / 2 is a first integral."""
+    forces = [
+        {"name": "s1", "type": "spring", "on": {"joint": "J1"}, "measure": {"joint": "J1"}, "k": 4.0, "rest": 0.3},
+        {"name": "s2", "type": "spring", "on": {"joint": "J2"}, "measure": {"between": ["link1", "link2"]},
+         "k": 2.5, "rest": -0.2},
+        {"name": "s3", "type": "spring", "on": {"link": "link2"}, "measure": {"link": "link2"}, "k": 1.5},
+    ]
+    path = make_scene({"d.urdf": chain_urdf([B1, B2])}, q0={"J1": 0.4, "J2": -0.8}, v0={"J1": 1.0, "J2": -2.0},
+                      forces=forces, t_end=1.5)
+    traj = pcmm.simulate(pcmm.load_scene(path))
+    seg = traj.segments[0]
+    # spring energy by hand from the recorded coordinates
+    q1, q2 = seg.q[:, 0], seg.q[:, 1]
+    th2 = q1 + q2 + B1.yaw + B2.yaw
+    V_springs = 0.5 * 4.0 * (q1 - 0.3) ** 2 + 0.5 * 2.5 * (q2 + PSI2 + 0.2) ** 2 + 0.5 * 1.5 * th2 ** 2
+    # gravity energy by hand: V = m1 g y_c1 + m2 g y_c2
+    th1 = q1 + B1.yaw
+    (c1x, c1y), (c2x, c2y) = B1.c, B2.c
+    y1 = c1x * np.sin(th1) + c1y * np.cos(th1)
+    y2 = B1.length * np.sin(th1) + c2x * np.sin(th2) + c2y * np.cos(th2)
+    V_grav = G * (B1.mass * y1 + B2.mass * y2)
+    np.testing.assert_allclose(seg.potential, V_springs + V_grav, atol=1e-12)
+    E = seg.kinetic + seg.potential
+    assert np.ptp(E) < 1e-8 * max(1.0, float(np.max(np.abs(E))))
+    assert np.ptp(seg.kinetic) > 0.1  # the motion is not trivial
