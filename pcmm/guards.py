@@ -38,10 +38,34 @@ def _gap(cfg: Configuration, tr: TransitionSpec):
 GUARD_BUILDERS = {"coordinate": _coordinate, "gap": _gap}
 
 
-def make_guard(cfg: Configuration, tr: TransitionSpec):
-    g = GUARD_BUILDERS[tr.guard.type](cfg, tr)
+REARM_BAND = 1e-12  # relative to max(1, |value|)
+
+
+def make_guard(cfg: Configuration, tr: TransitionSpec, armed: bool = True):
+    """The guard of ``tr`` in ``cfg``.
+
+    Right after a bounce the guard sits at zero, where round-off (a loop's
+    dependent coordinates are solved to ~1e-14) can fake a crossing.  An
+    unarmed guard is shifted by a tiny band until it has moved that band away
+    from zero in the separating direction; then it is the plain guard.  A
+    grazing re-approach that never leaves the band still fires, at a
+    penetration of the band (1e-12 relative).
+    """
+    raw = GUARD_BUILDERS[tr.guard.type](cfg, tr)
+    direction = tr.guard.direction
+    if armed:
+        g = raw
+    else:
+        band = REARM_BAND * max(1.0, abs(tr.guard.value))
+        state = {"armed": False}
+
+        def g(t, y):
+            val = raw(t, y)
+            if not state["armed"] and val * direction < -band:
+                state["armed"] = True
+            return val if state["armed"] else val - direction * band
     g.terminal = True
-    g.direction = tr.guard.direction
+    g.direction = direction
     g.transition = tr
     return g
 

@@ -92,6 +92,7 @@ class TransitionSpec:
     law: str = "impulse"  # or a continuous contact-force law (pcmm.contact_laws)
     stiffness: float | None = None  # continuous laws: k in N / m^n
     exponent: float | None = None  # continuous laws: n (1.5 for Hertz)
+    unmerge: bool | None = None  # stop-merges: undo when the holding force turns tensile (None: solver.unmerge)
 
 
 @dataclass(frozen=True)
@@ -263,6 +264,8 @@ TRANSITION_KEYS = [
           doc="how the impact is resolved: the instantaneous impulse or a continuous contact-force law"),
     S.Key("stiffness", "number", required=False, check=S.positive, doc="continuous laws: k in N/m^n"),
     S.Key("exponent", "number", required=False, check=S.positive, doc="continuous laws: n, e.g. 1.5 (Hertz)"),
+    S.Key("unmerge", "bool", required=False,
+          doc="stop only: undo the merge when the holding force turns tensile (default: solver.unmerge)"),
 ]
 DRIVE_KEYS = [
     S.Key("joint", "str"),
@@ -440,7 +443,7 @@ class _Builder:
             if t["type"] == "latch":
                 if t["to"] is None:
                     self.p.add(f"{where}.to", "missing; a latch names the configuration it switches to")
-                for k in ("restitution", "merge_to"):
+                for k in ("restitution", "merge_to", "unmerge"):
                     if k in raw:
                         self.p.add(f"{where}.{k}", f"not used by a latch (the merge is perfectly plastic, e = 0)")
                 e = 0.0
@@ -475,7 +478,8 @@ class _Builder:
                 guard=GuardSpec(g["type"], measure, float(g["value"]), _DIRECTIONS[g["direction"]]),
                 contact=ContactSpec(c["a"], tuple(c["point_a"]), c["b"], tuple(c["point_b"]), tuple(c["normal"])),
                 accumulation_speed=t["accumulation_speed"], accumulation_interval=t["accumulation_interval"],
-                law=t["law"] or "impulse", stiffness=t["stiffness"], exponent=t["exponent"]))
+                law=t["law"] or "impulse", stiffness=t["stiffness"], exponent=t["exponent"],
+                unmerge=t["unmerge"]))
         return out
 
     def _drives(self, items) -> list[DriveSpec]:

@@ -95,7 +95,7 @@ def simulate(scene: Scene, options: RunOptions = RunOptions(), progress=None) ->
     """
     opts = resolve(scene, options)
     mech = Mechanism(scene)
-    traj = Trajectory(scene=str(scene.path), scene_name=scene.name, impact=opts.impact)
+    traj = Trajectory(scene=str(scene.path.resolve()), scene_name=scene.name, impact=opts.impact)
     ctx = Context(mech, opts.impact, opts.accumulation_speed, opts.accumulation_interval)
     method = INTEGRATORS[opts.method]
     stats = {"steps": 0, "rhs_evals": 0, "wall_s": 0.0, "record_s": 0.0, "impacts": 0,
@@ -107,13 +107,16 @@ def simulate(scene: Scene, options: RunOptions = RunOptions(), progress=None) ->
     offsets: dict[str, float] = {}
     merges: list[tuple] = []  # stop-merges that a tensile holding force undoes
     phase: ContactPhase | None = None  # a collision resolved by a continuous contact law
+    bounced = None  # the stop that just bounced: its guard restarts unarmed
     try:
         while True:
-            guards = [make_guard(cfg, tr) for tr in scene.transitions_from(cfg.name)
+            guards = [make_guard(cfg, tr, armed=tr is not bounced) for tr in scene.transitions_from(cfg.name)
                       if phase is None or tr is not phase.tr]
-            if merges and scene.solver.unmerge:
+            bounced = None
+            if merges:
                 source, mtr, locked = merges[-1]
-                guards.append(make_release_guard(cfg, mech[source], mtr, locked))
+                if (scene.solver.unmerge if mtr.unmerge is None else mtr.unmerge):
+                    guards.append(make_release_guard(cfg, mech[source], mtr, locked))
             y0 = cfg.coords.pack(t, q, v)
             fun = cfg.coords.rhs
             if phase is not None:
@@ -174,6 +177,8 @@ def simulate(scene: Scene, options: RunOptions = RunOptions(), progress=None) ->
                                       "tolerances if the impacts are meant to go on")
             if out.configuration != cfg.name:
                 offsets = {k: offsets.get(k, 0.0) + d for k, d in out.angle_offsets.items()}
+            else:
+                bounced = tr
             cfg = mech[out.configuration]
             q, v = out.q, out.v
             if t >= opts.t_end:
