@@ -16,28 +16,27 @@ from pathlib import Path
 from .errors import PcmmError, SimulationError, UsageError
 
 
-def _positive(name):
+def _number(name, strict=True):
+    """argparse type: a finite number > 0 (``strict``) or >= 0, named in its error."""
+    bound = "> 0" if strict else ">= 0"
+
     def parse(text):
         try:
             val = float(text)
         except ValueError:
             raise argparse.ArgumentTypeError(f"{name} = {text!r}: must be a number") from None
-        if not (val > 0) or math.isinf(val):
-            raise argparse.ArgumentTypeError(f"{name} = {text!r}: must be a finite number > 0")
+        if math.isinf(val) or not (val > 0 if strict else val >= 0):
+            raise argparse.ArgumentTypeError(f"{name} = {text!r}: must be a finite number {bound}")
         return val
     return parse
+
+
+def _positive(name):
+    return _number(name, strict=True)
 
 
 def _non_negative(name):
-    def parse(text):
-        try:
-            val = float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{name} = {text!r}: must be a number") from None
-        if not (val >= 0) or math.isinf(val):
-            raise argparse.ArgumentTypeError(f"{name} = {text!r}: must be a finite number >= 0")
-        return val
-    return parse
+    return _number(name, strict=False)
 
 
 def _count(text):

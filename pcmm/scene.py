@@ -132,6 +132,7 @@ class SolverSettings:
     rtol: float = 1e-10
     atol: float = 1e-12
     max_step: float = math.inf
+    step: float = 1e-3  # fixed-step methods (RK4)
     accumulation_speed: float = 1e-6
     accumulation_interval: float = 1e-9
     max_events: int = 10_000
@@ -191,6 +192,8 @@ SOLVER_KEYS = [
     S.Key("rtol", "number", required=False, default=SolverSettings.rtol, check=S.positive),
     S.Key("atol", "number", required=False, default=SolverSettings.atol, check=S.positive),
     S.Key("max_step", "number", required=False, default=SolverSettings.max_step, check=S.positive),
+    S.Key("step", "number", required=False, default=SolverSettings.step, check=S.positive,
+          doc="step of fixed-step methods (RK4) in s"),
     S.Key("accumulation_speed", "number", required=False, default=SolverSettings.accumulation_speed,
           check=S.non_negative),
     S.Key("accumulation_interval", "number", required=False,

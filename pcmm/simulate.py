@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
@@ -19,7 +19,7 @@ from .contact_laws import ContactPhase, strip
 from .guards import make_guard, make_release_guard
 from .impulse import contact_state, impact_kind
 from .integrators import INTEGRATORS
-from .scene import Scene
+from .scene import Scene, SolverSettings
 from .trajectory import SegmentRecord, Trajectory
 from .transitions import TRANSITIONS, Context, handle_release
 
@@ -41,29 +41,22 @@ class RunOptions:
 
 
 @dataclass(frozen=True)
-class _Resolved:
+class Resolved:
+    """The settings a run uses: the scene's ``[solver]`` overridden by the options."""
+
+    solver: SolverSettings
     t_end: float
-    method: str
-    rtol: float
-    atol: float
-    max_step: float
-    step: float
-    accumulation_speed: float
-    accumulation_interval: float
-    max_events: int
     impact: bool
 
+    def __getattr__(self, name):  # opts.rtol etc. read through to the solver settings
+        return getattr(self.solver, name)
 
-def resolve(scene: Scene, options: RunOptions) -> _Resolved:
-    s = scene.solver
-    pick = lambda a, b: b if a is None else a  # noqa: E731
-    r = _Resolved(
-        t_end=pick(options.t_end, scene.t_end), method=pick(options.method, s.method),
-        rtol=pick(options.rtol, s.rtol), atol=pick(options.atol, s.atol),
-        max_step=pick(options.max_step, s.max_step), step=pick(options.step, 1e-3),
-        accumulation_speed=pick(options.accumulation_speed, s.accumulation_speed),
-        accumulation_interval=pick(options.accumulation_interval, s.accumulation_interval),
-        max_events=pick(options.max_events, s.max_events), impact=options.impact)
+
+def resolve(scene: Scene, options: RunOptions) -> Resolved:
+    overrides = {f.name: getattr(options, f.name) for f in fields(SolverSettings)
+                 if getattr(options, f.name, None) is not None}
+    r = Resolved(replace(scene.solver, **overrides),
+                 scene.t_end if options.t_end is None else options.t_end, options.impact)
     problems = []
     if r.method not in INTEGRATORS:
         problems.append(f"method = {r.method!r}: must be one of {', '.join(INTEGRATORS)}")
@@ -126,7 +119,7 @@ def simulate(scene: Scene, options: RunOptions = RunOptions(), progress=None) ->
             if y0.size:
                 seg = method.integrate(fun, t, y0, opts.t_end, guards, opts)
             else:  # no free coordinate: the motion is locked or fully driven; sample it and watch the guards
-                fixed = replace(opts, step=min(opts.step, max(opts.t_end - t, 1e-12) / 1000))
+                fixed = replace(opts.solver, step=min(opts.step, max(opts.t_end - t, 1e-12) / 1000))
                 seg = INTEGRATORS["RK4"].integrate(cfg.coords.rhs, t, y0, opts.t_end, guards, fixed)
             stats["wall_s"] += time.perf_counter() - t0
             stats["steps"] += seg.nsteps

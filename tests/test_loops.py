@@ -237,8 +237,10 @@ def test_bouncing_ball_impact_times_and_merge_at_t_infinity(tmp_path, e):
     last = traj.events[-1]
     assert last["merge"] and last["to"] == "rest" and last["normal_velocity"]["after"] == pytest.approx(0, abs=1e-12)
     # the merge happens once the post-impact speed is below the accumulation tolerance (1e-6 m/s):
-    # t_inf - t_merge = 2 v_k / (g (1 - e)) < 2e-6 / (g (1 - e))
-    assert 0 <= t_inf - last["t"] < 2 * 1.1e-6 / (G * (1 - e)) + 1e-9
+    # what remains of the series is 2 v_k / (g (1 - e)) < 2e-6 / (g (1 - e)).  Bounces below
+    # sqrt(2 g band) ~ 4e-6 m/s stay inside the guard's 1e-12 m re-arm band, so the last one
+    # may land that much later: the same time scale, on either side of t_inf.
+    assert abs(t_inf - last["t"]) < 2 * 1.1e-6 / (G * (1 - e)) + 1e-9
     assert traj.segments[-1].configuration == "rest"
     assert np.allclose(traj.segments[-1].xy[:, traj.segments[-1].links.index("ball")], 0.0, atol=1e-12)
 
