@@ -115,6 +115,8 @@ def simulate(scene: Scene, options: RunOptions = RunOptions(), progress=None) ->
             if phase is not None:
                 guards = [phase.end_guard()] + [strip(g) for g in guards]
                 y0, fun = np.append(y0, 0.0), phase.rhs()
+            if progress is not None:
+                fun = _reporting(fun, progress)
             t0 = time.perf_counter()
             if y0.size:
                 seg = method.integrate(fun, t, y0, opts.t_end, guards, opts)
@@ -185,6 +187,19 @@ def simulate(scene: Scene, options: RunOptions = RunOptions(), progress=None) ->
         raise
     stats["configurations_built"] = list(mech.built)
     return traj
+
+
+def _reporting(fun, progress, every: int = 256):
+    """Wrap a right-hand side so ``progress(t)`` is called every ``every`` evaluations
+    (a long segment without events still moves the progress bar)."""
+    count = [0]
+
+    def f(t, y):
+        count[0] += 1
+        if count[0] % every == 0:
+            progress(float(t))
+        return fun(t, y)
+    return f
 
 
 def _contact_event(phase: ContactPhase, t, q, v, impulse_integral) -> dict:

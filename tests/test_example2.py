@@ -106,3 +106,22 @@ def test_without_impact_locks_at_first_arrival():
     assert ev["impact"] is False and ev["merge"] and ev["impulse"]["normal"] == 0.0
     assert ev["v_after"]["E"] == 0.0 and ev["dropped_velocities"]["E"] > 0
     assert run0.segments[-1].configuration == "config2"
+
+
+def test_release_when_the_holding_force_turns_tensile(tmp_path):
+    """With unmerge = true the stop-merge is held only by compression: it is undone when the
+    stop's normal force, computed independently by the reference's configuration-2 inverse
+    dynamics, changes sign."""
+    from scipy.optimize import brentq
+    text = SCENE.read_text().replace("unmerge = false", "unmerge = true").replace("../urdf/", f"{SCENE.parents[1] / 'urdf'}/")
+    (tmp_path / "df.toml").write_text(text)
+    run = pcmm.simulate(pcmm.load_scene(tmp_path / "df.toml"), pcmm.RunOptions(t_end=6.5))
+    release = [e for e in run.events if e["transition"] == "release"]
+    assert len(release) == 1 and release[0]["from"] == "config2" and release[0]["to"] == "config1"
+    # the reference's stop force on the slider (x component) is negative (pushing -x, compressive)
+    # while the slider is held; the release is where it crosses zero
+    fx = lambda t: ref.config2_inverse_dynamics(t)[1]  # noqa: E731
+    assert fx(4.0) < 0 < fx(6.5)
+    t_zero = brentq(fx, 4.0, 6.5, xtol=1e-12)
+    assert release[0]["t"] == pytest.approx(t_zero, abs=1e-6)
+    assert run.segments[-1].configuration == "config1"
