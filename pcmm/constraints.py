@@ -111,15 +111,27 @@ class Drives:
     index: tuple[int, ...]
     coefficients: tuple[np.ndarray, ...]
 
+    def __post_init__(self):
+        # coefficients of f, f', f'' (low order first), evaluated by Horner's rule
+        derivs = []
+        for c in self.coefficients:
+            c0 = [float(x) for x in c]
+            c1 = [k * c0[k] for k in range(1, len(c0))] or [0.0]
+            c2 = [k * c1[k] for k in range(1, len(c1))] or [0.0]
+            derivs.append((c0, c1, c2))
+        object.__setattr__(self, "_derivs", tuple(derivs))
+
     @property
     def size(self) -> int:
         return len(self.joints)
 
     def value(self, t, order=0) -> np.ndarray:
         out = np.empty(len(self.joints))
-        for i, c in enumerate(self.coefficients):
-            p = np.polynomial.Polynomial(c)
-            out[i] = (p.deriv(order) if order else p)(t)
+        for i, d in enumerate(self._derivs):
+            acc = 0.0
+            for c in reversed(d[order]):
+                acc = acc * t + c
+            out[i] = acc
         return out
 
 
@@ -233,16 +245,17 @@ class PartitionedCoordinates:
         self.I = None
         self.D = None
         self._qD = None
+        self._zeros = np.zeros(self.nv)
 
     # -- constraint evaluation on the tree
     def _phi(self, t, q, need_bias=False, v=None):
         cfg = self.cfg
         qp = cfg.to_pin(q)
-        if need_bias:
-            pin.forwardKinematics(cfg.model, cfg.data, qp, v, np.zeros(self.nv))
-        else:
-            pin.forwardKinematics(cfg.model, cfg.data, qp)
-        pin.computeJointJacobians(cfg.model, cfg.data, qp)
+        if need_bias:  # placements, velocities and accelerations at a = 0, then Jacobians from them
+            pin.forwardKinematics(cfg.model, cfg.data, qp, v, self._zeros)
+            pin.computeJointJacobians(cfg.model, cfg.data)
+        else:  # computes the placements itself
+            pin.computeJointJacobians(cfg.model, cfg.data, qp)
         pin.updateFramePlacements(cfg.model, cfg.data)
         phi, Jq, bias = self.closure.evaluate(cfg.model, cfg.data, need_bias)
         if self.drives.size:
