@@ -160,6 +160,7 @@ class TreeCoordinates:
     """A tree with no loops and no drives: ``y = [q, v]``, accelerations by ABA."""
 
     constrained = False
+    position_noise = 0.0  # coordinates are the integrator's own
 
     def __init__(self, cfg):
         self.cfg = cfg
@@ -234,6 +235,7 @@ class PartitionedCoordinates:
     """Loops and/or drives: independent coordinates ``y = [q_I, v_I]``."""
 
     constrained = True
+    position_noise = 10 * NEWTON_TOL  # dependent coordinates are solved to the Newton tolerance
 
     def __init__(self, cfg, closure: ClosureRows, drives: Drives):
         self.cfg = cfg

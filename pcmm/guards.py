@@ -38,32 +38,33 @@ def _gap(cfg: Configuration, tr: TransitionSpec):
 GUARD_BUILDERS = {"coordinate": _coordinate, "gap": _gap}
 
 
-REARM_BAND = 1e-12  # relative to max(1, |value|)
+def make_guard(cfg: Configuration, tr: TransitionSpec, start: tuple | None = None):
+    """The guard of ``tr`` in ``cfg``; ``start = (t0, y0)`` restarts it after a bounce.
 
-
-def make_guard(cfg: Configuration, tr: TransitionSpec, armed: bool = True):
-    """The guard of ``tr`` in ``cfg``.
-
-    Right after a bounce the guard sits at zero, where round-off (a loop's
-    dependent coordinates are solved to ~1e-14) can fake a crossing.  An
-    unarmed guard is shifted by a tiny band until it has moved that band away
-    from zero in the separating direction; then it is the plain guard.  A
-    grazing re-approach that never leaves the band still fires, at a
-    penetration of the band (1e-12 relative).
+    Right after a bounce the guard sits at zero to round-off, and a loop's
+    dependent coordinates (solved by Newton) may even put it a hair on the
+    penetrated side, where the next crossing would go unseen.  The restarted
+    guard is shifted by what the restart state penetrates plus the measure's
+    round-off (a few ulp; the Newton tolerance in a loop), so it starts
+    strictly on the separated side; it is the plain guard again once the bodies
+    have separated by more than that round-off.  The shift stays at round-off
+    level, so it feeds no measurable energy into the bounces.
     """
     raw = GUARD_BUILDERS[tr.guard.type](cfg, tr)
     direction = tr.guard.direction
-    if armed:
+    if start is None:
         g = raw
     else:
-        band = REARM_BAND * max(1.0, abs(tr.guard.value))
+        # round-off of a measure: a few ulp, plus the Newton tolerance of a loop's coordinates
+        tiny = 4 * np.finfo(float).eps * max(1.0, abs(tr.guard.value)) + cfg.coords.position_noise
+        offset = direction * (max(0.0, direction * raw(*start)) + tiny)
         state = {"armed": False}
 
         def g(t, y):
             val = raw(t, y)
-            if not state["armed"] and val * direction < -band:
+            if not state["armed"] and val * direction < -tiny:
                 state["armed"] = True
-            return val if state["armed"] else val - direction * band
+            return val if state["armed"] else val - offset
     g.terminal = True
     g.direction = direction
     g.transition = tr

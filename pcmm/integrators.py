@@ -13,7 +13,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.integrate import solve_ivp
+from scipy.integrate import ode, solve_ivp
 from scipy.optimize import brentq
 
 
@@ -44,6 +44,87 @@ class ScipyMethod:
             fired = [i for i, te in enumerate(sol.t_events) if len(te)]
             event = min(fired, key=lambda i: sol.t_events[i][-1])
         return Segment(sol.t, sol.y, event, sol.nfev, max(len(sol.t) - 1, 0), sol.status, sol.message)
+
+
+class FortranDOP853:
+    """Hairer's DOP853 in Fortran (scipy.integrate.ode) for the stepping.
+
+    The Fortran code calls the right-hand side with almost no overhead per
+    evaluation (scipy's pure-Python ``solve_ivp`` adds several microseconds
+    per call, more than a lean right-hand side costs).  Guards are checked
+    after every accepted step; the step in which one changes sign in its
+    direction is integrated again by ``solve_ivp``'s DOP853 and the event is
+    located on that 7th-order dense output, so the event accuracy is that of
+    ``DOP853``.
+    """
+
+    fixed_step = False
+    name = "DOP853F"
+
+    def integrate(self, fun, t0, y0, t_bound, events, opts) -> Segment:
+        nfev = [0]
+
+        def f(t, y):
+            nfev[0] += 1
+            return fun(t, y)
+        ts, ys = [t0], [np.array(y0, float)]
+        g_prev = [e(t0, ys[0]) for e in events]
+        hit = []
+
+        def solout(t, y):
+            if t == ts[-1]:
+                return 0
+            g_new = [e(t, y) for e in events]
+            fired = [i for i, e in enumerate(events) if _crossed(g_prev[i], g_new[i], e.direction)]
+            if fired:
+                hit.append((t, y.copy()))
+                return -1
+            g_prev[:] = g_new
+            ts.append(t)
+            ys.append(y.copy())
+            return 0
+        solver = ode(f).set_integrator("dop853", rtol=opts.rtol, atol=opts.atol, nsteps=10**9,
+                                       max_step=opts.max_step if np.isfinite(opts.max_step) else 0.0)
+        solver.set_solout(solout)
+        solver.set_initial_value(np.array(y0, float), t0)
+        solver.integrate(t_bound)
+        if not hit:
+            if not solver.successful():
+                return Segment(np.array(ts), np.array(ys).T, None, nfev[0], len(ts) - 1, -1,
+                               f"DOP853 (Fortran) failed with code {solver.get_return_code()}")
+            if ts[-1] < t_bound:
+                ts.append(t_bound)
+                ys.append(np.array(solver.y, float))
+            return Segment(np.array(ts), np.array(ys).T, None, nfev[0], len(ts) - 1, 0, "reached t_end")
+        # locate the event inside the last step on DOP853's dense output
+        t_a, y_a = ts[-1], ys[-1]
+        t_b = hit[0][0]
+        sol = solve_ivp(f, (t_a, t_b), y_a, method="DOP853", rtol=opts.rtol, atol=opts.atol,
+                        first_step=t_b - t_a, dense_output=True)
+        best = None
+        for i, e in enumerate(events):
+            g_a, g_b = e(t_a, y_a), e(t_b, sol.sol(t_b))
+            if not _crossed(g_a, g_b, e.direction):
+                continue
+            te = brentq(lambda s: e(s, sol.sol(s)), t_a, t_b, xtol=4 * np.finfo(float).eps * max(1.0, abs(t_b)),
+                        rtol=4 * np.finfo(float).eps)
+            if best is None or te < best[0]:
+                best = (te, i)
+        if best is None:  # the re-integration ends just short of the crossing: take the step's end
+            best = (t_b, next(i for i, e in enumerate(events) if _crossed(g_prev[i], e(t_b, hit[0][1]), e.direction)))
+            ye = hit[0][1]
+        else:
+            ye = sol.sol(best[0])
+        ts.append(best[0])
+        ys.append(np.asarray(ye, float))
+        return Segment(np.array(ts), np.array(ys).T, best[1], nfev[0], len(ts) - 1, 1, "event")
+
+
+def _crossed(g_old, g_new, direction) -> bool:
+    """scipy's rule: a sign change (zero counts) in the event's direction."""
+    up = g_old <= 0 <= g_new and g_old != g_new
+    down = g_old >= 0 >= g_new and g_old != g_new
+    return (direction >= 0 and up) or (direction <= 0 and down)
 
 
 class FixedStepRK4:
@@ -106,4 +187,5 @@ def _hermite(t0, y0, f0, t1, y1, f1):
 
 
 INTEGRATORS = {name: ScipyMethod(name) for name in ("RK45", "DOP853", "Radau", "LSODA", "BDF", "RK23")}
+INTEGRATORS["DOP853F"] = FortranDOP853()
 INTEGRATORS["RK4"] = FixedStepRK4()
