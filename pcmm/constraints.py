@@ -199,15 +199,11 @@ class TreeCoordinates:
     def unpack(self, t, y):
         return y[:self.nv], y[self.nv:]
 
-    def rhs_with(self, extra):
-        """Right-hand side with an extra generalized force ``extra(q, v)`` (contact laws)."""
-        cfg, nv = self.cfg, self.nv
-
-        def rhs(t, y):
-            q, v = y[:nv], y[nv:]
-            tau = cfg.forces.generalized(q, v) + extra(q, v)
-            return np.concatenate([cfg.qdot(q, v), pin.aba(cfg.model, cfg.data, cfg.to_pin(q), v, tau)])
-        return rhs
+    def derivative(self, t, q, v, extra):
+        """State derivative at a full (q, v) with an extra generalized force (contact laws)."""
+        cfg = self.cfg
+        tau = cfg.forces.generalized(q, v) + extra
+        return np.concatenate([cfg.qdot(q, v), pin.aba(cfg.model, cfg.data, cfg.to_pin(q), v, tau)])
 
     def accelerations(self, t, q, v):
         if self.nv == 0:
@@ -370,13 +366,10 @@ class PartitionedCoordinates:
         Jq, bias = self.rows(t, q, v)
         return constrained_accelerations(self.cfg, q, v, Jq, bias, extra)
 
-    def rhs_with(self, extra):
-        """Right-hand side with an extra generalized force ``extra(q, v)`` (contact laws)."""
-        def rhs(t, y):
-            q, v = self.unpack(t, y)
-            a, _ = self.accelerations(t, q, v, extra(q, v))
-            return np.concatenate([self.cfg.qdot(q, v)[self.I], a[self.I]])
-        return rhs
+    def derivative(self, t, q, v, extra):
+        """State derivative at an assembled (q, v) with an extra generalized force (contact laws)."""
+        a, _ = self.accelerations(t, q, v, extra)
+        return np.concatenate([self.cfg.qdot(q, v)[self.I], a[self.I]])
 
     def rhs(self, t, y):
         q, v = self.unpack(t, y)

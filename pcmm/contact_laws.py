@@ -62,15 +62,14 @@ class ContactPhase:
         return F, Jn * F
 
     def rhs(self):
-        """Augmented right-hand side: the state plus the impulse integral of F."""
+        """Augmented right-hand side: the state plus the impulse integral of F
+        (the contact force is evaluated once per call)."""
         coords = self.cfg.coords
-        base = coords.rhs_with(lambda q, v: self.force(q, v)[1])
-        unpack = coords.unpack
 
         def f(t, yx):
-            y = yx[:-1]
-            q, v = unpack(t, y)
-            return np.append(base(t, y), self.force(q, v)[0])
+            q, v = coords.unpack(t, yx[:-1])
+            F, generalized = self.force(q, v)
+            return np.append(coords.derivative(t, q, v, generalized), F)
         return f
 
     def end_guard(self):
