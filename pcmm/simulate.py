@@ -103,14 +103,14 @@ def simulate(scene: Scene, options: RunOptions = RunOptions(), progress=None) ->
     bounced = None  # the stop that just bounced: its guard restarts unarmed
     try:
         while True:
-            guards = [make_guard(cfg, tr, armed=tr is not bounced) for tr in scene.transitions_from(cfg.name)
-                      if phase is None or tr is not phase.tr]
+            y0 = cfg.coords.pack(t, q, v)
+            guards = [make_guard(cfg, tr, start=(t, y0) if tr is bounced else None)
+                      for tr in scene.transitions_from(cfg.name) if phase is None or tr is not phase.tr]
             bounced = None
             if merges:
                 source, mtr, locked = merges[-1]
                 if (scene.solver.unmerge if mtr.unmerge is None else mtr.unmerge):
                     guards.append(make_release_guard(cfg, mech[source], mtr, locked))
-            y0 = cfg.coords.pack(t, q, v)
             fun = cfg.coords.rhs
             if phase is not None:
                 guards = [phase.end_guard()] + [strip(g) for g in guards]
