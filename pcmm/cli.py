@@ -170,9 +170,10 @@ def cmd_run(args) -> int:
     except SimulationError as exc:
         close()
         if exc.partial is not None and exc.partial.segments:
-            where = args.out or Path(f"{scene.name}-partial.npz")
+            stem = Path(args.scene).stem  # a file name, whatever the scene's 'name' says
+            where = args.out or Path(f"{stem}-partial.npz")
             if where.exists() and not args.force and args.out is None:
-                where = Path(f"{scene.name}-partial-{int(time.time())}.npz")
+                where = Path(f"{stem}-partial-{int(time.time())}.npz")
             exc.partial.save(where, force=True)
             print(f"pcmm: the run stopped at t = {float(exc.partial.t[-1]):.6g} s; the partial trajectory "
                   f"is saved in {where} (status 'partial')", file=sys.stderr)

@@ -26,7 +26,7 @@ import pinocchio as pin
 import scipy.linalg as sla
 
 from .configuration import frame_jacobian
-from .errors import SimulationError
+from .errors import Repartition, SimulationError
 
 LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
 NEWTON_TOL = 1e-13
@@ -144,7 +144,12 @@ def constrained_accelerations(cfg, q, v, J, bias, extra=None):
     M = pin.crba(cfg.model, cfg.data, qp)
     M = np.triu(M) + np.triu(M, 1).T
     h = pin.nonLinearEffects(cfg.model, cfg.data, qp, v)
-    c = sla.cho_factor(M)
+    try:
+        c = sla.cho_factor(M)
+    except np.linalg.LinAlgError:
+        raise SimulationError(
+            f"configuration '{cfg.name}': the mass matrix is not positive definite (a link without mass "
+            "or inertia?); every moving link needs <inertial> with mass > 0") from None
     tau = cfg.forces.generalized(q, v) - h
     if extra is not None:
         tau = tau + extra
@@ -160,6 +165,7 @@ class TreeCoordinates:
     """A tree with no loops and no drives: ``y = [q, v]``, accelerations by ABA."""
 
     constrained = False
+    checking = True
     position_noise = 0.0  # coordinates are the integrator's own
 
     def __init__(self, cfg):
@@ -244,6 +250,8 @@ class PartitionedCoordinates:
         self.D = None
         self._qD = None
         self._zeros = np.zeros(self.nv)
+        self.checking = True  # conditioning checks (off while recording an accepted segment)
+        self._cache = None  # the last unpack: guards and the right-hand side ask for the same point
 
     # -- constraint evaluation on the tree
     def _phi(self, t, q, need_bias=False, v=None):
@@ -289,16 +297,8 @@ class PartitionedCoordinates:
         columns of the loop rows (QR with column pivoting).  Coordinates in
         ``prefer_independent`` are kept independent when the rest allows it."""
         _, Jq, _ = self._phi(t, q)
-        driven = list(self.drives.index)
-        keep = [i for i in prefer_independent if i not in driven]
-        rest = [i for i in range(self.nv) if i not in driven and i not in keep]
-        dep = list(driven)
-        if self.closure.size:
-            Jl = Jq[:self.closure.size][:, rest]
-            _, R, piv = sla.qr(Jl, pivoting=True)
-            dep += [rest[i] for i in piv[:self.closure.size]]
-        self.D = np.array(sorted(dep), dtype=int)
-        self.I = np.array([i for i in range(self.nv) if i not in dep], dtype=int)
+        self.D = self._best_dependent(Jq, keep=prefer_independent)
+        self.I = np.array([i for i in range(self.nv) if i not in self.D], dtype=int)
         self.ny = 2 * len(self.I)
         JD = Jq[:, self.D]
         cond = np.linalg.cond(JD) if JD.size else 1.0
@@ -314,6 +314,7 @@ class PartitionedCoordinates:
         for _ in range(30):
             phi, Jq, _ = self._phi(t, q)
             if phi.size == 0 or np.max(np.abs(phi)) < NEWTON_TOL:
+                self._check_conditioning(t, Jq)
                 return q, Jq
             JD = Jq[:, self.D]
             try:
@@ -328,21 +329,90 @@ class PartitionedCoordinates:
             f"(residual {np.max(np.abs(phi)):.3g}): the mechanism is at or beyond a singular "
             "posture, or the initial state is far from an assembled one")
 
+    def _best_dependent(self, Jq, keep=()):
+        """Dependent columns for ``Jq``: driven joints, then the best-conditioned columns of the
+        loop rows (QR with column pivoting), never one of ``keep``."""
+        driven = list(self.drives.index)
+        rest = [i for i in range(self.nv) if i not in driven and i not in keep]
+        dep = list(driven)
+        if self.closure.size:
+            _, _, piv = sla.qr(Jq[:self.closure.size][:, rest], pivoting=True)
+            dep += [rest[i] for i in piv[:self.closure.size]]
+        return np.array(sorted(dep), dtype=int)
+
+    def _scaled_det(self, Jq):
+        """det(J_D) / ||J||_F^m: signed, continuous, and of the order of sigma_min / sigma_max --
+        small when the dependent block degenerates or when the whole Jacobian loses rank (a row
+        scaled by its own norm would hide a row that vanishes, as at a change point)."""
+        JD = Jq[:, self.D]
+        return float(np.linalg.det(JD) / max(np.linalg.norm(Jq) ** JD.shape[0], 1e-300))
+
+    def _check_conditioning(self, t, Jq):
+        """A dependent block drifting towards singularity asks for a new partition; when the
+        current one is already the best, the loop itself is at a singular posture."""
+        if not self.checking:
+            return
+        ratio = abs(self._scaled_det(Jq))
+        if ratio > 1e-4:
+            return
+        if not np.array_equal(self._best_dependent(Jq), self.D):
+            raise Repartition(t)
+        raise SimulationError(
+            f"configuration '{self.cfg.name}': the loop reaches a singular posture at t = {t:.9g} s "
+            f"(its best constraint block has a scaled determinant of {ratio:.2g}): at a dead centre or "
+            "change point the motion is not determined by the constraints and drives; pcmm stops "
+            "rather than pick a branch")
+
     def seed(self, q):
         """Start the Newton solve of the dependent coordinates from ``q``."""
         self._qD = q.copy()
+        self._cache = None
 
     def pack(self, t, q, v):
         """State vector at an assembled (q, v); the partition is re-chosen here,
         at the start of every segment, so it follows the posture."""
         self.partition(t, q)
         self._qD = q.copy()
+        self._cache = None
         return np.concatenate([q[self.I], v[self.I]])
 
+    def at_degenerate_partition(self, t, q):
+        """Where the singularity guard fired: if the whole constraint Jacobian keeps its rank a
+        new partition goes on (the next segment picks it); if it loses rank the loop itself is
+        at a singular posture (a dead centre, a change point) and the run stops."""
+        _, Jq, _ = self._phi(t, q)
+        s = np.linalg.svd(Jq, compute_uv=False)
+        if s[-1] <= 1e-6 * s[0] or np.array_equal(self._best_dependent(Jq), self.D):
+            # rank lost, or no partition does better than the one that degenerated
+            raise SimulationError(
+                f"configuration '{self.cfg.name}': the loop reaches a singular posture at t = {t:.9g} s "
+                f"(constraint Jacobian singular values {s[0]:.3g} ... {s[-1]:.3g}): at a dead centre or "
+                "change point the motion is not determined by the constraints and drives; pcmm stops "
+                "rather than pick a branch")
+
+    def singularity_guard(self):
+        """A guard on the determinant of the dependent block (scaled by its rows' norms): it
+        changes sign where the current partition degenerates, which a step can jump over."""
+        def g(t, y):
+            self.unpack(t, y)
+            return self._scaled_det(self._last_Jq)
+        g.terminal = True
+        g.direction = 0
+        g.singular = True
+        return g
+
     def unpack(self, t, y):
+        if self._cache is not None and self._cache[0] == t and np.array_equal(self._cache[1], y):
+            return self._cache[2]
+        out = self._unpack(t, y)
+        self._cache = (t, y.copy(), out)
+        return out
+
+    def _unpack(self, t, y):
         k = len(self.I)
         q, Jq = self._solve_dependent(t, y[:k], self._qD)
         self._qD = q
+        self._last_Jq = Jq
         v = np.empty(self.nv)
         v[self.I] = y[k:]
         rhs = -(Jq[:, self.I] @ y[k:] + self._phi_t(t))
@@ -354,6 +424,7 @@ class PartitionedCoordinates:
         (a new partition is chosen at q, preferring ``prefer_independent``)."""
         self.partition(t, q, prefer_independent)
         self._qD = q.copy()
+        self._cache = None
         return self.unpack(t, np.concatenate([q[self.I], v[self.I]]))
 
     def rows(self, t, q, v):

@@ -49,36 +49,54 @@ def _complement(S_planar: np.ndarray) -> np.ndarray:
     return u[:, rank:]
 
 
-def cut(cfg: Configuration, q: np.ndarray, joints: tuple[str, ...]) -> CutSystem:
-    """Build the cut system of ``cfg`` at pose ``q`` with ``joints`` released."""
-    model, data = cfg.model, cfg.data
-    qp = cfg.to_pin(q)
-    pin.forwardKinematics(model, data, qp)
+def _structure(cfg: Configuration, joints: tuple[str, ...]):
+    """The cut model's topology, built once per configuration and cut set; the pose-dependent
+    placements (the planar joints' and the parent-side copies') are set at each impact."""
+    cache = cfg.__dict__.setdefault("_cut_models", {})
+    if joints in cache:
+        return cache[joints]
+    model = cfg.model
     cut_ids = {cfg.joint_id[n] for n in joints}
     new = pin.Model()
     new.name = model.name + "_cut"
     new.gravity = model.gravity
     jmap = {0: 0}
-    q_parts = []
     for jid in range(1, model.njoints):
         if jid in cut_ids:
-            jm, parent, placement = pin.JointModelPlanar(), 0, data.oMi[jid]
-            q_parts.append(np.array([0.0, 0.0, 1.0, 0.0]))
+            jm, parent, placement = pin.JointModelPlanar(), 0, pin.SE3.Identity()
         else:
             jm, parent, placement = model.joints[jid], jmap[model.parents[jid]], model.jointPlacements[jid]
-            j = model.joints[jid]
-            q_parts.append(qp[j.idx_q:j.idx_q + j.nq])
         jmap[jid] = new.addJoint(parent, jm, placement, model.names[jid])
         new.appendBodyToJoint(jmap[jid], model.inertias[jid], pin.SE3.Identity())
     for fr in list(model.frames)[1:]:
         new.addFrame(pin.Frame(fr.name, jmap[fr.parentJoint], fr.parentFrame, fr.placement, fr.type), False)
     # parent-side copies of each cut child frame, to express the relative velocity
-    copies = {}
+    copies = {name: new.addFrame(pin.Frame(f"pcmm:cut:{name}:parent", jmap[model.parents[cfg.joint_id[name]]], 0,
+                                           pin.SE3.Identity(), pin.FrameType.OP_FRAME), False)
+              for name in joints}
+    cache[joints] = (new, new.createData(), jmap, copies, cut_ids)
+    return cache[joints]
+
+
+def cut(cfg: Configuration, q: np.ndarray, joints: tuple[str, ...]) -> CutSystem:
+    """The cut system of ``cfg`` at pose ``q`` with ``joints`` released."""
+    model, data = cfg.model, cfg.data
+    joints = tuple(joints)
+    qp = cfg.to_pin(q)
+    pin.forwardKinematics(model, data, qp)
+    new, new_data, jmap, copies, cut_ids = _structure(cfg, joints)
+    q_parts = []
+    for jid in range(1, model.njoints):
+        if jid in cut_ids:
+            new.jointPlacements[jmap[jid]] = data.oMi[jid]  # the planar joint starts at the child's pose
+            q_parts.append(np.array([0.0, 0.0, 1.0, 0.0]))
+        else:
+            j = model.joints[jid]
+            q_parts.append(qp[j.idx_q:j.idx_q + j.nq])
     for name in joints:
-        jid = cfg.joint_id[name]
-        copies[name] = new.addFrame(pin.Frame(f"pcmm:cut:{name}:parent", jmap[model.parents[jid]], 0,
-                                              data.liMi[jid], pin.FrameType.OP_FRAME), False)
-    new_data = new.createData()
+        fr = new.frames[copies[name]]
+        fr.placement = data.liMi[cfg.joint_id[name]]
+        new.frames[copies[name]] = fr
     q_f = np.concatenate(q_parts) if q_parts else np.zeros(0)
     pin.computeJointJacobians(new, new_data, q_f)
     pin.updateFramePlacements(new, new_data)

@@ -46,3 +46,8 @@ class SimulationError(PcmmError):
 
 class UsageError(PcmmError):
     """A command-line value is out of range."""
+
+
+class Repartition(Exception):
+    """Internal: a loop's dependent coordinates became ill-conditioned mid-segment;
+    the run restarts the segment with a new partition (never reaches the user)."""

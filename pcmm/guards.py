@@ -23,6 +23,9 @@ def _coordinate(cfg: Configuration, tr: TransitionSpec):
     def g(t, y):
         q, _ = unpack(t, y)
         return row @ q - target
+    if not cfg.coords.constrained and not cfg.has_planar:
+        nv = cfg.nv
+        g.rate = lambda t, y, f: row @ f[:nv]  # q' is the first half of the state derivative
     return g
 
 
@@ -65,6 +68,8 @@ def make_guard(cfg: Configuration, tr: TransitionSpec, start: tuple | None = Non
             if not state["armed"] and val * direction < -tiny:
                 state["armed"] = True
             return val if state["armed"] else val - offset
+        if hasattr(raw, "rate"):  # a constant shift leaves the rate alone
+            g.rate = raw.rate
     g.terminal = True
     g.direction = direction
     g.transition = tr

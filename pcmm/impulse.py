@@ -105,7 +105,12 @@ def solve_impulse(cfg: Configuration, t: float, q: np.ndarray, v: np.ndarray, co
     J_n = (n @ (frame_jacobian(cs.model, cs.data, pb.frame_id)[:2]
                 - frame_jacobian(cs.model, cs.data, pa.frame_id)[:2]))[None, :]
     G = np.vstack([cs.J_cut, cfg.coords.equality(t, cs.model, cs.data)])
-    chol = sla.cho_factor(M_f)
+    try:
+        chol = sla.cho_factor(M_f)
+    except np.linalg.LinAlgError:
+        raise SimulationError(
+            f"t = {t:.9g} s: the mass matrix of configuration '{cfg.name}' is not positive definite "
+            "(a link without mass or inertia?); every moving link needs <inertial> with mass > 0") from None
     W = sla.cho_solve(chol, np.eye(M_f.shape[0]))
     if G.shape[0]:
         WGt = W @ G.T

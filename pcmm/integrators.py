@@ -3,18 +3,34 @@
 Contract: ``method.integrate(fun, t0, y0, t_bound, events, opts)`` integrates
 ``y' = fun(t, y)`` from ``t0`` until ``t_bound`` or the first terminal event
 and returns a :class:`Segment`.  ``events`` are functions with ``terminal``
-and ``direction`` attributes (scipy's convention).  An event is located on the
-method's dense output, so event accuracy is the interpolant's (DOP853: 7th
-order; RK45: 4th; fixed-step RK4: cubic Hermite).  ``opts`` has ``rtol``,
-``atol``, ``max_step`` and, for fixed-step methods, ``step``.
+and ``direction`` attributes (scipy's convention).  ``opts`` has ``rtol``,
+``atol``, ``max_step``, ``step`` (fixed-step methods), ``event_tol`` and
+``max_steps``.
+
+Every method hands its accepted steps to one event scanner
+(:func:`_scan`).  A guard fires when it changes sign in its direction
+between the ends of a step, or when the cubic Hermite model of the guard
+(values and rates at both ends) predicts that it enters and leaves within the
+step: a grazing impact.  The crossing is bracketed on the method's dense
+output and located by Brent's method to ``event_tol`` (s).  Event accuracy
+is the dense output's: DOP853 7th order, RK45 4th, RK4 cubic Hermite.
+
+A step with a non-finite state, a step size collapsed to round-off, or more
+than ``max_steps`` steps end the run with an error that says which setting
+to change; an error or Ctrl-C inside a segment carries the steps already
+taken (``exc.segment``) so no result is lost.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.integrate import ode, solve_ivp
+from scipy import integrate as si
 from scipy.optimize import brentq
+
+from .errors import Repartition, SimulationError
+
+EPS = np.finfo(float).eps
 
 
 @dataclass
@@ -28,96 +44,15 @@ class Segment:
     message: str
 
 
-class ScipyMethod:
-    """One of scipy's ``solve_ivp`` methods."""
+class _Counted:
+    """The right-hand side with an evaluation counter."""
 
-    fixed_step = False
+    def __init__(self, fun):
+        self.fun, self.n = fun, 0
 
-    def __init__(self, name: str):
-        self.name = name
-
-    def integrate(self, fun, t0, y0, t_bound, events, opts) -> Segment:
-        sol = solve_ivp(fun, (t0, t_bound), y0, method=self.name, rtol=opts.rtol, atol=opts.atol,
-                        max_step=opts.max_step, events=events or None)
-        event = None
-        if sol.status == 1:
-            fired = [i for i, te in enumerate(sol.t_events) if len(te)]
-            event = min(fired, key=lambda i: sol.t_events[i][-1])
-        return Segment(sol.t, sol.y, event, sol.nfev, max(len(sol.t) - 1, 0), sol.status, sol.message)
-
-
-class FortranDOP853:
-    """Hairer's DOP853 in Fortran (scipy.integrate.ode) for the stepping.
-
-    The Fortran code calls the right-hand side with almost no overhead per
-    evaluation (scipy's pure-Python ``solve_ivp`` adds several microseconds
-    per call, more than a lean right-hand side costs).  Guards are checked
-    after every accepted step; the step in which one changes sign in its
-    direction is integrated again by ``solve_ivp``'s DOP853 and the event is
-    located on that 7th-order dense output, so the event accuracy is that of
-    ``DOP853``.
-    """
-
-    fixed_step = False
-    name = "DOP853F"
-
-    def integrate(self, fun, t0, y0, t_bound, events, opts) -> Segment:
-        nfev = [0]
-
-        def f(t, y):
-            nfev[0] += 1
-            return fun(t, y)
-        ts, ys = [t0], [np.array(y0, float)]
-        g_prev = [e(t0, ys[0]) for e in events]
-        hit = []
-
-        def solout(t, y):
-            if t == ts[-1]:
-                return 0
-            g_new = [e(t, y) for e in events]
-            fired = [i for i, e in enumerate(events) if _crossed(g_prev[i], g_new[i], e.direction)]
-            if fired:
-                hit.append((t, y.copy()))
-                return -1
-            g_prev[:] = g_new
-            ts.append(t)
-            ys.append(y.copy())
-            return 0
-        solver = ode(f).set_integrator("dop853", rtol=opts.rtol, atol=opts.atol, nsteps=10**9,
-                                       max_step=opts.max_step if np.isfinite(opts.max_step) else 0.0)
-        solver.set_solout(solout)
-        solver.set_initial_value(np.array(y0, float), t0)
-        solver.integrate(t_bound)
-        if not hit:
-            if not solver.successful():
-                return Segment(np.array(ts), np.array(ys).T, None, nfev[0], len(ts) - 1, -1,
-                               f"DOP853 (Fortran) failed with code {solver.get_return_code()}")
-            if ts[-1] < t_bound:
-                ts.append(t_bound)
-                ys.append(np.array(solver.y, float))
-            return Segment(np.array(ts), np.array(ys).T, None, nfev[0], len(ts) - 1, 0, "reached t_end")
-        # locate the event inside the last step on DOP853's dense output
-        t_a, y_a = ts[-1], ys[-1]
-        t_b = hit[0][0]
-        sol = solve_ivp(f, (t_a, t_b), y_a, method="DOP853", rtol=opts.rtol, atol=opts.atol,
-                        first_step=t_b - t_a, dense_output=True)
-        best = None
-        for i, e in enumerate(events):
-            g_a, g_b = e(t_a, y_a), e(t_b, sol.sol(t_b))
-            if not _crossed(g_a, g_b, e.direction):
-                continue
-            te = brentq(lambda s: e(s, sol.sol(s)), t_a, t_b, xtol=4 * np.finfo(float).eps * max(1.0, abs(t_b)),
-                        rtol=4 * np.finfo(float).eps)
-            if best is None or te < best[0]:
-                best = (te, i)
-        if best is None:  # the re-integration ends just short of the crossing: take the step's end
-            best = (t_b, next(i for i, e in enumerate(events) if _crossed(g_prev[i], e(t_b, hit[0][1]), e.direction)))
-            ye = hit[0][1]
-        else:
-            ye = sol.sol(best[0])
-        ts.append(best[0])
-        ys.append(np.asarray(ye, float))
-        return Segment(np.array(ts), np.array(ys).T, best[1], nfev[0], len(ts) - 1, 1, "event")
+    def __call__(self, t, y):
+        self.n += 1
+        return self.fun(t, y)
 
 
 def _crossed(g_old, g_new, direction) -> bool:
@@ -127,52 +62,279 @@ def _crossed(g_old, g_new, direction) -> bool:
     return (direction >= 0 and up) or (direction <= 0 and down)
 
 
+def _rate(e, t, y, f, h):
+    """The guard's time derivative along the flow: its own ``rate`` where it has one,
+    else a forward difference."""
+    if hasattr(e, "rate"):
+        return e.rate(t, y, f)
+    d = max(1e-7 * abs(h), 1e-12 * max(1.0, abs(t)))
+    return (e(t + d, y + d * f) - e(t, y)) / d
+
+
+def _hermite_dips(g0, d0, g1, d1, h, direction) -> bool:
+    """Does the cubic Hermite g(s) on [0, h] cross zero in ``direction`` inside the step
+    although both ends are on the same side, or come within 20 % of the ends' values of it
+    (a near miss, then checked on the dense output)?"""
+    if (g0 > 0) != (g1 > 0) or g0 == 0 or g1 == 0:
+        return False
+    if (g0 < 0 and direction < 0) or (g0 > 0 and direction > 0):
+        return False  # a dip from this side would cross against the guard's direction
+    # cubic in x = s/h: a x^3 + b x^2 + c x + g0; its extrema solve 3a x^2 + 2b x + c = 0
+    c = d0 * h
+    b = 3 * (g1 - g0) - (2 * d0 + d1) * h
+    a = 2 * (g0 - g1) + (d0 + d1) * h
+    if a == 0:
+        xs = [-c / (2 * b)] if b != 0 else []
+    else:
+        disc = b * b - 3 * a * c
+        if disc < 0:
+            return False
+        r = disc ** 0.5
+        xs = [(-b - r) / (3 * a), (-b + r) / (3 * a)]
+    for x in xs:
+        if 0.0 < x < 1.0:
+            g = ((a * x + b) * x + c) * x + g0
+            if (g0 < 0 and g >= 0) or (g0 > 0 and g <= 0) or abs(g) < 0.2 * max(abs(g0), abs(g1)):
+                return True
+    return False
+
+
+class _Stepper:
+    """Event scanning over accepted steps, shared by every method."""
+
+    def __init__(self, fun, events, opts, t0, y0, f0):
+        self.fun, self.events, self.opts = fun, events, opts
+        self.ts, self.ys = [t0], [np.array(y0, float)]
+        self.g = [e(t0, self.ys[0]) for e in events]
+        self.rates = [_rate(e, t0, self.ys[0], f0, 1e-6) for e in events] if events else []
+        self.count = 0
+
+    def accept(self, t_old, y_old, t_new, y_new, f_new, dense):
+        """Record one step; return (event index, t_event, y_event) if a guard fires in it."""
+        if not np.all(np.isfinite(y_new)):
+            raise SimulationError(
+                f"the state became {y_new.tolist()} (not finite) at t = {t_new:.9g} s: the method "
+                "is unstable at this step size; use a smaller step, a tighter rtol or a stiff "
+                "method (Radau, LSODA)")
+        self.count += 1
+        if self.count > self.opts.max_steps:
+            raise SimulationError(
+                f"more than {self.opts.max_steps} steps by t = {t_new:.9g} s: the problem is too stiff "
+                "or too fast for this method; use a stiff method (Radau, LSODA) or raise solver.max_steps")
+        h = t_new - t_old
+        if self.count > 100 and 0 < abs(h) < 64 * EPS * max(1.0, abs(t_new)) and t_new != self.opts_t_bound:
+            raise SimulationError(
+                f"the step size collapsed to {h:.3g} s at t = {t_new:.9g} s: the problem is stiff or "
+                "singular here; use a stiff method (Radau, LSODA) or check forces and stiffness values")
+        hit = None
+        if self.events:
+            g_new = [e(t_new, y_new) for e in self.events]
+            r_new = [_rate(e, t_new, y_new, f_new, h) if f_new is not None else 0.0 for e in self.events]
+            for i, e in enumerate(self.events):
+                if _crossed(self.g[i], g_new[i], e.direction) or (
+                        f_new is not None and _hermite_dips(self.g[i], self.rates[i], g_new[i], r_new[i], h,
+                                                            e.direction)):
+                    found = _locate(e, dense(), t_old, t_new, self.g[i], self.opts.event_tol)
+                    if found is not None and (hit is None or found < hit[1]):
+                        hit = (i, found)
+            self.g, self.rates = g_new, r_new
+        if hit is not None:
+            i, te = hit
+            ye = np.asarray(dense()(te), float)
+            self.ts.append(te)
+            self.ys.append(ye)
+            return i, te, ye
+        self.ts.append(t_new)
+        self.ys.append(np.array(y_new, float))
+        return None
+
+    def segment(self, event, nfev, status, message) -> Segment:
+        return Segment(np.array(self.ts), np.array(self.ys).T.reshape(len(self.ys[0]), len(self.ts)),
+                       event, nfev, len(self.ts) - 1, status, message)
+
+
+def _locate(e, sol, t_a, t_b, g_a, tol):
+    """First crossing of ``e`` in its direction on the dense output ``sol`` over [t_a, t_b], or
+    None.  The guard is sampled on a grid; where no sample crosses, the sample closest to a
+    crossing is refined by a bounded search for the extremum between its neighbours, so a graze
+    shorter than the grid spacing is still found."""
+    from scipy.optimize import minimize_scalar
+    n = 16
+    grid = np.linspace(t_a, t_b, n + 1)
+    vals = [e(s, sol(s)) for s in grid]
+    if _crossed(g_a, vals[0], e.direction) and vals[0] != g_a:
+        return float(t_a)  # already across at the start of the dense output (round-off)
+    xtol = max(tol, 4 * EPS * max(1.0, abs(t_b)))
+
+    def root(lo, hi):
+        return brentq(lambda u: e(u, sol(u)), lo, hi, xtol=xtol, rtol=4 * EPS)
+    for k in range(n):
+        if _crossed(vals[k], vals[k + 1], e.direction):
+            return float(grid[k + 1]) if vals[k + 1] == 0 else root(grid[k], grid[k + 1])
+    # no sample crosses: look for a dip between samples, towards the side the guard crosses to
+    sign = 1.0 if e.direction >= 0 else -1.0  # direction >= 0: a crossing makes the guard rise
+    k = int(np.argmax([sign * v for v in vals]))
+    lo, hi = grid[max(k - 1, 0)], grid[min(k + 1, n)]
+    best = minimize_scalar(lambda u: -sign * e(u, sol(u)), bounds=(lo, hi), method="bounded",
+                           options={"xatol": xtol})
+    t_x = float(best.x)
+    g_x = e(t_x, sol(t_x))
+    start_side = vals[max(k - 1, 0)]
+    if _crossed(start_side, g_x, e.direction) and g_x != start_side:
+        return t_x if g_x == 0 else root(lo, t_x)
+    return None
+
+
+def _run(stepper_factory, fun, t0, y0, t_bound, events, opts):
+    counted = _Counted(fun)
+    f0 = counted(t0, np.asarray(y0, float))
+    st = _Stepper(counted, events, opts, t0, y0, f0)
+    st.opts_t_bound = t_bound
+    try:
+        for t_old, y_old, t_new, y_new, f_new, dense, failure in stepper_factory(counted, f0, st):
+            if failure:
+                return st.segment(None, counted.n, -1, failure)
+            hit = st.accept(t_old, y_old, t_new, y_new, f_new, dense)
+            if hit is not None:
+                return st.segment(hit[0], counted.n, 1, "event")
+    except (SimulationError, KeyboardInterrupt, Repartition) as exc:
+        exc.segment = st.segment(None, counted.n, -1, str(exc))
+        raise
+    except (ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:  # NaN/inf inside the method
+        err = SimulationError(
+            f"the integration broke down after t = {st.ts[-1]:.9g} s ({type(exc).__name__}: {exc}): "
+            "the state is no longer finite; use a stiff method (Radau, LSODA), a smaller step or "
+            "tolerance, or check forces and stiffness values")
+        err.segment = st.segment(None, counted.n, -1, str(err))
+        raise err from None
+    return st.segment(None, counted.n, 0, "reached t_end")
+
+
+class ScipyMethod:
+    """One of scipy's ``OdeSolver`` classes, stepped by pcmm."""
+
+    fixed_step = False
+
+    def __init__(self, name: str):
+        self.name = name
+        self.cls = getattr(si, name)
+
+    def integrate(self, fun, t0, y0, t_bound, events, opts) -> Segment:
+        def steps(counted, f0, st):
+            solver = self.cls(counted, t0, np.array(y0, float), t_bound, rtol=opts.rtol, atol=opts.atol,
+                              max_step=opts.max_step)
+            while solver.status == "running":
+                t_old, y_old = solver.t, solver.y.copy()
+                message = solver.step()
+                if solver.status == "failed":
+                    yield t_old, y_old, solver.t, solver.y, None, None, f"{self.name} failed: {message}"
+                    return
+                f_new = getattr(solver, "f", None)
+                yield t_old, y_old, solver.t, solver.y, f_new, _lazy(solver.dense_output), None
+        return _run(steps, fun, t0, y0, t_bound, events, opts)
+
+
+def _lazy(make):
+    cache = []
+
+    def get():
+        if not cache:
+            cache.append(make())
+        return cache[0]
+    return get
+
+
+class FortranDOP853:
+    """Hairer's DOP853 in Fortran (scipy.integrate.ode) for the stepping.
+
+    The Fortran code calls the right-hand side with almost no overhead per
+    evaluation (scipy's Python ``OdeSolver`` loop adds several microseconds
+    per call, more than a lean right-hand side costs).  Each accepted step is
+    scanned for events like every method's; the dense output of a step that
+    holds an event is that of ``solve_ivp``'s DOP853 integrated again over the
+    step, so events are located to DOP853's 7th-order accuracy.
+    """
+
+    fixed_step = False
+    name = "DOP853F"
+
+    def integrate(self, fun, t0, y0, t_bound, events, opts) -> Segment:
+        def steps(counted, f0, st):
+            out = []
+
+            def solout(t, y):
+                if t == st.ts[-1]:
+                    return 0
+                t_old, y_old = st.ts[-1], st.ys[-1]
+                y = y.copy()
+                f_new = counted(t, y) if events else None
+                dense = _lazy(lambda: si.solve_ivp(counted, (t_old, t), y_old, method="DOP853", rtol=opts.rtol,
+                                                   atol=opts.atol, first_step=t - t_old, dense_output=True).sol)
+                hit = st.accept(t_old, y_old, t, y, f_new, dense)
+                if hit is not None:
+                    out.append(hit)
+                    return -1
+                return 0
+            solver = si.ode(counted).set_integrator(
+                "dop853", rtol=opts.rtol, atol=opts.atol, nsteps=opts.max_steps,
+                max_step=opts.max_step if np.isfinite(opts.max_step) else 0.0)
+            solver.set_solout(solout)
+            solver.set_initial_value(np.array(y0, float), t0)
+            solver.integrate(t_bound)
+            if out:
+                st.found = out[0]
+            elif not solver.successful():
+                yield st.ts[-1], st.ys[-1], st.ts[-1], st.ys[-1], None, None, \
+                    f"DOP853 (Fortran) failed with code {solver.get_return_code()}"
+            return
+            yield  # a generator
+        counted = _Counted(fun)
+        f0 = counted(t0, np.asarray(y0, float))
+        st = _Stepper(counted, events, opts, t0, y0, f0)
+        st.opts_t_bound = t_bound
+        st.found = None
+        try:
+            for item in steps(counted, f0, st):
+                return st.segment(None, counted.n, -1, item[-1])
+        except (SimulationError, KeyboardInterrupt, Repartition) as exc:
+            exc.segment = st.segment(None, counted.n, -1, str(exc))
+            raise
+        if st.found is not None:
+            return st.segment(st.found[0], counted.n, 1, "event")
+        if st.ts[-1] < t_bound:
+            raise SimulationError(f"DOP853 (Fortran) stopped at t = {st.ts[-1]:.9g} s before t_end")
+        return st.segment(None, counted.n, 0, "reached t_end")
+
+
 class FixedStepRK4:
     """Classical Runge-Kutta with a fixed step (the paper's MATLAB route).
 
-    Events are located by Brent's method on the cubic Hermite interpolant of
-    the step in which the guard changes sign in its direction.
-    """
+    Its dense output is the cubic Hermite interpolant of each step."""
 
     fixed_step = True
     name = "RK4"
 
     def integrate(self, fun, t0, y0, t_bound, events, opts) -> Segment:
-        h = opts.step
-        ts, ys = [t0], [np.asarray(y0, float)]
-        t, y = t0, np.asarray(y0, float)
-        f = fun(t, y)
-        nfev = 1
-        g_prev = [e(t, y) for e in events]
-        while t < t_bound - 1e-15 * max(1.0, abs(t_bound)):
-            hh = min(h, t_bound - t)
-            k1 = f
-            k2 = fun(t + hh / 2, y + hh / 2 * k1)
-            k3 = fun(t + hh / 2, y + hh / 2 * k2)
-            k4 = fun(t + hh, y + hh * k3)
-            y_new = y + hh / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
-            t_new = t + hh
-            f_new = fun(t_new, y_new)
-            nfev += 4
-            hit = None
-            for i, e in enumerate(events):
-                g_new = e(t_new, y_new)
-                up = g_prev[i] < 0 <= g_new
-                down = g_prev[i] > 0 >= g_new
-                if (e.direction >= 0 and up) or (e.direction <= 0 and down):
-                    dense = _hermite(t, y, f, t_new, y_new, f_new)
-                    te = brentq(lambda s: e(s, dense(s)), t, t_new, xtol=1e-14, rtol=4 * np.finfo(float).eps)
-                    if hit is None or te < hit[0]:
-                        hit = (te, i, dense(te))
-                g_prev[i] = g_new
-            if hit is not None:
-                ts.append(hit[0])
-                ys.append(hit[2])
-                return Segment(np.array(ts), np.array(ys).T, hit[1], nfev, len(ts) - 1, 1, "event")
-            t, y, f = t_new, y_new, f_new
-            ts.append(t)
-            ys.append(y)
-        return Segment(np.array(ts), np.array(ys).T, None, nfev, len(ts) - 1, 0, "reached t_end")
+        def steps(counted, f0, st):
+            h = opts.step
+            t, y, f = t0, np.array(y0, float), f0
+            while t < t_bound - 1e-15 * max(1.0, abs(t_bound)):
+                hh = min(h, t_bound - t)
+                if y.size == 0:  # nothing to integrate (a locked or fully driven configuration)
+                    t_new = t + hh
+                    f_new = counted(t_new, y)
+                    yield t, y, t_new, y, f_new, _lazy(lambda: (lambda s: y)), None
+                    t = t_new
+                    continue
+                k2 = counted(t + hh / 2, y + hh / 2 * f)
+                k3 = counted(t + hh / 2, y + hh / 2 * k2)
+                k4 = counted(t + hh, y + hh * k3)
+                y_new = y + hh / 6 * (f + 2 * k2 + 2 * k3 + k4)
+                t_new = t + hh
+                f_new = counted(t_new, y_new) if np.all(np.isfinite(y_new)) else y_new
+                yield t, y, t_new, y_new, f_new, _lazy(lambda a=(t, y, f, t_new, y_new, f_new): _hermite(*a)), None
+                t, y, f = t_new, y_new, f_new
+        return _run(steps, fun, t0, y0, t_bound, events, opts)
 
 
 def _hermite(t0, y0, f0, t1, y1, f1):

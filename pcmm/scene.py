@@ -133,6 +133,8 @@ class SolverSettings:
     atol: float = 1e-12
     max_step: float = math.inf
     step: float = 1e-3  # fixed-step methods (RK4)
+    event_tol: float = 1e-14  # s: how precisely an event time is located on the dense output
+    max_steps: int = 1_000_000  # per segment: a run that needs more is too stiff for its method
     accumulation_speed: float = 1e-6
     accumulation_interval: float = 1e-9
     max_events: int = 10_000
@@ -194,6 +196,9 @@ SOLVER_KEYS = [
     S.Key("max_step", "number", required=False, default=SolverSettings.max_step, check=S.positive),
     S.Key("step", "number", required=False, default=SolverSettings.step, check=S.positive,
           doc="step of fixed-step methods (RK4) in s"),
+    S.Key("event_tol", "number", required=False, default=SolverSettings.event_tol, check=S.positive,
+          doc="event-location tolerance in s"),
+    S.Key("max_steps", "int", required=False, default=SolverSettings.max_steps, check=S.positive),
     S.Key("accumulation_speed", "number", required=False, default=SolverSettings.accumulation_speed,
           check=S.non_negative),
     S.Key("accumulation_interval", "number", required=False,
@@ -234,9 +239,11 @@ FORCE_KEYS = [
     S.Key("on", "table", doc="{joint = NAME} or {link = NAME}"),
     S.Key("measure", "table", required=False, doc="{joint = NAME}, {link = NAME} or {between = [A, B]}"),
     S.Key("value", "number", required=False, default=0.0),
-    S.Key("k", "number", required=False, default=0.0),
+    S.Key("k", "number", required=False, default=0.0, check=S.non_negative,
+          doc="stiffness >= 0 (a negative spring is an energy source: model it as a torque)"),
     S.Key("rest", "number", required=False, default=0.0),
-    S.Key("c", "number", required=False, default=0.0),
+    S.Key("c", "number", required=False, default=0.0, check=S.non_negative,
+          doc="damping >= 0 (a negative damper feeds energy in)"),
     S.Key("configurations", "list", required=False, check=S.names_list),
 ]
 GUARD_KEYS = [

@@ -14,11 +14,11 @@ from dataclasses import dataclass, fields, replace
 import numpy as np
 
 from .configuration import Configuration, Mechanism
-from .errors import SimulationError, UsageError
+from .errors import Repartition, SimulationError, UsageError
 from .contact_laws import ContactPhase, strip
 from .guards import make_guard, make_release_guard
 from .impulse import contact_state, impact_kind
-from .integrators import INTEGRATORS
+from .integrators import INTEGRATORS, Segment
 from .scene import Scene, SolverSettings
 from .trajectory import SegmentRecord, Trajectory
 from .transitions import TRANSITIONS, Context, handle_release
@@ -34,6 +34,8 @@ class RunOptions:
     atol: float | None = None
     max_step: float | None = None
     step: float | None = None  # fixed-step methods (RK4)
+    event_tol: float | None = None
+    max_steps: int | None = None
     accumulation_speed: float | None = None
     accumulation_interval: float | None = None
     max_events: int | None = None
@@ -60,7 +62,7 @@ def resolve(scene: Scene, options: RunOptions) -> Resolved:
     problems = []
     if r.method not in INTEGRATORS:
         problems.append(f"method = {r.method!r}: must be one of {', '.join(INTEGRATORS)}")
-    for name in ("t_end", "rtol", "atol", "max_step", "step"):
+    for name in ("t_end", "rtol", "atol", "max_step", "step", "event_tol"):
         val = getattr(r, name)
         if not (isinstance(val, (int, float)) and val > 0 and not math.isnan(val)):
             problems.append(f"{name} = {val!r}: must be a number > 0")
@@ -89,7 +91,8 @@ def simulate(scene: Scene, options: RunOptions = RunOptions(), progress=None) ->
     opts = resolve(scene, options)
     mech = Mechanism(scene)
     traj = Trajectory(scene=str(scene.path.resolve()), scene_name=scene.name, impact=opts.impact)
-    ctx = Context(mech, opts.impact, opts.accumulation_speed, opts.accumulation_interval)
+    ctx = Context(mech, opts.impact, opts.accumulation_speed, opts.accumulation_interval,
+                  forced_speed=options.accumulation_speed, forced_interval=options.accumulation_interval)
     method = INTEGRATORS[opts.method]
     stats = {"steps": 0, "rhs_evals": 0, "wall_s": 0.0, "record_s": 0.0, "impacts": 0,
              "constraint_drift_max": 0.0, "method": opts.method, "rtol": opts.rtol, "atol": opts.atol}
@@ -111,19 +114,36 @@ def simulate(scene: Scene, options: RunOptions = RunOptions(), progress=None) ->
                 source, mtr, locked = merges[-1]
                 if (scene.solver.unmerge if mtr.unmerge is None else mtr.unmerge):
                     guards.append(make_release_guard(cfg, mech[source], mtr, locked))
+            if cfg.coords.constrained and cfg.coords.closure.size:
+                guards.append(cfg.coords.singularity_guard())
             fun = cfg.coords.rhs
             if phase is not None:
                 guards = [phase.end_guard()] + [strip(g) for g in guards]
                 y0, fun = np.append(y0, 0.0), phase.rhs()
             if progress is not None:
                 fun = _reporting(fun, progress)
+            pending = None if phase is not None else _pending(cfg, guards, t, y0)
             t0 = time.perf_counter()
-            if y0.size:
-                seg = method.integrate(fun, t, y0, opts.t_end, guards, opts)
-            else:  # no free coordinate: the motion is locked or fully driven; sample it and watch the guards
-                fixed = replace(opts.solver, step=min(opts.step, max(opts.t_end - t, 1e-12) / 1000))
-                seg = INTEGRATORS["RK4"].integrate(cfg.coords.rhs, t, y0, opts.t_end, guards, fixed)
-            stats["wall_s"] += time.perf_counter() - t0
+            try:
+                if pending is not None:  # a contact already closed at this instant (simultaneous impacts)
+                    seg = Segment(np.array([t]), y0[:, None], pending, 0, 0, 1, "simultaneous")
+                elif y0.size:
+                    seg = method.integrate(fun, t, y0, opts.t_end, guards, opts)
+                else:  # no free coordinate: the motion is locked or fully driven; sample it, watch the guards
+                    fixed = replace(opts.solver, step=min(opts.step, max(opts.t_end - t, 1e-12) / 1000))
+                    seg = INTEGRATORS["RK4"].integrate(_assembled(cfg), t, y0, opts.t_end, guards, fixed)
+            except Repartition as exc:  # a loop's dependent block degenerated: new partition, go on
+                seg = exc.segment
+                _record(traj, cfg, seg, offsets, q)
+                t = float(seg.t[-1])
+                q, v = cfg.coords.unpack(t, seg.y[:, -1])
+                continue
+            except (SimulationError, KeyboardInterrupt) as exc:
+                if getattr(exc, "segment", None) is not None and exc.segment.t.size > 1:
+                    _record(traj, cfg, exc.segment, offsets, q)
+                raise
+            finally:
+                stats["wall_s"] += time.perf_counter() - t0
             stats["steps"] += seg.nsteps
             stats["rhs_evals"] += seg.nfev
             if seg.status < 0:
@@ -133,8 +153,7 @@ def simulate(scene: Scene, options: RunOptions = RunOptions(), progress=None) ->
             if phase is not None:
                 impulse_integral = float(seg.y[-1, -1])
                 seg.y = seg.y[:-1]
-            cfg.coords.seed(q)
-            _record(traj, cfg, seg, offsets)
+            _record(traj, cfg, seg, offsets, q)
             if progress:
                 progress(float(seg.t[-1]))
             if seg.event is None:
@@ -142,6 +161,11 @@ def simulate(scene: Scene, options: RunOptions = RunOptions(), progress=None) ->
             t = float(seg.t[-1])
             q, v = cfg.coords.unpack(t, seg.y[:, -1])
             guard = guards[seg.event]
+            if getattr(guard, "singular", False):
+                # the partition degenerates here: go on with a better one, or stop at a singular
+                # posture of the loop itself
+                cfg.coords.at_degenerate_partition(t, q)
+                continue
             tr = guard.transition
             if getattr(guard, "contact_end", False):
                 traj.events.append(_contact_event(phase, t, q, v, impulse_integral))
@@ -179,14 +203,44 @@ def simulate(scene: Scene, options: RunOptions = RunOptions(), progress=None) ->
             if t >= opts.t_end:
                 break
     except KeyboardInterrupt:
-        traj.status, traj.message = "partial", f"interrupted by the user at t = {_t_last(traj):.6g} s"
+        traj.status, traj.message = "partial", f"{scene.path}: interrupted by the user at t = {_t_last(traj):.6g} s"
         raise SimulationError(traj.message, partial=traj) from None
     except SimulationError as exc:
+        where = str(scene.path)
+        exc.problems = [p if p.startswith(where) else f"{where}: {p}" for p in exc.problems]
+        exc.args = (exc.text(),)
         traj.status, traj.message = "partial", exc.text()
         exc.partial = traj
         raise
     stats["configurations_built"] = list(mech.built)
     return traj
+
+
+def _assembled(cfg: Configuration):
+    """The derivative of an empty state (a locked or fully driven configuration): nothing to
+    compute, but the loop is assembled at every step so a posture it cannot reach stops the run."""
+    def f(t, y):
+        cfg.coords.unpack(t, y)
+        return y
+    return f
+
+
+def _pending(cfg: Configuration, guards, t, y0):
+    """Index of a guard that is already at or past its crossing at the start of a segment
+    while its contact still approaches: a contact that closed at the same instant as the
+    impact just resolved.  It is resolved now, before any integration (sequential impacts
+    in scene order); a step would never see it change sign."""
+    q, v = cfg.coords.unpack(t, y0)
+    for i, g in enumerate(guards):
+        if getattr(g, "singular", False):
+            continue
+        tr = getattr(g, "transition", None)
+        if tr is None or hasattr(g, "release") or tr.guard.direction * g(t, y0) < 0:
+            continue
+        _, _, vn, _ = contact_state(cfg, q, v, tr.contact)
+        if vn < -1e-12:
+            return i
+    return None
 
 
 def _reporting(fun, progress, every: int = 256):
@@ -226,8 +280,18 @@ def _t_last(traj: Trajectory) -> float:
     return float(traj.segments[-1].t[-1]) if traj.segments else 0.0
 
 
-def _record(traj: Trajectory, cfg: Configuration, seg, offsets) -> None:
+def _record(traj: Trajectory, cfg: Configuration, seg, offsets, q_start) -> None:
     t0 = time.perf_counter()
+    cfg.coords.seed(q_start)
+    cfg.coords.checking = False  # the segment was accepted; recording it must not stop the run
+    try:
+        _record_samples(traj, cfg, seg, offsets)
+    finally:
+        cfg.coords.checking = True
+        traj.stats["record_s"] += time.perf_counter() - t0
+
+
+def _record_samples(traj: Trajectory, cfg: Configuration, seg, offsets) -> None:
     n = len(seg.t)
     nv, nl = cfg.nv, len(cfg.links)
     Q, V = np.empty((n, nv)), np.empty((n, nv))
@@ -258,4 +322,3 @@ def _record(traj: Trajectory, cfg: Configuration, seg, offsets) -> None:
         t=np.asarray(seg.t, float).copy(), q=Q, v=V, theta=Q @ cfg.A.T + cfg.b + off, omega=V @ cfg.A.T,
         xy=xy, kinetic=ke, potential=pe, forces=ff, constraint_forces=lam))
     traj.stats["constraint_drift_max"] = max(traj.stats["constraint_drift_max"], drift)
-    traj.stats["record_s"] += time.perf_counter() - t0

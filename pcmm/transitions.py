@@ -39,7 +39,16 @@ class Context:
     impact: bool
     accumulation_speed: float
     accumulation_interval: float
+    forced_speed: float | None = None  # given for the run (CLI, RunOptions): wins over every transition's
+    forced_interval: float | None = None
     last_impact: dict[str, float] = field(default_factory=dict)
+
+    def tolerances(self, tr: TransitionSpec) -> tuple[float, float]:
+        """(speed, interval) for a stop: the run's explicit value, else the transition's, else the scene's."""
+        def pick(forced, own, default):
+            return forced if forced is not None else own if own is not None else default
+        return (pick(self.forced_speed, tr.accumulation_speed, self.accumulation_speed),
+                pick(self.forced_interval, tr.accumulation_interval, self.accumulation_interval))
 
 
 @dataclass
@@ -201,8 +210,7 @@ def handle_stop(ctx: Context, cfg: Configuration, tr: TransitionSpec, t, q, v) -
             raise SimulationError(f"transition '{tr.name}': a run without impact switches configuration at "
                                   "the stop, so the stop needs merge_to (the merged configuration)")
         return _merge(ctx, cfg, tr, tr.merge_to, t, q, v, "stop")
-    speed = tr.accumulation_speed if tr.accumulation_speed is not None else ctx.accumulation_speed
-    interval = tr.accumulation_interval if tr.accumulation_interval is not None else ctx.accumulation_interval
+    speed, interval = ctx.tolerances(tr)
     _, _, vn, _ = contact_state(cfg, q, v, tr.contact)
     if vn >= 0:
         # The guard fired while the contact does not approach.  A tiny separating speed is the
@@ -218,7 +226,9 @@ def handle_stop(ctx: Context, cfg: Configuration, tr: TransitionSpec, t, q, v) -
         imp = solve_impulse(cfg, t, q, v, tr.contact, tr.restitution, tr.cut)
         last = ctx.last_impact.get(tr.name)
         rest_speed = imp.vn_after
-        accumulated = abs(imp.vn_after) <= speed or (last is not None and t - last <= interval)
+        # impacts at the same instant are a sequential resolution of simultaneous contacts, not an
+        # accumulation: only a positive interval counts
+        accumulated = abs(imp.vn_after) <= speed or (last is not None and 0 < t - last <= interval)
     ctx.last_impact[tr.name] = t
     if accumulated:
         if tr.merge_to is None:

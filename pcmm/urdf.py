@@ -156,6 +156,12 @@ def _check_inertial(el, name, where, required, problems) -> None:
             problems.append(f"{loc}: has no <inertial>; a link moved by a joint needs mass > 0 "
                             "and a positive-definite inertia (a massless link makes the mass matrix singular)")
         return
+    origin = inertial.find("origin")
+    if origin is not None:
+        for attr in ("xyz", "rpy"):
+            if _floats(origin.get(attr), 3, (0.0, 0.0, 0.0)) is None:
+                problems.append(f"{loc}: <inertial><origin {attr}={origin.get(attr)!r}> must be three finite numbers "
+                                "(the URDF parser would silently drop the whole <inertial>)")
     mass_el = inertial.find("mass")
     try:
         mass = float(mass_el.get("value")) if mass_el is not None else None

@@ -1,0 +1,137 @@
+"""Shared helpers of the pcmm benchmarks (not part of pcmm).
+
+Timing rules every script follows: a ratio is only ever formed from figures
+measured in the same process, repeated and interleaved (the repetitions are the
+outer loop, so a burst of load from another user of the machine hits every
+variant alike), and summarised by the median.  No figure here is asserted by a
+test.
+"""
+from __future__ import annotations
+
+import datetime as _dt
+import hashlib
+import os
+import platform
+import re
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+EXAMPLES = ROOT / "examples"
+DOCS = ROOT / "docs" / "benchmarks"
+
+
+def machine() -> dict:
+    """CPU model, cores, versions, date and load (the machine is shared: the load says how noisy)."""
+    cpu = "unknown"
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    import pinocchio
+    import scipy
+    try:
+        usable = len(os.sched_getaffinity(0))
+    except AttributeError:
+        usable = os.cpu_count()
+    try:
+        load = "%.2f %.2f %.2f" % os.getloadavg()
+    except OSError:
+        load = "n/a"
+    return {
+        "cpu": cpu, "cores": os.cpu_count(), "usable_cores": usable,
+        "python": platform.python_version(), "pin": pinocchio.__version__, "scipy": scipy.__version__,
+        "numpy": np.__version__, "platform": platform.platform(),
+        "date": _dt.datetime.now().astimezone().strftime("%Y-%m-%d %H:%M %Z"), "load_at_start": load,
+        "pcmm_sources": pcmm_fingerprint(),
+        "blas_threads": os.environ.get("OPENBLAS_NUM_THREADS", "unset (OpenBLAS default: one per core)"),
+    }
+
+
+def pcmm_fingerprint() -> str:
+    """sha1 (10 hex) of pcmm's source files as imported: pcmm is edited while benchmarks run, so every page
+    records which sources it measured (and their latest modification time)."""
+    import pcmm
+    files = sorted(Path(pcmm.__file__).parent.glob("*.py"))
+    h = hashlib.sha1()
+    for f in files:
+        h.update(f.name.encode())
+        h.update(f.read_bytes())
+    newest = max(f.stat().st_mtime for f in files)
+    return f"{h.hexdigest()[:10]} (newest file {_dt.datetime.fromtimestamp(newest).astimezone():%Y-%m-%d %H:%M:%S %Z})"
+
+
+def machine_md(info: dict) -> str:
+    return (f"Machine: {info['cpu']}, {info['cores']} cores ({info['usable_cores']} usable, shared with "
+            f"other users; load average at start {info['load_at_start']}); Python {info['python']}, "
+            f"pin (Pinocchio) {info['pin']}, scipy {info['scipy']}, numpy {info['numpy']}; "
+            f"{info['platform']}; OPENBLAS_NUM_THREADS {info['blas_threads']}; pcmm sources "
+            f"{info['pcmm_sources']}; {info['date']}.")
+
+
+def command_line() -> str:
+    script = Path(sys.argv[0]).resolve()
+    try:
+        script = script.relative_to(ROOT)
+    except ValueError:
+        pass
+    return " ".join(["python", str(script)] + sys.argv[1:])
+
+
+def median(xs):
+    xs = [x for x in xs if x is not None and np.isfinite(x)]
+    return statistics.median(xs) if xs else float("nan")
+
+
+def per_call(fn, args=(), n=2000) -> float:
+    """Seconds per call of ``fn(*args)`` over ``n`` calls (one sample)."""
+    t0 = time.perf_counter()
+    for _ in range(n):
+        fn(*args)
+    return (time.perf_counter() - t0) / n
+
+
+def md_table(header: list[str], rows: list[list]) -> str:
+    out = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
+    for r in rows:
+        out.append("| " + " | ".join(str(c) for c in r) + " |")
+    return "\n".join(out)
+
+
+def fmt(x, spec=".2e") -> str:
+    if x is None:
+        return "—"
+    if isinstance(x, (int, np.integer)):
+        return str(int(x))
+    if isinstance(x, str):
+        return x
+    if not np.isfinite(x):
+        return "—"
+    return format(x, spec)
+
+
+def scene_copy(src: Path, dest_dir: Path, name: str, edit=None) -> Path:
+    """Copy a scene TOML into ``dest_dir`` with its URDF paths made absolute; ``edit(text) -> text``."""
+    text = Path(src).read_text()
+
+    def absolute(m):
+        return f'urdf = "{(Path(src).parent / m.group(1)).resolve()}"'
+    text = re.sub(r'urdf\s*=\s*"([^"]+)"', absolute, text)
+    if edit is not None:
+        text = edit(text)
+    dest_dir.mkdir(parents=True, exist_ok=True)
+    out = dest_dir / name
+    out.write_text(text)
+    return out
+
+
+def loglog_slope(x, y) -> float:
+    x, y = np.log(np.asarray(x, float)), np.log(np.asarray(y, float))
+    return float(np.polyfit(x, y, 1)[0])
