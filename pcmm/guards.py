@@ -25,7 +25,8 @@ def _coordinate(cfg: Configuration, tr: TransitionSpec):
         return row @ q - target
     if not cfg.coords.constrained and not cfg.has_planar:
         nv = cfg.nv
-        g.rate = lambda t, y, f: row @ f[:nv]  # q' is the first half of the state derivative
+        g.rate = lambda t, y, f: row @ y[nv:]  # q' = v, the second half of the state
+        g.rate_from_state = True
     return g
 
 
@@ -70,6 +71,7 @@ def make_guard(cfg: Configuration, tr: TransitionSpec, start: tuple | None = Non
             return val if state["armed"] else val - offset
         if hasattr(raw, "rate"):  # a constant shift leaves the rate alone
             g.rate = raw.rate
+            g.rate_from_state = getattr(raw, "rate_from_state", False)
     g.terminal = True
     g.direction = direction
     g.transition = tr

@@ -129,11 +129,12 @@ class _Stepper:
         hit = None
         if self.events:
             g_new = [e(t_new, y_new) for e in self.events]
-            r_new = [_rate(e, t_new, y_new, f_new, h) if f_new is not None else 0.0 for e in self.events]
+            r_new = [_rate(e, t_new, y_new, f_new, h)
+                     if f_new is not None or getattr(e, "rate_from_state", False) else None for e in self.events]
             for i, e in enumerate(self.events):
                 if _crossed(self.g[i], g_new[i], e.direction) or (
-                        f_new is not None and _hermite_dips(self.g[i], self.rates[i], g_new[i], r_new[i], h,
-                                                            e.direction)):
+                        r_new[i] is not None and self.rates[i] is not None
+                        and _hermite_dips(self.g[i], self.rates[i], g_new[i], r_new[i], h, e.direction)):
                     found = _locate(e, dense(), t_old, t_new, self.g[i], self.opts.event_tol)
                     if found is not None and (hit is None or found < hit[1]):
                         hit = (i, found)
@@ -259,6 +260,8 @@ class FortranDOP853:
     name = "DOP853F"
 
     def integrate(self, fun, t0, y0, t_bound, events, opts) -> Segment:
+        needs_f = any(not getattr(e, "rate_from_state", False) for e in events)
+
         def steps(counted, f0, st):
             out = []
 
@@ -267,7 +270,8 @@ class FortranDOP853:
                     return 0
                 t_old, y_old = st.ts[-1], st.ys[-1]
                 y = y.copy()
-                f_new = counted(t, y) if events else None
+                # the derivative only where a guard's rate needs it (a coordinate guard reads q' from y)
+                f_new = counted(t, y) if needs_f else None
                 dense = _lazy(lambda: si.solve_ivp(counted, (t_old, t), y_old, method="DOP853", rtol=opts.rtol,
                                                    atol=opts.atol, first_step=t - t_old, dense_output=True).sol)
                 hit = st.accept(t_old, y_old, t, y, f_new, dense)
