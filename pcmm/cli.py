@@ -43,9 +43,9 @@ def _count(text):
     try:
         val = int(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"max-events = {text!r}: must be a whole number") from None
+        raise argparse.ArgumentTypeError(f"{text!r}: must be a whole number") from None
     if val < 1:
-        raise argparse.ArgumentTypeError(f"max-events = {text!r}: must be >= 1")
+        raise argparse.ArgumentTypeError(f"{text!r}: must be >= 1")
     return val
 
 
@@ -67,6 +67,9 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--accumulation-interval", type=_non_negative("accumulation-interval"),
                    help="impact interval (s) below which repeated stop impacts end in a merge")
     r.add_argument("--max-events", type=_count, help="stop with an error after this many events")
+    r.add_argument("--event-tol", type=_positive("event-tol"),
+                   help="how precisely an event time is located on the dense output, s (default 1e-14)")
+    r.add_argument("--max-steps", type=_count, help="stop with an error after this many steps in a segment")
     r.add_argument("--no-impact", action="store_true",
                    help="switch configurations without impulse (the paper's comparison runs)")
     r.add_argument("--out", type=Path, help="save the trajectory (.npz)")
@@ -163,6 +166,7 @@ def cmd_run(args) -> int:
     opts = RunOptions(t_end=args.t_end, method=args.method, rtol=args.rtol, atol=args.atol,
                       max_step=args.max_step, step=args.step, accumulation_speed=args.accumulation_speed,
                       accumulation_interval=args.accumulation_interval, max_events=args.max_events,
+                      event_tol=args.event_tol, max_steps=args.max_steps,
                       impact=not args.no_impact)
     update, close = _progress(args.quiet, args.t_end or scene.t_end)
     try:

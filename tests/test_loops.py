@@ -118,6 +118,10 @@ def test_four_bar_accelerations_match_pinocchio_constraint_dynamics(tmp_path):
         prox = pin.ProximalSettings(1e-14, 1e-12, 50)
         ddq = pin.constraintDynamics(model, data, q, v, cfg.forces.generalized(q, v), cms, cds, prox)
         assert np.allclose(a, ddq, atol=1e-8, rtol=1e-8)
+        # the cut joint's reaction: pcmm's multiplier is the force on the rocker (b) in world axes;
+        # Pinocchio's contact force acts on joint1's side (the coupler, a), in LOCAL_WORLD_ALIGNED
+        f_pin = np.asarray(data.lambda_c)[:2]
+        assert np.allclose(lam, -f_pin, atol=1e-7 * max(1.0, np.abs(lam).max()))
 
 
 # ---- slider-crank ---------------------------------------------------------------------------
