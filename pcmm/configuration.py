@@ -21,8 +21,9 @@ from dataclasses import dataclass
 
 import numpy as np
 import pinocchio as pin
+import scipy.linalg as sla
 
-from .errors import ModelError
+from .errors import ModelError, SimulationError
 from .forces import ForceField, compile_forces
 from .scene import ConfigurationSpec, Measure, Scene, Target
 
@@ -35,6 +36,22 @@ def frame_jacobian(model, data, frame_id: int, ref=LWA) -> np.ndarray:
     if model.nv == 0:
         return np.zeros((6, 0))
     return np.asarray(pin.getFrameJacobian(model, data, frame_id, ref)).reshape(6, model.nv)
+
+
+def mass_matrix(model, data, q_pin) -> np.ndarray:
+    """D(q) of Eq. 1 by CRBA, symmetrized (CRBA fills the upper triangle only)."""
+    M = pin.crba(model, data, q_pin)
+    return np.triu(M) + np.triu(M, 1).T
+
+
+def cholesky(M: np.ndarray, configuration: str):
+    """Cholesky factor of a mass matrix, or a clear error when it is not positive definite."""
+    try:
+        return sla.cho_factor(M)
+    except np.linalg.LinAlgError:
+        raise SimulationError(
+            f"configuration '{configuration}': the mass matrix is not positive definite (a link without "
+            "mass or inertia?); every moving link needs <inertial> with mass > 0") from None
 
 
 def joint_jacobian(model, data, joint_id: int, ref) -> np.ndarray:
@@ -225,8 +242,7 @@ class Configuration:
     def mass_matrix(self, q: np.ndarray) -> np.ndarray:
         if self.nv == 0:
             return np.zeros((0, 0))
-        M = pin.crba(self.model, self.data, self.to_pin(q))
-        return np.triu(M) + np.triu(M, 1).T
+        return mass_matrix(self.model, self.data, self.to_pin(q))
 
     def kinetic_energy(self, q: np.ndarray, v: np.ndarray) -> float:
         if self.nv == 0:

@@ -25,7 +25,7 @@ import numpy as np
 import pinocchio as pin
 import scipy.linalg as sla
 
-from .configuration import frame_jacobian
+from .configuration import cholesky, frame_jacobian, mass_matrix
 from .errors import Repartition, SimulationError
 
 LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
@@ -141,15 +141,8 @@ def constrained_accelerations(cfg, q, v, J, bias, extra=None):
     if cfg.nv == 0:
         return np.zeros(0), np.zeros(J.shape[0])
     qp = cfg.to_pin(q)
-    M = pin.crba(cfg.model, cfg.data, qp)
-    M = np.triu(M) + np.triu(M, 1).T
+    c = cholesky(mass_matrix(cfg.model, cfg.data, qp), cfg.name)
     h = pin.nonLinearEffects(cfg.model, cfg.data, qp, v)
-    try:
-        c = sla.cho_factor(M)
-    except np.linalg.LinAlgError:
-        raise SimulationError(
-            f"configuration '{cfg.name}': the mass matrix is not positive definite (a link without mass "
-            "or inertia?); every moving link needs <inertial> with mass > 0") from None
     tau = cfg.forces.generalized(q, v) - h
     if extra is not None:
         tau = tau + extra

@@ -27,7 +27,7 @@ import numpy as np
 import pinocchio as pin
 import scipy.linalg as sla
 
-from .configuration import LWA, Configuration, frame_jacobian
+from .configuration import LWA, Configuration, cholesky, frame_jacobian, mass_matrix
 from .cutting import cut
 from .errors import SimulationError
 from .scene import ContactSpec
@@ -100,17 +100,11 @@ def solve_impulse(cfg: Configuration, t: float, q: np.ndarray, v: np.ndarray, co
     pos_a, pos_b = cfg.point_position(pa), cfg.point_position(pb)
     cs = cut(cfg, q, cut_joints)
     v_f = cs.T @ v
-    M_f = pin.crba(cs.model, cs.data, cs.q)
-    M_f = np.triu(M_f) + np.triu(M_f, 1).T
+    M_f = mass_matrix(cs.model, cs.data, cs.q)
     J_n = (n @ (frame_jacobian(cs.model, cs.data, pb.frame_id)[:2]
                 - frame_jacobian(cs.model, cs.data, pa.frame_id)[:2]))[None, :]
     G = np.vstack([cs.J_cut, cfg.coords.equality(t, cs.model, cs.data)])
-    try:
-        chol = sla.cho_factor(M_f)
-    except np.linalg.LinAlgError:
-        raise SimulationError(
-            f"t = {t:.9g} s: the mass matrix of configuration '{cfg.name}' is not positive definite "
-            "(a link without mass or inertia?); every moving link needs <inertial> with mass > 0") from None
+    chol = cholesky(M_f, cfg.name)
     W = sla.cho_solve(chol, np.eye(M_f.shape[0]))
     if G.shape[0]:
         WGt = W @ G.T

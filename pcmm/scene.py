@@ -455,7 +455,7 @@ class _Builder:
                     self.p.add(f"{where}.to", "missing; a latch names the configuration it switches to")
                 for k in ("restitution", "merge_to", "unmerge"):
                     if k in raw:
-                        self.p.add(f"{where}.{k}", f"not used by a latch (the merge is perfectly plastic, e = 0)")
+                        self.p.add(f"{where}.{k}", "not used by a latch (the merge is perfectly plastic, e = 0)")
                 e = 0.0
             elif t["type"] == "stop":
                 if t["to"] is not None:
