@@ -250,9 +250,15 @@ class Configuration:
         return float(pin.computeKineticEnergy(self.model, self.data, self.to_pin(q), v))
 
     def potential_energy(self, q: np.ndarray) -> float:
-        """Gravity plus spring energy (J)."""
+        """Gravity plus spring energy (J).
+
+        Bodies welded to the frame (a link merged with it, like a slider at its stop) sit in
+        Pinocchio's universe inertia, which ``computePotentialEnergy`` leaves out; their constant
+        share is added so the potential energy is continuous across a configuration switch."""
+        fixed = self.model.inertias[0]
+        welded = -fixed.mass * float(self.model.gravity.linear @ fixed.lever)
         return float(pin.computePotentialEnergy(self.model, self.data, self.to_pin(q))) \
-            + self.forces.potential_energy(q)
+            + welded + self.forces.potential_energy(q)
 
     def link_poses(self, q: np.ndarray) -> np.ndarray:
         """(nlinks, 3): x, y, theta of every link frame; needs no prior call."""

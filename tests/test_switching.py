@@ -46,3 +46,17 @@ def test_state_maps_by_joint_name_and_poses_agree(tmp_path):
     i1, i2 = before.links.index("link3"), after.links.index("link3")
     assert np.allclose(after.xy[0, i2], before.xy[-1, i1], atol=1e-9)
     assert after.theta[0, i2] == pytest.approx(before.theta[-1, i1], abs=1e-9)
+
+
+@pytest.mark.parametrize("scene,t_end", [("double_folded.toml", 3.3)])
+def test_potential_energy_is_continuous_across_a_merge(scene, t_end):
+    """A body merged with the frame keeps its (constant) gravity energy: the slider welded at
+    the stop (m g y = 0.455 * 9.81 * -0.1425 = -0.636 J) must not drop out of the total."""
+    traj = pcmm.simulate(pcmm.load_scene(ROOT / "examples" / scene), pcmm.RunOptions(t_end=t_end))
+    merge = [i for i, e in enumerate(traj.events) if e["merge"]]
+    assert merge
+    before, after = traj.segments[-2], traj.segments[-1]
+    assert after.configuration == "config2" and before.configuration == "config1"
+    assert after.potential[0] == pytest.approx(before.potential[-1], abs=1e-12)
+    # and the welded slider's share is there: -m g y of the slider at the stop
+    assert before.potential[-1] < -0.6
