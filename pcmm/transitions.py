@@ -189,6 +189,14 @@ def _merge(ctx: Context, cfg: Configuration, tr: TransitionSpec, target: str, t,
                 f"t = {t:.9g} s, transition '{tr.name}': after the plastic impact the joints that "
                 f"'{target}' locks still move ({moving}); the contact normal of the transition does not "
                 "act along the locked joint's motion, so the merge would silently drop velocity")
+    if tr.guard.type == "coordinate":
+        from .guards import make_guard
+        residual = abs(make_guard(cfg, tr)(t, cfg.coords.pack(t, q, v)))
+        if residual > POSE_TOL:
+            raise SimulationError(
+                f"t = {t:.9g} s, transition '{tr.name}': the event was located {residual:.3g} away from "
+                f"the guard's value, more than the {POSE_TOL:g} the switch to '{target}' allows: lower "
+                "solver.event_tol (--event-tol) or rtol")
     cfg.kinematics(q, v)
     point = _contact_point(cfg, tr)
     record = event_record(cfg, tr, t, target, True, imp, q, v, v_after, point, transition_type)
