@@ -11,10 +11,14 @@ path; nothing here runs a simulation.  Conventions:
 """
 from __future__ import annotations
 
+import contextlib
+import signal
+
 import math
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 G = 9.81
 TRAJECTORY_ARRAYS = ("t", "q", "v", "theta", "omega", "xy", "kinetic", "potential", "forces", "constraint_forces")
@@ -277,3 +281,22 @@ def parallelogram(folder: Path, theta0: float, omega: float, a=0.1, b=0.3, t_end
                    {"A": omega, "B": -omega, "D": omega}, g=0.0, t_end=t_end, solver=solver)
     doc["initial"]["independent"] = ["A"]
     return write_scene(folder, doc, {"pg.urdf": urdf})
+
+
+@contextlib.contextmanager
+def deadline(seconds, what):
+    """Fail (instead of hanging the suite) if the block runs longer than ``seconds``."""
+    class _Deadline(BaseException):
+        pass
+
+    def handler(signum, frame):
+        raise _Deadline()
+    old = signal.signal(signal.SIGALRM, handler)
+    signal.setitimer(signal.ITIMER_REAL, seconds)
+    try:
+        yield
+    except _Deadline:
+        pytest.fail(f"{what}: still running after {seconds} s (a hang)")
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, old)

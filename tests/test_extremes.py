@@ -12,9 +12,7 @@ are ``xfail(strict=True)`` with the bug in the reason.
 """
 from __future__ import annotations
 
-import contextlib
 import math
-import signal
 
 import numpy as np
 import pytest
@@ -92,23 +90,7 @@ def coords_at_end(traj, k):
     return dict(zip(s.coordinates, s.q[-1]))
 
 
-@contextlib.contextmanager
-def deadline(seconds, what):
-    """Fail (instead of hanging the suite) if the block runs longer than ``seconds``."""
-    class _Deadline(BaseException):
-        pass
-
-    def handler(signum, frame):
-        raise _Deadline()
-    old = signal.signal(signal.SIGALRM, handler)
-    signal.setitimer(signal.ITIMER_REAL, seconds)
-    try:
-        yield
-    except _Deadline:
-        pytest.fail(f"{what}: still running after {seconds} s (a hang)")
-    finally:
-        signal.setitimer(signal.ITIMER_REAL, 0)
-        signal.signal(signal.SIGALRM, old)
+deadline = xm.deadline
 
 
 # ---- closed forms ------------------------------------------------------------------------------

@@ -24,7 +24,6 @@ import itertools
 import math
 import re
 import shutil
-import signal
 import tomllib
 import xml.etree.ElementTree as ET
 from pathlib import Path
@@ -80,22 +79,7 @@ def stage(workdir: Path, example: Path, scene_text: str | bytes | None = None, u
         shutil.rmtree(d, ignore_errors=True)
 
 
-@contextlib.contextmanager
-def deadline(seconds, what):
-    class _Deadline(BaseException):
-        pass
-
-    def handler(signum, frame):
-        raise _Deadline()
-    old = signal.signal(signal.SIGALRM, handler)
-    signal.setitimer(signal.ITIMER_REAL, seconds)
-    try:
-        yield
-    except _Deadline:
-        pytest.fail(f"{what}: still running after {seconds} s (a hang)")
-    finally:
-        signal.setitimer(signal.ITIMER_REAL, 0)
-        signal.signal(signal.SIGALRM, old)
+deadline = xm.deadline
 
 
 def extreme(x) -> bool:
