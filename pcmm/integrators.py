@@ -102,8 +102,8 @@ def _hermite_dips(g0, d0, g1, d1, h, direction) -> bool:
 class _Stepper:
     """Event scanning over accepted steps, shared by every method."""
 
-    def __init__(self, fun, events, opts, t0, y0, f0):
-        self.fun, self.events, self.opts = fun, events, opts
+    def __init__(self, fun, events, opts, t0, y0, f0, t_bound):
+        self.fun, self.events, self.opts, self.t_bound = fun, events, opts, t_bound
         self.ts, self.ys = [t0], [np.array(y0, float)]
         self.g = [e(t0, self.ys[0]) for e in events]
         self.rates = [_rate(e, t0, self.ys[0], f0, 1e-6) for e in events] if events else []
@@ -122,7 +122,7 @@ class _Stepper:
                 f"more than {self.opts.max_steps} steps by t = {t_new:.9g} s: the problem is too stiff "
                 "or too fast for this method; use a stiff method (Radau, LSODA) or raise solver.max_steps")
         h = t_new - t_old
-        if self.count > 100 and 0 < abs(h) < 64 * EPS * max(1.0, abs(t_new)) and t_new != self.opts_t_bound:
+        if self.count > 100 and 0 < abs(h) < 64 * EPS * max(1.0, abs(t_new)) and t_new != self.t_bound:
             raise SimulationError(
                 f"the step size collapsed to {h:.3g} s at t = {t_new:.9g} s: the problem is stiff or "
                 "singular here; use a stiff method (Radau, LSODA) or check forces and stiffness values")
@@ -186,18 +186,15 @@ def _locate(e, sol, t_a, t_b, g_a, tol):
     return None
 
 
-def _run(stepper_factory, fun, t0, y0, t_bound, events, opts):
+def _run(driver, fun, t0, y0, t_bound, events, opts):
+    """Set up the counted right-hand side and the event scanner, let ``driver(counted, f0, st)``
+    step (it returns ``(hit, failure)``), and turn what it raises into pcmm errors that carry
+    the steps already taken."""
     counted = _Counted(fun)
     f0 = counted(t0, np.asarray(y0, float))
-    st = _Stepper(counted, events, opts, t0, y0, f0)
-    st.opts_t_bound = t_bound
+    st = _Stepper(counted, events, opts, t0, y0, f0, t_bound)
     try:
-        for t_old, y_old, t_new, y_new, f_new, dense, failure in stepper_factory(counted, f0, st):
-            if failure:
-                return st.segment(None, counted.n, -1, failure)
-            hit = st.accept(t_old, y_old, t_new, y_new, f_new, dense)
-            if hit is not None:
-                return st.segment(hit[0], counted.n, 1, "event")
+        hit, failure = driver(counted, f0, st)
     except (SimulationError, KeyboardInterrupt, Repartition) as exc:
         exc.segment = st.segment(None, counted.n, -1, str(exc))
         raise
@@ -208,7 +205,22 @@ def _run(stepper_factory, fun, t0, y0, t_bound, events, opts):
             "tolerance, or check forces and stiffness values")
         err.segment = st.segment(None, counted.n, -1, str(err))
         raise err from None
+    if failure:
+        return st.segment(None, counted.n, -1, failure)
+    if hit is not None:
+        return st.segment(hit[0], counted.n, 1, "event")
     return st.segment(None, counted.n, 0, "reached t_end")
+
+
+def _scan(steps, st):
+    """Feed a method's accepted steps to the event scanner: ``(hit, failure)``."""
+    for t_old, y_old, t_new, y_new, f_new, dense, failure in steps:
+        if failure:
+            return None, failure
+        hit = st.accept(t_old, y_old, t_new, y_new, f_new, dense)
+        if hit is not None:
+            return hit, None
+    return None, None
 
 
 class ScipyMethod:
@@ -232,7 +244,7 @@ class ScipyMethod:
                     return
                 f_new = getattr(solver, "f", None)
                 yield t_old, y_old, solver.t, solver.y, f_new, _lazy(solver.dense_output), None
-        return _run(steps, fun, t0, y0, t_bound, events, opts)
+        return _run(lambda counted, f0, st: _scan(steps(counted, f0, st), st), fun, t0, y0, t_bound, events, opts)
 
 
 def _lazy(make):
@@ -262,10 +274,10 @@ class FortranDOP853:
     def integrate(self, fun, t0, y0, t_bound, events, opts) -> Segment:
         needs_f = any(not getattr(e, "rate_from_state", False) for e in events)
 
-        def steps(counted, f0, st):
-            out = []
+        def drive(counted, f0, st):
+            hits = []
 
-            def solout(t, y):
+            def solout(t, y):  # called by the Fortran code after every accepted step
                 if t == st.ts[-1]:
                     return 0
                 t_old, y_old = st.ts[-1], st.ys[-1]
@@ -276,7 +288,7 @@ class FortranDOP853:
                                                    atol=opts.atol, first_step=t - t_old, dense_output=True).sol)
                 hit = st.accept(t_old, y_old, t, y, f_new, dense)
                 if hit is not None:
-                    out.append(hit)
+                    hits.append(hit)
                     return -1
                 return 0
             solver = si.ode(counted).set_integrator(
@@ -285,29 +297,14 @@ class FortranDOP853:
             solver.set_solout(solout)
             solver.set_initial_value(np.array(y0, float), t0)
             solver.integrate(t_bound)
-            if out:
-                st.found = out[0]
-            elif not solver.successful():
-                yield st.ts[-1], st.ys[-1], st.ts[-1], st.ys[-1], None, None, \
-                    f"DOP853 (Fortran) failed with code {solver.get_return_code()}"
-            return
-            yield  # a generator
-        counted = _Counted(fun)
-        f0 = counted(t0, np.asarray(y0, float))
-        st = _Stepper(counted, events, opts, t0, y0, f0)
-        st.opts_t_bound = t_bound
-        st.found = None
-        try:
-            for item in steps(counted, f0, st):
-                return st.segment(None, counted.n, -1, item[-1])
-        except (SimulationError, KeyboardInterrupt, Repartition) as exc:
-            exc.segment = st.segment(None, counted.n, -1, str(exc))
-            raise
-        if st.found is not None:
-            return st.segment(st.found[0], counted.n, 1, "event")
-        if st.ts[-1] < t_bound:
-            raise SimulationError(f"DOP853 (Fortran) stopped at t = {st.ts[-1]:.9g} s before t_end")
-        return st.segment(None, counted.n, 0, "reached t_end")
+            if hits:
+                return hits[0], None
+            if not solver.successful():
+                return None, f"DOP853 (Fortran) failed with code {solver.get_return_code()}"
+            if st.ts[-1] < t_bound:
+                return None, f"DOP853 (Fortran) stopped at t = {st.ts[-1]:.9g} s before t_end"
+            return None, None
+        return _run(drive, fun, t0, y0, t_bound, events, opts)
 
 
 class FixedStepRK4:
@@ -338,7 +335,7 @@ class FixedStepRK4:
                 f_new = counted(t_new, y_new) if np.all(np.isfinite(y_new)) else y_new
                 yield t, y, t_new, y_new, f_new, _lazy(lambda a=(t, y, f, t_new, y_new, f_new): _hermite(*a)), None
                 t, y, f = t_new, y_new, f_new
-        return _run(steps, fun, t0, y0, t_bound, events, opts)
+        return _run(lambda counted, f0, st: _scan(steps(counted, f0, st), st), fun, t0, y0, t_bound, events, opts)
 
 
 def _hermite(t0, y0, f0, t1, y1, f1):
