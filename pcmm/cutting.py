@@ -83,7 +83,7 @@ def cut(cfg: Configuration, q: np.ndarray, joints: tuple[str, ...]) -> CutSystem
     model, data = cfg.model, cfg.data
     joints = tuple(joints)
     qp = cfg.to_pin(q)
-    pin.forwardKinematics(model, data, qp)
+    pin.computeJointJacobians(model, data, qp)  # placements (oMi, liMi) and the tree's Jacobians in one pass
     new, new_data, jmap, copies, cut_ids = _structure(cfg, joints)
     q_parts = []
     for jid in range(1, model.njoints):
@@ -101,7 +101,6 @@ def cut(cfg: Configuration, q: np.ndarray, joints: tuple[str, ...]) -> CutSystem
     pin.computeJointJacobians(new, new_data, q_f)
     pin.updateFramePlacements(new, new_data)
     # T: tree velocity -> cut-system velocity
-    pin.computeJointJacobians(model, data, qp)
     T = np.zeros((new.nv, model.nv))
     for jid in range(1, model.njoints):
         nj = new.joints[jmap[jid]]

@@ -57,13 +57,19 @@ class Impulse:
         return self.P * self.normal
 
 
-def contact_state(cfg: Configuration, q, v, contact: ContactSpec):
-    """(normal, gap, vn, J_n) at (q, v): n in world from a to b, gap = n . (p_b - p_a)."""
-    cfg.kinematics(q, v)
+def _normal_row(cfg: Configuration, contact: ContactSpec):
+    """(points a and b, world normal n from a to b, J_n = n^T (J_b - J_a)); kinematics must be
+    computed on the configuration's data."""
     pa, pb = cfg.point(contact.a, contact.point_a), cfg.point(contact.b, contact.point_b)
     n = cfg.rotation(contact.a) @ np.asarray(contact.normal, dtype=float)
     n /= np.linalg.norm(n)
-    Jn = n @ (cfg.point_jacobian(pb) - cfg.point_jacobian(pa))
+    return pa, pb, n, n @ (cfg.point_jacobian(pb) - cfg.point_jacobian(pa))
+
+
+def contact_state(cfg: Configuration, q, v, contact: ContactSpec):
+    """(normal, gap, vn, J_n) at (q, v): n in world from a to b, gap = n . (p_b - p_a)."""
+    cfg.kinematics(q, v)
+    pa, pb, n, Jn = _normal_row(cfg, contact)
     gap = float(n @ (cfg.point_position(pb) - cfg.point_position(pa)))
     return n, gap, float(Jn @ v), Jn
 
@@ -74,10 +80,7 @@ def contact_row(cfg: Configuration, q, v, contact: ContactSpec):
     pin.forwardKinematics(cfg.model, cfg.data, qp, v, np.zeros(cfg.nv))
     pin.computeJointJacobians(cfg.model, cfg.data, qp)
     pin.updateFramePlacements(cfg.model, cfg.data)
-    pa, pb = cfg.point(contact.a, contact.point_a), cfg.point(contact.b, contact.point_b)
-    n = cfg.rotation(contact.a) @ np.asarray(contact.normal, dtype=float)
-    n /= np.linalg.norm(n)
-    Jn = n @ (cfg.point_jacobian(pb) - cfg.point_jacobian(pa))
+    pa, pb, n, Jn = _normal_row(cfg, contact)
     acc = (pin.getFrameClassicalAcceleration(cfg.model, cfg.data, pb.frame_id, LWA).linear[:2]
            - pin.getFrameClassicalAcceleration(cfg.model, cfg.data, pa.frame_id, LWA).linear[:2])
     w_a = pin.getFrameVelocity(cfg.model, cfg.data, cfg.link_frame[contact.a], LWA).angular[2]

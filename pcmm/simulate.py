@@ -17,11 +17,11 @@ from .configuration import Configuration, Mechanism
 from .errors import Repartition, SimulationError, UsageError
 from .contact_laws import ContactPhase, strip
 from .guards import make_guard, make_release_guard
-from .impulse import contact_state, impact_kind
+from .impulse import contact_state
 from .integrators import INTEGRATORS, Segment
 from .scene import Scene, SolverSettings
 from .trajectory import SegmentRecord, Trajectory
-from .transitions import TRANSITIONS, Context, handle_release
+from .transitions import TRANSITIONS, Context, event_dict, handle_release
 
 
 @dataclass(frozen=True)
@@ -257,23 +257,17 @@ def _reporting(fun, progress, every: int = 256):
 
 
 def _contact_event(phase: ContactPhase, t, q, v, impulse_integral) -> dict:
-    """The event record of a collision resolved by a continuous law (from first contact to separation)."""
+    """The event of a collision resolved by a continuous law (from first contact to separation)."""
     cfg, tr = phase.cfg, phase.tr
     n, _, vn, _ = contact_state(cfg, q, v, tr.contact)
     M0, M1 = cfg.mass_matrix(phase.q_start), cfg.mass_matrix(q)
-    return {
-        "t": phase.t_start, "t_end": float(t), "duration": float(t - phase.t_start), "name": tr.name,
-        "kind": impact_kind(cfg, tr.contact), "transition": "stop", "law": tr.law, "from": cfg.name,
-        "to": cfg.name, "restitution": tr.restitution, "merge": False, "impact": True,
-        "impulse": {"normal": impulse_integral, "vector": (impulse_integral * n).tolist()},
-        "normal": n.tolist(), "contact_point": cfg.point_position(cfg.point(tr.contact.b, tr.contact.point_b)).tolist(),
-        "normal_velocity": {"before": -phase.v_impact, "after": float(vn)},
-        "omega_before": {k: float(w) for k, w in zip(cfg.links, cfg.A @ phase.v_start)},
-        "omega_after": {k: float(w) for k, w in zip(cfg.links, cfg.A @ v)},
-        "v_before": cfg.by_joint(phase.v_start), "v_after": cfg.by_joint(v), "joint_impulses": {},
-        "kinetic_energy_before": float(0.5 * phase.v_start @ M0 @ phase.v_start),
-        "kinetic_energy_after": float(0.5 * v @ M1 @ v),
-    }
+    return event_dict(
+        cfg, tr, phase.t_start, transition="stop", to=cfg.name, restitution=tr.restitution, merge=False,
+        impact=True, P=impulse_integral, normal=n,
+        point=cfg.point_position(cfg.point(tr.contact.b, tr.contact.point_b)),
+        vn=(-phase.v_impact, vn), v=(phase.v_start, v),
+        ke=(0.5 * phase.v_start @ M0 @ phase.v_start, 0.5 * v @ M1 @ v),
+        t_end=float(t), duration=float(t - phase.t_start), law=tr.law)
 
 
 def _t_last(traj: Trajectory) -> float:

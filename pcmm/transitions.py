@@ -131,38 +131,46 @@ def _by_link(cfg: Configuration, v):
     return {link: float(w) for link, w in zip(cfg.links, cfg.A @ v)}
 
 
+def event_dict(cfg: Configuration, tr: TransitionSpec, t, *, transition, to, restitution, merge, impact,
+               P, normal, point, vn, v, ke, v_after_named=None, **extra) -> dict:
+    """One event of the summary (the schema lives here only): ``vn``, ``v`` and ``ke`` are
+    (before, after) pairs, velocities in ``cfg``'s coordinates; ``extra`` adds keys."""
+    v_before, v_after = v
+    return {
+        "t": float(t), "name": tr.name, "kind": impact_kind(cfg, tr.contact), "transition": transition,
+        "from": cfg.name, "to": to, "restitution": restitution, "merge": merge, "impact": impact,
+        "impulse": {"normal": float(P), "vector": [float(P * c) + 0.0 for c in normal[:2]]},
+        "normal": [float(normal[0]), float(normal[1])], "contact_point": [float(point[0]), float(point[1])],
+        "normal_velocity": {"before": float(vn[0]), "after": float(vn[1])},
+        "omega_before": _by_link(cfg, v_before), "omega_after": _by_link(cfg, v_after),
+        "v_before": cfg.by_joint(v_before),
+        "v_after": cfg.by_joint(v_after) if v_after_named is None else v_after_named,
+        "joint_impulses": {}, "kinetic_energy_before": float(ke[0]), "kinetic_energy_after": float(ke[1]),
+        **extra,
+    }
+
+
 def event_record(cfg: Configuration, tr: TransitionSpec, t, target, merge, imp: Impulse | None,
                  q, v_before, v_after, contact_point, transition_type=None) -> dict:
+    """The event of an impact resolved by an impulse (or of a switch without impact)."""
     M = cfg.mass_matrix(q)
-    ke = lambda v: float(0.5 * v @ M @ v)  # noqa: E731
+    ke = (float(0.5 * v_before @ M @ v_before), float(0.5 * v_after @ M @ v_after))
+    common = dict(transition=transition_type or tr.type, to=target, merge=merge, point=contact_point,
+                  v=(v_before, v_after), ke=ke)
     if imp is None:
         n, _, vn_b, Jn = contact_state(cfg, q, v_before, tr.contact)
-        vn_a = float(Jn @ v_after)
-        impulse = {"normal": 0.0, "vector": [0.0, 0.0]}
-        extra = {}
-        e = None
-    else:
-        n, vn_b, vn_a, e = imp.normal, imp.vn_before, imp.vn_after, imp.restitution
-        impulse = {"normal": imp.P, "vector": imp.vector.tolist()}
-        # A driven joint keeps its prescribed speed through the impact: its motor's impulsive
-        # moment does work (mu q'), so the kinetic energy may rise by that much; what never
-        # rises is KE_before + drive_work - KE_after (the energy the impact dissipates).
-        drive_work = sum(mu * float(v_before[cfg.joint_slice[lab[:-6]]][0])
-                         for lab, mu in imp.constraint_impulses.items() if lab.endswith(".drive"))
-        extra = {"joint_impulses": imp.joint_impulses, "cut_impulses": imp.cut_impulses,
-                 "constraint_impulses": imp.constraint_impulses, "drive_work": drive_work,
-                 "energy_dissipated": ke(v_before) + drive_work - ke(v_after)}
-    return {
-        "t": float(t), "name": tr.name, "kind": impact_kind(cfg, tr.contact),
-        "transition": transition_type or tr.type, "from": cfg.name, "to": target, "restitution": e,
-        "merge": merge, "impact": imp is not None, "impulse": impulse,
-        "normal": [float(n[0]), float(n[1])], "contact_point": list(map(float, contact_point)),
-        "normal_velocity": {"before": float(vn_b), "after": float(vn_a)},
-        "omega_before": _by_link(cfg, v_before), "omega_after": _by_link(cfg, v_after),
-        "v_before": cfg.by_joint(v_before), "v_after": cfg.by_joint(v_after),
-        "joint_impulses": {}, **extra,
-        "kinetic_energy_before": ke(v_before), "kinetic_energy_after": ke(v_after),
-    }
+        return event_dict(cfg, tr, t, restitution=None, impact=False, P=0.0, normal=n,
+                          vn=(vn_b, float(Jn @ v_after)), **common)
+    # A driven joint keeps its prescribed speed through the impact: its motor's impulsive
+    # moment does work (mu q'), so the kinetic energy may rise by that much; what never
+    # rises is KE_before + drive_work - KE_after (the energy the impact dissipates).
+    drive_work = sum(mu * float(v_before[cfg.joint_slice[lab[:-6]]][0])
+                     for lab, mu in imp.constraint_impulses.items() if lab.endswith(".drive"))
+    return event_dict(cfg, tr, t, restitution=imp.restitution, impact=True, P=imp.P, normal=imp.normal,
+                      vn=(imp.vn_before, imp.vn_after), **common,
+                      joint_impulses=imp.joint_impulses, cut_impulses=imp.cut_impulses,
+                      constraint_impulses=imp.constraint_impulses, drive_work=drive_work,
+                      energy_dissipated=ke[0] + drive_work - ke[1])
 
 
 def _contact_point(cfg, tr):
@@ -190,8 +198,8 @@ def _merge(ctx: Context, cfg: Configuration, tr: TransitionSpec, target: str, t,
                 f"'{target}' locks still move ({moving}); the contact normal of the transition does not "
                 "act along the locked joint's motion, so the merge would silently drop velocity")
     if tr.guard.type == "coordinate":
-        from .guards import make_guard
-        residual = abs(make_guard(cfg, tr)(t, cfg.coords.pack(t, q, v)))
+        from .guards import guard_value
+        residual = abs(guard_value(cfg, tr, t, q, v))
         if residual > POSE_TOL:
             raise SimulationError(
                 f"t = {t:.9g} s, transition '{tr.name}': the event was located {residual:.3g} away from "
@@ -260,16 +268,9 @@ def handle_release(ctx: Context, cfg: Configuration, tr: TransitionSpec, t, q, v
     n, _, vn, _ = contact_state(dst, q_new, v_new, tr.contact)
     M = cfg.mass_matrix(q)
     ke = float(0.5 * v @ M @ v)
-    record = {
-        "t": float(t), "name": tr.name, "kind": impact_kind(dst, tr.contact), "transition": "release",
-        "from": cfg.name, "to": source_name, "restitution": None, "merge": False, "impact": False,
-        "impulse": {"normal": 0.0, "vector": [0.0, 0.0]}, "normal": [float(n[0]), float(n[1])],
-        "contact_point": list(map(float, _contact_point(dst, tr))),
-        "normal_velocity": {"before": float(vn), "after": float(vn)},
-        "omega_before": _by_link(cfg, v), "omega_after": _by_link(cfg, v),
-        "v_before": cfg.by_joint(v), "v_after": dst.by_joint(v_new), "joint_impulses": {},
-        "kinetic_energy_before": ke, "kinetic_energy_after": ke,
-    }
+    record = event_dict(cfg, tr, t, transition="release", to=source_name, restitution=None, merge=False,
+                        impact=False, P=0.0, normal=n, point=_contact_point(dst, tr), vn=(vn, vn), v=(v, v),
+                        ke=(ke, ke), v_after_named=dst.by_joint(v_new))
     return Outcome(source_name, q_new, v_new, record, offsets)
 
 
