@@ -170,26 +170,28 @@ class TreeCoordinates:
 
     def _make_rhs(self):
         """The right-hand side as a closure over prebound names: per call one
-        matrix-vector product for the force elements, one ``aba`` and one
-        array; no Python attribute look-ups or planar conversions unless needed."""
+        matrix-vector product for the force elements (into a buffer the closure
+        owns: ``aba`` reads it and returns a new array), one ``aba`` and one new
+        array out (integrators keep the arrays they are given); no Python
+        attribute look-ups or planar conversions unless needed."""
         cfg, nv = self.cfg, self.nv
         if nv == 0:
             return lambda t, y: y
         model, data, aba = cfg.model, cfg.data, pin.aba
         Q0, KD = cfg.forces.Q0, cfg.forces.KD
+        tau = np.empty(nv)
+        dot, subtract, concatenate = np.dot, np.subtract, np.concatenate
         if cfg.has_planar:
             to_pin, qdot = cfg.to_pin, cfg.qdot
 
             def rhs_planar(t, y):
                 q, v = y[:nv], y[nv:]
-                return np.concatenate([qdot(q, v), aba(model, data, to_pin(q), v, Q0 - KD @ y)])
+                return concatenate((qdot(q, v), aba(model, data, to_pin(q), v, subtract(Q0, dot(KD, y, tau), tau))))
             return rhs_planar
 
         def rhs(t, y):
-            out = np.empty(2 * nv)
-            out[:nv] = y[nv:]
-            out[nv:] = aba(model, data, y[:nv], y[nv:], Q0 - KD @ y)
-            return out
+            v = y[nv:]
+            return concatenate((v, aba(model, data, y[:nv], v, subtract(Q0, dot(KD, y, tau), tau))))
         return rhs
 
     def pack(self, t, q, v):

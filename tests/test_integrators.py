@@ -1,0 +1,139 @@
+"""The integrator contract (pcmm/integrators.py), checked for every method of the registry on
+an oscillator with a closed-form solution, x'' = -w^2 x, x(t) = cos(w t):
+
+* the state at t_bound (closed form);
+* an event located on the method's dense output (first crossing of cos(w t) = c: t = acos(c)/w);
+* a grazing event, in and out of the guard inside one step (found, at the closed-form time);
+* an exception raised in the right-hand side (Ctrl-C, a pcmm error, a loop's repartition)
+  ends the integration at once, as that exception, carrying the steps taken before it;
+* too many steps, and a right-hand side that turns non-finite, end with a message naming the
+  setting to change.
+
+The Fortran DOP853 calls back into Python; an exception raised in a call-back does not stop the
+Fortran code by itself (f2py keeps it until the integration ends), so these cases guard it.
+"""
+from __future__ import annotations
+
+import math
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from pcmm.errors import Repartition, SimulationError
+from pcmm.integrators import INTEGRATORS
+
+W = 3.0  # rad/s
+
+
+def options(**kw):
+    base = dict(rtol=1e-10, atol=1e-12, max_step=np.inf, step=1e-3, event_tol=1e-14, max_steps=10**6)
+    return SimpleNamespace(**{**base, **kw})
+
+
+def oscillator(t, y):
+    return np.array([y[1], -W * W * y[0]])
+
+
+def exact(t):
+    return np.array([math.cos(W * t), -W * math.sin(W * t)])
+
+
+# method: bound on |error| of the state at t = 2 s and of an event time, at rtol 1e-10 (RK4: h = 1e-3 s)
+BOUND = {"DOP853": 1e-9, "DOP853F": 1e-9, "RK45": 1e-8, "RK23": 1e-7, "Radau": 1e-7, "BDF": 1e-5,
+         "LSODA": 1e-6, "RK4": 1e-9}
+
+
+def test_every_method_has_a_bound():
+    assert set(BOUND) == set(INTEGRATORS)
+
+
+@pytest.mark.parametrize("name", sorted(INTEGRATORS))
+def test_state_at_t_bound_matches_the_closed_form(name):
+    seg = INTEGRATORS[name].integrate(oscillator, 0.0, exact(0.0), 2.0, [], options())
+    assert seg.status == 0 and seg.event is None, seg.message
+    assert seg.t[0] == 0.0 and seg.t[-1] == pytest.approx(2.0, abs=1e-12)
+    assert np.all(np.diff(seg.t) > 0)
+    assert np.max(np.abs(seg.y[:, -1] - exact(2.0))) < BOUND[name] * W
+    assert seg.nfev >= seg.nsteps
+
+
+def guard(value, direction):
+    def g(t, y):
+        return y[0] - value
+    g.terminal, g.direction = True, direction
+    return g
+
+
+@pytest.mark.parametrize("name", sorted(INTEGRATORS))
+def test_event_is_located_at_the_closed_form_time(name):
+    c = 0.3
+    seg = INTEGRATORS[name].integrate(oscillator, 0.0, exact(0.0), 2.0, [guard(c, -1)], options())
+    assert seg.status == 1 and seg.event == 0
+    assert abs(seg.t[-1] - math.acos(c) / W) < BOUND[name]
+    assert abs(seg.y[0, -1] - c) < BOUND[name] * W
+
+
+@pytest.mark.parametrize("name", sorted(INTEGRATORS))
+def test_a_graze_inside_one_step_is_found(name):
+    """From t0 = -0.4 s the oscillator rises to x = 1 at t = 0 and falls again; the guard
+    x = 1 - 1e-6 is above it only for |t| < 4.7e-4 s, far less than one adaptive step."""
+    depth = 1e-6
+    t0 = -0.4
+    seg = INTEGRATORS[name].integrate(oscillator, t0, exact(t0), 1.0, [guard(1 - depth, +1)], options())
+    assert seg.status == 1 and seg.event == 0, seg.message
+    t_in = -math.acos(1 - depth) / W
+    slope = W * math.sin(W * abs(t_in))  # the guard's rate where it crosses: small near the tangency
+    assert abs(seg.t[-1] - t_in) < BOUND[name] * W / slope
+
+
+class _Raising:
+    """The oscillator, raising ``exc`` at its first call past ``t_raise``; counts later calls."""
+
+    def __init__(self, exc, t_raise):
+        self.exc, self.t_raise, self.raised, self.after = exc, t_raise, False, 0
+
+    def __call__(self, t, y):
+        if self.raised:
+            self.after += 1
+        elif t > self.t_raise:
+            self.raised = True
+            raise self.exc
+        return oscillator(t, y)
+
+
+@pytest.mark.parametrize("exc", [KeyboardInterrupt(), SimulationError("singular loop"), Repartition(0.5)],
+                         ids=["ctrl-c", "pcmm-error", "repartition"])
+@pytest.mark.parametrize("name", sorted(INTEGRATORS))
+def test_an_exception_in_the_rhs_ends_the_integration_at_once(name, exc):
+    fun = _Raising(exc, 0.5)
+    with pytest.raises(type(exc)) as info:
+        INTEGRATORS[name].integrate(fun, 0.0, exact(0.0), 10.0, [], options())
+    assert info.value is exc
+    assert fun.after == 0, f"{fun.after} right-hand-side calls after the exception"
+    seg = info.value.segment
+    assert seg.status == -1 and seg.t.size >= 2 and seg.t[-1] <= 0.5
+    assert np.all(np.isfinite(seg.y))
+    assert np.max(np.abs(seg.y[:, -1] - exact(seg.t[-1]))) < BOUND[name] * W
+
+
+@pytest.mark.parametrize("name", sorted(INTEGRATORS))
+def test_too_many_steps_names_max_steps(name):
+    with pytest.raises(SimulationError, match="max_steps") as info:
+        INTEGRATORS[name].integrate(oscillator, 0.0, exact(0.0), 100.0, [], options(max_steps=5))
+    assert info.value.segment.t[-1] < 100.0
+
+
+@pytest.mark.parametrize("name", sorted(INTEGRATORS))
+def test_a_non_finite_rhs_ends_with_a_message(name):
+    def fun(t, y):
+        return np.full(2, np.nan) if t > 0.3 else oscillator(t, y)
+    try:
+        seg = INTEGRATORS[name].integrate(fun, 0.0, exact(0.0), 2.0, [], options())
+    except SimulationError as exc:
+        seg, msg = exc.segment, str(exc)
+    else:
+        msg = seg.message  # scipy's steppers report their failure in the segment
+    assert seg.status == -1 and 0.0 < seg.t[-1] <= 0.3 + 1e-12
+    assert np.all(np.isfinite(seg.y))
+    assert any(k in msg for k in ("not finite", "no longer finite", "collapsed", "step size")), msg
