@@ -25,7 +25,7 @@ import numpy as np
 import pinocchio as pin
 import scipy.linalg as sla
 
-from .configuration import cholesky, frame_jacobian, mass_matrix
+from .configuration import frame_jacobian
 from .errors import Repartition, SimulationError
 
 LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
@@ -137,19 +137,24 @@ class Drives:
 
 def constrained_accelerations(cfg, q, v, J, bias, extra=None):
     """Solve ``M a + h = Q + J^T lam``, ``J a + bias = 0`` (the multipliers are the
-    constraint forces: cut-joint reactions on b, driving moments, contact forces)."""
+    constraint forces: cut-joint reactions on b, driving moments, contact forces).
+
+    By the Schur complement on Pinocchio's O(n) algorithms: the free acceleration
+    ``a0 = M^-1 (Q - h)`` is one ``aba``, ``M^-1`` one ``computeMinverse``; then
+    ``(J M^-1 J^T) lam = -bias - J a0`` and ``a = a0 + M^-1 J^T lam``.  (The mass matrix
+    is positive definite: the URDF check demands mass and a positive-definite inertia
+    of every moving link.)"""
     if cfg.nv == 0:
         return np.zeros(0), np.zeros(J.shape[0])
     qp = cfg.to_pin(q)
-    c = cholesky(mass_matrix(cfg.model, cfg.data, qp), cfg.name)
-    h = pin.nonLinearEffects(cfg.model, cfg.data, qp, v)
-    tau = cfg.forces.generalized(q, v) - h
+    tau = cfg.forces.generalized(q, v)
     if extra is not None:
         tau = tau + extra
-    a0 = sla.cho_solve(c, tau)
+    a0 = pin.aba(cfg.model, cfg.data, qp, v, tau)
     if J.shape[0] == 0:
         return a0, np.zeros(0)
-    MiJt = sla.cho_solve(c, J.T)
+    Minv = pin.computeMinverse(cfg.model, cfg.data, qp)
+    MiJt = np.triu(Minv) @ J.T + np.triu(Minv, 1).T @ J.T  # Pinocchio fills the upper triangle
     lam = np.linalg.solve(J @ MiJt, -bias - J @ a0)
     return a0 + MiJt @ lam, lam
 
@@ -367,8 +372,7 @@ class PartitionedCoordinates:
         """State vector at an assembled (q, v); the partition is re-chosen here,
         at the start of every segment, so it follows the posture."""
         self.partition(t, q)
-        self._qD = q.copy()
-        self._cache = None
+        self.seed(q)
         return np.concatenate([q[self.I], v[self.I]])
 
     def at_degenerate_partition(self, t, q):
@@ -418,8 +422,7 @@ class PartitionedCoordinates:
         """Assemble (q, v) onto the constraints keeping the independent coordinates
         (a new partition is chosen at q, preferring ``prefer_independent``)."""
         self.partition(t, q, prefer_independent)
-        self._qD = q.copy()
-        self._cache = None
+        self.seed(q)
         return self.unpack(t, np.concatenate([q[self.I], v[self.I]]))
 
     def rows(self, t, q, v):
