@@ -22,6 +22,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from extreme_models import toml_key, toml_value  # noqa: F401 (re-exported to the tests)
+
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLES = ROOT / "examples"
 URDF_DIR = ROOT / "urdf"
@@ -121,28 +123,7 @@ def free_bar_urdf(mass: float, length: float, com=(0.0, 0.0), izz: float | None 
 
 
 # ---- scene TOML text ----------------------------------------------------------------------
-def toml_value(v) -> str:
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, (int, np.integer)):
-        return str(int(v))
-    if isinstance(v, (float, np.floating)):
-        if math.isnan(v):
-            return "nan"
-        if math.isinf(v):
-            return "inf" if v > 0 else "-inf"
-        return repr(float(v))
-    if isinstance(v, str):
-        return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
-    if isinstance(v, (list, tuple)):
-        return "[" + ", ".join(toml_value(x) for x in v) + "]"
-    if isinstance(v, dict):
-        return "{ " + ", ".join(f"{toml_key(k)} = {toml_value(x)}" for k, x in v.items()) + " }"
-    raise TypeError(type(v))
-
-
-def toml_key(k: str) -> str:
-    return k if k.replace("_", "").replace("-", "").isalnum() else toml_value(k)
+# one TOML writer for every test module: extreme_models' (inline tables, numpy scalars, escapes)
 
 
 def toml_table(header: str, table: dict) -> str:

@@ -56,14 +56,14 @@ LIMIT = '<limit lower="-1e6" upper="1e6" effort="1e6" velocity="1e6"/>'
 def toml_value(v) -> str:
     if isinstance(v, bool):
         return "true" if v else "false"
-    if isinstance(v, int):
-        return str(v)
-    if isinstance(v, float):
+    if isinstance(v, (int, np.integer)):
+        return str(int(v))
+    if isinstance(v, (float, np.floating)):
         if math.isnan(v):
             return "nan"
         if math.isinf(v):
             return "inf" if v > 0 else "-inf"
-        return repr(v)
+        return repr(float(v))
     if isinstance(v, str):
         return '"' + v.replace("\\", "\\\\").replace('"', '\\"').replace("\n", "\\n") + '"'
     if isinstance(v, (list, tuple)):
@@ -136,15 +136,16 @@ def base_doc(name, initial, configs: dict, q, v, g=G, t_end=1.0, solver=None, **
 
 # ---- scenes ---------------------------------------------------------------------------------------
 def ball(folder: Path, e: float, h: float = 1.0, g: float = G, mass: float = 1.0, v0: float = 0.0,
-         t_end: float = 1.0, merge: bool = True, solver=None) -> Path:
+         t_end: float = 1.0, merge: bool = True, solver=None, **law) -> Path:
     """A point mass on a vertical prismatic joint Y (q = height) above the floor y = 0;
-    a stop with restitution e (gap guard) that merges into 'rest' (Y fixed at 0)."""
+    a stop with restitution e (gap guard) that merges into 'rest' (Y fixed at 0).  ``law``
+    (``law``, ``stiffness``, ``exponent``) makes the stop a continuous contact law."""
     ball_link = link("ball", mass, 1e-3 * mass)
     free = robot("ball", link("frame"), joint("Y", "prismatic", "frame", "ball", axis=(0, 1, 0)), ball_link)
     rest = robot("ball_rest", link("frame"), joint("Y", "fixed", "frame", "ball"), ball_link)
     tr = stop("floor", "free", e, {"type": "gap", "value": 0.0, "direction": "decreasing"},
               {"a": "frame", "point_a": [0.0, 0.0], "b": "ball", "point_b": [0.0, 0.0], "normal": [0.0, 1.0]},
-              merge_to="rest" if merge else None)
+              merge_to="rest" if merge else None, **law)
     doc = base_doc("ball", "free", {"free": "free.urdf", "rest": "rest.urdf"}, {"Y": h}, {"Y": v0}, g=g,
                    t_end=t_end, solver=solver, transitions=[tr])
     return write_scene(folder, doc, {"free.urdf": free, "rest.urdf": rest})

@@ -10,42 +10,17 @@ import textwrap
 
 import pytest
 
+import extreme_models as xm
 import pcmm
 
 G = 9.81
-LIMIT = '<limit lower="-1e6" upper="1e6" effort="1" velocity="1"/>'
 
 
 def ball(tmp_path, law, k, e, m=1.0, h=1.0, n=1.5, gravity=G):
-    link = (f'<link name="ball"><inertial><mass value="{m}"/><inertia ixx="1e-3" ixy="0" ixz="0" '
-            'iyy="1e-3" iyz="0" izz="1e-3"/></inertial></link>')
-    (tmp_path / "b.urdf").write_text(f'<robot name="b"><link name="frame"/><joint name="Y" type="prismatic">'
-                                     f'<parent link="frame"/><child link="ball"/><axis xyz="0 1 0"/>{LIMIT}'
-                                     f'</joint>{link}</robot>')
-    (tmp_path / "b.toml").write_text(textwrap.dedent(f"""
-        [scene]
-        name = "ball_{law}"
-        gravity = [0.0, {-gravity}]
-        t_end = {math.sqrt(2 * h / G) + 0.05}
-        initial_configuration = "free"
-        [configurations.free]
-        urdf = "b.urdf"
-        [initial]
-        q = {{ Y = {h} }}
-        v = {{ Y = 0.0 }}
-        [[transitions]]
-        name = "floor"
-        type = "stop"
-        from = "free"
-        restitution = {e}
-        law = "{law}"
-        stiffness = {k}
-        exponent = {n}
-        cut = []
-        guard = {{ type = "gap", value = 0.0, direction = "decreasing" }}
-        contact = {{ a = "frame", point_a = [0.0, 0.0], b = "ball", point_b = [0.0, 0.0], normal = [0.0, 1.0] }}
-        """))
-    traj = pcmm.simulate(pcmm.load_scene(tmp_path / "b.toml"))
+    """The first contact of a ball of mass m dropped from h, resolved by ``law``."""
+    path = xm.ball(tmp_path, e, h=h, g=gravity, mass=m, t_end=math.sqrt(2 * h / G) + 0.05, merge=False,
+                   law=law, stiffness=k, exponent=n)
+    traj = pcmm.simulate(pcmm.load_scene(path))
     assert traj.events, "the ball never touched the floor"
     return traj.events[0]
 

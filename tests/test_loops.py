@@ -14,6 +14,7 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
+import extreme_models as xm
 import pcmm
 from pcmm.configuration import Mechanism
 
@@ -194,35 +195,7 @@ def test_slider_crank_closed_form_position_and_driving_torque(tmp_path):
 
 # ---- bouncing ball: impact times and Zeno accumulation ---------------------------------------
 def ball_scene(tmp_path, e=0.8, h=1.0, t_end=5.0):
-    link = ('<link name="ball"><inertial><mass value="1.0"/><inertia ixx="1e-3" ixy="0" ixz="0" iyy="1e-3" '
-            'iyz="0" izz="1e-3"/></inertial></link>')
-    _write(tmp_path, "ball1.urdf", f'<robot name="b"><link name="frame"/><joint name="Y" type="prismatic">'
-           f'<parent link="frame"/><child link="ball"/><axis xyz="0 1 0"/>{LIMIT}</joint>{link}</robot>')
-    _write(tmp_path, "ball2.urdf", f'<robot name="b2"><link name="frame"/><joint name="Y" type="fixed">'
-           f'<parent link="frame"/><child link="ball"/></joint>{link}</robot>')
-    return pcmm.load_scene(_write(tmp_path, "ball.toml", f"""
-        [scene]
-        name = "ball"
-        gravity = [0.0, {-G}]
-        t_end = {t_end}
-        initial_configuration = "free"
-        [configurations.free]
-        urdf = "ball1.urdf"
-        [configurations.rest]
-        urdf = "ball2.urdf"
-        [initial]
-        q = {{ Y = {h} }}
-        v = {{ Y = 0.0 }}
-        [[transitions]]
-        name = "floor"
-        type = "stop"
-        from = "free"
-        restitution = {e}
-        merge_to = "rest"
-        cut = []
-        guard = {{ type = "gap", value = 0.0, direction = "decreasing" }}
-        contact = {{ a = "frame", point_a = [0.0, 0.0], b = "ball", point_b = [0.0, 0.0], normal = [0.0, 1.0] }}
-        """))
+    return pcmm.load_scene(xm.ball(tmp_path, e, h=h, t_end=t_end))
 
 
 @pytest.mark.parametrize("e", [0.5, 0.8])
@@ -250,10 +223,7 @@ def test_bouncing_ball_impact_times_and_merge_at_t_infinity(tmp_path, e):
 
 
 def test_accumulation_without_merge_target_is_a_clear_error(tmp_path):
-    scene = ball_scene(tmp_path, e=0.5)
-    text = (tmp_path / "ball.toml").read_text().replace('merge_to = "rest"\n', "")
-    (tmp_path / "ball.toml").write_text(text)
+    scene = pcmm.load_scene(xm.ball(tmp_path, 0.5, t_end=5.0, merge=False))
     with pytest.raises(pcmm.SimulationError, match="accumulate.*merge_to") as info:
-        pcmm.simulate(pcmm.load_scene(tmp_path / "ball.toml"), pcmm.RunOptions(t_end=5.0))
+        pcmm.simulate(scene)
     assert info.value.partial is not None and info.value.partial.status == "partial"
-    assert scene  # the valid scene loaded first
