@@ -4,7 +4,7 @@ For Example 1 (examples/three_bar.toml, t_end = 1 s: the latch at t ~ 0.167 s an
 0.83 s in configuration 2) and Example 2 (examples/double_folded.toml, t_end =
 3.5 s: the first stop impact at t ~ 3.004 s, the macro-impact of a few dozen impacts,
 the merge at t ~ 3.163 s and ~0.34 s in the merged configuration), each integrator of
-pcmm's registry runs over a sweep of tolerances (RK45, DOP853, Radau, LSODA:
+pcmm's registry runs over a sweep of tolerances (RK45, DOP853, DOP853F, Radau, LSODA:
 rtol 1e-3 .. 1e-12, atol = rtol * 1e-2) or step sizes (the fixed-step RK4 of the
 paper's MATLAB route).  Each run is compared with a reference run (DOP853,
 rtol 1e-13, atol 1e-15):
@@ -58,9 +58,11 @@ CHECKS = [dict(method="DOP853", rtol=1e-12, atol=1e-14), dict(method="RK45", rto
 MAX_EVENTS = {"ex1": None, "ex2": 500}  # the reference has 45 impacts; a run past 500 events is chattering
 ACC_MAX_EVENTS = 300  # accumulation sweep: a macro-impact that does not end is reported as such
 MISSED = 1e-9  # m: a slider found this far past its stop in the free configuration has missed the stop
-ADAPTIVE = ("RK45", "DOP853", "Radau", "LSODA")
+ADAPTIVE = ("RK45", "DOP853", "DOP853F", "Radau", "LSODA")
 ATOL_FACTOR = 1e-2
-DEFAULT = dict(method="DOP853", rtol=1e-10, atol=1e-12)
+_DEFAULTS = pcmm.scene.SolverSettings()  # the scenes' defaults, so this page follows them
+DEFAULT = dict(method=_DEFAULTS.method, rtol=_DEFAULTS.rtol, atol=_DEFAULTS.atol)
+DEFAULT_TAG = f"{DEFAULT['method']} {DEFAULT['rtol']:.0e}"
 
 FULL = {
     "ex1": dict(rtols=[10.0 ** -k for k in range(3, 13)], steps=[1e-2, 3e-3, 1e-3, 3e-4, 1e-4, 3e-5, 1e-5], t_end=1.0),
@@ -362,9 +364,10 @@ def plot(path, rows, plan, methods):
                 if bad:
                     x, y = zip(*bad)
                     ax.loglog(x, y, "x", color=colors[m], ms=7, mew=2)
-            d = [r for r in rows if r["example"] == ex and r["method"] == "DOP853" and r["rtol"] == DEFAULT["rtol"]]
+            d = [r for r in rows if r["example"] == ex and r["method"] == DEFAULT["method"]
+                 and r["rtol"] == DEFAULT["rtol"]]
             if d and d[0]["status"] == "ok":
-                ax.loglog([d[0]["wall_s"]], [max(d[0][key], 1e-16)], "k*", ms=12, label="default (DOP853 1e-10)")
+                ax.loglog([d[0]["wall_s"]], [max(d[0][key], 1e-16)], "k*", ms=12, label=f"default ({DEFAULT_TAG})")
             ax.set_title(f"{SCENES[ex]['title'].split(' (')[0]}: {label}", fontsize=9)
             ax.set_xlabel("solve time wall_s (s, median)")
             ax.set_ylabel("error vs reference")
@@ -414,7 +417,8 @@ def write_md(path, rows, acc_rows, refs, ref_check, plan, reps, args, info, runt
             if full2 else
             "Quick mode: 3.02 s covers the first impact (t ≈ 3.004 s) only, not the macro-impact or the merge."),
          f"* Methods: {', '.join(m for m in args.methods if m != 'RK4')} (pcmm's integrator registry: scipy's "
-         "steppers of those names driven by pcmm's step loop and event scanner) with atol = rtol × 1e-2; the fixed-step classical RK4 "
+         "steppers of those names driven by pcmm's step loop and event scanner; DOP853F: Hairer's Fortran DOP853, "
+         "its accepted steps scanned by the same event scanner) with atol = rtol × 1e-2; the fixed-step classical RK4 "
          "(the paper's MATLAB route) with step h. Guards are located on each method's dense output.",
          "* Reference: DOP853, rtol 1e-13, atol 1e-15. Its own error is estimated by two other tight runs "
          "(|run − reference|): " + "; ".join(checks) + ". Errors below these levels are not resolved.",
@@ -497,14 +501,15 @@ def write_md(path, rows, acc_rows, refs, ref_check, plan, reps, args, info, runt
             cells.append(f"{tag(c)} ({c['wall_s']:.3f} s)" if c else "none")
         tab.append(cells)
     L += [md_table(["target", "Example 1", "Example 2"], tab), ""]
-    d = {ex: next((r for r in rows if r["example"] == ex and r["method"] == "DOP853" and r["rtol"] == 1e-10), None)
-         for ex in ("ex1", "ex2")}
-    L += ["Default settings (DOP853, rtol 1e-10, atol 1e-12): " + "; ".join(
+    d = {ex: next((r for r in rows if r["example"] == ex and r["method"] == DEFAULT["method"]
+                   and r["rtol"] == DEFAULT["rtol"]), None) for ex in ("ex1", "ex2")}
+    L += [f"Default settings ({DEFAULT['method']}, rtol {DEFAULT['rtol']:.0e}, atol {DEFAULT['atol']:.0e}): " + "; ".join(
         f"{ex}: {r['status']}, first impact time error {r['err_t_impact']:.1e} s, post-impact velocity error "
         f"{r['err_post']:.1e}, wall_s {r['wall_s']:.3f} s" for ex, r in d.items() if r and r["ok"]) + ".", ""]
 
     L += ["## Accumulation tolerance (Example 2)", "",
-          f"DOP853, rtol 1e-10, atol 1e-12, t_end = {FULL['ex2']['t_end']} s, accumulation_interval 1e-9 s "
+          f"{DEFAULT['method']}, rtol {DEFAULT['rtol']:.0e}, atol {DEFAULT['atol']:.0e}, t_end = {FULL['ex2']['t_end']} s, "
+          "accumulation_interval 1e-9 s "
           "(the default). A stop impact whose post-impact normal speed is at or below `accumulation_speed` is "
           "made plastic and the slider merges with the frame. "
           + (f"The scene's stop sets its own `accumulation_speed = {own_speed}`, which takes precedence over "
