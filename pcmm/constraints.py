@@ -395,6 +395,17 @@ class PartitionedCoordinates:
         def g(t, y):
             self.unpack(t, y)
             return self._scaled_det(self._last_Jq)
+
+        def rate(t, y, f):
+            """Its time derivative from the state alone: a central difference along q' (two
+            Jacobians, no Newton solve and no right-hand side)."""
+            q, v = self.unpack(t, y)
+            qd = self.cfg.qdot(q, v)
+            eps = 1e-7 / max(1.0, float(np.max(np.abs(qd))))
+            ahead, behind = (self._scaled_det(self._phi(t, q + s * eps * qd)[1]) for s in (1.0, -1.0))
+            return (ahead - behind) / (2 * eps)
+        g.rate = rate
+        g.rate_from_state = True
         g.terminal = True
         g.direction = 0
         g.singular = True

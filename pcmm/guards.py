@@ -11,7 +11,7 @@ import numpy as np
 
 from .configuration import Configuration
 from .constraints import constrained_accelerations
-from .impulse import contact_row, contact_state
+from .impulse import contact_row, contact_state, gap_rate
 from .scene import TransitionSpec
 
 
@@ -26,7 +26,9 @@ def _coordinate(cfg: Configuration, tr: TransitionSpec):
     if not cfg.coords.constrained and not cfg.has_planar:
         nv = cfg.nv
         g.rate = lambda t, y, f: row @ y[nv:]  # q' = v, the second half of the state
-        g.rate_from_state = True
+    else:  # the full (q, v) of a loop, or a planar joint's q' from v
+        g.rate = lambda t, y, f: row @ cfg.qdot(*unpack(t, y))
+    g.rate_from_state = True  # the graze test needs no right-hand side for it
     return g
 
 
@@ -36,6 +38,8 @@ def _gap(cfg: Configuration, tr: TransitionSpec):
     def g(t, y):
         q, v = unpack(t, y)
         return contact_state(cfg, q, v, tr.contact)[1] - tr.guard.value
+    g.rate = lambda t, y, f: gap_rate(cfg, *unpack(t, y), tr.contact)
+    g.rate_from_state = True
     return g
 
 

@@ -74,6 +74,16 @@ def contact_state(cfg: Configuration, q, v, contact: ContactSpec):
     return n, gap, float(Jn @ v), Jn
 
 
+def gap_rate(cfg: Configuration, q, v, contact: ContactSpec) -> float:
+    """d/dt of the gap n . (p_b - p_a) at (q, v): the points' normal relative velocity plus
+    the turn of the normal with link a, n' = w_a z x n (n is fixed in a)."""
+    cfg.kinematics(q, v)
+    pa, pb, n, Jn = _normal_row(cfg, contact)
+    w_a = pin.getFrameVelocity(cfg.model, cfg.data, cfg.link_frame[contact.a], LWA).angular[2]
+    r = cfg.point_position(pb) - cfg.point_position(pa)
+    return float(Jn @ v + w_a * (n[0] * r[1] - n[1] * r[0]))
+
+
 def contact_row(cfg: Configuration, q, v, contact: ContactSpec):
     """(J_n, bias) of the contact's normal row: ``d/dt (J_n v) = J_n a + bias``."""
     qp = cfg.to_pin(q)

@@ -14,14 +14,20 @@ Fortran code by itself (f2py keeps it until the integration ends), so these case
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
+import pcmm
+from conftest import EXAMPLES
+from pcmm.configuration import Mechanism
 from pcmm.errors import Repartition, SimulationError
+from pcmm.guards import make_guard
 from pcmm.integrators import INTEGRATORS
+from pcmm.simulate import initial_state
 
 W = 3.0  # rad/s
 
@@ -137,3 +143,34 @@ def test_a_non_finite_rhs_ends_with_a_message(name):
     assert seg.status == -1 and 0.0 < seg.t[-1] <= 0.3 + 1e-12
     assert np.all(np.isfinite(seg.y))
     assert any(k in msg for k in ("not finite", "no longer finite", "collapsed", "step size")), msg
+
+
+# ---- guard rates: the graze test's input, checked against the guard's own time derivative ------
+# A guard's ``rate`` (read from the state alone) must equal d/dt g(t, y(t)) along the flow,
+# here a central difference of the guard along the right-hand side's direction.
+def _flow_difference(g, fun, t, y, eps=1e-6):
+    f = fun(t, y)
+    return (g(t + eps, y + eps * f) - g(t - eps, y - eps * f)) / (2 * eps)
+
+
+@pytest.mark.parametrize("scene_file,guard_type", [
+    ("three_bar_stop.toml", "gap"),  # a mobile contact: the normal turns with link2
+    ("double_folded.toml", "coordinate"),  # loop + drive: q' of the dependent joints
+    ("double_folded.toml", "gap"),
+    ("double_folded.toml", "singular"),  # the loop's partition guard: det of the dependent block
+], ids=["mobile-gap", "loop-coordinate", "loop-gap", "loop-singularity"])
+def test_guard_rate_is_the_time_derivative_of_the_guard(scene_file, guard_type):
+    scene = pcmm.load_scene(EXAMPLES / scene_file)
+    cfg = Mechanism(scene)[scene.initial_configuration]
+    tr = scene.transitions_from(cfg.name)[0]
+    if guard_type == "gap":  # the same contact watched by its gap
+        tr = dataclasses.replace(tr, guard=dataclasses.replace(tr.guard, type="gap", value=0.0, measure=None))
+    g = cfg.coords.singularity_guard() if guard_type == "singular" else make_guard(cfg, tr)
+    assert g.rate_from_state
+    rng = np.random.default_rng(7)
+    y_start = cfg.coords.pack(0.0, *initial_state(scene, cfg))
+    k = len(y_start) // 2
+    for _ in range(5):  # states near the initial one (a loop stays assemblable), brisk rates
+        y = y_start + np.concatenate([0.05 * rng.standard_normal(k), 3.0 * rng.standard_normal(k)])
+        expected = _flow_difference(g, cfg.coords.rhs, 0.3, y)
+        assert g.rate(0.3, y, None) == pytest.approx(expected, rel=1e-6, abs=1e-9)
