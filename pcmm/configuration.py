@@ -26,6 +26,7 @@ import scipy.linalg as sla
 from .errors import ModelError, SimulationError
 from .forces import ForceField, compile_forces
 from .scene import ConfigurationSpec, Measure, Scene, Target
+from .urdf import dynamics_xml
 
 LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
 
@@ -75,7 +76,7 @@ class Configuration:
         self.spec = spec
         self.name = spec.name
         try:
-            model = pin.buildModelFromUrdf(str(spec.urdf))
+            model = pin.buildModelFromXML(dynamics_xml(spec.urdf))
         except Exception as exc:  # Pinocchio's own parser errors are C++ messages
             raise ModelError(f"{spec.urdf}: Pinocchio could not build the model: {exc}") from None
         model.gravity.linear[:] = [scene.gravity[0], scene.gravity[1], 0.0]

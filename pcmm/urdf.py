@@ -58,6 +58,17 @@ def _floats(text: str | None, n: int, default: tuple) -> tuple | None:
     return vals if len(vals) == n and all(math.isfinite(x) for x in vals) else None
 
 
+def dynamics_xml(path: str | Path) -> str:
+    """The URDF as the dynamics needs it: without ``<visual>``, ``<collision>`` and ``<material>``
+    (pcmm's replay reads the visuals itself).  urdfdom would otherwise parse them too and print
+    its own errors for a visual it cannot read, before any message of pcmm's."""
+    root = ET.parse(path).getroot()
+    for parent in root.iter():
+        for child in [c for c in parent if c.tag in ("visual", "collision", "material")]:
+            parent.remove(child)
+    return ET.tostring(root, encoding="unicode")
+
+
 def read_urdf(path: str | Path) -> UrdfInfo:
     """Parse and validate ``path``; raise :class:`ModelError` listing every problem."""
     path = Path(path)

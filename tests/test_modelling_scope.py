@@ -7,6 +7,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pinocchio as pin
 
 import pcmm
@@ -37,3 +38,27 @@ def test_a_run_without_display_loads_no_geometry_and_no_viewer(tmp_path):
     out = subprocess.run([sys.executable, "-c", code, str(THREE_BAR)], capture_output=True, text=True, check=True)
     loaded = json.loads(out.stdout.strip().splitlines()[-1])
     assert "meshcat" not in loaded and "pcmm.replay" not in loaded and "matplotlib" not in loaded
+
+
+def test_the_dynamics_model_reads_no_visuals(tmp_path, capfd):
+    """Visuals are the replay's: the dynamics model is built from the URDF without <visual>,
+    <collision> and <material>, so a visual urdfdom cannot read prints nothing (urdfdom wrote
+    four 'Error:' lines to stderr for this one) and the model is the same as without it."""
+    bar = ('<link name="bar"><inertial><origin xyz="0.2 0 0"/><mass value="2"/><inertia ixx="1" ixy="0" '
+           'ixz="0" iyy="1" iyz="0" izz="0.05"/></inertial>{visual}</link>')
+    robot = ('<robot name="b"><link name="frame"/><joint name="J" type="revolute"><parent link="frame"/>'
+             '<child link="bar"/><axis xyz="0 0 1"/><limit lower="-1" upper="1" effort="1" velocity="1"/></joint>'
+             '{bar}</robot>')
+    bad_visual = ('<visual><geometry><box size="a b c"/></geometry>'
+                  '<material name="x"><color rgba="1 0"/></material></visual>')
+    scene_text = ('[scene]\nname = "v"\ngravity = [0.0, -9.81]\nt_end = 0.1\ninitial_configuration = "c"\n'
+                  '[configurations.c]\nurdf = "{urdf}"\n[initial]\nq = {{ J = 0.3 }}\nv = {{ J = 0.0 }}\n')
+    models = {}
+    for name, visual in (("plain", ""), ("bad_visual", bad_visual)):
+        (tmp_path / f"{name}.urdf").write_text(robot.format(bar=bar.format(visual=visual)))
+        (tmp_path / f"{name}.toml").write_text(scene_text.format(urdf=f"{name}.urdf"))
+        models[name] = Mechanism(pcmm.load_scene(tmp_path / f"{name}.toml"))["c"]
+    err = capfd.readouterr().err
+    assert "Error" not in err, err
+    for m in models.values():  # a bar of 2 kg, centroid 0.2 m out: M = izz + m r^2
+        assert np.allclose(m.mass_matrix(np.array([0.3])), [[0.05 + 2 * 0.2 ** 2]])
