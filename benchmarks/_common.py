@@ -10,13 +10,16 @@ from __future__ import annotations
 
 import datetime as _dt
 import hashlib
+import importlib
 import os
 import platform
 import re
 import statistics
 import sys
 import time
+from contextlib import contextmanager
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -135,3 +138,36 @@ def scene_copy(src: Path, dest_dir: Path, name: str, edit=None) -> Path:
 def loglog_slope(x, y) -> float:
     x, y = np.log(np.asarray(x, float)), np.log(np.asarray(y, float))
     return float(np.polyfit(x, y, 1)[0])
+
+
+# ---- instrumentation: time every integrated segment of a run ------------------------------
+class SegmentTiming(NamedTuple):
+    t0: float  # start of the segment (s)
+    ny: int  # state size (0: a fully driven or locked configuration, sampled, not integrated)
+    seconds: float  # wall time of the integrator call
+    nfev: int
+    nsteps: int
+
+
+@contextmanager
+def timed_segments(log: list):
+    """For the duration of a run, wrap every method of pcmm's integrator registry so that each
+    integrated segment appends a :class:`SegmentTiming` to ``log`` (one perf_counter pair per
+    segment).  pcmm itself is not modified."""
+    sim = importlib.import_module("pcmm.simulate")
+    original = sim.INTEGRATORS
+
+    class Timed:
+        def __init__(self, inner):
+            self.inner, self.fixed_step, self.name = inner, inner.fixed_step, inner.name
+
+        def integrate(self, fun, t0, y0, t_bound, events, opts):
+            t = time.perf_counter()
+            seg = self.inner.integrate(fun, t0, y0, t_bound, events, opts)
+            log.append(SegmentTiming(t0, len(y0), time.perf_counter() - t, seg.nfev, seg.nsteps))
+            return seg
+    sim.INTEGRATORS = {k: Timed(v) for k, v in original.items()}
+    try:
+        yield
+    finally:
+        sim.INTEGRATORS = original

@@ -33,49 +33,25 @@ from __future__ import annotations
 
 import argparse
 import csv
-import importlib
 import math
 import re
 import sys
 import tempfile
 import time
-from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import (DOCS, EXAMPLES, command_line, fmt, loglog_slope, machine, machine_md, md_table,  # noqa: E402
-                     median, scene_copy)
+                     median, scene_copy, timed_segments)
 
 import pcmm  # noqa: E402
 from pcmm import RunOptions  # noqa: E402
 
-SIM = importlib.import_module("pcmm.simulate")
 LAWS = ("hunt_crossley", "lankarani_nikravesh", "flores")
 LAW_NAMES = {"hunt_crossley": "Hunt-Crossley", "lankarani_nikravesh": "Lankarani-Nikravesh", "flores": "Flores"}
 E = 0.8
-
-
-@contextmanager
-def timed_segments(log):
-    """Log (t0, seconds, nfev) of every integrated segment (to find the contact phase's own cost)."""
-    original = SIM.INTEGRATORS
-
-    class Timed:
-        def __init__(self, inner):
-            self.inner, self.fixed_step, self.name = inner, inner.fixed_step, inner.name
-
-        def integrate(self, fun, t0, y0, t_bound, events, opts):
-            t = time.perf_counter()
-            seg = self.inner.integrate(fun, t0, y0, t_bound, events, opts)
-            log.append((t0, time.perf_counter() - t, seg.nfev))
-            return seg
-    SIM.INTEGRATORS = {k: Timed(v) for k, v in original.items()}
-    try:
-        yield
-    finally:
-        SIM.INTEGRATORS = original
 
 
 def law_edit(law, k, restitution=E):
@@ -118,12 +94,12 @@ def run(path, t_end, links, sliders):
     ev = evs[0]
     if ev.get("law") and ev.get("t_end", math.inf) > t_end - 1e-12:
         return {"ok": False, "status": "contact did not end in the window"}
-    contact = [x for x in log if abs(x[0] - ev["t"]) < 1e-12] if ev.get("law") else []
+    contact = [x for x in log if abs(x.t0 - ev["t"]) < 1e-12] if ev.get("law") else []
     nv = ev["normal_velocity"]
     return {"ok": True, "status": "ok", "wall_s": traj.stats["wall_s"], "rhs_evals": traj.stats["rhs_evals"],
             "post": post_state(ev, links, sliders), "t_contact": ev["t"], "duration": ev.get("duration", 0.0),
             "e_eff": -nv["after"] / nv["before"], "v_impact": -nv["before"],
-            "contact_s": contact[0][1] if contact else 0.0, "contact_rhs": contact[0][2] if contact else 0}
+            "contact_s": contact[0].seconds if contact else 0.0, "contact_rhs": contact[0].nfev if contact else 0}
 
 
 def main(argv=None):

@@ -35,11 +35,9 @@ if _bt != "0":
 
 import argparse
 import csv
-import importlib
 import math
 import tempfile
 import time
-from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -47,13 +45,13 @@ import pinocchio as pin
 import scipy.linalg as sla
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _common import DOCS, command_line, loglog_slope, machine, machine_md, md_table, median, per_call  # noqa: E402
+from _common import (DOCS, command_line, loglog_slope, machine, machine_md, md_table, median,  # noqa: E402
+                     per_call, timed_segments)
 
 import pcmm  # noqa: E402
 from pcmm import RunOptions  # noqa: E402
 from pcmm.configuration import Mechanism  # noqa: E402
 
-SIM = importlib.import_module("pcmm.simulate")
 L, RHO, AREA = 0.125, 7800.0, 2e-4
 M = RHO * AREA * L
 IZZ = M * L * L / 12
@@ -117,26 +115,6 @@ contact = {{ a = "link{n - 1}", point_a = [{L / 2}, 0.0], b = "link{n}", point_b
     return path
 
 
-@contextmanager
-def integration_time(acc):
-    original = SIM.INTEGRATORS
-
-    class Timed:
-        def __init__(self, inner):
-            self.inner, self.fixed_step, self.name = inner, inner.fixed_step, inner.name
-
-        def integrate(self, *a):
-            t = time.perf_counter()
-            seg = self.inner.integrate(*a)
-            acc[0] += time.perf_counter() - t
-            return seg
-    SIM.INTEGRATORS = {k: Timed(v) for k, v in original.items()}
-    try:
-        yield
-    finally:
-        SIM.INTEGRATORS = original
-
-
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--reps", type=int, default=5)
@@ -176,9 +154,10 @@ def main(argv=None):
     first = {}
     for rep in range(args.reps):
         for n, sc in scenes.items():
-            acc = [0.0]
-            with integration_time(acc):
+            log = []
+            with timed_segments(log):
                 traj = pcmm.simulate(sc, RunOptions())
+            integration_s = sum(x.seconds for x in log)
             st = traj.stats
             ev = len(traj.events)
             first.setdefault(n, {"steps": st["steps"], "rhs_evals": st["rhs_evals"], "events": ev,
@@ -186,10 +165,10 @@ def main(argv=None):
                                  "t_first": traj.events[0]["t"] if traj.events else math.nan})
             s = samples[n]
             s["wall_s"].append(st["wall_s"])
-            s["per_step"].append(acc[0] / st["steps"])  # integration only
+            s["per_step"].append(integration_s / st["steps"])  # integration only
             s["per_step_all"].append(st["wall_s"] / st["steps"])  # with the impact events
-            s["per_rhs"].append(acc[0] / st["rhs_evals"])
-            s["per_event"].append((st["wall_s"] - acc[0]) / ev if ev else math.nan)
+            s["per_rhs"].append(integration_s / st["rhs_evals"])
+            s["per_event"].append((st["wall_s"] - integration_s) / ev if ev else math.nan)
             for k, (fn, a, nc) in calls[n].items():
                 s[k].append(per_call(fn, a, nc))
             print(f"[{time.perf_counter() - T0:5.1f} s] rep {rep} n = {n:3d}: wall {st['wall_s']:.3f} s, "

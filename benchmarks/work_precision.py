@@ -39,14 +39,13 @@ import re
 import sys
 import tempfile
 import time
-from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import (DOCS, EXAMPLES, command_line, fmt, machine, machine_md, md_table, median,  # noqa: E402
-                     scene_copy)
+                     scene_copy, timed_segments)
 
 import pcmm  # noqa: E402
 from pcmm import RunOptions  # noqa: E402
@@ -111,31 +110,6 @@ def accumulation_edit(speed):
     return edit
 
 
-# ---- instrumentation: which part of wall_s is the free motion --------------------------
-class _Timed:
-    """Wraps an integrator to time each segment (one perf_counter pair per segment)."""
-
-    def __init__(self, inner, log):
-        self.inner, self.log = inner, log
-        self.fixed_step, self.name = inner.fixed_step, inner.name
-
-    def integrate(self, fun, t0, y0, t_bound, events, opts):
-        t = time.perf_counter()
-        seg = self.inner.integrate(fun, t0, y0, t_bound, events, opts)
-        self.log.append((len(y0), time.perf_counter() - t, seg.nfev, seg.nsteps))
-        return seg
-
-
-@contextmanager
-def timed_segments(log):
-    original = SIM.INTEGRATORS
-    SIM.INTEGRATORS = {k: _Timed(v, log) for k, v in original.items()}
-    try:
-        yield
-    finally:
-        SIM.INTEGRATORS = original
-
-
 # ---- one run ----------------------------------------------------------------------------
 def run(scene, sliders, t_end, stop=None, max_events=None, **kw):
     """Simulate; return the metrics (or the failure)."""
@@ -160,7 +134,7 @@ def run(scene, sliders, t_end, stop=None, max_events=None, **kw):
     last = traj.segments[-1]
     final = {k: float(last.theta[-1, i]) for i, k in enumerate(last.links) if k != "frame"}
     merges = [e for e in ev if e.get("merge") and e.get("transition") == "stop"]
-    driven = [x for x in log if x[0] == 0]
+    driven = [x for x in log if x.ny == 0]
     penetration = math.nan
     if stop:  # sanity: the slider must never be found beyond its stop while free (configuration 1)
         joint, x_stop = stop
@@ -171,8 +145,8 @@ def run(scene, sliders, t_end, stop=None, max_events=None, **kw):
         "ok": True, "status": f"stop missed ({penetration:.1e} m past)" if missed else "ok", "wall_s": traj.stats["wall_s"], "steps": traj.stats["steps"], "rhs_evals": traj.stats["rhs_evals"],
         "impacts": traj.stats["impacts"], "t_impact": first["t"] if first else math.nan, "post": post, "final": final,
         "t_merge": merges[0]["t"] if merges else math.nan,
-        "driven_s": sum(x[1] for x in driven), "driven_rhs": sum(x[2] for x in driven),
-        "events_s": traj.stats["wall_s"] - sum(x[1] for x in log),  # impulse solves and switches
+        "driven_s": sum(x.seconds for x in driven), "driven_rhs": sum(x.nfev for x in driven),
+        "events_s": traj.stats["wall_s"] - sum(x.seconds for x in log),  # impulse solves and switches
         "penetration": penetration,
     }
 
