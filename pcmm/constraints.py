@@ -19,6 +19,8 @@ uses :class:`TreeCoordinates`, a plain ``y = [q, v]`` and one ``aba`` call.
 """
 from __future__ import annotations
 
+import functools
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -69,9 +71,9 @@ class ClosureRows:
             Jb = frame_jacobian(model, data, fb)
             Jrel = Jb[:2] - Ja[:2]
             Ra = data.oMf[la].rotation
-            th_a = np.arctan2(Ra[1, 0], Ra[0, 0])
+            th_a = math.atan2(Ra[1, 0], Ra[0, 0])
             Rb = data.oMf[lb].rotation
-            th_rel = np.arctan2(Rb[1, 0], Rb[0, 0]) - th_a
+            th_rel = math.atan2(Rb[1, 0], Rb[0, 0]) - th_a
             Jang = Jb[5] - Ja[5]
             if need_bias:
                 acc_a = pin.getFrameClassicalAcceleration(model, data, fa, LWA).linear[:2]
@@ -94,7 +96,7 @@ class ClosureRows:
                 if need_bias:
                     bias.append(-w_a ** 2 * (n @ r) + 2 * w_a * (t @ rdot) + n @ acc_rel)
             if s.type in ("prismatic", "weld"):
-                phi.append(np.arctan2(np.sin(th_rel - s.angle), np.cos(th_rel - s.angle)))
+                phi.append(math.atan2(math.sin(th_rel - s.angle), math.cos(th_rel - s.angle)))
                 rows.append(Jang)
                 if need_bias:
                     bias.append(0.0)
@@ -135,6 +137,11 @@ class Drives:
         return out
 
 
+@functools.lru_cache(maxsize=None)
+def _strictly_lower(n: int) -> np.ndarray:
+    return np.tril(np.ones((n, n), dtype=bool), -1)
+
+
 def constrained_accelerations(cfg, q, v, J, bias, extra=None):
     """Solve ``M a + h = Q + J^T lam``, ``J a + bias = 0`` (the multipliers are the
     constraint forces: cut-joint reactions on b, driving moments, contact forces).
@@ -154,7 +161,8 @@ def constrained_accelerations(cfg, q, v, J, bias, extra=None):
     if J.shape[0] == 0:
         return a0, np.zeros(0)
     Minv = pin.computeMinverse(cfg.model, cfg.data, qp)
-    MiJt = np.triu(Minv) @ J.T + np.triu(Minv, 1).T @ J.T  # Pinocchio fills the upper triangle
+    Minv = np.where(_strictly_lower(cfg.nv), Minv.T, Minv)  # Pinocchio's C++ fills the upper triangle
+    MiJt = Minv @ J.T
     lam = np.linalg.solve(J @ MiJt, -bias - J @ a0)
     return a0 + MiJt @ lam, lam
 
@@ -252,6 +260,9 @@ class PartitionedCoordinates:
         self._zeros = np.zeros(self.nv)
         self.checking = True  # conditioning checks (off while recording an accepted segment)
         self._cache = None  # the last unpack: guards and the right-hand side ask for the same point
+        self._driven = np.array(drives.index, dtype=int)
+        self._drive_rows = np.zeros((drives.size, self.nv))
+        self._drive_rows[np.arange(drives.size), self._driven] = 1.0
 
     # -- constraint evaluation on the tree
     def _phi(self, t, q, need_bias=False, v=None):
@@ -264,11 +275,9 @@ class PartitionedCoordinates:
             pin.computeJointJacobians(cfg.model, cfg.data, qp)
         pin.updateFramePlacements(cfg.model, cfg.data)
         phi, Jq, bias = self.closure.evaluate(cfg.model, cfg.data, need_bias)
-        if self.drives.size:
-            Jd = np.zeros((self.drives.size, self.nv))
-            Jd[np.arange(self.drives.size), list(self.drives.index)] = 1.0
-            phi = np.concatenate([phi, q[list(self.drives.index)] - self.drives.value(t)])
-            Jq = np.vstack([Jq, Jd])
+        if self.drives.size:  # the rheonomic rows q_j - f_j(t): their Jacobian rows are constant
+            phi = np.concatenate((phi, q[self._driven] - self.drives.value(t)))
+            Jq = np.concatenate((Jq, self._drive_rows))
             if need_bias:
                 bias = np.concatenate([bias, -self.drives.value(t, 2)])
         return phi, Jq, bias
