@@ -26,6 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 import scipy.linalg as sla
+from scipy.linalg.lapack import dgesv
 
 from .configuration import frame_jacobian
 from .errors import Repartition, SimulationError
@@ -137,6 +138,20 @@ class Drives:
         return out
 
 
+def solve(A: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``np.linalg.solve`` for the small dense systems of a loop, by LAPACK's dgesv directly
+    (numpy's wrapper costs four times the solve at this size); LinAlgError when A is singular."""
+    if A.ndim != 2 or A.shape[0] != A.shape[1] or A.shape[0] != b.shape[0]:
+        raise np.linalg.LinAlgError(f"a {A.shape} system with a {b.shape} right-hand side is not square")
+    if A.size == 0:
+        return np.zeros(b.shape)
+    _, _, x, info = dgesv(A, b)
+    if info != 0:
+        raise np.linalg.LinAlgError(f"singular matrix (dgesv info {info})" if info > 0 else
+                                    f"dgesv rejected argument {-info}")
+    return x
+
+
 @functools.lru_cache(maxsize=None)
 def _strictly_lower(n: int) -> np.ndarray:
     return np.tril(np.ones((n, n), dtype=bool), -1)
@@ -163,7 +178,7 @@ def constrained_accelerations(cfg, q, v, J, bias, extra=None):
     Minv = pin.computeMinverse(cfg.model, cfg.data, qp)
     Minv = np.where(_strictly_lower(cfg.nv), Minv.T, Minv)  # Pinocchio's C++ fills the upper triangle
     MiJt = Minv @ J.T
-    lam = np.linalg.solve(J @ MiJt, -bias - J @ a0)
+    lam = solve(J @ MiJt, -bias - J @ a0)
     return a0 + MiJt @ lam, lam
 
 
@@ -327,7 +342,7 @@ class PartitionedCoordinates:
                 return q, Jq
             JD = Jq[:, self.D]
             try:
-                q[self.D] -= np.linalg.solve(JD, phi)
+                q[self.D] -= solve(JD, phi)
             except np.linalg.LinAlgError:
                 break
         phi, Jq, _ = self._phi(t, q)
@@ -435,7 +450,7 @@ class PartitionedCoordinates:
         v = np.empty(self.nv)
         v[self.I] = y[k:]
         rhs = -(Jq[:, self.I] @ y[k:] + self._phi_t(t))
-        v[self.D] = np.linalg.solve(Jq[:, self.D], rhs)
+        v[self.D] = solve(Jq[:, self.D], rhs)
         return q, v
 
     def project(self, t, q, v, prefer_independent=()):

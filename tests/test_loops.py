@@ -227,3 +227,21 @@ def test_accumulation_without_merge_target_is_a_clear_error(tmp_path):
     with pytest.raises(pcmm.SimulationError, match="accumulate.*merge_to") as info:
         pcmm.simulate(scene)
     assert info.value.partial is not None and info.value.partial.status == "partial"
+
+
+@pytest.mark.parametrize("A,b,expected", [
+    (np.array([[4.0, 1.0], [2.0, 3.0]]), np.array([1.0, 2.0]), np.array([0.1, 0.6])),  # by hand
+    (np.array([[2.0, 0.0], [0.0, 4.0]]), np.array([[2.0, 4.0], [4.0, 8.0]]), np.array([[1.0, 2.0], [1.0, 2.0]])),
+    (np.array([[1.0, 2.0], [2.0, 4.0]]), np.array([1.0, 1.0]), np.linalg.LinAlgError),  # singular
+    (np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]), np.array([1.0, 1.0]), np.linalg.LinAlgError),  # not square
+    (np.zeros((0, 0)), np.zeros(0), np.zeros(0)),
+], ids=["2x2", "two-columns", "singular", "not-square", "empty"])
+def test_loop_solve_is_numpys_solve(A, b, expected):
+    """The loops' small dense solve (LAPACK dgesv directly) answers like np.linalg.solve,
+    including its LinAlgError, which the Newton solve of the dependent coordinates relies on."""
+    from pcmm.constraints import solve
+    if expected is np.linalg.LinAlgError:
+        with pytest.raises(np.linalg.LinAlgError):
+            solve(A, b)
+    else:
+        assert np.allclose(solve(A, b), expected, rtol=0, atol=1e-15)
