@@ -283,9 +283,9 @@ class FortranDOP853:
     The Fortran code calls the right-hand side with almost no overhead per
     evaluation (scipy's Python ``OdeSolver`` loop adds several microseconds
     per call, more than a lean right-hand side costs).  Each accepted step is
-    scanned for events like every method's; the dense output of a step that
-    holds an event is that of ``solve_ivp``'s DOP853 integrated again over the
-    step, so events are located to DOP853's 7th-order accuracy.
+    scanned for events like every method's; the step that holds an event is
+    taken again by scipy's DOP853 (:func:`_dop853_dense`) for its dense output,
+    so events are located to DOP853's 7th-order accuracy.
     """
 
     fixed_step = False

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from extreme_models import toml_key, toml_value  # noqa: F401 (re-exported to the tests)
+from extreme_models import toml_key, toml_value  # the one TOML writer of the tests
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLES = ROOT / "examples"
@@ -123,9 +123,6 @@ def free_bar_urdf(mass: float, length: float, com=(0.0, 0.0), izz: float | None 
 
 
 # ---- scene TOML text ----------------------------------------------------------------------
-# one TOML writer for every test module: extreme_models' (inline tables, numpy scalars, escapes)
-
-
 def toml_table(header: str, table: dict) -> str:
     return f"[{header}]\n" + "".join(f"{toml_key(k)} = {toml_value(v)}\n" for k, v in table.items()) + "\n"
 
