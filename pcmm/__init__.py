@@ -5,13 +5,37 @@ Planar Constrained Metamorphic Mechanism", Shock and Vibration 2020.
 
     >>> import pcmm
     >>> scene = pcmm.load_scene("examples/three_bar.toml")
-    >>> traj = pcmm.simulate(scene)
-    >>> traj.events[0]["t"]
+    >>> traj = pcmm.simulate(scene, pcmm.RunOptions(t_end=0.2))
+    >>> round(traj.events[0]["t"], 4)  # the paper's t_p = 0.1674 s
+    0.1673
 """
+import os as _os
+import sys as _sys
+
 from .errors import ModelError, PcmmError, SceneError, SimulationError, UsageError
-from .scene import Scene, load_scene
-from .simulate import RunOptions, simulate
-from .trajectory import Trajectory
+
+_argv = getattr(_sys, "orig_argv", _sys.argv)
+_as_command = (_os.path.basename(_sys.argv[0] if _sys.argv else "") == "pcmm" or "pcmm.cli" in _argv[:4])
+try:
+    from .scene import load_scene
+    from .settings import RunOptions
+    from .simulate import simulate
+    from .spec import Scene
+    from .trajectory import Trajectory
+    if _as_command:  # the console script's next line imports the command line: inside this guard too
+        from . import cli as _cli  # noqa: F401
+except (KeyboardInterrupt, ImportError) as _exc:
+    # Ctrl-C while Pinocchio and scipy load, before the command line's own handling. A compiled
+    # (pybind11) module that is initialising when the signal lands turns the KeyboardInterrupt
+    # into "ImportError: initialization failed" with the interrupt as its cause: both are Ctrl-C.
+    _chain, _interrupted = _exc, False
+    while _chain is not None and not _interrupted:
+        _interrupted = isinstance(_chain, KeyboardInterrupt)
+        _chain = _chain.__cause__ or _chain.__context__
+    if _interrupted and _as_command:
+        print("pcmm: interrupted by the user (Ctrl-C) while starting", file=_sys.stderr)
+        raise SystemExit(130) from None
+    raise
 
 __all__ = ["load_scene", "simulate", "RunOptions", "Trajectory", "Scene", "PcmmError", "SceneError",
            "ModelError", "SimulationError", "UsageError"]

@@ -1,4 +1,4 @@
-"""Command line: ``pcmm run | replay | plot | check``.
+"""Command line: ``pcmm run | sweep | replay | plot | check | derive | new``.
 
 Every user error ends in one message naming the file, field or value at fault
 and a non-zero exit status; no traceback.  Output files are written
@@ -8,12 +8,18 @@ error or Ctrl-C saves what it computed, marked partial.
 from __future__ import annotations
 
 import argparse
+import contextlib
+import dataclasses
 import math
+import os
+import shutil
+import signal
 import sys
+import tempfile
 import time
 from pathlib import Path
 
-from .errors import PcmmError, SimulationError, UsageError
+from .errors import OutputError, PcmmError, SimulationError, UsageError
 
 
 def _number(name, strict=True):
@@ -39,6 +45,31 @@ def _non_negative(name):
     return _number(name, strict=False)
 
 
+#: A replay's limits: frames per second, and frames in all (each frame is a pose of every link
+#: in the page or the meshcat animation; 200,000 frames of a three-bar are about 100 MB of HTML).
+MAX_FPS = 1000.0
+MAX_FRAMES = 200_000
+
+
+def _fps(text):
+    val = _positive("fps")(text)
+    if val > MAX_FPS:
+        raise argparse.ArgumentTypeError(f"fps = {text!r}: at most {MAX_FPS:g} frames per second")
+    return val
+
+
+def _check_frames(traj, fps: float, flag: str) -> None:
+    """Refuse a replay that would hold more than :data:`MAX_FRAMES` frames (it would run for
+    minutes and fill memory), saying which --fps fits."""
+    if not traj.segments:
+        return
+    duration = float(traj.segments[-1].t[-1] - traj.segments[0].t[0])
+    frames = duration * fps
+    if frames > MAX_FRAMES:
+        raise UsageError(f"{flag}: {duration:.6g} s at {fps:g} fps is {frames:.3g} frames, more than "
+                         f"{MAX_FRAMES}; give --fps {MAX_FRAMES / duration:.3g} or less")
+
+
 def _count(text):
     try:
         val = int(text)
@@ -50,26 +81,14 @@ def _count(text):
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from .integrators import INTEGRATORS
+    from . import settings
     p = argparse.ArgumentParser(prog="pcmm", description="Impact dynamics of planar constrained "
                                 "metamorphic mechanisms (Song et al., Shock and Vibration 2020).")
     sub = p.add_subparsers(dest="command", required=True)
     r = sub.add_parser("run", help="simulate a scene (TOML)")
     r.add_argument("scene", type=Path)
     r.add_argument("--t-end", type=_positive("t-end"), help="end time in s (default: the scene's)")
-    r.add_argument("--method", choices=list(INTEGRATORS), help="integrator (default: the scene's, else DOP853)")
-    r.add_argument("--rtol", type=_positive("rtol"), help="relative tolerance (default: scene, else 1e-10)")
-    r.add_argument("--atol", type=_positive("atol"), help="absolute tolerance (default: scene, else 1e-12)")
-    r.add_argument("--max-step", type=_positive("max-step"), help="largest step in s")
-    r.add_argument("--step", type=_positive("step"), help="step of fixed-step methods (RK4), s (default 1e-3)")
-    r.add_argument("--accumulation-speed", type=_non_negative("accumulation-speed"),
-                   help="post-impact normal speed (m/s) below which repeated stop impacts end in a merge")
-    r.add_argument("--accumulation-interval", type=_non_negative("accumulation-interval"),
-                   help="impact interval (s) below which repeated stop impacts end in a merge")
-    r.add_argument("--max-events", type=_count, help="stop with an error after this many events")
-    r.add_argument("--event-tol", type=_positive("event-tol"),
-                   help="how precisely an event time is located on the dense output, s (default 1e-14)")
-    r.add_argument("--max-steps", type=_count, help="stop with an error after this many steps in a segment")
+    settings.add_arguments(r)  # one flag per solver setting (pcmm.settings)
     r.add_argument("--no-impact", action="store_true",
                    help="switch configurations without impulse (the paper's comparison runs)")
     r.add_argument("--out", type=Path, help="save the trajectory (.npz)")
@@ -78,55 +97,246 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--html", type=Path, help="write a self-contained offline replay page")
     r.add_argument("--replay", action="store_true", help="replay the run in meshcat (browser)")
     r.add_argument("--plots", type=Path, help="write the paper's figures (PNG) into this folder")
+    r.add_argument("--dt", type=_positive("dt"), help="write the CSV and the figures at times 0, dt, 2 dt, ... "
+                   "(and at every event) on the integrator's dense output, s (default: at its steps)")
     r.add_argument("--force", action="store_true", help="overwrite existing output files")
     r.add_argument("--quiet", action="store_true", help="no progress bar, no event table")
-    rp = sub.add_parser("replay", help="replay a saved trajectory in meshcat")
-    rp.add_argument("trajectory", type=Path)
+    sw = sub.add_parser("sweep", help="run a design study: variations of a scene, one results row per run")
+    sw.add_argument("scene", type=Path)
+    sw.add_argument("--set", dest="sets", action="append", default=[], metavar="PATH=VALUES",
+                    help="a value path and its values: 0.2,0.5,0.8 or start:stop:count (a grid over every "
+                         "--set), or low:high with --sample random|lhs")
+    sw.add_argument("--plan", type=Path, help="a sweep file (TOML): [set] PATH = values, sample, runs, seed, "
+                    "collect, t_end")
+    sw.add_argument("--sample", choices=("grid", "random", "lhs"), help="grid (default), random or lhs "
+                    "(Latin hypercube) samples of the --set boxes")
+    sw.add_argument("--runs", type=_count, help="number of random or lhs samples")
+    sw.add_argument("--seed", type=int, help="seed of the random or lhs samples")
+    sw.add_argument("--collect", action="append", default=[], metavar="PATH",
+                    help="a summary value to add as a column, e.g. final.theta.link3 or events[0].t")
+    sw.add_argument("--out", type=Path, required=True, help="the results table (.csv; .parquet too with pyarrow)")
+    sw.add_argument("--t-end", type=_positive("t-end"), help="end time of every run in s (default: the scene's)")
+    sw.add_argument("--workers", type=_count, help="processes (default: the cores this process may use; 1: in this process)")
+    sw.add_argument("--scheduler", metavar="ADDRESS", help="a Dask distributed scheduler (tcp://host:8786), or "
+                    "'local' to start a LocalCluster of --workers processes")
+    sw.add_argument("--resume", action="store_true", help="run only the runs missing from --out")
+    sw.add_argument("--force", action="store_true", help="start over, replacing --out")
+    sw.add_argument("--plots", type=Path, help="write each quantity against each swept value (PNG) into this folder")
+    sw.add_argument("--plot", dest="plot_quantities", action="append", metavar="QUANTITY",
+                    help="with --plots: only this quantity (or collected path); repeatable")
+    sw.add_argument("--quiet", action="store_true", help="no progress bar")
+    rp = sub.add_parser("replay", help="replay saved trajectories in meshcat (several: overlaid, one colour each)")
+    rp.add_argument("trajectory", type=Path, nargs="+")
     rp.add_argument("--html", type=Path, help="write a self-contained offline page instead of serving")
-    rp.add_argument("--fps", type=_positive("fps"), default=60.0, help="frames per second (default 60)")
+    rp.add_argument("--fps", type=_fps, default=60.0,
+                    help=f"frames per second (default 60, at most {MAX_FPS:g})")
     rp.add_argument("--force", action="store_true")
     pl = sub.add_parser("plot", help="write the paper's figures for a saved trajectory")
     pl.add_argument("trajectory", type=Path)
     pl.add_argument("--compare", type=Path, help="a second trajectory (e.g. without impact) to overlay")
     pl.add_argument("--out", type=Path, required=True, help="folder for the PNG files")
+    pl.add_argument("--force", action="store_true", help="overwrite existing figures")
+    pl.add_argument("--impulse-sign", choices=["body_b", "paper"], default="body_b",
+                    help="impulse sign: on body b along the contact normal (default) or the paper's (Fig. 12)")
     ck = sub.add_parser("check", help="validate a scene and its URDFs without simulating")
     ck.add_argument("scene", type=Path)
+    dv = sub.add_parser("derive", help="write every configuration derived by locking joints as a URDF file")
+    dv.add_argument("scene", type=Path)
+    dv.add_argument("--out", type=Path, required=True, help="folder for the URDF files (created if missing)")
+    dv.add_argument("--force", action="store_true", help="overwrite existing URDF files")
+    nw = sub.add_parser("new", help="write a template scene and its URDFs that run as they are")
+    nw.add_argument("name", help="names the files: NAME.toml, NAME_open.urdf, NAME_latched.urdf")
+    nw.add_argument("--links", type=_count, default=3, help="bars of the open chain (default 3)")
+    nw.add_argument("--closed", action="store_true", help="a four-bar (closed loop) instead of an open chain")
+    nw.add_argument("--dir", type=Path, default=Path("."), help="folder to write into (default: here)")
+    nw.add_argument("--force", action="store_true", help="overwrite existing files")
     return p
 
 
 def main(argv=None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
+    """Run one command.  SIGTERM and SIGHUP stop it like Ctrl-C (a partial run is saved, the
+    meshcat server is shut down); a closed standard output (``pcmm run ... | head``) only
+    silences what is printed; a write beyond a file-size limit is an error, not a kill."""
+    from .signals import as_interrupts, exit_status
+    with contextlib.suppress(AttributeError, ValueError, OSError):
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # a file-size limit: EFBIG, reported, not a kill
     try:
-        return {"run": cmd_run, "replay": cmd_replay, "plot": cmd_plot, "check": cmd_check}[args.command](args)
+        with as_interrupts():
+            args = build_parser().parse_args(argv)
+            return {"run": cmd_run, "sweep": cmd_sweep, "replay": cmd_replay, "plot": cmd_plot, "check": cmd_check,
+                    "derive": cmd_derive, "new": cmd_new}[args.command](args)
     except PcmmError as exc:
-        print(f"pcmm: error: {exc.text()}", file=sys.stderr)
+        _error(exc.text())
         return exc.exit_code
-    except KeyboardInterrupt:
-        print("pcmm: interrupted", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as exc:
+        from .signals import describe
+        _error(describe(exc), prefix="pcmm: ")
+        return exit_status(exc)
 
 
-def _check_outputs(paths, force):
+def say(text: str = "", file=None) -> None:
+    """Print, unless the reader has gone: a closed pipe (``| head``) silences the rest of the
+    output and nothing else (the results are written before anything is printed)."""
+    stream = file or sys.stdout
+    try:
+        print(terminal_text(text), file=stream, flush=True)
+    except (BrokenPipeError, ValueError, OSError):
+        with contextlib.suppress(OSError, ValueError, AttributeError):
+            devnull = os.open(os.devnull, os.O_WRONLY)
+            os.dup2(devnull, stream.fileno())  # so the interpreter's own flush at exit is silent too
+            os.close(devnull)
+
+
+def _error(text: str, prefix: str = "pcmm: error: ") -> None:
+    say(prefix + text, file=sys.stderr)
+
+
+def terminal_text(text: str) -> str:
+    """``text`` with control and escape characters shown escaped (``\x1b``), newlines and tabs
+    kept: a name in a scene can never move the cursor or recolour the terminal."""
+    if text.isprintable():
+        return text
+    return "".join(c if c.isprintable() or c in "\n\t" else c.encode("unicode_escape").decode("ascii")
+                   for c in text)
+
+
+def _resolved(p: Path) -> Path:
+    try:
+        return p.resolve()
+    except (OSError, RuntimeError, ValueError):
+        return p.absolute()
+
+
+def _check_outputs(paths, force, folders=()):
+    """Refuse, before anything runs: an output that exists (without --force), is a folder, lies
+    in a missing folder, or is named twice (one would silently replace the other)."""
     problems = []
-    for p in paths:
+    seen: dict[Path, str] = {}
+    for flag, p in paths:
         if p is None:
             continue
+        if "\0" in str(p):
+            problems.append(f"{flag} {str(p)!r}: a file name cannot contain a NUL character")
+            continue
+        key = _resolved(p)
+        if key in seen:
+            problems.append(f"{flag} {p}: is also the {seen[key]} output; give each output its own file")
+        seen[key] = flag
         if p.is_dir():
             problems.append(f"{p}: is a folder; give a file name")
         elif p.exists() and not force:
             problems.append(f"{p}: exists; pass --force to overwrite it")
         if not p.parent.exists():
             problems.append(f"{p}: folder {p.parent} does not exist")
+    for flag, d in folders:
+        if d is None:
+            continue
+        if "\0" in str(d):
+            problems.append(f"{flag} {str(d)!r}: a folder name cannot contain a NUL character")
+        elif d.exists() and not d.is_dir():
+            problems.append(f"{flag} {d}: is a file; give a folder for the figures")
+        elif _resolved(d) in seen:
+            problems.append(f"{flag} {d}: is also the {seen[_resolved(d)]} output")
+        elif d.is_dir() and not force:
+            figures = sorted(p.name for p in d.glob("*.png"))
+            if figures:
+                problems.append(f"{flag} {d}: already holds figures ({', '.join(figures[:4])}"
+                                f"{', ...' if len(figures) > 4 else ''}); pass --force to overwrite them")
     if problems:
         raise UsageError(problems)
 
 
+def _check_geometry(scene, quiet=False):
+    """The check-time consistency of the geometry (pcmm.checks): problems stop before any
+    simulation, warnings are printed."""
+    from .checks import check_scene
+    from .errors import SceneError
+    report = check_scene(scene)
+    if not quiet:
+        for w in report.warnings:
+            print(f"pcmm: warning: {w}", file=sys.stderr)
+    if report.problems:
+        raise SceneError(report.problems)
+    return report
+
+
 def cmd_check(args) -> int:
+    """Validate the scene and its URDFs, then build every configuration's Pinocchio model, so a
+    URDF that Pinocchio rejects fails here and not when a run reaches that configuration."""
+    from .derive import check_derived
+    from .mechanism import Mechanism
     from .scene import load_scene
     scene = load_scene(args.scene)
-    print(f"{args.scene}: valid ({len(scene.configurations)} configurations, "
-          f"{len(scene.transitions)} transitions, {len(scene.forces)} force elements)")
+    mech = Mechanism(scene)
+    problems = []
+    for name, spec in scene.configurations.items():
+        if spec.derivation is not None:
+            continue  # built below, with the values its guards fix
+        try:
+            mech[name]
+        except PcmmError as exc:
+            problems += [f"configuration '{name}': {p}" for p in exc.problems]
+    if problems:
+        raise UsageError([f"{args.scene}: {p}" for p in problems])
+    derived = check_derived(scene, mech.build)
+    report = _check_geometry(scene)  # the geometry where the guards fix the posture
+    say(f"{args.scene}: valid ({len(scene.configurations)} configurations, all models built, "
+        f"{len(scene.transitions)} transitions, {len(scene.forces)} force elements; "
+        f"poses and contacts consistent at {len(report.postures)} guard values)")
+    for line in derived:
+        say(f"  {line}")
+    return 0
+
+
+def _derive_run(scene, progress):
+    """The run ``pcmm derive`` needs for values at entry: (the models it built, its end note)."""
+    from .simulate import RunOptions, simulate
+    try:
+        traj, note = simulate(scene, RunOptions(), progress=progress), None
+    except SimulationError as exc:
+        if exc.partial is None:
+            raise
+        traj, note = exc.partial, exc.text()
+    return traj.stats.get("derived_configurations", {}), note
+
+
+def cmd_derive(args) -> int:
+    from .derive import derived_urdfs
+    from .scene import load_scene
+    from .trajectory import atomic_write
+    scene = load_scene(args.scene)
+    if not any(s.derivation is not None for s in scene.configurations.values()):
+        raise UsageError(f"{args.scene}: has no derived configuration (from = NAME, lock = [...]); "
+                         "nothing to write")
+    if args.out.exists() and not args.out.is_dir():
+        raise UsageError(f"{args.out}: is a file; --out takes a folder")
+    try:
+        args.out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise UsageError(f"{args.out}: cannot create the output folder: {exc.strerror}") from None
+    # before a possibly long run: the files it will surely write
+    _check_outputs([(f"configuration {n}", args.out / f"{n}.urdf") for n, s in scene.configurations.items()
+                    if s.derivation is not None], args.force)
+    update, close = _progress(False, scene.t_end)
+    try:
+        written, unreached, note = derived_urdfs(scene, lambda: _derive_run(scene, update))
+    finally:
+        close()
+    files = [(args.out / (f"{name}.urdf" if k is None else f"{name}-{k}.urdf"), values, text)
+             for name, k, values, text in written]
+    renamed = sorted({name for name, k, _, _ in written if k is not None})
+    _check_outputs([(f"derived URDF {p.name}", p) for p, _, _ in files], args.force)
+    for path, values, text in files:
+        atomic_write(path, lambda f, text=text: f.write(text), force=True)
+        locks = ", ".join(f"{j} = {v:.10g}" for j, v in values.items())
+        print(f"wrote {path} ({locks})")
+    if renamed:
+        print(f"entered at several values, one URDF each: {', '.join(renamed)}")
+    for name in unreached:
+        print(f"configuration '{name}': never reached by the run (t = 0 .. {scene.t_end:g} s); not written")
+    if note:
+        print(f"pcmm: error: the run stopped early, so only what it reached is written: {note}", file=sys.stderr)
+        return SimulationError.exit_code
     return 0
 
 
@@ -158,85 +368,272 @@ def _progress(quiet: bool, t_end: float):
 
 def cmd_run(args) -> int:
     from .scene import load_scene
-    from .simulate import RunOptions, simulate
-    from .summary import event_table, summary
-    from .trajectory import atomic_write, dumps_json
-    _check_outputs([args.out, args.summary, args.csv, args.html], args.force)
+    from .settings import options_from_arguments
+    from .simulate import simulate
+    from .summary import event_table
+    _check_outputs([("--out", args.out), ("--summary", args.summary), ("--csv", args.csv),
+                    ("--html", args.html)], args.force, folders=[("--plots", args.plots)])
     scene = load_scene(args.scene)
-    opts = RunOptions(t_end=args.t_end, method=args.method, rtol=args.rtol, atol=args.atol,
-                      max_step=args.max_step, step=args.step, accumulation_speed=args.accumulation_speed,
-                      accumulation_interval=args.accumulation_interval, max_events=args.max_events,
-                      event_tol=args.event_tol, max_steps=args.max_steps,
-                      impact=not args.no_impact)
+    _check_geometry(scene, quiet=args.quiet)
+    opts = options_from_arguments(args, t_end=args.t_end, impact=not args.no_impact)
     update, close = _progress(args.quiet, args.t_end or scene.t_end)
+    failure = None
     try:
         traj = simulate(scene, opts, progress=update)
     except SimulationError as exc:
+        failure, traj = exc, exc.partial
+    finally:
         close()
-        if exc.partial is not None and exc.partial.segments:
-            stem = Path(args.scene).stem  # a file name, whatever the scene's 'name' says
-            where = args.out or Path(f"{stem}-partial.npz")
-            if where.exists() and not args.force and args.out is None:
-                where = Path(f"{stem}-partial-{int(time.time())}.npz")
-            exc.partial.save(where, force=True)
-            print(f"pcmm: the run stopped at t = {float(exc.partial.t[-1]):.6g} s; the partial trajectory "
-                  f"is saved in {where} (status 'partial')", file=sys.stderr)
-        raise
-    close()
-    if not args.quiet:
-        print(f"{scene.name}: {'with' if traj.impact else 'without'} impact, "
-              f"t = 0 .. {traj.t[-1]:.6g} s, configuration {scene.initial_configuration} -> "
-              f"{traj.segments[-1].configuration}, {len(traj.events)} events, "
-              f"{traj.stats['steps']} steps, {traj.stats['rhs_evals']} rhs evaluations, "
-              f"{traj.stats['wall_s']:.3f} s solve")
-        print(event_table(traj))
-    if args.out:
-        traj.save(args.out, force=True)
-        print(f"trajectory: {args.out}")
-    if args.summary:
-        atomic_write(args.summary, lambda f: f.write(dumps_json(summary(traj, scene.initial_configuration))),
-                     force=True)
-        print(f"summary: {args.summary}")
-    if args.csv:
-        traj.to_csv(args.csv, force=True)
-        print(f"csv: {args.csv}")
-    if args.plots:
-        from .plots import write_figures
-        other = simulate(scene, RunOptions(**{**opts.__dict__, "impact": not opts.impact}))
-        files = write_figures(traj, args.plots, compare=other)
-        print(f"figures: {', '.join(str(f) for f in files)}")
-    if args.html:
-        from .replay import write_html
-        write_html(traj, args.html)
-        print(f"replay page: {args.html}")
+    if failure is not None and (traj is None or not traj.segments):
+        raise failure
+    from .signals import deferred
+    with deferred() as held:  # a second Ctrl-C (or SIGTERM) waits until the results are kept
+        written, warnings, problems = _write_results(args, scene, opts, traj, partial=failure is not None)
+    if not args.quiet and failure is None:
+        say(f"{scene.name}: {'with' if traj.impact else 'without'} impact, "
+            f"t = 0 .. {traj.t[-1]:.6g} s, configuration {scene.initial_configuration} -> "
+            f"{traj.segments[-1].configuration}, {len(traj.events)} events, "
+            f"{traj.stats['steps']} steps, {traj.stats['rhs_evals']} rhs evaluations, "
+            f"{traj.stats['wall_s']:.3f} s solve")
+        say(event_table(traj))
+        if traj.stats.get("closest_approach"):
+            from .approach import describe as describe_approach
+            say(describe_approach(traj.stats["closest_approach"]))
+    for w in (w for e in traj.events for w in e.get("warnings", ())):  # check printed the assembly's
+        _error(w, prefix="pcmm: warning: ")
+    if failure is not None:
+        kept = "; ".join(f"{what} {path}" for what, path in written) or "nothing could be saved"
+        _error(f"the run stopped at t = {float(traj.t[-1]):.6g} s; {kept}", prefix="pcmm: ")
+    for what, path in written if failure is None else ():
+        say(f"{what}: {path}")
+    for w in warnings:
+        _error(w, prefix="pcmm: warning: ")
+    for p in problems:
+        _error(p.text())
+    if failure is not None:
+        raise failure
+    held.reraise()
+    if problems:
+        return max(p.exit_code for p in problems)
     if args.replay:
         from .replay import serve
+        _check_frames(traj, 60.0, "--replay")
         serve(traj)
     return 0
 
 
+def _write_results(args, scene, opts, traj, partial: bool):
+    """Write every requested output of ``traj``, each on its own: one that fails never keeps
+    the others from being written, and what the operating system refuses is written to a
+    fallback folder that is named.  A partial run writes its trajectory (to ``--out``, else
+    ``<scene>-partial.npz``, never over another file) and the requested summary, both
+    marked ``status: "partial"``.  Returns ([(what, path)], [warnings], [errors])."""
+    from .outputs import write_new
+    from .summary import summary
+    from .trajectory import dumps_json_finite
+    written, warnings, problems = [], [], []
+
+    def write_summary(path, force):
+        text = dumps_json_finite(summary(traj, scene.initial_configuration), f"summary {args.summary}")
+        return atomic_write_text(path, text, force)
+
+    comparison = []
+
+    def compare_run():
+        if not comparison and not scene.transitions:  # nothing to compare without a transition
+            comparison.append(None)
+        if not comparison:
+            from .simulate import simulate
+            try:
+                other = simulate(scene, type(opts)(**{**opts.__dict__, "impact": not opts.impact}))
+                comparison.append(other)
+                warnings.extend(f"{'without' if opts.impact else 'with'} impact (figures' comparison run): {w}"
+                                for e in other.events for w in e.get("warnings", ()))
+            except SimulationError as exc:
+                comparison.append(None)
+                warnings.append(f"--plots: the comparison run {'without' if opts.impact else 'with'} impact "
+                                f"failed, so the figures show this run alone: {exc.text()}")
+        return comparison[0]
+
+    def shown(run):  # --dt: CSV and figures resampled on the dense output
+        return run.resampled(args.dt) if (run is not None and getattr(args, "dt", None)) else run
+
+    def write_plots(folder, force):
+        from .plots import write_figures
+        other = compare_run()
+        return _figures_into(folder, force, lambda d: write_figures(shown(traj), d, compare=shown(other)))
+
+    def write_html(path, force):
+        from .replay import html_page
+        _check_frames(traj, 60.0, "--html")
+        return atomic_write_text(path, html_page(traj), force)
+
+    if partial:
+        stem = Path(args.scene).stem  # a file name, whatever the scene's 'name' says
+        target = args.out or Path(f"{stem}-partial.npz")
+
+        def save_partial(path, force):
+            if force:
+                return traj.save(path, force=True)
+            return write_new(path, lambda p: traj.save(p, force=False))
+        jobs = [("the partial trajectory is saved in", target, save_partial)]
+        if args.summary:
+            jobs.append(("the partial summary in", args.summary, write_summary))
+        skipped = [f for f, v in (("--csv", args.csv), ("--html", args.html), ("--plots", args.plots)) if v]
+        if skipped:
+            warnings.append(f"{', '.join(skipped)}: not written, the run did not complete "
+                            "(the partial trajectory, status 'partial', holds every step it took)")
+    else:
+        jobs = [(label, path, fn) for label, path, fn in (
+            ("trajectory", args.out, lambda p, force: traj.save(p, force=force)),
+            ("summary", args.summary, write_summary),
+            ("csv", args.csv, lambda p, force: shown(traj).to_csv(p, force=force)),
+            ("figures", args.plots, write_plots),
+            ("replay page", args.html, write_html)) if path is not None]
+    for label, path, fn in jobs:
+        try:
+            out = fn(path, args.force)
+            written.append((label, ", ".join(str(f) for f in out) if isinstance(out, list) else out))
+        except (OutputError, UsageError) as exc:
+            kept = _fallback(path, fn)
+            if kept is None:
+                problems.append(_Kept(f"{exc.text()}; no fallback folder would take it either: "
+                                      "this output is lost"))
+            else:
+                written.append((f"{label} (instead of {path})", kept))
+                problems.append(_Kept(f"{exc.text()}; written to {kept} instead"))
+        except SimulationError as exc:  # e.g. a summary with numbers that are not finite
+            problems.append(exc)
+    return written, warnings, problems
+
+
+class _Kept(OutputError):
+    """An output written to a fallback place (the message says where)."""
+
+    def __init__(self, text: str):
+        PcmmError.__init__(self, text)
+
+
+def _fallback(path: Path, fn):
+    """Write the output ``fn`` makes to a free name in the first folder that takes it."""
+    from .outputs import fallback_folders, fallback_path
+    for folder in fallback_folders(_resolved(path).parent):
+        try:
+            target = fallback_path(path, folder)
+            out = fn(target, False)
+            return ", ".join(str(f) for f in out) if isinstance(out, list) else out
+        except (OutputError, UsageError):
+            continue
+    return None
+
+
+def atomic_write_text(path, text: str, force: bool):
+    from .outputs import atomic_write
+    return atomic_write(path, lambda f: f.write(text), force=force)
+
+
+def _figures_into(folder: Path, force: bool, draw) -> list[Path]:
+    """Draw the figures into a fresh staging folder next to ``folder``, then move them in;
+    an existing figure is refused (without --force) before any is moved."""
+    from .outputs import publish_folder
+    parent = _resolved(folder).parent
+    try:
+        parent.mkdir(parents=True, exist_ok=True)
+        staging = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", suffix=".figures", dir=parent))
+    except OSError as exc:
+        raise OutputError(folder, exc) from None
+    try:
+        draw(staging)
+    except BaseException as exc:
+        shutil.rmtree(staging, ignore_errors=True)
+        if isinstance(exc, OSError):
+            raise OutputError(folder, exc) from None
+        raise
+    return publish_folder(staging, folder, force)
+
+
+def cmd_new(args) -> int:
+    from .template import write_template
+    files = write_template(args.name, args.dir, links=args.links, closed=args.closed, force=args.force)
+    print(f"wrote {', '.join(str(f) for f in files)}; next: pcmm check {files[0]}")
+    return 0
+
+
+def cmd_sweep(args) -> int:
+    import signal
+    from .scene import load_scene
+    from .simulate import RunOptions
+    from .sweep import make_plan, parse_set, read_plan_file, sweep
+    if args.resume and args.force:
+        raise UsageError("--resume and --force: give one (complete the table, or start it over)")
+    plan_file = read_plan_file(args.plan) if args.plan else {"axes": [], "collect": []}
+    axes = plan_file["axes"] + [parse_set(s) for s in args.sets]
+    sample = args.sample or plan_file.get("sample") or "grid"
+    runs = args.runs if args.runs is not None else plan_file.get("runs")
+    seed = args.seed if args.seed is not None else plan_file.get("seed")
+    plan = make_plan(axes, sample, runs, seed)
+    collect = list(dict.fromkeys(plan_file["collect"] + args.collect))
+    t_end = args.t_end if args.t_end is not None else plan_file.get("t_end")
+    if args.plots is not None and not args.plots.parent.exists():
+        raise UsageError(f"{args.plots}: folder {args.plots.parent} does not exist")
+    from .sweep import QUANTITIES
+    for q in args.plot_quantities or ():
+        if q not in QUANTITIES and q not in collect:
+            raise UsageError(f"--plot {q!r}: not a quantity of the table; quantities: {', '.join(QUANTITIES)}, "
+                             "or a --collect path")
+    scene = load_scene(args.scene)
+    previous = signal.signal(signal.SIGTERM, _terminate)  # a killed sweep stops like Ctrl-C: rows kept
+    try:
+        res = sweep(scene, plan, args.out, RunOptions(t_end=t_end), collect, workers=args.workers,
+                    scheduler=args.scheduler, resume=args.resume, force=args.force, progress=not args.quiet)
+    except KeyboardInterrupt:
+        print(f"pcmm: sweep interrupted; the finished runs are in {args.out}: complete it with --resume",
+              file=sys.stderr)
+        return 130
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    counts = ", ".join(f"{n} {s}" for s, n in sorted(res.status.items()))
+    print(f"{scene.name}: {res.planned} runs planned, {res.skipped} already in {res.out}, {res.ran} run; "
+          f"table: {counts}")
+    print(f"results: {res.out}" + (f" and {res.parquet}" if res.parquet else " (Parquet: install pyarrow)"))
+    for c in res.uncollected:
+        print(f"pcmm: warning: --collect {c!r}: no run's summary has a value there", file=sys.stderr)
+    if args.plots is not None:
+        from .sweep_plots import plot_sweep
+        args.plots.mkdir(exist_ok=True)
+        files = plot_sweep(args.out, plan.paths, args.plots, quantities=args.plot_quantities)
+        print(f"figures: {len(files)} files in {args.plots}")
+    return 0
+
+
+def _terminate(signum, frame):
+    raise KeyboardInterrupt
+
+
 def cmd_replay(args) -> int:
     from .trajectory import Trajectory
-    traj = Trajectory.load(args.trajectory)
+    traj, *others = [Trajectory.load(p) for p in args.trajectory]
+    _check_frames(traj, args.fps, "replay")
     if args.html:
-        _check_outputs([args.html], args.force)
-        from .replay import write_html
-        write_html(traj, args.html, fps=args.fps)
-        print(f"replay page: {args.html}")
+        _check_outputs([("--html", args.html)], args.force)
+        from .replay import html_page
+        atomic_write_text(args.html, html_page(traj, fps=args.fps, others=others), args.force)
+        say(f"replay page: {args.html}")
         return 0
     from .replay import serve
-    serve(traj, fps=args.fps)
+    serve(traj, fps=args.fps, others=others)
     return 0
 
 
 def cmd_plot(args) -> int:
     from .plots import write_figures
     from .trajectory import Trajectory
+    _check_outputs([], args.force, folders=[("--out", args.out)])
     traj = Trajectory.load(args.trajectory)
     other = Trajectory.load(args.compare) if args.compare else None
-    args.out.mkdir(parents=True, exist_ok=True)
-    files = write_figures(traj, args.out, compare=other)
-    print(f"figures: {', '.join(str(f) for f in files)}")
+    files = _figures_into(args.out, args.force,
+                          lambda d: write_figures(traj, d, compare=other, impulse_sign=args.impulse_sign))
+    say(f"figures: {', '.join(str(f) for f in files)}")
     return 0
 
 

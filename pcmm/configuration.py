@@ -10,56 +10,28 @@ H (RNEA/ABA) and frame Jacobians; this module adds the planar bookkeeping:
   Pinocchio's own (a planar joint's are in its local frame).
 * every link's absolute angle is linear in ``q``: ``theta = A q + b``
   (all axes are normal to the plane), so angles never wrap.
-* the points the scene uses (contact points, cut-joint points) become
+* the points the scene uses (contact points, cut-joint points, point-spring ends) become
   operational frames; no other geometry or collision pair is modelled.
 
-Models are built when a run first reaches the configuration (:class:`Mechanism`).
+Models are built when a run first reaches the configuration (:class:`pcmm.mechanism.Mechanism`),
+once per process for each URDF text, set of points and gravity (later runs reuse them).
 """
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
 
 import numpy as np
 import pinocchio as pin
-import scipy.linalg as sla
 
 from .errors import ModelError, SimulationError
-from .forces import ForceField, compile_forces
-from .scene import ConfigurationSpec, Measure, Scene, Target
+from .coordinates import Coordinates
+from .forces import ForceField, compile_forces, compile_point_springs
+from .pinocchio_helpers import LWA, frame_jacobian, mass_matrix
+from .spec import ConfigurationSpec, Measure, Scene, Target
 from .urdf import dynamics_xml
-
-LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
-
-
-def frame_jacobian(model, data, frame_id: int, ref=LWA) -> np.ndarray:
-    """6 x nv frame Jacobian (eigenpy returns a 1-D array when nv = 1; Pinocchio
-    4.1 crashes on a model with nv = 0, so that case never reaches it)."""
-    if model.nv == 0:
-        return np.zeros((6, 0))
-    return np.asarray(pin.getFrameJacobian(model, data, frame_id, ref)).reshape(6, model.nv)
-
-
-def mass_matrix(model, data, q_pin) -> np.ndarray:
-    """D(q) of Eq. 1 by CRBA, symmetrized (CRBA fills the upper triangle only)."""
-    M = pin.crba(model, data, q_pin)
-    return np.triu(M) + np.triu(M, 1).T
-
-
-def cholesky(M: np.ndarray, configuration: str):
-    """Cholesky factor of a mass matrix, or a clear error when it is not positive definite."""
-    try:
-        return sla.cho_factor(M)
-    except np.linalg.LinAlgError:
-        raise SimulationError(
-            f"configuration '{configuration}': the mass matrix is not positive definite (a link without "
-            "mass or inertia?); every moving link needs <inertial> with mass > 0") from None
-
-
-def joint_jacobian(model, data, joint_id: int, ref) -> np.ndarray:
-    if model.nv == 0:
-        return np.zeros((6, 0))
-    return np.asarray(pin.getJointJacobian(model, data, joint_id, ref)).reshape(6, model.nv)
-
 
 @dataclass(frozen=True)
 class Point:
@@ -70,15 +42,56 @@ class Point:
     frame_id: int
 
 
+_BUILT = threading.local()  # per thread: Pinocchio's Data is scratch space, never shared between threads
+_BUILT_MAX = 16  # models kept per thread (a large chain's Data holds nv^3-sized tensors)
+
+
+def _point_keys(scene: Scene, spec: ConfigurationSpec) -> tuple:
+    """The points a configuration registers as frames, in registration order."""
+    keys = []
+    for t in scene.transitions_from(spec.name):
+        if t.contact is not None and t.contact.joint is None:  # as Configuration.__init__ registers them
+            keys += [(t.contact.a, tuple(t.contact.point_a)), (t.contact.b, tuple(t.contact.point_b))]
+    for cj in spec.cut_joints:
+        keys += [(cj.a, tuple(cj.point_a)), (cj.b, tuple(cj.point_b))]
+    for f in scene.forces_in(spec.name):
+        if f.points is not None:
+            keys += [(f.points.a, tuple(f.points.point_a)), (f.points.b, tuple(f.points.point_b))]
+    return tuple((link, (float(p[0]), float(p[1]))) for link, p in keys)
+
+
 class Configuration:
-    def __init__(self, scene: Scene, spec: ConfigurationSpec):
+    """One configuration's model and bookkeeping.
+
+    ``coordinates(cfg)`` builds the coordinate strategy the configuration integrates in
+    (:func:`pcmm.constraints.coordinates_for`: a plain tree, or loops and drives by
+    partitioning); it is given by the caller (:class:`pcmm.mechanism.Mechanism`) so this
+    module needs nothing from the layers above it.
+    """
+
+    def __init__(self, scene: Scene, spec: ConfigurationSpec, coordinates: Callable[[Configuration], Coordinates]):
         self.scene = scene
         self.spec = spec
         self.name = spec.name
+        self._coordinates = coordinates
+        # The Pinocchio model and data are built once per process (and thread) for each URDF text, set
+        # of points and gravity, and reused by every later run: Pinocchio 4.1's createData allocates
+        # nv^3-sized tensors (29 ms at nv = 100), more than a whole run of a small mechanism.
+        try:  # a derived configuration's model is its own URDF text, not its base file's
+            text = spec.xml.encode() if spec.xml is not None else Path(spec.urdf).read_bytes()
+        except OSError as exc:
+            raise ModelError(f"{spec.urdf}: cannot read the URDF: {exc.strerror or exc}") from None
+        key = (text, _point_keys(scene, spec), tuple(scene.gravity))
+        cache = _BUILT.__dict__.setdefault("models", {})
+        built = cache.get(key)
+        if built is not None:
+            self.__dict__.update(built)
+            self._after_model()
+            return
         try:
-            model = pin.buildModelFromXML(dynamics_xml(spec.urdf))
+            model = pin.buildModelFromXML(dynamics_xml(spec.urdf, spec.xml))
         except Exception as exc:  # Pinocchio's own parser errors are C++ messages
-            raise ModelError(f"{spec.urdf}: Pinocchio could not build the model: {exc}") from None
+            raise ModelError(f"{spec.source}: Pinocchio could not build the model: {exc}") from None
         model.gravity.linear[:] = [scene.gravity[0], scene.gravity[1], 0.0]
         self.model = model
         self.nv = model.nv
@@ -104,17 +117,34 @@ class Configuration:
         self.root = spec.info.root
         self._points: dict[tuple[str, tuple[float, float]], Point] = {}
         for t in scene.transitions_from(self.name):
-            self.point(t.contact.a, t.contact.point_a)
-            self.point(t.contact.b, t.contact.point_b)
+            if t.contact is not None and t.contact.joint is None:
+                self.point(t.contact.a, t.contact.point_a)
+                self.point(t.contact.b, t.contact.point_b)
         for cj in spec.cut_joints:
             self.point(cj.a, cj.point_a)
             self.point(cj.b, cj.point_b)
+        for f in scene.forces_in(self.name):
+            if f.points is not None:
+                self.point(f.points.a, f.points.point_a)
+                self.point(f.points.b, f.points.point_b)
         self.data = model.createData()
         self._angle_map()
-        self.forces: ForceField = compile_forces(scene.forces_in(self.name), self.measure_row,
-                                                 self.target_column, self.nv)
-        from .constraints import coordinates_for  # loops and drives, or the plain tree
-        self.coords = coordinates_for(self)
+        self._cut_models = {}  # cut systems by cut joints (pcmm.cutting), built on first impact
+        self._impulse_models = {}  # the zero-gravity copy for joint impulses (pcmm.impulse)
+        if len(cache) >= _BUILT_MAX:
+            cache.pop(next(iter(cache)))
+        cache[key] = {k: self.__dict__[k] for k in (
+            "model", "nv", "joint_names", "joint_slice", "joint_id", "_planar", "links", "link_frame", "root",
+            "_points", "data", "A", "b", "link_index", "_cut_models", "_impulse_models")}
+        self._after_model()
+
+    def _after_model(self) -> None:
+        """What depends on the scene beyond the model: force elements and coordinates."""
+        forces = self.scene.forces_in(self.name)
+        points = compile_point_springs(forces, self.model, self.to_pin,
+                                       lambda link, xy: self.point(link, xy).frame_id)
+        self.forces: ForceField = compile_forces(forces, self.measure_row, self.target_column, self.nv, points)
+        self.coords: Coordinates = self._coordinates(self)  # loops and drives, or the plain tree
 
     # ---- points ---------------------------------------------------------------------
     def point(self, link: str, local) -> Point:
@@ -250,16 +280,31 @@ class Configuration:
             return 0.0
         return float(pin.computeKineticEnergy(self.model, self.data, self.to_pin(q), v))
 
-    def potential_energy(self, q: np.ndarray) -> float:
-        """Gravity plus spring energy (J).
+    def gravity_energy(self, q: np.ndarray) -> float:
+        """Potential energy of gravity (J).
 
         Bodies welded to the frame (a link merged with it, like a slider at its stop) sit in
         Pinocchio's universe inertia, which ``computePotentialEnergy`` leaves out; their constant
         share is added so the potential energy is continuous across a configuration switch."""
         fixed = self.model.inertias[0]
         welded = -fixed.mass * float(self.model.gravity.linear @ fixed.lever)
-        return float(pin.computePotentialEnergy(self.model, self.data, self.to_pin(q))) \
-            + welded + self.forces.potential_energy(q)
+        return float(pin.computePotentialEnergy(self.model, self.data, self.to_pin(q))) + welded
+
+    def potential_energy(self, q: np.ndarray) -> float:
+        """Gravity plus spring energy (J)."""
+        return self.gravity_energy(q) + self.forces.potential_energy(q)
+
+    def link_velocities(self, q: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """(nlinks, 3): vx, vy of every link frame's origin and its angular velocity (world)."""
+        out = np.zeros((len(self.links), 3))
+        if self.nv == 0:
+            return out
+        pin.forwardKinematics(self.model, self.data, self.to_pin(q), v)
+        pin.updateFramePlacements(self.model, self.data)
+        for i, link in enumerate(self.links):
+            m = pin.getFrameVelocity(self.model, self.data, self.link_frame[link], LWA)
+            out[i, :2], out[i, 2] = m.linear[:2], m.angular[2]
+        return out
 
     def link_poses(self, q: np.ndarray) -> np.ndarray:
         """(nlinks, 3): x, y, theta of every link frame; needs no prior call."""
@@ -270,20 +315,3 @@ class Configuration:
             out[i, :2] = self.data.oMf[self.link_frame[link]].translation[:2]
             out[i, 2] = th[i]
         return out
-
-
-class Mechanism:
-    """All configurations of a scene, each built when the run first reaches it."""
-
-    def __init__(self, scene: Scene):
-        self.scene = scene
-        self._built: dict[str, Configuration] = {}
-
-    def __getitem__(self, name: str) -> Configuration:
-        if name not in self._built:
-            self._built[name] = Configuration(self.scene, self.scene.configurations[name])
-        return self._built[name]
-
-    @property
-    def built(self) -> tuple[str, ...]:
-        return tuple(self._built)

@@ -19,6 +19,7 @@ uses :class:`TreeCoordinates`, a plain ``y = [q, v]`` and one ``aba`` call.
 """
 from __future__ import annotations
 
+import contextlib
 import functools
 import math
 from dataclasses import dataclass
@@ -28,10 +29,12 @@ import pinocchio as pin
 import scipy.linalg as sla
 from scipy.linalg.lapack import dgesv
 
-from .configuration import frame_jacobian
+from .configuration import Configuration
 from .errors import Repartition, SimulationError
+from .pinocchio_helpers import LWA, frame_jacobian
+from .spec import CutJointSpec
+from .witness import Guard
 
-LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
 NEWTON_TOL = 1e-13
 SINGULAR_COND = 1e9
 
@@ -44,7 +47,7 @@ def _perp(n):
 class ClosureRows:
     """Point frames and link frames of one configuration's cut joints."""
 
-    specs: tuple
+    specs: tuple[CutJointSpec, ...]
     frames_a: tuple[int, ...]
     frames_b: tuple[int, ...]
     links_a: tuple[int, ...]
@@ -53,6 +56,35 @@ class ClosureRows:
     @property
     def size(self) -> int:
         return sum({"revolute": 2, "prismatic": 2, "weld": 3}[s.type] for s in self.specs)
+
+    @functools.cached_property
+    def revolute_only(self) -> bool:
+        """Only point rows (``p_b - p_a = 0``): the lean evaluations below apply."""
+        return all(s.type == "revolute" for s in self.specs)
+
+    def point_rows(self, model, data):
+        """(Phi, Phi_q) of revolute cut joints only; placements, frame placements and joint
+        Jacobians must be computed on ``data``."""
+        nv, get, LWA_, oMf = model.nv, pin.getFrameJacobian, LWA, data.oMf
+        phi = np.empty(2 * len(self.specs))
+        rows = np.empty((2 * len(self.specs), nv))
+        for k, (fa, fb) in enumerate(zip(self.frames_a, self.frames_b)):
+            phi[2 * k:2 * k + 2] = oMf[fb].translation[:2] - oMf[fa].translation[:2]
+            Jb, Ja = get(model, data, fb, LWA_), get(model, data, fa, LWA_)
+            if nv == 1:  # eigenpy returns a 1-D array for one column
+                Jb, Ja = Jb.reshape(6, 1), Ja.reshape(6, 1)
+            np.subtract(Jb[:2], Ja[:2], out=rows[2 * k:2 * k + 2])
+        return phi, rows
+
+    def point_bias(self, model, data) -> np.ndarray:
+        """``d2Phi/dt2`` at zero acceleration for revolute cut joints only; placements,
+        velocities and accelerations (at a = 0) must be computed on ``data`` (no frame
+        placements or Jacobians needed: a frame's classical acceleration comes from its joint's)."""
+        acc = pin.getFrameClassicalAcceleration
+        out = np.empty(2 * len(self.specs))
+        for k, (fa, fb) in enumerate(zip(self.frames_a, self.frames_b)):
+            out[2 * k:2 * k + 2] = acc(model, data, fb, LWA).linear[:2] - acc(model, data, fa, LWA).linear[:2]
+        return out
 
     def labels(self) -> list[str]:
         out = []
@@ -128,6 +160,15 @@ class Drives:
     def size(self) -> int:
         return len(self.joints)
 
+    def values(self, t) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(f, f', f'') at ``t``; the last time asked is remembered (a right-hand side asks for all
+        three at one time, several times)."""
+        last = self.__dict__.get("_last")
+        if last is None or last[0] != t:
+            last = (t, (self.value(t), self.value(t, 1), self.value(t, 2)))
+            object.__setattr__(self, "_last", last)
+        return last[1]
+
     def value(self, t, order=0) -> np.ndarray:
         out = np.empty(len(self.joints))
         for i, d in enumerate(self._derivs):
@@ -152,12 +193,28 @@ def solve(A: np.ndarray, b: np.ndarray) -> np.ndarray:
     return x
 
 
+def _det(A: np.ndarray) -> float:
+    """Determinant of a small square block: by cofactors up to 3 x 3 (numpy's det costs ten
+    times these few products from Python), by LU above."""
+    n = A.shape[0]
+    if n == 0:
+        return 1.0
+    if n == 1:
+        return float(A[0, 0])
+    if n == 2:
+        return float(A[0, 0] * A[1, 1] - A[0, 1] * A[1, 0])
+    if n == 3:
+        (a, b, c), (d, e, f), (g, h, i) = A.tolist()
+        return a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g)
+    return float(np.linalg.det(A))
+
+
 @functools.lru_cache(maxsize=None)
 def _strictly_lower(n: int) -> np.ndarray:
     return np.tril(np.ones((n, n), dtype=bool), -1)
 
 
-def constrained_accelerations(cfg, q, v, J, bias, extra=None):
+def constrained_accelerations(cfg: Configuration, q, v, J, bias, extra=None):
     """Solve ``M a + h = Q + J^T lam``, ``J a + bias = 0`` (the multipliers are the
     constraint forces: cut-joint reactions on b, driving moments, contact forces).
 
@@ -182,14 +239,42 @@ def constrained_accelerations(cfg, q, v, J, bias, extra=None):
     return a0 + MiJt @ lam, lam
 
 
-class TreeCoordinates:
-    """A tree with no loops and no drives: ``y = [q, v]``, accelerations by ABA."""
+class _Replayable:
+    """What both coordinate strategies share for a trajectory's lazy series: the state of an
+    accepted segment (its partition) kept, and restored around a later re-reading of it."""
+
+    def frozen_state(self) -> dict:
+        """The partition a segment is integrated in (restored by :meth:`restored`)."""
+        return {"I": getattr(self, "I", None), "D": getattr(self, "D", None), "ny": getattr(self, "ny", None)}
+
+    @contextlib.contextmanager
+    def restored(self, frozen: dict, q_start):
+        """Re-read an accepted segment: its partition, its warm start, no conditioning checks;
+        everything as it was afterwards."""
+        saved = dict(self.__dict__)
+        self.__dict__.update(frozen)
+        self.seed(q_start)
+        self.checking = False
+        try:
+            yield self
+        finally:
+            self.__dict__.clear()
+            self.__dict__.update(saved)
+
+    def fresh_rhs(self):
+        """A right-hand side bound to the configuration's current data (the tree's closure holds
+        the data it was built with)."""
+        return self._make_rhs() if hasattr(self, "_make_rhs") else self.rhs
+
+
+class TreeCoordinates(_Replayable):
+    """A tree with no loops and no drives: ``y = [q, v]``, accelerations by ABA
+    (satisfies :class:`~pcmm.coordinates.Coordinates`)."""
 
     constrained = False
-    checking = True
     position_noise = 0.0  # coordinates are the integrator's own
 
-    def __init__(self, cfg):
+    def __init__(self, cfg: Configuration):
         self.cfg = cfg
         self.nv = cfg.nv
         self.ny = 2 * cfg.nv
@@ -209,6 +294,14 @@ class TreeCoordinates:
         Q0, KD = cfg.forces.Q0, cfg.forces.KD
         tau = np.empty(nv)
         dot, subtract, concatenate = np.dot, np.subtract, np.concatenate
+        if cfg.forces.points is not None:  # point springs: their Jacobians at every evaluation
+            to_pin, qdot, points = cfg.to_pin, cfg.qdot, cfg.forces.points
+
+            def rhs_points(t, y):
+                q, v = y[:nv], y[nv:]
+                return concatenate((qdot(q, v), aba(model, data, to_pin(q), v,
+                                                    subtract(Q0, dot(KD, y), tau) + points.generalized(q, v))))
+            return rhs_points
         if cfg.has_planar:
             to_pin, qdot = cfg.to_pin, cfg.qdot
 
@@ -240,6 +333,16 @@ class TreeCoordinates:
         tau = self.cfg.forces.generalized(q, v)
         return pin.aba(self.cfg.model, self.cfg.data, self.cfg.to_pin(q), v, tau), np.zeros(0)
 
+    def rhs_with_power(self, t, y):
+        """``y`` is the state with the work so far appended; the state derivative with one more component: the power of the force elements
+        (every applied force but gravity, which the potential energy accounts for)."""
+        q, v = self.unpack(t, y[:-1])
+        if self.nv == 0:
+            return np.zeros(1)
+        tau = self.cfg.forces.generalized(q, v)
+        a = pin.aba(self.cfg.model, self.cfg.data, self.cfg.to_pin(q), v, tau)
+        return np.concatenate([self.cfg.qdot(q, v), a, [tau @ v]])
+
     def equality(self, t, model, data):
         return np.zeros((0, model.nv))
 
@@ -255,14 +358,29 @@ class TreeCoordinates:
     def seed(self, q):
         """Set the guess for the dependent coordinates (nothing to do in a tree)."""
 
+    def guards(self) -> list:
+        """A tree needs no guard of its own."""
+        return []
 
-class PartitionedCoordinates:
-    """Loops and/or drives: independent coordinates ``y = [q_I, v_I]``."""
+    def at_guard(self, guard, t, q):
+        raise ValueError("a tree contributes no guard")  # never reached: guards() is empty
+
+    def recording(self):
+        """Recording a tree's segment checks nothing that could stop the run."""
+        return contextlib.nullcontext()
+
+    def cut_joint_frames(self) -> tuple:
+        return ()
+
+
+class PartitionedCoordinates(_Replayable):
+    """Loops and/or drives: independent coordinates ``y = [q_I, v_I]`` (satisfies
+    :class:`~pcmm.coordinates.Coordinates`)."""
 
     constrained = True
-    position_noise = 10 * NEWTON_TOL  # dependent coordinates are solved to the Newton tolerance
+    position_noise = 4 * np.finfo(float).eps  # dependent coordinates: Newton plus one polishing step
 
-    def __init__(self, cfg, closure: ClosureRows, drives: Drives):
+    def __init__(self, cfg: Configuration, closure: ClosureRows, drives: Drives):
         self.cfg = cfg
         self.closure = closure
         self.drives = drives
@@ -271,10 +389,13 @@ class PartitionedCoordinates:
         self.labels = closure.labels() + [f"{j}.drive" for j in drives.joints]
         self.I = None
         self.D = None
+        self.ny = 0  # 2 len(I), set with the partition (pack, project)
         self._qD = None
+        self._recent: list[tuple[float, np.ndarray]] = []
         self._zeros = np.zeros(self.nv)
         self.checking = True  # conditioning checks (off while recording an accepted segment)
         self._cache = None  # the last unpack: guards and the right-hand side ask for the same point
+        self.max_residual = 0.0  # largest loop residual a Newton solve accepted (the recorded drift's bound)
         self._driven = np.array(drives.index, dtype=int)
         self._drive_rows = np.zeros((drives.size, self.nv))
         self._drive_rows[np.arange(drives.size), self._driven] = 1.0
@@ -289,16 +410,37 @@ class PartitionedCoordinates:
         else:  # computes the placements itself
             pin.computeJointJacobians(cfg.model, cfg.data, qp)
         pin.updateFramePlacements(cfg.model, cfg.data)
-        phi, Jq, bias = self.closure.evaluate(cfg.model, cfg.data, need_bias)
+        if self.closure.revolute_only and not need_bias:
+            phi, Jq = self.closure.point_rows(cfg.model, cfg.data)
+            bias = None
+        else:
+            phi, Jq, bias = self.closure.evaluate(cfg.model, cfg.data, need_bias)
         if self.drives.size:  # the rheonomic rows q_j - f_j(t): their Jacobian rows are constant
-            phi = np.concatenate((phi, q[self._driven] - self.drives.value(t)))
+            f, _, f2 = self.drives.values(t)
+            phi = np.concatenate((phi, q[self._driven] - f))
             Jq = np.concatenate((Jq, self._drive_rows))
             if need_bias:
-                bias = np.concatenate([bias, -self.drives.value(t, 2)])
+                bias = np.concatenate((bias, -f2))
         return phi, Jq, bias
 
+    def _point_rows_and_bias(self, t, q, v):
+        """(Phi_q, bias) of revolute cut joints and drives at an assembled (q, v) in one kinematics
+        pass (placements, velocities and accelerations at a = 0, then the Jacobians from them).
+        The rows are taken at the returned q itself, not reused from the Newton solve's last
+        iterate: near a change point the last correction is large enough to matter."""
+        cfg = self.cfg
+        pin.forwardKinematics(cfg.model, cfg.data, cfg.to_pin(q), v, self._zeros)
+        pin.computeJointJacobians(cfg.model, cfg.data)
+        pin.updateFramePlacements(cfg.model, cfg.data)
+        _, Jq = self.closure.point_rows(cfg.model, cfg.data)
+        bias = self.closure.point_bias(cfg.model, cfg.data)
+        if self.drives.size:
+            Jq = np.concatenate((Jq, self._drive_rows))
+            bias = np.concatenate((bias, -self.drives.values(t)[2]))
+        return Jq, bias
+
     def _phi_t(self, t):
-        return np.concatenate([np.zeros(self.closure.size), -self.drives.value(t, 1)])
+        return np.concatenate((np.zeros(self.closure.size), -self.drives.values(t)[1]))
 
     def equality(self, t, model, data):
         """Velocity rows of all constraints on ``model`` (the tree or its cut system);
@@ -333,12 +475,27 @@ class PartitionedCoordinates:
                 "(e.g. a slider-crank at dead centre) or the cut joints are redundant")
 
     def _solve_dependent(self, t, qI, guess):
+        """Dependent coordinates closing the loop at ``qI`` (Newton from ``guess``).
+
+        Once the residual is below NEWTON_TOL one more correction is taken with the Jacobian
+        already at hand: Newton converges quadratically, so that step leaves an error of
+        order NEWTON_TOL squared, i.e. round-off.  Without it the dependent coordinates carry
+        up to 1e-13 of solver noise that depends on the warm start, so the same state gives
+        guard values that differ by 1e-13 m from one call to the next; a bounce of 1e-6 m/s
+        rises only 5e-14 m, so that noise decided whether a tiny flight was seen at all."""
         q = guess.copy()
         q[self.I] = qI
         for _ in range(30):
             phi, Jq, _ = self._phi(t, q)
-            if phi.size == 0 or np.max(np.abs(phi)) < NEWTON_TOL:
+            res = np.max(np.abs(phi)) if phi.size else 0.0
+            if res < NEWTON_TOL:
+                self.max_residual = max(self.max_residual, res)
                 self._check_conditioning(t, Jq)
+                if phi.size:  # one more correction with this Jacobian: exact to round-off, whatever the start
+                    try:
+                        q[self.D] -= solve(Jq[:, self.D], phi)
+                    except np.linalg.LinAlgError:
+                        pass  # the posture check above has already judged the block
                 return q, Jq
             JD = Jq[:, self.D]
             try:
@@ -347,7 +504,15 @@ class PartitionedCoordinates:
                 break
         phi, Jq, _ = self._phi(t, q)
         if np.max(np.abs(phi)) < 1e-9:
+            self.max_residual = max(self.max_residual, float(np.max(np.abs(phi))))
             return q, Jq
+        if len(self.I) == 0 and self.drives.size:
+            raise SimulationError(
+                f"configuration '{self.cfg.name}': the loop cannot be closed at t = {t:.6g} s "
+                f"(residual {np.max(np.abs(phi)):.3g}): it has no free coordinate, and its drives "
+                f"({', '.join(self.drives.joints)}) prescribe a motion its locked joints cannot follow "
+                "(the lock jams the driven loop). A lock that must give way is a release: a stop-merge "
+                "with unmerge = true, or a transition of type 'release' before this instant")
         raise SimulationError(
             f"configuration '{self.cfg.name}': the loop cannot be closed at t = {t:.6g} s "
             f"(residual {np.max(np.abs(phi)):.3g}): the mechanism is at or beyond a singular "
@@ -365,11 +530,21 @@ class PartitionedCoordinates:
         return np.array(sorted(dep), dtype=int)
 
     def _scaled_det(self, Jq):
-        """det(J_D) / ||J||_F^m: signed, continuous, and of the order of sigma_min / sigma_max --
-        small when the dependent block degenerates or when the whole Jacobian loses rank (a row
-        scaled by its own norm would hide a row that vanishes, as at a change point)."""
+        """det(J_D) / (||J||_F / sqrt(m))^m: signed, continuous, at most 1 in magnitude for any
+        number m of rows (Hadamard's bound and the mean of the squared row norms), and small when
+        the dependent block degenerates or when the whole Jacobian loses rank (a row scaled by
+        its own norm would hide a row that vanishes, as at a change point).  Without the sqrt(m)
+        the measure fell as m^(-m/2) with the number of loops: three well-conditioned loops
+        already read as singular at t = 0."""
         JD = Jq[:, self.D]
-        return float(np.linalg.det(JD) / max(np.linalg.norm(Jq) ** JD.shape[0], 1e-300))
+        m = JD.shape[0]
+        if JD.shape[0] != JD.shape[1]:
+            raise SimulationError(
+                f"configuration '{self.cfg.name}': its {m} constraint rows cannot be solved for "
+                f"{JD.shape[1]} dependent coordinates: the cut joints are redundant (a cut joint given "
+                "twice, or more loops than the tree has joints to close them)")
+        flat = Jq.ravel()
+        return float(_det(JD) / max((math.sqrt(flat @ flat) / math.sqrt(max(m, 1))) ** m, 1e-300))
 
     def _check_conditioning(self, t, Jq):
         """A dependent block drifting towards singularity asks for a new partition; when the
@@ -390,7 +565,17 @@ class PartitionedCoordinates:
     def seed(self, q):
         """Start the Newton solve of the dependent coordinates from ``q``."""
         self._qD = q.copy()
+        self._recent = []
         self._cache = None
+
+    def _guess(self, t):
+        """The warm start for a solve at ``t``: the recent solution nearest in time (an event
+        search goes back and forth within a step; starting from the step's far end near a
+        branch point could land on the mirrored assembly and make a guard's value depend on
+        the order of the calls)."""
+        if not self._recent:
+            return self._qD
+        return min(self._recent, key=lambda r: abs(r[0] - t))[1]
 
     def pack(self, t, q, v):
         """State vector at an assembled (q, v); the partition is re-chosen here,
@@ -413,6 +598,27 @@ class PartitionedCoordinates:
                 "change point the motion is not determined by the constraints and drives; pcmm stops "
                 "rather than pick a branch")
 
+    def guards(self) -> list:
+        """The singularity guard when there are loops (drives alone never degenerate)."""
+        return [self.singularity_guard()] if self.closure.size else []
+
+    def at_guard(self, guard, t, q):
+        """The singularity guard fired: a new partition goes on, or the loop is singular (raises)."""
+        self.at_degenerate_partition(t, q)
+
+    @contextlib.contextmanager
+    def recording(self):
+        """No conditioning checks while an accepted segment is re-read for the trajectory."""
+        self.checking = False
+        try:
+            yield
+        finally:
+            self.checking = True
+
+    def cut_joint_frames(self) -> tuple:
+        """(spec, frame of point a, frame of point b) of every loop cut joint."""
+        return tuple(zip(self.closure.specs, self.closure.frames_a, self.closure.frames_b))
+
     def singularity_guard(self):
         """A guard on the determinant of the dependent block (scaled by its rows' norms): it
         changes sign where the current partition degenerates, which a step can jump over."""
@@ -428,12 +634,8 @@ class PartitionedCoordinates:
             eps = 1e-7 / max(1.0, float(np.max(np.abs(qd))))
             ahead, behind = (self._scaled_det(self._phi(t, q + s * eps * qd)[1]) for s in (1.0, -1.0))
             return (ahead - behind) / (2 * eps)
-        g.rate = rate
-        g.rate_from_state = True
-        g.terminal = True
-        g.direction = 0
-        g.singular = True
-        return g
+        return Guard(f"configuration '{self.cfg.name}': the loop's partition of its coordinates degenerates",
+                     g, 0, "repartition", rate=rate, rate_from_state=True)
 
     def unpack(self, t, y):
         if self._cache is not None and self._cache[0] == t and np.array_equal(self._cache[1], y):
@@ -444,8 +646,11 @@ class PartitionedCoordinates:
 
     def _unpack(self, t, y):
         k = len(self.I)
-        q, Jq = self._solve_dependent(t, y[:k], self._qD)
+        q, Jq = self._solve_dependent(t, y[:k], self._guess(t))
         self._qD = q
+        self._recent.append((t, q))
+        if len(self._recent) > 8:
+            del self._recent[0]
         self._last_Jq = Jq
         v = np.empty(self.nv)
         v[self.I] = y[k:]
@@ -475,14 +680,32 @@ class PartitionedCoordinates:
         a, _ = self.accelerations(t, q, v, extra)
         return np.concatenate([self.cfg.qdot(q, v)[self.I], a[self.I]])
 
+    def _solved_accelerations(self, t, q, v):
+        """(a, lam) at an assembled (q, v): with revolute cut joints the rows and bias come from
+        one kinematics pass (:meth:`_point_rows_and_bias`); otherwise :meth:`accelerations`."""
+        if self.closure.revolute_only:
+            return constrained_accelerations(self.cfg, q, v, *self._point_rows_and_bias(t, q, v))
+        return self.accelerations(t, q, v)
+
     def rhs(self, t, y):
         q, v = self.unpack(t, y)
-        a, _ = self.accelerations(t, q, v)
+        a, _ = self._solved_accelerations(t, q, v)
         qd = self.cfg.qdot(q, v)
-        return np.concatenate([qd[self.I], a[self.I]])
+        return np.concatenate((qd[self.I], a[self.I]))
+
+    def rhs_with_power(self, t, y):
+        """``y`` is the state with the work so far appended; the state derivative with one more component: the power of the force elements and
+        of the drives.  A constraint's generalized force ``Phi_q^T lam`` has the power
+        ``lam . Phi_q v = -lam . Phi_t``: zero for the loops (scleronomic), the motor's
+        ``mu f'(t)`` for a drive."""
+        q, v = self.unpack(t, y[:-1])
+        a, lam = self._solved_accelerations(t, q, v)
+        power = float(self.cfg.forces.generalized(q, v) @ v - lam @ self._phi_t(t))
+        qd = self.cfg.qdot(q, v)
+        return np.concatenate([qd[self.I], a[self.I], [power]])
 
 
-def coordinates_for(cfg):
+def coordinates_for(cfg: Configuration) -> TreeCoordinates | PartitionedCoordinates:
     """The coordinate strategy a configuration needs: plain tree, or partitioned."""
     scene = cfg.scene
     specs = cfg.spec.cut_joints

@@ -24,8 +24,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from .configuration import Configuration
-from .impulse import contact_state
-from .scene import TransitionSpec
+from .contact import contact_state
+from .spec import StopSpec
+from .witness import Guard
 
 DAMPING = {
     "hunt_crossley": lambda e: 1.5 * (1.0 - e),
@@ -48,7 +49,7 @@ class ContactPhase:
     """One resolved collision: the stop's contact force acts until the gap reopens."""
 
     cfg: Configuration
-    tr: TransitionSpec
+    tr: StopSpec
     v_impact: float  # normal approach speed at first contact (> 0)
     t_start: float
     q_start: np.ndarray
@@ -79,18 +80,4 @@ class ContactPhase:
         def g(t, yx):
             q, v = unpack(t, yx[:-1])
             return contact_state(self.cfg, q, v, self.tr.contact)[1]
-        g.terminal = True
-        g.direction = +1
-        g.transition = self.tr
-        g.contact_end = True
-        return g
-
-
-def strip(guard):
-    """A guard of the plain state, usable on the augmented state."""
-    def g(t, yx):
-        return guard(t, yx[:-1])
-    for attr in ("terminal", "direction", "transition", "release"):
-        if hasattr(guard, attr):
-            setattr(g, attr, getattr(guard, attr))
-    return g
+        return Guard(f"transition '{self.tr.name}': the contact reopens", g, +1, "separation", self.tr)

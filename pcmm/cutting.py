@@ -15,9 +15,9 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
-from .configuration import Configuration, frame_jacobian, joint_jacobian
+from .configuration import Configuration
+from .pinocchio_helpers import LOCAL, frame_jacobian, joint_jacobian
 
-LOCAL = pin.ReferenceFrame.LOCAL
 _PLANAR_ROWS = [0, 1, 5]  # vx, vy, wz of a spatial velocity
 
 

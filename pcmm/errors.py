@@ -48,6 +48,19 @@ class UsageError(PcmmError):
     """A command-line value is out of range."""
 
 
+class OutputError(PcmmError):
+    """The operating system refused to write a result (read-only or full folder, a file-size
+    limit).  The results are still in memory; the command line writes them elsewhere and says where."""
+
+    exit_code = 4
+
+    def __init__(self, path, exc: OSError):
+        self.path, self.reason = path, exc
+        why = exc.strerror or str(exc)
+        super().__init__(f"{path}: cannot write it: {why} (errno {exc.errno})" if exc.errno
+                         else f"{path}: cannot write it: {exc}")
+
+
 class Repartition(Exception):
     """Internal: a loop's dependent coordinates became ill-conditioned mid-segment;
     the run restarts the segment with a new partition (never reaches the user)."""

@@ -27,10 +27,12 @@ import numpy as np
 import pinocchio as pin
 import scipy.linalg as sla
 
-from .configuration import LWA, Configuration, cholesky, frame_jacobian, mass_matrix
+from .configuration import Configuration
+from .contact import contact_point, contact_state, impact_kind, joint_stop_row
 from .cutting import cut
 from .errors import SimulationError
-from .scene import ContactSpec
+from .pinocchio_helpers import cholesky, frame_jacobian, mass_matrix
+from .spec import ContactSpec
 
 
 @dataclass
@@ -38,17 +40,25 @@ class Impulse:
     """Everything one impact produces; vectors in world axes."""
 
     kind: str  # "stable" (component with frame) or "mobile" (component with component)
-    restitution: float
+    restitution: float | None  # None: a switch without impact (no_impulse)
     normal: np.ndarray  # unit normal, world, from a towards b
     P: float  # normal impulse on b (N s); -P n acts on a
     vn_before: float  # relative normal velocity n . (v_b - v_a) before (< 0: approaching)
     vn_after: float
     v_before: np.ndarray
     v_after: np.ndarray
-    ke_before: float
+    ke_before: float  # from the tree's mass matrix at the impact pose
     ke_after: float
+    point: np.ndarray  # world (x, y) of b's contact point
+    impact: bool = True  # False: a switch without impulse (the paper's comparison runs)
+    drive_work: float = 0.0  # the drives' impulsive work: a driven joint keeps its prescribed speed
     cut_impulses: dict[str, list[float]] = field(default_factory=dict)  # on the child, world [fx, fy, mz]
-    constraint_impulses: dict[str, float] = field(default_factory=dict)  # loops and drives, by row label
+    # loops and drives: per cut joint [fx, fy, mz] on link b from link a (world axes, moment about
+    # point_b); per drive "J.drive" the motor's impulse on the joint's child ([0, 0, mz] revolute,
+    # the force along the axis prismatic).  Same form as joint_impulses.
+    constraint_impulses: dict[str, list[float]] = field(default_factory=dict)
+    constraint_rows: dict[str, float] = field(default_factory=dict)  # the multiplier of each row, by label
+    contact_impulses: list = field(default_factory=list)  # (link, world point, F, mz): on b, then on a
     joint_impulses: dict[str, list[float]] = field(default_factory=dict)  # every joint, world [fx, fy, mz]
     rnea_residual: np.ndarray | None = None  # generalized impulse the joints' actuators carry
 
@@ -56,66 +66,31 @@ class Impulse:
     def vector(self) -> np.ndarray:
         return self.P * self.normal
 
-
-def _normal_row(cfg: Configuration, contact: ContactSpec):
-    """(points a and b, world normal n from a to b, J_n = n^T (J_b - J_a)); kinematics must be
-    computed on the configuration's data."""
-    pa, pb = cfg.point(contact.a, contact.point_a), cfg.point(contact.b, contact.point_b)
-    n = cfg.rotation(contact.a) @ np.asarray(contact.normal, dtype=float)
-    n /= np.linalg.norm(n)
-    return pa, pb, n, n @ (cfg.point_jacobian(pb) - cfg.point_jacobian(pa))
-
-
-def contact_state(cfg: Configuration, q, v, contact: ContactSpec):
-    """(normal, gap, vn, J_n) at (q, v): n in world from a to b, gap = n . (p_b - p_a)."""
-    cfg.kinematics(q, v)
-    pa, pb, n, Jn = _normal_row(cfg, contact)
-    gap = float(n @ (cfg.point_position(pb) - cfg.point_position(pa)))
-    return n, gap, float(Jn @ v), Jn
-
-
-def gap_rate(cfg: Configuration, q, v, contact: ContactSpec) -> float:
-    """d/dt of the gap n . (p_b - p_a) at (q, v): the points' normal relative velocity plus
-    the turn of the normal with link a, n' = w_a z x n (n is fixed in a)."""
-    cfg.kinematics(q, v)
-    pa, pb, n, Jn = _normal_row(cfg, contact)
-    w_a = pin.getFrameVelocity(cfg.model, cfg.data, cfg.link_frame[contact.a], LWA).angular[2]
-    r = cfg.point_position(pb) - cfg.point_position(pa)
-    return float(Jn @ v + w_a * (n[0] * r[1] - n[1] * r[0]))
-
-
-def contact_row(cfg: Configuration, q, v, contact: ContactSpec):
-    """(J_n, bias) of the contact's normal row: ``d/dt (J_n v) = J_n a + bias``."""
-    qp = cfg.to_pin(q)
-    pin.forwardKinematics(cfg.model, cfg.data, qp, v, np.zeros(cfg.nv))
-    pin.computeJointJacobians(cfg.model, cfg.data, qp)
-    pin.updateFramePlacements(cfg.model, cfg.data)
-    pa, pb, n, Jn = _normal_row(cfg, contact)
-    acc = (pin.getFrameClassicalAcceleration(cfg.model, cfg.data, pb.frame_id, LWA).linear[:2]
-           - pin.getFrameClassicalAcceleration(cfg.model, cfg.data, pa.frame_id, LWA).linear[:2])
-    w_a = pin.getFrameVelocity(cfg.model, cfg.data, cfg.link_frame[contact.a], LWA).angular[2]
-    vrel = (pin.getFrameVelocity(cfg.model, cfg.data, pb.frame_id, LWA).linear[:2]
-            - pin.getFrameVelocity(cfg.model, cfg.data, pa.frame_id, LWA).linear[:2])
-    ndot = w_a * np.array([-n[1], n[0]])
-    return Jn, float(n @ acc + ndot @ vrel)
-
-
-def impact_kind(cfg: Configuration, contact: ContactSpec) -> str:
-    return "stable" if cfg.root in (contact.a, contact.b) else "mobile"
+    @property
+    def energy_dissipated(self) -> float:
+        """KE- + drive_work - KE+ (>= 0): the drives' work may raise the kinetic energy, never this."""
+        return self.ke_before + self.drive_work - self.ke_after
 
 
 def solve_impulse(cfg: Configuration, t: float, q: np.ndarray, v: np.ndarray, contact: ContactSpec,
                   restitution: float, cut_joints: tuple[str, ...]) -> Impulse:
     """Solve the stable or mobile impulse at (t, q, v) by cutting ``cut_joints``."""
     n, _, vn, _ = contact_state(cfg, q, v, contact)
-    pa = cfg.point(contact.a, contact.point_a)
-    pb = cfg.point(contact.b, contact.point_b)
-    pos_a, pos_b = cfg.point_position(pa), cfg.point_position(pb)
+    point = contact_point(cfg, contact)  # where the event reports the contact
+    if contact.joint is None:
+        pa = cfg.point(contact.a, contact.point_a)
+        pb = cfg.point(contact.b, contact.point_b)
+        pos_a, pos_b = cfg.point_position(pa), cfg.point_position(pb)
+    else:
+        pos_a = pos_b = cfg.data.oMf[cfg.link_frame[contact.b]].translation[:2].copy()
     cs = cut(cfg, q, cut_joints)
     v_f = cs.T @ v
     M_f = mass_matrix(cs.model, cs.data, cs.q)
-    J_n = (n @ (frame_jacobian(cs.model, cs.data, pb.frame_id)[:2]
-                - frame_jacobian(cs.model, cs.data, pa.frame_id)[:2]))[None, :]
+    if contact.joint is None:
+        J_n = (n @ (frame_jacobian(cs.model, cs.data, pb.frame_id)[:2]
+                    - frame_jacobian(cs.model, cs.data, pa.frame_id)[:2]))[None, :]
+    else:
+        J_n = joint_stop_row(cfg, cs.model, cs.data, contact)[1][None, :]
     G = np.vstack([cs.J_cut, cfg.coords.equality(t, cs.model, cs.data)])
     chol = cholesky(M_f, cfg.name)
     W = sla.cho_solve(chol, np.eye(M_f.shape[0]))
@@ -142,7 +117,7 @@ def solve_impulse(cfg: Configuration, t: float, q: np.ndarray, v: np.ndarray, co
     out = Impulse(
         kind=impact_kind(cfg, contact), restitution=restitution, normal=n, P=float(P[0]),
         vn_before=vn, vn_after=float((J_n @ v_f_after)[0]), v_before=v.copy(), v_after=v_after,
-        ke_before=float(0.5 * v @ M @ v), ke_after=float(0.5 * v_after @ M @ v_after))
+        ke_before=float(0.5 * v @ M @ v), ke_after=float(0.5 * v_after @ M @ v_after), point=point)
     k = 0
     for name in cut_joints:
         F = np.zeros(3)
@@ -151,19 +126,45 @@ def solve_impulse(cfg: Configuration, t: float, q: np.ndarray, v: np.ndarray, co
             k += 1
         out.cut_impulses[name] = [*(cs.child_rotation[name] @ F[:2]), float(F[2])]
     labels = cfg.coords.labels
-    out.constraint_impulses = {lab: float(val) for lab, val in zip(labels, mult[len(cs.row_owner):])}
-    point_impulses = [(contact.b, pos_b, out.vector, 0.0), (contact.a, pos_a, -out.vector, 0.0)]
-    point_impulses += loop_point_impulses(cfg, out.constraint_impulses)
+    out.constraint_rows = {lab: float(val) for lab, val in zip(labels, mult[len(cs.row_owner):])}
+    # A driven joint keeps its prescribed speed through the impact: its motor's impulsive
+    # moment does work (mu q'), so the kinetic energy may rise by that much; what never
+    # rises is KE_before + drive_work - KE_after (the energy the impact dissipates).
+    out.drive_work = sum(mu * float(v[cfg.joint_slice[lab[:-6]]][0])
+                         for lab, mu in out.constraint_rows.items() if lab.endswith(".drive"))
+    if contact.joint is None:
+        point_impulses = [(contact.b, pos_b, out.vector, 0.0), (contact.a, pos_a, -out.vector, 0.0)]
+    elif cfg.spec.info.joints[contact.joint].type == "prismatic":  # a force along the axis at the child
+        point_impulses = [(contact.b, pos_b, out.vector, 0.0), (contact.a, pos_b, -out.vector, 0.0)]
+    else:  # a couple: -s P on the child, +s P on the parent
+        s_ = contact.stop_sign
+        point_impulses = [(contact.b, pos_b, np.zeros(2), -s_ * out.P), (contact.a, pos_b, np.zeros(2), s_ * out.P)]
+    out.contact_impulses = list(point_impulses)
+    loop = loop_point_impulses(cfg, out.constraint_rows)
+    point_impulses += loop
+    out.constraint_impulses = constraint_impulses(cfg, out.constraint_rows, loop)
     out.joint_impulses, out.rnea_residual = joint_impulses(cfg, q, v_after - v, point_impulses)
     return out
+
+
+def no_impulse(cfg: Configuration, q: np.ndarray, v_before: np.ndarray, v_after: np.ndarray,
+               contact: ContactSpec) -> Impulse:
+    """A transformation without impact (the paper's comparison runs): no impulse acts, the
+    velocity changes from ``v_before`` to ``v_after`` by the switch alone; the contact's
+    kinematics and the kinetic energies are those of the record."""
+    n, _, vn, Jn = contact_state(cfg, q, v_before, contact)
+    point = contact_point(cfg, contact)
+    M = cfg.mass_matrix(q)
+    return Impulse(kind=impact_kind(cfg, contact), restitution=None, normal=n, P=0.0, vn_before=vn,
+                   vn_after=float(Jn @ v_after), v_before=v_before.copy(), v_after=v_after,
+                   ke_before=float(0.5 * v_before @ M @ v_before), ke_after=float(0.5 * v_after @ M @ v_after),
+                   point=point, impact=False)
 
 
 def loop_point_impulses(cfg: Configuration, by_label: dict[str, float]):
     """The loop cut joints' impulses as (link, point, force, moment) on b and, opposite, on a."""
     out = []
-    if not getattr(cfg.coords, "constrained", False):
-        return out
-    for s, fa, fb in zip(cfg.coords.closure.specs, cfg.coords.closure.frames_a, cfg.coords.closure.frames_b):
+    for s, fa, fb in cfg.coords.cut_joint_frames():
         pa, pb = cfg.data.oMf[fa].translation[:2], cfg.data.oMf[fb].translation[:2]
         if s.type == "prismatic":
             n = cfg.rotation(s.a) @ np.array([-s.axis[1], s.axis[0]]) / np.linalg.norm(s.axis)
@@ -176,6 +177,28 @@ def loop_point_impulses(cfg: Configuration, by_label: dict[str, float]):
     return out
 
 
+def constraint_impulses(cfg: Configuration, rows: dict[str, float], loop_points) -> dict[str, list[float]]:
+    """Each loop cut joint's impulse as [fx, fy, mz] on its link b (the first of the pair
+    :func:`loop_point_impulses` gives), and each drive's as the impulse its motor applies on the
+    driven joint's child, in the same [fx, fy, mz] form as the joint impulses."""
+    out = {}
+    specs = cfg.coords.closure.specs if getattr(cfg.coords, "constrained", False) else ()
+    for s, (_, _, F, m) in zip(specs, loop_points[::2]):
+        out[s.name] = [float(F[0]), float(F[1]), float(m)]
+    for lab, mu in rows.items():
+        if not lab.endswith(".drive"):
+            continue
+        joint = lab[:-len(".drive")]
+        uj = cfg.spec.info.joints[joint]
+        if uj.type == "prismatic":
+            axis = cfg.data.oMi[cfg.joint_id[joint]].rotation[:2, :] @ np.asarray(uj.axis, float)
+            axis /= np.linalg.norm(axis)
+            out[lab] = [float(mu * axis[0]), float(mu * axis[1]), 0.0]
+        else:
+            out[lab] = [0.0, 0.0, float(mu)]
+    return out
+
+
 def joint_impulses(cfg: Configuration, q, dv, point_impulses):
     """Impulse carried by every joint: RNEA with zero velocity and gravity,
     ``dv`` as acceleration and the point impulses as external forces.
@@ -185,11 +208,12 @@ def joint_impulses(cfg: Configuration, q, dv, point_impulses):
     impulse the actuators (drives) supply and is zero on passive joints.
     """
     model = cfg.model
-    if not hasattr(cfg, "_impulse_model"):
-        cfg._impulse_model = model.copy()
-        cfg._impulse_model.gravity.linear[:] = 0.0
-        cfg._impulse_data = cfg._impulse_model.createData()
-    m0, d0 = cfg._impulse_model, cfg._impulse_data
+    cache = cfg.__dict__.setdefault("_impulse_models", {})  # built once per model (createData is costly)
+    if "zero_gravity" not in cache:
+        m0 = model.copy()
+        m0.gravity.linear[:] = 0.0
+        cache["zero_gravity"] = (m0, m0.createData())
+    m0, d0 = cache["zero_gravity"]
     qp = cfg.to_pin(q)
     pin.forwardKinematics(m0, d0, qp)
     fext = pin.StdVec_Force()

@@ -47,25 +47,47 @@ class Segment:
 
 
 class _Counted:
-    """The right-hand side with an evaluation counter."""
+    """The right-hand side with an evaluation counter; a derivative that is not finite stops the
+    run at once (scipy's step-size loop would otherwise shrink a NaN step forever, t = NaN)."""
 
     def __init__(self, fun):
         self.fun, self.n = fun, 0
 
     def __call__(self, t, y):
         self.n += 1
-        return self.fun(t, y)
+        return finite_rate(self.fun(t, y), t, y)
 
 
-def _too_many_steps(max_steps, t) -> str:
-    return (f"more than {max_steps} steps by t = {t:.9g} s: the problem is too stiff or too fast for this "
-            "method; use a stiff method (Radau, LSODA) or raise solver.max_steps")
+def finite_rate(f, t, y):
+    """``f`` if every entry is finite, else a :class:`SimulationError` naming the time and state."""
+    f = np.asarray(f)
+    if math.isfinite(f @ f) or np.all(np.isfinite(f)):  # (the dot: one cheap test; it may overflow)
+        return f
+    raise SimulationError(
+        f"the derivative of the state is not finite at t = {t:.9g} s (state {np.asarray(y).tolist()}): a "
+        "velocity, force, stiffness or inertia is too large for floating point; check the initial "
+        "values and the model's numbers")
+
+
+def _too_many_steps(max_steps, t, t0=None, t_bound=None) -> str:
+    """The step budget is spent.  A long smooth run needs a larger budget, not another method:
+    the message gives the mean step and the budget the whole segment needs at that pace."""
+    if t0 is None or t_bound is None or not t > t0:
+        return (f"more than {max_steps} steps by t = {t:.9g} s; raise solver.max_steps (--max-steps), "
+                "or see README 'Choosing a method' if the steps are far shorter than the motion's time scale")
+    h = (t - t0) / max_steps
+    need = math.ceil(max_steps * (t_bound - t0) / (t - t0))
+    return (f"more than {max_steps} steps by t = {t:.9g} s (mean step {h:.3g} s since t = {t0:.9g} s); at this "
+            f"pace the segment to t = {t_bound:.9g} s needs about {need} steps: raise solver.max_steps "
+            f"(--max-steps {need}).  If that step is far shorter than the motion's time scale, a stiff "
+            "force element holds it back: see README 'Choosing a method'")
 
 
 def _step_collapsed(h, t) -> str:
     size = "round-off" if h is None else f"{h:.3g} s"
     return (f"the step size collapsed to {size} at t = {t:.9g} s: the problem is stiff or singular here; "
-            "use a stiff method (Radau, LSODA) or check forces and stiffness values")
+            "check forces and stiffness values (an implicit method, Radau or LSODA, pays only for a "
+            "strongly damped fast mode: README 'Choosing a method')")
 
 
 def _needs_derivative(events) -> bool:
@@ -84,7 +106,7 @@ def _crossed(g_old, g_new, direction) -> bool:
 def _rate(e, t, y, f, h):
     """The guard's time derivative along the flow: its own ``rate`` where it has one,
     else a forward difference."""
-    if hasattr(e, "rate"):
+    if getattr(e, "rate", None) is not None:
         return e.rate(t, y, f)
     d = max(1e-7 * abs(h), 1e-12 * max(1.0, abs(t)))
     return (e(t + d, y + d * f) - e(t, y)) / d
@@ -127,17 +149,18 @@ class _Stepper:
         self.g = [e(t0, self.ys[0]) for e in events]
         self.rates = [_rate(e, t0, self.ys[0], f0, 1e-6) for e in events] if events else []
         self.count = 0
+        self.max_steps = opts.max_steps  # read once: opts may resolve attributes through a fallback
 
     def accept(self, t_old, y_old, t_new, y_new, f_new, dense):
         """Record one step; return (event index, t_event, y_event) if a guard fires in it."""
         if not math.isfinite(y_new @ y_new) and not np.all(np.isfinite(y_new)):  # (the dot: one cheap test)
             raise SimulationError(
                 f"the state became {y_new.tolist()} (not finite) at t = {t_new:.9g} s: the method "
-                "is unstable at this step size; use a smaller step, a tighter rtol or a stiff "
-                "method (Radau, LSODA)")
+                "is unstable at this step size; use a smaller step (solver.step for RK4) or a tighter rtol, "
+                "and check forces and stiffness values")
         self.count += 1
-        if self.count > self.opts.max_steps:
-            raise SimulationError(_too_many_steps(self.opts.max_steps, t_new))
+        if self.count > self.max_steps:
+            raise SimulationError(_too_many_steps(self.max_steps, t_new, self.ts[0], self.t_bound))
         h = t_new - t_old
         if self.count > 100 and 0 < abs(h) < 64 * EPS * max(1.0, abs(t_new)) and t_new != self.t_bound:
             raise SimulationError(_step_collapsed(h, t_new))
@@ -217,8 +240,8 @@ def _run(driver, fun, t0, y0, t_bound, events, opts):
     except (ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:  # NaN/inf inside the method
         err = SimulationError(
             f"the integration broke down after t = {st.ts[-1]:.9g} s ({type(exc).__name__}: {exc}): "
-            "the state is no longer finite; use a stiff method (Radau, LSODA), a smaller step or "
-            "tolerance, or check forces and stiffness values")
+            "the state is no longer finite; use a smaller step or tolerance, and check forces and "
+            "stiffness values")
         err.segment = st.segment(None, counted.n, -1, str(err))
         raise err from None
     if failure:
@@ -314,7 +337,7 @@ class FortranDOP853:
                     if raised:
                         return zeros
                     counted.n += 1
-                    return rhs(t, y)
+                    return finite_rate(rhs(t, y), t, y)
                 except BaseException as exc:  # incl. Ctrl-C and Repartition: re-raised below
                     raised.append(exc.__cause__ if isinstance(exc, SystemError) and exc.__cause__ else exc)
                     return zeros
@@ -365,7 +388,7 @@ class FortranDOP853:
         """Hairer's return codes in pcmm's words (the same advice as the other methods')."""
         t = st.ts[-1]
         if code == -2:
-            return _too_many_steps(opts.max_steps, t)
+            return _too_many_steps(opts.max_steps, t, st.ts[0], st.t_bound)
         if code == -3:
             return _step_collapsed(None, t)
         if code == -4:
@@ -438,3 +461,19 @@ def _hermite(t0, y0, f0, t1, y1, f1):
 INTEGRATORS = {name: ScipyMethod(name) for name in ("RK45", "DOP853", "Radau", "LSODA", "BDF", "RK23")}
 INTEGRATORS["DOP853F"] = FortranDOP853()
 INTEGRATORS["RK4"] = FixedStepRK4()
+
+# "auto": per configuration, the cheaper method at equal accuracy (docs/benchmarks/work_precision.md).
+# On a tree the right-hand side is one aba, and scipy's Python step loop would cost more than it:
+# Hairer's Fortran DOP853 is about 2x faster there, with event times as accurate (Example 1 at rtol
+# 1e-10: 3.9e-13 s against DOP853's 7.2e-13 s).  With loops or drives the Newton-solved right-hand
+# side dominates and every impact re-takes a step for the dense output, so scipy's DOP853 is cheaper.
+AUTO = "auto"
+METHODS = (AUTO, *INTEGRATORS)
+
+
+def method_for(name: str, constrained: bool):
+    """The integrator a configuration uses under the run's ``method`` setting."""
+    if name == AUTO:
+        return INTEGRATORS["DOP853" if constrained else "DOP853F"]
+    return INTEGRATORS[name]
+

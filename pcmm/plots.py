@@ -24,9 +24,27 @@ positions within each segment) or prismatic coordinates, and
 
 With ``compare`` (usually the run without impact) both runs are overlaid:
 "Considering impact motion" (solid) and "Without considering impact motion"
-(dashed), labelled by each run's ``impact`` flag.  Impact instants (the first
-of each burst of impacts) are marked with a vertical dotted line whose time is
-in the legend; a run without impacts marks its configuration switches.
+(dashed), labelled by each run's ``impact`` flag.
+
+Every event of the run (of the run with impact when two are overlaid) is
+marked by a vertical line in its kind's style: impact (dotted grey), merge
+(dash-dot purple), release (dashed green), configuration switch without
+impact (dotted black).  A burst of more than three impacts closer than 1 % of
+the run (a macro-impact) is one shaded span with one legend entry ("35
+impacts, t = a ... b s"); a kind with more than three marks gets one legend
+entry that counts them.
+
+``impulses.png`` states its sign convention on the figure: by default ``P_n``
+is the impulse on body b along the contact normal n (from a to b), as the
+event records it; ``impulse_sign="paper"`` plots the paper's sign (its Fig. 12,
+negative for a slider stopped by the frame).  ``energy.png`` annotates the run
+without impact: its switches are velocity resets, not impacts, and can change
+the kinetic energy either way; the annotation gives that change at each switch.
+
+Nothing here reads the scene: units (N or N·m) and prismatic coordinates come
+from what the trajectory recorded (:attr:`Trajectory.views`).  :func:`figures`
+returns the matplotlib figures (``Trajectory.plot``); :func:`write_figures`
+saves them as PNG.
 """
 from __future__ import annotations
 
@@ -38,7 +56,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import UsageError
-from .trajectory import Trajectory, atomic_write
+from .trajectory import Trajectory, atomic_write, event_kind
 
 WITH_IMPACT = "Considering impact motion"
 WITHOUT_IMPACT = "Without considering impact motion"
@@ -107,22 +125,17 @@ def _translating_links(traj: Trajectory) -> list[str]:
     return out
 
 
-def _scene(traj: Trajectory):
-    """The run's scene if its file is reachable (units and prismatic joints), else None."""
-    try:
-        from .scene import load_scene
-        return load_scene(traj.scene) if Path(traj.scene).is_file() else None
-    except Exception:  # the figures do not depend on it
-        return None
-
-
-def _joint_types(scene) -> dict[str, str]:
-    out = {}
-    if scene is not None:
-        for cfg in scene.configurations.values():
-            for name, j in cfg.info.joints.items():
-                out.setdefault(name, j.type)
+def _joints(traj: Trajectory) -> dict[str, dict]:
+    """``{joint: {"type", "parent", "child"}}`` over the configurations the trajectory recorded."""
+    out: dict[str, dict] = {}
+    for view in traj.views.get("configurations", {}).values():
+        for name, j in view.get("joints", {}).items():
+            out.setdefault(name, j)
     return out
+
+
+def _joint_types(traj: Trajectory) -> dict[str, str]:
+    return {n: j["type"] for n, j in _joints(traj).items()}
 
 
 def _coordinates(traj: Trajectory) -> list[str]:
@@ -133,22 +146,62 @@ def _names(traj: Trajectory, field: str) -> list[str]:
     return list(dict.fromkeys(n for s in traj.segments for n in getattr(s, field)))
 
 
-def _impact_marks(runs: list[_Run], duration: float) -> tuple[list[float], str]:
-    """Times to mark: the first impact of each burst (or configuration switches)."""
-    impact_runs = [r for r in runs if r.traj.impact]
-    for r in impact_runs + runs:
-        evs = [e for e in r.traj.events if e.get("impact")] if r.traj.impact else \
-              [e for e in r.traj.events if e.get("from") != e.get("to")]
-        if evs:
-            kind = "impact" if r.traj.impact else "configuration switch"
-            gap = 0.01 * duration
-            marks, last = [], -math.inf
-            for e in evs:
-                if e["t"] - last > gap:
-                    marks.append(float(e["t"]))
-                last = e["t"]
-            return marks[:6], kind
-    return [], ""
+@dataclass(frozen=True)
+class _Mark:
+    """One marked event, or a burst of impacts (``count`` > 1, from ``t0`` to ``t1``)."""
+
+    kind: str  # "impact" | "merge" | "release" | "switch"
+    t0: float
+    t1: float
+    count: int = 1
+
+
+_MARK_STYLE = {"impact": dict(color="0.35", ls=":"), "merge": dict(color="#7b3fb5", ls="-."),
+               "release": dict(color="#1a9a3a", ls="--"), "switch": dict(color="0.1", ls=":")}
+_MARK_NAME = {"impact": "impact", "merge": "merge", "release": "release", "switch": "configuration switch"}
+
+
+def _event_marks(runs: list[_Run], duration: float) -> list[_Mark]:
+    """Every event of the (first) run with impact, else of the first run.  Impacts closer than
+    1 % of the run form a burst; a burst of more than three is one mark (plus its merge)."""
+    run = next((r for r in runs if r.traj.impact), runs[0])
+    marks: list[_Mark] = []
+    burst: list[tuple[float, str]] = []
+
+    def flush():
+        if len(burst) > 3:
+            marks.append(_Mark("impact", burst[0][0], burst[-1][0], len(burst)))
+            marks.extend(_Mark(k, t, t) for t, k in burst if k == "merge")
+        else:
+            marks.extend(_Mark(k, t, t) for t, k in burst)
+        burst.clear()
+    for e in run.traj.events:
+        t, kind = float(e["t"]), event_kind(e)
+        if e.get("impact"):
+            if burst and t - burst[-1][0] > 0.01 * duration:
+                flush()
+            burst.append((t, kind))
+        else:
+            flush()
+            marks.append(_Mark(kind, t, t))
+    flush()
+    return marks
+
+
+def _mark_labels(marks: list[_Mark]) -> dict[int, str]:
+    """Legend text per mark index: each mark while a kind has at most three, else one counting entry."""
+    out = {}
+    for kind in _MARK_NAME:
+        idx = [i for i, m in enumerate(marks) if m.kind == kind]
+        if len(idx) <= 3:
+            for i in idx:
+                m = marks[i]
+                out[i] = (f"{m.count} {_MARK_NAME[kind]}s, t = {m.t0:.4f} ... {m.t1:.4f} s" if m.count > 1
+                          else f"{_MARK_NAME[kind]}, {_fmt_t(m.t0)}")
+        else:
+            n = sum(marks[i].count for i in idx)
+            out[idx[0]] = f"{n} {_MARK_NAME[kind]}s, t = {marks[idx[0]].t0:.4f} ... {marks[idx[-1]].t1:.4f} s"
+    return out
 
 
 def _bursts(traj: Trajectory, duration: float) -> list[tuple[float, float, int]]:
@@ -173,8 +226,15 @@ def _sym(base: str, name: str) -> str:
         return rf"$\{m.group(1).lower()}_{{{m.group(2)}}}$"
     if m:
         return rf"${base}_{{{m.group(2)}}}$"
-    safe = re.sub(r"([_{}$#%&^])", r"\\\1", name)
-    return rf"${base}_{{\mathrm{{{safe}}}}}$"
+    if re.fullmatch(r"[A-Za-z0-9 .\-_]+", name):
+        safe = name.replace("_", "\\_")
+        return rf"${base}_{{\mathrm{{{safe}}}}}$"
+    return rf"${base}$ [{_plain(name)}]"  # any other name stays plain text: mathtext never parses it
+
+
+def _plain(text: str) -> str:
+    """Text shown as it is: a ``$`` in a name would start mathtext (and ``$\\x$`` crash it)."""
+    return text.replace("$", r"\$")
 
 
 def _fmt_t(t: float) -> str:
@@ -191,7 +251,7 @@ class _Figure:
         for ax in self.axes[n:]:
             ax.set_visible(False)
         self.axes = self.axes[:n]
-        self.fig.suptitle(title, fontsize=11)
+        self.fig.suptitle(_plain(title), fontsize=11)
 
     def legend(self, ax=None, handles=None):
         """One legend for the whole figure, below the panels."""
@@ -209,24 +269,32 @@ class _Figure:
         return atomic_write(path, lambda f: self.fig.savefig(f, format="png", dpi=_DPI), force=True, binary=True)
 
 
-def _panel(ax, runs, get, ylabel, title, marks, kind, duration):
+def _panel(ax, runs, get, ylabel, title, marks, duration):
     for r in runs:
         y = get(r)
         if y is None:
             continue
         ax.plot(r.t, y, label=r.label, **r.style)
-    _mark(ax, marks, kind)
+    _mark(ax, marks)
     ax.set_xlabel("t (s)")
     ax.set_ylabel(ylabel)
-    ax.set_title(title, fontsize=10)
+    ax.set_title(_plain(title), fontsize=10)
     ax.set_xlim(0.0, duration)
     ax.grid(True, alpha=0.3)
 
 
-def _mark(ax, marks, kind):
-    for i, t in enumerate(marks):
-        ax.axvline(t, color="0.35", ls=":", lw=1.2, zorder=1,
-                   label=f"{kind}, {_fmt_t(t)}" if i < 3 else None)
+def _mark(ax, marks: list[_Mark]):
+    """Draw every mark; return the legend handles (one per legend entry)."""
+    labels = _mark_labels(marks)
+    handles = []
+    for i, m in enumerate(marks):
+        line = ax.axvline(m.t0, lw=1.2, zorder=1, label=labels.get(i, "_nolegend_"), **_MARK_STYLE[m.kind])
+        if m.count > 1:
+            ax.axvspan(m.t0, m.t1, color=_MARK_STYLE[m.kind]["color"], alpha=0.18, lw=0, zorder=0)
+            ax.axvline(m.t1, lw=1.2, zorder=1, **_MARK_STYLE[m.kind])
+        if i in labels:
+            handles.append(line)
+    return handles
 
 
 def _inset(ax, runs, get, window, marks):
@@ -242,9 +310,10 @@ def _inset(ax, runs, get, window, marks):
         if sel.any():
             ins.plot(r.t[sel], y[sel], **{**r.style, "lw": 1.0})
             ys.append(y[sel][np.isfinite(y[sel])])
-    for t in marks:
-        if t0 <= t <= t1:
-            ins.axvline(t, color="0.35", ls=":", lw=1.0)
+    for m in marks:
+        for t in {m.t0, m.t1}:
+            if t0 <= t <= t1:
+                ins.axvline(t, lw=1.0, **_MARK_STYLE[m.kind])
     ys = np.concatenate(ys) if ys else np.zeros(0)
     if ys.size:
         lo, hi = float(ys.min()), float(ys.max())
@@ -268,21 +337,38 @@ def _zoom_window(runs, duration):
 
 
 # ---- the figures ---------------------------------------------------------------------------------
-def write_figures(traj: Trajectory, out_dir: str | Path, compare: Trajectory | None = None) -> list[Path]:
+IMPULSE_SIGNS = {
+    "body_b": (1.0, r"$P_n > 0$: the impulse on body b along the contact normal n (from a to b), as the "
+                    "events record it; the paper's Fig. 12 plots the opposite sign (impulse_sign='paper')"),
+    "paper": (-1.0, r"the paper's sign (its Fig. 12): $-P_n$, the impulse on body a (the stop, for a slider "
+                    "stopped by the frame) along n; pcmm's events record $P_n$ on body b"),
+}
+
+
+def write_figures(traj: Trajectory, out_dir: str | Path, compare: Trajectory | None = None,
+                  impulse_sign: str = "body_b") -> list[Path]:
     """Write the figures the data support into ``out_dir`` (created if needed); return their paths."""
-    Figure = _matplotlib()
     out_dir = Path(out_dir)
     if out_dir.exists() and not out_dir.is_dir():
         raise UsageError(f"{out_dir}: not a folder")
+    figs = figures(traj, compare=compare, impulse_sign=impulse_sign)
     out_dir.mkdir(parents=True, exist_ok=True)
+    return [atomic_write(out_dir / f"{stem}.png", lambda f, fig=fig: fig.savefig(f, format="png", dpi=_DPI),
+                        force=True, binary=True) for stem, fig in figs.items()]
+
+
+def figures(traj: Trajectory, compare: Trajectory | None = None, impulse_sign: str = "body_b") -> dict:
+    """The figures the data support, ``{file stem: matplotlib Figure}`` (no pyplot state)."""
+    Figure = _matplotlib()
+    if impulse_sign not in IMPULSE_SIGNS:
+        raise UsageError(f"impulse_sign = {impulse_sign!r}: must be one of {', '.join(IMPULSE_SIGNS)}")
     if not traj.segments:
         raise UsageError("the trajectory is empty: nothing to plot")
     runs = _runs(traj, compare)
     duration = max(float(np.nanmax(r.t)) for r in runs if r.t.size)
-    marks, kind = _impact_marks(runs, duration)
-    scene = _scene(traj)
-    jtypes = _joint_types(scene)
-    files: list[Path] = []
+    marks = _event_marks(runs, duration)
+    jtypes = _joint_types(traj)
+    files: dict = {}
     name = traj.scene_name
     letters = "abcdefghijklmnopqrstuvwxyz"
 
@@ -304,9 +390,9 @@ def write_figures(traj: Trajectory, out_dir: str | Path, compare: Trajectory | N
             f = _Figure(Figure, len(rotating), f"{name}: {what.lower()} the links")
             for i, (ax, link) in enumerate(zip(f.axes, rotating)):
                 _panel(ax, runs, series(quantity, link), f"{_sym(base, link)} ({unit})",
-                       f"({letters[i % 26]}) {what} {link}", marks, kind, duration)
+                       f"({letters[i % 26]}) {what} {link}", marks, duration)
             f.legend()
-            files.append(f.save(out_dir / fname))
+            files[fname[:-4]] = f.fig
     # Fig. 6 (d): relative angles between consecutive rotating links
     pairs = list(zip(rotating, rotating[1:]))
     if pairs:
@@ -318,25 +404,28 @@ def write_figures(traj: Trajectory, out_dir: str | Path, compare: Trajectory | N
                 return r.traj.series("theta", b) - r.traj.series("theta", a)
             ylabel = _sym(r"\theta", b) + " $-$ " + _sym(r"\theta", a) + " (rad)"
             _panel(ax, runs, rel, ylabel,
-                   f"({letters[i % 26]}) Angle of {b} relative to {a}", marks, kind, duration)
+                   f"({letters[i % 26]}) Angle of {b} relative to {a}", marks, duration)
         f.legend()
-        files.append(f.save(out_dir / "relative_angles.png"))
+        files["relative_angles"] = f.fig
     # Fig. 8: force element outputs
     forces = _names(traj, "force_names")
     if forces:
-        specs = {fs.name: fs for fs in scene.forces} if scene is not None else {}
+        specs = traj.views.get("forces", {})
         f = _Figure(Figure, len(forces), f"{name}: force elements (joint moments)")
         for i, (ax, fn) in enumerate(zip(f.axes, forces)):
-            spec = specs.get(fn)
-            if spec is None:
-                unit = "N·m or N"
+            spec = specs.get(fn, {})
+            on = spec.get("on")
+            if spec.get("points"):  # a point spring: a force along its line
+                unit, where = "N", f" between {spec['points'][0]} and {spec['points'][1]}"
+            elif on is None:
+                unit, where = "N·m or N", ""
             else:
-                unit = "N" if spec.on.kind == "joint" and jtypes.get(spec.on.name) == "prismatic" else "N·m"
-            where = f" on {spec.on.name}" if spec is not None else ""
+                unit = "N" if on["kind"] == "joint" and jtypes.get(on["name"]) == "prismatic" else "N·m"
+                where = f" on {on['name']}"
             _panel(ax, runs, series("forces", fn), f"{_sym('f', fn)} ({unit})",
-                   f"({letters[i % 26]}) {fn}{where}", marks, kind, duration)
+                   f"({letters[i % 26]}) {fn}{where}", marks, duration)
         f.legend()
-        files.append(f.save(out_dir / "force_elements.png"))
+        files["force_elements"] = f.fig
     # Figs. 9 / 15: energy (kinetic left axis, potential right axis)
     f = _Figure(Figure, 1, f"{name}: energy of the system")
     ax = f.axes[0]
@@ -348,45 +437,52 @@ def write_figures(traj: Trajectory, out_dir: str | Path, compare: Trajectory | N
                            **{**r.style, "color": "C0" if r.traj.impact else "C9"})
         handles += ax2.plot(r.t, r.traj.series("potential"), label=f"Potential energy{tag}",
                             **{**r.style, "color": "C3" if r.traj.impact else "C1"})
-    _mark(ax, marks, kind)
-    handles += [h for h in ax.get_lines() if h.get_label().startswith(kind)] if marks else []
+    handles += _mark(ax, marks)
+    for r in runs:
+        if not r.traj.impact:
+            _annotate_switch_energy(ax, r)
     ax.set_xlabel("t (s)")
     ax.set_ylabel("Kinetic energy (J)")
     ax2.set_ylabel("Potential energy (J)")
     ax.set_xlim(0.0, duration)
     ax.grid(True, alpha=0.3)
     f.legend(handles=handles)
-    files.append(f.save(out_dir / "energy.png"))
-    # Fig. 12: impulse per impact
+    files["energy"] = f.fig
+    # Fig. 12: impulse per impact, in the sign convention the figure states
     impact_runs = [r for r in runs if r.traj.impact]
-    evs = [(float(e["t"]), float(e["impulse"]["normal"])) for r in impact_runs[:1] for e in r.traj.events
+    sign, convention = IMPULSE_SIGNS[impulse_sign]
+    evs = [(float(e["t"]), sign * float(e["impulse"]["normal"])) for r in impact_runs[:1] for e in r.traj.events
            if e.get("impact") and e.get("impulse") is not None]
     if evs:
         t_ev, p_ev = np.array(evs).T
         f = _Figure(Figure, 1, f"{name}: impulse of each impact ({len(evs)} impact{'s' if len(evs) > 1 else ''})")
         ax = f.axes[0]
         ax.stem(t_ev, p_ev, linefmt="C3-", markerfmt="C3o", basefmt="0.5")
+        handles = _mark(ax, marks)
         ax.set_xlabel("t (s)")
-        ax.set_ylabel(r"$P_n$ (N·s)")
+        ax.set_ylabel(r"$P_n$ (N·s)" if sign > 0 else r"$-P_n$ (N·s), the paper's sign")
         ax.margins(y=0.15)
         ax.set_xlim(0.0, duration)
         ax.grid(True, alpha=0.3)
+        ax.set_title(convention, fontsize=8, wrap=True)
         if p_ev.size:
-            ax.annotate(_fmt_t(t_ev[0]), (t_ev[0], p_ev[0]), textcoords="offset points", xytext=(8, 6),
-                        fontsize=8)
+            ax.annotate(f"{_fmt_t(t_ev[0])}, {p_ev[0]:.4g} N·s", (t_ev[0], p_ev[0]), textcoords="offset points",
+                        xytext=(-8, 6 if p_ev[0] >= 0 else -12), ha="right", fontsize=8)
         bursts = _bursts(impact_runs[0].traj, duration)
         if bursts and bursts[0][2] > 3:  # a macro-impact: zoom on its micro-impacts
             t0, t1, _ = bursts[0]
             w = max(t1 - t0, 1e-6)
-            ins = ax.inset_axes([0.56, 0.5, 0.4, 0.4])
+            up = float(np.sum(p_ev)) >= 0  # the inset where the stems are not
+            ins = ax.inset_axes([0.56, 0.5 if up else 0.08, 0.4, 0.4])
             sel = (t_ev >= t0 - 0.1 * w) & (t_ev <= t1 + 0.1 * w)
             ins.stem(t_ev[sel], p_ev[sel], linefmt="C3-", markerfmt="C3.", basefmt="0.5")
             ins.set_xlim(t0 - 0.1 * w, t1 + 0.1 * w)
             ins.tick_params(labelsize=7)
             ins.set_title(f"first burst: {bursts[0][2]} impacts", fontsize=7)
-        files.append(f.save(out_dir / "impulses.png"))
+        f.legend(handles=handles)
+        files["impulses"] = f.fig
     # Fig. 13: slider position and velocity, inset zoom around the first impact
-    sliders = _sliders(traj, scene, jtypes)
+    sliders = _sliders(traj, jtypes)
     if sliders:
         window = _zoom_window(runs, duration)
         f = _Figure(Figure, 2 * len(sliders), f"{name}: slider", ncols=2)
@@ -395,11 +491,11 @@ def write_figures(traj: Trajectory, out_dir: str | Path, compare: Trajectory | N
                                                      (s.velocity, f"{s.symbol}$'$ (m/s)", "Velocity"))):
                 ax = f.axes[2 * i + j]
                 _panel(ax, runs, get, ylabel, f"({letters[(2 * i + j) % 26]}) {what} of {s.name}",
-                       marks, kind, duration)
+                       marks, duration)
                 if window:
                     _inset(ax, runs, get, window, marks)
         f.legend()
-        files.append(f.save(out_dir / "slider.png"))
+        files["slider"] = f.fig
     # Fig. 14: driving moments
     drives = [lab for lab in _names(traj, "constraint_labels") if lab.endswith(".drive")]
     if drives:
@@ -410,12 +506,41 @@ def write_figures(traj: Trajectory, out_dir: str | Path, compare: Trajectory | N
             unit = "N" if jtypes.get(joint) == "prismatic" else "N·m"
             get = series("constraint_forces", lab)
             _panel(ax, runs, get, f"M ({unit})", f"({letters[i % 26]}) Driving {'force' if unit == 'N' else 'moment'}"
-                   f" at {joint}", marks, kind, duration)
+                   f" at {joint}", marks, duration)
             if window:
                 _inset(ax, runs, get, window, marks)
         f.legend()
-        files.append(f.save(out_dir / "driving_moment.png"))
+        files["driving_moment"] = f.fig
     return files
+
+
+def switch_energy_changes(traj: Trajectory) -> list[tuple[float, float]]:
+    """``[(t, KE+ - KE-)]`` at each merge or switch without impulse (releases are not velocity resets)."""
+    return [(float(e["t"]), float(e["kinetic_energy_after"]) - float(e["kinetic_energy_before"]))
+            for e in traj.events if not e.get("impact") and "kinetic_energy_after" in e
+            and event_kind(e) in ("merge", "switch")]
+
+
+def _annotate_switch_energy(ax, run: _Run) -> None:
+    """State on the energy figure what the run without impact does to the kinetic energy at its
+    switches: they are velocity resets (the locked joints' velocities dropped), not impacts, so
+    no conservation law bounds them and the energy can rise."""
+    changes = switch_energy_changes(run.traj)
+    if not changes:
+        return
+    shown = changes[:2]
+    lines = [f"{'+' if d >= 0 else '−'}{abs(d):.4g} J at t = {t:.4f} s" for t, d in shown]
+    if len(changes) > 2:
+        lines.append(f"... {len(changes)} switches, {sum(d for _, d in changes):+.4g} J in all")
+    ax.set_title("Without impact (dashed), a switch keeps the surviving joints' velocities and drops the locked "
+                 "joints' (no impulse, no conservation law): kinetic energy change " + "; ".join(lines),
+                 fontsize=8, wrap=True)
+    for t, d in shown:
+        ke = run.traj.series("kinetic")
+        k = int(np.searchsorted(run.t, t, side="right"))
+        if 0 < k <= len(ke):
+            ax.annotate(f"{d:+.3g} J", (t, ke[min(k, len(ke) - 1)]), textcoords="offset points", xytext=(6, 10),
+                        fontsize=7.5, color="C9", arrowprops=dict(arrowstyle="->", color="C9", lw=0.8))
 
 
 @dataclass
@@ -426,7 +551,7 @@ class _Slider:
     velocity: object
 
 
-def _sliders(traj: Trajectory, scene, jtypes) -> list[_Slider]:
+def _sliders(traj: Trajectory, jtypes) -> list[_Slider]:
     out: list[_Slider] = []
     covered = set()
     for link in _translating_links(traj):
@@ -457,8 +582,8 @@ def _sliders(traj: Trajectory, scene, jtypes) -> list[_Slider]:
             return np.concatenate(parts)
         out.append(_Slider(link, symbol, pos, vel))
         covered.add(link)
-    if scene is not None:  # prismatic coordinates whose link is not a plain slider (it also turns)
-        children = {n: j.child for cfg in scene.configurations.values() for n, j in cfg.info.joints.items()}
+    if jtypes:  # prismatic coordinates whose link is not a plain slider (it also turns)
+        children = {n: j["child"] for n, j in _joints(traj).items()}
         for c in _coordinates(traj):
             if jtypes.get(c) == "prismatic" and children.get(c) not in covered:
                 out.append(_Slider(c, _sym("q", c), lambda r, c=c: r.traj.series("q", c),
@@ -466,4 +591,5 @@ def _sliders(traj: Trajectory, scene, jtypes) -> list[_Slider]:
     return out
 
 
-__all__ = ["write_figures", "WITH_IMPACT", "WITHOUT_IMPACT"]
+__all__ = ["write_figures", "figures", "event_kind", "switch_energy_changes", "IMPULSE_SIGNS", "WITH_IMPACT",
+           "WITHOUT_IMPACT"]

@@ -20,6 +20,9 @@ def summary(traj: Trajectory, initial_configuration: str | None = None) -> dict:
         "configuration_initial": initial_configuration or (traj.segments[0].configuration if traj.segments else None),
         "configuration_final": last.configuration if last is not None else None,
         "events": traj.events, "final": final, "stats": traj.stats,
+        # the final configuration's guards that did not fire: where each came closest to its value
+        "closest_approach": traj.stats.get("closest_approach", []),
+        "warnings": list(traj.stats.get("warnings", [])) + [w for e in traj.events for w in e.get("warnings", ())],
     }
 
 
@@ -35,7 +38,8 @@ def event_table(traj: Trajectory) -> str:
             f"{(e['from'] + ' -> ' + e['to'])[:22]:<22} {e['normal_velocity']['before']:11.4e} "
             f"{e['normal_velocity']['after']:11.4e} {e['impulse']['normal']:11.4e} "
             f"{e['kinetic_energy_before']:11.4e} {e['kinetic_energy_after']:11.4e}"
-            + ("  merge" if e["merge"] else ""))
+            + ("  merge" if e["merge"] else "")
+            + (f"  joint stop {e['impulse']['joint']}: vn in rad/s" if (e.get("impulse") or {}).get("joint") else ""))
     if len(rows) > 42:
         rows = rows[:22] + [f"  ... {len(rows) - 42} more events (all in the summary JSON) ..."] + rows[-20:]
     return "\n".join(rows)

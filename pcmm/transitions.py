@@ -13,6 +13,12 @@ event record for the summary.
   (post-impact normal speed or interval below the accumulation tolerances) the
   last impact is made perfectly plastic and the bodies merge into
   ``merge_to``.
+* ``release``: a transformation that frees locked joints and goes to a configuration with
+  more freedom.  It carries no impulse (paper section 2.2): the freed joints take the values
+  and rates the links' poses and velocities give them, so every body's position and
+  velocity is continuous (checked, like the poses at any switch) and the kinetic energy is
+  unchanged (checked).  A stop-merge held by compression only is released the same way
+  when its holding force would turn tensile (:func:`unmerge`).
 
 Without impact (the paper's comparison runs) a transformation switches
 configuration with no impulse: surviving joints keep their velocities, locked
@@ -20,14 +26,20 @@ ones drop theirs.
 """
 from __future__ import annotations
 
+import math
+
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from .configuration import Configuration, Mechanism
+from .configuration import Configuration
+from .mechanism import Mechanism
 from .errors import SimulationError
-from .impulse import Impulse, contact_state, impact_kind, solve_impulse
-from .scene import TransitionSpec
+from .contact import contact_point, contact_state
+from .events import by_link, event_record
+from .guards import guard_value
+from .impulse import no_impulse, solve_impulse
+from .spec import LatchSpec, StopSpec, TransitionSpec
 
 POSE_TOL = 1e-9
 RESTING_FACTOR = 100.0  # a guard crossing at a separating speed below 100 x the accumulation speed is rest
@@ -43,7 +55,7 @@ class Context:
     forced_interval: float | None = None
     last_impact: dict[str, float] = field(default_factory=dict)
 
-    def tolerances(self, tr: TransitionSpec) -> tuple[float, float]:
+    def tolerances(self, tr: StopSpec) -> tuple[float, float]:
         """(speed, interval) for a stop: the run's explicit value, else the transition's, else the scene's."""
         def pick(forced, own, default):
             return forced if forced is not None else own if own is not None else default
@@ -58,7 +70,7 @@ class Outcome:
     v: np.ndarray
     event: dict
     angle_offsets: dict[str, float]
-    merged_from: tuple | None = None  # stop-merge: (source configuration, transition, locked joint values)
+    locks: str | None = None  # the switch locked joints: "latch" or "merge" (a stop's accumulation)
 
 
 # ---- state mapping -----------------------------------------------------------------------
@@ -70,6 +82,19 @@ def switch(src: Configuration, dst: Configuration, t: float, q: np.ndarray, v: n
     else from the links' poses.  Returns (q, v, dropped velocities {joint: v},
     angle offsets {link: 2 pi k}).
     """
+    q_new, v_new, dropped = map_state(src, dst, q, v, known)
+    q_new, v_new = dst.coords.project(t, q_new, v_new)
+    offsets, problems = pose_mismatches(src, dst, q, q_new)
+    if problems:
+        raise SimulationError([f"t = {t:.9g} s, switching '{src.name}' -> '{dst.name}': {p}" for p in problems]
+                              + ["the two URDFs must place every shared link identically at the switch "
+                                 "(check the fixed joint's origin in the merged configuration)"])
+    return q_new, v_new, dropped, offsets
+
+
+def map_state(src: Configuration, dst: Configuration, q, v, known: dict | None = None):
+    """(q, v) of ``src`` as ``dst``'s coordinates, by joint name (not yet projected onto
+    ``dst``'s constraints), and the velocities of the joints ``dst`` drops."""
     q_new = dst.neutral()
     v_new = np.zeros(dst.nv)
     missing = []
@@ -85,9 +110,14 @@ def switch(src: Configuration, dst: Configuration, t: float, q: np.ndarray, v: n
         q_new, v_new = _joints_from_poses(src, dst, q, v, q_new, v_new, missing)
     dropped = {n: float(v[src.joint_slice[n]][0]) for n in src.joint_names
                if n not in dst.joint_slice and src.joint_slice[n].stop - src.joint_slice[n].start == 1}
-    q_new, v_new = dst.coords.project(t, q_new, v_new)
-    poses_src = src.link_poses(q)
-    poses_dst = dst.link_poses(q_new)
+    return q_new, v_new, dropped
+
+
+def pose_mismatches(src: Configuration, dst: Configuration, q_src, q_dst):
+    """Angle offsets {link: 2 pi k} of the links both configurations share, and one text per
+    shared link whose pose differs by more than ``POSE_TOL``."""
+    poses_src = src.link_poses(q_src)
+    poses_dst = dst.link_poses(q_dst)
     offsets = {}
     problems = []
     for link in dst.links:
@@ -100,127 +130,130 @@ def switch(src: Configuration, dst: Configuration, t: float, q: np.ndarray, v: n
         dang = abs(dtheta - 2 * np.pi * k)
         if dpos > POSE_TOL or dang > POSE_TOL:
             problems.append(f"link '{link}' is at (x, y, theta) = ({a[0]:.9g}, {a[1]:.9g}, {a[2]:.9g}) in "
-                            f"'{src.name}' ({src.spec.urdf.name}) but at ({b[0]:.9g}, {b[1]:.9g}, {b[2]:.9g}) "
-                            f"in '{dst.name}' ({dst.spec.urdf.name}): position differs by {dpos:.3g} m, "
+                            f"'{src.name}' ({src.spec.source}) but at ({b[0]:.9g}, {b[1]:.9g}, {b[2]:.9g}) "
+                            f"in '{dst.name}' ({dst.spec.source}): position differs by {dpos:.3g} m, "
                             f"angle by {dang:.3g} rad (allowed {POSE_TOL:g})")
         offsets[link] = float(2 * np.pi * k)
-    if problems:
-        raise SimulationError([f"t = {t:.9g} s, switching '{src.name}' -> '{dst.name}': {p}" for p in problems]
-                              + ["the two URDFs must place every shared link identically at the switch "
-                                 "(check the fixed joint's origin in the merged configuration)"])
-    return q_new, v_new, dropped, offsets
+    return offsets, problems
 
 
 def _joints_from_poses(src, dst, q, v, q_new, v_new, names):
-    """Values of joints that ``src`` does not have (e.g. a released latch): from the links' poses."""
+    """Values and rates of joints that ``src`` does not have (a released lock): from the poses
+    and velocities of their parent and child links in ``src``."""
     poses = src.link_poses(q)
-    omega = src.A @ v
+    vel = src.link_velocities(q, v)
     for name in names:
         uj = dst.spec.info.joints[name]
-        if uj.type != "revolute" or uj.parent not in src.link_index or uj.child not in src.link_index:
-            raise SimulationError(f"switching '{src.name}' -> '{dst.name}': joint '{name}' appears and "
-                                  "pcmm can only derive a new revolute joint's angle from its links' poses")
+        if uj.type not in ("revolute", "continuous", "prismatic") or uj.parent not in src.link_index \
+                or uj.child not in src.link_index:
+            raise SimulationError(f"switching '{src.name}' -> '{dst.name}': joint '{name}' ({uj.type}) appears "
+                                  "and pcmm derives only a revolute or prismatic joint's value from the poses "
+                                  "of its two links, which must both be in the source configuration")
         ip, ic = src.link_index[uj.parent], src.link_index[uj.child]
-        q_new[dst.joint_slice[name]] = poses[ic, 2] - poses[ip, 2] - uj.rpy[2]
-        v_new[dst.joint_slice[name]] = omega[ic] - omega[ip]
+        if uj.type == "prismatic":
+            # child origin = parent origin + R_p (xyz + R_o axis q): q = axis . R_o^T (R_p^T r - xyz)
+            th = poses[ip, 2]
+            Rp = np.array([[np.cos(th), -np.sin(th)], [np.sin(th), np.cos(th)]])
+            c, s_ = np.cos(uj.rpy[2]), np.sin(uj.rpy[2])
+            Ro = np.array([[c, -s_], [s_, c]])
+            axis = np.asarray(uj.axis[:2], dtype=float) / np.linalg.norm(uj.axis[:2])
+            r = poses[ic, :2] - poses[ip, :2]
+            q_new[dst.joint_slice[name]] = axis @ (Ro.T @ (Rp.T @ r - np.asarray(uj.xyz[:2])))
+            w = vel[ip, 2]
+            rel = vel[ic, :2] - vel[ip, :2] - w * np.array([-r[1], r[0]])
+            v_new[dst.joint_slice[name]] = (Rp @ Ro @ axis) @ rel
+        else:
+            q_new[dst.joint_slice[name]] = poses[ic, 2] - poses[ip, 2] - uj.rpy[2]
+            v_new[dst.joint_slice[name]] = vel[ic, 2] - vel[ip, 2]
     return q_new, v_new
 
 
-# ---- event records -------------------------------------------------------------------
-def _by_link(cfg: Configuration, v):
-    return {link: float(w) for link, w in zip(cfg.links, cfg.A @ v)}
+def _check_continuity(src, dst, t, q, v, q_new, v_new, what: str) -> tuple[float, float]:
+    """Every shared body's velocity (and so the kinetic energy) is the same before and after a
+    switch without impulse; returns (largest velocity difference, kinetic energy change)."""
+    before, after = src.link_velocities(q, v), dst.link_velocities(q_new, v_new)
+    scale = max(1.0, float(np.max(np.abs(before))) if before.size else 1.0)
+    worst = 0.0
+    for link in dst.links:
+        if link in src.link_index:
+            worst = max(worst, float(np.max(np.abs(before[src.link_index[link]] - after[dst.link_index[link]]))))
+    ke0, ke1 = src.kinetic_energy(q, v), dst.kinetic_energy(q_new, v_new)
+    if worst > 1e-9 * scale or abs(ke1 - ke0) > 1e-9 * max(ke0, 1e-12):
+        raise SimulationError(
+            f"t = {t:.9g} s, {what} '{src.name}' -> '{dst.name}': a transformation without impulse must keep every "
+            f"body's velocity, but a link's velocity changes by {worst:.3g} and the kinetic energy from {ke0:.9g} "
+            f"to {ke1:.9g} J; the freed joints' rates could not be derived from the links (check that "
+            f"'{dst.name}' has the same links as '{src.name}')")
+    return worst, ke1 - ke0
 
 
-def event_dict(cfg: Configuration, tr: TransitionSpec, t, *, transition, to, restitution, merge, impact,
-               P, normal, point, vn, v, ke, v_after_named=None, **extra) -> dict:
-    """One event of the summary (the schema lives here only): ``vn``, ``v`` and ``ke`` are
-    (before, after) pairs, velocities in ``cfg``'s coordinates; ``extra`` adds keys."""
-    v_before, v_after = v
-    return {
-        "t": float(t), "name": tr.name, "kind": impact_kind(cfg, tr.contact), "transition": transition,
-        "from": cfg.name, "to": to, "restitution": restitution, "merge": merge, "impact": impact,
-        "impulse": {"normal": float(P), "vector": [float(P * c) + 0.0 for c in normal[:2]]},
-        "normal": [float(normal[0]), float(normal[1])], "contact_point": [float(point[0]), float(point[1])],
-        "normal_velocity": {"before": float(vn[0]), "after": float(vn[1])},
-        "omega_before": _by_link(cfg, v_before), "omega_after": _by_link(cfg, v_after),
-        "v_before": cfg.by_joint(v_before),
-        "v_after": cfg.by_joint(v_after) if v_after_named is None else v_after_named,
-        "joint_impulses": {}, "kinetic_energy_before": float(ke[0]), "kinetic_energy_after": float(ke[1]),
-        **extra,
-    }
+def check_latch_compressive(tr: TransitionSpec, t, imp: Impulse, v) -> None:
+    """A latch locks by a compressive impulse along its contact normal.  A tensile one means the
+    declared normal points the wrong way (from b towards a); the merge would pull the bodies."""
+    scale = max(1.0, float(np.max(np.abs(v)))) if len(v) else 1.0
+    if imp.P < 0 and imp.vn_before > 1e-9 * scale:
+        n = tr.contact.normal
+        raise SimulationError(
+            f"t = {t:.9g} s, transition '{tr.name}': the latch's impulse comes out tensile (P = {imp.P:.6g} N s "
+            f"along the declared normal ({n[0]:g}, {n[1]:g}) in link '{tr.contact.a}''s frame; normal "
+            f"velocity {imp.vn_before:.3g} m/s, separating): the normal must point from link a "
+            f"('{tr.contact.a}') towards link b ('{tr.contact.b}'); flip its sign")
 
 
-def event_record(cfg: Configuration, tr: TransitionSpec, t, target, merge, imp: Impulse | None,
-                 q, v_before, v_after, contact_point, transition_type=None) -> dict:
-    """The event of an impact resolved by an impulse (or of a switch without impact)."""
-    M = cfg.mass_matrix(q)
-    ke = (float(0.5 * v_before @ M @ v_before), float(0.5 * v_after @ M @ v_after))
-    common = dict(transition=transition_type or tr.type, to=target, merge=merge, point=contact_point,
-                  v=(v_before, v_after), ke=ke)
-    if imp is None:
-        n, _, vn_b, Jn = contact_state(cfg, q, v_before, tr.contact)
-        return event_dict(cfg, tr, t, restitution=None, impact=False, P=0.0, normal=n,
-                          vn=(vn_b, float(Jn @ v_after)), **common)
-    # A driven joint keeps its prescribed speed through the impact: its motor's impulsive
-    # moment does work (mu q'), so the kinetic energy may rise by that much; what never
-    # rises is KE_before + drive_work - KE_after (the energy the impact dissipates).
-    drive_work = sum(mu * float(v_before[cfg.joint_slice[lab[:-6]]][0])
-                     for lab, mu in imp.constraint_impulses.items() if lab.endswith(".drive"))
-    return event_dict(cfg, tr, t, restitution=imp.restitution, impact=True, P=imp.P, normal=imp.normal,
-                      vn=(imp.vn_before, imp.vn_after), **common,
-                      joint_impulses=imp.joint_impulses, cut_impulses=imp.cut_impulses,
-                      constraint_impulses=imp.constraint_impulses, drive_work=drive_work,
-                      energy_dissipated=ke[0] + drive_work - ke[1])
-
-
-def _contact_point(cfg, tr):
-    return cfg.point_position(cfg.point(tr.contact.b, tr.contact.point_b))
+def _contact_faults(cfg: Configuration, tr: TransitionSpec, q, otherwise: str) -> list[str]:
+    """What is wrong with the contact at ``q`` (:func:`pcmm.checks.contact_findings`: the points
+    or the normal, whichever is at fault), else ``otherwise``."""
+    from .checks import contact_findings  # checks builds on this module
+    return [f"transition '{tr.name}', {f.field}: {f.text}" for f in contact_findings(cfg, tr, q)] or [otherwise]
 
 
 def _merge(ctx: Context, cfg: Configuration, tr: TransitionSpec, target: str, t, q, v, transition_type):
     """Plastic impact (or none without impact), then switch to ``target``."""
-    dst = ctx.mechanism[target]
+    dst = ctx.mechanism.enter(target, cfg, q)  # a derived configuration locks the values at this instant
     locked = [n for n in cfg.joint_names if n not in dst.joint_slice]
     if ctx.impact:
         imp = solve_impulse(cfg, t, q, v, tr.contact, 0.0, tr.cut)
         v_after = imp.v_after
     else:  # the paper's comparison: surviving joints keep their velocities, locked ones drop theirs
-        imp, v_after = None, v.copy()
+        v_after = v.copy()
         for n in locked:
             v_after[cfg.joint_slice[n]] = 0.0
-    if imp is not None:
+        imp = no_impulse(cfg, q, v, v_after, tr.contact)
+    if imp.impact and transition_type == "latch":
+        check_latch_compressive(tr, t, imp, v)
+    if imp.impact:
         scale = max(1.0, float(np.max(np.abs(v))))
         moving = {n: float(v_after[cfg.joint_slice[n]][0]) for n in locked
                   if abs(v_after[cfg.joint_slice[n]][0]) > 1e-8 * scale}
         if moving:
             raise SimulationError(
-                f"t = {t:.9g} s, transition '{tr.name}': after the plastic impact the joints that "
-                f"'{target}' locks still move ({moving}); the contact normal of the transition does not "
-                "act along the locked joint's motion, so the merge would silently drop velocity")
+                [f"t = {t:.9g} s, transition '{tr.name}': after the plastic impact the joints that "
+                 f"'{target}' locks still move ({moving}), so the merge would silently drop velocity"]
+                + _contact_faults(cfg, tr, q, "the contact impulse does not act along the locked joint's motion "
+                                  "(check cut and the contact)"))
     if tr.guard.type == "coordinate":
-        from .guards import guard_value
         residual = abs(guard_value(cfg, tr, t, q, v))
         if residual > POSE_TOL:
             raise SimulationError(
                 f"t = {t:.9g} s, transition '{tr.name}': the event was located {residual:.3g} away from "
                 f"the guard's value, more than the {POSE_TOL:g} the switch to '{target}' allows: lower "
                 "solver.event_tol (--event-tol) or rtol")
-    cfg.kinematics(q, v)
-    point = _contact_point(cfg, tr)
-    record = event_record(cfg, tr, t, target, True, imp, q, v, v_after, point, transition_type)
-    q_new, v_new, dropped, offsets = switch(cfg, dst, t, q, v if imp is None else v_after)
+    q_new, v_new, dropped, offsets = switch(cfg, dst, t, q, v if not imp.impact else v_after)
+    if not imp.impact:  # the record shows the velocities the run goes on with (projected onto the target)
+        for n in dst.joint_names:
+            if n in cfg.joint_slice:
+                v_after[cfg.joint_slice[n]] = v_new[dst.joint_slice[n]]
+        imp = no_impulse(cfg, q, v, v_after, tr.contact)
+    record = event_record(cfg, tr, t, target, True, imp, transition_type, q=q)
     record["dropped_velocities"] = dropped
-    merged_from = None
-    if transition_type == "stop":
-        merged_from = (cfg.name, tr, {n: q[cfg.joint_slice[n]].copy() for n in locked})
-    return Outcome(target, q_new, v_new, record, offsets, merged_from)
+    return Outcome(target, q_new, v_new, record, offsets, "merge" if transition_type == "stop" else "latch")
 
 
-def handle_latch(ctx: Context, cfg: Configuration, tr: TransitionSpec, t, q, v) -> Outcome:
+def handle_latch(ctx: Context, cfg: Configuration, tr: LatchSpec, t, q, v) -> Outcome:
     return _merge(ctx, cfg, tr, tr.target, t, q, v, "latch")
 
 
-def handle_stop(ctx: Context, cfg: Configuration, tr: TransitionSpec, t, q, v) -> Outcome:
+def handle_stop(ctx: Context, cfg: Configuration, tr: StopSpec, t, q, v) -> Outcome:
     if not ctx.impact:
         if tr.merge_to is None:
             raise SimulationError(f"transition '{tr.name}': a run without impact switches configuration at "
@@ -233,10 +266,7 @@ def handle_stop(ctx: Context, cfg: Configuration, tr: TransitionSpec, t, q, v) -
         # integrator's resolution at the end of an accumulation (the bounces are shorter than its
         # dense-output error): the bodies rest in contact.  A clear one means a wrong normal.
         if vn > RESTING_FACTOR * speed:
-            raise SimulationError(
-                f"t = {t:.9g} s, transition '{tr.name}': the guard fired but the contact is separating "
-                f"(relative normal velocity {vn:.3g} m/s along the declared normal); the normal "
-                "must point from link a towards link b")
+            raise SimulationError(_separating_with_faults(cfg, tr, t, q, v, vn))
         accumulated, rest_speed = True, vn
     else:
         imp = solve_impulse(cfg, t, q, v, tr.contact, tr.restitution, tr.cut)
@@ -253,25 +283,85 @@ def handle_stop(ctx: Context, cfg: Configuration, tr: TransitionSpec, t, q, v) -
                 f"{abs(rest_speed):.3g} m/s) and the bodies come to rest in contact; give the stop a "
                 "merge_to configuration so the run can continue with the bodies merged")
         return _merge(ctx, cfg, tr, tr.merge_to, t, q, v, "stop")
-    cfg.kinematics(q, v)
-    record = event_record(cfg, tr, t, cfg.name, False, imp, q, v, imp.v_after, _contact_point(cfg, tr))
+    record = event_record(cfg, tr, t, cfg.name, False, imp, q=q)
     q_new, v_new = cfg.coords.project(t, q, imp.v_after)
     return Outcome(cfg.name, q_new, v_new, record, {})
 
 
-def handle_release(ctx: Context, cfg: Configuration, tr: TransitionSpec, t, q, v, release) -> Outcome:
-    """Undo a stop-merge whose holding force turns tensile: back to the source configuration."""
-    source_name, locked = release
-    dst = ctx.mechanism[source_name]
-    q_new, v_new, _, offsets = switch(cfg, dst, t, q, v, known=locked)
+def _separating(cfg: Configuration, tr: TransitionSpec, t, q, v, vn) -> str:
+    """Why a guard fired while its contact separates.  If the guard really moves towards its
+    firing side there, the declared normal contradicts the guard: the normal is wrong.  If it
+    moves away, the crossing is an artefact of an inaccurate step (typically fixed-step RK4
+    at a step beyond its stability limit, whose state then oscillates wildly): the step is."""
+    head = (f"t = {t:.9g} s, transition '{tr.name}': the guard fired but the contact is separating "
+            f"(relative normal velocity {vn:.3g} m/s along the declared normal)")
+    try:
+        from .guards import guard_value
+        qd = cfg.qdot(q, v)
+        eps = 1e-7 / max(1.0, float(np.max(np.abs(qd)))) if qd.size else 0.0
+        rate = (guard_value(cfg, tr, t, q + eps * qd, v) - guard_value(cfg, tr, t, q - eps * qd, v)) / (2 * eps)
+    except Exception:  # noqa: BLE001 - the diagnosis is a hint; never let it mask the error itself
+        rate = None
+    if rate is not None and rate * tr.guard.direction < 0:
+        return (f"{head}, and the guard itself is moving away from its value (rate {rate:.3g}/s), so the "
+                "crossing comes from an inaccurate step, not from the normal: the integration is unstable "
+                "or too coarse here; with RK4 lower solver.step (--step), else tighten rtol")
+    return f"{head}; the normal must point from link a towards link b"
+
+
+def _separating_with_faults(cfg: Configuration, tr: TransitionSpec, t, q, v, vn) -> list[str]:
+    """:func:`_separating`'s diagnosis; where it blames the normal, what the contact check finds
+    at fault (the points or the normal)."""
+    text = _separating(cfg, tr, t, q, v, vn)
+    if not text.endswith("the normal must point from link a towards link b"):
+        return [text]
+    head = text[:text.rindex(";")]
+    return [head] + _contact_faults(cfg, tr, q, "the normal must point from link a towards link b")
+
+
+def _release_event(cfg: Configuration, dst: Configuration, tr: TransitionSpec, t, q, v, q_new, v_new,
+                   freed, continuity, cause: str) -> dict:
+    """The event of a transformation without impulse that frees joints."""
+    ke = cfg.kinetic_energy(q, v)
     dst.kinematics(q_new, v_new)
-    n, _, vn, _ = contact_state(dst, q_new, v_new, tr.contact)
-    M = cfg.mass_matrix(q)
-    ke = float(0.5 * v @ M @ v)
-    record = event_dict(cfg, tr, t, transition="release", to=source_name, restitution=None, merge=False,
-                        impact=False, P=0.0, normal=n, point=_contact_point(dst, tr), vn=(vn, vn), v=(v, v),
-                        ke=(ke, ke), v_after_named=dst.by_joint(v_new))
-    return Outcome(source_name, q_new, v_new, record, offsets)
+    child = dst.spec.info.joints[freed[0]].child if freed else dst.links[0]
+    point = dst.data.oMf[dst.link_frame[child]].translation[:2]
+    return {
+        "t": float(t), "name": tr.name, "kind": "release", "transition": "release", "cause": cause,
+        "from": cfg.name, "to": dst.name, "restitution": None, "merge": False, "impact": False,
+        "impulse": {"normal": 0.0, "vector": [0.0, 0.0]}, "normal": [0.0, 0.0],
+        "contact_point": [float(point[0]), float(point[1])],
+        "normal_velocity": {"before": 0.0, "after": 0.0},
+        "omega_before": by_link(cfg, v), "omega_after": by_link(dst, v_new),
+        "v_before": cfg.by_joint(v), "v_after": dst.by_joint(v_new), "joint_impulses": {},
+        "kinetic_energy_before": float(ke), "kinetic_energy_after": float(ke + continuity[1]),
+        "freed": {n: float(q_new[dst.joint_slice[n]][0]) for n in freed},
+        "velocity_jump_max": continuity[0],
+    }
 
 
-TRANSITIONS = {"latch": handle_latch, "stop": handle_stop}
+def release(ctx: Context, cfg: Configuration, tr: TransitionSpec, target: str, t, q, v, known=None,
+            cause: str = "guard") -> Outcome:
+    """Free the joints ``target`` has and ``cfg`` lacks: no impulse (paper section 2.2); the freed
+    joints' values and rates come from their links (or ``known`` values), every shared link's
+    pose and velocity is checked continuous and the kinetic energy unchanged."""
+    dst = ctx.mechanism.enter(target, cfg, q)  # a derived target locks the values it has now
+    freed = [n for n in dst.joint_names if n not in cfg.joint_slice]
+    q_new, v_new, _, offsets = switch(cfg, dst, t, q, v, known=known)
+    continuity = _check_continuity(cfg, dst, t, q, v, q_new, v_new, "release")
+    record = _release_event(cfg, dst, tr, t, q, v, q_new, v_new, freed, continuity, cause)
+    return Outcome(target, q_new, v_new, record, offsets)
+
+
+def handle_release(ctx: Context, cfg: Configuration, tr: TransitionSpec, t, q, v) -> Outcome:
+    """A ``release`` transition of the scene, fired by its guard."""
+    return release(ctx, cfg, tr, tr.target, t, q, v, cause=tr.guard.type)
+
+
+def unmerge(ctx: Context, cfg: Configuration, hold, target: str, t, q, v) -> Outcome:
+    """Undo a stop-merge whose holding force would turn tensile: the stop's joints are freed at
+    rest relative to each other, at the values they locked at."""
+    return release(ctx, cfg, hold.transition, target, t, q, v, known=hold.joints, cause="tensile holding force")
+
+
+TRANSITIONS = {"latch": handle_latch, "stop": handle_stop, "release": handle_release}

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 import xml.etree.ElementTree as ET
+from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -31,6 +32,7 @@ class UrdfJoint:
     xyz: tuple[float, float, float]
     rpy: tuple[float, float, float]
     axis: tuple[float, float, float]
+    limits: tuple[float, float] | None = None  # <limit lower upper> (pcmm does not enforce them)
 
 
 @dataclass(frozen=True)
@@ -58,11 +60,12 @@ def _floats(text: str | None, n: int, default: tuple) -> tuple | None:
     return vals if len(vals) == n and all(math.isfinite(x) for x in vals) else None
 
 
-def dynamics_xml(path: str | Path) -> str:
-    """The URDF as the dynamics needs it: without ``<visual>``, ``<collision>`` and ``<material>``
-    (pcmm's replay reads the visuals itself).  urdfdom would otherwise parse them too and print
-    its own errors for a visual it cannot read, before any message of pcmm's."""
-    root = ET.parse(path).getroot()
+def dynamics_xml(path: str | Path, text: str | None = None) -> str:
+    """The URDF (the file ``path``, or its ``text`` if given) as the dynamics needs it: without
+    ``<visual>``, ``<collision>`` and ``<material>`` (pcmm's replay reads the visuals itself).
+    urdfdom would otherwise parse them too and print its own errors for a visual it cannot read,
+    before any message of pcmm's."""
+    root = ET.fromstring(text) if text is not None else ET.parse(path).getroot()
     for parent in root.iter():
         for child in [c for c in parent if c.tag in ("visual", "collision", "material")]:
             parent.remove(child)
@@ -85,7 +88,9 @@ def read_urdf(path: str | Path) -> UrdfInfo:
     links = [el.get("name") for el in root.findall("link")]
     if not links or any(not n for n in links):
         problems.append(f"{where}: every <link> needs a name, and a URDF needs at least one link")
-    dup = sorted({n for n in links if links.count(n) > 1})
+    counts = Counter(links)  # sets and counts: validation stays linear in the number of links
+    link_set = set(links)
+    dup = sorted(n for n, c in counts.items() if c > 1 and n)
     if dup:
         problems.append(f"{where}: duplicate link names {dup}")
     joints: dict[str, UrdfJoint] = {}
@@ -97,7 +102,7 @@ def read_urdf(path: str | Path) -> UrdfInfo:
         if j.name in joints:
             problems.append(f"{where}: joint '{j.name}': duplicate joint name")
         for role, link in (("parent", j.parent), ("child", j.child)):
-            if link not in links:
+            if link not in link_set:
                 problems.append(f"{where}: joint '{j.name}': {role} link '{link}' is not a <link> of this file")
         if j.child in children:
             problems.append(f"{where}: link '{j.child}' is the child of two joints: a URDF is a tree; "
@@ -153,10 +158,33 @@ def _read_joint(el, where, problems) -> UrdfJoint | None:
                         "(Pinocchio models (0 0 -1) as a slower unaligned joint)")
     if jtype == "prismatic" and (norm == 0 or abs(axis[2]) > _TOL * max(norm, 1)):
         problems.append(f"{loc}: axis = {axis} must lie in the xy plane (z = 0) for a planar slider")
+    for tag, attrs in (("dynamics", ("damping", "friction")), ("mimic", None)):
+        sub = el.find(tag)
+        if sub is None:
+            continue
+        if attrs is None:
+            problems.append(f"{loc}: <mimic joint={sub.get('joint')!r}> is not modelled by pcmm (the joint would "
+                            "move freely); couple the joints with a cut joint or a drive in the scene instead")
+            continue
+        for attr in attrs:
+            text = sub.get(attr)
+            try:
+                value = float(text) if text is not None else 0.0
+            except ValueError:
+                value = math.nan
+            if value != 0.0:
+                problems.append(f"{loc}: <dynamics {attr}={text!r}> is not modelled by pcmm and would be "
+                                f"ignored; remove it, and for {attr} model a force element in the scene "
+                                + ("(type = \"damper\", c = ..., on and measure = { joint = ... })"
+                                   if attr == "damping" else "(pcmm has no Coulomb friction)"))
     if jtype in ("revolute", "prismatic") and el.find("limit") is None:
         problems.append(f"{loc}: a {jtype} joint needs a <limit> tag for the URDF parser "
                         "(pcmm does not enforce it; model stops as transitions)")
-    return UrdfJoint(name, jtype, parent.get("link"), child.get("link"), xyz, rpy, axis)
+    lim = el.find("limit")
+    bounds = (_floats(lim.get("lower", "0"), 1, (0.0,)), _floats(lim.get("upper", "0"), 1, (0.0,))) \
+        if lim is not None else (None, None)
+    limits = (bounds[0][0], bounds[1][0]) if None not in bounds else None
+    return UrdfJoint(name, jtype, parent.get("link"), child.get("link"), xyz, rpy, axis, limits)
 
 
 def _check_inertial(el, name, where, required, problems) -> None:

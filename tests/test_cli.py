@@ -10,7 +10,7 @@ import pytest
 
 import pcmm
 import pcmm.cli
-from conftest import EXAMPLES
+from builders import EXAMPLES
 from pcmm.trajectory import dumps_json
 
 SCENE = EXAMPLES / "three_bar.toml"

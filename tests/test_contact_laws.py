@@ -6,11 +6,10 @@ continuous law F = k delta^n (1 + D(e) delta'/v-) instead of the impulse.
 from __future__ import annotations
 
 import math
-import textwrap
 
 import pytest
 
-import extreme_models as xm
+import builders
 import pcmm
 
 G = 9.81
@@ -18,7 +17,7 @@ G = 9.81
 
 def ball(tmp_path, law, k, e, m=1.0, h=1.0, n=1.5, gravity=G):
     """The first contact of a ball of mass m dropped from h, resolved by ``law``."""
-    path = xm.ball(tmp_path, e, h=h, g=gravity, mass=m, t_end=math.sqrt(2 * h / G) + 0.05, merge=False,
+    path = builders.ball(tmp_path, e, h=h, g=gravity, mass=m, t_end=math.sqrt(2 * h / G) + 0.05, merge=False,
                    law=law, stiffness=k, exponent=n)
     traj = pcmm.simulate(pcmm.load_scene(path))
     assert traj.events, "the ball never touched the floor"
@@ -67,29 +66,11 @@ def test_each_law_has_its_own_effective_restitution(tmp_path):
 
 
 def test_continuous_law_needs_its_parameters(tmp_path):
-    (tmp_path / "b.urdf").write_text("<robot name='x'><link name='frame'/></robot>")
-    text = textwrap.dedent("""
-        [scene]
-        name = "x"
-        gravity = [0.0, -9.81]
-        t_end = 1.0
-        initial_configuration = "c"
-        [configurations.c]
-        urdf = "b.urdf"
-        [initial]
-        q = {}
-        v = {}
-        [[transitions]]
-        name = "t"
-        type = "latch"
-        from = "c"
-        to = "c"
-        law = "flores"
-        cut = []
-        guard = { type = "gap", value = 0.0, direction = "decreasing" }
-        contact = { a = "frame", point_a = [0.0, 0.0], b = "frame", point_b = [0.0, 0.0], normal = [0.0, 1.0] }
-        """)
-    (tmp_path / "s.toml").write_text(text)
+    latch = {"name": "t", "type": "latch", "from": "c", "to": "c", "law": "flores", "cut": [],
+             "guard": {"type": "gap", "value": 0.0, "direction": "decreasing"},
+             "contact": {"a": "frame", "point_a": [0.0, 0.0], "b": "frame", "point_b": [0.0, 0.0], "normal": [0.0, 1.0]}}
+    doc = builders.scene_doc({"c": "b.urdf"}, {}, {}, name="x", transitions=[latch])
+    builders.write_scene(tmp_path, doc, {"b.urdf": builders.robot_xml("x", builders.link_xml("frame"))}, "s.toml")
     with pytest.raises(pcmm.SceneError) as info:
         pcmm.load_scene(tmp_path / "s.toml")
     msg = info.value.text()

@@ -13,7 +13,8 @@ import pinocchio as pin
 import pytest
 
 import pcmm
-from conftest import G, Bar, chain_urdf, free_bar_urdf, pendulum_urdf, rot
+from builders import G, Bar, chain_urdf, free_bar_urdf, pendulum_urdf
+from conftest import rot
 
 # ---- closed forms ------------------------------------------------------------------------
 

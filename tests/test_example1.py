@@ -15,8 +15,9 @@ import pytest
 from scipy.integrate import solve_ivp
 
 import pcmm
-from conftest import EXAMPLES, G, URDF_DIR, cross2
-from pcmm.configuration import Mechanism
+from builders import EXAMPLES, G, URDF_DIR
+from conftest import cross2
+from pcmm.mechanism import Mechanism
 
 MASS = np.array([0.39, 0.195, 0.195])
 LEN = np.array([0.25, 0.125, 0.125])

@@ -13,11 +13,13 @@ are ``xfail(strict=True)`` with the bug in the reason.
 from __future__ import annotations
 
 import math
+import tomllib
 
 import numpy as np
 import pytest
 from scipy.integrate import quad
 
+import builders
 import extreme_models as xm
 import pcmm
 from pcmm.cli import main as cli_main
@@ -125,7 +127,7 @@ def test_restitution_bouncing_ball(tmp_path, e):
     geometrically and merges near t_inf; e = 1 - 1e-12 and 1 never accumulate."""
     h, m, t_end = 1.0, 2.0, 2.6
     t1, v1, t_inf = ball_times(e, h)
-    traj = run(xm.ball(tmp_path, e, h=h, mass=m, t_end=t_end))
+    traj = run(builders.ball(tmp_path, e, h=h, mass=m, t_end=t_end))
     assert_finite(traj)
     assert traj.events, "no impact"
     for k, ev in enumerate(traj.events):
@@ -161,7 +163,7 @@ def test_restitution_compound_pendulum(tmp_path, e):
     m, L, qs = 1.5, 0.6, -math.pi / 2
     I_O = m * L * L / 3
     t_hit, w_minus = pendulum_fall(0.0, qs, L)
-    traj = run(xm.pendulum(tmp_path, e, L=L, m=m, qs=qs, t_end=1.2))
+    traj = run(builders.pendulum(tmp_path, e, L=L, m=m, qs=qs, t_end=1.2))
     assert_finite(traj)
     first = traj.events[0]
     assert first["t"] == pytest.approx(t_hit, abs=1e-9)
@@ -206,7 +208,7 @@ def test_mass_ratio_mobile_impact_in_a_chain(tmp_path, ratio, e):
     pivot, so the angular momentum about it is conserved through the impact and the run."""
     m1, m2, L1, L2 = 1.0, ratio, 0.5, 0.5
     I1, I2 = m1 * L1 ** 2 / 12, m2 * L2 ** 2 / 12
-    traj = run(xm.two_link(tmp_path, e, m1, m2, L1=L1, L2=L2, t_end=0.5))
+    traj = run(builders.two_link(tmp_path, e, m1, m2, L1=L1, L2=L2, t_end=0.5))
     assert_finite(traj)
     assert traj.events and traj.events[0]["kind"] == "mobile"
     for k, ev in enumerate(traj.events):
@@ -235,7 +237,7 @@ def test_mass_ratio_free_bodies(tmp_path, ratio, what, e):
     m2, I2 = (ratio, I1 * ratio) if what == "mass" else (1.0, I1 * ratio)
     # t_end just after the impact: a body spun fast by the impact would later sweep its contact
     # point across the other body's contact plane far from the contact point (not a contact)
-    traj = run(xm.two_free_bodies(tmp_path, e, m1, m2, I1, I2, t_end=0.052))
+    traj = run(builders.two_free_bodies(tmp_path, e, m1, m2, I1, I2, t_end=0.052))
     assert_finite(traj)
     assert len(traj.events) == 1, [ev["t"] for ev in traj.events]
     ev = traj.events[0]
@@ -269,7 +271,7 @@ def test_length_scale_pendulum_impact_time_scales_like_sqrt_L_over_g(tmp_path, L
     e = 0.5
     tau, w_star = pendulum_fall(0.0, -math.pi / 2, 1.0, g=1.0)  # L = g = 1
     s = math.sqrt(L / G)
-    traj = run(xm.pendulum(tmp_path, e, L=L, m=1.0, t_end=1.5 * tau * s))
+    traj = run(builders.pendulum(tmp_path, e, L=L, m=1.0, t_end=1.5 * tau * s))
     assert_finite(traj)
     ev = traj.events[0]
     assert_impact_laws(ev, e)
@@ -283,7 +285,7 @@ def test_length_scale_ball_drop(tmp_path, L):
     """Ball dropped from h = L: t1 / sqrt(2h/g) = 1 and vn / sqrt(2gh) = -1 at every scale."""
     e = 0.5
     t1, v1, _ = ball_times(e, L)
-    traj = run(xm.ball(tmp_path, e, h=L, t_end=1.5 * t1))
+    traj = run(builders.ball(tmp_path, e, h=L, t_end=1.5 * t1))
     assert_finite(traj)
     ev = traj.events[0]
     assert_impact_laws(ev, e)
@@ -315,7 +317,7 @@ def test_grazing_impact_fires_with_the_analytic_approach_speed(tmp_path, eps):
     K = 1.5 * G / L
     w0 = math.sqrt(2 * K * (math.sin(qs + eps) - math.sin(q0)))
     vn = L * math.sqrt(2 * K * (math.sin(qs + eps) - math.sin(qs)))
-    traj = run(xm.pendulum(tmp_path, e, L=L, m=m, qs=qs, q0=q0, w0=w0, direction="increasing", t_end=0.8))
+    traj = run(builders.pendulum(tmp_path, e, L=L, m=m, qs=qs, q0=q0, w0=w0, direction="increasing", t_end=0.8))
     assert_finite(traj)
     assert len(traj.events) == 1, (f"apex {eps} rad beyond the stop: expected one impact at vn- = -{vn:.3g} m/s, "
                                    f"got {len(traj.events)} events")
@@ -330,7 +332,7 @@ def test_guard_touched_without_crossing_fires_nothing(tmp_path, eps):
     m, L, qs, q0 = 1.5, 0.6, -0.5, -math.pi / 2
     K = 1.5 * G / L
     w0 = math.sqrt(2 * K * (math.sin(qs + eps) - math.sin(q0)))
-    traj = run(xm.pendulum(tmp_path, 0.5, L=L, m=m, qs=qs, q0=q0, w0=w0, direction="increasing", t_end=0.8))
+    traj = run(builders.pendulum(tmp_path, 0.5, L=L, m=m, qs=qs, q0=q0, w0=w0, direction="increasing", t_end=0.8))
     assert_finite(traj)
     assert traj.events == []
     assert traj.series("q", "J1").max() <= qs
@@ -341,7 +343,7 @@ def test_grazing_gap_approach_speed_to_zero(tmp_path, v_approach):
     """Gravity-free ball drifting onto the floor at vn- = -v (down to 1e-9 m/s): a bounce
     with vn+ = e v when e v > 1e-6 m/s (the accumulation tolerance), else an immediate merge."""
     e, t_hit = 0.5, 0.01
-    traj = run(xm.ball(tmp_path, e, h=v_approach * t_hit, g=0.0, v0=-v_approach, t_end=0.02))
+    traj = run(builders.ball(tmp_path, e, h=v_approach * t_hit, g=0.0, v0=-v_approach, t_end=0.02))
     assert_finite(traj)
     ev = traj.events[0]
     assert ev["t"] == pytest.approx(t_hit, rel=1e-9)
@@ -366,7 +368,7 @@ def test_two_independent_contacts_at_the_same_instant(tmp_path):
     impacts at t1, in scene order, each with its own law; the balls never go below the floor."""
     h = 0.5
     t1, v1, _ = ball_times(0.5, h)
-    traj = run(xm.two_balls(tmp_path, 0.5, 0.8, h=h, t_end=t1 + 0.05))
+    traj = run(builders.two_balls(tmp_path, 0.5, 0.8, h=h, t_end=t1 + 0.05))
     assert_finite(traj)
     first = [ev for ev in traj.events if abs(ev["t"] - t1) < 1e-9]
     assert [ev["name"] for ev in first] == ["floor1", "floor2"]
@@ -391,7 +393,7 @@ def test_bar_falling_flat_onto_two_stops(tmp_path, e):
     and both ends end up separating, and neither end goes below the floor."""
     L, h = 1.0, 0.2
     t_hit = math.sqrt(2 * h / G)
-    traj = run(xm.flat_bar(tmp_path, e, L=L, h=h, t_end=t_hit + 0.1))
+    traj = run(builders.flat_bar(tmp_path, e, L=L, h=h, t_end=t_hit + 0.1))
     assert_finite(traj)
     y, th = traj.series("q", "P.y"), traj.series("q", "P.theta")
     lowest = min((y - L / 2 * np.sin(th)).min(), (y + L / 2 * np.sin(th)).min())
@@ -416,7 +418,7 @@ def test_slider_driven_past_dead_centre_is_a_clean_error(tmp_path):
     pcmm must stop with a SimulationError naming the singular posture, never NaN."""
     a, b, th0 = 0.1, 0.3, 0.5
     x0 = a * math.cos(th0) + b * math.cos(math.asin(-a * math.sin(th0) / b))
-    path = xm.slider_crank_slider_driven(tmp_path, [x0, (a + b - x0) / 0.5], theta0=th0, t_end=1.0)
+    path = builders.slider_crank_slider_driven(tmp_path, [x0, (a + b - x0) / 0.5], theta0=th0, t_end=1.0)
     with pytest.raises(pcmm.SimulationError, match="singular posture") as info:
         run(path)
     partial = info.value.partial
@@ -428,7 +430,7 @@ def test_slider_driven_past_dead_centre_is_a_clean_error(tmp_path):
 def test_error_mid_segment_keeps_the_samples_before_it(tmp_path):
     a, b, th0 = 0.1, 0.3, 0.5
     x0 = a * math.cos(th0) + b * math.cos(math.asin(-a * math.sin(th0) / b))
-    path = xm.slider_crank_slider_driven(tmp_path, [x0, (a + b - x0) / 0.5], theta0=th0, t_end=1.0)
+    path = builders.slider_crank_slider_driven(tmp_path, [x0, (a + b - x0) / 0.5], theta0=th0, t_end=1.0)
     with pytest.raises(pcmm.SimulationError) as info:
         run(path)
     partial = info.value.partial
@@ -445,7 +447,7 @@ def test_slider_driven_to_touch_dead_centre(tmp_path):
     x0 = a * math.cos(th0) + b * math.cos(math.asin(-a * math.sin(th0) / b))
     c = (a + b - x0) / 0.25
     coeffs = [a + b - 0.25 * c, c, -c]
-    path = xm.slider_crank_slider_driven(tmp_path, coeffs, theta0=th0, t_end=1.0)
+    path = builders.slider_crank_slider_driven(tmp_path, coeffs, theta0=th0, t_end=1.0)
     try:
         traj = run(path)
     except pcmm.SimulationError as exc:
@@ -480,9 +482,9 @@ def test_parallelogram_change_point(tmp_path, theta0, omega, t_end, method):
     (the kinetic energy (2/3 m a^2 + m a^2) omega^2 / 2 is constant).  At theta = 0 and pi
     the loop is singular.  Expected: that motion, or a SimulationError naming the singular
     posture; never a branch switch, an energy change, NaN or a hang."""
-    path = xm.parallelogram(tmp_path, theta0, omega, t_end=t_end)
+    path = builders.parallelogram(tmp_path, theta0, omega, t_end=t_end)
     try:
-        with deadline(3.0, "parallelogram run"):
+        with deadline(60.0, "parallelogram run"):
             traj = run(path, method=method)
     except pcmm.SimulationError as exc:
         assert "singular" in str(exc)
@@ -501,15 +503,15 @@ def test_parallelogram_change_point(tmp_path, theta0, omega, t_end, method):
 def test_closed_loop_impact_keeps_the_loop_closed(tmp_path):
     """A closed loop that bounces on a stop: each restart re-chooses the partition; the loop
     must stay closed (drift) and every impact obey its laws with the loop's constraint rows."""
-    path = xm.parallelogram(tmp_path, 1.0, 2.0, t_end=0.6)
-    text = path.read_text()
+    path = builders.parallelogram(tmp_path, 1.0, 2.0, t_end=0.6)
+    doc = tomllib.loads(path.read_text())
     # a stop on the crank at theta = 1.8 rad (moving up), tip against the frame
     qs, a = 1.8, 0.1
-    tr = {"transitions": [xm.stop("stop", "c", 0.7, {"type": "coordinate", "measure": {"joint": "A"}, "value": qs,
+    doc["transitions"] = [builders.stop("stop", "c", 0.7, {"type": "coordinate", "measure": {"joint": "A"}, "value": qs,
                                                        "direction": "increasing"},
                                   {"a": "frame", "point_a": [a * math.cos(qs), a * math.sin(qs)], "b": "crank",
-                                   "point_b": [a, 0.0], "normal": [math.sin(qs), -math.cos(qs)]})]}
-    path.write_text(text + xm.dump_toml(tr))
+                                   "point_b": [a, 0.0], "normal": [math.sin(qs), -math.cos(qs)]})]
+    path.write_text(builders.dump_toml(doc))
     traj = run(path)
     assert_finite(traj)
     assert traj.events, "no impact"
@@ -535,7 +537,7 @@ def test_stiff_spring_frequency(tmp_path, k, method):
     q0 = 0.1
     w = math.sqrt(k / I_SPRING)
     T = 2 * math.pi / w
-    traj = run(xm.spring_pendulum(tmp_path, k, I_SPRING, q0=q0, t_end=5 * T), method=method)
+    traj = run(builders.spring_pendulum(tmp_path, k, I_SPRING, q0=q0, t_end=5 * T), method=method)
     assert_finite(traj)
     t, q = traj.t, traj.series("q", "J1")
     err = np.max(np.abs(q - q0 * np.cos(w * t)))
@@ -548,7 +550,7 @@ def test_stiff_spring_frequency(tmp_path, k, method):
 def test_explicit_fixed_step_on_a_stiff_spring_is_an_error_not_nan(tmp_path):
     """k = 1e6, I = 1e-2, RK4 with the default step: a correct answer or a clear
     SimulationError that names the step (the setting to change) -- never NaN."""
-    path = xm.spring_pendulum(tmp_path, 1e6, I_SPRING, q0=0.1, t_end=0.5)
+    path = builders.spring_pendulum(tmp_path, 1e6, I_SPRING, q0=0.1, t_end=0.5)
     try:
         with np.errstate(all="ignore"):
             traj = run(path, method="RK4")
@@ -569,7 +571,7 @@ def test_long_elastic_run_more_than_1000_impacts(tmp_path):
     h, m = 1e-3, 1.0
     t1, v1, _ = ball_times(1.0, h)
     n = 1001
-    traj = run(xm.ball(tmp_path, 1.0, h=h, mass=m, t_end=t1 + (n - 0.5) * 2 * t1))
+    traj = run(builders.ball(tmp_path, 1.0, h=h, mass=m, t_end=t1 + (n - 0.5) * 2 * t1))
     assert_finite(traj)
     assert len(traj.events) == n
     times = np.array([ev["t"] for ev in traj.events])
@@ -598,7 +600,7 @@ def test_zeno_accumulation_merges_at_t_infinity(tmp_path, e, h, g, speed):
     tol = ACC_SPEED if speed is None else speed
     t1, v1, t_inf = ball_times(e, h, g)
     opts = {} if speed is None else {"accumulation_speed": speed}
-    traj = run(xm.ball(tmp_path, e, h=h, g=g, t_end=t_inf + 0.2), **opts)
+    traj = run(builders.ball(tmp_path, e, h=h, g=g, t_end=t_inf + 0.2), **opts)
     assert_finite(traj)
     k_merge = next(k for k in range(1, 10_000) if e ** k * v1 <= tol)
     in_band = e ** (k_merge - 1) * v1 < 10 * band_speed(g)
@@ -628,7 +630,7 @@ def test_interrupt_from_progress_at_a_segment_end_keeps_everything(tmp_path):
     """KeyboardInterrupt raised by the progress callback once t >= 0.5 s (a bouncing ball:
     progress is called at every segment end): SimulationError with a partial trajectory,
     status 'partial', samples and events up to the time of the interrupt."""
-    scene = pcmm.load_scene(xm.ball(tmp_path, 0.8, t_end=5.0))
+    scene = pcmm.load_scene(builders.ball(tmp_path, 0.8, t_end=5.0))
     calls = []
 
     def progress(t):
@@ -647,7 +649,7 @@ def test_interrupt_from_progress_at_a_segment_end_keeps_everything(tmp_path):
 
 @pytest.mark.parametrize("method", ["DOP853", "DOP853F", "LSODA", "RK4"])
 def test_interrupt_mid_segment_keeps_the_samples_computed(tmp_path, method):
-    scene = pcmm.load_scene(xm.spring_pendulum(tmp_path, 1e2, I_SPRING, q0=0.1, t_end=5.0))
+    scene = pcmm.load_scene(builders.spring_pendulum(tmp_path, 1e2, I_SPRING, q0=0.1, t_end=5.0))
     raised = []
 
     def progress(t):
@@ -673,7 +675,7 @@ def test_cli_failed_run_saves_the_partial_trajectory_to_out(tmp_path, capsys, mo
     """A stop without merge_to whose impacts accumulate: exit status 3, one 'pcmm: error:'
     message, the partial trajectory saved to --out and the path said on stderr."""
     monkeypatch.chdir(tmp_path)
-    path = xm.ball(tmp_path / "scene", 0.5, t_end=5.0, merge=False)
+    path = builders.ball(tmp_path / "scene", 0.5, t_end=5.0, merge=False)
     out = tmp_path / "run.npz"
     rc, _, err = _cli(["run", path, "--out", out, "--quiet"], capsys)
     assert rc == 3
@@ -689,7 +691,7 @@ def test_cli_failed_run_saves_the_partial_trajectory_to_out(tmp_path, capsys, mo
 
 def test_cli_failed_run_without_out_saves_in_the_working_folder(tmp_path, capsys, monkeypatch):
     monkeypatch.chdir(tmp_path)
-    path = xm.ball(tmp_path / "scene", 0.5, t_end=5.0, merge=False)
+    path = builders.ball(tmp_path / "scene", 0.5, t_end=5.0, merge=False)
     rc, _, err = _cli(["run", path, "--quiet"], capsys)
     assert rc == 3 and err.count("pcmm: error:") == 1
     saved = tmp_path / f"{path.stem}-partial.npz"  # named after the scene file, whatever its 'name' says
@@ -699,7 +701,7 @@ def test_cli_failed_run_without_out_saves_in_the_working_folder(tmp_path, capsys
 
 def test_cli_partial_save_with_a_path_like_scene_name(tmp_path, capsys, monkeypatch):
     monkeypatch.chdir(tmp_path)
-    path = xm.ball(tmp_path / "scene", 0.5, t_end=5.0, merge=False)
+    path = builders.ball(tmp_path / "scene", 0.5, t_end=5.0, merge=False)
     path.write_text(path.read_text().replace('name = "ball"', 'name = "sub/ball"'))
     rc, _, err = _cli(["run", path, "--quiet"], capsys)
     assert rc == 3, err
@@ -709,14 +711,14 @@ def test_cli_partial_save_with_a_path_like_scene_name(tmp_path, capsys, monkeypa
 
 def test_cli_never_overwrites_without_force(tmp_path, capsys, monkeypatch):
     monkeypatch.chdir(tmp_path)
-    path = xm.ball(tmp_path / "scene", 0.5, t_end=0.5)
+    path = builders.ball(tmp_path / "scene", 0.5, t_end=0.5)
     out = tmp_path / "run.npz"
     out.write_bytes(b"precious")
     rc, _, err = _cli(["run", path, "--out", out, "--quiet"], capsys)
     assert rc != 0 and err.count("pcmm: error:") == 1 and "--force" in err and "Traceback" not in err
     assert out.read_bytes() == b"precious"
     # a failing run does not overwrite it either
-    failing = xm.ball(tmp_path / "failing", 0.5, t_end=5.0, merge=False)
+    failing = builders.ball(tmp_path / "failing", 0.5, t_end=5.0, merge=False)
     rc, _, err = _cli(["run", failing, "--out", out, "--quiet"], capsys)
     assert rc != 0 and out.read_bytes() == b"precious"
     rc, _, err = _cli(["run", path, "--out", out, "--quiet", "--force"], capsys)
@@ -728,7 +730,7 @@ def test_cli_never_overwrites_without_force(tmp_path, capsys, monkeypatch):
 
 def test_scene_paths_resolve_relative_to_the_scene_file(tmp_path, capsys, monkeypatch):
     """URDF paths in a scene are relative to the scene file, whatever the working folder."""
-    path = xm.ball(tmp_path / "project" / "urdf", 0.5, t_end=0.5)
+    path = builders.ball(tmp_path / "project" / "urdf", 0.5, t_end=0.5)
     scenes = tmp_path / "project" / "scenes"
     scenes.mkdir()
     scene_file = scenes / "ball.toml"

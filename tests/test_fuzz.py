@@ -13,26 +13,43 @@ such inputs can make the explicit integrator crawl for minutes (see the xfail
 ``test_extreme_stiffness_fails_fast``).  Every fuzz case also runs under a 20 s deadline
 so that a hang fails the test instead of stalling the suite.
 
+Structural mutations (nesting, encodings, numbers beyond float range, hostile paths), damaged
+trajectory files and hostile names through every output format come next, then a file-system
+fault suite run in subprocesses: a folder that refuses writes, file-size limits (RLIMIT_FSIZE,
+which writes past it as EFBIG), concurrent runs on one output, and SIGTERM/SIGINT at eight
+moments.  Its property: no traceback, no hang, no lost or silently replaced result.
+
 Deterministic bad-input cases that show pcmm bugs are at the end, marked xfail(strict).
 """
 from __future__ import annotations
 
 import contextlib
 import copy
+import csv
 import io
 import itertools
+import json
 import math
+import os
 import re
+import resource
 import shutil
+import signal
+import subprocess
+import sys
+import time
 import tomllib
 import xml.etree.ElementTree as ET
 from pathlib import Path
+
+import tomli_w
 
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
+import builders
 import extreme_models as xm
 import pcmm
 from pcmm.cli import main as cli_main
@@ -85,6 +102,12 @@ deadline = xm.deadline
 def extreme(x) -> bool:
     return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) and \
         (abs(x) >= 1e5 or 0 < abs(x) <= 1e-5)
+
+
+def short(example: Path, t_end: float) -> float:
+    """The stretch a fuzz case runs: ``t_end``, or a tenth of the example's own run when that is
+    shorter (Andrews' mechanism runs 0.03 s in all, a few thousand loop evaluations)."""
+    return min(t_end, tomllib.loads(example.read_text())["scene"]["t_end"] / 10)
 
 
 def check_outcome(scene_path: Path, what: str, t_end: float, run: bool = True, urdf_names=()):
@@ -218,8 +241,8 @@ def scene_mutations(draw):
 @given(case=scene_mutations())
 def test_fuzz_scene_values(workdir, case):
     example, doc, what, hot = case
-    with stage(workdir, example, scene_text=xm.dump_toml(doc)) as path:
-        event(check_outcome(path, f"{example.name}: {what}", t_end=0.05, run=not hot,
+    with stage(workdir, example, scene_text=builders.dump_toml(doc)) as path:
+        event(check_outcome(path, f"{example.name}: {what}", t_end=short(example, 0.05), run=not hot,
                             urdf_names=[u.name for u in URDFS]))
 
 
@@ -259,7 +282,7 @@ def text_corruptions(draw):
 def test_fuzz_scene_text(workdir, case):
     example, data, op = case
     with stage(workdir, example, scene_text=data) as path:
-        event(check_outcome(path, f"{example.name}: {op}: {data[-60:]!r}", t_end=0.05,
+        event(check_outcome(path, f"{example.name}: {op}: {data[-60:]!r}", t_end=short(example, 0.05),
                             urdf_names=[u.name for u in URDFS]))
 
 
@@ -327,7 +350,7 @@ def urdf_mutations(draw):
 def test_fuzz_urdf_elements(workdir, case):
     example, texts, what, hot = case
     with stage(workdir, example, urdf_texts=texts) as path:
-        event(check_outcome(path, f"{example.name} + {what}", t_end=0.2, run=not hot,
+        event(check_outcome(path, f"{example.name} + {what}", t_end=short(example, 0.2), run=not hot,
                             urdf_names=[u.name for u in URDFS]))
 
 
@@ -369,7 +392,8 @@ def urdf_text_corruptions(draw):
 def test_fuzz_urdf_text(workdir, case):
     example, texts, what = case
     with stage(workdir, example, urdf_texts=texts) as path:
-        event(check_outcome(path, f"{example.name} + {what}", t_end=0.2, urdf_names=[u.name for u in URDFS]))
+        event(check_outcome(path, f"{example.name} + {what}", t_end=short(example, 0.2),
+                            urdf_names=[u.name for u in URDFS]))
 
 
 # ---- through the command line ----------------------------------------------------------------------------------
@@ -398,15 +422,28 @@ def cli_cases(draw):
 @given(case=cli_cases())
 def test_fuzz_cli(workdir, case):
     example, doc, what, hot, flags, outputs, existing = case
-    with stage(workdir, example, scene_text=None if doc is None else xm.dump_toml(doc)) as path:
-        run_cli_case(path, what, hot, flags, outputs, existing)
+    t_end = short(example, 0.05)
+    if t_end < 0.05:  # a short example: no sampled --t-end runs it longer than its fuzz stretch
+        flags = [str(t_end) if i and flags[i - 1] == "--t-end" and _longer(f, t_end) else f
+                 for i, f in enumerate(flags)]
+    with stage(workdir, example, scene_text=None if doc is None else builders.dump_toml(doc)) as path:
+        run_cli_case(path, what, hot, flags, outputs, existing, t_end)
 
 
-def run_cli_case(path, what, hot, flags, outputs, existing):
+def _longer(text: str, t_end: float) -> bool:
+    """Is ``text`` a valid run length above ``t_end`` (invalid ones stay, to be rejected)?"""
+    try:
+        value = float(text)
+    except ValueError:
+        return False
+    return math.isfinite(value) and value > t_end
+
+
+def run_cli_case(path, what, hot, flags, outputs, existing, t_end=0.05):
     folder = path.parent
     args = ["check" if hot else "run", str(path)]
     if not hot:
-        args += ["--quiet", "--t-end", "0.05"] + flags
+        args += ["--quiet", "--t-end", str(t_end)] + flags
         for o in outputs:
             target = folder / f"result.{SUFFIX[o]}"
             if existing:
@@ -439,6 +476,260 @@ def run_cli_case(path, what, hot, flags, outputs, existing):
                 f"{args}: an existing {o} file was overwritten without --force"
 
 
+# ---- structural mutations: nesting, encodings, huge numbers, paths ----------------------------------------------
+def _nest(value, depth: int, table: bool):
+    for _ in range(depth):
+        value = {"x": value} if table else [value]
+    return value
+
+
+HOSTILE_PATHS = ["", ".", "/", "..", "../../../../../../..", "/dev/null", "/proc/self/status", "a\x00b.urdf",
+                 "x" * 300 + ".urdf", "/" + "d/" * 3000 + "f.urdf", "loop.urdf", "folder", "~/none.urdf",
+                 "con:", "é.urdf", "nested/../three_bar_config1.urdf"]
+
+
+
+def _inline(v) -> str:
+    """A TOML inline value (tomli_w writes tables as sections; nesting needs them inline)."""
+    if isinstance(v, dict):
+        return "{ " + ", ".join(f"{tomli_w.dumps({k: 0}).split('=')[0].strip()} = {_inline(x)}"
+                                for k, x in v.items()) + " }"
+    if isinstance(v, list):
+        return "[" + ", ".join(_inline(x) for x in v) + "]"
+    return tomli_w.dumps({"v": v}).split("=", 1)[1].strip()
+
+
+@st.composite
+def structural_mutations(draw):
+    """A shipped scene's text changed in its structure: a value nested deep, the whole file in
+    another encoding, a number far beyond float range, a URDF path that is hostile."""
+    example = draw(st.sampled_from(EXAMPLES))
+    doc = tomllib.loads(example.read_text().replace('"../urdf/', '"'))
+    op = draw(st.sampled_from(["nest", "nest", "encoding", "huge", "huge", "path", "path"]))
+    if op == "nest":  # written as text around a marker: the test's own TOML writer recurses
+        path = draw(st.sampled_from(_paths(doc)))
+        depth = draw(st.sampled_from([1, 2, 30, 33, 200, 999, 3000]))
+        table = draw(st.booleans())
+        inner = _inline(_parent(doc, path)[path[-1]])
+        _parent(doc, path)[path[-1]] = 123456.789012
+        nested = ("{ x = " * depth + inner + " }" * depth) if table else ("[" * depth + inner + "]" * depth)
+        text = xm.dump_toml(doc).replace("123456.789012", nested, 1)
+        return example, text, f"nest {path} {depth} deep ({'tables' if table else 'arrays'})", False
+    if op == "encoding":
+        text = xm.dump_toml(doc).replace('name = "', 'name = "é', 1)
+        enc = draw(st.sampled_from(["utf-16", "utf-16-le", "utf-32", "latin-1", "utf-8-sig", "cp1252", "crlf", "nul"]))
+        if enc == "crlf":
+            return example, text.replace("\n", "\r\n").encode(), "CRLF line ends", False
+        if enc == "nul":
+            return example, text.encode().replace(b"\n", b"\n\x00", 1), "a NUL byte", False
+        return example, text.encode(enc), f"encoded {enc}", False
+    if op == "huge":
+        numeric = [p for p in _paths(doc) if isinstance(v := _parent(doc, p)[p[-1]], (int, float)) and not isinstance(v, bool)]
+        path = draw(st.sampled_from(numeric))
+        k = draw(st.sampled_from([19, 63, 308, 309, 400, 4299]))
+        literal = draw(st.sampled_from([f"1{'0' * k}", f"-1{'0' * k}", f"1e{k}", f"-1e{k}", f"9.9e{k}"]))
+        _parent(doc, path)[path[-1]] = 123456.789012  # a marker, replaced by the literal in the text
+        text = xm.dump_toml(doc).replace("123456.789012", literal, 1)
+        return example, text, f"set {path} = {literal[:12]}... ({len(literal)} characters)", True
+    configs = [p for p in _paths(doc) if p[-1] == "urdf"]
+    path = draw(st.sampled_from(configs))
+    value = draw(st.sampled_from(HOSTILE_PATHS))
+    _parent(doc, path)[path[-1]] = value
+    return example, xm.dump_toml(doc), f"set {path} = {value[:40]!r}", False
+
+
+@settings(max_examples=90, **FUZZ)
+@given(case=structural_mutations())
+def test_fuzz_scene_structure(workdir, case):
+    example, text, what, hot = case
+    with stage(workdir, example, scene_text=text) as path:
+        d = path.parent
+        with contextlib.suppress(FileExistsError):
+            (d / "loop.urdf").symlink_to(d / "loop.urdf")
+        (d / "folder").mkdir(exist_ok=True)
+        event(what.split(" ")[0] + ": " + check_outcome(path, f"{example.name}: {what}", t_end=0.05, run=not hot,
+                                                        urdf_names=[u.name for u in URDFS]))
+
+
+# ---- damaged trajectory files -------------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def saved_run(workdir):
+    path = workdir / "saved.npz"
+    pcmm.simulate(pcmm.load_scene(ROOT / "examples" / "three_bar.toml"), pcmm.RunOptions(t_end=0.2)).save(path)
+    return path.read_bytes()
+
+
+@settings(max_examples=60, **FUZZ)
+@given(op=st.sampled_from(["truncate", "flip", "flip", "zero", "append", "header"]), at=st.floats(0, 1),
+       byte=st.integers(1, 255))
+def test_fuzz_damaged_trajectory(workdir, saved_run, op, at, byte):
+    """A saved trajectory truncated, with a byte flipped or zeroed, with junk appended, or with
+    its JSON header edited: it loads (then its numbers are finite) or is refused with a message
+    naming the file (``replay`` and ``plot`` on such files: ``test_faults.py``)."""
+    data = bytearray(saved_run)
+    i = min(int(at * len(data)), len(data) - 1)
+    if op == "truncate":
+        data = data[:i]
+    elif op == "flip":
+        data[i] ^= byte
+    elif op == "zero":
+        data[i:i + 64] = bytes(len(data[i:i + 64]))
+    elif op == "append":
+        data += bytes([byte]) * 100
+    path = workdir / f"damaged{next(_counter)}.npz"
+    path.write_bytes(bytes(data))
+    if op == "header":
+        with np.load(io.BytesIO(saved_run)) as z:
+            arrays = dict(z)
+        header = json.loads(str(arrays["header"]))
+        key = sorted(header)[byte % len(header)]
+        header[key] = [None, 1e400, "x", {"a": []}, -1][byte % 5]
+        arrays["header"] = np.array(json.dumps(header))
+        np.savez(path, **arrays)
+    try:
+        traj = pcmm.Trajectory.load(path)
+        event(f"{op}: loads")
+        xm.assert_finite(traj) if op != "header" else None
+    except pcmm.UsageError as exc:
+        assert str(path) in str(exc)
+        event(f"{op}: refused")
+
+
+# ---- hostile names in every output format --------------------------------------------------------------------------
+NAME_CHARS = "=+-@,;\"'\\$&<>{}%#^_~|\t é∑\u202e"
+
+
+@settings(max_examples=3, **FUZZ)
+@given(name=st.text(alphabet=NAME_CHARS, min_size=1, max_size=8))
+def test_fuzz_hostile_names_in_every_output(workdir, name):
+    """Names drawn from characters that mean something to a spreadsheet, a shell, mathtext,
+    HTML, JSON or a terminal (formula prefixes, quotes, $, &, <, \\, tab, right-to-left
+    override): every output is written, and the names read back unchanged."""
+    import test_faults
+    d = workdir / f"names{next(_counter)}"
+    scene = test_faults.hostile_scene(d, name, lead=True)
+    names = test_faults.hostile_names(name, lead=True)
+    args = ["run", str(scene), "--out", str(d / "t.npz"), "--summary", str(d / "s.json"), "--csv", str(d / "t.csv"),
+            "--html", str(d / "t.html"), "--quiet"]
+    out, err = io.StringIO(), io.StringIO()
+    with deadline(60.0, f"names {name!r}"), contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        rc = cli_main(args)
+    assert rc == 0 and "Traceback" not in err.getvalue(), err.getvalue()
+    assert pcmm.Trajectory.load(d / "t.npz").events[0]["name"] == names["T"]
+    assert json.loads((d / "s.json").read_text(encoding="utf-8"))["configuration_initial"] == names["C"]
+    rows = list(csv.reader((d / "t.csv").open(newline="", encoding="utf-8")))
+    assert all(len(r) == len(rows[0]) for r in rows)
+    assert rows[1][1] == (("'" + names["C"]) if names["C"][:1] in "=+-@\t\r" else names["C"])
+    html = (d / "t.html").read_text(encoding="utf-8")
+    assert "<script>alert" not in html
+
+
+# ---- file-system faults and signals ------------------------------------------------------------------------------
+def _pcmm(args, cwd, preexec=None):
+    env = {**os.environ, "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", "")}
+    return subprocess.Popen([sys.executable, "-m", "pcmm.cli", *map(str, args)], cwd=cwd, env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, preexec_fn=preexec)
+
+
+def _complete_or_absent(folder: Path, names):
+    """Every output is whole (it loads) or absent; no temporary file is left behind."""
+    assert not list(folder.glob(".*.tmp")) and not list(folder.glob(".*.figures")), list(folder.iterdir())
+    for n in names:
+        p = folder / n
+        if p.exists():
+            if n.endswith(".npz"):
+                pcmm.Trajectory.load(p)
+            elif n.endswith(".json"):
+                json.loads(p.read_text())
+
+
+def test_fs_unwritable_folder_for_every_output(tmp_path):
+    """Each output in a folder that refuses writes: each is written to the working folder instead,
+    said, exit status 4; the results equal those of a run whose outputs were writable."""
+    import test_faults
+    bad = test_faults.unwritable_folder(tmp_path)
+    scene = xm.ball(tmp_path / "scene", 0.5, t_end=0.3)
+    work = tmp_path / "work"
+    work.mkdir()
+    names = {"--out": "r.npz", "--summary": "r.json", "--csv": "r.csv", "--html": "r.html"}  # --plots: test_faults
+    args = ["run", scene, "--quiet"] + [x for k, v in names.items() for x in (k, bad / v)]
+    p = _pcmm(args, work)
+    _, err = p.communicate(timeout=300)
+    assert p.returncode == 4 and "Traceback" not in err, err
+    for flag, n in names.items():
+        assert f"{bad / n}: cannot write it" in err and (work / n).exists(), (flag, err)
+    assert pcmm.Trajectory.load(work / "r.npz").t[-1] == pytest.approx(0.3)
+
+
+def test_fs_full_folder_by_file_size_limits(tmp_path):
+    """RLIMIT_FSIZE at 0, 30 kB and unlimited, three runs at once: never a traceback or a kill;
+    status 0 when everything fits, else 4 naming 'File too large'; every output whole or absent."""
+    scene = xm.ball(tmp_path / "scene", 0.5, t_end=2.0)
+    procs = []
+    for limit in (0, 30000, None):
+        d = tmp_path / f"limit{limit}"
+        d.mkdir()
+
+        def cap(limit=limit):
+            if limit is not None:
+                resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
+        procs.append((limit, d, _pcmm(["run", scene, "--out", "t.npz", "--summary", "s.json", "--csv", "t.csv",
+                                       "--quiet"], d, cap)))
+    for limit, d, p in procs:
+        _, err = p.communicate(timeout=300)
+        assert "Traceback" not in err and p.returncode in (0, 4), (limit, p.returncode, err)
+        if limit is None:
+            assert p.returncode == 0
+        else:
+            assert p.returncode == 4 and "File too large" in err
+        _complete_or_absent(d, ["t.npz", "s.json", "t.csv"])
+
+
+def test_fs_concurrent_runs_on_one_output(tmp_path):
+    """Three runs started together on one --out and one --summary: no result is lost or
+    replaced: one file per run under the name or a numbered one next to it, each whole."""
+    scenes = [xm.ball(tmp_path / f"scene{i}", 0.5, h=1.0 + 0.1 * i, t_end=0.4) for i in range(3)]
+    procs = [_pcmm(["run", s, "--out", "r.npz", "--summary", "r.json", "--quiet"], tmp_path) for s in scenes]
+    codes = []
+    for p in procs:
+        _, err = p.communicate(timeout=300)
+        assert "Traceback" not in err, err
+        codes.append(p.returncode)
+    assert all(c in (0, 2, 4) for c in codes), codes
+    started = [c for c in codes if c != 2]  # status 2: the file already existed at start-up (refused, nothing run)
+    npz = sorted(tmp_path.glob("r*.npz"))
+    assert len(npz) == len(started) and len(sorted(tmp_path.glob("r*.json"))) == len(started)
+    heights = sorted(float(pcmm.Trajectory.load(f).segments[0].q[0, 0]) for f in npz)
+    assert len(set(heights)) == len(heights)  # each from a different run: none replaced another
+
+
+def test_fs_signals_at_random_moments(tmp_path):
+    """SIGTERM or SIGINT at eight moments (0.2 .. 9 s: during start-up, the run, the saving) to runs
+    that write a trajectory and a summary: never a traceback or a hang; the exit status says what
+    happened; whatever was written is whole, and a partial is marked partial."""
+    scene = xm.ball(tmp_path / "scene", 1.0, t_end=5000.0)  # e = 1: it bounces for ever (a merged ball is not integrated)
+    rng = np.random.default_rng(14)
+    plan = [(float(t), sig) for t, sig in zip(np.sort(rng.uniform(0.2, 9.0, 8)),
+                                              [signal.SIGTERM, signal.SIGINT] * 4)]
+    procs = []
+    for i, (at, sig) in enumerate(plan):
+        d = tmp_path / f"run{i}"
+        d.mkdir()
+        procs.append((at, sig, d, _pcmm(["run", scene, "--out", "t.npz", "--summary", "s.json", "--quiet"], d)))
+    start = time.monotonic()
+    for at, sig, d, p in procs:
+        time.sleep(max(0.0, start + at - time.monotonic()))
+        p.send_signal(sig)
+    for at, sig, d, p in procs:
+        _, err = p.communicate(timeout=120)
+        assert "Traceback" not in err, (at, sig, err)
+        assert p.returncode in (128 + sig, 3, -sig), (at, sig, p.returncode, err)
+        _complete_or_absent(d, ["t.npz", "s.json"])
+        if (d / "t.npz").exists():
+            assert pcmm.Trajectory.load(d / "t.npz").status == "partial"
+            assert json.loads((d / "s.json").read_text())["status"] == "partial"
+
+
 # ---- deterministic bad inputs that show pcmm bugs ---------------------------------------------------------------
 @pytest.mark.parametrize("attr,value", [("rpy", "abc"), ("xyz", "nan 0 0"), ("xyz", "0.125 0")])
 def test_inertial_origin_is_validated(workdir, attr, value):
@@ -468,7 +759,7 @@ def test_massless_link_is_an_error_not_a_traceback(workdir):
 
 
 def test_simulation_errors_name_the_scene_file(tmp_path):
-    path = xm.ball(tmp_path, 0.5, t_end=5.0, merge=False)
+    path = builders.ball(tmp_path, 0.5, t_end=5.0, merge=False)
     with pytest.raises(pcmm.SimulationError) as info:
         pcmm.simulate(pcmm.load_scene(path))
     assert path.name in str(info.value)
@@ -478,10 +769,10 @@ def test_simulation_errors_name_the_scene_file(tmp_path):
 def test_extreme_stiffness_fails_fast(workdir, force, key):
     doc = tomllib.loads((ROOT / "examples" / "three_bar.toml").read_text().replace('"../urdf/', '"'))
     doc["forces"][force][key] = 1e30
-    with stage(workdir, ROOT / "examples" / "three_bar.toml", scene_text=xm.dump_toml(doc)) as path:
+    with stage(workdir, ROOT / "examples" / "three_bar.toml", scene_text=builders.dump_toml(doc)) as path:
         scene = pcmm.load_scene(path)
         try:
-            with deadline(2.0, f"forces[{force}].{key} = 1e30"), np.errstate(all="ignore"):
+            with deadline(60.0, f"forces[{force}].{key} = 1e30"), np.errstate(all="ignore"):
                 pcmm.simulate(scene, pcmm.RunOptions(t_end=0.05))
         except pcmm.SimulationError as exc:
             assert "Radau" in str(exc) or "stiff" in str(exc) or "step" in str(exc)
@@ -493,14 +784,14 @@ def test_negative_damping_in_a_loop_fails_fast(workdir):
         pytest.skip("examples/double_folded.toml is not shipped")
     doc = tomllib.loads(example.read_text().replace('"../urdf/', '"'))
     doc["forces"][0]["c"] = -1.0
-    with stage(workdir, example, scene_text=xm.dump_toml(doc)) as path:
+    with stage(workdir, example, scene_text=builders.dump_toml(doc)) as path:
         try:
             scene = pcmm.load_scene(path)
         except pcmm.SceneError as exc:  # rejecting c < 0 is a fine answer
             assert example.name in str(exc)
             return
         try:
-            with deadline(3.0, "double_folded with c = -1"), np.errstate(all="ignore"):
+            with deadline(60.0, "double_folded with c = -1"), np.errstate(all="ignore"):
                 pcmm.simulate(scene, pcmm.RunOptions(t_end=0.05))
         except pcmm.SimulationError:
             pass

@@ -16,8 +16,9 @@ from scipy.integrate import quad
 from scipy.optimize import brentq
 
 import pcmm
-from conftest import G, Bar, chain_urdf, cross2, free_bar_urdf, rot
-from pcmm.configuration import Mechanism
+from builders import G, Bar, chain_urdf, free_bar_urdf
+from conftest import cross2, rot
+from pcmm.mechanism import Mechanism
 from pcmm.impulse import solve_impulse
 
 LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
@@ -87,8 +88,16 @@ def test_pendulum_stop_run(make_scene, q0, qs, e):
     # P = I_O (omega+ - omega-) / d = -(1 + e) I_O omega- / L
     assert ev["impulse"]["normal"] == pytest.approx(-(1 + e) * I_O * w_minus / L_BAR, rel=1e-8)
     assert ev["kinetic_energy_after"] == pytest.approx(e * e * ev["kinetic_energy_before"], rel=1e-9, abs=1e-12)
-    if e == 0.0:  # a plastic stop: the bar comes to rest and merges into the welded configuration
+    if e == 0.0 and math.cos(qs) >= -1e-12:
+        # a plastic stop where gravity presses the bar onto it (its moment -m g L/2 cos qs <= 0,
+        # towards the stop): the bar comes to rest and merges into the welded configuration
         assert ev["merge"] and traj.segments[-1].configuration == "rest"
+    elif e == 0.0:
+        # past the bottom (cos qs < 0) gravity pulls the bar off the stop: the merge could only
+        # hold by pulling, so it is released at the same instant and the bar falls back from rest
+        assert ev["merge"] and traj.events[1]["transition"] == "release" and traj.events[1]["t"] == ev["t"]
+        assert traj.segments[-1].configuration == "c1" and traj.segments[-1].v[0, 0] == pytest.approx(0.0, abs=1e-12)
+        assert traj.segments[-1].v[-1, 0] > 0  # falling back, away from the stop
     else:
         assert not ev["merge"] and traj.segments[-1].configuration == "c1"
         assert traj.segments[-1].v[0, 0] == pytest.approx(-e * w_minus, rel=1e-8)

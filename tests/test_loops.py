@@ -8,37 +8,27 @@ conservation, Pinocchio's own constraintDynamics).
 from __future__ import annotations
 
 import math
-import textwrap
 
 import numpy as np
 import pinocchio as pin
 import pytest
 
-import extreme_models as xm
+import builders
 import pcmm
-from pcmm.configuration import Mechanism
+from builders import joint_xml, link_xml, robot_xml, scene_doc, write_scene
+from pcmm.mechanism import Mechanism
 
 G = 9.81
-LIMIT = '<limit lower="-1e6" upper="1e6" effort="1" velocity="1"/>'
 
 
 def _bar(name, L, m):
     """Uniform slender bar along its x axis, centroid at L/2, Izz = m L^2 / 12."""
     I = m * L * L / 12
-    return (f'<link name="{name}"><inertial><origin xyz="{L / 2} 0 0"/><mass value="{m}"/>'
-            f'<inertia ixx="{I * 1e-3 + 1e-12}" ixy="0" ixz="0" iyy="{I + 1e-12}" iyz="0" izz="{I}"/>'
-            f'</inertial></link>')
+    return link_xml(name, m, com=(L / 2, 0.0), izz=I, ixx=I * 1e-3 + 1e-12, iyy=I + 1e-12)
 
 
 def _rev(name, parent, child, x=0.0):
-    return (f'<joint name="{name}" type="revolute"><parent link="{parent}"/><child link="{child}"/>'
-            f'<origin xyz="{x} 0 0"/><axis xyz="0 0 1"/>{LIMIT}</joint>')
-
-
-def _write(tmp_path, name, text):
-    p = tmp_path / name
-    p.write_text(textwrap.dedent(text))
-    return p
+    return joint_xml(name, "revolute", parent, child, xyz=(x, 0.0))
 
 
 # ---- four-bar -----------------------------------------------------------------------------
@@ -47,24 +37,13 @@ FB = dict(a=0.1, b=0.3, c=0.25, d=0.3, ma=1.0, mb=2.0, mc=1.5)
 
 def four_bar_scene(tmp_path, gravity=(0.0, -G), theta_a=1.0, omega_a=2.0, t_end=2.0):
     a, b, c, d = FB["a"], FB["b"], FB["c"], FB["d"]
-    urdf = ('<robot name="fourbar"><link name="frame"/>' + _rev("A", "frame", "crank") + _bar("crank", a, FB["ma"])
-            + _rev("B", "crank", "coupler", a) + _bar("coupler", b, FB["mb"])
-            + _rev("D", "frame", "rocker", d) + _bar("rocker", c, FB["mc"]) + "</robot>")
-    _write(tmp_path, "fourbar.urdf", urdf)
-    return pcmm.load_scene(_write(tmp_path, "fourbar.toml", f"""
-        [scene]
-        name = "fourbar"
-        gravity = [{gravity[0]}, {gravity[1]}]
-        t_end = {t_end}
-        initial_configuration = "c1"
-        [configurations.c1]
-        urdf = "fourbar.urdf"
-        cut_joints = [ {{ name = "C", type = "revolute", a = "coupler", point_a = [{b}, 0.0], b = "rocker", point_b = [{c}, 0.0] }} ]
-        [initial]
-        q = {{ A = {theta_a}, B = 0.5, D = 2.0 }}
-        v = {{ A = {omega_a}, B = 0.0, D = 0.0 }}
-        independent = ["A"]
-        """))
+    urdf = robot_xml("fourbar", link_xml("frame"), _rev("A", "frame", "crank"), _bar("crank", a, FB["ma"]),
+                     _rev("B", "crank", "coupler", a), _bar("coupler", b, FB["mb"]),
+                     _rev("D", "frame", "rocker", d), _bar("rocker", c, FB["mc"]))
+    cut = {"name": "C", "type": "revolute", "a": "coupler", "point_a": [b, 0.0], "b": "rocker", "point_b": [c, 0.0]}
+    doc = scene_doc({"c1": "fourbar.urdf"}, {"A": theta_a, "B": 0.5, "D": 2.0}, {"A": omega_a, "B": 0.0, "D": 0.0},
+                    gravity=gravity, t_end=t_end, cut_joints={"c1": [cut]}, independent=["A"], name="fourbar")
+    return pcmm.load_scene(write_scene(tmp_path, doc, {"fourbar.urdf": urdf}, "fourbar.toml"))
 
 
 def freudenstein_rocker(theta2):
@@ -131,28 +110,15 @@ SC = dict(a=0.1, b=0.3, m_crank=0.5, m_rod=0.8, m_slider=2.0, theta0=0.3, omega=
 
 def slider_crank_scene(tmp_path, t_end=1.0):
     a, b = SC["a"], SC["b"]
-    urdf = ('<robot name="sc"><link name="frame"/>' + _rev("A", "frame", "crank") + _bar("crank", a, SC["m_crank"])
-            + _rev("B", "crank", "rod", a) + _bar("rod", b, SC["m_rod"])
-            + f'<joint name="P" type="prismatic"><parent link="frame"/><child link="slider"/><axis xyz="1 0 0"/>{LIMIT}</joint>'
-            + f'<link name="slider"><inertial><mass value="{SC["m_slider"]}"/>'
-            + '<inertia ixx="1e-3" ixy="0" ixz="0" iyy="1e-3" iyz="0" izz="1e-3"/></inertial></link></robot>')
-    _write(tmp_path, "sc.urdf", urdf)
-    return pcmm.load_scene(_write(tmp_path, "sc.toml", f"""
-        [scene]
-        name = "slider_crank"
-        gravity = [0.0, {-G}]
-        t_end = {t_end}
-        initial_configuration = "c"
-        [configurations.c]
-        urdf = "sc.urdf"
-        cut_joints = [ {{ name = "C", type = "revolute", a = "rod", point_a = [{b}, 0.0], b = "slider", point_b = [0.0, 0.0] }} ]
-        [initial]
-        q = {{ A = {SC["theta0"]}, B = -0.4, P = 0.38 }}
-        v = {{ A = {SC["omega"]}, B = 0.0, P = 0.0 }}
-        [[drives]]
-        joint = "A"
-        coefficients = [{SC["theta0"]}, {SC["omega"]}]
-        """))
+    urdf = robot_xml("sc", link_xml("frame"), _rev("A", "frame", "crank"), _bar("crank", a, SC["m_crank"]),
+                     _rev("B", "crank", "rod", a), _bar("rod", b, SC["m_rod"]),
+                     joint_xml("P", "prismatic", "frame", "slider", axis=(1, 0, 0)),
+                     link_xml("slider", SC["m_slider"], izz=1e-3, ixx=1e-3, iyy=1e-3))
+    cut = {"name": "C", "type": "revolute", "a": "rod", "point_a": [b, 0.0], "b": "slider", "point_b": [0.0, 0.0]}
+    doc = scene_doc({"c": "sc.urdf"}, {"A": SC["theta0"], "B": -0.4, "P": 0.38}, {"A": SC["omega"], "B": 0.0, "P": 0.0},
+                    t_end=t_end, cut_joints={"c": [cut]}, name="slider_crank",
+                    drives=[{"joint": "A", "coefficients": [SC["theta0"], SC["omega"]]}])
+    return pcmm.load_scene(write_scene(tmp_path, doc, {"sc.urdf": urdf}, "sc.toml"))
 
 
 def slider_crank_positions(th):
@@ -195,7 +161,7 @@ def test_slider_crank_closed_form_position_and_driving_torque(tmp_path):
 
 # ---- bouncing ball: impact times and Zeno accumulation ---------------------------------------
 def ball_scene(tmp_path, e=0.8, h=1.0, t_end=5.0):
-    return pcmm.load_scene(xm.ball(tmp_path, e, h=h, t_end=t_end))
+    return pcmm.load_scene(builders.ball(tmp_path, e, h=h, t_end=t_end))
 
 
 @pytest.mark.parametrize("e", [0.5, 0.8])
@@ -223,7 +189,7 @@ def test_bouncing_ball_impact_times_and_merge_at_t_infinity(tmp_path, e):
 
 
 def test_accumulation_without_merge_target_is_a_clear_error(tmp_path):
-    scene = pcmm.load_scene(xm.ball(tmp_path, 0.5, t_end=5.0, merge=False))
+    scene = pcmm.load_scene(builders.ball(tmp_path, 0.5, t_end=5.0, merge=False))
     with pytest.raises(pcmm.SimulationError, match="accumulate.*merge_to") as info:
         pcmm.simulate(scene)
     assert info.value.partial is not None and info.value.partial.status == "partial"
@@ -245,3 +211,17 @@ def test_loop_solve_is_numpys_solve(A, b, expected):
             solve(A, b)
     else:
         assert np.allclose(solve(A, b), expected, rtol=0, atol=1e-15)
+
+
+def test_a_cut_joint_given_twice_is_a_clear_error(tmp_path):
+    """Two identical cut joints give four rows for two dependent coordinates: redundant
+    constraints, named as such (the fuzz suite found it as a LinAlgError traceback)."""
+    import tomllib
+
+    import builders
+    path = builders.parallelogram(tmp_path, 1.0, 2.0)
+    doc = tomllib.loads(path.read_text())
+    doc["configurations"]["c"]["cut_joints"] *= 2
+    path.write_text(builders.dump_toml(doc))
+    with pytest.raises(pcmm.SimulationError, match="cut joints are redundant|singular"):
+        pcmm.simulate(pcmm.load_scene(path))

@@ -11,7 +11,8 @@ import numpy as np
 import pinocchio as pin
 
 import pcmm
-from pcmm.configuration import Mechanism
+from builders import joint_xml, link_xml, robot_xml, scene_doc, write_scene
+from pcmm.mechanism import Mechanism
 
 ROOT = Path(__file__).resolve().parents[1]
 THREE_BAR = ROOT / "examples" / "three_bar.toml"
@@ -44,20 +45,14 @@ def test_the_dynamics_model_reads_no_visuals(tmp_path, capfd):
     """Visuals are the replay's: the dynamics model is built from the URDF without <visual>,
     <collision> and <material>, so a visual urdfdom cannot read prints nothing (urdfdom wrote
     four 'Error:' lines to stderr for this one) and the model is the same as without it."""
-    bar = ('<link name="bar"><inertial><origin xyz="0.2 0 0"/><mass value="2"/><inertia ixx="1" ixy="0" '
-           'ixz="0" iyy="1" iyz="0" izz="0.05"/></inertial>{visual}</link>')
-    robot = ('<robot name="b"><link name="frame"/><joint name="J" type="revolute"><parent link="frame"/>'
-             '<child link="bar"/><axis xyz="0 0 1"/><limit lower="-1" upper="1" effort="1" velocity="1"/></joint>'
-             '{bar}</robot>')
     bad_visual = ('<visual><geometry><box size="a b c"/></geometry>'
                   '<material name="x"><color rgba="1 0"/></material></visual>')
-    scene_text = ('[scene]\nname = "v"\ngravity = [0.0, -9.81]\nt_end = 0.1\ninitial_configuration = "c"\n'
-                  '[configurations.c]\nurdf = "{urdf}"\n[initial]\nq = {{ J = 0.3 }}\nv = {{ J = 0.0 }}\n')
     models = {}
     for name, visual in (("plain", ""), ("bad_visual", bad_visual)):
-        (tmp_path / f"{name}.urdf").write_text(robot.format(bar=bar.format(visual=visual)))
-        (tmp_path / f"{name}.toml").write_text(scene_text.format(urdf=f"{name}.urdf"))
-        models[name] = Mechanism(pcmm.load_scene(tmp_path / f"{name}.toml"))["c"]
+        urdf = robot_xml("b", link_xml("frame"), joint_xml("J", "revolute", "frame", "bar"),
+                         link_xml("bar", 2.0, com=(0.2, 0.0), izz=0.05, ixx=1.0, iyy=1.0, visual=visual))
+        doc = scene_doc({"c": f"{name}.urdf"}, {"J": 0.3}, {"J": 0.0}, t_end=0.1, name="v")
+        models[name] = Mechanism(pcmm.load_scene(write_scene(tmp_path, doc, {f"{name}.urdf": urdf}, f"{name}.toml")))["c"]
     err = capfd.readouterr().err
     assert "Error" not in err, err
     for m in models.values():  # a bar of 2 kg, centroid 0.2 m out: M = izz + m r^2

@@ -116,7 +116,7 @@ def test_slider_drive_and_impulse_figures_follow_the_data(tmp_path):
 
 def test_slider_position_and_velocity(tmp_path):
     traj = _synthetic(True)
-    (slider,) = plots._sliders(traj, None, {})
+    (slider,) = plots._sliders(traj, {})
     assert slider.name == "slider" and slider.symbol == "$x$"
     run = plots._runs(traj, None)[0]
     assert np.allclose(slider.position(run), 0.2 + 0.1 * np.sin(traj.t))
@@ -128,3 +128,108 @@ def test_run_without_events_marks_nothing(tmp_path):
     traj.events = []
     files = plots.write_figures(traj, tmp_path)
     assert "impulses.png" not in {f.name for f in files}
+
+
+# ---- what the figures state ---------------------------------------------------------------------
+def _stems(ax):
+    (stem,) = [c for c in ax.containers if hasattr(c, "markerline")]
+    return stem.markerline.get_xdata(), stem.markerline.get_ydata()
+
+
+def test_figures_returns_the_figures_write_figures_saves(runs, tmp_path):
+    from matplotlib.figure import Figure
+    figs = runs[0].plot(compare=runs[1])
+    assert all(isinstance(f, Figure) for f in figs.values())
+    files = plots.write_figures(runs[0], tmp_path, compare=runs[1])
+    assert [f.stem for f in files] == list(figs)
+
+
+def test_impulse_sign_convention_is_stated_and_the_paper_one_is_an_option(runs):
+    ev = next(e for e in runs[0].events if e.get("impact"))
+    P = ev["impulse"]["normal"]
+    assert P > 0  # on body b (link 3), along the normal from a to b
+    ours = plots.figures(runs[0])["impulses"].axes[0]
+    t, p = _stems(ours)
+    assert list(t) == [ev["t"]] and list(p) == [P]
+    assert ours.get_title().startswith("$P_n > 0$: the impulse on body b along the contact normal n")
+    assert "impulse_sign='paper'" in ours.get_title()
+    paper = plots.figures(runs[0], impulse_sign="paper")["impulses"].axes[0]
+    assert list(_stems(paper)[1]) == [-P]
+    assert "paper's sign" in paper.get_title() and "paper's sign" in paper.get_ylabel()
+    with pytest.raises(pcmm.UsageError, match="impulse_sign = 'other'"):
+        plots.figures(runs[0], impulse_sign="other")
+
+
+def _legend_texts(fig):
+    return [t.get_text() for lg in fig.legends for t in lg.get_texts()]
+
+
+def _vlines(ax):
+    return [(line.get_xdata()[0], line.get_color(), line.get_linestyle()) for line in ax.get_lines()
+            if len(line.get_xdata()) == 2 and line.get_xdata()[0] == line.get_xdata()[1]]
+
+
+def test_every_event_is_marked_and_a_macro_impact_is_summarised():
+    traj = _synthetic(True)
+    traj.events.append({"t": 5.0, "name": "stop", "kind": "stable", "transition": "release", "from": "c2",
+                        "to": "c1", "merge": False, "impact": False,
+                        "impulse": {"normal": 0.0, "vector": [0.0, 0.0]}, "contact_point": [0.3, -0.1425]})
+    figs = plots.figures(traj)
+    first, last = traj.events[0]["t"], traj.events[5]["t"]
+    legend = _legend_texts(figs["link_angles"])
+    # six impacts in 0.01 s: one entry and one shaded span, not six legend lines; then the merge and the release
+    assert legend[1:] == [f"6 impacts, t = {first:.4f} ... {last:.4f} s", f"merge, t = {last:.4f} s",
+                          "release, t = 5.0000 s"]
+    ax = figs["link_angles"].axes[0]
+    lines = _vlines(ax)
+    assert {(round(x, 12), ls) for x, _, ls in lines} == {(round(first, 12), ":"), (round(last, 12), ":"),
+                                                            (round(last, 12), "-."), (5.0, "--")}
+    spans = [p for p in ax.patches if p.get_alpha() and p.get_alpha() < 0.5]
+    assert len(spans) == 1
+    x0, x1 = spans[0].get_x(), spans[0].get_x() + spans[0].get_width()
+    assert math.isclose(x0, first) and math.isclose(x1, last)
+    # the impulse figure marks them too
+    assert "release, t = 5.0000 s" in _legend_texts(figs["impulses"])
+
+
+def test_many_single_events_get_one_counting_legend_entry():
+    traj = _synthetic(True)
+    traj.events = [dict(traj.events[0], t=float(t), merge=False) for t in (1.0, 2.0, 3.0, 4.0, 5.0)]
+    legend = _legend_texts(plots.figures(traj)["link_angles"])
+    assert legend[1:] == ["5 impacts, t = 1.0000 ... 5.0000 s"]
+    assert len(_vlines(plots.figures(traj)["link_angles"].axes[0])) == 5
+
+
+def test_no_impact_energy_change_is_annotated(runs):
+    without = runs[1]
+    (t, dke), = plots.switch_energy_changes(without)
+    # an independent route: the run's own kinetic energy on either side of the switch
+    before, after = without.segments[0], without.segments[1]
+    assert before.t[-1] == after.t[0] == t
+    assert math.isclose(dke, after.kinetic[0] - before.kinetic[-1], rel_tol=1e-9)
+    assert dke < 0  # Example 1: dropping O3's relative speed takes 0.344 J here
+    ax = plots.figures(runs[0], compare=without)["energy"].axes[0]
+    title = ax.get_title()
+    assert f"−{abs(dke):.4g} J at t = {t:.4f} s" in title and "no conservation law" in title
+    assert f"{dke:+.3g} J" in [t.get_text() for t in ax.texts]  # the arrow at the switch
+    assert "Without impact" not in plots.figures(runs[0])["energy"].axes[0].get_title()
+
+
+def test_plot_after_the_scene_and_urdfs_are_deleted(tmp_path):
+    import shutil
+    from pcmm.cli import main
+    from scene_files import copy_example1
+    scene = copy_example1(tmp_path)
+    npz = tmp_path / "run.npz"
+    assert main(["run", str(scene), "--t-end", "0.3", "--out", str(npz), "--quiet"]) == 0
+    shutil.rmtree(tmp_path / "urdf")
+    scene.unlink()
+    assert main(["plot", str(npz), "--out", str(tmp_path / "figs")]) == 0
+    assert {p.name for p in (tmp_path / "figs").iterdir()} == BASE | {"impulses.png"}
+    # the units come from the recorded views: the torques act on links (N·m), not "N·m or N"
+    figs = plots.figures(pcmm.Trajectory.load(npz))
+    panels = [ax for ax in figs["force_elements"].axes if ax.get_visible()]
+    assert [ax.get_ylabel() for ax in panels] == [
+        r"$\tau_{1}$ (N·m)", r"$\tau_{2}$ (N·m)", r"$\tau_{3}$ (N·m)"]
+    assert [ax.get_title() for ax in panels] == [
+        "(a) tau1 on link1", "(b) tau2 on link2", "(c) tau3 on link3"]

@@ -1,13 +1,15 @@
 """Replay: the offline HTML page and the live meshcat server.
 
 Most tests need no browser: they decode the meshcat commands embedded in the
-page (msgpack, base64 in ``fetch("data:...")`` calls) and check the one
-animation it carries.  The ``browser`` test renders the page in headless
-Chromium at two times (``page.html#t=<seconds>``).
+page (msgpack, base64 strings of ``PCMM_COMMANDS``, handled in order) and check
+the one animation it carries, the timeline and the page's data.  The
+``browser`` tests render the page in headless Chromium (``page.html#t=<seconds>``).
 """
 from __future__ import annotations
 
 import base64
+import dataclasses
+import json
 import math
 import os
 import re
@@ -38,11 +40,18 @@ except ImportError:  # pragma: no cover
     def _unpack(b):
         return _msgpack.unpackb(b, raw=False)
 
-_COMMAND = re.compile(r'fetch\("data:application/octet-binary;base64,([A-Za-z0-9+/=]+)"\)')
+_COMMANDS = re.compile(r"var PCMM_COMMANDS = \[(.*?)\];", re.S)
+_DATA = re.compile(r'<script type="application/json" id="pcmm-data">(.*?)</script>', re.S)
 
 
 def decode_commands(html: str) -> list[dict]:
-    return [_unpack(base64.b64decode(m)) for m in _COMMAND.findall(html)]
+    (block,) = _COMMANDS.findall(html)
+    return [_unpack(base64.b64decode(m)) for m in re.findall(r'"([A-Za-z0-9+/=]+)"', block)]
+
+
+def page_data(html: str) -> dict:
+    (text,) = _DATA.findall(html)
+    return json.loads(text.replace("<\\/", "</"))
 
 
 def clips_of(commands) -> dict[str, dict]:
@@ -104,6 +113,13 @@ def test_page_is_self_contained(page):
     assert not list(page.parent.glob(".replay.html.*.tmp")), "no temporary file left behind"
 
 
+def _keys(traj):
+    """The animation's keys (frames): every k / fps plus each event's exact instant."""
+    grid = np.arange(round(float(traj.t[-1] - traj.t[0]) * FPS) + 1, dtype=float)
+    events = np.array([(e["t"] - traj.t[0]) * FPS for e in traj.events])
+    return np.union1d(grid, events)
+
+
 def test_one_transform_track_per_link_and_frame_count(runs, clips):
     traj = runs[0]
     duration = float(traj.t[-1] - traj.t[0])
@@ -111,14 +127,28 @@ def test_one_transform_track_per_link_and_frame_count(runs, clips):
     assert sorted(moving) == sorted(f"/meshcat/pcmm/links/{link}" for link in traj.links)
     # no other node under links/ moves on its own: the geometry rides on its link's track
     assert not [p for p, c in clips.items() if "quaternion" in c and p not in moving]
-    expected = duration * FPS
+    expected = duration * FPS + len(traj.events)  # the uniform frames and one per event
     for path, c in moving.items():
         frames, _ = c["position"]
         assert c["_fps"] == FPS
         assert abs(len(frames) - expected) <= 1, (path, len(frames), expected)
-        assert frames == list(range(len(frames)))
+        assert np.array_equal(frames, _keys(traj))
         assert c["quaternion"][0] == frames
         assert math.isclose(frames[-1] / FPS, duration, abs_tol=1.0 / FPS)
+
+
+def test_a_frame_at_each_event_exact_time(runs, clips):
+    """The state at an event is a frame of the animation: a key at exactly (t - t0) * fps, showing
+    the pose the run records at t."""
+    traj = runs[0]
+    assert traj.events
+    for ev in traj.events:
+        key = (ev["t"] - traj.t[0]) * FPS
+        seg = next(s for s in traj.segments if s.t[0] == ev["t"])  # the run restarts at the event
+        for j, link in enumerate(seg.links):
+            frames, values = clips[f"/meshcat/pcmm/links/{link}"]["position"]
+            assert key in frames, (link, ev["t"])
+            assert np.allclose(values[frames.index(key)][:2], seg.xy[0, j], rtol=0, atol=1e-12)
 
 
 def test_link_poses_follow_the_trajectory(runs, clips):
@@ -126,7 +156,7 @@ def test_link_poses_follow_the_trajectory(runs, clips):
     last = traj.segments[-1]
     for j, link in enumerate(last.links):
         c = clips[f"/meshcat/pcmm/links/{link}"]
-        pos, quat = c["position"][1], c["quaternion"][1]
+        frames, pos, quat = c["position"][0], c["position"][1], c["quaternion"][1]
         first = traj.segments[0]
         assert np.allclose(pos[0][:2], first.xy[0, first.links.index(link)], atol=1e-12)
         assert np.allclose(pos[-1][:2], last.xy[-1, j], atol=1e-9)
@@ -135,11 +165,11 @@ def test_link_poses_follow_the_trajectory(runs, clips):
         assert math.isclose(math.cos(last.theta[-1, j]), w * w - z * z, abs_tol=1e-9)
         assert math.isclose(math.sin(last.theta[-1, j]), 2 * w * z, abs_tol=1e-9)
         # a frame in the middle: the link frame origin interpolated at k / fps
-        k = len(pos) // 2
+        k = int(frames[-1]) // 2
         seg = next(s for s in reversed(traj.segments) if s.t[0] <= k / FPS)
         i = seg.links.index(link)
         expect = [np.interp(k / FPS, seg.t, seg.xy[:, i, 0]), np.interp(k / FPS, seg.t, seg.xy[:, i, 1])]
-        assert np.allclose(pos[k][:2], expect, atol=1e-12)
+        assert np.allclose(pos[frames.index(float(k))][:2], expect, atol=1e-12)
 
 
 def test_configuration_geometry_switches_at_the_event_frame(runs, clips, page):
@@ -209,6 +239,292 @@ def test_camera_is_orthographic_top_down(page):
     assert np.allclose(np.array(rotated[-1]["matrix"]), np.eye(4).flatten())
 
 
+# ---- what the page shows ------------------------------------------------------------------
+def _objects(commands) -> dict[str, dict]:
+    return {c["path"]: c["object"] for c in commands if c["type"] == "set_object"}
+
+
+def _transforms(commands) -> dict[str, np.ndarray]:
+    """Each node's last transform (meshcat sends three.js's column-major order)."""
+    return {c["path"]: np.array(c["matrix"], float).reshape(4, 4).T for c in commands if c["type"] == "set_transform"}
+
+
+def _texture_png(obj) -> bytes:
+    (image,) = obj["images"]
+    return base64.b64decode(image["url"].split(",", 1)[1])
+
+
+_MARKER = re.compile(r'<div class="pcmm-marker pcmm-(\w+)" data-run="(\d+)" data-event="(\d+)" data-t="([^"]+)"')
+
+
+def test_one_timeline_marker_per_event(runs, page):
+    html = page.read_text(encoding="utf-8")
+    traj = runs[0]
+    markers = _MARKER.findall(html)
+    assert len(markers) == len(traj.events) >= 1
+    for (kind, run, i, t), ev in zip(markers, traj.events):
+        assert run == "0" and int(i) == traj.events.index(ev)
+        assert float(t) == ev["t"], "the marker seeks to the event's exact time"
+        assert kind == replay.event_kind(ev)
+    # the latch of Example 1 is a plastic impact that merges link 3 into link 2
+    assert [m[0] for m in markers] == ["merge"]
+    data = page_data(html)
+    assert [e["t"] for e in data["runs"][0]["events"]] == [e["t"] for e in traj.events]
+
+
+def test_impulse_arrow_length_direction_and_label(runs, page, clips):
+    html = page.read_text(encoding="utf-8")
+    commands = decode_commands(html)
+    objects, transforms = _objects(commands), _transforms(commands)
+    data = page_data(html)
+    traj = runs[0]
+    ev = _first_impact(traj)
+    P = ev["impulse"]["normal"]
+    # the README's value for Example 1's latch impulse, and the label the arrow carries
+    assert math.isclose(abs(P), 0.33090, abs_tol=5e-6)
+    (entry,) = [e for e in data["runs"][0]["events"] if e["t"] == ev["t"]]
+    assert entry["label"] == "P = 0.3309 N·s" and entry["impulse"] == P
+    label = objects["/meshcat/pcmm/arrows/0/label"]
+    assert _texture_png(label) == replay._label_png("P = 0.3309 N·s", **replay.ARROW_LABEL)[0]
+    # length: shaft + head = scale * |P|, the scale the page's legend states
+    shaft = objects["/meshcat/pcmm/arrows/0/arrow/shaft"]["geometries"][0]
+    head = objects["/meshcat/pcmm/arrows/0/arrow/head"]["geometries"][0]
+    assert head["type"] == "CylinderGeometry" and head["radiusTop"] == 0
+    assert math.isclose(shaft["height"] + head["height"], data["arrow_scale"] * abs(P), rel_tol=1e-12)
+    assert f"1 N·s = {data['arrow_scale']:.3g} m" in html
+    # position and direction: from the contact point along P n (the impulse on body b)
+    assert np.allclose(transforms["/meshcat/pcmm/arrows/0"][:2, 3], ev["contact_point"], atol=1e-12)
+    y_axis = transforms["/meshcat/pcmm/arrows/0/arrow"][:2, 1]
+    assert np.allclose(y_axis * abs(P), ev["impulse"]["vector"], atol=1e-12)
+    # visible from the impact's own frame, not one frame before, and gone after the flash
+    vis = clips["/meshcat/pcmm/arrows/0"]["visible"]
+    key = (ev["t"] - traj.t[0]) * FPS
+    assert key in vis[0]
+    assert value_at(vis, key) is True and value_at(vis, key - 1e-6) is False
+    assert value_at(vis, key + (replay.FLASH_S + 2 / FPS) * FPS) is False
+
+
+def _strip_materials(traj):
+    def strip(text):
+        text = re.sub(r"<material\b[^>]*[^/]>.*?</material>", "", text, flags=re.S)
+        return re.sub(r"<material\b[^>]*/>", "", text)
+    views = {c: dict(v, urdf=strip(v["urdf"])) for c, v in traj.views["configurations"].items()}
+    assert all("<material" not in v["urdf"] for v in views.values())
+    return dataclasses.replace(traj, views={**traj.views, "configurations": views})
+
+
+def _link_colours(commands, root="/meshcat/pcmm/links/"):
+    out: dict[str, set] = {}
+    for path, obj in _objects(commands).items():
+        if path.startswith(root) and "/visual" in path:
+            out.setdefault(path[len(root):].split("/")[0], set()).add(obj["materials"][0]["color"])
+    return out
+
+
+def test_colours_differ_per_link_where_the_urdf_gives_none(runs):
+    plain = _strip_materials(runs[0])
+    colours = _link_colours(decode_commands(replay.html_page(plain, fps=FPS)))
+    moving = ["link1", "link2", "link3"]
+    assert all(len(colours[link]) == 1 for link in colours), "a link keeps its colour in every configuration"
+    picked = [next(iter(colours[link])) for link in moving]
+    assert len(set(picked)) == 3, picked
+    assert colours["frame"] == {replay._rgba_int(replay._GREY)} and colours["frame"].isdisjoint(picked)
+    # a URDF colour wins: link1's <material> in three_bar_config1.urdf is 0.85 0.33 0.10
+    given = _link_colours(decode_commands(replay.html_page(runs[0], fps=FPS)))
+    assert (217 << 16) | (84 << 8) | 26 in given["link1"]
+
+
+def _camera(commands):
+    (cam,) = [c["object"]["object"] for c in commands
+              if c["type"] == "set_object" and c["path"] == "/Cameras/default/rotated"]
+    return cam
+
+
+def test_fitted_view_contains_every_link_at_every_frame(runs, page, clips):
+    """Every visual's corners, placed by the page's own tracks at every key, lie inside the
+    camera's window; and the mechanism fills most of that window."""
+    commands = decode_commands(page.read_text(encoding="utf-8"))
+    cam = _camera(commands)
+    objects, transforms = _objects(commands), _transforms(commands)
+    lo, hi = np.full(2, np.inf), np.full(2, -np.inf)
+    for path, obj in objects.items():
+        if not path.startswith("/meshcat/pcmm/links/"):
+            continue
+        link_path = path.rsplit("/", 2)[0]
+        geo = obj["geometries"][0]
+        if geo["type"] == "BoxGeometry":
+            half = 0.5 * np.array([geo["width"], geo["height"], geo["depth"]])
+        else:  # a cylinder along its y
+            r = max(geo["radiusTop"], geo["radiusBottom"])
+            half = np.array([r, 0.5 * geo["height"], r])
+        corners = np.array([[sx, sy, sz, 1.0] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)])
+        corners[:, :3] *= half
+        local = (corners @ transforms[path].T)[:, :2]
+        frames, pos = clips[link_path]["position"]
+        quat = clips[link_path]["quaternion"][1]
+        for p, (_, _, z, w) in zip(pos, quat):
+            th = 2 * math.atan2(z, w)
+            R = np.array([[math.cos(th), -math.sin(th)], [math.sin(th), math.cos(th)]])
+            world = local @ R.T + np.array(p[:2])
+            lo, hi = np.minimum(lo, world.min(axis=0)), np.maximum(hi, world.max(axis=0))
+            assert (world[:, 0] >= cam["left"]).all() and (world[:, 0] <= cam["right"]).all(), (path, frames)
+            assert (world[:, 1] >= cam["bottom"]).all() and (world[:, 1] <= cam["top"]).all(), (path, frames)
+    fill = max((hi[0] - lo[0]) / (cam["right"] - cam["left"]), (hi[1] - lo[1]) / (cam["top"] - cam["bottom"]))
+    assert fill > 0.7, f"the mechanism fills only {fill:.0%} of the view"
+
+
+def test_scale_bar_has_a_round_length_inside_the_view(page):
+    commands = decode_commands(page.read_text(encoding="utf-8"))
+    cam, objects, transforms = _camera(commands), _objects(commands), _transforms(commands)
+    bar = objects["/meshcat/pcmm/scale/bar"]["geometries"][0]["width"]
+    mantissa = bar / 10 ** math.floor(math.log10(bar))
+    assert min(abs(mantissa - m) for m in (1, 2, 5)) < 1e-9, bar
+    assert 0.1 <= bar / (cam["right"] - cam["left"]) <= 0.25 + 1e-12
+    label = f"{bar:g} m"
+    assert _texture_png(objects["/meshcat/pcmm/scale/label"]) == replay._label_png(label, **replay.SCALE_LABEL)[0]
+    x = transforms["/meshcat/pcmm/scale/bar"][0, 3]
+    assert cam["left"] < x - bar / 2 and x + bar / 2 < cam["right"]
+
+
+def test_merge_and_release_are_shown(runs, tmp_path):
+    traj = runs[0]
+    release = {"t": 0.3, "name": "O3 latches", "kind": "mobile", "transition": "release", "from": "config2",
+               "to": "config1", "merge": False, "impact": False, "contact_point": [0.2, 0.1],
+               "impulse": {"normal": 0.0, "vector": [0.0, 0.0]}}
+    with_release = dataclasses.replace(traj, events=[*traj.events, release])
+    html = replay.html_page(with_release, fps=FPS)
+    kinds = [m[0] for m in _MARKER.findall(html)]
+    assert kinds == ["merge", "release"]
+    clips = clips_of(decode_commands(html))
+    for i, t in enumerate((traj.events[0]["t"], 0.3)):
+        vis = clips[f"/meshcat/pcmm/events/{i}"]["visible"]
+        key = t * FPS
+        assert value_at(vis, key) is True and value_at(vis, key - 1e-6) is False
+    assert "/meshcat/pcmm/arrows/1" not in clips, "a release carries no impulse arrow"
+
+
+def test_two_runs_overlaid_each_in_its_own_colour(runs):
+    html = replay.html_page(runs[0], fps=FPS, others=[runs[1]])
+    commands = decode_commands(html)
+    clips = clips_of(commands)
+    for link in runs[0].links:
+        assert f"/meshcat/pcmm/links/{link}" in clips and f"/meshcat/pcmm/run2/links/{link}" in clips
+    first = _link_colours(commands)
+    second = _link_colours(commands, "/meshcat/pcmm/run2/links/")
+    run_colours = [replay._rgba_int(c) for c in replay.RUN_COLOURS[:2]]
+    assert {c for link in ("link1", "link2", "link3") for c in first[link]} == {run_colours[0]}
+    assert {c for link in ("link1", "link2", "link3") for c in second[link]} == {run_colours[1]}
+    rows = re.findall(r'<div class="pcmm-row" data-run="(\d)">', html)
+    assert rows == ["0", "1"]
+    markers = _MARKER.findall(html)
+    assert [m[1] for m in markers] == ["0"] * len(runs[0].events) + ["1"] * len(runs[1].events)
+    # without impact the latch still merges the links (no impulse, so no arrow in that run)
+    assert [m[0] for m in markers if m[1] == "1"] == ["merge"] and not runs[1].events[0]["impact"]
+    assert "/meshcat/pcmm/arrows/0" in clips and not [p for p in clips if p.startswith("/meshcat/pcmm/run2/arrows")]
+    data = page_data(html)
+    assert [r["impact"] for r in data["runs"]] == [True, False]
+
+
+def test_cli_replays_two_files_overlaid(runs, tmp_path, capsys):
+    from pcmm.cli import main
+    a, b = runs[0].save(tmp_path / "a.npz"), runs[1].save(tmp_path / "b.npz")
+    out = tmp_path / "both.html"
+    assert main(["replay", str(a), str(b), "--html", str(out)]) == 0
+    html = out.read_text(encoding="utf-8")
+    assert re.findall(r'<div class="pcmm-row" data-run="(\d)">', html) == ["0", "1"]
+    assert "/meshcat/pcmm/run2/links/link1" in clips_of(decode_commands(html))
+    assert main(["replay", str(a), str(b), "--html", str(out)]) == 2  # exists: needs --force
+    assert f"{out}: exists; pass --force" in capsys.readouterr().err
+
+
+# ---- the trajectory file alone ---------------------------------------------------------------
+def test_replay_after_the_scene_and_urdfs_are_deleted(tmp_path, capsys):
+    import shutil
+    from pcmm.cli import main
+    from scene_files import copy_example1
+    scene = copy_example1(tmp_path)
+    npz = tmp_path / "run.npz"
+    assert main(["run", str(scene), "--t-end", "0.3", "--out", str(npz), "--quiet"]) == 0
+    shutil.rmtree(tmp_path / "urdf")
+    scene.unlink()
+    out = tmp_path / "replay.html"
+    assert main(["replay", str(npz), "--html", str(out)]) == 0
+    commands = decode_commands(out.read_text(encoding="utf-8"))
+    objects = _objects(commands)
+    for config in ("config1", "config2"):
+        for link in ("link1", "link2", "link3"):
+            assert f"/meshcat/pcmm/links/{link}/{config}/visual0" in objects
+    assert len(_MARKER.findall(out.read_text(encoding="utf-8"))) == 1
+
+
+def _as_first_format(src: Path, dst: Path, scene: str):
+    """``src`` rewritten as pcmm-trajectory-1 wrote it: no views."""
+    with np.load(src, allow_pickle=False) as z:
+        arrays = {k: z[k] for k in z.files}
+    header = json.loads(str(arrays["header"]))
+    header.pop("views")
+    header.update(format="pcmm-trajectory-1", scene=scene)
+    arrays["header"] = np.array(json.dumps(header))
+    np.savez_compressed(dst, **arrays)
+
+
+def test_first_format_files_load_and_replay_or_say_why_not(runs, tmp_path):
+    traj = runs[0]
+    new = traj.save(tmp_path / "new.npz")
+    old = tmp_path / "old.npz"
+    _as_first_format(new, old, str(SCENE))
+    loaded = pcmm.Trajectory.load(old)
+    # the views come back from the scene file while it exists: the same URDF text
+    assert loaded.views["configurations"] == pcmm.Trajectory.load(new).views["configurations"]
+    assert set(loaded.views["forces"]) == {"tau1", "tau2", "tau3"}
+    assert "/meshcat/pcmm/links/link1/config2/visual0" in _objects(decode_commands(replay.html_page(loaded)))
+    # without the scene: the file still loads (figures, CSV), and the replay says what to do
+    gone = tmp_path / "gone.npz"
+    _as_first_format(new, gone, str(tmp_path / "deleted.toml"))
+    orphan = pcmm.Trajectory.load(gone)
+    assert np.array_equal(orphan.t, traj.t)
+    with pytest.raises(pcmm.UsageError, match=r"gone\.npz: .*earlier pcmm version.*deleted\.toml.*pcmm run"):
+        replay.html_page(orphan)
+
+
+def test_an_unknown_format_is_named(runs, tmp_path):
+    new = runs[0].save(tmp_path / "new.npz")
+    with np.load(new, allow_pickle=False) as z:
+        arrays = {k: z[k] for k in z.files}
+    header = json.loads(str(arrays["header"]))
+    header["format"] = "pcmm-trajectory-9"
+    arrays["header"] = np.array(json.dumps(header))
+    np.savez_compressed(tmp_path / "future.npz", **arrays)
+    with pytest.raises(pcmm.UsageError, match=r"future\.npz: .*'pcmm-trajectory-9'.*newer pcmm"):
+        pcmm.Trajectory.load(tmp_path / "future.npz")
+
+
+def _imports(module: Path) -> set[str]:
+    """The pcmm modules ``module`` imports (relative imports, at any depth in the file)."""
+    import ast
+    out = set()
+    for node in ast.walk(ast.parse(module.read_text(encoding="utf-8"))):
+        if isinstance(node, ast.ImportFrom) and node.level == 1:
+            if node.module:
+                out.add(node.module.split(".")[0])
+            else:
+                out.update(a.name for a in node.names)
+        elif isinstance(node, ast.ImportFrom) and (node.module or "").startswith("pcmm."):
+            out.add(node.module.split(".")[1])
+    return out
+
+
+def test_replay_and_plots_import_nothing_of_the_scene_or_the_models():
+    seen, todo = set(), ["replay", "plots"]
+    while todo:
+        name = todo.pop()
+        if name in seen:
+            continue
+        seen.add(name)
+        todo += sorted(_imports(ROOT / "pcmm" / f"{name}.py"))
+    assert seen <= {"replay", "replay_page", "plots", "trajectory", "errors", "outputs", "signals"}, seen
+
+
 def _meshcat_children():
     import psutil
     out = []
@@ -265,6 +581,30 @@ def test_serve_ctrl_c_stops_the_server(runs, monkeypatch):
     _assert_stopped(started)
 
 
+def test_serve_serves_the_replay_page(runs, monkeypatch, capsys):
+    """While serving, the printed URL returns the same page as --html (readout, timeline, scene)."""
+    import urllib.request
+    started = _spy_servers(monkeypatch)
+    monkeypatch.delenv(replay.NO_WAIT_ENV, raising=False)
+    got = {}
+
+    def fetch_then_interrupt(_):
+        url = re.search(r"open (http://127\.0\.0\.1:\d+/) in a browser", capsys.readouterr().out).group(1)
+        with urllib.request.urlopen(url, timeout=10) as r:
+            got["page"] = r.read().decode("utf-8")
+        raise KeyboardInterrupt
+    monkeypatch.setattr(replay, "time", types.SimpleNamespace(sleep=fetch_then_interrupt))
+    replay.serve(runs[0], fps=FPS)
+    _assert_stopped(started)
+    page = got["page"]
+    assert len(_MARKER.findall(page)) == len(runs[0].events)
+    assert '<span id="pcmm-time">' in page
+    served = clips_of(decode_commands(page))
+    offline = clips_of(decode_commands(replay.html_page(runs[0], fps=FPS)))
+    assert served.keys() == offline.keys()
+    assert served["/meshcat/pcmm/links/link3"]["position"] == offline["/meshcat/pcmm/links/link3"]["position"]
+
+
 def test_serve_error_stops_the_server(runs, monkeypatch):
     started = _spy_servers(monkeypatch)
     broken = pcmm.Trajectory(scene=str(SCENE.parent / "missing.toml"), scene_name="x", impact=True,
@@ -275,49 +615,75 @@ def test_serve_error_stops_the_server(runs, monkeypatch):
 
 
 # ---- real browser --------------------------------------------------------------------------
-def _screenshot(url: str, out: Path, profile: Path) -> subprocess.Popen:
+def _chromium(url: str, profile: Path, out: Path | None = None) -> subprocess.Popen:
+    """Headless Chromium: a screenshot into ``out``, or the DOM after the scripts ran on stdout."""
     profile.mkdir()
+    action = [f"--screenshot={out}"] if out is not None else ["--dump-dom"]
     return subprocess.Popen(
         [str(CHROMIUM), "--headless", "--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
          "--disable-background-networking", "--no-first-run", "--disable-gpu-sandbox",
          f"--user-data-dir={profile}", "--window-size=800,600", "--hide-scrollbars",
-         "--virtual-time-budget=3000", f"--screenshot={out}", url],
-        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+         "--virtual-time-budget=3000", *action, url],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE)
 
 
-@pytest.mark.browser
-@pytest.mark.skipif(not CHROMIUM.exists(), reason="needs Debian's chromium (/usr/bin/chromium)")
-def test_browser_renders_the_mechanism_at_two_times(runs, page, tmp_path):
+def _finish(proc) -> str:
+    try:
+        out, err = proc.communicate(timeout=60)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.communicate()
+        pytest.fail("chromium did not finish in 60 s")
+    return out.decode(errors="replace") + err.decode(errors="replace")[-2000:]
+
+
+def _screenshots(page: Path, times, tmp_path, dom_at=None):
+    """Images (H, W, 3) of the page opened at each time; plus the DOM at ``dom_at``."""
     from PIL import Image
-    traj = runs[0]
-    times = (0.05, 0.35)  # before and after the latch (t = 0.167 s)
     procs = []
     for i, t in enumerate(times):
         shot = tmp_path / f"t{i}.png"
-        procs.append((shot, _screenshot(f"{page.as_uri()}#t={t}", shot, tmp_path / f"profile{i}")))
+        procs.append((shot, _chromium(f"{page.as_uri()}#t={t!r}", tmp_path / f"profile{i}", shot)))
+    dom = _chromium(f"{page.as_uri()}#t={dom_at!r}", tmp_path / "profile_dom") if dom_at is not None else None
     images = []
     for shot, proc in procs:
-        try:
-            _, err = proc.communicate(timeout=45)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.communicate()
-            pytest.fail("chromium did not finish in 45 s")
-        assert shot.exists(), err.decode(errors="replace")[-2000:]
+        log = _finish(proc)
+        assert shot.exists(), log
         images.append(np.asarray(Image.open(shot).convert("RGB")).astype(int))
-    h, w, _ = images[0].shape
-    assert (w, h) == (800, 600)
+    return images, (_finish(dom) if dom is not None else None)
 
-    scene = pcmm.load_scene(SCENE)
-    visuals = {c: replay.read_visuals(scene.configurations[c].urdf) for c in replay.visited(traj)}
-    view = replay.view_box(traj, visuals)
-    scale = h / (view.top - view.bottom)  # the viewer keeps the vertical extent, widens to the page
+
+def _pixel_map(view, w, h):
+    """World (x, y) -> pixel (column, row) in the view above the bar: the page centres the fitted
+    window and widens its short side to the canvas's aspect."""
+    bw, bh = view.right - view.left, view.top - view.bottom
+    cx, cy = 0.5 * (view.left + view.right), 0.5 * (view.top + view.bottom)
+    if bw / bh < w / h:
+        bw = bh * w / h
+    else:
+        bh = bw * h / w
 
     def pixel(x, y):
-        return int(round((x - view.left) * scale)), int(round((view.top - y) * scale))
+        return int(round((x - cx + bw / 2) / bw * w)), int(round((cy + bh / 2 - y) / bh * h))
+    return pixel
+
+
+needs_chromium = pytest.mark.skipif(not CHROMIUM.exists(), reason="needs Debian's chromium (/usr/bin/chromium)")
+
+
+@pytest.mark.browser
+@needs_chromium
+def test_browser_renders_the_mechanism_at_two_times(runs, page, tmp_path):
+    traj = runs[0]
+    times = (0.05, 0.35)  # before and after the latch (t = 0.167 s)
+    images, _ = _screenshots(page, times, tmp_path)
+    h, w, _ = images[0].shape
+    assert (w, h) == (800, 600)
+    view = replay.view_box(traj, replay.run_visuals(traj), fps=FPS)
+    pixel = _pixel_map(view, w, h - replay.BAR_PX)
 
     for img, t in zip(images, times):
-        background = img[h - 2, 2]
+        background = img[h - replay.BAR_PX - 3, 2]
         assert (background >= 250).all(), "white background expected"
         poses, _ = replay.resample(traj, np.array([t]))
         # the region the links span at time t (their frame origins and tips), in pixels
@@ -337,5 +703,49 @@ def test_browser_renders_the_mechanism_at_two_times(runs, page, tmp_path):
             patch = img[py - 3:py + 4, px - 3:px + 4]
             coloured = bool(np.any(np.abs(patch - background) > 30))
             assert coloured, f"t = {t}: {link} is not drawn at pixel ({px}, {py})"
-    changed = np.any(np.abs(images[0] - images[1]) > 30, axis=2)
+    changed = np.any(np.abs(images[0][:h - replay.BAR_PX] - images[1][:h - replay.BAR_PX]) > 30, axis=2)
     assert int(changed.sum()) > 300, f"the two times must look different ({int(changed.sum())} pixels differ)"
+
+
+def _red(img):
+    return (img[..., 0] > 150) & (img[..., 1] < 90) & (img[..., 2] < 90)
+
+
+@pytest.mark.browser
+@needs_chromium
+def test_browser_shows_the_impulse_arrow_and_the_time_at_the_impact(runs, page, tmp_path):
+    """Opened at the impact's exact instant, the page shows the impulse arrow (red pixels along
+    it, none there 30 ms before) and the time readout says that instant."""
+    traj = runs[0]
+    ev = _first_impact(traj)
+    t = ev["t"]
+    images, dom = _screenshots(page, (t, t - 0.03), tmp_path, dom_at=t)
+    at, before = images
+    h, w, _ = at.shape
+    view = replay.view_box(traj, replay.run_visuals(traj), fps=FPS)
+    pixel = _pixel_map(view, w, h - replay.BAR_PX)
+    p0 = np.array(ev["contact_point"])
+    tip = p0 + view.arrow_scale * np.array(ev["impulse"]["vector"])
+    along = [pixel(*(p0 + s * (tip - p0))) for s in np.linspace(0.3, 0.9, 13)]  # clear of the contact marker
+    red_at = sum(bool(_red(at[y - 2:y + 3, x - 2:x + 3]).any()) for x, y in along)
+    red_before = sum(bool(_red(before[y - 2:y + 3, x - 2:x + 3]).any()) for x, y in along)
+    assert red_at >= 12, f"the impulse arrow is not drawn at the impact ({red_at} of 13 points red)"
+    assert red_before == 0, f"an arrow is drawn 30 ms before the impact ({red_before} points red)"
+    # the label plate right of the tip carries dark red text
+    tx, ty = pixel(*tip)
+    plate = at[ty - 25:ty + 25, tx:tx + 160]
+    assert int(((plate[..., 0] > 100) & (plate[..., 1] < 60)).sum()) > 40, "no impulse label beside the arrow"
+    # the time readout: the DOM says the instant, and the readout's pixels differ from 30 ms before
+    m = re.search(r'<span id="pcmm-time">([^<]*)</span>', dom)
+    assert m and m.group(1) == f"t = {t:.6f} s", (m and m.group(1), dom[-500:])
+    assert f"last event: {replay.event_kind(ev)} &#x27;" in dom or f"last event: {replay.event_kind(ev)} '" in dom
+    # the link angles the readout gives are the run's own at the event (the segment that starts there)
+    angles = re.search(r'<div id="pcmm-angles">([^<]*)</div>', dom).group(1)
+    seg = next(s for s in traj.segments if s.t[0] == t)
+    for j, link in enumerate(seg.links):
+        if link != "frame":
+            assert f"{link} {seg.theta[0, j]:.4f}" in angles, (link, angles)
+    bar = slice(h - replay.BAR_PX, h - replay.BAR_PX + 26)
+    readout_at, readout_before = at[bar, :160], before[bar, :160]
+    assert int((readout_at.sum(axis=2) < 200).sum()) > 100, "no dark text in the time readout"
+    assert int(np.any(np.abs(readout_at - readout_before) > 60, axis=2).sum()) > 20, "the readout does not change"

@@ -12,7 +12,7 @@ import pytest
 
 import pcmm
 import pcmm.cli
-from conftest import URDF_DIR, copy_example, example_text
+from builders import URDF_DIR, copy_example, example_text
 
 SCENE = "three_bar.toml"
 STOP = "three_bar_stop.toml"
@@ -49,15 +49,17 @@ ROWS = [
                   "scene.initial_configuration", "missing"], id="misspelt-key-is-also-missing"),
     pytest.param(SCENE, "scene", "t_end = 1.0\n", "", [SCENE, "scene.t_end", "missing", "end time"],
                  id="missing-field"),
-    pytest.param(SCENE, "scene", "t_end = 1.0", 't_end = "1.0"', [SCENE, "scene.t_end", "'1.0'", "must be a number"],
-                 id="wrong-type-number"),
+    pytest.param(SCENE, "scene", "t_end = 1.0", 't_end = true', [SCENE, "scene.t_end", "True", "must be a number"],
+                 id="wrong-type-number"),  # a string is an expression now (tests/test_expressions.py)
+    pytest.param(SCENE, "scene", "t_end = 1.0", 't_end = "1.0 s"', [SCENE, "scene.t_end", "'1.0 s'", "position 5"],
+                 id="bad-expression"),
     pytest.param(SCENE, "scene", "gravity = [0.0, -9.81]", 'gravity = "down"',
                  [SCENE, "scene.gravity", "'down'", "must be a list"], id="wrong-type-list"),
     pytest.param(SCENE, "scene", "gravity = [0.0, -9.81]", "gravity = [0.0, -9.81, 0.0]",
                  [SCENE, "scene.gravity", "list of 2 finite numbers"], id="gravity-3d"),
     pytest.param(SCENE, "scene", "t_end = 1.0", "t_end = -1.0", [SCENE, "scene.t_end", "-1.0", "must be > 0"],
                  id="negative-t-end"),
-    pytest.param(SCENE, "scene", 'method = "DOP853"', 'method = "RK99"',
+    pytest.param(SCENE, "scene", 'method = "auto"', 'method = "RK99"',
                  [SCENE, "solver.method", "'RK99'", "must be one of", "DOP853", "RK45"], id="unknown-method"),
     pytest.param(SCENE, "scene", 'type = "latch"', 'type = "latchh"',
                  [SCENE, "transitions[0].type", "'latchh'", "'latch'", "'stop'"], id="unknown-transition-type"),
@@ -65,8 +67,8 @@ ROWS = [
                  [STOP, "transitions[0].restitution", "1.5", "[0, 1]"], id="restitution-above-1"),
     pytest.param(STOP, "scene", "restitution = 0.8", "restitution = -0.1",
                  [STOP, "transitions[0].restitution", "-0.1", "[0, 1]"], id="restitution-negative"),
-    pytest.param(STOP, "scene", "restitution = 0.8", 'restitution = "0.8"',
-                 [STOP, "transitions[0].restitution", "'0.8'", "must be a number"], id="restitution-string"),
+    pytest.param(STOP, "scene", "restitution = 0.8", 'restitution = "0.5 - 1"',  # computed, then range-checked
+                 [STOP, "transitions[0].restitution", "-0.5", "[0, 1]"], id="restitution-string"),
     pytest.param(STOP, "scene", "restitution = 0.8\n", "",
                  [STOP, "transitions[0].restitution", "missing", "[0, 1]"], id="restitution-missing"),
     pytest.param(SCENE, "scene", "cut = [\"O3\"]", "cut = [\"O3\"]\nrestitution = 0.5",
@@ -74,7 +76,7 @@ ROWS = [
     pytest.param(SCENE, "scene", "value = 1.955", "value = nan",
                  [SCENE, "forces[0].value", "nan", "finite"], id="force-value-nan"),
     pytest.param(SCENE, "scene", "k = 0.0161", 'k = "soft"',
-                 [SCENE, "forces[1].k", "'soft'", "must be a number"], id="force-k-string"),
+                 [SCENE, "forces[1].k", "'soft'", "unknown name 'soft'"], id="force-k-string"),
     pytest.param(SCENE, "scene", "O3 = 0.0 }\nv", "O4 = 0.0 }\nv",
                  [SCENE, "initial.q.O4", "'O4'", "no joint of that name", U1, "did you mean 'O3'?",
                   "joint 'O3'", "has no value"], id="unknown-joint-initial"),

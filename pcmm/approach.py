@@ -1,0 +1,61 @@
+"""Why a run ended without the expected event: each guard's closest approach to its value.
+
+When a run reaches ``t_end`` in a configuration that still has transitions, none of their guards
+fired.  For each, the sample of the run (in that configuration) where the guard came closest to its
+value says whether it was a near miss (a guard value a hair off, an event_tol question) or never
+close (a wrong value, direction or assembly branch).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .configuration import Configuration
+from .contact import contact_state
+from .spec import Scene
+from .trajectory import Trajectory
+
+
+def guard_series(cfg: Configuration, tr, q: np.ndarray) -> np.ndarray:
+    """The guard's measure (or the contact gap) at each row of ``q`` (samples x nv)."""
+    if tr.guard.type == "coordinate":
+        row, offset = cfg.measure_row(tr.guard.measure)
+        return q @ row + offset
+    zero = np.zeros(cfg.nv)
+    return np.array([contact_state(cfg, qi, zero, tr.contact)[1] for qi in q])
+
+
+def closest_approach(scene: Scene, cfg: Configuration, traj: Trajectory) -> list[dict]:
+    """One record per transition out of ``cfg``: where, over the run's samples in ``cfg``, its
+    guard came closest to its value."""
+    segs = [s for s in traj.segments if s.configuration == cfg.name]
+    if not segs:
+        return []
+    t = np.concatenate([s.t for s in segs])
+    q = np.concatenate([s.q for s in segs])
+    out = []
+    for tr in scene.transitions_from(cfg.name):
+        if tr.guard.type not in ("coordinate", "gap"):  # time and reaction guards: no approach to report
+            continue
+        fired = [e["t"] for e in traj.events if e.get("name") == tr.name]
+        after = t > max(fired) if fired else np.ones(t.size, bool)  # since it last fired
+        if not after.any():
+            continue
+        g = np.where(after, guard_series(cfg, tr, q), np.inf)
+        d = np.abs(g - tr.guard.value)
+        # after it fired, the guard starts at its value: its closest return towards the value
+        # is a local minimum inside the run (else the nearer end); otherwise the nearest sample
+        inner = np.flatnonzero((d[1:-1] <= d[:-2]) & (d[1:-1] <= d[2:]) & np.isfinite(d[:-2])) + 1
+        i = int(inner[np.argmin(d[inner])]) if fired and inner.size else int(np.argmin(d))
+        out.append({"transition": tr.name, "guard": str(tr.guard.measure) if tr.guard.measure else "contact gap",
+                    "value": tr.guard.value, "direction": "increasing" if tr.guard.direction > 0 else "decreasing",
+                    "closest": float(g[i]), "t": float(t[i]), "distance": float(abs(g[i] - tr.guard.value)),
+                    "last_fired": max(fired) if fired else None})
+    return out
+
+
+def describe(records: list[dict]) -> str:
+    return "\n".join(
+        f"guard of '{r['transition']}' ({r['guard']} {r['direction']} to {r['value']:.9g}) did not fire: "
+        f"closest {r['closest']:.9g} at t = {r['t']:.6g} s, {r['distance']:.3g} short"
+        + (f" (since it last fired at t = {r['last_fired']:.9g} s)" if r.get("last_fired") is not None else "")
+        for r in records)

@@ -1,0 +1,96 @@
+"""Signals: a batch scheduler's SIGTERM (or a closed terminal's SIGHUP) stops a command like
+Ctrl-C does, and no interrupt cuts a result in half while it is being kept.
+
+* :func:`as_interrupts` turns SIGTERM and SIGHUP into :class:`Terminated`, a
+  ``KeyboardInterrupt``, so every ``except KeyboardInterrupt`` and ``finally`` that saves a
+  partial run or stops the meshcat server also runs on them.
+* :func:`deferred` holds SIGINT, SIGTERM and SIGHUP back while a block runs (recording the
+  interrupted segment, writing the partial files): a second Ctrl-C then waits until the
+  block is done instead of dropping what it was saving.
+
+Handlers can only be installed in the main thread; elsewhere both are no-ops.
+"""
+from __future__ import annotations
+
+import contextlib
+import signal
+import threading
+
+_NAMES = ("SIGINT", "SIGTERM", "SIGHUP")
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM or SIGHUP, raised where a Ctrl-C would be."""
+
+    def __init__(self, signum: int):
+        super().__init__(f"signal {signum}")
+        self.signum = signum
+
+
+def _main_thread() -> bool:
+    return threading.current_thread() is threading.main_thread()
+
+
+def _signals(names):
+    return [getattr(signal, n) for n in names if hasattr(signal, n)]
+
+
+def describe(exc: KeyboardInterrupt) -> str:
+    signum = getattr(exc, "signum", None)
+    return "interrupted by the user (Ctrl-C)" if signum is None else f"stopped by {signal.Signals(signum).name}"
+
+
+def exit_status(exc: KeyboardInterrupt) -> int:
+    """The shell's convention, 128 + the signal's number: 130 Ctrl-C, 143 SIGTERM, 129 SIGHUP."""
+    return 128 + getattr(exc, "signum", signal.SIGINT)
+
+
+@contextlib.contextmanager
+def as_interrupts():
+    """While the block runs, SIGTERM and SIGHUP raise :class:`Terminated`."""
+    old = {}
+    if _main_thread():
+        def raise_terminated(signum, frame):
+            raise Terminated(signum)
+        for sig in _signals(("SIGTERM", "SIGHUP")):
+            with contextlib.suppress(ValueError, OSError):
+                old[sig] = signal.signal(sig, raise_terminated)
+    try:
+        yield
+    finally:
+        for sig, handler in old.items():
+            signal.signal(sig, handler)
+
+
+class _Held:
+    def __init__(self):
+        self.received: list[int] = []
+
+    def __call__(self, signum, frame):
+        self.received.append(signum)
+
+    def reraise(self) -> None:
+        """Raise the first signal held back, as it would have been raised (if any arrived)."""
+        if self.received:
+            sig = self.received[0]
+            raise KeyboardInterrupt() if sig == signal.SIGINT else Terminated(sig)
+
+
+@contextlib.contextmanager
+def deferred():
+    """Hold interrupts back while the block runs; yields a record whose ``received`` lists the
+    signals that arrived (the caller decides what they mean once the block is done)."""
+    held = _Held()
+    old = {}
+    if _main_thread():
+        for sig in _signals(_NAMES):
+            with contextlib.suppress(ValueError, OSError):
+                old[sig] = signal.signal(sig, held)
+    try:
+        yield held
+    finally:
+        for sig, handler in old.items():
+            signal.signal(sig, handler)
+
+
+__all__ = ["Terminated", "as_interrupts", "deferred", "describe", "exit_status"]
