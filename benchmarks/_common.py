@@ -155,6 +155,7 @@ def timed_segments(log: list):
     integrated segment appends a :class:`SegmentTiming` to ``log`` (one perf_counter pair per
     segment).  pcmm itself is not modified."""
     sim = importlib.import_module("pcmm.simulate")
+    integ = importlib.import_module("pcmm.integrators")  # method_for ("auto") picks from this module's registry
     original = sim.INTEGRATORS
 
     class Timed:
@@ -166,8 +167,8 @@ def timed_segments(log: list):
             seg = self.inner.integrate(fun, t0, y0, t_bound, events, opts)
             log.append(SegmentTiming(t0, len(y0), time.perf_counter() - t, seg.nfev, seg.nsteps))
             return seg
-    sim.INTEGRATORS = {k: Timed(v) for k, v in original.items()}
+    sim.INTEGRATORS = integ.INTEGRATORS = {k: Timed(v) for k, v in original.items()}
     try:
         yield
     finally:
-        sim.INTEGRATORS = original
+        sim.INTEGRATORS = integ.INTEGRATORS = original

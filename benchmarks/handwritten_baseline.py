@@ -46,7 +46,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import DOCS, EXAMPLES, command_line, machine, machine_md, md_table, median, per_call  # noqa: E402
 
 import pcmm  # noqa: E402
-from pcmm.configuration import Mechanism  # noqa: E402
+from pcmm.mechanism import Mechanism  # noqa: E402
 from pcmm.guards import make_guard  # noqa: E402
 from pcmm.integrators import INTEGRATORS  # noqa: E402
 from pcmm.simulate import RunOptions, resolve  # noqa: E402

@@ -36,7 +36,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import DOCS, EXAMPLES, command_line, machine, machine_md, md_table, median, per_call  # noqa: E402
 
 import pcmm  # noqa: E402
-from pcmm.configuration import Mechanism  # noqa: E402
+from pcmm.mechanism import Mechanism  # noqa: E402
 from pcmm.contact_laws import ContactPhase  # noqa: E402
 from pcmm.simulate import RunOptions, initial_state  # noqa: E402
 
@@ -88,7 +88,7 @@ def main(argv=None):
     s2 = pcmm.load_scene(EXAMPLES / "double_folded.toml")
     cfg2 = Mechanism(s2)["config1"]
     co2 = cfg2.coords
-    q2, v2 = initial_state(s2, cfg2)
+    q2, v2, _ = initial_state(s2, cfg2)
     y2 = co2.pack(0.0, q2, v2)
     calls2 = recorded_calls(co2.rhs, 0.0, y2, 1.0)
     tq, ty = calls2[len(calls2) // 2]

@@ -7,7 +7,7 @@ pi - 0.6 rad opening at 12 rad/s.  A stop between the last two links (link n
 folds onto link n-1 at Jn = pi, contact at the bars' midpoints, e = 0.5,
 merging into a configuration where Jn is welded when the bounces accumulate)
 gives an internal (mobile) impact at t ~ 0.05 s.  Run to t_end = 0.5 s with
-the default DOP853, rtol 1e-10, atol 1e-12, for n = 3, 5, 10, 20, 50, 100 (and 200, to see the trend).
+the default method (auto: DOP853F on these trees), rtol 1e-10, atol 1e-12, for n = 3, 5, 10, 20, 50, 100 (and 200, to see the trend).
 
 Measured per n (median of interleaved repetitions): the cost per integration
 step (wall_s / steps) and per right-hand-side evaluation (wall_s / rhs_evals,
@@ -50,7 +50,7 @@ from _common import (DOCS, command_line, loglog_slope, machine, machine_md, md_t
 
 import pcmm  # noqa: E402
 from pcmm import RunOptions  # noqa: E402
-from pcmm.configuration import Mechanism  # noqa: E402
+from pcmm.mechanism import Mechanism  # noqa: E402
 
 L, RHO, AREA = 0.125, 7800.0, 2e-4
 M = RHO * AREA * L
@@ -128,6 +128,11 @@ def main(argv=None):
     print(machine_md(info))
     tmp = Path(tempfile.mkdtemp(prefix="pcmm_scaling_"))
     scenes = {n: pcmm.load_scene(chain_scene(tmp, n)) for n in args.n}
+    free = {}  # the same chains without the stop: no impact, the same integration
+    for n in args.n:
+        text = (tmp / f"chain{n}.toml").read_text()
+        (tmp / f"chain{n}_free.toml").write_text(text[:text.index("[[transitions]]")])
+        free[n] = pcmm.load_scene(tmp / f"chain{n}_free.toml")
 
     # direct per-call costs, at a mid-run state
     calls = {}
@@ -149,14 +154,21 @@ def main(argv=None):
                     "crba+cholesky": (mass_route, (), max(50, reps // 4))}
 
     samples = {n: {k: [] for k in ("wall_s", "per_step", "per_step_all", "per_rhs", "per_event", "rhs", "aba",
-                                   "crba+cholesky")}
+                                   "crba+cholesky", "whole", "whole_free")}
                for n in args.n}
     first = {}
     for rep in range(args.reps):
         for n, sc in scenes.items():
             log = []
+            t_whole = time.perf_counter()
             with timed_segments(log):
                 traj = pcmm.simulate(sc, RunOptions())
+            t_whole = time.perf_counter() - t_whole
+            t_free = time.perf_counter()
+            pcmm.simulate(free[n], RunOptions())
+            t_free = time.perf_counter() - t_free
+            samples[n]["whole"].append(t_whole)
+            samples[n]["whole_free"].append(t_free)
             integration_s = sum(x.seconds for x in log)
             st = traj.stats
             ev = len(traj.events)
@@ -191,7 +203,9 @@ def main(argv=None):
                      "wall_s": m["wall_s"], "us_per_step": m["per_step"] * 1e6,
                      "us_per_step_with_events": m["per_step_all"] * 1e6, "us_per_rhs_eval": m["per_rhs"] * 1e6,
                      "us_rhs_call": m["rhs"] * 1e6, "us_aba": m["aba"] * 1e6, "us_crba_cholesky": m["crba+cholesky"] * 1e6,
-                     "ms_per_event": m["per_event"] * 1e3})
+                     "ms_per_event": m["per_event"] * 1e3, "ms_whole_run": m["whole"] * 1e3,
+                     "ms_whole_run_no_stop": m["whole_free"] * 1e3,
+                     "ms_first_run": samples[n]["whole"][0] * 1e3, "ms_first_run_no_stop": samples[n]["whole_free"][0] * 1e3})
     args.out.mkdir(parents=True, exist_ok=True)
     with open(args.out / "scaling.csv", "w", newline="") as fh:
         w = csv.DictWriter(fh, fieldnames=list(rows[0]))
@@ -211,8 +225,15 @@ def main(argv=None):
     stab = [[names[k], f"{a:.2f}", f"{b:.2f}"] for k, (a, b) in slopes.items()]
     slope_table = md_table(["quantity", f"exponent, n = {ns[0]}..{ns[-1]}", f"exponent, n = {big[0] if big else '-'}..{ns[-1]}"],
                            stab)
+    whole = md_table(["n", "impacts", "whole run (ms)", "no stop (ms)", "ratio", "first run (ms)", "first run, no stop (ms)",
+                      "first-run ratio"],
+                     [[r["n"], r["impacts"], f"{r['ms_whole_run']:.1f}", f"{r['ms_whole_run_no_stop']:.1f}",
+                       f"{r['ms_whole_run'] / r['ms_whole_run_no_stop']:.2f}", f"{r['ms_first_run']:.1f}",
+                       f"{r['ms_first_run_no_stop']:.1f}", f"{r['ms_first_run'] / r['ms_first_run_no_stop']:.2f}"]
+                      for r in rows])
     print(table)
     print(slope_table)
+    print(whole)
     n0, n1 = ns[0], ns[-1]
     grow = med[n1]["per_step"] / med[n0]["per_step"]
     print(f"per-step cost grows {grow:.1f}x from n = {n0} to {n1} (O(n): {n1 / n0:.0f}x, O(n^3): {(n1 / n0) ** 3:.0f}x)")
@@ -222,12 +243,17 @@ def main(argv=None):
           f"An n-link chain of uniform steel bars (L = {L} m, m = {M:.3f} kg, Izz = mL²/12), revolute joints, gravity −y, "
           f"released from the horizontal with the last joint at π − 0.6 rad opening at 12 rad/s; a stop (e = 0.5) "
           f"folds link n onto link n−1 at Jn = π (a mobile impact at t ≈ 0.05 s), merging into a configuration with Jn "
-          f"welded if the bounces accumulate. t_end = {T_END} s, DOP853, rtol 1e-10, atol 1e-12. Median of "
+          f"welded if the bounces accumulate. t_end = {T_END} s, the default method (auto: DOP853F on trees), rtol 1e-10, atol 1e-12. Median of "
           f"{args.reps} interleaved repetitions. `µs / step` = time inside the integrator / steps; `µs / step incl. "
           "events` = wall_s / steps; `µs / rhs eval` = time inside the integrator / rhs_evals (the integrator's own "
           "overhead included); `µs / rhs call`, `µs / aba`, `µs / (CRBA + Cholesky)` = one call alone at a random state; "
           "`ms / event` = time `simulate` spends outside the integrator per event (impulse solve and switch).", "",
           table, "", "Log-log slopes (growth exponents):", "", slope_table, "",
+          "Whole `pcmm.simulate` runs of each chain with its stop (the impact, the impulse solve, the switch) "
+          "against the same chain without the stop (no impact), interleaved in the same run. The first run of each "
+          "builds the Pinocchio models (one per configuration, plus the cut system and the impulse model at the "
+          "first impact); later runs of the same scene reuse them (models are built once per process).", "",
+          whole, "",
           f"From n = {n0} to n = {n1} the cost per integration step grows {grow:.1f}× — O(n) would be "
           f"{n1 / n0:.0f}×, O(n³) {(n1 / n0) ** 3:.0f}×. Fitted exponents for n ≥ {big[0] if big else '-'}: per step "
           f"{slopes['per_step'][1]:.2f}, one rhs call {slopes['rhs'][1]:.2f}, one `aba` {slopes['aba'][1]:.2f}, "
@@ -237,12 +263,12 @@ def main(argv=None):
           "fitted exponent stays below 1 over this range. The mass-matrix route a hand-written M(q) q'' = τ "
           "model takes (CRBA O(n²), Cholesky O(n³)) costs "
           f"{rows[0]['us_crba_cholesky'] / rows[0]['us_aba']:.0f}× `aba` at n = {n0} and "
-          f"{rows[-1]['us_crba_cholesky'] / rows[-1]['us_aba']:.0f}× at n = {n1}. The impact events grow fastest: each one rebuilds the cut "
-          "system's Pinocchio model in Python and solves the impulse with dense inverses "
-          f"({rows[-1]['ms_per_event']:.0f} ms per event at n = {n1}, "
-          f"≈ {rows[-1]['ms_per_event'] * 1e3 / rows[-1]['us_per_step']:.0f} integration steps); profiling "
-          "n = 200 puts most of it in `pcmm.cutting.cut` (a new `pin.Model` and its `createData()` per impact) "
-          "and `pcmm.impulse.joint_impulses`.",
+          f"{rows[-1]['us_crba_cholesky'] / rows[-1]['us_aba']:.0f}× at n = {n1}. An impact event solves the impulse with dense "
+          f"inverses ({rows[-1]['ms_per_event']:.1f} ms per event at n = {n1}, "
+          f"≈ {rows[-1]['ms_per_event'] * 1e3 / rows[-1]['us_per_step']:.0f} integration steps, median over "
+          "repetitions that reuse the models). Pinocchio 4.1's `Model.createData()` allocates nv³-sized tensors "
+          "(tens of ms at n = 100); pcmm calls it once per configuration, cut system and impulse model per process, "
+          "never again on the per-impact path, so only a scene's first run pays it (the first-run columns above).",
           "",
           "The dense linear algebra (Cholesky, the impulse's inverses) runs in OpenBLAS. By default OpenBLAS starts "
           "one busy-waiting thread per core; on this shared 2-core machine that made the n = 200 Cholesky and "

@@ -59,7 +59,7 @@ ACC_MAX_EVENTS = 300  # accumulation sweep: a macro-impact that does not end is 
 MISSED = 1e-9  # m: a slider found this far past its stop in the free configuration has missed the stop
 ADAPTIVE = ("RK45", "DOP853", "DOP853F", "Radau", "LSODA")
 ATOL_FACTOR = 1e-2
-_DEFAULTS = pcmm.scene.SolverSettings()  # the scenes' defaults, so this page follows them
+_DEFAULTS = pcmm.settings.SolverSettings()  # the scenes' defaults, so this page follows them
 DEFAULT = dict(method=_DEFAULTS.method, rtol=_DEFAULTS.rtol, atol=_DEFAULTS.atol)
 DEFAULT_TAG = f"{DEFAULT['method']} {DEFAULT['rtol']:.0e}"
 
