@@ -295,7 +295,7 @@ def _lock_entries(lock, where, problems) -> tuple[list[str] | None, dict[str, fl
         for j, val in lock.items():
             val, problem = S.numbers(val)  # "pi", "30 deg": an expression like every scalar of a scene
             if problem is not None:
-                problems.add(f"{where}.{j}", f"= {S.show(lock[j])}: {problem}")
+                problems.add(f"{where}.{j}", problem)
                 return None, {}
             if not S._type_ok("number", val) or not math.isfinite(val):
                 problems.add(f"{where}.{j}", f"= {S.show(val)}: must be a finite number (rad for a revolute "

@@ -315,3 +315,23 @@ def test_free_phases_against_a_pendulum_on_a_turning_pivot(run):
         assert first["v_before"][joint] == pytest.approx(rate_hit, rel=1e-9)
         print(f"{joint}: open {t_hit - release['t']:.6f} s, pin struck at {rate_hit:.6f} rad/s; "
               f"pcmm {first['t'] - t_hit:+.1e} s, {first['v_before'][joint] / rate_hit - 1:+.1e} relative")
+
+
+# ---- the scene feature the example needed: lock values may be expressions --------------------------------
+def _example1_locked_at(tmp_path, value):
+    text = (ROOT / "examples" / "three_bar.toml").read_text().replace("../urdf/", f"{ROOT / 'urdf'}/")
+    text = text.replace('urdf = "' + str(ROOT / "urdf") + '/three_bar_config2.urdf"',
+                        f'from = "config1"\nlock = {{ O3 = {value} }}')
+    path = tmp_path / "locked.toml"
+    path.write_text(text)
+    return pcmm.load_scene(path)
+
+
+def test_lock_values_take_expressions(tmp_path):
+    """lock = { O3 = "pi" } is lock = { O3 = 3.141592653589793 }, and a bad expression names the
+    field and the position, as for every scalar of a scene."""
+    exact = _example1_locked_at(tmp_path, "3.141592653589793").configurations["config2"].derivation
+    expr = _example1_locked_at(tmp_path, '"pi"').configurations["config2"].derivation
+    assert dict(expr.values) == dict(exact.values) == {"O3": math.pi}
+    with pytest.raises(pcmm.SceneError, match=r"configurations\.config2\.lock\.O3: = 'pi \+': at position 5"):
+        _example1_locked_at(tmp_path, '"pi +"')
