@@ -267,7 +267,7 @@ def test_the_cycle_repeats(run):
         assert _pattern(c1) == _pattern(c0)  # the same events, the same number of bounces
         event_diff.append(max(abs(e1["t"] - e0["t"] - PERIOD) for e0, e1 in zip(c0, c1)))
         rates = [abs(e1["normal_velocity"]["before"] - e0["normal_velocity"]["before"]) for e0, e1 in zip(c0, c1)]
-        assert max(rates) < 1e-7
+        assert max(rates) < 1e-7  # measured 1e-8 rad/s, on the last bounces of a macro-impact
     print("start of cycle k+1 vs k (max |dq|, |dv|):", ", ".join(f"{d:.1e}" for d in start_diff))
     print("events of cycle k+1 vs k, max |dt - 2 s|:", ", ".join(f"{d:.1e}" for d in event_diff))
     assert max(start_diff) < 1e-9
