@@ -12,9 +12,10 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
+import builders
 import pcmm
 import pcmm.cli
-from conftest import EXAMPLES, URDF_DIR, copy_example, example_text
+from builders import EXAMPLES, URDF_DIR, copy_example, example_text
 from pcmm.assembly import assemble
 from pcmm.checks import check_scene
 from pcmm.mechanism import Mechanism
@@ -405,8 +406,7 @@ def test_six_digit_stop_point_is_reported_as_the_point(tmp_path):
     """A stop on the frame at q = -30 deg with the frame's contact point typed to six digits
     (0.519615, -0.3 for 0.6 (cos, sin)(-30 deg)): check blames the point, by its distance, and not
     the normal, which is exact; written as an expression the same scene is clean."""
-    import extreme_models as xm
-    path = xm.pendulum(tmp_path, 0.5, qs=-math.pi / 6)
+    path = builders.pendulum(tmp_path, 0.5, qs=-math.pi / 6)
     exact = path.read_text()
     assert "0.5196152422706632" in exact
     path.write_text(exact.replace("0.5196152422706632", "0.519615"))

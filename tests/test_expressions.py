@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import pcmm
-from conftest import copy_example, example_text
+from builders import copy_example, example_text
 from pcmm.errors import SceneError
 from pcmm.expressions import ExpressionError, evaluate
 
@@ -84,5 +84,5 @@ def test_pi_and_deg_scene_runs_as_example1(tmp_path):
 
 
 def pcmm_example():
-    from conftest import EXAMPLES
+    from builders import EXAMPLES
     return EXAMPLES / "three_bar.toml"
