@@ -107,7 +107,7 @@ def map_state(src: Configuration, dst: Configuration, q, v, known: dict | None =
         else:
             missing.append(name)
     if missing:
-        q_new, v_new = _joints_from_poses(src, dst, q, v, q_new, v_new, missing)
+        q_new, v_new = joints_from_poses(src, dst, q, v, q_new, v_new, missing)
     dropped = {n: float(v[src.joint_slice[n]][0]) for n in src.joint_names
                if n not in dst.joint_slice and src.joint_slice[n].stop - src.joint_slice[n].start == 1}
     return q_new, v_new, dropped
@@ -137,7 +137,7 @@ def pose_mismatches(src: Configuration, dst: Configuration, q_src, q_dst):
     return offsets, problems
 
 
-def _joints_from_poses(src, dst, q, v, q_new, v_new, names):
+def joints_from_poses(src, dst, q, v, q_new, v_new, names):
     """Values and rates of joints that ``src`` does not have (a released lock): from the poses
     and velocities of their parent and child links in ``src``."""
     poses = src.link_poses(q)
