@@ -49,16 +49,15 @@ def _refine(cfg: Configuration, tr, seg: SegmentRecord, lo: float, hi: float, t0
 def closest_approach(scene: Scene, cfg: Configuration, traj: Trajectory) -> list[dict]:
     """One record per transition out of ``cfg``: where, over the run in ``cfg``, its guard came
     closest to its value (the nearest step, refined on the dense output)."""
+    watched = [tr for tr in scene.transitions_from(cfg.name) if tr.guard.type in ("coordinate", "gap")]
     segs = [s for s in traj.segments if s.configuration == cfg.name]
-    if not segs:
+    if not segs or not watched:  # time and reaction guards: no approach to report
         return []
     t = np.concatenate([s.t for s in segs])
     q = np.concatenate([s.q for s in segs])
     owner = np.concatenate([np.full(s.t.size, k) for k, s in enumerate(segs)])
     out = []
-    for tr in scene.transitions_from(cfg.name):
-        if tr.guard.type not in ("coordinate", "gap"):  # time and reaction guards: no approach to report
-            continue
+    for tr in watched:
         fired = [e["t"] for e in traj.events if e.get("name") == tr.name]
         after = t > max(fired) if fired else np.ones(t.size, bool)  # since it last fired
         if not after.any():

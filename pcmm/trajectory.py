@@ -124,6 +124,11 @@ class RunStats(dict):
             super().__setitem__(key, None)
         self._deferred = dict(deferred)
 
+    def defer(self, key: str, fn) -> None:
+        """Make ``key``'s value ``fn()``, computed the first time it is read."""
+        super().__setitem__(key, None)
+        self._deferred[key] = fn
+
     def _settle(self, key=None):
         for k in ([key] if key is not None else list(self._deferred)):
             fn = self._deferred.pop(k, None)
