@@ -634,17 +634,22 @@ def test_a_closed_stdout_pipe_is_no_traceback_and_loses_no_file(tmp_path):
 
 
 def test_sigterm_shuts_the_replay_server_down(tmp_path, capsys):
-    """``pcmm replay`` serving, then SIGTERM: the meshcat server it started is gone."""
+    """``pcmm replay`` serving, then SIGTERM: the meshcat server it started is gone. The scene's
+    name carries an escape sequence: the replay's status line prints it escaped."""
     psutil = pytest.importorskip("psutil")
     scene = builders.ball(tmp_path / "s", 0.5, t_end=0.3)
+    text = scene.read_text()
+    assert text.count('name = "') >= 1
+    scene.write_text(text.replace('name = "', 'name = "\\u001b[31m', 1))
     assert cli(["run", scene, "--out", tmp_path / "t.npz", "--quiet"], capsys)[0] == 0
     p = subprocess.Popen([PY, "-m", "pcmm.cli", "replay", str(tmp_path / "t.npz"), "--fps", "10"], cwd=tmp_path,
                          env={**env(), "PCMM_REPLAY_NO_WAIT": ""}, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                          text=True)
     deadline = time.monotonic() + 120
-    line = ""
+    line, printed = "", ""
     while "press Ctrl-C" not in line and time.monotonic() < deadline:
         line = p.stdout.readline()
+        printed += line
         if not line and p.poll() is not None:
             pytest.fail(f"replay ended early: {p.stderr.read()}")
     servers = [c for c in psutil.Process(p.pid).children(recursive=True)
@@ -653,6 +658,7 @@ def test_sigterm_shuts_the_replay_server_down(tmp_path, capsys):
     p.send_signal(signal.SIGTERM)
     _, err = p.communicate(timeout=60)
     assert "Traceback" not in err
+    assert "\x1b" not in printed + err and "\\x1b[31m" in printed, printed
     for s in servers:
         assert not s.is_running() or s.status() == psutil.STATUS_ZOMBIE, f"meshcat server {s.pid} left running"
 
