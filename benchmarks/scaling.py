@@ -6,7 +6,10 @@ frame, gravity -y, released from the horizontal with the last joint at
 pi - 0.6 rad opening at 12 rad/s.  A stop between the last two links (link n
 folds onto link n-1 at Jn = pi, contact at the bars' midpoints, e = 0.5,
 merging into a configuration where Jn is welded when the bounces accumulate)
-gives an internal (mobile) impact at t ~ 0.05 s.  Run to t_end = 0.5 s with
+gives an internal (mobile) impact at t ~ 0.05 s; then the first link strikes a
+stop on the frame at J1 = -0.25 rad and latches (a stable impact, plastic, into
+the configuration derived from the first with J1 locked) at t ~ 0.06..0.17 s:
+two impacts at every n.  Run to t_end = 0.5 s with
 the default method (auto: DOP853F on these trees), rtol 1e-10, atol 1e-12, for n = 3, 5, 10, 20, 50, 100 (and 200, to see the trend).
 
 Measured per n (median of interleaved repetitions): the cost per integration
@@ -56,6 +59,7 @@ L, RHO, AREA = 0.125, 7800.0, 2e-4
 M = RHO * AREA * L
 IZZ = M * L * L / 12
 T_END = 0.5
+Q_STOP1 = 0.25  # rad: the first link strikes a stop on the frame as the chain falls (the second impact)
 LIMIT = '<limit lower="-1e6" upper="1e6" effort="1e6" velocity="1e6"/>'
 
 
@@ -96,6 +100,10 @@ urdf = "chain{n}_c1.urdf"
 [configurations.config2]
 urdf = "chain{n}_c2.urdf"
 
+[configurations.config3]  # the first link held on its stop
+from = "config1"
+lock = ["J1"]
+
 [initial]
 q = {{ {q} }}
 v = {{ {v} }}
@@ -109,6 +117,15 @@ merge_to = "config2"
 cut = ["J{n}"]
 guard = {{ type = "coordinate", measure = {{ between = ["link{n - 1}", "link{n}"] }}, value = {math.pi!r}, direction = "increasing" }}
 contact = {{ a = "link{n - 1}", point_a = [{L / 2}, 0.0], b = "link{n}", point_b = [{L / 2}, 0.0], normal = [0.0, 1.0] }}
+
+[[transitions]]
+name = "first stop"
+type = "latch"
+from = "config1"
+to = "config3"
+cut = ["J1"]
+guard = {{ type = "coordinate", measure = {{ joint = "J1" }}, value = {-Q_STOP1!r}, direction = "decreasing" }}
+contact = {{ a = "frame", point_a = ["{L / 2}*cos({-Q_STOP1!r})", "{L / 2}*sin({-Q_STOP1!r})"], b = "link1", point_b = [{L / 2}, 0.0], normal = ["sin({Q_STOP1!r})", "cos({Q_STOP1!r})"] }}
 """
     path = folder / f"chain{n}.toml"
     path.write_text(text)
@@ -157,8 +174,10 @@ def main(argv=None):
                                    "crba+cholesky", "whole", "whole_free")}
                for n in args.n}
     first = {}
-    for rep in range(args.reps):
-        for n, sc in scenes.items():
+    # one n at a time, its runs with and without the stops interleaved: interleaving every n would cycle
+    # through more models than pcmm keeps per process (16), and every large chain would be rebuilt each time
+    for n, sc in scenes.items():
+        for rep in range(args.reps):
             log = []
             t_whole = time.perf_counter()
             with timed_segments(log):
@@ -243,14 +262,15 @@ def main(argv=None):
           f"An n-link chain of uniform steel bars (L = {L} m, m = {M:.3f} kg, Izz = mL²/12), revolute joints, gravity −y, "
           f"released from the horizontal with the last joint at π − 0.6 rad opening at 12 rad/s; a stop (e = 0.5) "
           f"folds link n onto link n−1 at Jn = π (a mobile impact at t ≈ 0.05 s), merging into a configuration with Jn "
-          f"welded if the bounces accumulate. t_end = {T_END} s, the default method (auto: DOP853F on trees), rtol 1e-10, atol 1e-12. Median of "
+          f"welded if the bounces accumulate; then link 1 strikes a stop on the frame at J1 = −{Q_STOP1} rad and latches "
+          f"(a stable impact into the configuration derived with J1 locked): two impacts at every n. t_end = {T_END} s, the default method (auto: DOP853F on trees), rtol 1e-10, atol 1e-12. Median of "
           f"{args.reps} interleaved repetitions. `µs / step` = time inside the integrator / steps; `µs / step incl. "
           "events` = wall_s / steps; `µs / rhs eval` = time inside the integrator / rhs_evals (the integrator's own "
           "overhead included); `µs / rhs call`, `µs / aba`, `µs / (CRBA + Cholesky)` = one call alone at a random state; "
           "`ms / event` = time `simulate` spends outside the integrator per event (impulse solve and switch).", "",
           table, "", "Log-log slopes (growth exponents):", "", slope_table, "",
-          "Whole `pcmm.simulate` runs of each chain with its stop (the impact, the impulse solve, the switch) "
-          "against the same chain without the stop (no impact), interleaved in the same run. The first run of each "
+          "Whole `pcmm.simulate` runs of each chain with its two stops (the impacts, the impulse solves, the switches) "
+          "against the same chain without the stops (no impact), interleaved in the same run. The first run of each "
           "builds the Pinocchio models (one per configuration, plus the cut system and the impulse model at the "
           "first impact); later runs of the same scene reuse them (models are built once per process).", "",
           whole, "",

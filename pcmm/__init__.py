@@ -37,6 +37,25 @@ except (KeyboardInterrupt, ImportError) as _exc:
         raise SystemExit(130) from None
     raise
 
+# The data model and the results call the layers above them through these bindings (the loader's
+# validation for Scene.with_values; the views for Trajectory.show/plot, imported when first used).
+from . import spec as _spec, trajectory as _trajectory  # noqa: E402
+from .variations import with_values as _with_values  # noqa: E402
+
+
+def _show(traj, *others, **options):
+    from .replay import Inline
+    return Inline(traj, *others, **options)
+
+
+def _plot(traj, **options):
+    from .plots import figures
+    return figures(traj, **options)
+
+
+_spec.EDIT_VALUES = _with_values
+_trajectory.VIEWS.update(show=_show, plot=_plot)
+
 __all__ = ["load_scene", "simulate", "RunOptions", "Trajectory", "Scene", "PcmmError", "SceneError",
            "ModelError", "SimulationError", "UsageError"]
 __version__ = "0.1.0"

@@ -1,18 +1,22 @@
 """Why a run ended without the expected event: each guard's closest approach to its value.
 
 When a run reaches ``t_end`` in a configuration that still has transitions, none of their guards
-fired.  For each, the sample of the run (in that configuration) where the guard came closest to its
+fired.  For each, the instant of the run (in that configuration) where the guard came closest to its
 value says whether it was a near miss (a guard value a hair off, an event_tol question) or never
-close (a wrong value, direction or assembly branch).
+close (a wrong value, direction or assembly branch).  The nearest recorded step is refined on the
+integrator's dense output between its neighbours (a bounded Brent search), so a near miss between
+two long steps is measured, not the step's distance.
 """
 from __future__ import annotations
 
 import numpy as np
+from scipy.optimize import minimize_scalar
 
 from .configuration import Configuration
 from .contact import contact_state
 from .spec import Scene
-from .trajectory import Trajectory
+from .errors import UsageError
+from .trajectory import SegmentRecord, Trajectory
 
 
 def guard_series(cfg: Configuration, tr, q: np.ndarray) -> np.ndarray:
@@ -24,18 +28,36 @@ def guard_series(cfg: Configuration, tr, q: np.ndarray) -> np.ndarray:
     return np.array([contact_state(cfg, qi, zero, tr.contact)[1] for qi in q])
 
 
+def _refine(cfg: Configuration, tr, seg: SegmentRecord, lo: float, hi: float, t0: float, g0: float):
+    """(t, g): the guard's closest approach to its value within [lo, hi] of ``seg`` on the dense
+    output, or the recorded (t0, g0) when the segment has none (a loaded trajectory) or the
+    search finds nothing nearer."""
+    def g(t):
+        return float(guard_series(cfg, tr, seg.resampled(np.array([t])).q)[0])
+    if not hi > lo:
+        return t0, g0
+    try:
+        res = minimize_scalar(lambda t: abs(g(t) - tr.guard.value), bounds=(lo, hi), method="bounded",
+                              options={"xatol": 1e-12 * max(1.0, abs(hi))})
+    except UsageError:  # no dense output
+        return t0, g0
+    t1 = float(res.x)
+    g1 = g(t1)
+    return (t1, g1) if abs(g1 - tr.guard.value) < abs(g0 - tr.guard.value) else (t0, g0)
+
+
 def closest_approach(scene: Scene, cfg: Configuration, traj: Trajectory) -> list[dict]:
-    """One record per transition out of ``cfg``: where, over the run's samples in ``cfg``, its
-    guard came closest to its value."""
+    """One record per transition out of ``cfg``: where, over the run in ``cfg``, its guard came
+    closest to its value (the nearest step, refined on the dense output)."""
+    watched = [tr for tr in scene.transitions_from(cfg.name) if tr.guard.type in ("coordinate", "gap")]
     segs = [s for s in traj.segments if s.configuration == cfg.name]
-    if not segs:
+    if not segs or not watched:  # time and reaction guards: no approach to report
         return []
     t = np.concatenate([s.t for s in segs])
     q = np.concatenate([s.q for s in segs])
+    owner = np.concatenate([np.full(s.t.size, k) for k, s in enumerate(segs)])
     out = []
-    for tr in scene.transitions_from(cfg.name):
-        if tr.guard.type not in ("coordinate", "gap"):  # time and reaction guards: no approach to report
-            continue
+    for tr in watched:
         fired = [e["t"] for e in traj.events if e.get("name") == tr.name]
         after = t > max(fired) if fired else np.ones(t.size, bool)  # since it last fired
         if not after.any():
@@ -46,9 +68,13 @@ def closest_approach(scene: Scene, cfg: Configuration, traj: Trajectory) -> list
         # is a local minimum inside the run (else the nearer end); otherwise the nearest sample
         inner = np.flatnonzero((d[1:-1] <= d[:-2]) & (d[1:-1] <= d[2:]) & np.isfinite(d[:-2])) + 1
         i = int(inner[np.argmin(d[inner])]) if fired and inner.size else int(np.argmin(d))
+        k = owner[i]
+        same = np.flatnonzero((owner == k) & after)  # the neighbours within the same segment
+        lo, hi = t[max(i - 1, same[0])], t[min(i + 1, same[-1])]
+        ti, gi = _refine(cfg, tr, segs[k], float(lo), float(hi), float(t[i]), float(g[i]))
         out.append({"transition": tr.name, "guard": str(tr.guard.measure) if tr.guard.measure else "contact gap",
                     "value": tr.guard.value, "direction": "increasing" if tr.guard.direction > 0 else "decreasing",
-                    "closest": float(g[i]), "t": float(t[i]), "distance": float(abs(g[i] - tr.guard.value)),
+                    "closest": gi, "t": ti, "distance": float(abs(gi - tr.guard.value)),
                     "last_fired": max(fired) if fired else None})
     return out
 

@@ -20,6 +20,7 @@ import time
 from pathlib import Path
 
 from .errors import OutputError, PcmmError, SimulationError, UsageError
+from .outputs import terminal_text
 
 
 def _number(name, strict=True):
@@ -189,15 +190,6 @@ def say(text: str = "", file=None) -> None:
 
 def _error(text: str, prefix: str = "pcmm: error: ") -> None:
     say(prefix + text, file=sys.stderr)
-
-
-def terminal_text(text: str) -> str:
-    """``text`` with control and escape characters shown escaped (``\x1b``), newlines and tabs
-    kept: a name in a scene can never move the cursor or recolour the terminal."""
-    if text.isprintable():
-        return text
-    return "".join(c if c.isprintable() or c in "\n\t" else c.encode("unicode_escape").decode("ascii")
-                   for c in text)
 
 
 def _resolved(p: Path) -> Path:

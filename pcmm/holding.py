@@ -26,6 +26,7 @@ from .errors import SimulationError
 from .contact import contact_row
 from .mechanism import Mechanism
 from .spec import TransitionSpec
+from .transitions import joints_from_poses
 from .witness import Guard
 
 
@@ -66,7 +67,6 @@ class Holds:
     def adopt(self, cfg: Configuration, q: np.ndarray, v: np.ndarray) -> None:
         """Locks the run starts with: a joint that a reaction guard watches and the initial
         configuration lacks is held from the start, at the value its links give it."""
-        from .transitions import _joints_from_poses  # the state mapping by links' poses
         watched = {tr.guard.of for tr in self.scene.transitions if tr.guard.type == "reaction"}
         joints = self._joint_sets()
         for of in sorted(watched):
@@ -74,7 +74,7 @@ class Holds:
                 continue
             source = next(name for name, js in joints.items() if of in js and set(cfg.joint_names) <= js)
             src = self.mechanism[source]
-            q_s, v_s = _joints_from_poses(cfg, src, q, v, src.neutral(), np.zeros(src.nv), [of])
+            q_s, v_s = joints_from_poses(cfg, src, q, v, src.neutral(), np.zeros(src.nv), [of])
             tr = next(t for t in self.scene.transitions if t.guard.type == "reaction" and t.guard.of == of)
             self.items.append(Hold(of, tr, {of: q_s[src.joint_slice[of]].copy()}, False, False))
 

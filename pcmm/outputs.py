@@ -156,3 +156,12 @@ def publish_folder(staging: Path, dest: Path, force: bool) -> list[Path]:
 
 
 __all__ = ["atomic_write", "unique_path", "write_new", "fallback_folders", "fallback_path", "publish_folder"]
+
+
+def terminal_text(text: str) -> str:
+    """``text`` with control and escape characters shown escaped (``\x1b``), newlines and tabs
+    kept: a name in a scene can never move the cursor or recolour the terminal."""
+    if text.isprintable():
+        return text
+    return "".join(c if c.isprintable() or c in "\n\t" else c.encode("unicode_escape").decode("ascii")
+                   for c in text)

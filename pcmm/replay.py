@@ -64,6 +64,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import UsageError
+from .outputs import terminal_text
 from .replay_page import BAR_PX, EVENT_COLOURS, RUN_COLOURS, drawn_impacts, impulse_label, page, run_name
 from .signals import as_interrupts
 from .trajectory import Trajectory, atomic_write, event_kind
@@ -191,8 +192,8 @@ def read_visuals(urdf: str | Path, where: str | None = None) -> dict[str, list[V
                 elif shape.tag == "sphere":
                     vis.append(Visual("sphere", (float(shape.get("radius")),), T, rgba, coloured))
                 else:
-                    print(f"pcmm: replay: {urdf}: link '{name}': <{shape.tag}> visuals are not shown "
-                          "(box, cylinder and sphere are)", file=sys.stderr)
+                    print(terminal_text(f"pcmm: replay: {urdf}: link '{name}': <{shape.tag}> visuals are not "
+                                        "shown (box, cylinder and sphere are)"), file=sys.stderr)
             except (TypeError, ValueError):
                 raise UsageError(f"{urdf}: link '{name}': a <visual> has a malformed number") from None
         out[name] = vis
@@ -652,8 +653,8 @@ def _send_scene(vis, runs: list[Trajectory], fps: float) -> dict:
         for config, per_link in per_config.items():
             for link, vs in per_link.items():
                 if link not in poses:
-                    print(f"pcmm: replay: link '{link}' of configuration '{config}' is not in the "
-                          "trajectory; its visuals stay at the origin", file=sys.stderr)
+                    print(terminal_text(f"pcmm: replay: link '{link}' of configuration '{config}' is not in "
+                                        "the trajectory; its visuals stay at the origin"), file=sys.stderr)
                 for i, v in enumerate(vs):
                     if several:
                         if own[link] == _GREY and r:  # one frame is enough
@@ -804,7 +805,7 @@ def serve(traj: Trajectory, fps: float = 60, others=()) -> None:
     with as_interrupts(), _meshcat() as vis:  # SIGTERM / SIGHUP shut the servers down like Ctrl-C
         page, info = _build(runs, fps, live=vis.window)
         with _page_server(page) as url:
-            print(f"pcmm replay: {' vs '.join(run_name(r) for r in runs)}: {info['frames']} frames at "
+            print(f"pcmm replay: {terminal_text(' vs '.join(run_name(r) for r in runs))}: {info['frames']} frames at "
                   f"{fps:g} fps; open {url} in a browser (time readout, event timeline; "
                   f"meshcat's own viewer: {vis.url()})", flush=True)
             if os.environ.get(NO_WAIT_ENV, "") not in ("", "0"):

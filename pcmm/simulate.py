@@ -234,7 +234,8 @@ def simulate(scene: Scene, options: RunOptions = RunOptions(), progress=None) ->
     finally:  # a partial run keeps them too (pcmm derive writes what it reached)
         stats["configurations_built"] = list(mech.built)
         stats["derived_configurations"] = mech.derived
-    stats["closest_approach"] = closest_approach(scene, cfg, traj)  # the guards that did not fire
+    # the guards that did not fire: computed when read (it reads the final segments' coordinates)
+    stats.defer("closest_approach", lambda cfg=cfg: closest_approach(scene, cfg, traj))
     return traj
 
 

@@ -8,10 +8,16 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import ClassVar
+from typing import Callable, ClassVar
 
 from .settings import SolverSettings, solver_settings_type
+from .errors import UsageError
 from .urdf import UrdfInfo, UrdfJoint
+
+#: How :meth:`Scene.with_values` validates edited values exactly as the TOML file is: the loader
+#: (:func:`pcmm.variations.with_values`), bound by the package's top level (``pcmm/__init__.py``)
+#: because the loader sits above the data model in the module layers.
+EDIT_VALUES: Callable | None = None
 
 
 @dataclass(frozen=True)
@@ -249,8 +255,9 @@ class Scene:
     def with_values(self, values) -> "Scene":
         """A new scene with the values at the given paths changed, validated exactly as
         the TOML file is, e.g. ``{"forces.tau1.value": 2.0}`` (:mod:`pcmm.variations`)."""
-        from .variations import with_values
-        return with_values(self, values)
+        if EDIT_VALUES is None:
+            raise UsageError("Scene.with_values needs pcmm's loader: import pcmm (not only pcmm.spec)")
+        return EDIT_VALUES(self, values)
 
     def forces_in(self, config: str) -> tuple[ForceSpec, ...]:
         return tuple(f for f in self.forces if f.configurations is None or config in f.configurations)

@@ -24,6 +24,7 @@ import xml.etree.ElementTree as ET
 import zipfile
 import zlib
 from dataclasses import dataclass, field
+from typing import Callable
 from pathlib import Path
 
 import numpy as np
@@ -34,9 +35,20 @@ from .outputs import atomic_write  # noqa: F401  (plots and replay import it fro
 FORMAT = "pcmm-trajectory-2"
 _FORMATS = ("pcmm-trajectory-1", FORMAT)
 _ARRAYS = ("t", "q", "v", "theta", "omega", "xy", "kinetic", "potential", "forces", "constraint_forces")
-
-
 _DERIVED = _ARRAYS[1:]  # everything but t: computed from the integrator's states when first asked for
+
+
+#: The notebook views of a trajectory (``"show"``: the inline replay, ``"plot"``: the figure set),
+#: supplied by the package's top level (``pcmm/__init__.py``). The views sit above the results in
+#: the module layers, so the results reach them through this table instead of importing them.
+VIEWS: dict[str, Callable] = {}
+
+
+def _notebook_view(name: str) -> Callable:
+    try:
+        return VIEWS[name]
+    except KeyError:
+        raise UsageError(f"Trajectory.{name}() needs pcmm's views: import pcmm (not only pcmm.trajectory)") from None
 
 
 @dataclass
@@ -111,6 +123,11 @@ class RunStats(dict):
         for key in deferred:
             super().__setitem__(key, None)
         self._deferred = dict(deferred)
+
+    def defer(self, key: str, fn) -> None:
+        """Make ``key``'s value ``fn()``, computed the first time it is read."""
+        super().__setitem__(key, None)
+        self._deferred[key] = fn
 
     def _settle(self, key=None):
         for k in ([key] if key is not None else list(self._deferred)):
@@ -341,13 +358,11 @@ class Trajectory:
         """The offline replay page, inline in Jupyter (an ``<iframe srcdoc>``, no server).
 
         ``others`` are overlaid, each in its own colour (e.g. the run without impact)."""
-        from .replay import Inline  # the views sit above the results: imported when asked for
-        return Inline(self, *others, fps=fps, height=height)
+        return _notebook_view("show")(self, *others, fps=fps, height=height)
 
     def plot(self, compare: "Trajectory | None" = None, impulse_sign: str = "body_b") -> dict:
         """The paper's figure set as matplotlib figures, ``{file stem: Figure}``."""
-        from .plots import figures
-        return figures(self, compare=compare, impulse_sign=impulse_sign)
+        return _notebook_view("plot")(self, compare=compare, impulse_sign=impulse_sign)
 
     # ---- files ------------------------------------------------------------------------
     def save(self, path: str | Path, force: bool = True) -> Path:

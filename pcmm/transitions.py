@@ -36,12 +36,12 @@ from .configuration import Configuration
 from .mechanism import Mechanism
 from .errors import SimulationError
 from .contact import contact_point, contact_state
+from .contact_faults import POSE_TOL, contact_findings
 from .events import by_link, event_record
 from .guards import guard_value
 from .impulse import no_impulse, solve_impulse
 from .spec import LatchSpec, StopSpec, TransitionSpec
 
-POSE_TOL = 1e-9
 RESTING_FACTOR = 100.0  # a guard crossing at a separating speed below 100 x the accumulation speed is rest
 
 
@@ -107,7 +107,7 @@ def map_state(src: Configuration, dst: Configuration, q, v, known: dict | None =
         else:
             missing.append(name)
     if missing:
-        q_new, v_new = _joints_from_poses(src, dst, q, v, q_new, v_new, missing)
+        q_new, v_new = joints_from_poses(src, dst, q, v, q_new, v_new, missing)
     dropped = {n: float(v[src.joint_slice[n]][0]) for n in src.joint_names
                if n not in dst.joint_slice and src.joint_slice[n].stop - src.joint_slice[n].start == 1}
     return q_new, v_new, dropped
@@ -137,7 +137,7 @@ def pose_mismatches(src: Configuration, dst: Configuration, q_src, q_dst):
     return offsets, problems
 
 
-def _joints_from_poses(src, dst, q, v, q_new, v_new, names):
+def joints_from_poses(src, dst, q, v, q_new, v_new, names):
     """Values and rates of joints that ``src`` does not have (a released lock): from the poses
     and velocities of their parent and child links in ``src``."""
     poses = src.link_poses(q)
@@ -201,9 +201,8 @@ def check_latch_compressive(tr: TransitionSpec, t, imp: Impulse, v) -> None:
 
 
 def _contact_faults(cfg: Configuration, tr: TransitionSpec, q, otherwise: str) -> list[str]:
-    """What is wrong with the contact at ``q`` (:func:`pcmm.checks.contact_findings`: the points
+    """What is wrong with the contact at ``q`` (:func:`pcmm.contact_faults.contact_findings`: the points
     or the normal, whichever is at fault), else ``otherwise``."""
-    from .checks import contact_findings  # checks builds on this module
     return [f"transition '{tr.name}', {f.field}: {f.text}" for f in contact_findings(cfg, tr, q)] or [otherwise]
 
 

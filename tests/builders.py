@@ -431,3 +431,13 @@ def four_bar_rocker_stop(folder: Path, e: float, rocker_stop: float, torque: flo
                    forces=[{"name": "motor", "type": "torque", "on": {"joint": "A"}, "value": torque}])
     doc["initial"]["independent"] = ["A"]
     return write_scene(folder, doc, {"free.urdf": free, "locked.urdf": locked})
+
+
+# ---- planar geometry of hand derivations ------------------------------------------------------------
+def rot(theta: float) -> np.ndarray:
+    c, s = math.cos(theta), math.sin(theta)
+    return np.array([[c, -s], [s, c]])
+
+
+def cross2(a, b) -> float:
+    return float(a[0] * b[1] - a[1] * b[0])

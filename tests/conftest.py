@@ -1,14 +1,11 @@
 """Fixtures of the pcmm test suite: scenes written into ``tmp_path`` by :mod:`builders`."""
 from __future__ import annotations
 
-import math
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 from builders import scene_doc, write_scene
-from builders import *  # noqa: F401,F403  (suites that import their builders from conftest)
 
 
 @pytest.fixture
@@ -37,12 +34,3 @@ def configuration(make_scene):
         scene = pcmm.load_scene(make_scene(urdfs, **kw))
         return scene, Mechanism(scene)[name]
     return build
-
-
-def rot(theta: float) -> np.ndarray:
-    c, s = math.cos(theta), math.sin(theta)
-    return np.array([[c, -s], [s, c]])
-
-
-def cross2(a, b) -> float:
-    return float(a[0] * b[1] - a[1] * b[0])

@@ -25,7 +25,6 @@ import numpy as np
 import pytest
 
 import builders
-import extreme_models as xm
 import pcmm
 import pcmm.guards
 
@@ -41,7 +40,7 @@ def _slider_crank_normal_acceleration() -> float:
     th' = 0, with M the kinetic-energy coefficient of the crank, the rod and the slider, and
     x'' = x'(th) th''."""
     p = SLIDER_CRANK
-    a, b, g = p["a"], p["b"], xm.G
+    a, b, g = p["a"], p["b"], builders.G
 
     def geometry(th):
         phi = math.asin(-a * math.sin(th) / b)  # the rod's absolute angle (slider on y = 0)
@@ -213,15 +212,15 @@ def test_bouncing_ball_series_to_1e_8(tmp_path):
     """The tree: the ball's gap is its height, resolved to round-off near zero, so the series
     holds to 1e-9 relative all the way down to an accumulation speed of 1e-8 m/s."""
     h, acc = 1.0, 1e-8
-    t1, v1 = math.sqrt(2 * h / xm.G), math.sqrt(2 * xm.G * h)
-    traj = _run(builders.ball(tmp_path, E, h=h, t_end=t1 + 2 * v1 / (xm.G * (1 - E)) + 0.5), accumulation_speed=acc)
+    t1, v1 = math.sqrt(2 * h / builders.G), math.sqrt(2 * builders.G * h)
+    traj = _run(builders.ball(tmp_path, E, h=h, t_end=t1 + 2 * v1 / (builders.G * (1 - E)) + 0.5), accumulation_speed=acc)
     approach, rebound = _speeds(traj)
     assert np.all(np.abs(approach[1:] / rebound[:-1] - 1)[rebound[:-1] > 1e-4] < 1e-9)
-    assert _series_violations(traj, xm.G, 0.0).size == 0  # the gap is the height: its ulp vanishes at 0
+    assert _series_violations(traj, builders.G, 0.0).size == 0  # the gap is the height: its ulp vanishes at 0
     n_expected = math.ceil(math.log(acc / v1) / math.log(E))
     assert len(approach) == n_expected and traj.events[-1]["merge"]
     # merge time: t1 plus the flights 2 e^k v1 / g of the bounces before the merge
-    t_merge = t1 + sum(2 * E ** k * v1 / xm.G for k in range(1, n_expected))
+    t_merge = t1 + sum(2 * E ** k * v1 / builders.G for k in range(1, n_expected))
     assert traj.events[-1]["t"] == pytest.approx(t_merge, abs=1e-9)
     (macro,) = traj.stats["macro_impacts"]
     assert macro["flight_energy_relative_max"] < 1e-9

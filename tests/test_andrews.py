@@ -16,7 +16,7 @@ import pytest
 
 import pcmm
 import reference_andrews as ref_model
-from conftest import EXAMPLES
+from builders import EXAMPLES
 
 ANGLES = ("beta", "Theta", "gamma", "Phi", "delta", "Omega", "epsilon")
 # test set, andrews.f, solut: y(1..7) and y(8..14) at t = 0.03 s

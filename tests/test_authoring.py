@@ -12,9 +12,10 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
+import builders
 import pcmm
 import pcmm.cli
-from conftest import EXAMPLES, URDF_DIR, copy_example, example_text
+from builders import EXAMPLES, URDF_DIR, copy_example, example_text
 from pcmm.assembly import assemble
 from pcmm.checks import check_scene
 from pcmm.mechanism import Mechanism
@@ -345,6 +346,28 @@ def test_closest_approach_when_the_latch_never_fires(tmp_path):
     assert rec["distance"] == pytest.approx(math.pi / 2, abs=1e-15) and rec["last_fired"] is None
 
 
+def test_closest_approach_is_measured_between_long_steps(tmp_path):
+    """A bar released at rest 0.6 rad from hanging swings to 0.6 rad on the other side (energy
+    conservation: no force but gravity); a stop 0.61 rad out is never reached. The closest approach
+    is that turning point, -pi/2 - 0.6, found on the dense output between two long steps, where the
+    nearest recorded step alone is far off (asserted, so the refinement is what is tested)."""
+    turn = -math.pi / 2 - 0.6
+    path = builders.pendulum(tmp_path, 0.5, qs=turn - 0.01, q0=-math.pi / 2 + 0.6, t_end=1.2)
+    run = pcmm.simulate(pcmm.load_scene(path))
+    assert run.events == []
+    (rec,) = run.stats["closest_approach"]
+    step_error = float(np.min(np.abs(run.segments[0].q[:, 0] - turn)))
+    assert step_error > 1e-6, "the steps land near the turning point: the refinement goes untested"
+    assert rec["closest"] == pytest.approx(turn, abs=1e-9)
+    assert rec["distance"] == pytest.approx(0.01, abs=1e-9)
+    # the half period of the compound pendulum at this amplitude, by quadrature of the energy integral
+    from scipy.integrate import quad
+    L, g = 0.6, builders.G
+    w2 = 1.5 * g / L  # m g (L/2) / (m L^2 / 3)
+    half = 2 * quad(lambda x: 1 / math.sqrt(2 * w2 * (math.cos(x) - math.cos(0.6))), 0, 0.6, limit=200)[0]
+    assert rec["t"] == pytest.approx(half, abs=1e-6)
+
+
 def test_cli_says_why_the_run_ended_without_its_event(tmp_path, capsys):
     """The template arm with its motor reversed never latches: the CLI and the summary say how
     close the latch came (the relative angle's largest value, read off the trajectory)."""
@@ -405,8 +428,7 @@ def test_six_digit_stop_point_is_reported_as_the_point(tmp_path):
     """A stop on the frame at q = -30 deg with the frame's contact point typed to six digits
     (0.519615, -0.3 for 0.6 (cos, sin)(-30 deg)): check blames the point, by its distance, and not
     the normal, which is exact; written as an expression the same scene is clean."""
-    import extreme_models as xm
-    path = xm.pendulum(tmp_path, 0.5, qs=-math.pi / 6)
+    path = builders.pendulum(tmp_path, 0.5, qs=-math.pi / 6)
     exact = path.read_text()
     assert "0.5196152422706632" in exact
     path.write_text(exact.replace("0.5196152422706632", "0.519615"))

@@ -14,7 +14,7 @@ import pytest
 
 import pcmm
 from builders import G, Bar, chain_urdf, free_bar_urdf, pendulum_urdf
-from conftest import rot
+from builders import rot
 
 # ---- closed forms ------------------------------------------------------------------------
 

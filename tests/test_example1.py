@@ -16,7 +16,7 @@ from scipy.integrate import solve_ivp
 
 import pcmm
 from builders import EXAMPLES, G, URDF_DIR
-from conftest import cross2
+from builders import cross2
 from pcmm.mechanism import Mechanism
 
 MASS = np.array([0.39, 0.195, 0.195])

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import pcmm
-from conftest import copy_example, example_text
+from builders import copy_example, example_text
 from pcmm.errors import SceneError
 from pcmm.expressions import ExpressionError, evaluate
 
@@ -65,13 +65,20 @@ def test_expression_in_list_and_name_lists_untouched(tmp_path):
         pcmm.load_scene(_scene(tmp_path, bad))
 
 
-def test_pi_and_deg_scene_runs_as_example1(tmp_path):
-    """Example 1 written with "pi", "deg" and expressions runs the same to 1e-12."""
+@pytest.mark.parametrize("stop", ["point", "joint"])
+def test_pi_and_deg_scene_runs_as_example1(tmp_path, stop):
+    """Example 1 written with "pi", "deg" and expressions runs the same to 1e-12; so does it with
+    the latch's contact written as a joint stop on O3 at the arm "0.125/2" (issue 13's scene of
+    "pi", "deg" and joint stops in one)."""
     text = (example_text().replace("value = 3.141592653589793", 'value = "180 deg"')
             .replace("q = { O1 = 0.0, O2 = 0.0, O3 = 0.0 }", 'q = { O1 = "0 deg", O2 = "0*pi", O3 = "pi - pi" }')
             .replace("value = 1.955", 'value = "1.955"').replace("k = 0.026", 'k = "0.026"')
             .replace("point_a = [0.0625, 0.0]", 'point_a = ["0.125 / 2", "sin(pi) * 0"]'))
     assert '"180 deg"' in text and '"0 deg"' in text
+    if stop == "joint":
+        line = next(ln for ln in text.splitlines() if ln.startswith("contact = { a = \"link2\""))
+        text = text.replace(line, 'contact = { joint = "O3", arm = "0.125/2" }')
+        assert 'joint = "O3"' in text and "point_b" not in text
     a = pcmm.simulate(pcmm.load_scene(pcmm_example()), pcmm.RunOptions(t_end=0.3))
     b = pcmm.simulate(pcmm.load_scene(_scene(tmp_path, text)), pcmm.RunOptions(t_end=0.3))
     assert len(a.events) == len(b.events) == 1
@@ -84,5 +91,5 @@ def test_pi_and_deg_scene_runs_as_example1(tmp_path):
 
 
 def pcmm_example():
-    from conftest import EXAMPLES
+    from builders import EXAMPLES
     return EXAMPLES / "three_bar.toml"

@@ -7,7 +7,7 @@ plus, per scene, the momentum that must be conserved (angular momentum about the
 pivot, linear and angular momentum of free bodies), the closure error of loops
 (``traj.stats["constraint_drift_max"]``) and finite numbers in every trajectory array.
 
-Scenes are written by ``extreme_models`` into ``tmp_path``.  Cases that show a pcmm bug
+Scenes are written by ``builders`` into ``tmp_path``.  Cases that show a pcmm bug
 are ``xfail(strict=True)`` with the bug in the reason.
 """
 from __future__ import annotations
@@ -20,11 +20,11 @@ import pytest
 from scipy.integrate import quad
 
 import builders
-import extreme_models as xm
+import suite_checks
 import pcmm
 from pcmm.cli import main as cli_main
 
-G = xm.G
+G = builders.G
 ACC_SPEED = 1e-6  # pcmm's default solver.accumulation_speed
 ACC_INTERVAL = 1e-9  # pcmm's default solver.accumulation_interval
 # After a bounce pcmm re-arms a stop's guard only once the gap has opened by a band of
@@ -44,7 +44,7 @@ def run(path, **options):
     return pcmm.simulate(pcmm.load_scene(path), pcmm.RunOptions(**options))
 
 
-assert_finite = xm.assert_finite
+assert_finite = suite_checks.assert_finite
 
 
 def assert_merge_rule(events, e, speed=ACC_SPEED, interval=ACC_INTERVAL):
@@ -92,7 +92,7 @@ def coords_at_end(traj, k):
     return dict(zip(s.coordinates, s.q[-1]))
 
 
-deadline = xm.deadline
+deadline = suite_checks.deadline
 
 
 # ---- closed forms ------------------------------------------------------------------------------

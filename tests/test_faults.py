@@ -23,7 +23,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import extreme_models as xm
+import suite_checks
+import builders
 import pcmm
 from pcmm.cli import main as cli_main
 
@@ -71,7 +72,7 @@ def steps_from_samples(traj) -> int:
 def test_unwritable_output_is_kept_in_a_fallback_folder(tmp_path, capsys, monkeypatch):
     monkeypatch.chdir(tmp_path)
     bad = unwritable_folder(tmp_path)
-    scene = xm.ball(tmp_path / "scene", 0.5, t_end=0.5)
+    scene = builders.ball(tmp_path / "scene", 0.5, t_end=0.5)
     rc, out, err = cli(["run", scene, "--out", bad / "run.npz", "--summary", bad / "run.json",
                         "--csv", tmp_path / "run.csv", "--quiet"], capsys)
     assert rc == 4
@@ -89,7 +90,7 @@ def test_unwritable_output_is_kept_in_a_fallback_folder(tmp_path, capsys, monkey
 def test_a_file_size_limit_is_an_error_naming_the_file_not_a_kill(tmp_path):
     """RLIMIT_FSIZE (a quota-like limit; writing past it raises SIGXFSZ, which kills by default):
     the small summary is written, the trajectory refused with the OS error, no temporary file left."""
-    scene = xm.ball(tmp_path / "scene", 0.5, t_end=2.0)  # trajectory about 58 kB, summary about 49 kB
+    scene = builders.ball(tmp_path / "scene", 0.5, t_end=2.0)  # trajectory about 58 kB, summary about 49 kB
     code = ("import resource, sys; resource.setrlimit(resource.RLIMIT_FSIZE, (54000, 54000)); "
             "from pcmm.cli import main; sys.exit(main(sys.argv[1:]))")
     p = subprocess.run([PY, "-c", code, "run", str(scene), "--out", "t.npz", "--summary", "s.json", "--quiet"],
@@ -106,7 +107,7 @@ def test_sigterm_and_sighup_keep_the_partial_like_ctrl_c(tmp_path):
     """Two long bouncing-ball runs, stopped after 5 s of CPU by SIGTERM (a batch scheduler, ``timeout``)
     and SIGHUP (a closed terminal): each writes its partial trajectory and summary, marked
     partial, exits 128 + the signal, and its summary's step count is its samples'."""
-    scene = xm.ball(tmp_path / "scene", 1.0, t_end=5000.0)  # e = 1: it bounces for ever (a merged ball is not integrated)
+    scene = builders.ball(tmp_path / "scene", 1.0, t_end=5000.0)  # e = 1: it bounces for ever (a merged ball is not integrated)
     procs = {}
     for sig in (signal.SIGTERM, signal.SIGHUP):
         d = tmp_path / sig.name
@@ -143,7 +144,7 @@ def _wait_for_cpu(pid: int, seconds: float, timeout: float = 240.0) -> None:
 
 def test_partial_stats_count_the_interrupted_segment(tmp_path):
     """An interrupt inside a segment: the steps it took are recorded and counted."""
-    scene = pcmm.load_scene(xm.spring_pendulum(tmp_path / "s", 10.0, 0.1, t_end=50.0))  # one long segment
+    scene = pcmm.load_scene(builders.spring_pendulum(tmp_path / "s", 10.0, 0.1, t_end=50.0))  # one long segment
 
     def progress(t):
         if t > 2.0:
@@ -159,7 +160,7 @@ def test_a_second_ctrl_c_while_the_partial_is_recorded_loses_nothing(tmp_path, m
     """Ctrl-C mid-segment, then a second Ctrl-C while that segment's samples are recorded: the
     second waits, and the partial ends where the first stopped the run."""
     sim = sys.modules["pcmm.simulate"]
-    scene = pcmm.load_scene(xm.spring_pendulum(tmp_path / "s", 10.0, 0.1, t_end=50.0))  # one long segment
+    scene = pcmm.load_scene(builders.spring_pendulum(tmp_path / "s", 10.0, 0.1, t_end=50.0))  # one long segment
     real = sim._record_samples
     state = {"interrupted": False, "sent": 0}
 
@@ -185,7 +186,7 @@ def test_a_second_ctrl_c_while_the_partial_is_recorded_loses_nothing(tmp_path, m
 
 # ---- 3. no silent replacement -----------------------------------------------------------------
 def test_the_same_path_for_two_outputs_is_refused(tmp_path, capsys):
-    scene = xm.ball(tmp_path / "scene", 0.5, t_end=0.2)
+    scene = builders.ball(tmp_path / "scene", 0.5, t_end=0.2)
     target = tmp_path / "x.npz"
     rc, _, err = cli(["run", scene, "--out", target, "--summary", tmp_path / "." / "x.npz", "--quiet"], capsys)
     assert rc == 2 and "is also the --out output" in err and not target.exists()
@@ -209,7 +210,7 @@ def _appearing_during_the_run(monkeypatch, path: Path, content: bytes, fail: boo
 def test_a_file_created_during_the_run_is_never_replaced(tmp_path, capsys, monkeypatch):
     """The existence check at start-up passes; another run writes --out meanwhile.  The rename is
     create-if-absent: that file stays, and this run's result goes next to it, said."""
-    scene = xm.ball(tmp_path / "scene", 0.5, t_end=0.3)
+    scene = builders.ball(tmp_path / "scene", 0.5, t_end=0.3)
     out = tmp_path / "run.npz"
     _appearing_during_the_run(monkeypatch, out, b"the other run's result")
     rc, _, err = cli(["run", scene, "--out", out, "--quiet"], capsys)
@@ -219,7 +220,7 @@ def test_a_file_created_during_the_run_is_never_replaced(tmp_path, capsys, monke
 
 
 def test_a_failing_runs_partial_never_replaces_a_finished_result(tmp_path, capsys, monkeypatch):
-    scene = xm.ball(tmp_path / "scene", 0.5, t_end=5.0, merge=False)  # fails: accumulation without merge_to
+    scene = builders.ball(tmp_path / "scene", 0.5, t_end=5.0, merge=False)  # fails: accumulation without merge_to
     out = tmp_path / "run.npz"
     _appearing_during_the_run(monkeypatch, out, b"finished")
     rc, _, err = cli(["run", scene, "--out", out, "--summary", tmp_path / "s.json", "--quiet"], capsys)
@@ -231,7 +232,7 @@ def test_a_failing_runs_partial_never_replaces_a_finished_result(tmp_path, capsy
 
 def test_partials_get_names_of_their_own(tmp_path, capsys, monkeypatch):
     monkeypatch.chdir(tmp_path)
-    scene = xm.ball(tmp_path / "scene", 0.5, t_end=5.0, merge=False)
+    scene = builders.ball(tmp_path / "scene", 0.5, t_end=5.0, merge=False)
     for _ in range(3):
         assert cli(["run", scene, "--quiet"], capsys)[0] == 3
     names = sorted(p.name for p in tmp_path.glob("scene-partial*.npz"))
@@ -239,7 +240,7 @@ def test_partials_get_names_of_their_own(tmp_path, capsys, monkeypatch):
 
 
 def test_plot_refuses_to_overwrite_without_force_and_names_a_file_given_as_folder(tmp_path, capsys):
-    scene = xm.ball(tmp_path / "scene", 0.5, t_end=0.3)
+    scene = builders.ball(tmp_path / "scene", 0.5, t_end=0.3)
     traj = tmp_path / "t.npz"
     assert cli(["run", scene, "--out", traj, "--quiet"], capsys)[0] == 0
     figs = tmp_path / "figs"
@@ -266,9 +267,9 @@ def test_csv_quotes_names_and_neutralises_formulas(tmp_path):
     apostrophe, and the numbers read back equal the trajectory's."""
     import tomli_w
     link = 'ar,m "x"\nend'
-    urdf = xm.robot("p", xm.link("frame"), xm.joint("J1", "revolute", "frame", "QQQ"), xm.bar("QQQ", 0.5, 1.0))
+    urdf = builders.robot_xml("p", builders.link_xml("frame"), builders.joint_xml("J1", "revolute", "frame", "QQQ"), builders.bar_xml("QQQ", 0.5, 1.0))
     urdf = urdf.replace("QQQ", 'ar,m &quot;x&quot;&#10;end')
-    doc = xm.base_doc("p", "=HYPERLINK(1)", {"=HYPERLINK(1)": "p.urdf"}, {"J1": 0.3}, {"J1": 0.0}, t_end=0.1)
+    doc = builders.base_doc("p", "=HYPERLINK(1)", {"=HYPERLINK(1)": "p.urdf"}, {"J1": 0.3}, {"J1": 0.0}, t_end=0.1)
     (tmp_path / "p.urdf").write_text(urdf)
     (tmp_path / "s.toml").write_text(tomli_w.dumps(doc))
     traj = pcmm.simulate(pcmm.load_scene(tmp_path / "s.toml"))
@@ -284,7 +285,7 @@ def test_csv_quotes_names_and_neutralises_formulas(tmp_path):
 # ---- 5. models Pinocchio rejects ----------------------------------------------------------------
 def _pinocchio_rejects(tmp_path, transition: bool):
     """config2's URDF passes pcmm's reader but not Pinocchio's (a <limit> without attributes)."""
-    good = xm.robot("p", xm.link("frame"), xm.joint("J1", "revolute", "frame", "bar"), xm.bar("bar", 0.5, 1.0))
+    good = builders.robot_xml("p", builders.link_xml("frame"), builders.joint_xml("J1", "revolute", "frame", "bar"), builders.bar_xml("bar", 0.5, 1.0))
     bad = re.sub(r"<limit [^>]*/>", "<limit/>", good)
     trs = []
     if transition:
@@ -292,9 +293,9 @@ def _pinocchio_rejects(tmp_path, transition: bool):
                 "guard": {"type": "coordinate", "measure": {"joint": "J1"}, "value": -0.5, "direction": "decreasing"},
                 "contact": {"a": "frame", "point_a": [0.5 * math.cos(-0.5), 0.5 * math.sin(-0.5)], "b": "bar",
                             "point_b": [0.5, 0.0], "normal": [-math.sin(-0.5), math.cos(-0.5)]}}]
-    doc = xm.base_doc("p", "c1", {"c1": "good.urdf", "c2": "bad.urdf"}, {"J1": 0.0}, {"J1": 0.0}, t_end=1.0,
+    doc = builders.base_doc("p", "c1", {"c1": "good.urdf", "c2": "bad.urdf"}, {"J1": 0.0}, {"J1": 0.0}, t_end=1.0,
                       transitions=trs)
-    return xm.write_scene(tmp_path, doc, {"good.urdf": good, "bad.urdf": bad})
+    return builders.write_scene(tmp_path, doc, {"good.urdf": good, "bad.urdf": bad})
 
 
 def test_check_builds_every_configurations_model(tmp_path, capsys):
@@ -335,17 +336,17 @@ def hostile_scene(folder: Path, name: str, xml_name: str | None = None, lead: bo
     import tomli_w
     n = hostile_names(name, xml_name, lead)
     qs = -0.5  # the stop's angle, where the merged configuration fixes the bar
-    urdf = xm.robot("p", xm.link("frame"), xm.joint("JJJ", "revolute", "frame", "LLL"), xm.bar("LLL", 0.5, 1.0))
-    rest = xm.robot("r", xm.link("frame"), xm.joint("JJJ", "fixed", "frame", "LLL", yaw=qs), xm.bar("LLL", 0.5, 1.0))
+    urdf = builders.robot_xml("p", builders.link_xml("frame"), builders.joint_xml("JJJ", "revolute", "frame", "LLL"), builders.bar_xml("LLL", 0.5, 1.0))
+    rest = builders.robot_xml("r", builders.link_xml("frame"), builders.joint_xml("JJJ", "fixed", "frame", "LLL", yaw=qs), builders.bar_xml("LLL", 0.5, 1.0))
 
     def quoted(text):
         return text.replace("JJJ", escape(n["J"], {'"': "&quot;", "\t": "&#9;", "\n": "&#10;"})) \
                    .replace("LLL", escape(n["L"], {'"': "&quot;", "\t": "&#9;", "\n": "&#10;"}))
-    tr = xm.stop(n["T"], n["C"], 0.5, {"type": "coordinate", "measure": {"joint": n["J"]}, "value": qs,
+    tr = builders.stop(n["T"], n["C"], 0.5, {"type": "coordinate", "measure": {"joint": n["J"]}, "value": qs,
                                        "direction": "decreasing"},
                  {"a": "frame", "point_a": [0.5 * math.cos(qs), 0.5 * math.sin(qs)], "b": n["L"],
                   "point_b": [0.5, 0.0], "normal": [-math.sin(qs), math.cos(qs)]}, merge_to=n["R"])
-    doc = xm.base_doc(name, n["C"], {n["C"]: "p.urdf", n["R"]: "r.urdf"}, {n["J"]: 0.0}, {n["J"]: 0.0},
+    doc = builders.base_doc(name, n["C"], {n["C"]: "p.urdf", n["R"]: "r.urdf"}, {n["J"]: 0.0}, {n["J"]: 0.0},
                       t_end=0.6, transitions=[tr],
                       forces=[{"name": n["F"], "type": "damper", "on": {"joint": n["J"]},
                                "measure": {"joint": n["J"]}, "c": 0.01, "configurations": [n["C"]]}])
@@ -378,7 +379,7 @@ def test_hostile_names_in_every_output(tmp_path, capsys, name):
 
 
 def _damaged(tmp_path: Path) -> dict[str, Path]:
-    scene = xm.ball(tmp_path / "scene", 0.5, t_end=0.2)
+    scene = builders.ball(tmp_path / "scene", 0.5, t_end=0.2)
     good = tmp_path / "good.npz"
     pcmm.simulate(pcmm.load_scene(scene)).save(good)
     data = good.read_bytes()
@@ -410,16 +411,16 @@ def test_damaged_trajectory_files_are_named_not_tracebacks(tmp_path, capsys):
 
 
 def test_a_joint_that_changes_type_between_configurations_is_named_at_load(tmp_path):
-    planar = xm.robot("a", xm.link("frame"), xm.joint("J", "planar", "frame", "b"), xm.link("b", 1.0, 0.1))
-    revolute = xm.robot("b", xm.link("frame"), xm.joint("J", "revolute", "frame", "b"), xm.link("b", 1.0, 0.1))
-    doc = xm.base_doc("x", "c1", {"c1": "a.urdf", "c2": "b.urdf"}, {"J": [0.0, 0.0, 0.0]}, {"J": [0.0, 0.0, 0.0]})
+    planar = builders.robot_xml("a", builders.link_xml("frame"), builders.joint_xml("J", "planar", "frame", "b"), builders.solid_xml("b", 1.0, 0.1))
+    revolute = builders.robot_xml("b", builders.link_xml("frame"), builders.joint_xml("J", "revolute", "frame", "b"), builders.solid_xml("b", 1.0, 0.1))
+    doc = builders.base_doc("x", "c1", {"c1": "a.urdf", "c2": "b.urdf"}, {"J": [0.0, 0.0, 0.0]}, {"J": [0.0, 0.0, 0.0]})
     with pytest.raises(pcmm.SceneError, match=r"joint 'J' is revolute in 'c2' \(b.urdf\) but planar in 'c1'"):
-        pcmm.load_scene(xm.write_scene(tmp_path, doc, {"a.urdf": planar, "b.urdf": revolute}))
+        pcmm.load_scene(builders.write_scene(tmp_path, doc, {"a.urdf": planar, "b.urdf": revolute}))
 
 
 @pytest.mark.parametrize("kind", ["huge-int", "deep", "nul", "symlink-loop", "bom"])
 def test_scene_validator_on_hostile_structure(tmp_path, kind):
-    scene = xm.ball(tmp_path / "s", 0.5, t_end=0.2)
+    scene = builders.ball(tmp_path / "s", 0.5, t_end=0.2)
     text = scene.read_text()
     if kind == "huge-int":
         assert "t_end = 0.2" in text
@@ -451,7 +452,7 @@ def test_ctrl_c_during_start_up_is_a_message(tmp_path):
     the console entry point, reproduced here): a message and status 130, no traceback."""
     script = tmp_path / "pcmm"
     script.write_text("import sys\nfrom pcmm.cli import main\nsys.exit(main())\n")
-    scene = xm.ball(tmp_path / "s", 0.5, t_end=0.2)
+    scene = builders.ball(tmp_path / "s", 0.5, t_end=0.2)
     for delay in (0.3, 0.6, 1.0):
         proc = subprocess.Popen([PY, str(script), "check", str(scene)], env=env(), stdout=subprocess.PIPE,
                                 stderr=subprocess.PIPE, text=True)
@@ -470,22 +471,22 @@ def test_ctrl_c_during_start_up_is_a_message(tmp_path):
 # ---- 7. hangs ----------------------------------------------------------------------------------
 @pytest.mark.parametrize("method", ["DOP853", "RK45", "DOP853F", "RK4", "Radau", "LSODA"])
 def test_an_absurd_initial_velocity_ends_at_once(tmp_path, method):
-    scene = pcmm.load_scene(xm.ball(tmp_path, 0.5, v0=-1e160, t_end=1.0, solver={"method": method}))
-    with xm.deadline(10.0, f"v0 = 1e160 with {method}"):
+    scene = pcmm.load_scene(builders.ball(tmp_path, 0.5, v0=-1e160, t_end=1.0, solver={"method": method}))
+    with suite_checks.deadline(10.0, f"v0 = 1e160 with {method}"):
         with pytest.raises(pcmm.SimulationError, match="kinetic energy .* not finite"):
             pcmm.simulate(scene)
 
 
 def test_a_non_finite_derivative_stops_the_run(tmp_path):
     """A spring so stiff that the first derivative overflows (k = 1e308 at 0.1 rad -> 1e307 / I)."""
-    scene = pcmm.load_scene(xm.spring_pendulum(tmp_path, 1e308, 1e-3))
-    with xm.deadline(10.0, "overflowing derivative"):
+    scene = pcmm.load_scene(builders.spring_pendulum(tmp_path, 1e308, 1e-3))
+    with suite_checks.deadline(10.0, "overflowing derivative"):
         with pytest.raises(pcmm.SimulationError, match="derivative of the state is not finite"):
             pcmm.simulate(scene)
 
 
 def test_replay_fps_and_frames_are_capped(tmp_path, capsys):
-    scene = xm.ball(tmp_path / "s", 0.5, t_end=0.2)
+    scene = builders.ball(tmp_path / "s", 0.5, t_end=0.2)
     t = tmp_path / "t.npz"
     assert cli(["run", scene, "--out", t, "--quiet"], capsys)[0] == 0
     with pytest.raises(SystemExit):
@@ -506,17 +507,17 @@ def test_replay_fps_and_frames_are_capped(tmp_path, capsys):
     ('<mimic joint="J0" multiplier="2"/>', "<mimic joint='J0'> is not modelled"),
 ])
 def test_urdf_dynamics_and_mimic_are_refused(tmp_path, tag, message):
-    urdf = xm.robot("p", xm.link("frame"), xm.joint("J1", "revolute", "frame", "bar").replace("</joint>", tag + "</joint>"),
-                    xm.bar("bar", 0.5, 1.0))
-    doc = xm.base_doc("p", "c1", {"c1": "p.urdf"}, {"J1": 0.0}, {"J1": 0.0})
+    urdf = builders.robot_xml("p", builders.link_xml("frame"), builders.joint_xml("J1", "revolute", "frame", "bar").replace("</joint>", tag + "</joint>"),
+                    builders.bar_xml("bar", 0.5, 1.0))
+    doc = builders.base_doc("p", "c1", {"c1": "p.urdf"}, {"J1": 0.0}, {"J1": 0.0})
     with pytest.raises(pcmm.SceneError, match=re.escape(message)):
-        pcmm.load_scene(xm.write_scene(tmp_path, doc, {"p.urdf": urdf}))
+        pcmm.load_scene(builders.write_scene(tmp_path, doc, {"p.urdf": urdf}))
     zero = urdf.replace(tag, '<dynamics damping="0" friction="0.0"/>')  # zero damping is what pcmm models
-    pcmm.load_scene(xm.write_scene(tmp_path / "z", doc, {"p.urdf": zero}))
+    pcmm.load_scene(builders.write_scene(tmp_path / "z", doc, {"p.urdf": zero}))
 
 
 def test_an_initial_angle_beyond_precision_is_refused(tmp_path):
-    path = xm.pendulum(tmp_path, 0.5, q0=1e17)
+    path = builders.pendulum(tmp_path, 0.5, q0=1e17)
     with pytest.raises(pcmm.SceneError, match=r"initial.q.J1: = 1e\+17: an angle beyond \+-1e\+06 rad .* 16 rad apart"):
         pcmm.load_scene(path)
 
@@ -539,10 +540,10 @@ def test_an_impact_that_creates_energy_is_refused(tmp_path):
 
 
 def test_a_body_starting_inside_a_stop_is_an_error_naming_the_transition(tmp_path):
-    scene = pcmm.load_scene(xm.ball(tmp_path, 0.5, h=-0.01, v0=-1.0, t_end=0.5))
+    scene = pcmm.load_scene(builders.ball(tmp_path, 0.5, h=-0.01, v0=-1.0, t_end=0.5))
     with pytest.raises(pcmm.SimulationError, match=r"transition 'floor': the run starts on the far side"):
         pcmm.simulate(scene)
-    pcmm.simulate(pcmm.load_scene(xm.ball(tmp_path / "ok", 0.5, h=0.0, v0=1.0, t_end=0.1)))  # touching, leaving: fine
+    pcmm.simulate(pcmm.load_scene(builders.ball(tmp_path / "ok", 0.5, h=0.0, v0=1.0, t_end=0.1)))  # touching, leaving: fine
 
 
 def test_a_latch_with_a_reversed_normal_is_an_error_naming_the_normal(tmp_path):
@@ -563,7 +564,7 @@ def test_non_finite_numbers_never_reach_the_summary(tmp_path, capsys, monkeypatc
         traj.events[0]["impulse"]["normal"] = float("inf")
         return traj
     monkeypatch.setattr(sim, "simulate", overflowing)
-    scene = xm.ball(tmp_path / "s", 0.5, t_end=0.6)
+    scene = builders.ball(tmp_path / "s", 0.5, t_end=0.6)
     rc, _, err = cli(["run", scene, "--summary", tmp_path / "s.json", "--out", tmp_path / "t.npz", "--quiet"], capsys)
     assert rc == 3 and "events[0].impulse.normal = inf" in err
     assert not (tmp_path / "s.json").exists() and (tmp_path / "t.npz").is_file()  # the other output is kept
@@ -573,7 +574,7 @@ def test_non_finite_numbers_never_reach_the_summary(tmp_path, capsys, monkeypatc
 def test_max_steps_on_a_smooth_run_says_raise_max_steps(tmp_path):
     """A free pendulum at max_step 1e-3 s for 1 s needs 1000 steps; with max_steps = 300 the
     message estimates the budget (1000 +- rounding) and does not call the problem stiff."""
-    scene = pcmm.load_scene(xm.pendulum(tmp_path, 0.5, qs=-3.0, q0=0.0, t_end=1.0))
+    scene = pcmm.load_scene(builders.pendulum(tmp_path, 0.5, qs=-3.0, q0=0.0, t_end=1.0))
     with pytest.raises(pcmm.SimulationError) as info:
         pcmm.simulate(scene, pcmm.RunOptions(max_steps=300, max_step=1e-3))
     msg = str(info.value)
@@ -594,16 +595,16 @@ def _pendulum_on_a_stop(folder: Path, method: str, step: float, normal_sign: flo
     """A bar on J1 with a torsion spring (k), launched from 0 at -50 rad/s onto a stop at -0.3 rad
     (amplitude 50 / 105 = 0.48 rad > 0.3)."""
     qs, L = -0.3, 0.6
-    urdf = xm.robot("pend", xm.link("frame"), xm.joint("J1", "revolute", "frame", "link1"), xm.bar("link1", L, 1.5))
-    tr = xm.stop("stop", "c1", 0.5, {"type": "coordinate", "measure": {"joint": "J1"}, "value": qs,
+    urdf = builders.robot_xml("pend", builders.link_xml("frame"), builders.joint_xml("J1", "revolute", "frame", "link1"), builders.bar_xml("link1", L, 1.5))
+    tr = builders.stop("stop", "c1", 0.5, {"type": "coordinate", "measure": {"joint": "J1"}, "value": qs,
                                      "direction": "decreasing"},
                  {"a": "frame", "point_a": [L * math.cos(qs), L * math.sin(qs)], "b": "link1", "point_b": [L, 0.0],
                   "normal": [-normal_sign * math.sin(qs), normal_sign * math.cos(qs)]})
-    doc = xm.base_doc("p", "c1", {"c1": "p.urdf"}, {"J1": 0.0}, {"J1": -50.0}, t_end=0.5,
+    doc = builders.base_doc("p", "c1", {"c1": "p.urdf"}, {"J1": 0.0}, {"J1": -50.0}, t_end=0.5,
                       solver={"method": method, "step": step}, transitions=[tr],
                       forces=[{"name": "spring", "type": "spring", "on": {"joint": "J1"}, "measure": {"joint": "J1"},
                                "k": k}])
-    return pcmm.load_scene(xm.write_scene(folder, doc, {"p.urdf": urdf}))
+    return pcmm.load_scene(builders.write_scene(folder, doc, {"p.urdf": urdf}))
 
 
 def test_an_rk4_blow_up_names_the_step_and_a_wrong_normal_the_normal(tmp_path):
@@ -622,7 +623,7 @@ def test_an_rk4_blow_up_names_the_step_and_a_wrong_normal_the_normal(tmp_path):
 def test_a_closed_stdout_pipe_is_no_traceback_and_loses_no_file(tmp_path):
     """``pcmm run ... | head -0``: the reader is gone before anything is printed.  The outputs are
     written first, the printing is silenced, the status is 0."""
-    scene = xm.ball(tmp_path / "s", 0.5, t_end=0.5)
+    scene = builders.ball(tmp_path / "s", 0.5, t_end=0.5)
     p = subprocess.Popen([PY, "-m", "pcmm.cli", "run", str(scene), "--out", "t.npz", "--summary", "s.json"],
                          cwd=tmp_path, env=env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     p.stdout.close()  # like `| head` exiting at once
@@ -633,17 +634,22 @@ def test_a_closed_stdout_pipe_is_no_traceback_and_loses_no_file(tmp_path):
 
 
 def test_sigterm_shuts_the_replay_server_down(tmp_path, capsys):
-    """``pcmm replay`` serving, then SIGTERM: the meshcat server it started is gone."""
+    """``pcmm replay`` serving, then SIGTERM: the meshcat server it started is gone. The scene's
+    name carries an escape sequence: the replay's status line prints it escaped."""
     psutil = pytest.importorskip("psutil")
-    scene = xm.ball(tmp_path / "s", 0.5, t_end=0.3)
+    scene = builders.ball(tmp_path / "s", 0.5, t_end=0.3)
+    text = scene.read_text()
+    assert text.count('name = "') >= 1
+    scene.write_text(text.replace('name = "', 'name = "\\u001b[31m', 1))
     assert cli(["run", scene, "--out", tmp_path / "t.npz", "--quiet"], capsys)[0] == 0
     p = subprocess.Popen([PY, "-m", "pcmm.cli", "replay", str(tmp_path / "t.npz"), "--fps", "10"], cwd=tmp_path,
                          env={**env(), "PCMM_REPLAY_NO_WAIT": ""}, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                          text=True)
     deadline = time.monotonic() + 120
-    line = ""
+    line, printed = "", ""
     while "press Ctrl-C" not in line and time.monotonic() < deadline:
         line = p.stdout.readline()
+        printed += line
         if not line and p.poll() is not None:
             pytest.fail(f"replay ended early: {p.stderr.read()}")
     servers = [c for c in psutil.Process(p.pid).children(recursive=True)
@@ -652,26 +658,27 @@ def test_sigterm_shuts_the_replay_server_down(tmp_path, capsys):
     p.send_signal(signal.SIGTERM)
     _, err = p.communicate(timeout=60)
     assert "Traceback" not in err
+    assert "\x1b" not in printed + err and "\\x1b[31m" in printed, printed
     for s in servers:
         assert not s.is_running() or s.status() == psutil.STATUS_ZOMBIE, f"meshcat server {s.pid} left running"
 
 
 def _parallelograms(folder: Path, n: int, a=0.1, b=0.3, theta0=1.0, omega=2.0) -> Path:
-    """n independent parallelogram four-bars (xm.parallelogram's, 0.5 m apart): n loops, 2n rows."""
-    parts, cuts, q, v = [xm.link("frame")], [], {}, {}
+    """n independent parallelogram four-bars (builders.parallelogram's, 0.5 m apart): n loops, 2n rows."""
+    parts, cuts, q, v = [builders.link_xml("frame")], [], {}, {}
     for i in range(n):
         y = 0.5 * i
-        parts += [xm.joint(f"A{i}", "revolute", "frame", f"crank{i}", xyz=(0.0, y)), xm.bar(f"crank{i}", a, 1.0),
-                  xm.joint(f"B{i}", "revolute", f"crank{i}", f"coupler{i}", xyz=(a, 0.0)),
-                  xm.bar(f"coupler{i}", b, 1.0),
-                  xm.joint(f"D{i}", "revolute", "frame", f"rocker{i}", xyz=(b, y)), xm.bar(f"rocker{i}", a, 1.0)]
+        parts += [builders.joint_xml(f"A{i}", "revolute", "frame", f"crank{i}", xyz=(0.0, y)), builders.bar_xml(f"crank{i}", a, 1.0),
+                  builders.joint_xml(f"B{i}", "revolute", f"crank{i}", f"coupler{i}", xyz=(a, 0.0)),
+                  builders.bar_xml(f"coupler{i}", b, 1.0),
+                  builders.joint_xml(f"D{i}", "revolute", "frame", f"rocker{i}", xyz=(b, y)), builders.bar_xml(f"rocker{i}", a, 1.0)]
         cuts.append({"name": f"C{i}", "type": "revolute", "a": f"coupler{i}", "point_a": [b, 0.0],
                      "b": f"rocker{i}", "point_b": [a, 0.0]})
         q.update({f"A{i}": theta0, f"B{i}": -theta0, f"D{i}": theta0})
         v.update({f"A{i}": omega, f"B{i}": -omega, f"D{i}": omega})
-    doc = xm.base_doc("loops", "c", {"c": {"urdf": "l.urdf", "cut_joints": cuts}}, q, v, g=0.0, t_end=0.2)
+    doc = builders.base_doc("loops", "c", {"c": {"urdf": "l.urdf", "cut_joints": cuts}}, q, v, g=0.0, t_end=0.2)
     doc["initial"]["independent"] = [f"A{i}" for i in range(n)]
-    return xm.write_scene(folder, doc, {"l.urdf": xm.robot("l", *parts)})
+    return builders.write_scene(folder, doc, {"l.urdf": builders.robot_xml("l", *parts)})
 
 
 @pytest.mark.parametrize("n", [3, 5])
@@ -689,7 +696,7 @@ def test_an_interrupt_in_flight_after_a_bounce_keeps_the_flight(tmp_path):
     """A ball dropped from 1 m bounces at t = sqrt(2 / g) = 0.4515 s (e = 0.9) and flies until
     0.4515 + 2 e sqrt(2 g) / g = 1.264 s; Ctrl-C at 0.6 s, inside that flight (whose state carries
     the work integral of the flight's energy audit): the partial holds the flight up to 0.6 s."""
-    scene = pcmm.load_scene(xm.ball(tmp_path, 0.9, t_end=3.0))
+    scene = pcmm.load_scene(builders.ball(tmp_path, 0.9, t_end=3.0))
 
     def progress(t):
         if t > 0.6:
@@ -697,8 +704,8 @@ def test_an_interrupt_in_flight_after_a_bounce_keeps_the_flight(tmp_path):
     with pytest.raises(pcmm.SimulationError) as info:
         pcmm.simulate(scene, pcmm.RunOptions(max_step=1e-3), progress=progress)
     partial = info.value.partial
-    assert len(partial.events) == 1 and partial.events[0]["t"] == pytest.approx(math.sqrt(2 / xm.G), abs=1e-9)
+    assert len(partial.events) == 1 and partial.events[0]["t"] == pytest.approx(math.sqrt(2 / builders.G), abs=1e-9)
     assert 0.55 < partial.t[-1] <= 0.6 + 1e-3 and partial.stats["steps"] == steps_from_samples(partial)
     y = partial.series("q", "Y")[-1]
-    t = partial.t[-1] - math.sqrt(2 / xm.G)
-    assert y == pytest.approx(0.9 * math.sqrt(2 * xm.G) * t - xm.G * t * t / 2, abs=1e-9)  # the flight's parabola
+    t = partial.t[-1] - math.sqrt(2 / builders.G)
+    assert y == pytest.approx(0.9 * math.sqrt(2 * builders.G) * t - builders.G * t * t / 2, abs=1e-9)  # the flight's parabola

@@ -50,7 +50,7 @@ from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
 import builders
-import extreme_models as xm
+import suite_checks
 import pcmm
 from pcmm.cli import main as cli_main
 
@@ -96,7 +96,7 @@ def stage(workdir: Path, example: Path, scene_text: str | bytes | None = None, u
         shutil.rmtree(d, ignore_errors=True)
 
 
-deadline = xm.deadline
+deadline = suite_checks.deadline
 
 
 def extreme(x) -> bool:
@@ -135,12 +135,12 @@ def check_outcome(scene_path: Path, what: str, t_end: float, run: bool = True, u
             if partial is not None:
                 assert partial.status == "partial", f"{what}: partial trajectory with status {partial.status!r}"
                 if partial.segments:
-                    xm.assert_finite(partial)
+                    suite_checks.assert_finite(partial)
             return "run-error"
         except pcmm.PcmmError as exc:
             assert str(exc).strip()
             return "run-error"
-        xm.assert_finite(traj)
+        suite_checks.assert_finite(traj)
         assert traj.status == "complete" and traj.t[-1] == pytest.approx(t_end, rel=1e-9), what
         return "ok"
 
@@ -204,7 +204,7 @@ def scene_mutations(draw):
             done.append(f"delete {path}")
         elif op == "set":
             value = copy.deepcopy(draw(VALUES))
-            hot |= any(extreme(x) for x in xm.numbers(value))
+            hot |= any(extreme(x) for x in suite_checks.numbers(value))
             parent[key] = value
             done.append(f"set {path} = {value!r}")
         elif op == "rename":
@@ -224,7 +224,7 @@ def scene_mutations(draw):
                 continue
             target = _parent(doc, t := draw(st.sampled_from(tables)))[t[-1]]
             name, value = draw(st.sampled_from(KEY_NAMES)), copy.deepcopy(draw(VALUES))
-            hot |= any(extreme(x) for x in xm.numbers(value))
+            hot |= any(extreme(x) for x in suite_checks.numbers(value))
             target[name] = value
             done.append(f"add {t}.{name} = {value!r}")
         else:
@@ -513,10 +513,10 @@ def structural_mutations(draw):
         inner = _inline(_parent(doc, path)[path[-1]])
         _parent(doc, path)[path[-1]] = 123456.789012
         nested = ("{ x = " * depth + inner + " }" * depth) if table else ("[" * depth + inner + "]" * depth)
-        text = xm.dump_toml(doc).replace("123456.789012", nested, 1)
+        text = builders.dump_toml(doc).replace("123456.789012", nested, 1)
         return example, text, f"nest {path} {depth} deep ({'tables' if table else 'arrays'})", False
     if op == "encoding":
-        text = xm.dump_toml(doc).replace('name = "', 'name = "é', 1)
+        text = builders.dump_toml(doc).replace('name = "', 'name = "é', 1)
         enc = draw(st.sampled_from(["utf-16", "utf-16-le", "utf-32", "latin-1", "utf-8-sig", "cp1252", "crlf", "nul"]))
         if enc == "crlf":
             return example, text.replace("\n", "\r\n").encode(), "CRLF line ends", False
@@ -529,13 +529,13 @@ def structural_mutations(draw):
         k = draw(st.sampled_from([19, 63, 308, 309, 400, 4299]))
         literal = draw(st.sampled_from([f"1{'0' * k}", f"-1{'0' * k}", f"1e{k}", f"-1e{k}", f"9.9e{k}"]))
         _parent(doc, path)[path[-1]] = 123456.789012  # a marker, replaced by the literal in the text
-        text = xm.dump_toml(doc).replace("123456.789012", literal, 1)
+        text = builders.dump_toml(doc).replace("123456.789012", literal, 1)
         return example, text, f"set {path} = {literal[:12]}... ({len(literal)} characters)", True
     configs = [p for p in _paths(doc) if p[-1] == "urdf"]
     path = draw(st.sampled_from(configs))
     value = draw(st.sampled_from(HOSTILE_PATHS))
     _parent(doc, path)[path[-1]] = value
-    return example, xm.dump_toml(doc), f"set {path} = {value[:40]!r}", False
+    return example, builders.dump_toml(doc), f"set {path} = {value[:40]!r}", False
 
 
 @settings(max_examples=90, **FUZZ)
@@ -589,7 +589,7 @@ def test_fuzz_damaged_trajectory(workdir, saved_run, op, at, byte):
     try:
         traj = pcmm.Trajectory.load(path)
         event(f"{op}: loads")
-        xm.assert_finite(traj) if op != "header" else None
+        suite_checks.assert_finite(traj) if op != "header" else None
     except pcmm.UsageError as exc:
         assert str(path) in str(exc)
         event(f"{op}: refused")
@@ -648,7 +648,7 @@ def test_fs_unwritable_folder_for_every_output(tmp_path):
     said, exit status 4; the results equal those of a run whose outputs were writable."""
     import test_faults
     bad = test_faults.unwritable_folder(tmp_path)
-    scene = xm.ball(tmp_path / "scene", 0.5, t_end=0.3)
+    scene = builders.ball(tmp_path / "scene", 0.5, t_end=0.3)
     work = tmp_path / "work"
     work.mkdir()
     names = {"--out": "r.npz", "--summary": "r.json", "--csv": "r.csv", "--html": "r.html"}  # --plots: test_faults
@@ -664,7 +664,7 @@ def test_fs_unwritable_folder_for_every_output(tmp_path):
 def test_fs_full_folder_by_file_size_limits(tmp_path):
     """RLIMIT_FSIZE at 0, 30 kB and unlimited, three runs at once: never a traceback or a kill;
     status 0 when everything fits, else 4 naming 'File too large'; every output whole or absent."""
-    scene = xm.ball(tmp_path / "scene", 0.5, t_end=2.0)
+    scene = builders.ball(tmp_path / "scene", 0.5, t_end=2.0)
     procs = []
     for limit in (0, 30000, None):
         d = tmp_path / f"limit{limit}"
@@ -688,7 +688,7 @@ def test_fs_full_folder_by_file_size_limits(tmp_path):
 def test_fs_concurrent_runs_on_one_output(tmp_path):
     """Three runs started together on one --out and one --summary: no result is lost or
     replaced: one file per run under the name or a numbered one next to it, each whole."""
-    scenes = [xm.ball(tmp_path / f"scene{i}", 0.5, h=1.0 + 0.1 * i, t_end=0.4) for i in range(3)]
+    scenes = [builders.ball(tmp_path / f"scene{i}", 0.5, h=1.0 + 0.1 * i, t_end=0.4) for i in range(3)]
     procs = [_pcmm(["run", s, "--out", "r.npz", "--summary", "r.json", "--quiet"], tmp_path) for s in scenes]
     codes = []
     for p in procs:
@@ -707,7 +707,7 @@ def test_fs_signals_at_random_moments(tmp_path):
     """SIGTERM or SIGINT at eight moments (0.2 .. 9 s: during start-up, the run, the saving) to runs
     that write a trajectory and a summary: never a traceback or a hang; the exit status says what
     happened; whatever was written is whole, and a partial is marked partial."""
-    scene = xm.ball(tmp_path / "scene", 1.0, t_end=5000.0)  # e = 1: it bounces for ever (a merged ball is not integrated)
+    scene = builders.ball(tmp_path / "scene", 1.0, t_end=5000.0)  # e = 1: it bounces for ever (a merged ball is not integrated)
     rng = np.random.default_rng(14)
     plan = [(float(t), sig) for t, sig in zip(np.sort(rng.uniform(0.2, 9.0, 8)),
                                               [signal.SIGTERM, signal.SIGINT] * 4)]

@@ -17,7 +17,7 @@ from scipy.optimize import brentq
 
 import pcmm
 from builders import G, Bar, chain_urdf, free_bar_urdf
-from conftest import cross2, rot
+from builders import cross2, rot
 from pcmm.mechanism import Mechanism
 from pcmm.impulse import solve_impulse
 

@@ -13,7 +13,7 @@ import math
 import numpy as np
 import pytest
 
-import extreme_models as xm
+import builders
 import pcmm
 from pcmm.mechanism import Mechanism
 from pcmm.simulate import KNOWN_MOTION_SAMPLES, _known_motion, initial_state, resolve
@@ -29,7 +29,7 @@ def x_of(theta):
 def driven(tmp_path):
     x0 = x_of(TH0)
     c = 0.02  # m/s: the crank turns towards theta = 0 (dead centre at x = a + b, t = 0.80 s)
-    scene = pcmm.load_scene(xm.slider_crank_slider_driven(tmp_path, [x0, c], theta0=TH0, t_end=0.4))
+    scene = pcmm.load_scene(builders.slider_crank_slider_driven(tmp_path, [x0, c], theta0=TH0, t_end=0.4))
     return scene, x0, c
 
 

@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 
 import pcmm
-from conftest import G, Bar, chain_urdf, free_bar_urdf, pendulum_urdf
+from builders import G, Bar, chain_urdf, free_bar_urdf, pendulum_urdf
 
 ANCHOR_Y = 1.0  # the frame point the slider hangs from
 M_SLIDER, K, REST = 0.5, 200.0, 0.6

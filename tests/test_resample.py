@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import extreme_models as xm
+import builders
 import pcmm
 from pcmm.cli import main as cli_main
 
@@ -35,7 +35,7 @@ def test_resampled_run_follows_the_closed_form_between_steps(tmp_path, method, i
     """Between steps the resampled values are off the cosine by no more than the integration error
     at the steps themselves plus the dense output's own error (DOP853: 7th order; RK4's cubic
     Hermite over h = 0.02 s: (w h)^4 q0 / 384 = 4e-7 rad)."""
-    scene = pcmm.load_scene(xm.spring_pendulum(tmp_path, K, I_C, q0=Q0, t_end=2.0))
+    scene = pcmm.load_scene(builders.spring_pendulum(tmp_path, K, I_C, q0=Q0, t_end=2.0))
     opts = pcmm.RunOptions(method=method, **({"step": 0.02} if method == "RK4" else {}))
     traj = pcmm.simulate(scene, opts)
     at_steps = np.max(np.abs(traj.series("q", "J1") - closed_form(traj.t)[0]))
@@ -58,7 +58,7 @@ def test_resampled_run_follows_the_closed_form_between_steps(tmp_path, method, i
 
 
 def test_cli_dt_writes_the_csv_on_the_grid(tmp_path):
-    path = xm.spring_pendulum(tmp_path, K, I_C, q0=Q0, t_end=1.0)
+    path = builders.spring_pendulum(tmp_path, K, I_C, q0=Q0, t_end=1.0)
     out = tmp_path / "run.csv"
     assert cli_main(["run", str(path), "--dt", "0.01", "--csv", str(out), "--quiet"]) == 0
     with open(out) as f:
@@ -71,7 +71,7 @@ def test_cli_dt_writes_the_csv_on_the_grid(tmp_path):
 
 
 def test_cli_dt_must_be_positive(tmp_path, capsys):
-    path = xm.spring_pendulum(tmp_path, K, I_C, q0=Q0, t_end=1.0)
+    path = builders.spring_pendulum(tmp_path, K, I_C, q0=Q0, t_end=1.0)
     with pytest.raises(SystemExit) as exc:
         cli_main(["run", str(path), "--dt", "0", "--quiet"])
     assert exc.value.code == 2
@@ -79,7 +79,7 @@ def test_cli_dt_must_be_positive(tmp_path, capsys):
 
 
 def test_loaded_trajectory_cannot_be_resampled(tmp_path):
-    scene = pcmm.load_scene(xm.spring_pendulum(tmp_path, K, I_C, q0=Q0, t_end=0.1))
+    scene = pcmm.load_scene(builders.spring_pendulum(tmp_path, K, I_C, q0=Q0, t_end=0.1))
     pcmm.simulate(scene).save(tmp_path / "r.npz")
     with pytest.raises(pcmm.UsageError, match="pcmm run --dt"):
         pcmm.Trajectory.load(tmp_path / "r.npz").resampled(0.01)
@@ -140,7 +140,7 @@ def test_cli_dt_draws_the_figures_from_the_resampled_run(tmp_path, monkeypatch):
         seen.append((traj.t.copy(), None if compare is None else compare.t.copy()))
         return real(traj, out, compare=compare, **kw)
     monkeypatch.setattr(plots, "write_figures", spy)
-    path = xm.spring_pendulum(tmp_path, K, I_C, q0=Q0, t_end=0.5)
+    path = builders.spring_pendulum(tmp_path, K, I_C, q0=Q0, t_end=0.5)
     out = tmp_path / "figs"
     out.mkdir()
     assert cli_main(["run", str(path), "--dt", "0.005", "--plots", str(out), "--quiet"]) == 0

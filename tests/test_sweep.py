@@ -25,7 +25,7 @@ from pcmm.errors import SceneError, UsageError
 from pcmm.sweep import (QUANTITIES, Axis, Plan, ResultsTable, check_collect, collect_value, columns, make_plan,
                         parse_set, quantities, read_plan_file, sweep)
 
-from conftest import EXAMPLES
+from builders import EXAMPLES
 
 ROOT = Path(__file__).resolve().parents[1]
 THREE_BAR = EXAMPLES / "three_bar.toml"

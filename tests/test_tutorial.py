@@ -9,7 +9,7 @@ import shlex
 import pytest
 
 import pcmm.cli
-from conftest import ROOT
+from builders import ROOT
 
 TUTORIAL = ROOT / "docs" / "tutorial.md"
 FENCE = re.compile(r"^```(\w+)([^\n]*)\n(.*?)^```", re.S | re.M)

@@ -15,7 +15,7 @@ import pcmm
 from pcmm.errors import SceneError
 from pcmm.variations import parse_scalar, value_text
 
-from conftest import EXAMPLES, URDF_DIR
+from builders import EXAMPLES, URDF_DIR
 
 THREE_BAR = EXAMPLES / "three_bar.toml"
 STOP = EXAMPLES / "three_bar_stop.toml"

@@ -19,11 +19,10 @@ from scipy.integrate import solve_ivp
 from scipy.optimize import brentq
 
 import builders
-import extreme_models as xm
 import pcmm
 
 ROOT = Path(__file__).resolve().parents[1]
-G = xm.G
+G = builders.G
 ARM = dict(L1=0.5, m1=1.0, L2=0.4, m2=0.8, phi0=0.5)
 
 

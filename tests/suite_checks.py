@@ -12,7 +12,6 @@ import signal
 import numpy as np
 import pytest
 
-G = 9.81
 TRAJECTORY_ARRAYS = ("t", "q", "v", "theta", "omega", "xy", "kinetic", "potential", "forces", "constraint_forces")
 
 
@@ -41,6 +40,8 @@ def assert_finite(traj):
                                    f"values, first at t = {s.t[np.argwhere(bad)[0][0]]:.9g} s")
     for ev in traj.events:
         assert all(math.isfinite(x) for x in numbers(ev)), f"event at t = {ev['t']}: non-finite number"
+
+
 @contextlib.contextmanager
 def deadline(seconds, what):
     """Fail (instead of hanging the suite) if the block runs longer than ``seconds``: a guard
@@ -59,16 +60,3 @@ def deadline(seconds, what):
     finally:
         signal.setitimer(signal.ITIMER_REAL, 0)
         signal.signal(signal.SIGALRM, old)
-
-
-# The scene builders live in tests/builders.py; suites written against this module's older
-# builders (xm.ball, xm.write_scene, ...) find them here too.
-from builders import *  # noqa: E402,F401,F403
-
-
-def link(name: str, mass: float | None = None, izz: float | None = None, com=(0.0, 0.0)) -> str:
-    """The older builder's signature: a frame link, or a solid of ``mass`` and ``izz``."""
-    return link_xml(name) if mass is None else solid_xml(name, mass, izz, com)  # noqa: F405
-
-
-bar, joint, robot = bar_xml, joint_xml, robot_xml  # noqa: F405
