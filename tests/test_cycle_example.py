@@ -102,7 +102,13 @@ def test_three_full_cycles_through_three_configurations(run):
             ("merge", "O2", "O3_locked", "folded"),
             ("release", "O3", "folded", "O2_locked"), ("impact", "O3", "O2_locked", "O2_locked"),
             ("merge", "O3", "O2_locked", "folded")]
-        assert pattern[1][1] > 20 and pattern[4][1] > 20  # macro-impacts: many bounces, each e = 0.8
+        # each macro-impact: the flights between bounces are short, so a link returns to its pin about as
+        # fast as it left, and the rebounds fall geometrically, e^k rate-; the k-th impact is made
+        # plastic once e^k rate- drops below the accumulation speed 1e-6 rad/s
+        for bounces, merge in ((1, 2), (4, 5)):
+            first = next(e for e in events if _kind(e) == "impact" and e["name"][:2] == pattern[bounces][0][1])
+            expected = math.log(1e-6 / abs(first["normal_velocity"]["before"])) / math.log(E)
+            assert pattern[bounces][1] + pattern[merge][1] == pytest.approx(expected, abs=1.0)
         assert all(e["cause"] == "tensile holding force" for e in events if e["transition"] == "release")
 
 
