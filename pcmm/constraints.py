@@ -569,13 +569,16 @@ class PartitionedCoordinates(_Replayable):
         self._cache = None
 
     def _guess(self, t):
-        """The warm start for a solve at ``t``: the recent solution nearest in time (an event
-        search goes back and forth within a step; starting from the step's far end near a
-        branch point could land on the mirrored assembly and make a guard's value depend on
-        the order of the calls)."""
+        """The warm start for a solve at ``t``: the recent solution nearest in time, carried to
+        ``t`` along its own velocity (a first-order prediction: the start is off by O(dt^2)
+        rather than O(dt), which saves a Newton iteration in most solves).  Nearest in time
+        because an event search goes back and forth within a step; starting from the step's far
+        end near a branch point could land on the mirrored assembly and make a guard's value
+        depend on the order of the calls."""
         if not self._recent:
             return self._qD
-        return min(self._recent, key=lambda r: abs(r[0] - t))[1]
+        tr, q, qd = min(self._recent, key=lambda r: abs(r[0] - t))
+        return q + (t - tr) * qd
 
     def pack(self, t, q, v):
         """State vector at an assembled (q, v); the partition is re-chosen here,
@@ -648,14 +651,14 @@ class PartitionedCoordinates(_Replayable):
         k = len(self.I)
         q, Jq = self._solve_dependent(t, y[:k], self._guess(t))
         self._qD = q
-        self._recent.append((t, q))
-        if len(self._recent) > 8:
-            del self._recent[0]
         self._last_Jq = Jq
         v = np.empty(self.nv)
         v[self.I] = y[k:]
         rhs = -(Jq[:, self.I] @ y[k:] + self._phi_t(t))
         v[self.D] = solve(Jq[:, self.D], rhs)
+        self._recent.append((t, q, self.cfg.qdot(q, v)))
+        if len(self._recent) > 8:
+            del self._recent[0]
         return q, v
 
     def project(self, t, q, v, prefer_independent=()):
