@@ -60,6 +60,24 @@ def _point_keys(scene: Scene, spec: ConfigurationSpec) -> tuple:
     return tuple((link, (float(p[0]), float(p[1]))) for link, p in keys)
 
 
+def _angle_map(model, data, frames) -> tuple[np.ndarray, np.ndarray]:
+    """(A, b) with the absolute angles of the links at ``frames`` = ``A q + b``: ``A`` the rows
+    of their angular-velocity Jacobians, ``b`` their angles in the neutral posture, in
+    (-pi, pi]; an angle within 1e-9 of -pi is taken as +pi, so that the branch at the cut does
+    not follow the rotation's round-off (it differs between machines)."""
+    pin.computeJointJacobians(model, data, pin.neutral(model))
+    pin.updateFramePlacements(model, data)
+    A = np.zeros((len(frames), model.nv))
+    b = np.zeros(len(frames))
+    for i, fid in enumerate(frames):
+        A[i] = frame_jacobian(model, data, fid)[5]
+        R = data.oMf[fid].rotation
+        b[i] = np.arctan2(R[1, 0], R[0, 0])
+        if b[i] < -np.pi + 1e-9:
+            b[i] = np.pi
+    return A, b
+
+
 class Configuration:
     """One configuration's model and bookkeeping.
 
@@ -210,19 +228,36 @@ class Configuration:
 
     # ---- angles ------------------------------------------------------------------------
     def _angle_map(self) -> None:
-        """theta_link = A q + b, exact because every rotation axis is normal to the plane."""
-        q0 = self.to_pin(self.neutral())
-        pin.computeJointJacobians(self.model, self.data, q0)
-        pin.updateFramePlacements(self.model, self.data)
-        self.A = np.zeros((len(self.links), self.nv))
-        self.b = np.zeros(len(self.links))
-        for i, link in enumerate(self.links):
-            fid = self.link_frame[link]
-            J = frame_jacobian(self.model, self.data, fid)
-            self.A[i] = J[5]
-            R = self.data.oMf[fid].rotation
-            self.b[i] = np.arctan2(R[1, 0], R[0, 0])
+        """theta_link = A q + b, exact because every rotation axis is normal to the plane.
+
+        ``b`` is each link's angle in the neutral posture, read from its rotation and so known
+        only modulo 2 pi.  A derived configuration takes it from its root URDF instead, with the
+        locked joints' values added (``b = b_root + A_root[:, locked] . values``): a joint locked
+        at pi leaves its child at a neutral angle of exactly +-pi, where the rotation's round-off
+        picks the branch, and a torsion spring across the locked joint (a relative-angle measure)
+        would then act as if the joint had turned by 2 pi (silently, and differently on another
+        machine).  So the angles continue those of the configuration the lock was taken in."""
+        self.A, self.b = _angle_map(self.model, self.data, [self.link_frame[link] for link in self.links])
         self.link_index = {link: i for i, link in enumerate(self.links)}
+        der = self.spec.derivation
+        if der is None or not der.values:
+            return
+        try:
+            root = pin.buildModelFromXML(dynamics_xml(self.spec.urdf, None))
+        except Exception as exc:  # the root URDF was checked when the scene was loaded
+            raise ModelError(f"{self.spec.urdf}: Pinocchio could not build the model: {exc}") from None
+        frames = [root.getFrameId(link, pin.FrameType.BODY) for link in self.links]
+        A_root, b_root = _angle_map(root, root.createData(), frames)
+        b = b_root.copy()
+        for joint, value in der.values:
+            j = root.joints[root.getJointId(joint)]
+            b += A_root[:, j.idx_v] * value
+        off = (b - self.b + np.pi) % (2 * np.pi) - np.pi
+        if np.max(np.abs(off), initial=0.0) > 1e-9:  # the same posture, or the derivation is wrong
+            raise ModelError(f"configuration '{self.name}': its links' angles differ from those of its "
+                             f"root URDF {self.spec.urdf} with {dict(der.values)} locked by up to "
+                             f"{np.max(np.abs(off)):.3g} rad")
+        self.b = b
 
     def link_angles(self, q: np.ndarray) -> np.ndarray:
         return self.A @ q + self.b

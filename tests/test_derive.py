@@ -383,3 +383,26 @@ def test_working_cycle_with_derived_configurations_runs_as_with_hand_written_urd
     built = a.stats["derived_configurations"]
     assert built["wrist_locked"][0]["W"] == built["both_locked"][0]["W"] == pytest.approx(0.8, abs=1e-12)
     assert built["elbow_locked"][0]["E"] == pytest.approx(-0.3, abs=1e-12)
+
+
+@pytest.mark.parametrize("value", [math.pi, math.nextafter(math.pi, 4.0), math.nextafter(math.pi, 3.0)])
+def test_a_lock_at_pi_keeps_the_relative_angle_a_spring_measures(tmp_path, value):
+    """Example 1's config2 derived with O3 locked one ulp either side of pi (where the latch
+    leaves it, by round-off): the link angles continue those of config1 at the lock, so tau3's
+    measure theta3 - theta2 is the lock value, not the value 2 pi below it that the child's
+    wrapped neutral angle gives when the ulp falls above pi (tau3 then pushed with 0.163 N m
+    more: the config3 run of the chain test ended 0.66 rad ahead)."""
+    path = three_bar(tmp_path, config2=f'from = "config1"\nlock = {{ O3 = {value!r} }}')
+    mech = Mechanism(pcmm.load_scene(path))
+    src, cfg = mech["config1"], mech["config2"]
+    q1 = src.vector({"O1": 0.4, "O2": -1.3, "O3": value})
+    q2 = cfg.vector({"O1": 0.4, "O2": -1.3})
+    i2, i3 = cfg.link_index["link2"], cfg.link_index["link3"]
+    rel = cfg.link_angles(q2)[i3] - cfg.link_angles(q2)[i2]
+    assert rel == pytest.approx(value, abs=1e-15)
+    np.testing.assert_allclose(cfg.link_angles(q2), src.link_angles(q1), rtol=0, atol=1e-15)
+    # each tau_i acts on link i from the frame (Eq. 44); link3 is welded to link2 in config2
+    tau = cfg.forces.generalized(q2, np.zeros(2))
+    tau2, tau3 = 0.1625 - 0.0161 * (-1.3), 0.23 - 0.026 * value  # theta2 - theta1 = O2
+    assert tau[0] == pytest.approx(1.955 + tau2 + tau3, abs=1e-12)  # O1 turns the whole arm
+    assert tau[1] == pytest.approx(tau2 + tau3, abs=1e-12)  # O2 turns link2 and link3
