@@ -50,13 +50,16 @@ def closest_approach(scene: Scene, cfg: Configuration, traj: Trajectory) -> list
     """One record per transition out of ``cfg``: where, over the run in ``cfg``, its guard came
     closest to its value (the nearest step, refined on the dense output)."""
     watched = [tr for tr in scene.transitions_from(cfg.name) if tr.guard.type in ("coordinate", "gap")]
+    reactions = [tr for tr in scene.transitions_from(cfg.name) if tr.guard.type == "reaction"]
     segs = [s for s in traj.segments if s.configuration == cfg.name]
-    if not segs or not watched:  # time and reaction guards: no approach to report
+    if not segs or not (watched or reactions):  # time guards: no approach to report
         return []
+    out = [r for r in (_reaction_approach(tr, segs, traj) for tr in reactions) if r is not None]
+    if not watched:
+        return out
     t = np.concatenate([s.t for s in segs])
     q = np.concatenate([s.q for s in segs])
     owner = np.concatenate([np.full(s.t.size, k) for k, s in enumerate(segs)])
-    out = []
     for tr in watched:
         fired = [e["t"] for e in traj.events if e.get("name") == tr.name]
         after = t > max(fired) if fired else np.ones(t.size, bool)  # since it last fired
@@ -77,6 +80,32 @@ def closest_approach(scene: Scene, cfg: Configuration, traj: Trajectory) -> list
                     "closest": gi, "t": ti, "distance": float(abs(gi - tr.guard.value)),
                     "last_fired": max(fired) if fired else None})
     return out
+
+
+def _reaction_approach(tr, segs: list[SegmentRecord], traj: Trajectory) -> dict | None:
+    """The closest approach of a reaction guard's holding force (or moment) to its value, over
+    the recorded samples of the run in the configuration since the guard last fired (the hold
+    is an algebraic function of the state: its samples are as fine as the output's)."""
+    label = f"{tr.guard.of}.hold"
+    fired = [e["t"] for e in traj.events if e.get("name") == tr.name]
+    ts, gs = [], []
+    for s in segs:
+        if label in s.constraint_labels:
+            ts.append(s.t)
+            gs.append(s.constraint_forces[:, s.constraint_labels.index(label)])
+    if not ts:
+        return None
+    t, g = np.concatenate(ts), np.concatenate(gs)
+    if fired:
+        g = np.where(t > max(fired), g, np.inf)
+    d = np.abs(g - tr.guard.value)
+    if not np.isfinite(d).any():
+        return None
+    i = int(np.argmin(d))
+    return {"transition": tr.name, "guard": f"holding force of '{tr.guard.of}'", "value": tr.guard.value,
+            "direction": "increasing" if tr.guard.direction > 0 else "decreasing",
+            "closest": float(g[i]), "t": float(t[i]), "distance": float(d[i]),
+            "last_fired": max(fired) if fired else None}
 
 
 def describe(records: list[dict]) -> str:

@@ -47,11 +47,16 @@ _BUILT_MAX = 16  # models kept per thread (a large chain's Data holds nv^3-sized
 
 
 def _point_keys(scene: Scene, spec: ConfigurationSpec) -> tuple:
-    """The points a configuration registers as frames, in registration order."""
+    """The points a configuration registers as frames, in registration order: the contact
+    points of every transition whose two links it has (not only of those leaving it: a holding
+    force is computed on a configuration with the held joints free, which need not be the one
+    the stop left), its cut joints' points and its point springs' ends."""
+    links = set(spec.info.links)
     keys = []
-    for t in scene.transitions_from(spec.name):
-        if t.contact is not None and t.contact.joint is None:  # as Configuration.__init__ registers them
-            keys += [(t.contact.a, tuple(t.contact.point_a)), (t.contact.b, tuple(t.contact.point_b))]
+    for t in scene.transitions:
+        c = t.contact
+        if c is not None and c.joint is None and c.a in links and c.b in links:
+            keys += [(c.a, tuple(c.point_a)), (c.b, tuple(c.point_b))]
     for cj in spec.cut_joints:
         keys += [(cj.a, tuple(cj.point_a)), (cj.b, tuple(cj.point_b))]
     for f in scene.forces_in(spec.name):
@@ -134,17 +139,8 @@ class Configuration:
             self.link_frame[link] = model.getFrameId(link, pin.FrameType.BODY)
         self.root = spec.info.root
         self._points: dict[tuple[str, tuple[float, float]], Point] = {}
-        for t in scene.transitions_from(self.name):
-            if t.contact is not None and t.contact.joint is None:
-                self.point(t.contact.a, t.contact.point_a)
-                self.point(t.contact.b, t.contact.point_b)
-        for cj in spec.cut_joints:
-            self.point(cj.a, cj.point_a)
-            self.point(cj.b, cj.point_b)
-        for f in scene.forces_in(self.name):
-            if f.points is not None:
-                self.point(f.points.a, f.points.point_a)
-                self.point(f.points.b, f.points.point_b)
+        for link, xy in key[1]:
+            self.point(link, xy)
         self.data = model.createData()
         self._angle_map()
         self._cut_models = {}  # cut systems by cut joints (pcmm.cutting), built on first impact

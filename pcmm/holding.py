@@ -23,6 +23,7 @@ import numpy as np
 from .configuration import Configuration
 from .constraints import constrained_accelerations
 from .errors import SimulationError
+from .forces import compile_forces
 from .contact import contact_row
 from .mechanism import Mechanism
 from .spec import TransitionSpec
@@ -109,9 +110,47 @@ class Holds:
         return sets
 
     def reference(self, cfg: Configuration) -> str | None:
+        """The configuration the holding forces are solved in: one whose movable joints include
+        ``cfg``'s and every held one, with ``cfg``'s drives; of those the fewest joints, then one
+        a hold was locked from.  Only its model (its joints, loops and drives) is used: the
+        forces are always ``cfg``'s own (:meth:`forces`), whatever the reference applies."""
         need = set(cfg.joint_names).union(*(h.joints for h in self.items))
-        fits = [(len(js), name) for name, js in self._joint_sets().items() if need <= js]
-        return min(fits)[1] if fits else None
+        drives = {(d.joint, d.coefficients) for d in self.scene.drives_in(cfg.name)}
+        sources = {h.transition.source for h in self.items}
+        fits = [(len(js), name not in sources, name) for name, js in self._joint_sets().items()
+                if need <= js and {(d.joint, d.coefficients) for d in self.scene.drives_in(name)} == drives]
+        return min(fits)[2] if fits else None
+
+    def _forces_on(self, ref: Configuration, cfg: Configuration):
+        """The force elements acting while ``cfg`` holds, on ``ref``'s coordinates (None when
+        ``ref`` applies the same ones): ``cfg``'s own, plus each held joint's own elements (a
+        spring or motor on the joint, which the scene lists only where the joint is free) as the
+        configuration the hold was locked from has them.  A locked joint's element is internal to
+        the welded links, so it does not move them, but the lock holds it: the pin of a joint whose
+        spring pushes it into the pin carries that moment.  A configuration with the held joints
+        free may drive, spring or damp otherwise (a motor on only while a stop holds), and the hold
+        balances what acts in ``cfg``, not there."""
+        key = (ref.name, cfg.name, tuple(h.label for h in self.items))
+        if key not in self._maps:
+            mine = list(self.scene.forces_in(cfg.name))
+            for h in self.items:
+                for f in self.scene.forces_in(h.transition.source):
+                    on_joint = f.on is not None and f.on.kind == "joint" and f.on.name in h.joints
+                    measures = f.measure is not None and f.measure.kind == "joint" and f.measure.names[0] in h.joints
+                    if (on_joint or measures) and f not in mine:
+                        mine.append(f)
+            theirs = self.scene.forces_in(ref.name)
+            if sorted(f.name for f in mine) == sorted(f.name for f in theirs) and all(f in theirs for f in mine):
+                self._maps[key] = None
+            elif any(f.points is not None for f in mine + list(theirs)):
+                raise SimulationError(
+                    f"configuration '{cfg.name}': its holding forces are solved in '{ref.name}' (the "
+                    "configuration with the held joints free), whose force elements differ, and one of "
+                    "them is a point_spring, which pcmm cannot carry over; give both configurations the "
+                    "same point springs")
+            else:
+                self._maps[key] = compile_forces(tuple(mine), ref.measure_row, ref.target_column, ref.nv)
+        return self._maps[key]
 
     def release_target(self, hold: Hold, cfg: Configuration) -> str:
         need = set(cfg.joint_names) | set(hold.joints)
@@ -133,8 +172,8 @@ class Holds:
         if ref_name is None:
             raise SimulationError(
                 f"configuration '{cfg.name}': no configuration of the scene has its joints plus the locked "
-                f"{', '.join(sorted(set().union(*(h.joints for h in self.items))))} free, so the holding "
-                "forces cannot be computed")
+                f"{', '.join(sorted(set().union(*(h.joints for h in self.items))))} free and its drives, "
+                "so the holding forces cannot be computed")
         ref = self.mechanism[ref_name]
         qs, vs = np.zeros(ref.nv), np.zeros(ref.nv)
         for name in ref.joint_names:
@@ -159,7 +198,9 @@ class Holds:
                 rows.append(e[None, :])
                 bias.append([0.0])
                 owners.append(h.label)
-        _, lam = constrained_accelerations(ref, qs, vs, np.vstack(rows), np.concatenate(bias))
+        own = self._forces_on(ref, cfg)
+        extra = None if own is None else own.generalized(qs, vs) - ref.forces.generalized(qs, vs)
+        _, lam = constrained_accelerations(ref, qs, vs, np.vstack(rows), np.concatenate(bias), extra)
         return {label: float(x) for label, x in zip(owners, lam[Jc.shape[0]:])}
 
     # -- guards

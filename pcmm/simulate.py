@@ -43,6 +43,20 @@ def initial_state(scene: Scene, cfg: Configuration):
             "(or none, and pcmm picks the best-conditioned ones)") from None
 
 
+#: this many configuration switches at one instant are a cycle that time does not pass in
+ZERO_TIME_CYCLE = 64
+
+
+def _zero_time_cycle(events: list[dict]) -> str:
+    """The transitions of a cycle of switches at one instant ('' if the last ``ZERO_TIME_CYCLE``
+    events are not one): with no time passing no impulse can end it, as a macro-impact's
+    accumulation ends a bounce sequence, and only the event budget would stop the run."""
+    tail = events[-ZERO_TIME_CYCLE:]
+    if len(tail) < ZERO_TIME_CYCLE or tail[0]["t"] != tail[-1]["t"] or any(e["from"] == e["to"] for e in tail):
+        return ""
+    return ", ".join(dict.fromkeys(f"'{e['name']}' ({e['from']} -> {e['to']})" for e in tail))
+
+
 def simulate(scene: Scene, options: RunOptions = RunOptions(), progress=None) -> Trajectory:
     """Run ``scene`` configuration after configuration (paper Fig. 3).
 
@@ -199,6 +213,14 @@ def simulate(scene: Scene, options: RunOptions = RunOptions(), progress=None) ->
             stats["wall_s"] += time.perf_counter() - t0
             stats["impacts"] += int(out.event.get("impact", False))
             traj.events.append(out.event)
+            cycle = _zero_time_cycle(traj.events)
+            if cycle:
+                raise SimulationError(
+                    f"at t = {t:.9g} s the run switched configuration {ZERO_TIME_CYCLE} times without time "
+                    f"passing: {cycle} keep firing, each one's guard already past its value when the run "
+                    "enters its configuration (a release into a configuration whose forces push it straight "
+                    "back into the stop that merged it, say); change a guard, or the forces acting right "
+                    "after a switch")
             if len(traj.events) > opts.max_events:
                 raise SimulationError(f"more than {opts.max_events} events by t = {t:.9g} s (last: "
                                       f"'{tr.name}'); raise solver.max_events or the accumulation "

@@ -336,3 +336,71 @@ def test_example2_locked_slider_jams_the_driven_loop_with_a_message():
     with pytest.raises(pcmm.SimulationError, match="jams the driven loop") as info:
         pcmm.simulate(pcmm.load_scene(ROOT / "examples" / "double_folded.toml"), pcmm.RunOptions(t_end=8.0))
     assert info.value.partial.segments[-1].t[-1] == pytest.approx(7.677, abs=2e-3)
+
+
+@pytest.mark.parametrize("motor_in", [("free", "locked"), ("locked", "coast")])
+def test_a_stop_holds_against_the_forces_of_the_configuration_it_holds_in(tmp_path, motor_in):
+    """A slider-crank's slider merges with its stop (e = 0, no gravity) and is let go by a timer
+    into 'coast', a configuration with the same joints free as 'free'.  A constant 1.5 N on the
+    slider's joint P (listed where P is free: it is internal once P is locked, but the stop holds
+    it) pushes it into the stop too.  While locked, by virtual work N = tau / (dx/dtheta) + 1.5 N
+    at the stop posture.  The hold is solved on a configuration with the slider free; whichever
+    that is, the forces are those of 'locked' plus P's own (it used to take 'coast's: no motor
+    there, and 'coast' had not registered the contact point, a traceback)."""
+    a, b, tau, theta = 0.1, 0.3, 0.5, -1.0
+    path = builders.slider_crank_stop(tmp_path, e=0.0, torque=tau, g=0.0, theta_stop=theta, t_end=1.0)
+    doc = tomllib.loads(path.read_text())
+    doc["configurations"]["coast"] = dict(doc["configurations"]["free"])
+    doc["forces"][0]["configurations"] = list(motor_in)
+    doc["forces"].append({"name": "push", "type": "torque", "on": {"joint": "P"}, "value": 1.5,
+                          "configurations": ["free", "coast"]})
+    doc["transitions"].append({"name": "let go", "type": "release", "from": "locked", "to": "coast",
+                               "guard": {"type": "time", "at": 0.9}})
+    path.write_text(builders.dump_toml(doc))
+    if "free" not in motor_in:  # the slider must still reach the stop: push it from the start
+        doc["initial"]["v"] = {"A": 6.0, "B": 0.0, "P": 0.0}
+        path.write_text(builders.dump_toml(doc))
+    traj = pcmm.simulate(pcmm.load_scene(path))
+    assert [(e["from"], e["to"]) for e in traj.events][-2:] == [("free", "locked"), ("locked", "coast")]
+    dxdth = -a * math.sin(theta) - a * a * math.sin(theta) * math.cos(theta) / math.sqrt(b * b - (a * math.sin(theta)) ** 2)
+    hold = traj.stats["holding"]["stop.hold"]
+    assert hold["min"] == pytest.approx(tau / dxdth + 1.5, abs=1e-9)
+    assert hold["max"] == pytest.approx(tau / dxdth + 1.5, abs=1e-9)
+
+
+def test_switches_that_take_no_time_are_named_not_counted_to_the_event_budget(tmp_path):
+    """Let go into 'coast' at t = 0.9 s, whose stop (a timer at 0.9 s too) merges the slider back
+    into 'locked', whose release timer has already run out: the two switch forever at 0.9 s.  The error names both transitions at that instant (it used to say "more than
+    10000 events ... raise solver.max_events", advice that cannot help)."""
+    path = builders.slider_crank_stop(tmp_path, e=0.0, torque=0.5, g=0.0, t_end=1.0)
+    doc = tomllib.loads(path.read_text())
+    doc["configurations"]["coast"] = dict(doc["configurations"]["free"])
+    again = dict(doc["transitions"][0], name="stop again", guard={"type": "time", "at": 0.9}, **{"from": "coast"})
+    doc["transitions"] += [again, {"name": "let go", "type": "release", "from": "locked", "to": "coast",
+                                   "guard": {"type": "time", "at": 0.9}}]
+    path.write_text(builders.dump_toml(doc))
+    with pytest.raises(pcmm.SimulationError) as err:
+        pcmm.simulate(pcmm.load_scene(path))
+    msg = str(err.value)
+    assert "at t = 0.9 s the run switched configuration 64 times without time passing" in msg
+    assert "'let go' (locked -> coast), 'stop again' (coast -> locked)" in msg
+
+
+def test_a_reaction_guard_that_never_fires_reports_its_closest_approach(tmp_path):
+    """A release watching the stop's holding force for a drop to 1 N never fires: the motor holds
+    the slider at N = tau / (dx/dtheta) for good.  The run says so, as for a coordinate guard
+    (it used to end in 'locked' with no word)."""
+    a, b, tau, theta = 0.1, 0.3, 0.5, -1.0
+    path = builders.slider_crank_stop(tmp_path, e=0.0, torque=tau, g=0.0, theta_stop=theta, t_end=1.0)
+    doc = tomllib.loads(path.read_text())
+    doc["transitions"][0]["unmerge"] = False
+    doc["transitions"].append({"name": "let go", "type": "release", "from": "locked", "to": "free",
+                               "guard": {"type": "reaction", "of": "stop", "value": 1.0, "direction": "decreasing"}})
+    path.write_text(builders.dump_toml(doc))
+    traj = pcmm.simulate(pcmm.load_scene(path))
+    assert traj.segments[-1].configuration == "locked"
+    dxdth = -a * math.sin(theta) - a * a * math.sin(theta) * math.cos(theta) / math.sqrt(b * b - (a * math.sin(theta)) ** 2)
+    (rec,) = traj.stats["closest_approach"]
+    assert rec["transition"] == "let go" and rec["guard"] == "holding force of 'stop'"
+    assert rec["closest"] == pytest.approx(tau / dxdth, abs=1e-9)
+    assert rec["distance"] == pytest.approx(tau / dxdth - 1.0, abs=1e-9)
