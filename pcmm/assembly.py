@@ -47,6 +47,14 @@ def _revolute(cfg: Configuration) -> np.ndarray:
     return mask
 
 
+def _branch_example(cfg) -> str:
+    """The ``branch`` table to write, with two links of the first loop (the angle from the first
+    to the second; its sign tells the two assemblies apart where it is not 0 or pi)."""
+    cuts = cfg.spec.cut_joints
+    a, b = (cuts[0].a, cuts[0].b) if cuts else ("LINK_A", "LINK_B")
+    return f'{{ between = ["{a}", "{b}"], sign = "+" }} (two link names; sign "+" or "-" of the angle from the first to the second)'
+
+
 def _near(cfg: Configuration, q, guess):
     """``q`` with every revolute angle moved by 2 pi k to within pi of ``guess`` (same posture)."""
     rev = _revolute(cfg)
@@ -124,7 +132,7 @@ def assemble(scene: Scene, cfg: Configuration):
         notes.append("the loop was assembled away from the given values: "
                      + ", ".join(f"{n} given {g:.6g}, assembled {a:.6g}" for n, g, a in moved)
                      + f" (more than {GUESS_TOL:g} apart); check that this is the posture you meant, "
-                       "or fix the branch with [initial] branch = { between = [A, B], sign = \"+\" }")
+                       f"or fix the branch with [initial] branch = {_branch_example(cfg)}")
     if scene.branch is None and len(moved):
         try:
             others = _candidates(cfg, q0, v0, prefer)

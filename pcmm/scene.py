@@ -230,6 +230,9 @@ class _Builder:
         self.base = path.resolve().parent
         self.raw = raw
         self.p = S.Problems(str(path))
+        # configurations the file declares, valid or not: a reference to one whose own table is at
+        # fault is not reported again as "no such configuration" (its own problem says it)
+        self.declared: set[str] = set()
 
     # -- helpers
     def _measure(self, table, where) -> Measure | None:
@@ -286,7 +289,7 @@ class _Builder:
         drives = self._drives(top["drives"])
         init = S.check_table(top["initial"] or {}, INITIAL_KEYS, "initial", self.p) if top["initial"] is not None else {}
         initial = sc.get("initial_configuration")
-        if initial is not None and initial not in configs and top["configurations"]:
+        if initial is not None and initial not in configs and initial not in self.declared and top["configurations"]:
             self.p.add("scene.initial_configuration", f"= {initial!r}: no such configuration; "
                        f"defined: {', '.join(configs) or '(none valid)'}")
         if initial in configs and configs[initial].derivation is not None:
@@ -314,6 +317,7 @@ class _Builder:
 
     def _configurations(self, table) -> dict[str, ConfigurationSpec]:
         out, derived = {}, {}
+        self.declared = set(table) if isinstance(table, dict) else set()
         if not table:
             self.p.add("configurations", "needs at least one [configurations.NAME] table")
         for name, body in table.items():
@@ -494,14 +498,18 @@ class _Builder:
 
     def _guard(self, table, where, kind) -> GuardSpec | None:
         g = S.check_table(table, GUARD_KEYS, where, self.p)
-        given = {k for k in ("measure", "value", "direction", "at", "every", "of") if g.get(k) is not None}
+        # a key written but at fault (a broken expression, a wrong type) is given: its own problem
+        # is reported, not a second one saying it is missing
+        raw = table if isinstance(table, dict) else {}
+        given = {k for k in ("measure", "value", "direction", "at", "every", "of") if k in raw}
+        failed = any(g.get(k) is None for k in given)
         needs = {"coordinate": {"measure", "value", "direction"}, "gap": {"value", "direction"},
                  "time": set(), "reaction": {"of", "value", "direction"}}.get(g["type"])
         allowed = {"coordinate": {"measure", "value", "direction"}, "gap": {"value", "direction"},
                    "time": {"at", "every"}, "reaction": {"of", "value", "direction"}}.get(g["type"])
         if needs is None:
             return None
-        ok = True
+        ok = not failed
         for k in sorted(needs - given):
             self.p.add(f"{where}.{k}", f"missing; a {g['type']} guard needs {', '.join(sorted(needs))}")
             ok = False
@@ -656,7 +664,7 @@ class _Builder:
         for n in names:
             if n in scene.configurations:
                 out.append(scene.configurations[n])
-            else:
+            elif n not in self.declared:
                 self.p.add(where, f"= {n!r}: no such configuration; defined: {', '.join(scene.configurations)}")
         return out
 
@@ -682,7 +690,7 @@ class _Builder:
             where = f"transitions[{i}] ({t.name})"
             for key, ref in (("from", t.source), ("to", getattr(t, "target", None)),
                              ("merge_to", getattr(t, "merge_to", None))):
-                if ref is not None and ref not in names:
+                if ref is not None and ref not in names and ref not in self.declared:
                     self.p.add(f"{where}.{key}", f"= {ref!r}: no such configuration; defined: {', '.join(names)}")
             if t.source not in names:
                 continue

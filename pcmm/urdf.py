@@ -7,6 +7,7 @@ value, what is allowed), and only then lets Pinocchio build the model.
 """
 from __future__ import annotations
 
+import difflib
 import math
 import xml.etree.ElementTree as ET
 from collections import Counter
@@ -72,12 +73,22 @@ def dynamics_xml(path: str | Path, text: str | None = None) -> str:
     return ET.tostring(root, encoding="unicode")
 
 
+def _nearby(path: Path) -> str:
+    """A hint naming the URDF files in the same folder whose names are closest to ``path``'s."""
+    try:
+        names = sorted(p.name for p in path.parent.glob("*.urdf")) if path.parent.is_dir() else []
+    except OSError:
+        return ""
+    close = difflib.get_close_matches(path.name, names, n=3, cutoff=0.6)
+    return f" (did you mean {' or '.join(close)}?)" if close else ""
+
+
 def read_urdf(path: str | Path) -> UrdfInfo:
     """Parse and validate ``path``; raise :class:`ModelError` listing every problem."""
     path = Path(path)
     where = str(path)
     if not path.is_file():
-        raise ModelError(f"{where}: URDF file not found")
+        raise ModelError(f"{where}: URDF file not found{_nearby(path)}")
     try:
         root = ET.parse(path).getroot()
     except ET.ParseError as exc:

@@ -188,3 +188,24 @@ def test_cli_reports_scene_errors_cleanly(tmp_path, capsys, command, base, targe
     assert fragment in err and path.name in err
     assert "Traceback" not in err and "Traceback" not in out
     assert list(tmp_path.glob("*.npz")) == []  # nothing simulated, nothing saved
+
+
+def test_a_configuration_at_fault_is_reported_once_not_at_every_reference(tmp_path):
+    """config2's URDF name has a typo: that is the one problem (with the file it probably meant),
+    not also one "no such configuration" for the transition that merges into it."""
+    path = copy_example(tmp_path, scene_text=example_text().replace(
+        'urdf = "three_bar_config2.urdf"', 'urdf = "three_bar_config_2.urdf"'))
+    with pytest.raises(pcmm.SceneError) as err:
+        pcmm.load_scene(path)
+    assert err.value.problems == [
+        f"{path}: configurations.config2.urdf: {tmp_path / 'three_bar_config_2.urdf'}: URDF file not found "
+        "(did you mean three_bar_config2.urdf or three_bar_config1.urdf?)"]
+
+
+def test_a_broken_expression_is_not_also_reported_missing(tmp_path):
+    path = copy_example(tmp_path, scene_text=example_text().replace("value = 3.141592653589793", 'value = "180 degs"'))
+    assert '"180 degs"' in path.read_text()
+    with pytest.raises(pcmm.SceneError) as err:
+        pcmm.load_scene(path)
+    (problem,) = err.value.problems
+    assert "guard.value: = '180 degs': at position 5: unexpected 'degs'" in problem
