@@ -319,7 +319,8 @@ class Trajectory:
             times = np.concatenate(([a], inner, [b])) if b > a else np.array([a])
             segs.append(s.resampled(times))
         return Trajectory(scene=self.scene, scene_name=self.scene_name, impact=self.impact, segments=segs,
-                          events=self.events, stats=self.stats, status=self.status, message=self.message)
+                          events=self.events, stats=self.stats, status=self.status, message=self.message,
+                          views=self.views)
 
     def configuration_at(self) -> list[str]:
         """The configuration of every sample of :attr:`t`.
@@ -465,11 +466,20 @@ class Trajectory:
         coords = []
         for s in self.segments:
             coords += [c for c in s.coordinates if c not in coords]
-        for c in coords:
-            cols.append((f"q_{c} [rad|m]", self.series("q", c)))
-            cols.append((f"v_{c} [rad/s|m/s]", self.series("v", c)))
+        types = {j: d["type"] for view in self.views.get("configurations", {}).values()  # where it moves
+                 for j, d in (view.get("joints") or {}).items()
+                 if isinstance(d, dict) and d.get("type") in ("revolute", "prismatic")}
+        for c in coords:  # a revolute joint's coordinate is an angle, a prismatic one's a length
+            q_unit, v_unit = {"revolute": ("rad", "rad/s"), "prismatic": ("m", "m/s")}.get(
+                types.get(c), ("rad|m", "rad/s|m/s"))
+            cols.append((f"q_{c} [{q_unit}]", self.series("q", c)))
+            cols.append((f"v_{c} [{v_unit}]", self.series("v", c)))
+        forces = self.views.get("forces", {})
         for name in dict.fromkeys(n for s in self.segments for n in s.force_names):
-            cols.append((f"force_{name} [N m|N]", self.series("forces", name)))
+            on = (forces.get(name) or {}).get("on") or {}
+            unit = "N" if on.get("kind") == "joint" and types.get(on.get("name")) == "prismatic" else \
+                "N m" if on.get("kind") == "link" or types.get(on.get("name")) == "revolute" else "N m|N"
+            cols.append((f"force_{name} [{unit}]", self.series("forces", name)))
         for name in dict.fromkeys(n for s in self.segments for n in s.constraint_labels):
             cols.append((f"constraint_{name} [N|N m]", self.series("constraint_forces", name)))
         cols.append(("kinetic_energy [J]", self.series("kinetic")))

@@ -65,7 +65,7 @@ def test_cli_dt_writes_the_csv_on_the_grid(tmp_path):
         rows = list(csv.reader(f))
     header, data = rows[0], rows[1:]
     t = np.array([float(r[0]) for r in data])
-    q = np.array([float(r[header.index("q_J1 [rad|m]")]) for r in data])
+    q = np.array([float(r[header.index("q_J1 [rad]")]) for r in data])
     assert len(t) == 101 and np.allclose(t, np.arange(101) * 0.01, rtol=0, atol=1e-15)
     assert np.max(np.abs(q - closed_form(t)[0])) < 1e-8
 
@@ -148,3 +148,11 @@ def test_cli_dt_draws_the_figures_from_the_resampled_run(tmp_path, monkeypatch):
     # a scene without transitions has no run without impact to compare (it would be the same run)
     assert np.array_equal(t, np.arange(101) * 0.005) and t_other is None
     assert any(out.glob("*.png"))
+
+
+def test_a_resampled_run_keeps_what_its_views_need(tmp_path):
+    """``--dt`` replaces the run by its resampling: that one is saved, replayed and plotted, so it
+    keeps the recorded views (a file without them needs its scene and URDFs where they were)."""
+    traj = pcmm.simulate(pcmm.load_scene(builders.spring_pendulum(tmp_path, K, I_C, q0=Q0, t_end=0.2)))
+    fine = traj.resampled(0.01)
+    assert fine.views == traj.views and fine.views["configurations"]["c1"]["joints"]["J1"]["type"] == "revolute"
