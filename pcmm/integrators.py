@@ -208,12 +208,15 @@ def _locate(e, sol, t_a, t_b, g_a, tol):
     if _crossed(g_a, vals[0], e.direction) and vals[0] != g_a:
         return float(t_a)  # already across at the start of the dense output (round-off)
     xtol = max(tol, 4 * EPS * max(1.0, abs(t_b)))
+    rate = e.rate if getattr(e, "rate_from_state", False) else None
 
-    def root(lo, hi):
+    def root(lo, hi, g_lo, g_hi):
+        if rate is not None:  # the guard's own rate: Newton's steps, kept in the bracket
+            return _bracketed_newton(lambda u: e(u, sol(u)), lambda u: rate(u, sol(u), None), lo, hi, g_lo, g_hi, xtol)
         return brentq(lambda u: e(u, sol(u)), lo, hi, xtol=xtol, rtol=4 * EPS)
     for k in range(n):
         if _crossed(vals[k], vals[k + 1], e.direction):
-            return float(grid[k + 1]) if vals[k + 1] == 0 else root(grid[k], grid[k + 1])
+            return float(grid[k + 1]) if vals[k + 1] == 0 else root(grid[k], grid[k + 1], vals[k], vals[k + 1])
     # no sample crosses: look for a dip between samples, towards the side the guard crosses to
     sign = 1.0 if e.direction >= 0 else -1.0  # direction >= 0: a crossing makes the guard rise
     k = int(np.argmax([sign * v for v in vals]))
@@ -224,8 +227,43 @@ def _locate(e, sol, t_a, t_b, g_a, tol):
     g_x = e(t_x, sol(t_x))
     start_side = vals[max(k - 1, 0)]
     if _crossed(start_side, g_x, e.direction) and g_x != start_side:
-        return t_x if g_x == 0 else root(lo, t_x)
+        return t_x if g_x == 0 else root(lo, t_x, start_side, g_x)
     return None
+
+
+def _bracketed_newton(g, dg, lo, hi, g_lo, g_hi, xtol, max_iter=100) -> float:
+    """A zero of ``g`` in [lo, hi], where ``g`` changes sign, to ``xtol``: Newton's steps on
+    the guard's own rate (``dg``, read from the state), replaced by bisection wherever a step
+    would leave the shrinking bracket or not halve the error (Numerical Recipes' rtsafe).
+    Near a simple root it converges quadratically: 4 or 5 evaluations from a grid cell where
+    Brent's method, which cannot use the rate, took about 16 (with a Newton solve of the loop
+    each in a closed loop)."""
+    if g_lo == 0:
+        return float(lo)
+    if g_hi == 0:
+        return float(hi)
+    neg, pos = (lo, hi) if g_lo < 0 else (hi, lo)  # g(neg) < 0 < g(pos)
+    x = lo - g_lo * (hi - lo) / (g_hi - g_lo)  # the secant's zero: the first estimate
+    step = step_old = abs(hi - lo)
+    f, df = g(x), dg(x)
+    for _ in range(max_iter):
+        if f == 0:
+            return float(x)
+        if f < 0:
+            neg = x
+        else:
+            pos = x
+        newton_out = ((x - pos) * df - f) * ((x - neg) * df - f) > 0  # the step would leave the bracket
+        if newton_out or not df or abs(2 * f) > abs(step_old * df):
+            step_old, step = step, 0.5 * (pos - neg)
+            x = neg + step
+        else:
+            step_old, step = step, f / df
+            x -= step
+        if abs(step) < xtol or abs(pos - neg) < xtol:
+            return float(x)
+        f, df = g(x), dg(x)
+    return float(x)
 
 
 def _run(driver, fun, t0, y0, t_bound, events, opts):
