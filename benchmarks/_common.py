@@ -15,6 +15,7 @@ import os
 import platform
 import re
 import statistics
+import shlex
 import sys
 import time
 from contextlib import contextmanager
@@ -85,7 +86,7 @@ def command_line() -> str:
         script = script.relative_to(ROOT)
     except ValueError:
         pass
-    return " ".join(["python", str(script)] + sys.argv[1:])
+    return shlex.join(["python", str(script)] + sys.argv[1:])  # quoted: it is pasted into a shell
 
 
 def median(xs):
