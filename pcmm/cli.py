@@ -272,9 +272,11 @@ def cmd_check(args) -> int:
         raise UsageError([f"{args.scene}: {p}" for p in problems])
     derived = check_derived(scene, mech.build)
     report = _check_geometry(scene)  # the geometry where the guards fix the posture
-    say(f"{args.scene}: valid ({len(scene.configurations)} configurations, all models built, "
-        f"{len(scene.transitions)} transitions, {len(scene.forces)} force elements; "
-        f"poses and contacts consistent at {len(report.postures)} guard values)")
+    def count(n: int, word: str) -> str:
+        return f"{n} {word}" if n == 1 else f"{n} {word}s"
+    say(f"{args.scene}: valid ({count(len(scene.configurations), 'configuration')}, all models built, "
+        f"{count(len(scene.transitions), 'transition')}, {count(len(scene.forces), 'force element')}; "
+        f"poses and contacts consistent at {count(len(report.postures), 'guard value')})")
     for line in derived:
         say(f"  {line}")
     return 0

@@ -35,7 +35,8 @@ def pair_joint(cfg: Configuration, tr: TransitionSpec) -> str | None:
 
 
 def _fmt(x):
-    return "[" + ", ".join(f"{float(c):.9g}" for c in x) + "]"
+    """A vector as the scene would write it (``+ 0.0`` turns a rounded ``-0`` into ``0``)."""
+    return "[" + ", ".join(f"{float(c) + 0.0:.9g}" for c in x) + "]"
 
 
 def contact_findings(cfg: Configuration, tr: TransitionSpec, q) -> list[Finding]:

@@ -270,10 +270,14 @@ class _Builder:
         return Target(given[0], t[given[0]])
 
     def _list_of_tables(self, items, keys, where):
+        """Each table of an array of tables with its place: ``transitions[2] (O2 pin)``, the
+        index and, where the table names itself, the name (as every later message about it)."""
         out = []
         for i, item in enumerate(items or []):
             raw = item if isinstance(item, dict) else {}
-            out.append((f"{where}[{i}]", S.check_table(item, keys, f"{where}[{i}]", self.p), raw))
+            name = raw.get("name")
+            place = f"{where}[{i}] ({name})" if isinstance(name, str) and name else f"{where}[{i}]"
+            out.append((place, S.check_table(item, keys, place, self.p), raw))
         return out
 
     # -- the build

@@ -393,7 +393,7 @@ def test_new_writes_a_scene_that_checks_and_runs(tmp_path, argv, capsys):
     assert cli(["new", "demo", "--dir", tmp_path, *argv]) == 0
     scene = tmp_path / "demo.toml"
     assert cli(["check", scene]) == 0
-    assert "poses and contacts consistent at 1 guard values" in capsys.readouterr().out
+    assert "1 transition, 1 force element; poses and contacts consistent at 1 guard value)" in capsys.readouterr().out
     summary = tmp_path / "s.json"
     assert cli(["run", scene, "--t-end", "0.3", "--quiet", "--summary", summary]) == 0
     d = json.loads(summary.read_text())

@@ -74,5 +74,5 @@ def test_continuous_law_needs_its_parameters(tmp_path):
     with pytest.raises(pcmm.SceneError) as info:
         pcmm.load_scene(tmp_path / "s.toml")
     msg = info.value.text()
-    assert "transitions[0].law" in msg and "latch" in msg
-    assert "transitions[0].stiffness" in msg and "transitions[0].exponent" in msg
+    assert "transitions[0] (t).law" in msg and "latch" in msg
+    assert "transitions[0] (t).stiffness" in msg and "transitions[0] (t).exponent" in msg

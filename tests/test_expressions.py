@@ -50,8 +50,8 @@ def test_scene_error_names_file_field_and_position(tmp_path):
     with pytest.raises(SceneError) as info:
         pcmm.load_scene(path)
     probs = info.value.problems
-    assert any(f"{path}: transitions[0].guard.value: = 'pi +': at position 5:" in p for p in probs)
-    assert any("forces[0].c: = '0.0196 * sqr(1)': at position 10:" in p and "sqrt" in p for p in probs)
+    assert any(f"{path}: transitions[0] (O3 latches).guard.value: = 'pi +': at position 5:" in p for p in probs)
+    assert any("forces[0] (tau1).c: = '0.0196 * sqr(1)': at position 10:" in p and "sqrt" in p for p in probs)
     assert any("initial.q.O2: = '0 dg': at position 3:" in p for p in probs)
 
 

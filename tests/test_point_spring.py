@@ -166,16 +166,16 @@ BASE = {"name": "spring", "type": "point_spring", "a": "link1", "point_a": [0.1,
 
 
 @pytest.mark.parametrize("change,drop,fragments", [
-    ({}, "point_b", ["forces[0].point_b", "missing", "a, point_a, b and point_b"]),
-    ({}, "rest", ["forces[0].rest", "missing", "rest length"]),
-    ({"rest": -0.1}, None, ["forces[0].rest", "-0.1", ">= 0"]),
-    ({"k": -1.0}, None, ["forces[0].k", "-1.0", ">= 0"]),
-    ({"b": "link1"}, None, ["forces[0].b", "'link1'", "same link"]),
+    ({}, "point_b", ["forces[0] (spring).point_b", "missing", "a, point_a, b and point_b"]),
+    ({}, "rest", ["forces[0] (spring).rest", "missing", "rest length"]),
+    ({"rest": -0.1}, None, ["forces[0] (spring).rest", "-0.1", ">= 0"]),
+    ({"k": -1.0}, None, ["forces[0] (spring).k", "-1.0", ">= 0"]),
+    ({"b": "link1"}, None, ["forces[0] (spring).b", "'link1'", "same link"]),
     ({"b": "lnk1"}, None, ["forces[0] (spring).b", "'lnk1'", "did you mean 'link1'?"]),
-    ({"point_a": [0.1]}, None, ["forces[0].point_a", "[0.1]", "2 finite numbers"]),
-    ({"on": {"joint": "J1"}}, None, ["forces[0].on", "not used by a 'point_spring'"]),
+    ({"point_a": [0.1]}, None, ["forces[0] (spring).point_a", "[0.1]", "2 finite numbers"]),
+    ({"on": {"joint": "J1"}}, None, ["forces[0] (spring).on", "not used by a 'point_spring'"]),
     ({"type": "spring", "measure": {"joint": "J1"}}, None,
-     ["forces[0].a", "only used by a 'point_spring'", "forces[0].on", "missing"]),
+     ["forces[0] (spring).a", "only used by a 'point_spring'", "forces[0] (spring).on", "missing"]),
 ])
 def test_point_spring_errors_name_file_field_value(make_scene, change, drop, fragments):
     force = {k: v for k, v in BASE.items() if k != drop}

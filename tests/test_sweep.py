@@ -133,7 +133,7 @@ def test_bad_path_or_value_fails_before_any_run(tmp_path):
     with pytest.raises(SceneError) as info:
         sweep(scene, plan, out, workers=1)
     assert info.value.problems == [f"--set transitions.O3 stop.restitution = 1.5: {STOP}: "
-                                   "transitions[0].restitution: = 1.5: must be in [0, 1]"]
+                                   "transitions[0] (O3 stop).restitution: = 1.5: must be in [0, 1]"]
     with pytest.raises(SceneError) as info:
         sweep(scene, make_plan([Axis("forces.tau4.value", (1.0,))]), out, workers=1)
     assert "value path 'forces.tau4.value': no element named 'tau4' in forces; closest: " in info.value.text()
@@ -146,7 +146,7 @@ def test_cli_bad_value_exit_2_and_nothing_written(tmp_path, capsys):
     out = tmp_path / "r.csv"
     code = main(["sweep", str(THREE_BAR), "--set", "forces.tau1.c=0.01,-1", "--out", str(out), "--quiet"])
     err = capsys.readouterr().err
-    assert code == 2 and "forces.tau1.c = -1" in err and "forces[0].c: = -1: must be >= 0" in err
+    assert code == 2 and "forces.tau1.c = -1" in err and "forces[0] (tau1).c: = -1: must be >= 0" in err
     assert not out.exists()
 
 
