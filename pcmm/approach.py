@@ -78,8 +78,17 @@ def closest_approach(scene: Scene, cfg: Configuration, traj: Trajectory) -> list
         out.append({"transition": tr.name, "guard": str(tr.guard.measure) if tr.guard.measure else "contact gap",
                     "value": tr.guard.value, "direction": "increasing" if tr.guard.direction > 0 else "decreasing",
                     "closest": gi, "t": ti, "distance": float(abs(gi - tr.guard.value)),
-                    "last_fired": max(fired) if fired else None})
+                    "last_fired": max(fired) if fired else None,
+                    # nearest where the run entered the configuration (a release at a stop, say): it
+                    # started there and never came closer, which is no near miss
+                    "at_entry": ti == float(segs[k].t[0]) and _entered(traj, segs[k])})
     return out
+
+
+def _entered(traj: Trajectory, seg: SegmentRecord) -> bool:
+    """Does ``seg`` start where the run entered its configuration (not after an impact in it)?"""
+    j = next(i for i, s in enumerate(traj.segments) if s is seg)
+    return j == 0 or traj.segments[j - 1].configuration != seg.configuration
 
 
 def _reaction_approach(tr, segs: list[SegmentRecord], traj: Trajectory) -> dict | None:
@@ -111,6 +120,8 @@ def _reaction_approach(tr, segs: list[SegmentRecord], traj: Trajectory) -> dict 
 def describe(records: list[dict]) -> str:
     return "\n".join(
         f"guard of '{r['transition']}' ({r['guard']} {r['direction']} to {r['value']:.9g}) did not fire: "
-        f"closest {r['closest']:.9g} at t = {r['t']:.6g} s, {r['distance']:.3g} short"
+        f"closest {r['closest']:.9g} at t = {r['t']:.6g} s"
+        + (" (where the run entered the configuration)" if r.get("at_entry") else "")
+        + f", {r['distance']:.3g} short"
         + (f" (since it last fired at t = {r['last_fired']:.9g} s)" if r.get("last_fired") is not None else "")
         for r in records)

@@ -404,3 +404,26 @@ def test_a_reaction_guard_that_never_fires_reports_its_closest_approach(tmp_path
     assert rec["transition"] == "let go" and rec["guard"] == "holding force of 'stop'"
     assert rec["closest"] == pytest.approx(tau / dxdth, abs=1e-9)
     assert rec["distance"] == pytest.approx(tau / dxdth - 1.0, abs=1e-9)
+
+
+def test_a_guard_nearest_where_its_configuration_was_entered_says_so(tmp_path):
+    """Let go at t = 0.9 s into 'coast' at the stop itself, where a spring on P pulls the slider
+    back: coast's own stop guard is at its value at entry and never nearer afterwards.  The
+    closest-approach line says it was nearest where the run entered (it read as a near miss)."""
+    path = builders.slider_crank_stop(tmp_path, e=0.0, torque=0.5, g=0.0, t_end=1.0)
+    doc = tomllib.loads(path.read_text())
+    doc["configurations"]["coast"] = dict(doc["configurations"]["free"])
+    doc["forces"][0]["configurations"] = ["free", "locked"]
+    doc["forces"].append({"name": "return", "type": "torque", "on": {"joint": "P"}, "value": -3.0,
+                          "configurations": ["coast"]})
+    again = dict(doc["transitions"][0], name="stop again", **{"from": "coast"})
+    doc["transitions"] += [again, {"name": "let go", "type": "release", "from": "locked", "to": "coast",
+                                   "guard": {"type": "time", "at": 0.9}}]
+    path.write_text(builders.dump_toml(doc))
+    traj = pcmm.simulate(pcmm.load_scene(path))
+    assert traj.segments[-1].configuration == "coast"
+    (rec,) = traj.stats["closest_approach"]
+    assert rec["transition"] == "stop again" and rec["at_entry"] and rec["t"] == pytest.approx(0.9, abs=1e-12)
+    assert rec["distance"] < 1e-12
+    from pcmm.approach import describe
+    assert "at t = 0.9 s (where the run entered the configuration), " in describe([rec])
