@@ -65,11 +65,13 @@ def _point_keys(scene: Scene, spec: ConfigurationSpec) -> tuple:
     return tuple((link, (float(p[0]), float(p[1]))) for link, p in keys)
 
 
-def _angle_map(model, data, frames) -> tuple[np.ndarray, np.ndarray]:
+def _angle_map(model, data, frames, nominal=None) -> tuple[np.ndarray, np.ndarray]:
     """(A, b) with the absolute angles of the links at ``frames`` = ``A q + b``: ``A`` the rows
-    of their angular-velocity Jacobians, ``b`` their angles in the neutral posture, in
-    (-pi, pi]; an angle within 1e-9 of -pi is taken as +pi, so that the branch at the cut does
-    not follow the rotation's round-off (it differs between machines)."""
+    of their angular-velocity Jacobians, ``b`` their angles in the neutral posture.  A rotation
+    gives an angle only modulo 2 pi; where ``nominal`` (the angles as the URDF writes them) agrees
+    with it modulo 2 pi, its branch is taken, so a link written at -pi is at -pi and one at +pi
+    at +pi, whatever the sign of the round-off in the composed rotation (it differs between
+    machines)."""
     pin.computeJointJacobians(model, data, pin.neutral(model))
     pin.updateFramePlacements(model, data)
     A = np.zeros((len(frames), model.nv))
@@ -78,9 +80,27 @@ def _angle_map(model, data, frames) -> tuple[np.ndarray, np.ndarray]:
         A[i] = frame_jacobian(model, data, fid)[5]
         R = data.oMf[fid].rotation
         b[i] = np.arctan2(R[1, 0], R[0, 0])
-        if b[i] < -np.pi + 1e-9:
-            b[i] = np.pi
+        if nominal is not None:
+            turns = round((nominal[i] - b[i]) / (2 * np.pi))
+            if abs(b[i] + 2 * np.pi * turns - nominal[i]) < 1e-6:
+                b[i] += 2 * np.pi * turns
     return A, b
+
+
+def _nominal_angles(info, links) -> np.ndarray:
+    """Each link's angle in the neutral posture as the URDF writes it: the sum of the joint
+    origins' yaws from the root (a planar URDF has no roll or pitch; the URDF check refuses them)."""
+    parent_of = {j.child: j for j in info.joints.values()}
+    out = np.zeros(len(links))
+    for i, link in enumerate(links):
+        angle, seen = 0.0, set()
+        while link in parent_of and link not in seen:
+            seen.add(link)
+            joint = parent_of[link]
+            angle += joint.rpy[2]
+            link = joint.parent
+        out[i] = angle
+    return out
 
 
 class Configuration:
@@ -232,8 +252,11 @@ class Configuration:
         at pi leaves its child at a neutral angle of exactly +-pi, where the rotation's round-off
         picks the branch, and a torsion spring across the locked joint (a relative-angle measure)
         would then act as if the joint had turned by 2 pi (silently, and differently on another
-        machine).  So the angles continue those of the configuration the lock was taken in."""
-        self.A, self.b = _angle_map(self.model, self.data, [self.link_frame[link] for link in self.links])
+        machine).  So the angles continue those of the configuration the lock was taken in.  A
+        configuration's own URDF fixes the branch of each link's neutral angle as it is written
+        (:func:`_nominal_angles`)."""
+        nominal = _nominal_angles(self.spec.info, self.links)
+        self.A, self.b = _angle_map(self.model, self.data, [self.link_frame[link] for link in self.links], nominal)
         self.link_index = {link: i for i, link in enumerate(self.links)}
         der = self.spec.derivation
         if der is None or not der.values:
@@ -243,7 +266,7 @@ class Configuration:
         except Exception as exc:  # the root URDF was checked when the scene was loaded
             raise ModelError(f"{self.spec.urdf}: Pinocchio could not build the model: {exc}") from None
         frames = [root.getFrameId(link, pin.FrameType.BODY) for link in self.links]
-        A_root, b_root = _angle_map(root, root.createData(), frames)
+        A_root, b_root = _angle_map(root, root.createData(), frames, nominal)  # info: the root's joints
         b = b_root.copy()
         for joint, value in der.values:
             j = root.joints[root.getJointId(joint)]

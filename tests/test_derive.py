@@ -406,3 +406,18 @@ def test_a_lock_at_pi_keeps_the_relative_angle_a_spring_measures(tmp_path, value
     tau2, tau3 = 0.1625 - 0.0161 * (-1.3), 0.23 - 0.026 * value  # theta2 - theta1 = O2
     assert tau[0] == pytest.approx(1.955 + tau2 + tau3, abs=1e-12)  # O1 turns the whole arm
     assert tau[1] == pytest.approx(tau2 + tau3, abs=1e-12)  # O2 turns link2 and link3
+
+
+@pytest.mark.parametrize("yaw", [math.pi, -math.pi, math.nextafter(math.pi, 4.0), 3 * math.pi / 2])
+def test_a_hand_written_link_keeps_the_angle_its_urdf_writes(tmp_path, yaw):
+    """A link welded to its parent at a yaw of +-pi (or 3 pi / 2): its neutral angle is the URDF's
+    own (the sum of the joint origins' yaws), not whichever side of +-pi the composed rotation's
+    round-off gives, nor the rotation's angle wrapped into (-pi, pi]."""
+    urdf = builders.robot_xml("w", builders.link_xml("frame"),
+                              builders.joint_xml("O1", "revolute", "frame", "link1"), builders.bar_xml("link1", 0.5, 1.0),
+                              builders.joint_xml("W", "fixed", "link1", "link2", xyz=(0.5, 0.0), yaw=yaw),
+                              builders.bar_xml("link2", 0.3, 1.0))
+    doc = builders.scene_doc({"c": "w.urdf"}, {"O1": 0.0}, {"O1": 0.0})
+    cfg = Mechanism(pcmm.load_scene(builders.write_scene(tmp_path, doc, {"w.urdf": urdf})))["c"]
+    angle = cfg.link_angles(np.zeros(1))[cfg.link_index["link2"]]
+    assert angle == pytest.approx(yaw, abs=1e-15)
