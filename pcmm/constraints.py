@@ -179,6 +179,10 @@ class Drives:
         return out
 
 
+#: the largest change (rad or m) the warm start of a loop's Newton solve is extrapolated by
+PREDICT_MAX = 0.05
+
+
 def _max_abs(x: np.ndarray) -> float:
     """``max |x_i|`` of a short vector (0 when empty), from Python floats: a fifth of the cost of
     numpy's ``max(abs(x))`` on a loop's few residuals, which every Newton iteration tests.  A
@@ -605,7 +609,10 @@ class PartitionedCoordinates(_Replayable):
         if not self._recent:
             return self._qD
         tr, q, qd = min(self._recent, key=lambda r: abs(r[0] - t))
-        return q + (t - tr) * qd
+        step = (t - tr) * qd
+        # a long extrapolation is no better a start than the solution itself (and could carry the
+        # start past a branch point): beyond PREDICT_MAX the nearest solution is the start
+        return q + step if _max_abs(step) <= PREDICT_MAX else q
 
     def pack(self, t, q, v):
         """State vector at an assembled (q, v); the partition is re-chosen here,

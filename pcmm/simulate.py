@@ -514,6 +514,10 @@ def _record_samples(traj: Trajectory, cfg: Configuration, seg, offsets, q_start,
             if not coords.constrained and fun is coords.rhs:
                 fun = coords.fresh_rhs()
             states = _dense_states(t, y_full, times, (fun, method, opts))[:n_state]
+            # the dense steps left the loop's warm starts at the segment's end: the series are
+            # solved from its start onwards, as the recorded ones are (from the end, a loop's
+            # Newton solve at the start could land on another assembly)
+            coords.seed(q_start)
             out = _derived_series(cfg, times, states, offsets)
             if held:
                 out["constraint_forces"] = np.hstack((out["constraint_forces"],

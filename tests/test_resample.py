@@ -19,6 +19,7 @@ import pytest
 import builders
 import pcmm
 from pcmm.cli import main as cli_main
+from pcmm.mechanism import Mechanism
 
 K, I_C, Q0 = 1.0, 1e-2, 0.1  # w = 10 rad/s
 W = math.sqrt(K / I_C)
@@ -156,3 +157,41 @@ def test_a_resampled_run_keeps_what_its_views_need(tmp_path):
     traj = pcmm.simulate(pcmm.load_scene(builders.spring_pendulum(tmp_path, K, I_C, q0=Q0, t_end=0.2)))
     fine = traj.resampled(0.01)
     assert fine.views == traj.views and fine.views["configurations"]["c1"]["joints"]["J1"]["type"] == "revolute"
+
+
+def test_a_loop_resampled_after_a_release_stays_on_its_assembly(tmp_path):
+    """A four-bar (crank 0.06, coupler 0.18, rocker 0.12 m as the chain J1-J2-J3; the rocker's end
+    pinned to the frame at (0.2, 0) by the cut joint D) whose coupler latches onto the rocker at
+    J3 = -1.5 and is let go at t = 0.8 s.  Resampling the free stay after the release at 0.01 s
+    gave the mirrored assembly with angles 20-50 rad off (the dense steps had left the loop's warm
+    starts at the stay's end, and its first solve started from there): every resampled state now
+    equals the recorded one where their times coincide, and closes the loop."""
+    urdf = builders.chain_urdf([builders.Bar(0.06, 0.0936), builders.Bar(0.18, 0.2808), builders.Bar(0.12, 0.1872)])
+    cut = [{"name": "D", "type": "revolute", "a": "frame", "point_a": [0.2, 0.0], "b": "link3", "point_b": [0.12, 0.0]}]
+    doc = builders.scene_doc({"open": {"urdf": "fb.urdf", "cut_joints": cut}, "latched": {"from": "open", "lock": ["J3"]}},
+                             {"J1": 0.0, "J2": 0.7287, "J3": -2.2519}, {"J1": 0.0, "J2": 0.0, "J3": 0.0},
+                             t_end=1.2, independent=["J1"],
+                             forces=[{"name": "motor", "type": "linear", "on": {"joint": "J1"},
+                                      "measure": {"joint": "J1"}, "value": 0.6, "c": 0.002}],
+                             transitions=[{"name": "latch", "type": "latch", "from": "open", "to": "latched", "cut": ["J3"],
+                                           "guard": {"type": "coordinate", "measure": {"joint": "J3"}, "value": -1.5,
+                                                     "direction": "increasing"},
+                                           "contact": {"joint": "J3", "arm": 0.05}},
+                                          {"name": "let go", "type": "release", "from": "latched", "to": "open",
+                                           "guard": {"type": "time", "at": 0.8}}])
+    doc["initial"]["branch"] = {"joint": "J3", "sign": "-"}
+    scene = pcmm.load_scene(builders.write_scene(tmp_path, doc, {"fb.urdf": urdf}))
+    traj = pcmm.simulate(scene)
+    assert [e["name"] for e in traj.events][:2] == ["latch", "let go"]
+    after = next(k for k, s in enumerate(traj.segments) if s.t[0] == pytest.approx(0.8) and s.configuration == "open")
+    seg = traj.segments[after]
+    fine = seg.resampled(np.concatenate(([seg.t[0]], np.arange(0.81, seg.t[-1], 0.01), [seg.t[-1]])))
+    for t_shared, q_rec in ((seg.t[0], seg.q[0]), (seg.t[-1], seg.q[-1])):
+        i = int(np.flatnonzero(fine.t == t_shared)[0])
+        np.testing.assert_allclose(fine.q[i], q_rec, rtol=0, atol=1e-9)
+    cfg = Mechanism(scene)["open"]
+    assert max(cfg.coords.residual(0.0, q) for q in fine.q) < 1e-10  # every state closes the loop
+    # and the whole run's resampling agrees with its steps at every segment's ends
+    whole = traj.resampled(0.01)
+    for s, f in zip(traj.segments, whole.segments):
+        np.testing.assert_allclose(f.q[[0, -1]], s.q[[0, -1]], rtol=0, atol=1e-9)
