@@ -17,13 +17,13 @@ import numpy as np
 from .approach import closest_approach
 from .assembly import assemble
 from .configuration import Configuration
-from .contact import contact_point, contact_state
+from .contact import contact_point, contact_row, contact_state
 from .contact_laws import ContactPhase
 from .errors import ModelError, Repartition, SimulationError, UsageError
 from .guards import guard_residual, make_guard
 from .holding import Holds
 from .mechanism import Mechanism
-from .integrators import INTEGRATORS, METHODS, Segment, method_for
+from .integrators import EPS, INTEGRATORS, METHODS, Segment, method_for
 from .settings import RunOptions, resolve
 from .signals import deferred, describe, exit_status
 from .spec import Scene
@@ -123,7 +123,7 @@ def simulate(scene: Scene, options: RunOptions = RunOptions(), progress=None) ->
         while True:
             # integrate the configuration's dynamics (Eq. 1) until a guard fires (Fig. 3)
             y0 = cfg.coords.pack(t, q, v)
-            guards = _guards(scene, cfg, holds, t, phase, bounced)
+            guards = _guards(scene, cfg, holds, t, phase, bounced, {e["name"] for e in traj.events})
             # a flight between two impacts at the same contact: its energy is audited
             flight = bounced is not None and phase is None and y0.size > 0
             bounced = None
@@ -394,12 +394,16 @@ def _known_motion(cfg: Configuration, t, y0, guards, opts) -> Segment:
         raise
 
 
-def _guards(scene: Scene, cfg: Configuration, holds: Holds, t: float, phase, bounced) -> list:
+def _guards(scene: Scene, cfg: Configuration, holds: Holds, t: float, phase, bounced, fired=()) -> list:
     """Every guard watched in ``cfg`` from ``t``: its transitions' (the one that just bounced
-    re-armed), one per merge held by compression only, and a loop's partition guard."""
+    re-armed), one per merge held by compression only, and a loop's partition guard.  A time
+    guard ``at = T`` is one instant of the run: once its transition has fired it is not watched
+    again (re-entered at T itself it would fire again, for ever)."""
     out = []
     for tr in scene.transitions_from(cfg.name):
         if phase is not None and tr is phase.tr:
+            continue
+        if tr.guard.type == "time" and tr.guard.at is not None and tr.name in fired:
             continue
         g = make_guard(cfg, tr, rearm=tr is bounced, context=holds if tr.guard.type == "reaction" else t)
         if g is not None:
@@ -422,12 +426,29 @@ def _pending(cfg: Configuration, guards, t, y0):
         if g.action != "transition" or tr.contact is None or tr.guard.type not in ("coordinate", "gap"):
             continue
         value = tr.guard.direction * g(t, y0)
-        if value < 0 or value > POSE_TOL:  # not at its crossing (far past it: entered from the other side)
+        # round-off puts a state that is exactly at the guard (a joint freed by a release at its
+        # latch value, re-read from the links' poses) on either side of it by an ulp or two
+        at_value = 64 * EPS * max(1.0, abs(tr.guard.value))
+        if value < -at_value or value > POSE_TOL:  # not at its crossing (far past it: entered from the other side)
             continue
-        _, _, vn, _ = contact_state(cfg, q, v, tr.contact)
+        _, _, vn, Jn = contact_state(cfg, q, v, tr.contact)
         if vn < -1e-12:
             return i
+        if abs(vn) <= 1e-12 and _pushed_closed(cfg, t, q, v, tr.contact):
+            # at rest against the contact and pushed into it: it closes now (with no impulse),
+            # whichever side of the guard round-off left the state on
+            return i
     return None
+
+
+def _pushed_closed(cfg: Configuration, t, q, v, contact) -> bool:
+    """Is the contact's normal velocity, at rest, driven negative (closing) by the configuration's
+    dynamics, beyond round-off?  (Where a compression-only merge was just undone its holding force
+    was zero, and so is this acceleration, to 1e-15: that is no push either way.)"""
+    a, _ = cfg.coords.accelerations(t, q, v)
+    Jn, bias = contact_row(cfg, q, v, contact)
+    a_n = float(Jn @ a + bias)
+    return a_n < -1e-9 * max(1.0, float(np.max(np.abs(a), initial=0.0)))
 
 
 def _reporting(fun, progress, every: int = 256):
