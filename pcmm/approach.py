@@ -81,7 +81,8 @@ def closest_approach(scene: Scene, cfg: Configuration, traj: Trajectory) -> list
                     "last_fired": max(fired) if fired else None,
                     # nearest where the run entered the configuration (a release at a stop, say): it
                     # started there and never came closer, which is no near miss
-                    "at_entry": ti == float(segs[k].t[0]) and _entered(traj, segs[k])})
+                    "at_entry": ti == float(segs[k].t[0]) and _entered(traj, segs[k]),
+                    "past": _past(tr, gi)})
     return out
 
 
@@ -114,7 +115,13 @@ def _reaction_approach(tr, segs: list[SegmentRecord], traj: Trajectory) -> dict 
     return {"transition": tr.name, "guard": f"holding force of '{tr.guard.of}'", "value": tr.guard.value,
             "direction": "increasing" if tr.guard.direction > 0 else "decreasing",
             "closest": float(g[i]), "t": float(t[i]), "distance": float(d[i]),
-            "last_fired": max(fired) if fired else None}
+            "last_fired": max(fired) if fired else None, "past": _past(tr, float(g[i]))}
+
+
+def _past(tr, closest: float) -> bool:
+    """Was the guard, where nearest its value, already on the side it fires to?  (It stayed past
+    its value: a guard fires on a crossing in its direction, which never came.)"""
+    return bool(tr.guard.direction * (closest - tr.guard.value) > 0)
 
 
 def describe(records: list[dict]) -> str:
@@ -122,6 +129,7 @@ def describe(records: list[dict]) -> str:
         f"guard of '{r['transition']}' ({r['guard']} {r['direction']} to {r['value']:.9g}) did not fire: "
         f"closest {r['closest']:.9g} at t = {r['t']:.6g} s"
         + (" (where the run entered the configuration)" if r.get("at_entry") else "")
-        + f", {r['distance']:.3g} short"
+        + (f", {r['distance']:.3g} past it, on the side it fires to (a guard fires on a crossing in "
+           "its direction)" if r.get("past") else f", {r['distance']:.3g} short")
         + (f" (since it last fired at t = {r['last_fired']:.9g} s)" if r.get("last_fired") is not None else "")
         for r in records)

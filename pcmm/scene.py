@@ -709,6 +709,13 @@ class _Builder:
                 if t.guard.of not in stops and t.guard.of not in joints:
                     self.p.add(f"{where}.guard.of", f"= {t.guard.of!r}: names neither a joint of the scene's URDFs "
                                f"nor a stop transition ({', '.join(sorted(stops)) or 'none'})")
+                elif t.guard.of in cfg.info.movable_joints:
+                    locked = [j for j in sorted(joints) if any(j in c.info.movable_joints for c in names.values())
+                              and j not in cfg.info.movable_joints]
+                    self.p.add(f"{where}.guard.of", f"= {t.guard.of!r}: moves freely in '{t.source}', where this "
+                               "guard is watched, so nothing holds it and its holding force is never defined; "
+                               "a reaction guard watches a joint that configuration locks "
+                               f"({', '.join(locked) or 'it locks none'}) or a stop that merged into it")
             if t.type == "release" and t.target in names:
                 gained = set(names[t.target].info.movable_joints) - set(cfg.info.movable_joints)
                 if not gained:

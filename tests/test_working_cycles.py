@@ -456,3 +456,40 @@ def test_a_guard_nearest_where_its_configuration_was_entered_says_so(tmp_path):
     assert rec["distance"] < 1e-12
     from pcmm.approach import describe
     assert "at t = 0.9 s (where the run entered the configuration), " in describe([rec])
+
+
+def test_a_reaction_guard_on_a_joint_that_moves_freely_is_refused_at_load(tmp_path):
+    """A reaction guard watching a joint that its configuration does not lock has no holding
+    force to watch: it was accepted and silently never fired; now the loader names the joint,
+    the configuration and what that configuration does lock."""
+    path = builders.slider_crank_stop(tmp_path, e=0.0)
+    doc = tomllib.loads(path.read_text())
+    doc["configurations"]["coast"] = dict(doc["configurations"]["free"])
+    doc["transitions"].append({"name": "let go", "type": "release", "from": "locked", "to": "coast",
+                               "guard": {"type": "reaction", "of": "A", "value": 1.0, "direction": "decreasing"}})
+    path.write_text(builders.dump_toml(doc))
+    with pytest.raises(pcmm.SceneError) as err:
+        pcmm.load_scene(path)
+    assert err.value.problems == [
+        f"{path}: transitions[1] (let go).guard.of: = 'A': moves freely in 'locked', where this guard is watched, "
+        "so nothing holds it and its holding force is never defined; a reaction guard watches a joint that "
+        "configuration locks (P) or a stop that merged into it"]
+
+
+def test_a_reaction_guard_already_past_its_value_says_so(tmp_path):
+    """Waiting for the hold (N = tau / (dx/dtheta), about 5 N) to drop below 10 N: it is below from
+    the merge on and never crosses, so the guard never fires; the run says it stayed past the
+    value (it read "4.997 short", as if the force had to fall further)."""
+    a, b, tau, theta = 0.1, 0.3, 0.5, -1.0
+    path = builders.slider_crank_stop(tmp_path, e=0.0, torque=tau, g=0.0, theta_stop=theta, t_end=1.0)
+    doc = tomllib.loads(path.read_text())
+    doc["transitions"][0]["unmerge"] = False
+    doc["transitions"].append({"name": "let go", "type": "release", "from": "locked", "to": "free",
+                               "guard": {"type": "reaction", "of": "stop", "value": 10.0, "direction": "decreasing"}})
+    path.write_text(builders.dump_toml(doc))
+    traj = pcmm.simulate(pcmm.load_scene(path))
+    dxdth = -a * math.sin(theta) - a * a * math.sin(theta) * math.cos(theta) / math.sqrt(b * b - (a * math.sin(theta)) ** 2)
+    (rec,) = traj.stats["closest_approach"]
+    assert rec["past"] and rec["distance"] == pytest.approx(10.0 - tau / dxdth, abs=1e-9)
+    from pcmm.approach import describe
+    assert "past it, on the side it fires to (a guard fires on a crossing in its direction)" in describe([rec])
