@@ -132,7 +132,10 @@ def assemble(scene: Scene, cfg: Configuration):
         notes.append("the loop was assembled away from the given values: "
                      + ", ".join(f"{n} given {g:.6g}, assembled {a:.6g}" for n, g, a in moved)
                      + f" (more than {GUESS_TOL:g} apart); check that this is the posture you meant, "
-                       f"or fix the branch with [initial] branch = {_branch_example(cfg)}")
+                       + ("and the given values: each angle is assembled within pi of its given value, so a "
+                          "guess off by more than pi lands a whole turn away (2 pi), where a guard on that "
+                          "angle may never be reached" if scene.branch is not None else
+                          f"or fix the branch with [initial] branch = {_branch_example(cfg)}"))
     if scene.branch is None and len(moved):
         try:
             others = _candidates(cfg, q0, v0, prefer)
