@@ -12,11 +12,10 @@ Planar Constrained Metamorphic Mechanism", Shock and Vibration 2020.
 import os as _os
 import sys as _sys
 
-from .errors import ModelError, PcmmError, SceneError, SimulationError, UsageError
-
 _argv = getattr(_sys, "orig_argv", _sys.argv)
 _as_command = (_os.path.basename(_sys.argv[0] if _sys.argv else "") == "pcmm" or "pcmm.cli" in _argv[:4])
 try:
+    from .errors import ModelError, PcmmError, SceneError, SimulationError, UsageError
     from .scene import load_scene
     from .settings import RunOptions
     from .simulate import simulate
