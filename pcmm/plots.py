@@ -14,6 +14,8 @@ file                           content                                     paper
 ``slider.png``                 slider position and velocity, inset zoom    Fig. 13
                                around the first impact
 ``driving_moment.png``         driving moment (constraint rows "*.drive")  Fig. 14
+``holding_forces.png``         holding force or moment of every lock       (sizing a latch)
+                               (constraint rows "*.hold")
 =============================  ==========================================  ================
 
 ``impulses.png`` needs events with an impulse, ``slider.png`` a translating
@@ -511,6 +513,19 @@ def figures(traj: Trajectory, compare: Trajectory | None = None, impulse_sign: s
                 _inset(ax, runs, get, window, marks)
         f.legend()
         files["driving_moment"] = f.fig
+    # what each lock (latch, stop-merge) holds, over the time it holds: what a latch is sized by
+    holds = [lab for lab in _names(traj, "constraint_labels") if lab.endswith(".hold")]
+    if holds:
+        f = _Figure(Figure, len(holds), f"{name}: holding forces of the locks")
+        for i, (ax, lab) in enumerate(zip(f.axes, holds)):
+            what = lab[: -len(".hold")]
+            unit = {"revolute": "N·m", "prismatic": "N"}.get(jtypes.get(what), "N; N·m at a joint stop")
+            kind = "moment" if unit == "N·m" else "force"
+            note = "" if what in jtypes else " (the stop's normal force, > 0 compressive)"
+            _panel(ax, runs, series("constraint_forces", lab), f"{kind} ({unit})",
+                   f"({letters[i % 26]}) Holding {kind} of {what}{note}", marks, duration)
+        f.legend()
+        files["holding_forces"] = f.fig
     return files
 
 

@@ -42,7 +42,7 @@ def assert_png(path: Path):
 def test_three_bar_with_and_without_impact(runs, tmp_path):
     out = tmp_path / "figs"  # created by write_figures
     files = plots.write_figures(runs[0], out, compare=runs[1])
-    assert {f.name for f in files} == BASE | {"impulses.png"}
+    assert {f.name for f in files} == BASE | {"impulses.png", "holding_forces.png"}
     assert sorted(p.name for p in out.iterdir()) == sorted(f.name for f in files), "no stray files"
     for f in files:
         assert f.parent == out
@@ -51,7 +51,7 @@ def test_three_bar_with_and_without_impact(runs, tmp_path):
 
 def test_no_impact_run_alone_has_no_impulse_figure(runs, tmp_path):
     files = plots.write_figures(runs[1], tmp_path)
-    assert {f.name for f in files} == BASE
+    assert {f.name for f in files} == BASE | {"holding_forces.png"}  # the lock holds without an impact too
     for f in files:
         assert_png(f)
 
@@ -59,7 +59,7 @@ def test_no_impact_run_alone_has_no_impulse_figure(runs, tmp_path):
 def test_compare_order_does_not_matter(runs, tmp_path):
     """``pcmm run --no-impact --plots`` passes the run with impact as ``compare``."""
     files = plots.write_figures(runs[1], tmp_path, compare=runs[0])
-    assert {f.name for f in files} == BASE | {"impulses.png"}
+    assert {f.name for f in files} == BASE | {"impulses.png", "holding_forces.png"}
     labels = [r.label for r in plots._runs(runs[1], runs[0])]
     assert labels == [plots.WITHOUT_IMPACT, plots.WITH_IMPACT]
 
@@ -225,7 +225,7 @@ def test_plot_after_the_scene_and_urdfs_are_deleted(tmp_path):
     shutil.rmtree(tmp_path / "urdf")
     scene.unlink()
     assert main(["plot", str(npz), "--out", str(tmp_path / "figs")]) == 0
-    assert {p.name for p in (tmp_path / "figs").iterdir()} == BASE | {"impulses.png"}
+    assert {p.name for p in (tmp_path / "figs").iterdir()} == BASE | {"impulses.png", "holding_forces.png"}
     # the units come from the recorded views: the torques act on links (N·m), not "N·m or N"
     figs = plots.figures(pcmm.Trajectory.load(npz))
     panels = [ax for ax in figs["force_elements"].axes if ax.get_visible()]
@@ -233,3 +233,14 @@ def test_plot_after_the_scene_and_urdfs_are_deleted(tmp_path):
         r"$\tau_{1}$ (N·m)", r"$\tau_{2}$ (N·m)", r"$\tau_{3}$ (N·m)"]
     assert [ax.get_title() for ax in panels] == [
         "(a) tau1 on link1", "(b) tau2 on link2", "(c) tau3 on link3"]
+
+
+def test_the_holding_figure_plots_each_locks_recorded_hold(runs):
+    """One panel per lock: O3's holding moment (a latch on a revolute joint: N·m), the very series
+    the trajectory records (NaN before the latch), for the run with impact and the one without."""
+    fig = plots.figures(runs[0], compare=runs[1])["holding_forces"]
+    (ax,) = [a for a in fig.axes if a.get_visible()]
+    assert ax.get_ylabel() == "moment (N·m)" and ax.get_title() == "(a) Holding moment of O3"
+    curves = {line.get_label(): line for line in ax.get_lines()}
+    for label, run in ((plots.WITH_IMPACT, runs[0]), (plots.WITHOUT_IMPACT, runs[1])):
+        np.testing.assert_array_equal(curves[label].get_ydata(), run.series("constraint_forces", "O3.hold"))
