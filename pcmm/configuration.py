@@ -65,13 +65,10 @@ def _point_keys(scene: Scene, spec: ConfigurationSpec) -> tuple:
     return tuple((link, (float(p[0]), float(p[1]))) for link, p in keys)
 
 
-def _angle_map(model, data, frames, nominal=None) -> tuple[np.ndarray, np.ndarray]:
-    """(A, b) with the absolute angles of the links at ``frames`` = ``A q + b``: ``A`` the rows
-    of their angular-velocity Jacobians, ``b`` their angles in the neutral posture.  A rotation
-    gives an angle only modulo 2 pi; where ``nominal`` (the angles as the URDF writes them) agrees
-    with it modulo 2 pi, its branch is taken, so a link written at -pi is at -pi and one at +pi
-    at +pi, whatever the sign of the round-off in the composed rotation (it differs between
-    machines)."""
+def _angle_map(model, data, frames) -> tuple[np.ndarray, np.ndarray]:
+    """(A, b) with the absolute angles of the links at ``frames`` = ``A q + b`` as Pinocchio's
+    model has them: ``A`` the rows of their angular-velocity Jacobians, ``b`` their angles in the
+    neutral posture read from their rotations, so only modulo 2 pi (in (-pi, pi])."""
     pin.computeJointJacobians(model, data, pin.neutral(model))
     pin.updateFramePlacements(model, data)
     A = np.zeros((len(frames), model.nv))
@@ -80,26 +77,21 @@ def _angle_map(model, data, frames, nominal=None) -> tuple[np.ndarray, np.ndarra
         A[i] = frame_jacobian(model, data, fid)[5]
         R = data.oMf[fid].rotation
         b[i] = np.arctan2(R[1, 0], R[0, 0])
-        if nominal is not None:
-            turns = round((nominal[i] - b[i]) / (2 * np.pi))
-            if abs(b[i] + 2 * np.pi * turns - nominal[i]) < 1e-6:
-                b[i] += 2 * np.pi * turns
     return A, b
 
 
-def _nominal_angles(info, links) -> np.ndarray:
+def _written_angles(info, links, turned) -> np.ndarray:
     """Each link's angle in the neutral posture as the URDF writes it: the sum of the joint
-    origins' yaws from the root (a planar URDF has no roll or pitch; the URDF check refuses them)."""
+    origins' yaws from the root, plus the value of every revolute joint in ``turned`` on the way
+    (a derived configuration's locks).  A planar URDF has no roll or pitch and its revolute axes
+    are +z (the URDF check refuses others), so this is exact, with no branch to pick."""
     parent_of = {j.child: j for j in info.joints.values()}
     out = np.zeros(len(links))
     for i, link in enumerate(links):
-        angle, seen = 0.0, set()
-        while link in parent_of and link not in seen:
-            seen.add(link)
+        while link in parent_of:
             joint = parent_of[link]
-            angle += joint.rpy[2]
+            out[i] += joint.rpy[2] + turned.get(joint.name, 0.0)
             link = joint.parent
-        out[i] = angle
     return out
 
 
@@ -246,37 +238,24 @@ class Configuration:
     def _angle_map(self) -> None:
         """theta_link = A q + b, exact because every rotation axis is normal to the plane.
 
-        ``b`` is each link's angle in the neutral posture, read from its rotation and so known
-        only modulo 2 pi.  A derived configuration takes it from its root URDF instead, with the
-        locked joints' values added (``b = b_root + A_root[:, locked] . values``): a joint locked
-        at pi leaves its child at a neutral angle of exactly +-pi, where the rotation's round-off
+        ``b`` is each link's angle in the neutral posture as the URDF writes it (a derived
+        configuration: its root URDF with the locked joints' values added); the model's rotations
+        confirm it modulo 2 pi.  Read from the rotations alone it would be known only modulo
+        2 pi: a joint locked at pi leaves its child at exactly +-pi, where the rotation's round-off
         picks the branch, and a torsion spring across the locked joint (a relative-angle measure)
         would then act as if the joint had turned by 2 pi (silently, and differently on another
-        machine).  So the angles continue those of the configuration the lock was taken in.  A
-        configuration's own URDF fixes the branch of each link's neutral angle as it is written
-        (:func:`_nominal_angles`)."""
-        nominal = _nominal_angles(self.spec.info, self.links)
-        self.A, self.b = _angle_map(self.model, self.data, [self.link_frame[link] for link in self.links], nominal)
+        machine).  So the angles continue those of the configuration the lock was taken in, and a
+        link written at -pi is at -pi."""
+        self.A, rotated = _angle_map(self.model, self.data, [self.link_frame[link] for link in self.links])
         self.link_index = {link: i for i, link in enumerate(self.links)}
         der = self.spec.derivation
-        if der is None or not der.values:
-            return
-        try:
-            root = pin.buildModelFromXML(dynamics_xml(self.spec.urdf, None))
-        except Exception as exc:  # the root URDF was checked when the scene was loaded
-            raise ModelError(f"{self.spec.urdf}: Pinocchio could not build the model: {exc}") from None
-        frames = [root.getFrameId(link, pin.FrameType.BODY) for link in self.links]
-        A_root, b_root = _angle_map(root, root.createData(), frames, nominal)  # info: the root's joints
-        b = b_root.copy()
-        for joint, value in der.values:
-            j = root.joints[root.getJointId(joint)]
-            b += A_root[:, j.idx_v] * value
-        off = (b - self.b + np.pi) % (2 * np.pi) - np.pi
-        if np.max(np.abs(off), initial=0.0) > 1e-9:  # the same posture, or the derivation is wrong
-            raise ModelError(f"configuration '{self.name}': its links' angles differ from those of its "
-                             f"root URDF {self.spec.urdf} with {dict(der.values)} locked by up to "
-                             f"{np.max(np.abs(off)):.3g} rad")
-        self.b = b
+        turned = {j: v for j, v in der.values if der.joints[j].type == "revolute"} if der else {}
+        self.b = _written_angles(self.spec.info, self.links, turned)
+        off = (rotated - self.b + np.pi) % (2 * np.pi) - np.pi
+        if np.max(np.abs(off), initial=0.0) > 1e-9:  # the same posture, or the model is not the URDF's
+            locks = f" with {dict(der.values)} locked" if der else ""
+            raise ModelError(f"configuration '{self.name}': its links' angles in Pinocchio's model differ from "
+                             f"those {self.spec.urdf}{locks} writes by up to {np.max(np.abs(off)):.3g} rad")
 
     def link_angles(self, q: np.ndarray) -> np.ndarray:
         return self.A @ q + self.b
