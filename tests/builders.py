@@ -433,6 +433,28 @@ def four_bar_rocker_stop(folder: Path, e: float, rocker_stop: float, torque: flo
     return write_scene(folder, doc, {"free.urdf": free, "locked.urdf": locked})
 
 
+def four_bar_latch(folder: Path, torque: float = 0.6, t_end: float = 1.2) -> Path:
+    """A four-bar (crank 0.06, coupler 0.18, rocker 0.12 m as the chain J1-J2-J3 of steel bars; the
+    rocker's end pinned to the frame at (0.2, 0) by the cut joint D), driven by ``torque`` on J1
+    with a little damping, whose coupler latches onto the rocker at J3 = -1.5 (a joint stop, into
+    'latched' derived by locking J3) and is let go by a timer at t = 0.8 s."""
+    urdf = chain_urdf([Bar(0.06, 0.0936), Bar(0.18, 0.2808), Bar(0.12, 0.1872)])
+    cut = [{"name": "D", "type": "revolute", "a": "frame", "point_a": [0.2, 0.0], "b": "link3", "point_b": [0.12, 0.0]}]
+    doc = scene_doc({"open": {"urdf": "fb.urdf", "cut_joints": cut}, "latched": {"from": "open", "lock": ["J3"]}},
+                    {"J1": 0.0, "J2": 0.7287, "J3": -2.2519}, {"J1": 0.0, "J2": 0.0, "J3": 0.0},
+                    t_end=t_end, independent=["J1"],
+                    forces=[{"name": "motor", "type": "linear", "on": {"joint": "J1"},
+                             "measure": {"joint": "J1"}, "value": torque, "c": 0.002}],
+                    transitions=[{"name": "latch", "type": "latch", "from": "open", "to": "latched", "cut": ["J3"],
+                                  "guard": {"type": "coordinate", "measure": {"joint": "J3"}, "value": -1.5,
+                                            "direction": "increasing"},
+                                  "contact": {"joint": "J3", "arm": 0.05}},
+                                 {"name": "let go", "type": "release", "from": "latched", "to": "open",
+                                  "guard": {"type": "time", "at": 0.8}}])
+    doc["initial"]["branch"] = {"joint": "J3", "sign": "-"}
+    return write_scene(folder, doc, {"fb.urdf": urdf})
+
+
 # ---- planar geometry of hand derivations ------------------------------------------------------------
 def rot(theta: float) -> np.ndarray:
     c, s = math.cos(theta), math.sin(theta)

@@ -160,27 +160,12 @@ def test_a_resampled_run_keeps_what_its_views_need(tmp_path):
 
 
 def test_a_loop_resampled_after_a_release_stays_on_its_assembly(tmp_path):
-    """A four-bar (crank 0.06, coupler 0.18, rocker 0.12 m as the chain J1-J2-J3; the rocker's end
-    pinned to the frame at (0.2, 0) by the cut joint D) whose coupler latches onto the rocker at
-    J3 = -1.5 and is let go at t = 0.8 s.  Resampling the free stay after the release at 0.01 s
+    """A four-bar whose coupler latches onto the rocker at J3 = -1.5 and is let go at t = 0.8 s
+    (:func:`builders.four_bar_latch`).  Resampling the free stay after the release at 0.01 s
     gave the mirrored assembly with angles 20-50 rad off (the dense steps had left the loop's warm
     starts at the stay's end, and its first solve started from there): every resampled state now
     equals the recorded one where their times coincide, and closes the loop."""
-    urdf = builders.chain_urdf([builders.Bar(0.06, 0.0936), builders.Bar(0.18, 0.2808), builders.Bar(0.12, 0.1872)])
-    cut = [{"name": "D", "type": "revolute", "a": "frame", "point_a": [0.2, 0.0], "b": "link3", "point_b": [0.12, 0.0]}]
-    doc = builders.scene_doc({"open": {"urdf": "fb.urdf", "cut_joints": cut}, "latched": {"from": "open", "lock": ["J3"]}},
-                             {"J1": 0.0, "J2": 0.7287, "J3": -2.2519}, {"J1": 0.0, "J2": 0.0, "J3": 0.0},
-                             t_end=1.2, independent=["J1"],
-                             forces=[{"name": "motor", "type": "linear", "on": {"joint": "J1"},
-                                      "measure": {"joint": "J1"}, "value": 0.6, "c": 0.002}],
-                             transitions=[{"name": "latch", "type": "latch", "from": "open", "to": "latched", "cut": ["J3"],
-                                           "guard": {"type": "coordinate", "measure": {"joint": "J3"}, "value": -1.5,
-                                                     "direction": "increasing"},
-                                           "contact": {"joint": "J3", "arm": 0.05}},
-                                          {"name": "let go", "type": "release", "from": "latched", "to": "open",
-                                           "guard": {"type": "time", "at": 0.8}}])
-    doc["initial"]["branch"] = {"joint": "J3", "sign": "-"}
-    scene = pcmm.load_scene(builders.write_scene(tmp_path, doc, {"fb.urdf": urdf}))
+    scene = pcmm.load_scene(builders.four_bar_latch(tmp_path))
     traj = pcmm.simulate(scene)
     assert [e["name"] for e in traj.events][:2] == ["latch", "let go"]
     after = next(k for k, s in enumerate(traj.segments) if s.t[0] == pytest.approx(0.8) and s.configuration == "open")

@@ -338,6 +338,42 @@ def test_example2_locked_slider_jams_the_driven_loop_with_a_message():
     assert info.value.partial.segments[-1].t[-1] == pytest.approx(7.677, abs=2e-3)
 
 
+# ---- a slider-crank held at its stop by its motor ----------------------------------------------
+SC_TAU, SC_THETA = 0.5, -1.0  # motor torque (N m) and the crank angle at the stop
+
+
+def _motor_hold(tau=SC_TAU, theta=SC_THETA, a=0.1, b=0.3) -> float:
+    """The stop's normal force holding :func:`builders.slider_crank_stop`'s slider against the
+    crank torque ``tau`` at crank angle ``theta``, by virtual work: N = tau / (dx/dtheta), with
+    x = a cos(theta) + sqrt(b^2 - a^2 sin^2(theta))."""
+    dxdth = -a * math.sin(theta) - a * a * math.sin(theta) * math.cos(theta) / math.sqrt(b * b - (a * math.sin(theta)) ** 2)
+    return tau / dxdth
+
+
+def _slider_crank(tmp_path, edit):
+    """:func:`builders.slider_crank_stop` (e = 0, no gravity, torque SC_TAU, the stop at SC_THETA,
+    1 s) with ``edit(doc)`` applied to its scene document."""
+    path = builders.slider_crank_stop(tmp_path, e=0.0, torque=SC_TAU, g=0.0, theta_stop=SC_THETA, t_end=1.0)
+    doc = tomllib.loads(path.read_text())
+    edit(doc)
+    path.write_text(builders.dump_toml(doc))
+    return path
+
+
+def _held_until(tmp_path, value) -> dict:
+    """The closest-approach record of a release watching the stop's holding force for a drop
+    to ``value``, where the motor holds the slider for good (the stop held by compression only
+    would otherwise be undone there)."""
+    def edit(doc):
+        doc["transitions"][0]["unmerge"] = False
+        doc["transitions"].append({"name": "let go", "type": "release", "from": "locked", "to": "free",
+                                   "guard": {"type": "reaction", "of": "stop", "value": value, "direction": "decreasing"}})
+    traj = pcmm.simulate(pcmm.load_scene(_slider_crank(tmp_path, edit)))
+    assert traj.segments[-1].configuration == "locked"
+    (rec,) = traj.stats["closest_approach"]
+    return rec
+
+
 @pytest.mark.parametrize("motor_in", [("free", "locked"), ("locked", "coast")])
 def test_a_stop_holds_against_the_forces_of_the_configuration_it_holds_in(tmp_path, motor_in):
     """A slider-crank's slider merges with its stop (e = 0, no gravity) and is let go by a timer
@@ -347,25 +383,20 @@ def test_a_stop_holds_against_the_forces_of_the_configuration_it_holds_in(tmp_pa
     at the stop posture.  The hold is solved on a configuration with the slider free; whichever
     that is, the forces are those of 'locked' plus P's own (it used to take 'coast's: no motor
     there, and 'coast' had not registered the contact point, a traceback)."""
-    a, b, tau, theta = 0.1, 0.3, 0.5, -1.0
-    path = builders.slider_crank_stop(tmp_path, e=0.0, torque=tau, g=0.0, theta_stop=theta, t_end=1.0)
-    doc = tomllib.loads(path.read_text())
-    doc["configurations"]["coast"] = dict(doc["configurations"]["free"])
-    doc["forces"][0]["configurations"] = list(motor_in)
-    doc["forces"].append({"name": "push", "type": "torque", "on": {"joint": "P"}, "value": 1.5,
-                          "configurations": ["free", "coast"]})
-    doc["transitions"].append({"name": "let go", "type": "release", "from": "locked", "to": "coast",
-                               "guard": {"type": "time", "at": 0.9}})
-    path.write_text(builders.dump_toml(doc))
-    if "free" not in motor_in:  # the slider must still reach the stop: push it from the start
-        doc["initial"]["v"] = {"A": 6.0, "B": 0.0, "P": 0.0}
-        path.write_text(builders.dump_toml(doc))
-    traj = pcmm.simulate(pcmm.load_scene(path))
+    def edit(doc):
+        doc["configurations"]["coast"] = dict(doc["configurations"]["free"])
+        doc["forces"][0]["configurations"] = list(motor_in)
+        doc["forces"].append({"name": "push", "type": "torque", "on": {"joint": "P"}, "value": 1.5,
+                              "configurations": ["free", "coast"]})
+        doc["transitions"].append({"name": "let go", "type": "release", "from": "locked", "to": "coast",
+                                   "guard": {"type": "time", "at": 0.9}})
+        if "free" not in motor_in:  # the slider must still reach the stop: push it from the start
+            doc["initial"]["v"] = {"A": 6.0, "B": 0.0, "P": 0.0}
+    traj = pcmm.simulate(pcmm.load_scene(_slider_crank(tmp_path, edit)))
     assert [(e["from"], e["to"]) for e in traj.events][-2:] == [("free", "locked"), ("locked", "coast")]
-    dxdth = -a * math.sin(theta) - a * a * math.sin(theta) * math.cos(theta) / math.sqrt(b * b - (a * math.sin(theta)) ** 2)
     hold = traj.stats["holding"]["stop.hold"]
-    assert hold["min"] == pytest.approx(tau / dxdth + 1.5, abs=1e-9)
-    assert hold["max"] == pytest.approx(tau / dxdth + 1.5, abs=1e-9)
+    assert hold["min"] == pytest.approx(_motor_hold() + 1.5, abs=1e-9)
+    assert hold["max"] == pytest.approx(_motor_hold() + 1.5, abs=1e-9)
 
 
 def test_switches_that_take_no_time_are_named_not_counted_to_the_event_budget():
@@ -394,21 +425,7 @@ def test_a_latch_pushed_closed_when_released_latches_again_at_once(tmp_path, tor
     the links' poses, lands an ulp either side of -1.5 depending on the torque: that ulp used to
     decide between re-latching at once (then a 64-switch cycle with the timer) and swinging on
     past the latch for a whole crank turn."""
-    urdf = builders.chain_urdf([builders.Bar(0.06, 0.0936), builders.Bar(0.18, 0.2808), builders.Bar(0.12, 0.1872)])
-    cut = [{"name": "D", "type": "revolute", "a": "frame", "point_a": [0.2, 0.0], "b": "link3", "point_b": [0.12, 0.0]}]
-    doc = builders.scene_doc({"open": {"urdf": "fb.urdf", "cut_joints": cut}, "latched": {"from": "open", "lock": ["J3"]}},
-                             {"J1": 0.0, "J2": 0.7287, "J3": -2.2519}, {"J1": 0.0, "J2": 0.0, "J3": 0.0},
-                             t_end=1.2, independent=["J1"],
-                             forces=[{"name": "motor", "type": "linear", "on": {"joint": "J1"},
-                                      "measure": {"joint": "J1"}, "value": torque, "c": 0.002}],
-                             transitions=[{"name": "latch", "type": "latch", "from": "open", "to": "latched", "cut": ["J3"],
-                                           "guard": {"type": "coordinate", "measure": {"joint": "J3"}, "value": -1.5,
-                                                     "direction": "increasing"},
-                                           "contact": {"joint": "J3", "arm": 0.05}},
-                                          {"name": "let go", "type": "release", "from": "latched", "to": "open",
-                                           "guard": {"type": "time", "at": 0.8}}])
-    doc["initial"]["branch"] = {"joint": "J3", "sign": "-"}
-    traj = pcmm.simulate(pcmm.load_scene(builders.write_scene(tmp_path, doc, {"fb.urdf": urdf})))
+    traj = pcmm.simulate(pcmm.load_scene(builders.four_bar_latch(tmp_path, torque=torque)))
     assert [(e["name"], e["t"]) for e in traj.events][1:] == [("let go", 0.8), ("latch", 0.8)]
     relatch = traj.events[2]
     assert abs(relatch["impulse"]["normal"]) < 1e-12  # at rest: nothing to absorb
@@ -419,36 +436,25 @@ def test_a_reaction_guard_that_never_fires_reports_its_closest_approach(tmp_path
     """A release watching the stop's holding force for a drop to 1 N never fires: the motor holds
     the slider at N = tau / (dx/dtheta) for good.  The run says so, as for a coordinate guard
     (it used to end in 'locked' with no word)."""
-    a, b, tau, theta = 0.1, 0.3, 0.5, -1.0
-    path = builders.slider_crank_stop(tmp_path, e=0.0, torque=tau, g=0.0, theta_stop=theta, t_end=1.0)
-    doc = tomllib.loads(path.read_text())
-    doc["transitions"][0]["unmerge"] = False
-    doc["transitions"].append({"name": "let go", "type": "release", "from": "locked", "to": "free",
-                               "guard": {"type": "reaction", "of": "stop", "value": 1.0, "direction": "decreasing"}})
-    path.write_text(builders.dump_toml(doc))
-    traj = pcmm.simulate(pcmm.load_scene(path))
-    assert traj.segments[-1].configuration == "locked"
-    dxdth = -a * math.sin(theta) - a * a * math.sin(theta) * math.cos(theta) / math.sqrt(b * b - (a * math.sin(theta)) ** 2)
-    (rec,) = traj.stats["closest_approach"]
+    rec = _held_until(tmp_path, 1.0)
     assert rec["transition"] == "let go" and rec["guard"] == "holding force of 'stop'"
-    assert rec["closest"] == pytest.approx(tau / dxdth, abs=1e-9)
-    assert rec["distance"] == pytest.approx(tau / dxdth - 1.0, abs=1e-9)
+    assert rec["closest"] == pytest.approx(_motor_hold(), abs=1e-9)
+    assert rec["distance"] == pytest.approx(_motor_hold() - 1.0, abs=1e-9)
 
 
 def test_a_guard_nearest_where_its_configuration_was_entered_says_so(tmp_path):
     """Let go at t = 0.9 s into 'coast' at the stop itself, where a spring on P pulls the slider
     back: coast's own stop guard is at its value at entry and never nearer afterwards.  The
     closest-approach line says it was nearest where the run entered (it read as a near miss)."""
-    path = builders.slider_crank_stop(tmp_path, e=0.0, torque=0.5, g=0.0, t_end=1.0)
-    doc = tomllib.loads(path.read_text())
-    doc["configurations"]["coast"] = dict(doc["configurations"]["free"])
-    doc["forces"][0]["configurations"] = ["free", "locked"]
-    doc["forces"].append({"name": "return", "type": "torque", "on": {"joint": "P"}, "value": -3.0,
-                          "configurations": ["coast"]})
-    again = dict(doc["transitions"][0], name="stop again", **{"from": "coast"})
-    doc["transitions"] += [again, {"name": "let go", "type": "release", "from": "locked", "to": "coast",
-                                   "guard": {"type": "time", "at": 0.9}}]
-    path.write_text(builders.dump_toml(doc))
+    def edit(doc):
+        doc["configurations"]["coast"] = dict(doc["configurations"]["free"])
+        doc["forces"][0]["configurations"] = ["free", "locked"]
+        doc["forces"].append({"name": "return", "type": "torque", "on": {"joint": "P"}, "value": -3.0,
+                              "configurations": ["coast"]})
+        again = dict(doc["transitions"][0], name="stop again", **{"from": "coast"})
+        doc["transitions"] += [again, {"name": "let go", "type": "release", "from": "locked", "to": "coast",
+                                       "guard": {"type": "time", "at": 0.9}}]
+    path = _slider_crank(tmp_path, edit)
     traj = pcmm.simulate(pcmm.load_scene(path))
     assert traj.segments[-1].configuration == "coast"
     (rec,) = traj.stats["closest_approach"]
@@ -462,12 +468,11 @@ def test_a_reaction_guard_on_a_joint_that_moves_freely_is_refused_at_load(tmp_pa
     """A reaction guard watching a joint that its configuration does not lock has no holding
     force to watch: it was accepted and silently never fired; now the loader names the joint,
     the configuration and what that configuration does lock."""
-    path = builders.slider_crank_stop(tmp_path, e=0.0)
-    doc = tomllib.loads(path.read_text())
-    doc["configurations"]["coast"] = dict(doc["configurations"]["free"])
-    doc["transitions"].append({"name": "let go", "type": "release", "from": "locked", "to": "coast",
-                               "guard": {"type": "reaction", "of": "A", "value": 1.0, "direction": "decreasing"}})
-    path.write_text(builders.dump_toml(doc))
+    def edit(doc):
+        doc["configurations"]["coast"] = dict(doc["configurations"]["free"])
+        doc["transitions"].append({"name": "let go", "type": "release", "from": "locked", "to": "coast",
+                                   "guard": {"type": "reaction", "of": "A", "value": 1.0, "direction": "decreasing"}})
+    path = _slider_crank(tmp_path, edit)
     with pytest.raises(pcmm.SceneError) as err:
         pcmm.load_scene(path)
     assert err.value.problems == [
@@ -480,16 +485,7 @@ def test_a_reaction_guard_already_past_its_value_says_so(tmp_path):
     """Waiting for the hold (N = tau / (dx/dtheta), about 5 N) to drop below 10 N: it is below from
     the merge on and never crosses, so the guard never fires; the run says it stayed past the
     value (it read "4.997 short", as if the force had to fall further)."""
-    a, b, tau, theta = 0.1, 0.3, 0.5, -1.0
-    path = builders.slider_crank_stop(tmp_path, e=0.0, torque=tau, g=0.0, theta_stop=theta, t_end=1.0)
-    doc = tomllib.loads(path.read_text())
-    doc["transitions"][0]["unmerge"] = False
-    doc["transitions"].append({"name": "let go", "type": "release", "from": "locked", "to": "free",
-                               "guard": {"type": "reaction", "of": "stop", "value": 10.0, "direction": "decreasing"}})
-    path.write_text(builders.dump_toml(doc))
-    traj = pcmm.simulate(pcmm.load_scene(path))
-    dxdth = -a * math.sin(theta) - a * a * math.sin(theta) * math.cos(theta) / math.sqrt(b * b - (a * math.sin(theta)) ** 2)
-    (rec,) = traj.stats["closest_approach"]
-    assert rec["past"] and rec["distance"] == pytest.approx(10.0 - tau / dxdth, abs=1e-9)
+    rec = _held_until(tmp_path, 10.0)
+    assert rec["past"] and rec["distance"] == pytest.approx(10.0 - _motor_hold(), abs=1e-9)
     from pcmm.approach import describe
     assert "past it, on the side it fires to (a guard fires on a crossing in its direction)" in describe([rec])
