@@ -51,7 +51,8 @@ class Holds:
         # the run's solver setting (RunOptions, --unmerge) or the scene's; a stop's own wins
         self.unmerge = self.scene.solver.unmerge if unmerge is None else unmerge
         self.items: list[Hold] = []
-        self._maps: dict = {}
+        self._maps: dict = {}  # (reference, configuration, holds) -> the forces acting while it holds
+        self._refs: dict = {}  # (configuration, holds) -> its reference configuration
 
     # -- book-keeping
     def lock(self, src: Configuration, dst: Configuration, tr: TransitionSpec, q: np.ndarray, merge: bool) -> None:
@@ -114,12 +115,15 @@ class Holds:
         ``cfg``'s and every held one, with ``cfg``'s drives; of those the fewest joints, then one
         a hold was locked from.  Only its model (its joints, loops and drives) is used: the
         forces are always ``cfg``'s own (:meth:`forces`), whatever the reference applies."""
-        need = set(cfg.joint_names).union(*(h.joints for h in self.items))
-        drives = {(d.joint, d.coefficients) for d in self.scene.drives_in(cfg.name)}
-        sources = {h.transition.source for h in self.items}
-        fits = [(len(js), name not in sources, name) for name, js in self._joint_sets().items()
-                if need <= js and {(d.joint, d.coefficients) for d in self.scene.drives_in(name)} == drives]
-        return min(fits)[2] if fits else None
+        key = (cfg.name, tuple(h.label for h in self.items))  # asked at every sample and guard value
+        if key not in self._refs:
+            need = set(cfg.joint_names).union(*(h.joints for h in self.items))
+            drives = {(d.joint, d.coefficients) for d in self.scene.drives_in(cfg.name)}
+            sources = {h.transition.source for h in self.items}
+            fits = [(len(js), name not in sources, name) for name, js in self._joint_sets().items()
+                    if need <= js and {(d.joint, d.coefficients) for d in self.scene.drives_in(name)} == drives]
+            self._refs[key] = min(fits)[2] if fits else None
+        return self._refs[key]
 
     def _forces_on(self, ref: Configuration, cfg: Configuration):
         """The force elements acting while ``cfg`` holds, on ``ref``'s coordinates (None when
@@ -140,7 +144,7 @@ class Holds:
                     if (on_joint or measures) and f not in mine:
                         mine.append(f)
             theirs = self.scene.forces_in(ref.name)
-            if sorted(f.name for f in mine) == sorted(f.name for f in theirs) and all(f in theirs for f in mine):
+            if len(mine) == len(theirs) and all(f in theirs for f in mine):
                 self._maps[key] = None
             elif any(f.points is not None for f in mine + list(theirs)):
                 raise SimulationError(
