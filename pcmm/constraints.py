@@ -29,6 +29,7 @@ import pinocchio as pin
 import scipy.linalg as sla
 from scipy.linalg.lapack import dgesv
 
+from . import compiled
 from .configuration import Configuration
 from .errors import Repartition, SimulationError
 from .pinocchio_helpers import LWA, frame_jacobian
@@ -341,7 +342,7 @@ class TreeCoordinates(_Replayable):
         def rhs(t, y):
             v = y[nv:]
             return concatenate((v, aba(model, data, y[:nv], v, subtract(Q0, dot(KD, y, tau), tau))))
-        return rhs
+        return compiled.tree_rhs(model, data, Q0, KD) or rhs
 
     def pack(self, t, q, v):
         return np.concatenate([q, v])

@@ -16,7 +16,7 @@ PKG = ROOT / "pcmm"
 LAYERS = [
     {"errors", "witness", "signals", "expressions"},
     {"schema", "outputs", "template"},
-    {"urdf", "pinocchio_helpers", "integrators", "trajectory"},
+    {"urdf", "pinocchio_helpers", "compiled", "integrators", "trajectory"},
     {"settings", "summary"},
     {"spec"},
     {"derive"},

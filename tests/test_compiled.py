@@ -1,0 +1,154 @@
+"""The compiled tree right-hand side (pcmm/compiled.py, pcmm/_tree_dynamics.cpp) is the Python
+one, only faster: checked against a second algorithm (the mass matrix by CRBA and the bias by
+RNEA, solved densely), against the whole Python run, and in every case where it must step aside."""
+from __future__ import annotations
+
+import shutil
+
+import numpy as np
+import pinocchio as pin
+import pytest
+
+import pcmm
+from pcmm import compiled
+from builders import Bar, chain_urdf, copy_example, example_text
+
+needs_extension = pytest.mark.skipif(compiled._tree_dynamics is None, reason=f"{compiled.why_not()}")
+
+# every joint kind a planar URDF gives Pinocchio, with yawed origins, a fixed joint and gravity
+EVERY_KIND = [Bar(0.3, 0.5, yaw=0.4), Bar(0.25, 0.7, axis=(0.0, 0.0, -1.0)),
+              Bar(0.2, 0.4, joint="prismatic", axis=(1.0, 0.0, 0.0)),
+              Bar(0.2, 0.3, joint="prismatic", axis=(0.0, 1.0, 0.0), yaw=-0.3),
+              Bar(0.2, 0.3, joint="prismatic", axis=(0.6, 0.8, 0.0)), Bar(0.1, 0.2, joint="fixed"),
+              Bar(0.2, 0.35, com=(0.12, 0.03), izz=0.004)]
+
+
+def _every_kind_model():
+    model = pin.buildModelFromXML(chain_urdf(EVERY_KIND))
+    model.gravity.linear[:] = [1.3, -9.81, 0.0]
+    return model
+
+
+def _by_crba(model, y, Q0, KD):
+    """The state derivative by a second algorithm: M(q) a = tau - h(q, v), M by CRBA, h by RNEA."""
+    nv = model.nv
+    data = model.createData()
+    q, v = y[:nv], y[nv:]
+    M = pin.crba(model, data, q)
+    M = np.triu(M) + np.triu(M, 1).T
+    h = pin.rnea(model, data, q, v, np.zeros(nv))
+    return np.concatenate([v, np.linalg.solve(M, Q0 - KD @ y - h)])
+
+
+def test_the_extension_is_built_where_a_compiler_is():
+    """pip builds it optionally: a failed build would leave pcmm silently on the slower path."""
+    if shutil.which("c++") is None and shutil.which("g++") is None:
+        pytest.skip("no C++ compiler here: pcmm runs its Python right-hand side")
+    assert compiled._tree_dynamics is not None, compiled.why_not()
+    assert compiled._tree_dynamics.PINOCCHIO_VERSION == pin.__version__
+
+
+@needs_extension
+def test_every_joint_kind_against_crba_and_rnea():
+    model = _every_kind_model()
+    assert {model.joints[j].shortname() for j in range(1, model.njoints)} == {
+        "JointModelRZ", "JointModelRevoluteUnaligned", "JointModelPX", "JointModelPY", "JointModelPrismaticUnaligned"}
+    nv = model.nv
+    rng = np.random.default_rng(7)
+    K = np.diag(rng.uniform(0.5, 3.0, nv))
+    Dv = rng.uniform(-0.2, 0.2, (nv, nv)) + np.eye(nv)
+    Q0, KD = rng.uniform(-1.0, 1.0, nv), np.hstack([K, Dv])
+    rhs = compiled.tree_rhs(model, model.createData(), Q0, KD)
+    assert rhs is not None, compiled.why_not()
+    for _ in range(20):
+        y = np.concatenate([rng.uniform(-3.0, 3.0, nv), rng.uniform(-4.0, 4.0, nv)])
+        expected = _by_crba(model, y, Q0, KD)
+        got = rhs(0.0, y)
+        assert got.shape == (2 * nv,)
+        np.testing.assert_allclose(got, expected, rtol=0, atol=1e-12 * (1 + np.abs(expected).max()))
+        assert got is not rhs(0.0, y)  # a new array each call: integrators keep the arrays they get
+
+
+@needs_extension
+def test_armature_enters_as_the_python_model_has_it():
+    model = _every_kind_model()
+    model.armature[:] = np.linspace(0.01, 0.06, model.nv)
+    nv = model.nv
+    Q0, KD = np.zeros(nv), np.zeros((nv, 2 * nv))
+    rhs = compiled.tree_rhs(model, model.createData(), Q0, KD)
+    y = np.linspace(-1.0, 1.0, 2 * nv)
+    expected = _by_crba(model, y, Q0, KD)  # CRBA puts the armature on M's diagonal
+    np.testing.assert_allclose(rhs(0.0, y), expected, rtol=0, atol=1e-12 * (1 + np.abs(expected).max()))
+    model.armature[:] = 0.0  # set again: a tree of the model as it is now
+    assert np.abs(compiled.tree_rhs(model, model.createData(), Q0, KD)(0.0, y) - expected).max() > 1e-3
+    model.gravity.linear[:] = 0.0
+    np.testing.assert_allclose(compiled.tree_rhs(model, model.createData(), Q0, KD)(0.0, y),
+                               _by_crba(model, y, Q0, KD), rtol=0, atol=1e-12 * (1 + np.abs(expected).max()))
+
+
+@needs_extension
+def test_a_bad_state_is_a_message_not_a_crash():
+    model = _every_kind_model()
+    nv = model.nv
+    rhs = compiled.tree_rhs(model, model.createData(), np.zeros(nv), np.zeros((nv, 2 * nv)))
+    with pytest.raises(ValueError, match=f"y has 3 entries, the configuration's state has {2 * nv}"):
+        rhs(0.0, np.zeros(3))
+    with pytest.raises(TypeError, match="two arguments"):
+        rhs(np.zeros(2 * nv))
+
+
+@needs_extension
+def test_it_steps_aside_where_it_would_not_be_the_same_function(monkeypatch):
+    """A configuration with a planar joint (nq != nv), a disagreement at the probe states, or
+    PCMM_COMPILED=0: the Python right-hand side runs and why_not says why."""
+    free = pin.buildModelFromXML(chain_urdf([Bar(0.3, 0.5, joint="planar"), Bar(0.2, 0.3)]))
+    assert compiled.tree_rhs(free, free.createData(), np.zeros(free.nv), np.zeros((free.nv, 2 * free.nv))) is None
+    assert "only nq == nv > 0 is compiled" in compiled.why_not()
+
+    model = _every_kind_model()
+    nv = model.nv
+    monkeypatch.setattr(compiled, "AGREEMENT", -1.0)  # nothing agrees: the check is live
+    assert compiled.tree_rhs(model, model.createData(), np.ones(nv), np.zeros((nv, 2 * nv))) is None
+    assert "disagrees with the Python right-hand side" in compiled.why_not()
+    monkeypatch.undo()
+
+    monkeypatch.setenv(compiled.ENV, "0")
+    assert not compiled.enabled()
+    assert compiled.tree_rhs(model, model.createData(), np.ones(nv), np.zeros((nv, 2 * nv))) is None
+    assert compiled.why_not() == "PCMM_COMPILED=0 in the environment"
+
+
+def test_a_version_mismatch_is_refused_with_the_fix():
+    assert compiled.version_problem("4.1.0", "4.1.0") is None
+    message = compiled.version_problem("4.1.0", "4.2.0")
+    assert "built against Pinocchio 4.1.0" in message and "4.2.0" in message and "reinstall pcmm" in message
+
+
+@needs_extension
+def test_trees_are_built_once_per_model_and_forces():
+    model = _every_kind_model()
+    data, nv = model.createData(), model.nv
+    Q0, KD = np.zeros(nv), np.zeros((nv, 2 * nv))
+    first = compiled.tree_rhs(model, data, Q0, KD)
+    assert compiled.tree_rhs(model, data, Q0.copy(), KD.copy()) is first
+    assert compiled.tree_rhs(model, data, Q0 + 1.0, KD) is not first  # other forces: another tree
+
+
+@needs_extension
+@pytest.mark.parametrize("scene", ["three_bar.toml", "three_bar_stop.toml"])
+def test_whole_runs_are_the_python_runs(tmp_path, monkeypatch, scene):
+    """Example 1 (a mobile impact) and its stop variant (a stable impact): the same events at
+    the same times, and the same states, with the compiled right-hand side and without it."""
+    path = copy_example(tmp_path, scene, example_text(scene))
+    compiled._CACHE.__dict__.clear()
+    fast = pcmm.simulate(pcmm.load_scene(path))
+    assert compiled._CACHE.trees, "the run did not use the compiled right-hand side"
+    monkeypatch.setenv(compiled.ENV, "0")
+    slow = pcmm.simulate(pcmm.load_scene(path))
+    assert len(fast.events) >= 1
+    assert [e["name"] for e in fast.events] == [e["name"] for e in slow.events]
+    for a, b in zip(fast.events, slow.events):
+        assert abs(a["t"] - b["t"]) <= 1e-12
+    for a, b in zip(fast.segments, slow.segments):
+        np.testing.assert_allclose(a.q[-1], b.q[-1], rtol=0, atol=1e-9)
+        np.testing.assert_allclose(a.v[-1], b.v[-1], rtol=0, atol=1e-8)
