@@ -38,17 +38,22 @@ for _ in range(int(sys.argv[2])):
     t0 = time.process_time()
     traj = pcmm.simulate(scene)
     times.append(time.process_time() - t0)
-print(statistics.median(times) * 1e3, len(traj.events))
+try:  # which right-hand side the tree's runs used (trees before pcmm.compiled have only Python's)
+    from pcmm import compiled
+    rhs = "compiled" if compiled.trees_built() else "python"
+except ImportError:
+    rhs = "python"
+print(statistics.median(times) * 1e3, len(traj.events), rhs)
 """
 
 SCENES = {"Example 1": ("examples/three_bar.toml", 15), "Example 2": ("examples/double_folded.toml", 3)}
 
 
-def child(tree: Path, scene: str, reps: int) -> tuple[float, int]:
-    env = {**os.environ, "PYTHONPATH": str(tree), "OPENBLAS_NUM_THREADS": "1"}
+def child(tree: Path, scene: str, reps: int, compiled: bool = True) -> tuple[float, int, str]:
+    env = {**os.environ, "PYTHONPATH": str(tree), "OPENBLAS_NUM_THREADS": "1", "PCMM_COMPILED": "1" if compiled else "0"}
     out = subprocess.run([sys.executable, "-c", CHILD, scene, str(reps)], cwd=tree, env=env,
                          check=True, capture_output=True, text=True).stdout.split()
-    return float(out[0]), int(out[1])
+    return float(out[0]), int(out[1]), out[2]
 
 
 def main(argv=None):
@@ -64,25 +69,33 @@ def main(argv=None):
     T0 = time.perf_counter()
     info = machine()
     print(machine_md(info))
-    got = {name: {"before": [], "now": [], "ratio": [], "events": {}} for name in SCENES}
+    got = {name: {"before": [], "now": [], "python": [], "ratio": [], "ratio_python": [], "events": {}, "rhs": ""}
+           for name in SCENES}
     for k in range(args.pairs):
         for name, (scene, reps) in SCENES.items():
-            b, nb = child(before, scene, reps)
-            n, nn = child(ROOT, scene, reps)
+            # before, now, now without the compiled right-hand side (PCMM_COMPILED=0): one triple
+            b, nb, _ = child(before, scene, reps)
+            n, nn, rhs = child(ROOT, scene, reps)
+            p, _, _ = child(ROOT, scene, reps, compiled=False)
             g = got[name]
             g["before"].append(b)
             g["now"].append(n)
+            g["python"].append(p)
             g["ratio"].append(b / n)
+            g["ratio_python"].append(b / p)
             g["events"] = {"before": nb, "now": nn}
-            print(f"[{time.perf_counter() - T0:5.1f} s] pair {k}: {name}: before {b:.1f} ms, now {n:.1f} ms, "
-                  f"{b / n:.2f}x", flush=True)
+            g["rhs"] = rhs
+            print(f"[{time.perf_counter() - T0:5.1f} s] pair {k}: {name}: before {b:.1f} ms, now {n:.1f} ms "
+                  f"({rhs} tree right-hand sides), {b / n:.2f}x; PCMM_COMPILED=0 {p:.1f} ms, {b / p:.2f}x", flush=True)
     rows = []
     for name, g in got.items():
-        r = g["ratio"]
+        r, rp = g["ratio"], g["ratio_python"]
         rows.append([f"{name} (`{SCENES[name][0]}`, each tree's own; {SCENES[name][1]} timed runs per process)",
                      f"{statistics.median(g['before']):.1f} ({g['events']['before']} events)",
-                     f"{statistics.median(g['now']):.1f} ({g['events']['now']} events)",
-                     f"**{statistics.median(r):.2f}×** ({min(r):.2f}–{max(r):.2f})"])
+                     f"{statistics.median(g['now']):.1f} ({g['events']['now']} events; {g['rhs']})",
+                     f"**{statistics.median(r):.2f}×** ({min(r):.2f}–{max(r):.2f})",
+                     f"{statistics.median(g['python']):.1f}",
+                     f"{statistics.median(rp):.2f}× ({min(rp):.2f}–{max(rp):.2f})"])
     text = "\n".join([
         "# Whole runs against another source tree, measured in one run",
         "",
@@ -90,11 +103,13 @@ def main(argv=None):
         "",
         machine_md(info),
         "",
-        f"Before: {args.label or before} (`{before}`). {args.pairs} pairs of child processes, before and now "
-        "alternating; each child times `pcmm.simulate` on its own tree's scene (CPU time, one warm-up run "
-        "first, median of its runs). The speed-up is the median over the pairs of before / now, with its range.",
+        f"Before: {args.label or before} (`{before}`). {args.pairs} triples of child processes, before, now and "
+        "now with `PCMM_COMPILED=0` (the Python tree right-hand side, as on a machine where the optional "
+        "extension was not built) alternating; each child times `pcmm.simulate` on its own tree's scene (CPU time, one warm-up run "
+        "first, median of its runs). The speed-up is the median over the triples of before / now, with its range.",
         "",
-        md_table(["whole run, defaults", "before (ms CPU)", "now (ms CPU)", "speed-up (range over pairs)"], rows),
+        md_table(["whole run, defaults", "before (ms CPU)", "now (ms CPU)", "speed-up (range over triples)",
+                  "now, PCMM_COMPILED=0 (ms CPU)", "its speed-up"], rows),
         "",
     ])
     args.out.mkdir(parents=True, exist_ok=True)

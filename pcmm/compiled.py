@@ -72,6 +72,11 @@ def why_not() -> str | None:
     return _last_reason[-1] if _last_reason else None
 
 
+def trees_built() -> int:
+    """How many compiled trees this thread holds (a run that used none ran Python's)."""
+    return sum(len(trees) for _, trees in _CACHE.__dict__.get("trees", {}).values())
+
+
 def _refuse(reason: str) -> None:
     _last_reason[:] = [reason]
 
