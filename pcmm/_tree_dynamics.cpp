@@ -1,12 +1,16 @@
-// pcmm._tree_dynamics: a tree configuration's right-hand side in one compiled call.
+// pcmm._tree_dynamics: a configuration's hot evaluations in one compiled call each.
 //
-// Between transformations a tree configuration is D(q) q'' + H = tau (the paper's Eq. 1 with no
-// cut joint), tau = Q0 - KD [q; v] for pcmm's linear force elements.  From Python the same
-// right-hand side is a matrix-vector product, a pin.aba call and a concatenate: about 3.7 us per
-// evaluation, of which Pinocchio's ABA is 0.65 us; this module does the whole evaluation in C++
-// with Pinocchio's own aba (the library the `pin` wheel ships), on a Model rebuilt joint by joint
-// from the Python model's numbers (pcmm/compiled.py checks the two against each other before it
-// uses this one).
+// Between transformations a configuration is D(q) q'' + H = tau_a + tau_c (the paper's Eq. 1).
+// * A tree: rhs(t, y) = [v, aba(q, v, Q0 - KD y)] for pcmm's linear force elements.  From Python
+//   it is a matrix-vector product, a pin.aba call and a concatenate: about 3.7 us per evaluation,
+//   of which Pinocchio's ABA is 0.65 us.
+// * Closed loops cut into trees: the kinematic constraint at each revolute cut joint,
+//   Phi = p_b - p_a, its rows Phi_q and the bias of d2Phi/dt2 (the rows along which the cut
+//   joint's constraint force of Eqs. 8-9 acts), evaluated many times per step by the Newton solve
+//   of the dependent coordinates and by the constrained accelerations.
+// Both run Pinocchio's own algorithms (the library the `pin` wheel ships) on a Model rebuilt joint
+// by joint from the Python model's numbers; pcmm/compiled.py checks each against its Python
+// evaluation at probe states before a configuration uses it.
 //
 // Optional: pcmm runs without it (pure Python) where it was not built or cannot load.
 #define PY_SSIZE_T_CLEAN
@@ -16,9 +20,13 @@
 
 #include <pinocchio/multibody.hpp>
 #include <pinocchio/algorithm/aba.hpp>
+#include <pinocchio/algorithm/frames.hpp>
+#include <pinocchio/algorithm/jacobian.hpp>
+#include <pinocchio/algorithm/kinematics.hpp>
 
 #include <cstring>
 #include <string>
+#include <vector>
 
 namespace {
 
@@ -34,6 +42,7 @@ struct Tree {
   VectorXd *q0_force;   // Q0
   RowMatrixXd *kd;      // KD, nv x 2nv
   VectorXd *tau;
+  std::vector<std::pair<Model::FrameIndex, Model::FrameIndex>> *pairs;  // revolute cut joints' points (a, b)
   int nv;
   bool ready;
 };
@@ -59,6 +68,7 @@ PyObject *tree_new(PyTypeObject *type, PyObject *, PyObject *) {
   self->q0_force = new VectorXd();
   self->kd = new RowMatrixXd();
   self->tau = new VectorXd();
+  self->pairs = new std::vector<std::pair<Model::FrameIndex, Model::FrameIndex>>();
   self->nv = 0;
   self->ready = false;
   return (PyObject *)self;
@@ -70,7 +80,25 @@ void tree_dealloc(Tree *self) {
   delete self->q0_force;
   delete self->kd;
   delete self->tau;
+  delete self->pairs;
   Py_TYPE(self)->tp_free((PyObject *)self);
+}
+
+// checks shared by add_joint and add_frame: an open tree, an existing parent joint, a placement
+int read_placement(Tree *self, int parent, PyObject *rot_o, PyObject *trans_o, pinocchio::SE3 &out) {
+  if (self->ready) {
+    PyErr_SetString(PyExc_RuntimeError, "the tree is finalized");
+    return -1;
+  }
+  if (parent < 0 || parent >= self->model->njoints) {
+    PyErr_Format(PyExc_ValueError, "parent joint %d does not exist", parent);
+    return -1;
+  }
+  Eigen::Matrix<double, 3, 3, Eigen::RowMajor> r;
+  Eigen::Vector3d p;
+  if (read_doubles(rot_o, r.data(), 9, "rotation") || read_doubles(trans_o, p.data(), 3, "translation")) return -1;
+  out = pinocchio::SE3(Eigen::Matrix3d(r), p);
+  return 0;
 }
 
 // add_joint(kind, parent, rotation(3x3), translation(3), axis(3), armature) -> joint index
@@ -80,20 +108,10 @@ PyObject *tree_add_joint(Tree *self, PyObject *args) {
   PyObject *rot_o, *trans_o, *axis_o;
   double armature;
   if (!PyArg_ParseTuple(args, "siOOOd", &kind, &parent, &rot_o, &trans_o, &axis_o, &armature)) return nullptr;
-  if (self->ready) {
-    PyErr_SetString(PyExc_RuntimeError, "the tree is finalized");
+  pinocchio::SE3 placement;
+  Eigen::Vector3d axis;
+  if (read_placement(self, parent, rot_o, trans_o, placement) || read_doubles(axis_o, axis.data(), 3, "axis"))
     return nullptr;
-  }
-  if (parent < 0 || parent >= self->model->njoints) {
-    PyErr_Format(PyExc_ValueError, "parent joint %d does not exist", parent);
-    return nullptr;
-  }
-  Eigen::Matrix<double, 3, 3, Eigen::RowMajor> r;
-  Eigen::Vector3d p, axis;
-  if (read_doubles(rot_o, r.data(), 9, "rotation") || read_doubles(trans_o, p.data(), 3, "translation") ||
-      read_doubles(axis_o, axis.data(), 3, "axis"))
-    return nullptr;
-  const pinocchio::SE3 placement(Eigen::Matrix3d(r), p);
   const std::string k(kind);
   const std::string name = "j" + std::to_string(self->model->njoints);
   Model::JointIndex j;
@@ -130,6 +148,31 @@ PyObject *tree_set_inertia(Tree *self, PyObject *args) {
   if (read_doubles(lever_o, c.data(), 3, "lever") || read_doubles(inertia_o, inertia.data(), 9, "inertia"))
     return nullptr;
   self->model->inertias[j] = pinocchio::Inertia(mass, c, Eigen::Matrix3d(inertia));
+  Py_RETURN_NONE;
+}
+
+// add_frame(parent_joint, rotation(3x3), translation(3)) -> frame index: a point fixed on a body
+PyObject *tree_add_frame(Tree *self, PyObject *args) {
+  int parent;
+  PyObject *rot_o, *trans_o;
+  if (!PyArg_ParseTuple(args, "iOO", &parent, &rot_o, &trans_o)) return nullptr;
+  pinocchio::SE3 placement;
+  if (read_placement(self, parent, rot_o, trans_o, placement)) return nullptr;
+  const std::string name = "f" + std::to_string(self->model->nframes);
+  const auto f = self->model->addFrame(
+      pinocchio::Frame(name, (Model::JointIndex)parent, placement, pinocchio::OP_FRAME));
+  return PyLong_FromLong((long)f);
+}
+
+// add_pair(frame_a, frame_b): a revolute cut joint, p_b - p_a = 0 (Eq. 12's closure rows)
+PyObject *tree_add_pair(Tree *self, PyObject *args) {
+  int a, b;
+  if (!PyArg_ParseTuple(args, "ii", &a, &b)) return nullptr;
+  if (a <= 0 || b <= 0 || a >= self->model->nframes || b >= self->model->nframes) {
+    PyErr_Format(PyExc_ValueError, "frames %d, %d: not both added", a, b);
+    return nullptr;
+  }
+  self->pairs->emplace_back(a, b);
   Py_RETURN_NONE;
 }
 
@@ -193,11 +236,113 @@ PyObject *tree_rhs(Tree *self, PyObject *const *args, Py_ssize_t nargs) {
   return (PyObject *)out;
 }
 
+PyArrayObject *vector_arg(PyObject *obj, int n, const char *what) {
+  PyArrayObject *x = (PyArrayObject *)PyArray_FROMANY(obj, NPY_DOUBLE, 1, 1, NPY_ARRAY_IN_ARRAY);
+  if (x && PyArray_DIM(x, 0) != n) {
+    PyErr_Format(PyExc_ValueError, "%s has %zd entries, the configuration has %d", what, (Py_ssize_t)PyArray_DIM(x, 0), n);
+    Py_DECREF(x);
+    return nullptr;
+  }
+  return x;
+}
+
+// the closure rows Phi_q (2m x nv) of the pairs, from placements and joint Jacobians already computed
+void closure_rows(Tree *self, double *rows) {
+  const int nv = self->nv;
+  Eigen::Map<Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>> out(rows, 2 * self->pairs->size(), nv);
+  pinocchio::Data::Matrix6x Ja(6, nv), Jb(6, nv);
+  for (size_t k = 0; k < self->pairs->size(); ++k) {
+    Ja.setZero();
+    Jb.setZero();
+    pinocchio::getFrameJacobian(*self->model, *self->data, (*self->pairs)[k].first, pinocchio::LOCAL_WORLD_ALIGNED, Ja);
+    pinocchio::getFrameJacobian(*self->model, *self->data, (*self->pairs)[k].second, pinocchio::LOCAL_WORLD_ALIGNED, Jb);
+    out.middleRows(2 * k, 2) = Jb.topRows(2) - Ja.topRows(2);
+  }
+}
+
+// point_rows(q) -> (Phi (2m), Phi_q (2m x nv)): the revolute cut joints' closure at q
+PyObject *tree_point_rows(Tree *self, PyObject *const *args, Py_ssize_t nargs) {
+  if (nargs != 1 || !self->ready) {
+    PyErr_SetString(PyExc_TypeError, "point_rows(q) takes one argument, on a finalized tree");
+    return nullptr;
+  }
+  PyArrayObject *q = vector_arg(args[0], self->nv, "q");
+  if (!q) return nullptr;
+  const npy_intp m = 2 * (npy_intp)self->pairs->size(), dims[2] = {m, self->nv};
+  PyArrayObject *phi = (PyArrayObject *)PyArray_SimpleNew(1, dims, NPY_DOUBLE);
+  PyArrayObject *rows = (PyArrayObject *)PyArray_SimpleNew(2, dims, NPY_DOUBLE);
+  if (!phi || !rows) {
+    Py_XDECREF(phi);
+    Py_XDECREF(rows);
+    Py_DECREF(q);
+    return nullptr;
+  }
+  const Eigen::Map<const VectorXd> qv((const double *)PyArray_DATA(q), self->nv);
+  pinocchio::computeJointJacobians(*self->model, *self->data, qv);  // placements too
+  pinocchio::updateFramePlacements(*self->model, *self->data);
+  double *ph = (double *)PyArray_DATA(phi);
+  for (size_t k = 0; k < self->pairs->size(); ++k) {
+    const auto d = self->data->oMf[(*self->pairs)[k].second].translation() - self->data->oMf[(*self->pairs)[k].first].translation();
+    ph[2 * k] = d[0];
+    ph[2 * k + 1] = d[1];
+  }
+  closure_rows(self, (double *)PyArray_DATA(rows));
+  Py_DECREF(q);
+  return Py_BuildValue("NN", phi, rows);
+}
+
+// point_rows_and_bias(q, v) -> (Phi_q (2m x nv), bias (2m)): Phi_q a + bias = d2Phi/dt2
+PyObject *tree_point_rows_and_bias(Tree *self, PyObject *const *args, Py_ssize_t nargs) {
+  if (nargs != 2 || !self->ready) {
+    PyErr_SetString(PyExc_TypeError, "point_rows_and_bias(q, v) takes two arguments, on a finalized tree");
+    return nullptr;
+  }
+  PyArrayObject *q = vector_arg(args[0], self->nv, "q");
+  if (!q) return nullptr;
+  PyArrayObject *v = vector_arg(args[1], self->nv, "v");
+  if (!v) {
+    Py_DECREF(q);
+    return nullptr;
+  }
+  const npy_intp m = 2 * (npy_intp)self->pairs->size(), dims[2] = {m, self->nv};
+  PyArrayObject *rows = (PyArrayObject *)PyArray_SimpleNew(2, dims, NPY_DOUBLE);
+  PyArrayObject *bias = (PyArrayObject *)PyArray_SimpleNew(1, dims, NPY_DOUBLE);
+  if (!rows || !bias) {
+    Py_XDECREF(rows);
+    Py_XDECREF(bias);
+    Py_DECREF(q);
+    Py_DECREF(v);
+    return nullptr;
+  }
+  const Eigen::Map<const VectorXd> qv((const double *)PyArray_DATA(q), self->nv), vv((const double *)PyArray_DATA(v), self->nv);
+  pinocchio::forwardKinematics(*self->model, *self->data, qv, vv, VectorXd::Zero(self->nv));
+  pinocchio::computeJointJacobians(*self->model, *self->data);
+  pinocchio::updateFramePlacements(*self->model, *self->data);
+  closure_rows(self, (double *)PyArray_DATA(rows));
+  double *b = (double *)PyArray_DATA(bias);
+  for (size_t k = 0; k < self->pairs->size(); ++k) {
+    const auto fa = (*self->pairs)[k].first, fb = (*self->pairs)[k].second;
+    const Eigen::Vector3d d =
+        pinocchio::getFrameClassicalAcceleration(*self->model, *self->data, fb, pinocchio::LOCAL_WORLD_ALIGNED).linear() -
+        pinocchio::getFrameClassicalAcceleration(*self->model, *self->data, fa, pinocchio::LOCAL_WORLD_ALIGNED).linear();
+    b[2 * k] = d[0];
+    b[2 * k + 1] = d[1];
+  }
+  Py_DECREF(q);
+  Py_DECREF(v);
+  return Py_BuildValue("NN", rows, bias);
+}
+
 PyMethodDef tree_methods[] = {
     {"add_joint", (PyCFunction)tree_add_joint, METH_VARARGS,
      "add_joint(kind, parent, rotation, translation, axis, armature) -> joint index"},
     {"set_inertia", (PyCFunction)tree_set_inertia, METH_VARARGS, "set_inertia(joint, mass, lever, inertia)"},
+    {"add_frame", (PyCFunction)tree_add_frame, METH_VARARGS, "add_frame(parent_joint, rotation, translation) -> frame"},
+    {"add_pair", (PyCFunction)tree_add_pair, METH_VARARGS, "add_pair(frame_a, frame_b): a revolute cut joint"},
     {"finalize", (PyCFunction)tree_finalize, METH_VARARGS, "finalize(gravity, Q0, KD)"},
+    {"point_rows", (PyCFunction)(void (*)(void))tree_point_rows, METH_FASTCALL, "point_rows(q) -> (Phi, Phi_q)"},
+    {"point_rows_and_bias", (PyCFunction)(void (*)(void))tree_point_rows_and_bias, METH_FASTCALL,
+     "point_rows_and_bias(q, v) -> (Phi_q, bias)"},
     {"rhs", (PyCFunction)(void (*)(void))tree_rhs, METH_FASTCALL, "rhs(t, y) -> [v, aba(q, v, Q0 - KD y)]"},
     {nullptr, nullptr, 0, nullptr}};
 

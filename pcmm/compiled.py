@@ -1,18 +1,21 @@
-"""The compiled tree right-hand side: an optional speed-up, never a different answer.
+"""The compiled evaluations (a tree's right-hand side, a loop's closure rows): an optional
+speed-up, never a different answer.
 
 A tree configuration's right-hand side (``TreeCoordinates``) is ``[v, aba(q, v, Q0 - KD y)]``.
 From Python it costs about 3.7 us per evaluation, of which Pinocchio's ABA is 0.65 us; Example 1
-spends 90 % of its run there.  ``pcmm._tree_dynamics`` (C++, built by ``pip install`` where a
-compiler is at hand, against the ``pin`` wheel's own headers and library) does the whole
-evaluation in one call with Pinocchio's ``aba``, on a model rebuilt joint by joint from the Python
-model's numbers.
+spends 90 % of its run there.  A loop's Newton solves and constrained accelerations
+(``PartitionedCoordinates``) evaluate the revolute cut joints' rows ``p_b - p_a`` and their
+Jacobian rows (and the acceleration bias) some 13 000 times in Example 2, each about 11 us through
+the binding.  ``pcmm._tree_dynamics`` (C++, built by ``pip install`` where a compiler is at hand,
+against the ``pin`` wheel's own headers and library) does each evaluation in one call with
+Pinocchio's own algorithms, on a model rebuilt joint by joint from the Python model's numbers.
 
 It is used only where it is the same function: the extension must load, must have been built
 against the Pinocchio version that runs, must support every joint of the model (revolute and
-prismatic, aligned or not; no ``nq != nv`` joint), and must agree with the Python right-hand side
-at probe states to round-off (:data:`AGREEMENT`) before a configuration uses it.  Otherwise the
-Python right-hand side runs and :func:`why_not` says why.  ``PCMM_COMPILED=0`` in the environment
-turns it off (benchmarks and tests compare the two).
+prismatic, aligned or not; no ``nq != nv`` joint), and must agree with the Python evaluation it
+replaces at probe states to round-off (:data:`AGREEMENT`), once per model and thread, before a
+configuration uses it.  Otherwise the Python evaluation runs and :func:`why_not` says why.
+``PCMM_COMPILED=0`` in the environment turns it off (benchmarks and tests compare the two).
 """
 from __future__ import annotations
 
@@ -73,38 +76,92 @@ def why_not() -> str | None:
 
 
 def trees_built() -> int:
-    """How many compiled trees this thread holds (a run that used none ran Python's)."""
-    return sum(len(trees) for _, trees in _CACHE.__dict__.get("trees", {}).values())
+    """How many compiled objects this thread holds (a run that built none ran Python's)."""
+    return sum(1 for _, built in _CACHE.__dict__.get("trees", {}).values() for _, checked in built.values() if checked)
 
 
 def _refuse(reason: str) -> None:
     _last_reason[:] = [reason]
 
 
-def tree_rhs(model: pin.Model, data: pin.Data, Q0: np.ndarray, KD: np.ndarray) -> Callable | None:
+def tree_rhs(model: pin.Model, Q0: np.ndarray, KD: np.ndarray, reference: Callable) -> Callable | None:
     """The compiled ``rhs(t, y) = [v, aba(q, v, Q0 - KD y)]`` of a tree ``model`` (Pinocchio
-    coordinates are the state's: ``nq == nv``), or None where it cannot be the same function.
-    ``data`` is the model's scratch data (the agreement check runs ``pin.aba`` on it)."""
+    coordinates are the state's: ``nq == nv``), or None where it cannot be ``reference``, the
+    Python right-hand side it replaces."""
+    Q0, KD = np.asarray(Q0, float), np.asarray(KD, float)
+    entry = _tree(model, ("rhs", Q0.tobytes(), KD.tobytes()), lambda tree: tree.finalize(model.gravity.linear, Q0, KD))
+    if entry is None:
+        return None
+    tree, checked = entry
+    probes = [(0.0, y) for y in _probe_states(model.nv)]
+    if not _agrees(checked, tree.rhs, reference, probes, "right-hand side"):
+        return None
+    return tree.rhs
+
+
+def closure_kinematics(model: pin.Model, frames_a, frames_b, rows: Callable, rows_and_bias: Callable):
+    """A compiled object whose ``point_rows(q) -> (Phi, Phi_q)`` and ``point_rows_and_bias(q, v)
+    -> (Phi_q, bias)`` are the kinematic constraint of each revolute cut joint (point ``b`` on
+    point ``a``, frames of ``model``), equal to ``rows`` and ``rows_and_bias``, their Python
+    evaluation; or None."""
+    frames_a, frames_b = tuple(map(int, frames_a)), tuple(map(int, frames_b))
+    nv = model.nv
+
+    def build(tree):
+        index = {f: tree.add_frame(int(model.frames[f].parentJoint), model.frames[f].placement.rotation,
+                                   model.frames[f].placement.translation) for f in sorted({*frames_a, *frames_b})}
+        for fa, fb in zip(frames_a, frames_b):
+            tree.add_pair(index[fa], index[fb])
+        tree.finalize(model.gravity.linear, np.zeros(nv), np.zeros((nv, 2 * nv)))
+    entry = _tree(model, ("closure", frames_a, frames_b), build)
+    if entry is None:
+        return None
+    tree, checked = entry
+    states = _probe_states(nv)
+    if not (_agrees(checked, tree.point_rows, rows, [(y[:nv],) for y in states], "closure rows")
+            and _agrees(checked, tree.point_rows_and_bias, rows_and_bias, [(y[:nv], y[nv:]) for y in states],
+                        "closure rows and bias")):
+        return None
+    return tree
+
+
+def _probe_states(nv: int) -> list[np.ndarray]:
+    """Fixed-seed states: angles over a turn, velocities of order one."""
+    rng = np.random.default_rng(20201001)
+    return [np.concatenate([rng.uniform(-np.pi, np.pi, nv), rng.uniform(-2.0, 2.0, nv)]) for _ in range(_PROBES)]
+
+
+def _tree(model: pin.Model, key: tuple, finalize: Callable):
+    """(compiled tree, the names of its functions checked so far) for ``key`` on ``model``: built
+    once per thread (the model's joints and bodies, then ``finalize(tree)``), or None (why_not says)."""
     if not enabled():
         return None
-    Q0, KD = np.asarray(Q0, float), np.asarray(KD, float)
     cache = _CACHE.__dict__.setdefault("trees", {})
     # the model is held by identity (pcmm never edits a built model's bodies or joints); its
     # gravity and armature, plain arrays a caller may set, are part of the key
-    key = (Q0.tobytes(), KD.tobytes(), model.gravity.linear.tobytes(), np.asarray(model.armature).tobytes())
-    held, trees = cache.get(id(model), (None, {}))
-    if held is model and key in trees:
-        _last_reason.clear()
-        return trees[key]
-    rhs = _build(model, data, Q0, KD)
-    if rhs is not None:
-        if len(cache) >= _CACHE_MAX and id(model) not in cache:
+    key = (*key, model.gravity.linear.tobytes(), np.asarray(model.armature).tobytes())
+    held, built = cache.get(id(model), (None, {}))
+    if held is model and key in built:
+        return built[key]
+    tree = _rebuild(model)
+    if tree is None:
+        return None
+    try:
+        finalize(tree)
+    except ValueError as exc:
+        _refuse(str(exc))
+        return None
+    if held is not model:
+        if len(cache) >= _CACHE_MAX:
             cache.pop(next(iter(cache)))
-        cache.setdefault(id(model), (model, {}))[1][key] = rhs  # the model is held: its id stays its own
-    return rhs
+        built = {}
+        cache[id(model)] = (model, built)  # the model is held: its id stays its own
+    built[key] = (tree, set())
+    return built[key]
 
 
-def _build(model: pin.Model, data: pin.Data, Q0: np.ndarray, KD: np.ndarray) -> Callable | None:
+def _rebuild(model: pin.Model):
+    """The model's joints and bodies in a compiled tree (not finalized), or None (why_not says)."""
     nv = model.nv
     if model.nq != nv or nv == 0:
         _refuse(f"nq = {model.nq}, nv = {nv}: only nq == nv > 0 is compiled")
@@ -127,33 +184,37 @@ def _build(model: pin.Model, data: pin.Data, Q0: np.ndarray, KD: np.ndarray) -> 
                 raise ValueError(f"joint {model.names[j]!r} came out as joint {added}")
             inertia = model.inertias[j]
             tree.set_inertia(j, inertia.mass, inertia.lever, inertia.inertia)
-        tree.finalize(model.gravity.linear, Q0, KD)
     except ValueError as exc:
         _refuse(str(exc))
         return None
-    if not _agrees(model, data, Q0, KD, tree.rhs):
-        return None
-    _last_reason.clear()
-    return tree.rhs
+    return tree
 
 
-def _agrees(model: pin.Model, data: pin.Data, Q0, KD, rhs) -> bool:
-    """The compiled and the Python right-hand side at probe states (fixed seed, angles over a
-    turn, velocities of order one), to round-off."""
-    nv = model.nv
-    rng = np.random.default_rng(20201001)
-    for _ in range(_PROBES):
-        y = np.concatenate([rng.uniform(-np.pi, np.pi, nv), rng.uniform(-2.0, 2.0, nv)])
+def _agrees(checked: set, fn, reference, probes, what: str) -> bool:
+    """``fn`` and ``reference`` at the probe arguments, output by output, to round-off; once per
+    compiled tree and function (``checked`` remembers)."""
+    if what in checked:
+        _last_reason.clear()
+        return True
+    for args in probes:
         with np.errstate(all="ignore"):
-            a = pin.aba(model, data, y[:nv], y[nv:], Q0 - KD @ y)
-        expected = np.concatenate([y[nv:], a])
-        if not np.all(np.isfinite(expected)):  # non-finite forces: the Python path reports them
-            _refuse("the right-hand side is not finite at a probe state")
+            expected = reference(*args)
+        expected = expected if isinstance(expected, tuple) else (expected,)
+        if not all(np.all(np.isfinite(e)) for e in expected):  # non-finite forces: Python reports them
+            _refuse(f"the Python {what} is not finite at a probe state")
             return False
-        got = rhs(0.0, y)
-        scale = 1.0 + float(np.max(np.abs(expected)))
-        if not np.all(np.abs(got - expected) <= AGREEMENT * scale):
-            _refuse(f"it disagrees with the Python right-hand side by {np.max(np.abs(got - expected)):.3g} "
-                    f"(allowed {AGREEMENT * scale:.3g})")
-            return False
+        got = fn(*args)
+        got = got if isinstance(got, tuple) else (got,)
+        for g, e in zip(got, expected, strict=True):
+            e = np.asarray(e, float)
+            scale = 1.0 + float(np.max(np.abs(e), initial=0.0))
+            if np.shape(g) != e.shape:
+                _refuse(f"it disagrees with the Python {what}: shape {np.shape(g)} against {e.shape}")
+                return False
+            if not np.all(np.abs(g - e) <= AGREEMENT * scale):
+                _refuse(f"it disagrees with the Python {what} by {np.max(np.abs(g - e)):.3g} "
+                        f"(allowed {AGREEMENT * scale:.3g})")
+                return False
+    checked.add(what)
+    _last_reason.clear()
     return True

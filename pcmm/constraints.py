@@ -342,7 +342,7 @@ class TreeCoordinates(_Replayable):
         def rhs(t, y):
             v = y[nv:]
             return concatenate((v, aba(model, data, y[:nv], v, subtract(Q0, dot(KD, y, tau), tau))))
-        return compiled.tree_rhs(model, data, Q0, KD) or rhs
+        return compiled.tree_rhs(model, Q0, KD, rhs) or rhs
 
     def pack(self, t, q, v):
         return np.concatenate([q, v])
@@ -428,21 +428,45 @@ class PartitionedCoordinates(_Replayable):
         self._driven = np.array(drives.index, dtype=int)
         self._drive_rows = np.zeros((drives.size, self.nv))
         self._drive_rows[np.arange(drives.size), self._driven] = 1.0
+        # revolute cut joints' rows in one compiled call where that is the same function (pcmm.compiled)
+        fast = None
+        if closure.revolute_only and closure.specs and not cfg.has_planar:
+            fast = compiled.closure_kinematics(cfg.model, closure.frames_a, closure.frames_b,
+                                               self._python_point_rows, self._python_point_rows_and_bias)
+        self._point_rows = fast.point_rows if fast else self._python_point_rows
+        self._point_rows_and_bias_at = fast.point_rows_and_bias if fast else self._python_point_rows_and_bias
 
     # -- constraint evaluation on the tree
+    def _python_point_rows(self, qp):
+        """(Phi, Phi_q) of revolute cut joints at Pinocchio's ``qp``, through the Python binding."""
+        cfg = self.cfg
+        pin.computeJointJacobians(cfg.model, cfg.data, qp)  # computes the placements itself
+        pin.updateFramePlacements(cfg.model, cfg.data)
+        return self.closure.point_rows(cfg.model, cfg.data)
+
+    def _python_point_rows_and_bias(self, qp, v):
+        """(Phi_q, bias) of revolute cut joints at (``qp``, v) in one kinematics pass (placements,
+        velocities and accelerations at a = 0, then the Jacobians from them)."""
+        cfg = self.cfg
+        pin.forwardKinematics(cfg.model, cfg.data, qp, v, self._zeros)
+        pin.computeJointJacobians(cfg.model, cfg.data)
+        pin.updateFramePlacements(cfg.model, cfg.data)
+        _, Jq = self.closure.point_rows(cfg.model, cfg.data)
+        return Jq, self.closure.point_bias(cfg.model, cfg.data)
+
     def _phi(self, t, q, need_bias=False, v=None):
         cfg = self.cfg
         qp = cfg.to_pin(q)
-        if need_bias:  # placements, velocities and accelerations at a = 0, then Jacobians from them
-            pin.forwardKinematics(cfg.model, cfg.data, qp, v, self._zeros)
-            pin.computeJointJacobians(cfg.model, cfg.data)
-        else:  # computes the placements itself
-            pin.computeJointJacobians(cfg.model, cfg.data, qp)
-        pin.updateFramePlacements(cfg.model, cfg.data)
         if self.closure.revolute_only and not need_bias:
-            phi, Jq = self.closure.point_rows(cfg.model, cfg.data)
+            phi, Jq = self._point_rows(qp)
             bias = None
         else:
+            if need_bias:  # placements, velocities and accelerations at a = 0, then Jacobians from them
+                pin.forwardKinematics(cfg.model, cfg.data, qp, v, self._zeros)
+                pin.computeJointJacobians(cfg.model, cfg.data)
+            else:  # computes the placements itself
+                pin.computeJointJacobians(cfg.model, cfg.data, qp)
+            pin.updateFramePlacements(cfg.model, cfg.data)
             phi, Jq, bias = self.closure.evaluate(cfg.model, cfg.data, need_bias)
         if self.drives.size:  # the rheonomic rows q_j - f_j(t): their Jacobian rows are constant
             f, _, f2 = self.drives.values(t)
@@ -457,12 +481,7 @@ class PartitionedCoordinates(_Replayable):
         pass (placements, velocities and accelerations at a = 0, then the Jacobians from them).
         The rows are taken at the returned q itself, not reused from the Newton solve's last
         iterate: near a change point the last correction is large enough to matter."""
-        cfg = self.cfg
-        pin.forwardKinematics(cfg.model, cfg.data, cfg.to_pin(q), v, self._zeros)
-        pin.computeJointJacobians(cfg.model, cfg.data)
-        pin.updateFramePlacements(cfg.model, cfg.data)
-        _, Jq = self.closure.point_rows(cfg.model, cfg.data)
-        bias = self.closure.point_bias(cfg.model, cfg.data)
+        Jq, bias = self._point_rows_and_bias_at(self.cfg.to_pin(q), v)
         if self.drives.size:
             Jq = np.concatenate((Jq, self._drive_rows))
             bias = np.concatenate((bias, -self.drives.values(t)[2]))

@@ -11,7 +11,7 @@ import pytest
 
 import pcmm
 from pcmm import compiled
-from builders import Bar, chain_urdf, copy_example, example_text
+from builders import EXAMPLES, Bar, chain_urdf, copy_example, example_text
 
 needs_extension = pytest.mark.skipif(compiled._tree_dynamics is None, reason=f"{compiled.why_not()}")
 
@@ -27,6 +27,16 @@ def _every_kind_model():
     model = pin.buildModelFromXML(chain_urdf(EVERY_KIND))
     model.gravity.linear[:] = [1.3, -9.81, 0.0]
     return model
+
+
+def _tree_rhs(model, Q0, KD):
+    """The compiled right-hand side, checked by pcmm.compiled against Python's pin.aba."""
+    data = model.createData()
+
+    def reference(t, y):
+        nv = model.nv
+        return np.concatenate([y[nv:], pin.aba(model, data, y[:nv], y[nv:], Q0 - KD @ y)])
+    return compiled.tree_rhs(model, Q0, KD, reference)
 
 
 def _by_crba(model, y, Q0, KD):
@@ -58,7 +68,7 @@ def test_every_joint_kind_against_crba_and_rnea():
     K = np.diag(rng.uniform(0.5, 3.0, nv))
     Dv = rng.uniform(-0.2, 0.2, (nv, nv)) + np.eye(nv)
     Q0, KD = rng.uniform(-1.0, 1.0, nv), np.hstack([K, Dv])
-    rhs = compiled.tree_rhs(model, model.createData(), Q0, KD)
+    rhs = _tree_rhs(model, Q0, KD)
     assert rhs is not None, compiled.why_not()
     for _ in range(20):
         y = np.concatenate([rng.uniform(-3.0, 3.0, nv), rng.uniform(-4.0, 4.0, nv)])
@@ -75,14 +85,14 @@ def test_armature_enters_as_the_python_model_has_it():
     model.armature[:] = np.linspace(0.01, 0.06, model.nv)
     nv = model.nv
     Q0, KD = np.zeros(nv), np.zeros((nv, 2 * nv))
-    rhs = compiled.tree_rhs(model, model.createData(), Q0, KD)
+    rhs = _tree_rhs(model, Q0, KD)
     y = np.linspace(-1.0, 1.0, 2 * nv)
     expected = _by_crba(model, y, Q0, KD)  # CRBA puts the armature on M's diagonal
     np.testing.assert_allclose(rhs(0.0, y), expected, rtol=0, atol=1e-12 * (1 + np.abs(expected).max()))
     model.armature[:] = 0.0  # set again: a tree of the model as it is now
-    assert np.abs(compiled.tree_rhs(model, model.createData(), Q0, KD)(0.0, y) - expected).max() > 1e-3
+    assert np.abs(_tree_rhs(model, Q0, KD)(0.0, y) - expected).max() > 1e-3
     model.gravity.linear[:] = 0.0
-    np.testing.assert_allclose(compiled.tree_rhs(model, model.createData(), Q0, KD)(0.0, y),
+    np.testing.assert_allclose(_tree_rhs(model, Q0, KD)(0.0, y),
                                _by_crba(model, y, Q0, KD), rtol=0, atol=1e-12 * (1 + np.abs(expected).max()))
 
 
@@ -90,7 +100,7 @@ def test_armature_enters_as_the_python_model_has_it():
 def test_a_bad_state_is_a_message_not_a_crash():
     model = _every_kind_model()
     nv = model.nv
-    rhs = compiled.tree_rhs(model, model.createData(), np.zeros(nv), np.zeros((nv, 2 * nv)))
+    rhs = _tree_rhs(model, np.zeros(nv), np.zeros((nv, 2 * nv)))
     with pytest.raises(ValueError, match=f"y has 3 entries, the configuration's state has {2 * nv}"):
         rhs(0.0, np.zeros(3))
     with pytest.raises(TypeError, match="two arguments"):
@@ -102,19 +112,19 @@ def test_it_steps_aside_where_it_would_not_be_the_same_function(monkeypatch):
     """A configuration with a planar joint (nq != nv), a disagreement at the probe states, or
     PCMM_COMPILED=0: the Python right-hand side runs and why_not says why."""
     free = pin.buildModelFromXML(chain_urdf([Bar(0.3, 0.5, joint="planar"), Bar(0.2, 0.3)]))
-    assert compiled.tree_rhs(free, free.createData(), np.zeros(free.nv), np.zeros((free.nv, 2 * free.nv))) is None
+    assert _tree_rhs(free, np.zeros(free.nv), np.zeros((free.nv, 2 * free.nv))) is None
     assert "only nq == nv > 0 is compiled" in compiled.why_not()
 
     model = _every_kind_model()
     nv = model.nv
     monkeypatch.setattr(compiled, "AGREEMENT", -1.0)  # nothing agrees: the check is live
-    assert compiled.tree_rhs(model, model.createData(), np.ones(nv), np.zeros((nv, 2 * nv))) is None
+    assert _tree_rhs(model, np.ones(nv), np.zeros((nv, 2 * nv))) is None
     assert "disagrees with the Python right-hand side" in compiled.why_not()
     monkeypatch.undo()
 
     monkeypatch.setenv(compiled.ENV, "0")
     assert not compiled.enabled()
-    assert compiled.tree_rhs(model, model.createData(), np.ones(nv), np.zeros((nv, 2 * nv))) is None
+    assert _tree_rhs(model, np.ones(nv), np.zeros((nv, 2 * nv))) is None
     assert compiled.why_not() == "PCMM_COMPILED=0 in the environment"
 
 
@@ -127,11 +137,11 @@ def test_a_version_mismatch_is_refused_with_the_fix():
 @needs_extension
 def test_trees_are_built_once_per_model_and_forces():
     model = _every_kind_model()
-    data, nv = model.createData(), model.nv
+    nv = model.nv
     Q0, KD = np.zeros(nv), np.zeros((nv, 2 * nv))
-    first = compiled.tree_rhs(model, data, Q0, KD)
-    assert compiled.tree_rhs(model, data, Q0.copy(), KD.copy()) is first
-    assert compiled.tree_rhs(model, data, Q0 + 1.0, KD) is not first  # other forces: another tree
+    first = _tree_rhs(model, Q0, KD)
+    assert _tree_rhs(model, Q0.copy(), KD.copy()).__self__ is first.__self__
+    assert _tree_rhs(model, Q0 + 1.0, KD).__self__ is not first.__self__  # other forces: another tree
 
 
 @needs_extension
@@ -152,3 +162,54 @@ def test_whole_runs_are_the_python_runs(tmp_path, monkeypatch, scene):
     for a, b in zip(fast.segments, slow.segments):
         np.testing.assert_allclose(a.q[-1], b.q[-1], rtol=0, atol=1e-9)
         np.testing.assert_allclose(a.v[-1], b.v[-1], rtol=0, atol=1e-8)
+
+
+# ---- closed loops: the revolute cut joints' rows (Example 2's double-folded mechanism) -------------------------------
+def _loop_coordinates():
+    from pcmm.mechanism import Mechanism
+    scene = pcmm.load_scene(EXAMPLES / "double_folded.toml")
+    return Mechanism(scene)["config1"].coords
+
+
+@needs_extension
+def test_closure_rows_are_the_derivatives_of_the_closure():
+    """Phi_q is dPhi/dq and the bias is d2Phi/dt2 at zero acceleration, both by central
+    differences of the compiled Phi itself (a second route), and both equal the Python binding's."""
+    coords = _loop_coordinates()
+    assert getattr(coords._point_rows, "__self__", None).__class__.__name__ == "Tree", compiled.why_not()
+    nv = coords.nv
+    rng = np.random.default_rng(3)
+    for _ in range(5):
+        q, v = rng.uniform(-np.pi, np.pi, nv), rng.uniform(-2.0, 2.0, nv)
+        phi, Jq = coords._point_rows(q)
+        assert phi.shape == (coords.closure.size,) and Jq.shape == (coords.closure.size, nv)
+        h = 1e-6
+        fd = np.column_stack([(coords._point_rows(q + h * e)[0] - coords._point_rows(q - h * e)[0]) / (2 * h)
+                              for e in np.eye(nv)])
+        np.testing.assert_allclose(Jq, fd, rtol=0, atol=1e-8)
+        rows, bias = coords._point_rows_and_bias_at(q, v)
+        np.testing.assert_array_equal(rows, Jq)
+        h = 1e-4  # along q + v t with a = 0: d2Phi/dt2 = bias
+        second = (coords._point_rows(q + h * v)[0] - 2 * phi + coords._point_rows(q - h * v)[0]) / h**2
+        np.testing.assert_allclose(bias, second, rtol=0, atol=1e-5 * (1 + np.abs(bias).max()))
+        py_phi, py_Jq = coords._python_point_rows(q)
+        py_rows, py_bias = coords._python_point_rows_and_bias(q, v)
+        np.testing.assert_allclose(phi, py_phi, rtol=0, atol=1e-14)
+        np.testing.assert_allclose(Jq, py_Jq, rtol=0, atol=1e-14)
+        np.testing.assert_allclose(bias, py_bias, rtol=0, atol=1e-12 * (1 + np.abs(py_bias).max()))
+    with pytest.raises(ValueError, match="q has 2 entries"):
+        coords._point_rows(np.zeros(2))
+
+
+@needs_extension
+def test_example_2_runs_as_without_it(monkeypatch):
+    """47 impacts, then the merge: the same events at the same times with the compiled closure
+    rows as with Pinocchio's Python binding."""
+    compiled._CACHE.__dict__.clear()
+    fast = pcmm.simulate(pcmm.load_scene(EXAMPLES / "double_folded.toml"))
+    assert compiled.trees_built() >= 1
+    monkeypatch.setenv(compiled.ENV, "0")
+    slow = pcmm.simulate(pcmm.load_scene(EXAMPLES / "double_folded.toml"))
+    assert len(fast.events) == len(slow.events) >= 40
+    assert [e["name"] for e in fast.events] == [e["name"] for e in slow.events]
+    assert max(abs(a["t"] - b["t"]) for a, b in zip(fast.events, slow.events)) <= 1e-10
