@@ -8,6 +8,7 @@ transformations switch without impulse (the paper's comparison runs).
 from __future__ import annotations
 
 import math
+import os
 import threading
 import time
 from dataclasses import replace
@@ -26,6 +27,7 @@ from .mechanism import Mechanism
 from .integrators import EPS, INTEGRATORS, METHODS, Segment, method_for
 from .settings import RunOptions, resolve
 from .signals import deferred, describe, exit_status
+from .scene import load_scene
 from .spec import Scene
 from .trajectory import RunStats, SegmentRecord, Trajectory, holding_extremes, record_views
 from .events import EventRecord, event_dict
@@ -57,13 +59,13 @@ def _zero_time_cycle(events: list[dict]) -> str:
     return ", ".join(dict.fromkeys(f"'{e['name']}' ({e['from']} -> {e['to']})" for e in tail))
 
 
-def simulate(scene: Scene, options: RunOptions = RunOptions(), progress=None) -> Trajectory:
+def simulate(scene: Scene | str | os.PathLike, options: RunOptions = RunOptions(), progress=None) -> Trajectory:
     """Run ``scene`` configuration after configuration (paper Fig. 3).
 
     Parameters
     ----------
-    scene : Scene
-        A scene from :func:`pcmm.load_scene`.
+    scene : Scene or path
+        A scene from :func:`pcmm.load_scene`, or a scene file's path (loaded here).
     options : RunOptions, optional
         Overrides of the scene's ``[solver]`` values and ``t_end``; ``impact=False``
         switches configurations without impulse (the paper's comparison runs).
@@ -98,6 +100,13 @@ def simulate(scene: Scene, options: RunOptions = RunOptions(), progress=None) ->
     >>> ev["kinetic_energy_after"] < ev["kinetic_energy_before"]
     True
     """
+    if isinstance(scene, (str, os.PathLike)):
+        scene = load_scene(scene)
+    elif not isinstance(scene, Scene):
+        raise UsageError(f"pcmm.simulate takes a Scene (pcmm.load_scene(path)) or a scene file's path, "
+                         f"not {type(scene).__name__}")
+    if not isinstance(options, RunOptions):
+        raise UsageError(f"pcmm.simulate's options are a pcmm.RunOptions(...), not {type(options).__name__}")
     opts = resolve(scene, options)
     mech = Mechanism(scene)
     traj = Trajectory(scene=str(scene.path.resolve()), scene_name=scene.name, impact=opts.impact,

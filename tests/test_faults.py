@@ -718,3 +718,19 @@ def test_an_interrupt_in_flight_after_a_bounce_keeps_the_flight(tmp_path):
     y = partial.series("q", "Y")[-1]
     t = partial.t[-1] - math.sqrt(2 / builders.G)
     assert y == pytest.approx(0.9 * math.sqrt(2 * builders.G) * t - builders.G * t * t / 2, abs=1e-9)  # the flight's parabola
+
+
+def test_simulate_takes_a_path_and_names_a_wrong_argument(tmp_path):
+    """pcmm.simulate("scene.toml") is what a newcomer types first: it runs the scene (the same
+    run as from load_scene); anything else is a message naming what it takes, not an AttributeError."""
+    path = builders.copy_example(tmp_path)
+    by_path = pcmm.simulate(str(path), pcmm.RunOptions(t_end=0.2))
+    by_scene = pcmm.simulate(pcmm.load_scene(path), pcmm.RunOptions(t_end=0.2))
+    assert [e["t"] for e in by_path.events] == [e["t"] for e in by_scene.events] and len(by_path.events) == 1
+    assert pcmm.simulate(path, pcmm.RunOptions(t_end=0.01)).events == []  # a Path too
+    with pytest.raises(pcmm.UsageError, match="takes a Scene .* or a scene file's path, not dict"):
+        pcmm.simulate({"t_end": 1.0})
+    with pytest.raises(pcmm.UsageError, match=r"options are a pcmm.RunOptions\(...\), not dict"):
+        pcmm.simulate(path, {"t_end": 1.0})
+    with pytest.raises(pcmm.SceneError, match="missing.toml: scene file not found"):
+        pcmm.simulate(tmp_path / "missing.toml")
