@@ -52,6 +52,11 @@ ENV = "PCMM_COMPILED"
 # |a_compiled - a_python| <= AGREEMENT * (1 + max|a_python|) at every probe state
 AGREEMENT = 1e-11
 _PROBES = 3
+# Above this many coordinates the compiled evaluations are not worth their memory: Pinocchio's own
+# aba dominates (a chain's right-hand side, compiled against Python: 2.8 vs 6.2 us at nv = 5,
+# 8.9 vs 9.7 at 20, 16 vs 18 at 40, 42 vs 45 at 100), while each compiled tree holds a Pinocchio
+# 4.1 Data with nv^3-sized tensors (266 MB at nv = 200, beside the Python model's own).
+MAX_NV = 32
 # Built trees per thread (each holds its own Pinocchio Data: scratch space, never shared between
 # threads), by model and force elements: a run of a scene seen before reuses its trees (Pinocchio
 # 4.1's Data constructor allocates nv^3-sized tensors: 29 ms at nv = 100).
@@ -165,6 +170,10 @@ def _rebuild(model: pin.Model):
     nv = model.nv
     if model.nq != nv or nv == 0:
         _refuse(f"nq = {model.nq}, nv = {nv}: only nq == nv > 0 is compiled")
+        return None
+    if nv > MAX_NV:
+        _refuse(f"nv = {nv} > {MAX_NV}: Pinocchio's aba dominates there, and a compiled tree's Data would "
+                "hold nv^3-sized tensors")
         return None
     if np.any(model.gravity.angular != 0):
         _refuse("gravity with an angular part")

@@ -213,3 +213,16 @@ def test_example_2_runs_as_without_it(monkeypatch):
     assert len(fast.events) == len(slow.events) >= 40
     assert [e["name"] for e in fast.events] == [e["name"] for e in slow.events]
     assert max(abs(a["t"] - b["t"]) for a, b in zip(fast.events, slow.events)) <= 1e-10
+
+
+@needs_extension
+def test_large_models_stay_on_the_python_evaluations():
+    """Above MAX_NV coordinates a compiled tree would hold Pinocchio Data with nv^3-sized tensors
+    for a few per cent (aba dominates): refused, with the reason."""
+    n = compiled.MAX_NV + 1
+    model = pin.buildModelFromXML(chain_urdf([Bar(0.125, 0.2)] * n))
+    assert _tree_rhs(model, np.zeros(n), np.zeros((n, 2 * n))) is None
+    assert f"nv = {n} > {compiled.MAX_NV}" in compiled.why_not()
+    n = compiled.MAX_NV
+    model = pin.buildModelFromXML(chain_urdf([Bar(0.125, 0.2)] * n))
+    assert _tree_rhs(model, np.zeros(n), np.zeros((n, 2 * n))) is not None
