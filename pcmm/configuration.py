@@ -109,6 +109,7 @@ class Configuration:
         self.spec = spec
         self.name = spec.name
         self._coordinates = coordinates
+        self._angle_offsets: dict[str, float] = {}  # {link: 2 pi k} of the run's series (continue_angles)
         # The Pinocchio model and data are built once per process (and thread) for each URDF text, set
         # of points and gravity, and reused by every later run: Pinocchio 4.1's createData allocates
         # nv^3-sized tensors (29 ms at nv = 100), more than a whole run of a small mechanism.
@@ -166,11 +167,30 @@ class Configuration:
 
     def _after_model(self) -> None:
         """What depends on the scene beyond the model: force elements and coordinates."""
+        self.forces: ForceField = self._compile_forces()
+        self.coords: Coordinates = self._coordinates(self)  # loops and drives, or the plain tree
+
+    def _compile_forces(self) -> ForceField:
         forces = self.scene.forces_in(self.name)
         points = compile_point_springs(forces, self.model, self.to_pin,
                                        lambda link, xy: self.point(link, xy).frame_id)
-        self.forces: ForceField = compile_forces(forces, self.measure_row, self.target_column, self.nv, points)
-        self.coords: Coordinates = self._coordinates(self)  # loops and drives, or the plain tree
+        return compile_forces(forces, self.measure_row, self.target_column, self.nv, points)
+
+    def continue_angles(self, offsets: dict[str, float]) -> None:
+        """Measure link angles as the run's series give them: ``A q + b`` plus the run's offset
+        {link: 2 pi k} of each link.  A configuration entered from another may write a link's angle
+        on another 2 pi branch than the run arrived at (a hand-written URDF with a joint yaw of -pi
+        where the run came to +pi: the same posture); the series continue across the switch
+        (:func:`pcmm.transitions.pose_mismatches`), and so must every measure read off these
+        angles: a torsion spring's deflection, a coordinate guard.  Without this, the spring across
+        such a joint pushed with k 2 pi more after the switch.  Force elements are compiled again
+        where the offsets change."""
+        mine = {link: float(d) for link, d in offsets.items() if link in self.link_index and d != 0.0}
+        if mine == self._angle_offsets:
+            return
+        self._angle_offsets = mine
+        self.forces = self._compile_forces()
+        self.coords.forces_changed()
 
     # ---- points ---------------------------------------------------------------------
     def point(self, link: str, local) -> Point:
@@ -267,9 +287,10 @@ class Configuration:
             row[self.joint_slice[m.names[0]].start] = 1.0
             return row, 0.0
         idx = [self.link_index[n] for n in m.names]
+        b = [self.b[i] + self._angle_offsets.get(n, 0.0) for i, n in zip(idx, m.names)]
         if m.kind == "link":
-            return self.A[idx[0]].copy(), float(self.b[idx[0]])
-        return self.A[idx[1]] - self.A[idx[0]], float(self.b[idx[1]] - self.b[idx[0]])
+            return self.A[idx[0]].copy(), float(b[0])
+        return self.A[idx[1]] - self.A[idx[0]], float(b[1] - b[0])
 
     def target_column(self, t: Target) -> np.ndarray:
         if t.kind == "joint":

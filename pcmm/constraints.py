@@ -344,6 +344,10 @@ class TreeCoordinates(_Replayable):
             return concatenate((v, aba(model, data, y[:nv], v, subtract(Q0, dot(KD, y, tau), tau))))
         return compiled.tree_rhs(model, Q0, KD, rhs) or rhs
 
+    def forces_changed(self):
+        """The right-hand side holds the force elements' Q0 and KD: built again."""
+        self.rhs = self._make_rhs()
+
     def pack(self, t, q, v):
         return np.concatenate([q, v])
 
@@ -435,6 +439,9 @@ class PartitionedCoordinates(_Replayable):
                                                self._python_point_rows, self._python_point_rows_and_bias)
         self._point_rows = fast.point_rows if fast else self._python_point_rows
         self._point_rows_and_bias_at = fast.point_rows_and_bias if fast else self._python_point_rows_and_bias
+
+    def forces_changed(self):
+        """Nothing to rebuild: every evaluation reads ``cfg.forces``."""
 
     # -- constraint evaluation on the tree
     def _python_point_rows(self, qp):

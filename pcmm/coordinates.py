@@ -59,7 +59,8 @@ class Coordinates(Protocol):
         ``frozen_state()`` keeps the partition an accepted segment was integrated in and
         ``restored(frozen, q_start)`` re-reads it later in that partition and warm start (a
         trajectory's series are computed lazily); ``fresh_rhs()`` is a right-hand side bound to
-        the current data.  ``recording()`` is a context manager under which an accepted segment is re-read
+        the current data; ``forces_changed()`` rebuilds what holds the configuration's force
+        elements after they were compiled again (``cfg.forces``, at an angle offset).  ``recording()`` is a context manager under which an accepted segment is re-read
         for the trajectory (``unpack``, ``accelerations`` and ``residual`` at its steps)
         without the conditioning checks that would stop a run: the segment was already
         accepted.  ``labels`` names the recorded multipliers (``constraint_forces``).
@@ -85,6 +86,8 @@ class Coordinates(Protocol):
     def restored(self, frozen: dict, q_start: np.ndarray): ...
 
     def fresh_rhs(self): ...
+
+    def forces_changed(self) -> None: ...
 
     rhs: Callable[[float, np.ndarray], np.ndarray]
 

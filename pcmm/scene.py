@@ -737,6 +737,9 @@ class _Builder:
             for cfg in self._configs_for(f"drives[{i}].configurations", d.configurations, scene):
                 self._check_joint(f"drives[{i}].joint", d.joint, cfg)
         for cfg in names.values():
+            base = names.get(cfg.derivation.base) if cfg.derivation is not None else None
+            if base is not None and cfg.cut_joints == base.cut_joints:
+                continue  # inherited with the base's links: reported once, at the base
             for k, cj in enumerate(cfg.cut_joints):
                 where = f"configurations.{cfg.name}.cut_joints[{k}]"
                 self._check_link(f"{where}.a", cj.a, cfg)

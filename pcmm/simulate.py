@@ -240,6 +240,7 @@ def simulate(scene: Scene | str | os.PathLike, options: RunOptions = RunOptions(
                 bounced = tr
             audit.event(tr.name, out.event, bounced is not None, residual)
             nxt = mech[out.configuration]
+            nxt.continue_angles(offsets)  # measures (springs, guards) continue the series' angles
             if out.locks is not None:
                 holds.lock(cfg, nxt, tr, q, merge=out.locks == "merge")
             holds.follow(nxt)
@@ -507,7 +508,7 @@ def _record_samples(traj: Trajectory, cfg: Configuration, seg, offsets, q_start,
     forces of the locks in force at the time are among the constraint forces (labels
     ``<lock>.hold``); their extremes are ``stats["holding"]``."""
     t0 = time.perf_counter()
-    coords = cfg.coords
+    coords, forces = cfg.coords, cfg.forces
     frozen = coords.frozen_state()
     y_full, offsets, q_start = np.array(seg.y, float), dict(offsets), np.array(q_start, float)
     t = np.asarray(seg.t, float).copy()
@@ -520,15 +521,16 @@ def _record_samples(traj: Trajectory, cfg: Configuration, seg, offsets, q_start,
         """Run ``work`` with the coordinates as they were for this segment.  Pinocchio's data are
         scratch space shared by the runs of one thread (models are built once per process and
         thread): asked from another thread, the series are computed on data of their own."""
-        data = cfg.data
+        data, now = cfg.data, cfg.forces
         if threading.get_ident() != owner:
             cfg.data = cfg.__dict__.setdefault("_foreign_data", {}).setdefault(
                 threading.get_ident(), cfg.model.createData())
+        cfg.forces = forces  # as they were (a later entry may have compiled them at other angle offsets)
         try:
             with coords.restored(frozen, q_start):  # the segment was accepted: nothing here stops anything
                 return work()
         finally:
-            cfg.data = data
+            cfg.data, cfg.forces = data, now
 
     def derive():
         def work():
@@ -602,10 +604,6 @@ def _dense_states(t, y, times, stepping) -> np.ndarray:
     return out
 
 
-def _derived_series(cfg: Configuration, t, y, offsets) -> dict:
-    """Coordinates, angles, positions, energies, force elements and constraint forces at the
-    recorded states of one segment."""
-    n = len(t)
 def _derived_series(cfg: Configuration, t, y, offsets) -> dict:
     """Coordinates, angles, positions, energies, force elements and constraint forces at the
     recorded states of one segment."""

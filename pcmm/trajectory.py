@@ -481,7 +481,7 @@ class Trajectory:
                 "N m" if on.get("kind") == "link" or types.get(on.get("name")) == "revolute" else "N m|N"
             cols.append((f"force_{name} [{unit}]", self.series("forces", name)))
         for name in dict.fromkeys(n for s in self.segments for n in s.constraint_labels):
-            cols.append((f"constraint_{name} [N|N m]", self.series("constraint_forces", name)))
+            cols.append((f"constraint_{name} [{constraint_unit(name, types)}]", self.series("constraint_forces", name)))
         cols.append(("kinetic_energy [J]", self.series("kinetic")))
         cols.append(("potential_energy [J]", self.series("potential")))
         config = self.configuration_at()
@@ -494,6 +494,21 @@ class Trajectory:
                 out.writerow([repr(float(row[0])), spreadsheet_text(config[i])]
                              + ["" if np.isnan(x) else repr(float(x)) for x in row[1:]])
         return atomic_write(path, write, force=force)
+
+
+def constraint_unit(label: str, joint_types: dict[str, str]) -> str:
+    """The unit of a constraint-force series from its label: a cut joint's force components
+    (``.fx``, ``.fy``, ``.fn``) in N, its moment (``.mz``) in N m; a drive's or a lock's
+    (``<joint>.drive``, ``<joint>.hold``) by its joint's type; "N|N m" where the label does not
+    tell (the hold of a stop-merge: a normal force, or a joint stop's moment)."""
+    what, _, part = label.rpartition(".")
+    if part in ("fx", "fy", "fn"):
+        return "N"
+    if part == "mz":
+        return "N m"
+    if part in ("drive", "hold"):
+        return {"revolute": "N m", "prismatic": "N"}.get(joint_types.get(what), "N|N m")
+    return "N|N m"
 
 
 def _text(x) -> str:

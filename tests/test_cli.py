@@ -94,6 +94,18 @@ def test_npz_round_trip_equals_in_memory_run(run_files, in_memory):
     np.testing.assert_array_equal(back.t, in_memory.t)
 
 
+def test_constraint_columns_carry_their_own_unit(tmp_path):
+    """Example 2: the cut joint C's components in N, the crank's drive moment in N m (A is
+    revolute); a stop-merge's hold, a normal force or a joint stop's moment, says both."""
+    traj = pcmm.simulate(EXAMPLES / "double_folded.toml", pcmm.RunOptions(t_end=3.3))
+    header = traj.to_csv(tmp_path / "r.csv").read_text().splitlines()[0].split(",")
+    assert [h for h in header if h.startswith("constraint_")] == [
+        "constraint_C.fx [N]", "constraint_C.fy [N]", "constraint_A.drive [N m]", "constraint_slider stop E.hold [N|N m]"]
+    from pcmm.trajectory import constraint_unit
+    assert constraint_unit("E.drive", {"E": "prismatic"}) == "N" and constraint_unit("O3.hold", {"O3": "revolute"}) == "N m"
+    assert constraint_unit("P.mz", {}) == "N m" and constraint_unit("P.fn", {}) == "N"
+
+
 def test_csv_has_units_and_the_samples(run_files, in_memory):
     _, _, C = run_files
     with C.open() as f:

@@ -189,6 +189,22 @@ def test_example2_derived_config2_gives_the_shipped_events(tmp_path):
     assert derived.stats["derived_configurations"]["config2"][0]["E"] == pytest.approx(0.3195, abs=1e-12)
 
 
+def test_a_typo_in_an_inherited_cut_joint_is_reported_once(tmp_path):
+    """The derived config2 inherits config1's cut joint C: a misspelt link in it is one problem,
+    at config1 where it is written, not a second one at config2 (the same link, the same URDF)."""
+    text = (EXAMPLES / "double_folded.toml").read_text()
+    cut = 'cut_joints = [ { name = "C", type = "revolute", a = "link2", point_a = [0.2, 0.0], b = "link3", point_b = [0.09, 0.0] } ]'
+    hand = 'urdf = "../urdf/double_folded_config2.urdf"\n' + cut
+    typo = text.replace(hand, 'from = "config1"\nlock = ["E"]').replace(cut, cut.replace('a = "link2"', 'a = "lnk2"'))
+    path = tmp_path / "typo.toml"
+    path.write_text(typo.replace("../urdf/", f"{URDF_DIR}/"))
+    with pytest.raises(SceneError) as info:
+        pcmm.load_scene(path)
+    message = str(info.value)
+    assert message.count("'lnk2'") == 1, message
+    assert "configurations.config1.cut_joints[0].a" in message and "did you mean 'link2'?" in message
+
+
 def test_check_builds_derived_models_with_the_guard_values(tmp_path, capsys):
     assert pcmm.cli.main(["check", str(three_bar(tmp_path))]) == 0
     out = capsys.readouterr().out

@@ -48,6 +48,25 @@ def test_state_maps_by_joint_name_and_poses_agree(tmp_path):
     assert after.theta[0, i2] == pytest.approx(before.theta[-1, i1], abs=1e-9)
 
 
+def test_a_merged_urdf_written_on_the_other_2pi_branch_runs_the_same(tmp_path):
+    """Example 1's merged URDF with O3's yaw written -pi instead of pi: the same posture, so the
+    same run.  The torsion spring tau3 across O3 (k = 0.026 N m/rad) measures theta3 - theta2 as the
+    run's series give it (pi, continuing configuration 1), not as the URDF writes it (-pi): before
+    that, it pushed with 2 pi k = 0.163 N m more after the latch and the run ended 3.5 rad apart."""
+    (tmp_path / "a").mkdir()
+    (tmp_path / "b").mkdir()
+    ref = pcmm.simulate(pcmm.load_scene(_copy(tmp_path / "a", "3.141592653589793")))
+    other = pcmm.simulate(pcmm.load_scene(_copy(tmp_path / "b", "-3.141592653589793")))
+    assert [e["t"] for e in other.events] == [e["t"] for e in ref.events] and len(ref.events) == 1
+    a, b = ref.segments[-1], other.segments[-1]
+    i = a.force_names.index("tau3")
+    assert b.forces[0, i] == pytest.approx(a.forces[0, i], abs=1e-12)  # not 0.163 N m apart
+    assert b.forces[0, i] == pytest.approx(0.2300 - 0.026 * (a.theta[0, 3] - a.theta[0, 2]), abs=1e-12)  # Eq. 44
+    np.testing.assert_allclose(b.q[-1], a.q[-1], rtol=0, atol=1e-9)
+    np.testing.assert_allclose(b.theta[-1], a.theta[-1], rtol=0, atol=1e-9)
+    assert b.potential[-1] == pytest.approx(a.potential[-1], abs=1e-9)  # the spring's energy too
+
+
 @pytest.mark.parametrize("scene,t_end", [("double_folded.toml", 3.3)])
 def test_potential_energy_is_continuous_across_a_merge(scene, t_end):
     """A body merged with the frame keeps its (constant) gravity energy: the slider welded at
