@@ -51,10 +51,12 @@ def closest_approach(scene: Scene, cfg: Configuration, traj: Trajectory) -> list
     closest to its value (the nearest step, refined on the dense output)."""
     watched = [tr for tr in scene.transitions_from(cfg.name) if tr.guard.type in ("coordinate", "gap")]
     reactions = [tr for tr in scene.transitions_from(cfg.name) if tr.guard.type == "reaction"]
+    timers = [tr for tr in scene.transitions_from(cfg.name) if tr.guard.type == "time" and tr.guard.at is not None]
     segs = [s for s in traj.segments if s.configuration == cfg.name]
-    if not segs or not (watched or reactions):  # time guards: no approach to report
+    if not segs or not (watched or reactions or timers):
         return []
-    out = [r for r in (_reaction_approach(tr, segs, traj) for tr in reactions) if r is not None]
+    out = [r for r in (_timer_missed(tr, segs, traj) for tr in timers) if r is not None]
+    out += [r for r in (_reaction_approach(tr, segs, traj) for tr in reactions) if r is not None]
     if not watched:
         return out
     t = np.concatenate([s.t for s in segs])
@@ -82,8 +84,40 @@ def closest_approach(scene: Scene, cfg: Configuration, traj: Trajectory) -> list
                     # nearest where the run entered the configuration (a release at a stop, say): it
                     # started there and never came closer, which is no near miss
                     "at_entry": ti == float(segs[k].t[0]) and _entered(traj, segs[k]),
-                    "past": _past(tr, gi)})
+                    "past": _past(tr, gi),
+                    "crossed_against": _crossed_against(tr, t, g, owner)})
     return out
+
+
+def _crossed_against(tr, t: np.ndarray, g: np.ndarray, owner: np.ndarray) -> float | None:
+    """The first instant the measure crossed the guard's value against the guard's direction
+    (between two samples of one segment, interpolated), or None: a guard written "decreasing"
+    whose angle went up through its value did not fire, and that is what the user must hear."""
+    side = np.sign(g - tr.guard.value)
+    cross = np.flatnonzero(np.isfinite(g[:-1]) & np.isfinite(g[1:]) & (owner[:-1] == owner[1:])
+                           & (side[:-1] != 0) & (side[1:] == -side[:-1]) & (side[1:] == -tr.guard.direction))
+    if not cross.size:
+        return None
+    i = int(cross[0])
+    a, b = abs(g[i] - tr.guard.value), abs(g[i + 1] - tr.guard.value)
+    return float(t[i] + (t[i + 1] - t[i]) * a / (a + b))
+
+
+def _timer_missed(tr, segs: list[SegmentRecord], traj: Trajectory) -> dict | None:
+    """A time guard ``at = T`` that never fired because the run was not in its configuration at T:
+    it entered later, or ended first."""
+    if any(e.get("name") == tr.name for e in traj.events):
+        return None
+    at, entered, end = tr.guard.at, float(segs[0].t[0]), float(segs[-1].t[-1])
+    if at < entered:
+        why = (f"the run entered '{segs[0].configuration}' at t = {entered:.9g} s, after it; a time guard fires "
+               "once, at that instant, and only if the run is in its configuration then")
+    elif at > end:
+        why = f"the run ended at t = {end:.9g} s, before it"
+    else:
+        return None
+    return {"transition": tr.name, "guard": "time", "value": at, "direction": "increasing", "closest": entered,
+            "t": entered, "distance": float(abs(at - entered)), "last_fired": None, "timer": why}
 
 
 def _entered(traj: Trajectory, seg: SegmentRecord) -> bool:
@@ -125,11 +159,21 @@ def _past(tr, closest: float) -> bool:
 
 
 def describe(records: list[dict]) -> str:
-    return "\n".join(
+    return "\n".join(_describe_one(r) for r in records)
+
+
+def _describe_one(r: dict) -> str:
+    if r.get("timer"):
+        return f"time guard of '{r['transition']}' (at = {r['value']:.9g} s) did not fire: {r['timer']}"
+    if r.get("crossed_against") is not None:
+        against = "decreasing" if r["direction"] == "increasing" else "increasing"
+        return (f"guard of '{r['transition']}' ({r['guard']} {r['direction']} to {r['value']:.9g}) did not fire: "
+                f"the measure crossed {r['value']:.9g} {against} at t = {r['crossed_against']:.6g} s, against the "
+                f"guard's direction ({r['direction']}); check `direction`")
+    return (
         f"guard of '{r['transition']}' ({r['guard']} {r['direction']} to {r['value']:.9g}) did not fire: "
         f"closest {r['closest']:.9g} at t = {r['t']:.6g} s"
         + (" (where the run entered the configuration)" if r.get("at_entry") else "")
         + (f", {r['distance']:.3g} past it, on the side it fires to (a guard fires on a crossing in "
            "its direction)" if r.get("past") else f", {r['distance']:.3g} short")
-        + (f" (since it last fired at t = {r['last_fired']:.9g} s)" if r.get("last_fired") is not None else "")
-        for r in records)
+        + (f" (since it last fired at t = {r['last_fired']:.9g} s)" if r.get("last_fired") is not None else ""))

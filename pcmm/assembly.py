@@ -12,7 +12,9 @@ looks right but its guards never fire.  This module
   branch, found among the assemblies Newton reaches from a grid of starts;
 * warns when the assembled posture differs from the guess by more than ``GUESS_TOL`` or when
   another assembly lies nearer the guess (the other branch);
-* names "give approximate assembly values" when the loop cannot be closed from the guess.
+* names "give approximate assembly values" when the loop cannot be closed from the guess;
+* says which given velocities the constraints replaced (a dependent or driven joint's velocity
+  follows from the others) and which independent ones, left out of ``[initial] v``, it took as 0.
 """
 from __future__ import annotations
 
@@ -101,7 +103,7 @@ def assemble(scene: Scene, cfg: Configuration):
     coords = cfg.coords
     if not getattr(coords, "constrained", False) or not coords.closure.size:
         q, v = coords.project(0.0, q0, v0, prefer)
-        return q, v, []
+        return q, v, _velocity_notes(scene, cfg, v0, v)
     try:
         options = _candidates(cfg, q0, v0, prefer) if scene.branch is not None else \
             [coords.project(0.0, q0, v0, prefer)]
@@ -146,4 +148,32 @@ def assemble(scene: Scene, cfg: Configuration):
             notes.append("another assembly of the loop (the other branch) lies nearer the given values: "
                          + ", ".join(f"{n} = {best[0][cfg.joint_slice[n].start]:.6g}" for n in cfg.joint_names)
                          + "; choose it with [initial] branch")
-    return q, v, notes
+    return q, v, notes + _velocity_notes(scene, cfg, v0, v)
+
+
+VELOCITY_TOL = 1e-9  # rad/s or m/s, relative to the largest given velocity beyond 1
+
+
+def _velocity_notes(scene: Scene, cfg: Configuration, v_given: np.ndarray, v: np.ndarray) -> list[str]:
+    """What the constraints did to ``[initial] v``: the dependent (and driven) joints' velocities
+    follow from the independent ones, so a given value that differs is replaced, and an
+    independent joint left out of ``[initial] v`` starts at rest."""
+    if not getattr(cfg.coords, "constrained", False):
+        return []
+    single = [n for n in cfg.joint_names if cfg.joint_slice[n].stop - cfg.joint_slice[n].start == 1]
+    tol = VELOCITY_TOL * max(1.0, float(np.max(np.abs(v_given), initial=0.0)))
+    replaced = [(n, float(v_given[cfg.joint_slice[n].start]), float(v[cfg.joint_slice[n].start])) for n in single
+                if n in scene.v0 and abs(v[cfg.joint_slice[n].start] - v_given[cfg.joint_slice[n].start]) > tol]
+    kept = set(np.asarray(cfg.coords.I if cfg.coords.I is not None else (), dtype=int).tolist())
+    independent = {n for n in single if cfg.joint_slice[n].start in kept}
+    at_rest = [n for n in single if n not in scene.v0 and n in independent]
+    notes = []
+    if replaced:
+        notes.append("the constraints fix some initial velocities, and these given ones were replaced: "
+                     + ", ".join(f"{n} given {g:.6g}, now {a:.6g}" for n, g, a in replaced)
+                     + f" (the velocities kept as given: {', '.join(sorted(independent)) or 'none'}); give only "
+                       "those, or consistent values")
+    if at_rest:
+        notes.append(f"initial.v has no value for {', '.join(at_rest)}, kept as an independent coordinate of "
+                     "the loop: it starts at rest (v = 0)")
+    return notes

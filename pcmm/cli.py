@@ -101,7 +101,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--dt", type=_positive("dt"), help="write the CSV and the figures at times 0, dt, 2 dt, ... "
                    "(and at every event) on the integrator's dense output, s (default: at its steps)")
     r.add_argument("--force", action="store_true", help="overwrite existing output files")
-    r.add_argument("--quiet", action="store_true", help="no progress bar, no event table")
+    r.add_argument("--quiet", action="store_true", help="no progress bar, no event table (warnings still print)")
     sw = sub.add_parser("sweep", help="run a design study: variations of a scene, one results row per run")
     sw.add_argument("scene", type=Path)
     sw.add_argument("--set", dest="sets", action="append", default=[], metavar="PATH=VALUES",
@@ -238,15 +238,15 @@ def _check_outputs(paths, force, folders=()):
         raise UsageError(problems)
 
 
-def _check_geometry(scene, quiet=False):
+def _check_geometry(scene):
     """The check-time consistency of the geometry (pcmm.checks): problems stop before any
-    simulation, warnings are printed."""
+    simulation, warnings are printed (also under --quiet, which silences progress and tables,
+    not what the user must know)."""
     from .checks import check_scene
     from .errors import SceneError
     report = check_scene(scene)
-    if not quiet:
-        for w in report.warnings:
-            print(f"pcmm: warning: {w}", file=sys.stderr)
+    for w in report.warnings:
+        print(f"pcmm: warning: {w}", file=sys.stderr)
     if report.problems:
         raise SceneError(report.problems)
     return report
@@ -368,7 +368,7 @@ def cmd_run(args) -> int:
     _check_outputs([("--out", args.out), ("--summary", args.summary), ("--csv", args.csv),
                     ("--html", args.html)], args.force, folders=[("--plots", args.plots)])
     scene = load_scene(args.scene)
-    _check_geometry(scene, quiet=args.quiet)
+    _check_geometry(scene)
     opts = options_from_arguments(args, t_end=args.t_end, impact=not args.no_impact)
     update, close = _progress(args.quiet, args.t_end or scene.t_end)
     failure = None

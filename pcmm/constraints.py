@@ -317,6 +317,8 @@ class TreeCoordinates(_Replayable):
         array out (integrators keep the arrays they are given); no Python
         attribute look-ups or planar conversions unless needed."""
         cfg, nv = self.cfg, self.nv
+        self.evaluations = "python: not compiled: " + (
+            "nothing to integrate" if nv == 0 else "point springs" if cfg.forces.points is not None else "a planar joint")
         if nv == 0:
             return lambda t, y: y
         model, data, aba = cfg.model, cfg.data, pin.aba
@@ -342,7 +344,9 @@ class TreeCoordinates(_Replayable):
         def rhs(t, y):
             v = y[nv:]
             return concatenate((v, aba(model, data, y[:nv], v, subtract(Q0, dot(KD, y, tau), tau))))
-        return compiled.tree_rhs(model, Q0, KD, rhs) or rhs
+        fast = compiled.tree_rhs(model, Q0, KD, rhs)
+        self.evaluations = "compiled" if fast else f"python: {compiled.why_not()}"
+        return fast or rhs
 
     def forces_changed(self):
         """The right-hand side holds the force elements' Q0 and KD: built again."""
@@ -439,6 +443,10 @@ class PartitionedCoordinates(_Replayable):
                                                self._python_point_rows, self._python_point_rows_and_bias)
         self._point_rows = fast.point_rows if fast else self._python_point_rows
         self._point_rows_and_bias_at = fast.point_rows_and_bias if fast else self._python_point_rows_and_bias
+        self.evaluations = "compiled" if fast else "python: " + (
+            compiled.why_not() or "not compiled" if closure.revolute_only and closure.specs and not cfg.has_planar
+            else "not compiled: " + ("drives only" if not closure.specs else
+                                     "a planar joint" if cfg.has_planar else "prismatic or weld cut joints"))
 
     def forces_changed(self):
         """Nothing to rebuild: every evaluation reads ``cfg.forces``."""

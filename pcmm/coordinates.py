@@ -74,6 +74,7 @@ class Coordinates(Protocol):
     labels: list[str]
     position_noise: float
     constrained: bool  # constraint rows exist (loops or drives): q' is not simply the state's second half
+    evaluations: str  # "compiled" (pcmm.compiled in use) or "python: <why not>"
 
     def pack(self, t: float, q: np.ndarray, v: np.ndarray) -> np.ndarray: ...
 

@@ -468,8 +468,12 @@ def figures(traj: Trajectory, compare: Trajectory | None = None, impulse_sign: s
         ax.grid(True, alpha=0.3)
         ax.set_title(convention, fontsize=8, wrap=True)
         if p_ev.size:
+            # left of the first impact, unless that is in the axes' left third (the label would run
+            # over the y axis): then right of it
+            right = duration > 0 and t_ev[0] < duration / 3
             ax.annotate(f"{_fmt_t(t_ev[0])}, {p_ev[0]:.4g} N·s", (t_ev[0], p_ev[0]), textcoords="offset points",
-                        xytext=(-8, 6 if p_ev[0] >= 0 else -12), ha="right", fontsize=8)
+                        xytext=(8 if right else -8, 6 if p_ev[0] >= 0 else -12), ha="left" if right else "right",
+                        fontsize=8)
         bursts = _bursts(impact_runs[0].traj, duration)
         if bursts and bursts[0][2] > 3:  # a macro-impact: zoom on its micro-impacts
             t0, t1, _ = bursts[0]
@@ -601,9 +605,14 @@ def _sliders(traj: Trajectory, jtypes) -> list[_Slider]:
         children = {n: j["child"] for n, j in _joints(traj).items()}
         for c in _coordinates(traj):
             if jtypes.get(c) == "prismatic" and children.get(c) not in covered:
-                out.append(_Slider(c, _sym("q", c), lambda r, c=c: r.traj.series("q", c),
-                                   lambda r, c=c: r.traj.series("v", c)))
+                out.append(_Slider(c, _sym("q", c), lambda r, c=c: _coordinate_series(r, "q", c),
+                                   lambda r, c=c: _coordinate_series(r, "v", c)))
     return out
+
+
+def _coordinate_series(run, quantity: str, c: str):
+    """A coordinate's series in ``run``, or None where that run has no such coordinate (a compared run)."""
+    return run.traj.series(quantity, c) if c in _coordinates(run.traj) else None
 
 
 __all__ = ["write_figures", "figures", "event_kind", "switch_energy_changes", "IMPULSE_SIGNS", "WITH_IMPACT",

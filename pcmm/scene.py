@@ -613,8 +613,11 @@ class _Builder:
                 self.p.add(f"{where}.{name}", _too_large_angle(val))
             else:
                 out[name] = float(val)
+        # in a closed loop the dependent velocities follow from the independent ones: they may be left out
+        # (pcmm.assembly says which given or missing velocity it replaced or took as zero)
+        optional = where == "initial.v" and bool(config.cut_joints)
         for name in movable:
-            if name not in table:
+            if name not in table and not optional:
                 self.p.add(where, f"joint '{name}' of configuration '{config.name}' has no value; "
                            f"give every movable joint: {', '.join(movable)}")
         return out

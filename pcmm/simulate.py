@@ -266,6 +266,8 @@ def simulate(scene: Scene | str | os.PathLike, options: RunOptions = RunOptions(
     finally:  # a partial run keeps them too (pcmm derive writes what it reached)
         stats["configurations_built"] = list(mech.built)
         stats["derived_configurations"] = mech.derived
+        # which evaluations each configuration ran: "compiled", or "python" and why (pcmm.compiled)
+        stats["evaluations"] = {name: mech[name].coords.evaluations for name in mech.built}
     # the guards that did not fire: computed when read (it reads the final segments' coordinates)
     stats.defer("closest_approach", lambda cfg=cfg: closest_approach(scene, cfg, traj))
     return traj

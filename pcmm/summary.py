@@ -29,17 +29,26 @@ def summary(traj: Trajectory, initial_configuration: str | None = None) -> dict:
 def event_table(traj: Trajectory) -> str:
     if not traj.events:
         return "no configuration transformation before t_end"
-    head = (f"{'t [s]':>13}  {'event':<18} {'kind':<7} {'type':<6} {'from -> to':<22} "
+    wn = min(40, max(len("event"), *(len(e["name"]) for e in traj.events)))
+    wc = min(48, max(len("from -> to"), *(len(e["from"] + " -> " + e["to"]) for e in traj.events)))
+    head = (f"{'t [s]':>13}  {'event':<{wn}} {'kind':<7} {'type':<6} {'from -> to':<{wc}} "
             f"{'vn- [m/s]':>11} {'vn+ [m/s]':>11} {'P [N s]':>11} {'KE- [J]':>11} {'KE+ [J]':>11}")
     rows = [head, "-" * len(head)]
+
+    def num(x):
+        return f"{x + 0.0:11.4e}"  # + 0.0: no "-0.0000e+00"
     for e in traj.events:
+        imp = e.get("impulse") or {}
+        note = ""
+        if imp.get("joint"):  # a joint stop: its own coordinate's rate, its moment at the lever arm
+            note = (f"  joint stop {imp['joint']}: vn in rad/s, P at its {imp['arm']:g} m arm" if imp.get("arm")
+                    else f"  joint stop {imp['joint']}: vn in rad/s, P in N m s (no arm)")
         rows.append(
-            f"{e['t']:13.9f}  {e['name'][:18]:<18} {e['kind']:<7} {e['transition']:<6} "
-            f"{(e['from'] + ' -> ' + e['to'])[:22]:<22} {e['normal_velocity']['before']:11.4e} "
-            f"{e['normal_velocity']['after']:11.4e} {e['impulse']['normal']:11.4e} "
-            f"{e['kinetic_energy_before']:11.4e} {e['kinetic_energy_after']:11.4e}"
-            + ("  merge" if e["merge"] else "")
-            + (f"  joint stop {e['impulse']['joint']}: vn in rad/s" if (e.get("impulse") or {}).get("joint") else ""))
+            f"{e['t']:13.9f}  {e['name'][:wn]:<{wn}} {e['kind']:<7} {e['transition']:<6} "
+            f"{(e['from'] + ' -> ' + e['to'])[:wc]:<{wc}} {num(e['normal_velocity']['before'])} "
+            f"{num(e['normal_velocity']['after'])} {num(imp['normal'])} "
+            f"{num(e['kinetic_energy_before'])} {num(e['kinetic_energy_after'])}"
+            + ("  merge" if e["merge"] else "") + note)
     if len(rows) > 42:
         rows = rows[:22] + [f"  ... {len(rows) - 42} more events (all in the summary JSON) ..."] + rows[-20:]
     return "\n".join(rows)

@@ -159,7 +159,7 @@ urdf = "{name}_latched.urdf"
 # The crank angle is kept; J2 and J3 are rough guesses, solved so the loop closes. The branch
 # (the sign of the coupler-rocker angle) picks the assembly, never the mirrored one.
 q = {{ J1 = "90 deg", J2 = "{round(math.degrees(j2))} deg", J3 = "{round(math.degrees(j3))} deg" }}
-v = {{ J1 = 0.0, J2 = 0.0, J3 = 0.0 }}
+v = {{ J1 = 0.0 }}                   # J2's and J3's velocities follow from the loop
 independent = ["J1"]
 branch = {{ between = ["coupler", "rocker"], sign = "-" }}
 

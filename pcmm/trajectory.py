@@ -291,6 +291,19 @@ class Trajectory:
         """
         names_of = {"theta": "links", "omega": "links", "xy": "links", "q": "coordinates",
                     "v": "coordinates", "forces": "force_names", "constraint_forces": "constraint_labels"}
+        unnamed = ("kinetic", "potential")
+        if quantity not in names_of and quantity not in unnamed:
+            raise UsageError(f"series: no quantity {quantity!r}; the quantities are "
+                             f"{', '.join([*names_of, *unnamed])}")
+        if quantity in unnamed and name is not None:
+            raise UsageError(f"series: {quantity!r} is the whole mechanism's: give no name (got {name!r})")
+        if quantity in names_of:
+            known = list(dict.fromkeys(n for s in self.segments for n in getattr(s, names_of[quantity])))
+            if name not in known:
+                what = {"links": "link", "coordinates": "coordinate", "force_names": "force",
+                        "constraint_labels": "constraint row"}[names_of[quantity]]
+                head = f"series: {quantity!r} needs a {what}" if name is None else f"series: no {what} {name!r} in this run"
+                raise UsageError(f"{head}; the run's {what}s: {', '.join(known) or '(none)'}")
         parts = []
         for s in self.segments:
             arr = getattr(s, quantity)

@@ -476,3 +476,80 @@ def test_driven_joint_keeps_its_drive_value(tmp_path):
         assert cfg.coords.residual(0.0, q) < 1e-12
         if new.startswith("B"):
             assert q[iB] == pytest.approx(q_ref[iB] + 4 * math.pi, abs=1e-9)
+
+
+# ---- [initial] v of a closed loop: the constraints fix the dependent and driven velocities ----------------------------
+def _example2_with_v(tmp_path, v: str):
+    text = (EXAMPLES / "double_folded.toml").read_text().replace("../urdf/", f"{URDF_DIR}/")
+    assert "v = { D = 0.0 }" in text
+    path = tmp_path / "v.toml"
+    path.write_text(text.replace("v = { D = 0.0 }", v))
+    scene = pcmm.load_scene(path)
+    return scene, Mechanism(scene)["config1"]
+
+
+def test_given_dependent_velocities_that_the_loop_forbids_are_replaced_and_said(tmp_path):
+    """Example 2 as shipped before: B and E given at rest. The loop and the drive (A' = pi/5)
+    fix them: B' = -0.363742, E' = 0.0165351 rad/s and m/s, which satisfy Phi_q v + Phi_t = 0."""
+    scene, cfg = _example2_with_v(tmp_path, "v = { A = 0.6283185307179586, B = 0.0, D = 0.0, E = 0.0 }")
+    q, v, notes = assemble(scene, cfg)
+    (note,) = [n for n in notes if "velocities" in n]
+    assert "B given 0, now -0.363742" in note and "E given 0, now 0.0165351" in note
+    assert "kept as given: D" in note and "A given" not in note  # A's given value is its drive's
+    _, Jq, _ = cfg.coords._phi(0.0, q)
+    np.testing.assert_allclose(Jq @ v + cfg.coords._phi_t(0.0), 0.0, atol=1e-12)  # an independent check
+    assert v[cfg.joint_slice["A"].start] == pytest.approx(math.pi / 5, abs=1e-15)
+    # the same state as from the shipped scene, which gives only D's
+    scene2, cfg2 = _example2_with_v(tmp_path, "v = { D = 0.0 }")
+    q2, v2, notes2 = assemble(scene2, cfg2)
+    assert not [n for n in notes2 if "velocit" in n]
+    np.testing.assert_allclose(v2, v, rtol=0, atol=1e-15)
+
+
+def test_an_independent_velocity_left_out_starts_at_rest_and_is_said(tmp_path):
+    scene, cfg = _example2_with_v(tmp_path, "v = { A = 0.6283185307179586 }")
+    q, v, notes = assemble(scene, cfg)
+    assert any("initial.v has no value for D" in n and "starts at rest" in n for n in notes), notes
+    assert v[cfg.joint_slice["D"].start] == 0.0
+
+
+def test_a_tree_still_needs_every_velocity(tmp_path):
+    path = copy_example(tmp_path, "three_bar.toml", example_text().replace("v = {", "v = { O9 = 0.0,", 1))
+    with pytest.raises(SceneError, match="initial.v.O9"):
+        pcmm.load_scene(path)
+    text = example_text()
+    start = text.index("v = {")
+    end = text.index("}", start)
+    path = copy_example(tmp_path, "three_bar.toml", text[:start] + "v = { O1 = 0.0 }" + text[end + 1:])
+    with pytest.raises(SceneError, match="has no value; give every movable joint"):
+        pcmm.load_scene(path)
+
+
+def test_a_guard_crossed_against_its_direction_says_so(tmp_path):
+    """Example 1's latch written `decreasing`: O3's angle goes up through pi at t_p = 0.1672851 s
+    (the latch instant of the shipped scene), so the message names that crossing and `direction`,
+    not a distance "past it"."""
+    text = example_text().replace('value = 3.141592653589793, direction = "increasing"',
+                                  'value = 3.141592653589793, direction = "decreasing"')
+    assert 'direction = "decreasing"' in text
+    traj = pcmm.simulate(copy_example(tmp_path, "three_bar.toml", text), pcmm.RunOptions(t_end=0.3))
+    assert traj.events == []
+    (rec,) = traj.stats["closest_approach"]
+    assert rec["crossed_against"] == pytest.approx(0.16728511518199546, abs=1e-4)  # linear between samples
+    from pcmm.approach import describe
+    assert "crossed 3.14159265 increasing at t = 0.1672" in describe([rec]) and "check `direction`" in describe([rec])
+
+
+def test_a_timer_the_run_was_not_there_for_says_so(tmp_path):
+    """A release from Example 1's latched configuration timed at 0.1 s, before the latch at
+    0.167 s: it never fires, and the run says why instead of ending silently locked."""
+    text = example_text() + (
+        '\n[[transitions]]\nname = "early release"\ntype = "release"\nfrom = "config2"\nto = "config1"\n'
+        'guard = { type = "time", at = 0.1 }\n')
+    traj = pcmm.simulate(copy_example(tmp_path, "three_bar.toml", text), pcmm.RunOptions(t_end=0.3))
+    assert [e["name"] for e in traj.events] == ["O3 latches"]
+    (rec,) = traj.stats["closest_approach"]
+    from pcmm.approach import describe
+    message = describe([rec])
+    assert message.startswith("time guard of 'early release' (at = 0.1 s) did not fire: the run entered 'config2' "
+                              "at t = 0.167285115 s, after it")

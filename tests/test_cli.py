@@ -218,3 +218,15 @@ def test_output_files_honour_the_umask(run_files):
     os.umask(umask)
     for p in run_files:
         assert p.stat().st_mode & 0o777 == 0o666 & ~umask, p
+
+
+def test_quiet_keeps_the_warnings(tmp_path, capsys):
+    """--quiet silences the progress bar and the event table, never a warning: Example 2 with
+    B's velocity given at rest, which the loop replaces."""
+    text = (EXAMPLES / "double_folded.toml").read_text().replace("../urdf/", f"{EXAMPLES.parent / 'urdf'}/")
+    path = tmp_path / "v.toml"
+    path.write_text(text.replace("v = { D = 0.0 }", "v = { B = 0.0, D = 0.0 }"))
+    assert pcmm.cli.main(["run", str(path), "--quiet", "--t-end", "0.05", "--out", str(tmp_path / "r.npz")]) == 0
+    captured = capsys.readouterr()
+    assert "pcmm: warning:" in captured.err and "B given 0, now -0.363742" in captured.err
+    assert "slider stop E" not in captured.out  # no event table or closest-approach lines

@@ -153,8 +153,10 @@ def test_whole_runs_are_the_python_runs(tmp_path, monkeypatch, scene):
     compiled._CACHE.__dict__.clear()
     fast = pcmm.simulate(pcmm.load_scene(path))
     assert compiled.trees_built() == len(set(fast.visited())), "a configuration ran the Python right-hand side"
+    assert set(fast.stats["evaluations"].values()) == {"compiled"}  # what the run tells its user
     monkeypatch.setenv(compiled.ENV, "0")
     slow = pcmm.simulate(pcmm.load_scene(path))
+    assert set(slow.stats["evaluations"].values()) == {"python: PCMM_COMPILED=0 in the environment"}
     assert len(fast.events) >= 1
     assert [e["name"] for e in fast.events] == [e["name"] for e in slow.events]
     for a, b in zip(fast.events, slow.events):
@@ -208,6 +210,7 @@ def test_example_2_runs_as_without_it(monkeypatch):
     compiled._CACHE.__dict__.clear()
     fast = pcmm.simulate(pcmm.load_scene(EXAMPLES / "double_folded.toml"))
     assert compiled.trees_built() >= 1
+    assert fast.stats["evaluations"] == {"config1": "compiled", "config2": "compiled"}
     monkeypatch.setenv(compiled.ENV, "0")
     slow = pcmm.simulate(pcmm.load_scene(EXAMPLES / "double_folded.toml"))
     assert len(fast.events) == len(slow.events) >= 40
@@ -226,3 +229,14 @@ def test_large_models_stay_on_the_python_evaluations():
     n = compiled.MAX_NV
     model = pin.buildModelFromXML(chain_urdf([Bar(0.125, 0.2)] * n))
     assert _tree_rhs(model, np.zeros(n), np.zeros((n, 2 * n))) is not None
+
+
+def test_a_configuration_it_cannot_take_says_why_in_the_stats(tmp_path):
+    """A free bar on a planar joint (nq = 4, nv = 3) runs the Python right-hand side, and the
+    run's stats say so."""
+    import builders
+    urdf = builders.free_bar_urdf(1.0, 0.5)
+    doc = builders.scene_doc({"free": "bar.urdf"}, {"P": [0.0, 0.0, 0.0]}, {"P": [0.1, 0.0, 0.0]})
+    path = builders.write_scene(tmp_path, doc, {"bar.urdf": urdf})
+    traj = pcmm.simulate(pcmm.load_scene(path), pcmm.RunOptions(t_end=0.05))
+    assert traj.stats["evaluations"] == {"free": "python: not compiled: a planar joint"}

@@ -734,3 +734,19 @@ def test_simulate_takes_a_path_and_names_a_wrong_argument(tmp_path):
         pcmm.simulate(path, {"t_end": 1.0})
     with pytest.raises(pcmm.SceneError, match="missing.toml: scene file not found"):
         pcmm.simulate(tmp_path / "missing.toml")
+
+
+def test_series_names_what_it_does_not_have():
+    """traj.series("theta", "crank9") used to give an array of NaN, and a misspelt quantity a bare
+    AttributeError: both are messages listing what the run has."""
+    traj = pcmm.simulate(builders.EXAMPLES / "three_bar.toml", pcmm.RunOptions(t_end=0.2))
+    with pytest.raises(pcmm.UsageError, match=r"no link 'crank9' in this run; the run's links: frame, link1, link2, link3"):
+        traj.series("theta", "crank9")
+    with pytest.raises(pcmm.UsageError, match="no quantity 'thetas'; the quantities are theta, omega"):
+        traj.series("thetas", "link1")
+    with pytest.raises(pcmm.UsageError, match="'q' needs a coordinate; the run's coordinates: O1, O2, O3"):
+        traj.series("q")
+    with pytest.raises(pcmm.UsageError, match="'kinetic' is the whole mechanism's"):
+        traj.series("kinetic", "link1")
+    q3 = traj.series("q", "O3")  # a coordinate the run has, absent after the latch: NaN there
+    assert np.isnan(q3[-1]) and not np.isnan(q3[0])

@@ -244,3 +244,19 @@ def test_the_holding_figure_plots_each_locks_recorded_hold(runs):
     curves = {line.get_label(): line for line in ax.get_lines()}
     for label, run in ((plots.WITH_IMPACT, runs[0]), (plots.WITHOUT_IMPACT, runs[1])):
         np.testing.assert_array_equal(curves[label].get_ydata(), run.series("constraint_forces", "O3.hold"))
+
+
+@pytest.mark.parametrize("t_end", [0.2, 1.0, 3.0])
+def test_the_first_impulse_label_stays_inside_the_axes(t_end):
+    """Example 1's latch at 0.167 s labelled on a time axis of 0.2, 1 and 3 s: the label sits
+    left of the stem unless the stem is in the axes' left third, and never runs over the y axis
+    or past the right edge (a newcomer's five-bar, first impact at 0.095 of 1 s, had it over the
+    tick labels)."""
+    traj = pcmm.simulate(SCENE, pcmm.RunOptions(t_end=t_end))
+    fig = traj.plot()["impulses"]
+    ax = fig.axes[0]
+    (label,) = [t for t in ax.texts if "N·s" in t.get_text()]
+    fig.canvas.draw()
+    box, frame = label.get_window_extent(), ax.get_window_extent()
+    assert box.x0 >= frame.x0 and box.x1 <= frame.x1, (t_end, box, frame)
+    assert label.get_ha() == ("left" if 0.167 < t_end / 3 else "right")

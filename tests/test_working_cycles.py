@@ -80,7 +80,9 @@ def test_pendulum_striking_a_joint_stop(tmp_path):
                                                       math.cos(th) * ev["impulse"]["normal"]], abs=1e-9)
     assert ev["contact_point"] == pytest.approx([0.3 * math.cos(th), 0.3 * math.sin(th)], abs=1e-12)
     from pcmm.summary import event_table  # the table says the joint stop's vn is a joint rate
-    assert "joint stop J1: vn in rad/s" in event_table(traj).splitlines()[2]
+    row = event_table(traj).splitlines()[2]
+    assert "joint stop J1: vn in rad/s, P at its 0.3 m arm" in row
+    assert f"{ev['impulse']['normal']:11.4e}" in row and "-0.0000e+00" not in row
 
 
 def test_joint_stop_needs_a_guard_on_its_joint(tmp_path):
