@@ -86,7 +86,7 @@ def main(argv=None):
             g["events"] = {"before": nb, "now": nn}
             g["rhs"] = rhs
             print(f"[{time.perf_counter() - T0:5.1f} s] pair {k}: {name}: before {b:.1f} ms, now {n:.1f} ms "
-                  f"({rhs} tree right-hand sides), {b / n:.2f}x; PCMM_COMPILED=0 {p:.1f} ms, {b / p:.2f}x", flush=True)
+                  f"({rhs} evaluations), {b / n:.2f}x; PCMM_COMPILED=0 {p:.1f} ms, {b / p:.2f}x", flush=True)
     rows = []
     for name, g in got.items():
         r, rp = g["ratio"], g["ratio_python"]
