@@ -19,6 +19,7 @@ configuration uses it.  Otherwise the Python evaluation runs and :func:`why_not`
 """
 from __future__ import annotations
 
+import importlib.util
 import os
 import threading
 from typing import Callable
@@ -26,13 +27,18 @@ from typing import Callable
 import numpy as np
 import pinocchio as pin  # loaded first: the extension finds libpinocchio_default by its soname
 
-try:
-    from . import _tree_dynamics
-except ImportError as exc:  # not built (no compiler at install time) or not loadable here
+if importlib.util.find_spec(f"{__package__}._tree_dynamics") is None:  # pip had no C++ compiler, say
     _tree_dynamics = None
-    _UNAVAILABLE = f"the extension pcmm._tree_dynamics is not available ({exc})"
+    _UNAVAILABLE = ("pcmm._tree_dynamics was not built when pcmm was installed (no C++ compiler?): the Python "
+                    "evaluations run, with the same results; with g++ at hand, reinstalling pcmm builds it")
 else:
-    _UNAVAILABLE = None
+    try:
+        from . import _tree_dynamics
+    except ImportError as exc:  # built, but not loadable here (another Pinocchio library, say)
+        _tree_dynamics = None
+        _UNAVAILABLE = f"pcmm._tree_dynamics does not load here ({exc}): reinstall pcmm to rebuild it"
+    else:
+        _UNAVAILABLE = None
 
 
 def version_problem(built: str, running: str) -> str | None:

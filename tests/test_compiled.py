@@ -240,3 +240,20 @@ def test_a_configuration_it_cannot_take_says_why_in_the_stats(tmp_path):
     path = builders.write_scene(tmp_path, doc, {"bar.urdf": urdf})
     traj = pcmm.simulate(pcmm.load_scene(path), pcmm.RunOptions(t_end=0.05))
     assert traj.stats["evaluations"] == {"free": "python: not compiled: a planar joint"}
+
+
+def test_without_the_extension_pcmm_runs_the_same_and_says_why(tmp_path):
+    """pcmm as pip installs it where there is no C++ compiler: the package without the
+    extension. It runs Example 1 to the same latch instant, and says why it is slower."""
+    import subprocess
+    import sys
+    from builders import ROOT
+    shutil.copytree(ROOT / "pcmm", tmp_path / "pcmm", ignore=shutil.ignore_patterns("*.so", "__pycache__"))
+    script = ("import pcmm, pcmm.compiled as c\n"
+              f"t = pcmm.simulate({str(EXAMPLES / 'three_bar.toml')!r})\n"
+              "print(repr(t.events[0]['t']))\nprint(c.why_not())\nprint(t.stats['evaluations']['config1'])\n")
+    out = subprocess.run([sys.executable, "-c", script], cwd=tmp_path, env={**__import__("os").environ,
+                         "PYTHONPATH": str(tmp_path)}, capture_output=True, text=True, check=True).stdout.splitlines()
+    assert abs(float(out[0]) - 0.16728511518199546) <= 1e-12
+    assert out[1].startswith("pcmm._tree_dynamics was not built when pcmm was installed (no C++ compiler?)")
+    assert out[2] == "python: " + out[1]
