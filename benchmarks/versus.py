@@ -3,11 +3,12 @@
 ``whole_run.py`` compares against a ``--before`` file measured in another run, through a
 reference workload (``pinocchio.aba`` calls) that is meant to follow the machine's speed; on this
 shared machine that reference itself moved by 20 % between two runs minutes apart (25.0 and
-30.4 ms), which moved every ratio with it.  Here the two trees are measured in the same run
-instead, in alternating child processes (``before, now, before, now, ...``), each process timing
-``pcmm.simulate`` on its own tree's example scene (CPU time, after one warm-up run, median of its
-repetitions); the ratio of each pair is formed from neighbours in time, and the figure is the
-median over the pairs.
+30.4 ms), which moved every ratio with it.  Here the trees are measured in the same run instead,
+in alternating child processes (``before, now, now with PCMM_COMPILED=0, before, ...``), each
+process timing ``pcmm.simulate`` on its own tree's example scene (CPU time, after one warm-up run,
+median of its repetitions); the ratios of each triple are formed from neighbours in time, and the
+figures are the medians over the triples.  The third child runs these sources on their Python
+evaluations alone, as on a machine where the optional compiled extension was not built.
 
     git archive a520a99 | tar -x -C /tmp/before
     python benchmarks/versus.py /tmp/before --label a520a99 [--pairs 5] [--out docs/benchmarks]
@@ -60,7 +61,7 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("before", type=Path, help="a source tree of pcmm (pcmm/, examples/, urdf/)")
     ap.add_argument("--label", help="what the before tree is (e.g. its commit); default its folder")
-    ap.add_argument("--pairs", type=int, default=5)
+    ap.add_argument("--pairs", type=int, default=5, help="how many triples (before, now, now without the extension)")
     ap.add_argument("--out", type=Path, default=DOCS)
     args = ap.parse_args(argv)
     before = args.before.resolve()
