@@ -574,6 +574,10 @@ class _Builder:
                        f"coordinate guard, which must measure that joint (measure = {{ joint = \"{c['joint']}\" }}) "
                        f"or the angle between its links (between = [\"{uj.parent}\", \"{uj.child}\"])")
             return None
+        if uj.type == "prismatic" and c["arm"] is not None:
+            self.p.add(f"{where}.arm", f"= {c['arm']!r}: a lever arm belongs to a revolute joint stop; the stop on "
+                       f"prismatic joint '{c['joint']}' already reports its axial impulse (N s): remove `arm`")
+            return None
         return ContactSpec(uj.parent, None, uj.child, None, None, joint=c["joint"], arm=c["arm"],
                            stop_value=float(value), stop_sign=sign * guard.direction)
 

@@ -31,24 +31,36 @@ def event_table(traj: Trajectory) -> str:
         return "no configuration transformation before t_end"
     wn = min(40, max(len("event"), *(len(e["name"]) for e in traj.events)))
     wc = min(48, max(len("from -> to"), *(len(e["from"] + " -> " + e["to"]) for e in traj.events)))
-    head = (f"{'t [s]':>13}  {'event':<{wn}} {'kind':<7} {'type':<6} {'from -> to':<{wc}} "
+    wt = max(6, *(len(e["transition"]) for e in traj.events))
+    head = (f"{'t [s]':>13}  {'event':<{wn}} {'kind':<7} {'type':<{wt}} {'from -> to':<{wc}} "
             f"{'vn- [m/s]':>11} {'vn+ [m/s]':>11} {'P [N s]':>11} {'KE- [J]':>11} {'KE+ [J]':>11}")
-    rows = [head, "-" * len(head)]
+    rows = []
 
     def num(x):
         return f"{x + 0.0:11.4e}"  # + 0.0: no "-0.0000e+00"
     for e in traj.events:
         imp = e.get("impulse") or {}
         note = ""
-        if imp.get("joint"):  # a joint stop: its own coordinate's rate, its moment at the lever arm
+        if imp.get("joint") and "moment" in imp:  # a revolute joint stop: its rate, its moment (at the arm)
             note = (f"  joint stop {imp['joint']}: vn in rad/s, P at its {imp['arm']:g} m arm" if imp.get("arm")
                     else f"  joint stop {imp['joint']}: vn in rad/s, P in N m s (no arm)")
+        elif imp.get("joint"):  # a prismatic joint stop: its rate and axial impulse, the header's units
+            note = f"  joint stop {imp['joint']} (prismatic): vn and P along its axis"
         rows.append(
-            f"{e['t']:13.9f}  {e['name'][:wn]:<{wn}} {e['kind']:<7} {e['transition']:<6} "
+            f"{e['t']:13.9f}  {e['name'][:wn]:<{wn}} {e['kind']:<7} {e['transition']:<{wt}} "
             f"{(e['from'] + ' -> ' + e['to'])[:wc]:<{wc}} {num(e['normal_velocity']['before'])} "
             f"{num(e['normal_velocity']['after'])} {num(imp['normal'])} "
             f"{num(e['kinetic_energy_before'])} {num(e['kinetic_energy_after'])}"
             + ("  merge" if e["merge"] else "") + note)
-    if len(rows) > 42:
-        rows = rows[:22] + [f"  ... {len(rows) - 42} more events (all in the summary JSON) ..."] + rows[-20:]
-    return "\n".join(rows)
+    # a long run: its first and last 20 events, and every transformation between them (a merge, a
+    # latch, a release) with the bounces in between counted, not shown
+    shown = [i for i, e in enumerate(traj.events)
+             if i < 20 or i >= len(traj.events) - 20 or e["merge"] or e["transition"] != "stop"]
+    out, last = [head, "-" * len(head)], -1
+    for i in shown:
+        if i > last + 1:
+            n = i - last - 1
+            out.append(f"  ... {n} more event{'s' if n > 1 else ''} (all in the summary JSON) ...")
+        out.append(rows[i])
+        last = i
+    return "\n".join(out)

@@ -244,3 +244,76 @@ def test_example1_stop_variant_flight_energy_at_round_off():
     assert macro["impacts"] >= 1 and macro["flights"] == macro["impacts"]  # the last flight runs to t_end
     assert macro["flight_energy_relative_max"] < 1e-8
     assert macro["guard_residual_max"] < 1e-12
+
+
+# ---- re-arming with a point contact: a newcomer's telescoping RRP arm (helper-14) --------------------------------------
+def _telescoping_arm(folder: Path, point_contact: bool) -> Path:
+    """Shoulder and elbow revolute, a prismatic `slide` in the forearm pulled in by a 10 N/m
+    spring; the slider's end stop at s = 0.15 m (e = 0.5) as a point contact (gap guard) or as a
+    joint stop, merging into the arm with `slide` locked; released when the hold turns tensile."""
+    B = builders
+    urdf = B.robot_xml(
+        "rrp", B.link_xml("frame"), B.joint_xml("shoulder", "revolute", "frame", "upper"),
+        B.solid_xml("upper", 0.5, 0.00375, com=(0.15, 0.0)),
+        B.joint_xml("elbow", "revolute", "upper", "fore_in", xyz=(0.3, 0.0)),
+        B.solid_xml("fore_in", 0.4, 0.0020833333333333333, com=(0.125, 0.0)),
+        B.joint_xml("slide", "prismatic", "fore_in", "fore_out", axis=(1.0, 0.0, 0.0)),
+        B.solid_xml("fore_out", 0.3, 0.001, com=(0.1, 0.0)))
+    if point_contact:
+        guard = {"type": "gap", "value": 0.0, "direction": "decreasing"}
+        contact = {"a": "fore_in", "point_a": [0.15, 0.0], "b": "fore_out", "point_b": [0.0, 0.0], "normal": [-1.0, 0.0]}
+    else:
+        guard = {"type": "coordinate", "measure": {"joint": "slide"}, "value": 0.15, "direction": "increasing"}
+        contact = {"joint": "slide"}
+    spring = {"name": "slide spring", "type": "spring", "on": {"joint": "slide"}, "measure": {"joint": "slide"},
+              "k": 10.0, "rest": 0.0, "configurations": ["free"]}
+    doc = B.base_doc("rrp", "free", {"free": "rrp.urdf", "locked": {"from": "free", "lock": ["slide"]}},
+                     {"shoulder": 0.0, "elbow": 0.0, "slide": 0.05}, {"shoulder": 0.0, "elbow": 0.0, "slide": 0.0},
+                     t_end=1.0, forces=[spring],
+                     transitions=[B.stop("slide end stop", "free", 0.5, guard, contact, merge_to="locked")])
+    return B.write_scene(folder, doc, {"rrp.urdf": urdf})
+
+
+def test_a_point_contact_keeps_bouncing_where_its_gap_passes_zero_after_a_bounce(tmp_path):
+    """The slider's 12th bounce left the gap a hair on the fired side; the re-armed guard read
+    |gap|, which dipped back to 0 as the slider moved off, and the step's cubic model took that
+    for a crossing: "the guard fired but the contact is separating" at the default rtol.  Now the
+    point contact bounces on as the joint stop does: the same events (merge, tensile release)
+    within 1e-10 s, and each bounce keeps Newton's law."""
+    (tmp_path / "p").mkdir()
+    (tmp_path / "j").mkdir()
+    point = pcmm.simulate(_telescoping_arm(tmp_path / "p", True))
+    joint = pcmm.simulate(_telescoping_arm(tmp_path / "j", False))
+    assert [(e["transition"], e["merge"]) for e in point.events] == [(e["transition"], e["merge"]) for e in joint.events]
+    assert len(point.events) > 20 and any(e["merge"] for e in point.events)
+    assert any(e["transition"] == "release" for e in point.events)
+    assert max(abs(a["t"] - b["t"]) for a, b in zip(point.events, joint.events)) < 1e-10
+    for e in point.events:
+        if e["transition"] == "stop" and not e["merge"]:
+            assert e["normal_velocity"]["after"] == pytest.approx(-0.5 * e["normal_velocity"]["before"], rel=1e-9)
+
+
+def test_the_event_table_keeps_every_transformation_of_a_long_run(tmp_path):
+    """46 events: the table shows the first and last 20 and, between them, the merge and the
+    tensile release that a newcomer was looking for (they were cut out), and a prismatic joint
+    stop's row keeps the header's units (it said rad/s and N m s)."""
+    from pcmm.summary import event_table
+    traj = pcmm.simulate(_telescoping_arm(tmp_path, False), pcmm.RunOptions(t_end=3.0))
+    table = event_table(traj)
+    assert len(traj.events) > 42
+    for e in traj.events:
+        if e["merge"] or e["transition"] == "release":
+            assert f"{e['t']:13.9f}" in table, e["t"]
+    assert "more events (all in the summary JSON)" in table
+    assert "joint stop slide (prismatic): vn and P along its axis" in table and "rad/s" not in table
+
+
+def test_an_arm_on_a_prismatic_joint_stop_is_refused(tmp_path):
+    """It was silently ignored (a prismatic stop reports its axial impulse)."""
+    path = _telescoping_arm(tmp_path, False)
+    text = path.read_text()
+    assert text.endswith('[transitions.contact]\njoint = "slide"\n')
+    path.write_text(text + "arm = 0.1\n")
+    assert "arm = 0.1" in path.read_text()
+    with pytest.raises(pcmm.SceneError, match=r"contact.arm: = 0.1: a lever arm belongs to a revolute joint stop"):
+        pcmm.load_scene(path)
