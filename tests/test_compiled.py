@@ -249,11 +249,17 @@ def test_without_the_extension_pcmm_runs_the_same_and_says_why(tmp_path):
     import sys
     from builders import ROOT
     shutil.copytree(ROOT / "pcmm", tmp_path / "pcmm", ignore=shutil.ignore_patterns("*.so", "__pycache__"))
-    script = ("import pcmm, pcmm.compiled as c\n"
+    # an editable install's finder (setuptools) maps pcmm._tree_dynamics to the source tree by name,
+    # past the copy's own folder: only the copy may be imported
+    script = ("import sys\n"
+              "sys.meta_path[:] = [f for f in sys.meta_path if '__editable__' not in getattr(f, '__module__', '')]\n"
+              "import pcmm, pcmm.compiled as c\n"
               f"t = pcmm.simulate({str(EXAMPLES / 'three_bar.toml')!r})\n"
-              "print(repr(t.events[0]['t']))\nprint(c.why_not())\nprint(t.stats['evaluations']['config1'])\n")
+              "print(repr(t.events[0]['t']))\nprint(c.why_not())\nprint(t.stats['evaluations']['config1'])\n"
+              "print(pcmm.__file__)\n")
     out = subprocess.run([sys.executable, "-c", script], cwd=tmp_path, env={**__import__("os").environ,
                          "PYTHONPATH": str(tmp_path)}, capture_output=True, text=True, check=True).stdout.splitlines()
+    assert out[3] == str(tmp_path / "pcmm" / "__init__.py")  # the copy, not the installed sources
     assert abs(float(out[0]) - 0.16728511518199546) <= 1e-12
     assert out[1].startswith("pcmm._tree_dynamics was not built when pcmm was installed (no C++ compiler?)")
     assert out[2] == "python: " + out[1]
