@@ -107,7 +107,7 @@ def test_sigterm_and_sighup_keep_the_partial_like_ctrl_c(tmp_path):
     """Two long bouncing-ball runs, stopped after 5 s of CPU by SIGTERM (a batch scheduler, ``timeout``)
     and SIGHUP (a closed terminal): each writes its partial trajectory and summary, marked
     partial, exits 128 + the signal, and its summary's step count is its samples'."""
-    scene = builders.ball(tmp_path / "scene", 1.0, t_end=5000.0)  # e = 1: it bounces for ever (a merged ball is not integrated)
+    scene = builders.endless_ball(tmp_path / "scene")
     procs = {}
     for sig in (signal.SIGTERM, signal.SIGHUP):
         d = tmp_path / sig.name

@@ -707,7 +707,7 @@ def test_fs_signals_at_random_moments(tmp_path):
     """SIGTERM or SIGINT at eight moments (0.2 .. 9 s: during start-up, the run, the saving) to runs
     that write a trajectory and a summary: never a traceback or a hang; the exit status says what
     happened; whatever was written is whole, and a partial is marked partial."""
-    scene = builders.ball(tmp_path / "scene", 1.0, t_end=5000.0)  # e = 1: it bounces for ever (a merged ball is not integrated)
+    scene = builders.endless_ball(tmp_path / "scene")
     rng = np.random.default_rng(14)
     plan = [(float(t), sig) for t, sig in zip(np.sort(rng.uniform(0.2, 9.0, 8)),
                                               [signal.SIGTERM, signal.SIGINT] * 4)]
