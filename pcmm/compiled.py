@@ -73,12 +73,12 @@ _last_reason: list[str] = []
 
 
 def enabled() -> bool:
-    """Whether the compiled right-hand side may be used in this process."""
+    """Whether the compiled evaluations may be used in this process."""
     return _tree_dynamics is not None and os.environ.get(ENV, "1") != "0"
 
 
 def why_not() -> str | None:
-    """Why the last configuration asked for it runs the Python right-hand side (None: it did not)."""
+    """Why the last configuration that asked runs the Python evaluations (None: it runs the compiled ones)."""
     if _UNAVAILABLE:
         return _UNAVAILABLE
     if os.environ.get(ENV, "1") == "0":
