@@ -210,6 +210,29 @@ PyObject *tree_finalize(Tree *self, PyObject *args) {
   Py_RETURN_NONE;
 }
 
+// a 1-D float array argument of n entries (the configuration's `whole`), or nullptr with the error set
+PyArrayObject *vector_arg(PyObject *obj, int n, const char *what, const char *whole) {
+  PyArrayObject *x = (PyArrayObject *)PyArray_FROMANY(obj, NPY_DOUBLE, 1, 1, NPY_ARRAY_IN_ARRAY);
+  if (x && PyArray_DIM(x, 0) != n) {
+    PyErr_Format(PyExc_ValueError, "%s has %zd entries, the configuration's %s has %d", what,
+                 (Py_ssize_t)PyArray_DIM(x, 0), whole, n);
+    Py_DECREF(x);
+    return nullptr;
+  }
+  return x;
+}
+
+// two new results, a vector (m) and a matrix (m x nv); false (both released, the error set) if not
+bool new_results(npy_intp m, npy_intp nv, PyArrayObject **vec, PyArrayObject **mat) {
+  const npy_intp dims[2] = {m, nv};
+  *vec = (PyArrayObject *)PyArray_SimpleNew(1, dims, NPY_DOUBLE);
+  *mat = (PyArrayObject *)PyArray_SimpleNew(2, dims, NPY_DOUBLE);
+  if (*vec && *mat) return true;
+  Py_XDECREF(*vec);
+  Py_XDECREF(*mat);
+  return false;
+}
+
 // rhs(t, y) -> [v, aba(q, v, Q0 - KD y)]: a new array each call (integrators keep what they get)
 PyObject *tree_rhs(Tree *self, PyObject *const *args, Py_ssize_t nargs) {
   if (nargs != 2) {
@@ -221,14 +244,8 @@ PyObject *tree_rhs(Tree *self, PyObject *const *args, Py_ssize_t nargs) {
     return nullptr;
   }
   const int nv = self->nv;
-  PyArrayObject *y = (PyArrayObject *)PyArray_FROMANY(args[1], NPY_DOUBLE, 1, 1, NPY_ARRAY_IN_ARRAY);
+  PyArrayObject *y = vector_arg(args[1], 2 * nv, "y", "state");
   if (!y) return nullptr;
-  if (PyArray_DIM(y, 0) != 2 * nv) {
-    PyErr_Format(PyExc_ValueError, "y has %zd entries, the configuration's state has %d",
-                 (Py_ssize_t)PyArray_DIM(y, 0), 2 * nv);
-    Py_DECREF(y);
-    return nullptr;
-  }
   npy_intp n = 2 * nv;
   PyArrayObject *out = (PyArrayObject *)PyArray_SimpleNew(1, &n, NPY_DOUBLE);
   if (!out) {
@@ -244,16 +261,6 @@ PyObject *tree_rhs(Tree *self, PyObject *const *args, Py_ssize_t nargs) {
   dy.tail(nv) = self->data->ddq;
   Py_DECREF(y);
   return (PyObject *)out;
-}
-
-PyArrayObject *vector_arg(PyObject *obj, int n, const char *what) {
-  PyArrayObject *x = (PyArrayObject *)PyArray_FROMANY(obj, NPY_DOUBLE, 1, 1, NPY_ARRAY_IN_ARRAY);
-  if (x && PyArray_DIM(x, 0) != n) {
-    PyErr_Format(PyExc_ValueError, "%s has %zd entries, the configuration has %d", what, (Py_ssize_t)PyArray_DIM(x, 0), n);
-    Py_DECREF(x);
-    return nullptr;
-  }
-  return x;
 }
 
 // the closure rows Phi_q (2m x nv) of the pairs, from placements and joint Jacobians already computed
@@ -276,14 +283,10 @@ PyObject *tree_point_rows(Tree *self, PyObject *const *args, Py_ssize_t nargs) {
     PyErr_SetString(PyExc_TypeError, "point_rows(q) takes one argument, on a finalized tree");
     return nullptr;
   }
-  PyArrayObject *q = vector_arg(args[0], self->nv, "q");
+  PyArrayObject *q = vector_arg(args[0], self->nv, "q", "coordinate vector");
   if (!q) return nullptr;
-  const npy_intp m = 2 * (npy_intp)self->pairs->size(), dims[2] = {m, self->nv};
-  PyArrayObject *phi = (PyArrayObject *)PyArray_SimpleNew(1, dims, NPY_DOUBLE);
-  PyArrayObject *rows = (PyArrayObject *)PyArray_SimpleNew(2, dims, NPY_DOUBLE);
-  if (!phi || !rows) {
-    Py_XDECREF(phi);
-    Py_XDECREF(rows);
+  PyArrayObject *phi, *rows;
+  if (!new_results(2 * (npy_intp)self->pairs->size(), self->nv, &phi, &rows)) {
     Py_DECREF(q);
     return nullptr;
   }
@@ -307,21 +310,13 @@ PyObject *tree_point_rows_and_bias(Tree *self, PyObject *const *args, Py_ssize_t
     PyErr_SetString(PyExc_TypeError, "point_rows_and_bias(q, v) takes two arguments, on a finalized tree");
     return nullptr;
   }
-  PyArrayObject *q = vector_arg(args[0], self->nv, "q");
+  PyArrayObject *q = vector_arg(args[0], self->nv, "q", "coordinate vector");
   if (!q) return nullptr;
-  PyArrayObject *v = vector_arg(args[1], self->nv, "v");
-  if (!v) {
+  PyArrayObject *v = vector_arg(args[1], self->nv, "v", "velocity vector");
+  PyArrayObject *rows, *bias;
+  if (!v || !new_results(2 * (npy_intp)self->pairs->size(), self->nv, &bias, &rows)) {
     Py_DECREF(q);
-    return nullptr;
-  }
-  const npy_intp m = 2 * (npy_intp)self->pairs->size(), dims[2] = {m, self->nv};
-  PyArrayObject *rows = (PyArrayObject *)PyArray_SimpleNew(2, dims, NPY_DOUBLE);
-  PyArrayObject *bias = (PyArrayObject *)PyArray_SimpleNew(1, dims, NPY_DOUBLE);
-  if (!rows || !bias) {
-    Py_XDECREF(rows);
-    Py_XDECREF(bias);
-    Py_DECREF(q);
-    Py_DECREF(v);
+    Py_XDECREF(v);
     return nullptr;
   }
   const Eigen::Map<const VectorXd> qv((const double *)PyArray_DATA(q), self->nv), vv((const double *)PyArray_DATA(v), self->nv);
