@@ -437,35 +437,43 @@ class PartitionedCoordinates(_Replayable):
         self._drive_rows = np.zeros((drives.size, self.nv))
         self._drive_rows[np.arange(drives.size), self._driven] = 1.0
         # revolute cut joints' rows in one compiled call where that is the same function (pcmm.compiled)
-        fast = None
-        if closure.revolute_only and closure.specs and not cfg.has_planar:
+        if not closure.specs:
+            fast, why = None, "not compiled: drives only"
+        elif cfg.has_planar or not closure.revolute_only:
+            fast, why = None, "not compiled: " + ("a planar joint" if cfg.has_planar else "prismatic or weld cut joints")
+        else:
             fast = compiled.closure_kinematics(cfg.model, closure.frames_a, closure.frames_b,
                                                self._python_point_rows, self._python_point_rows_and_bias)
+            why = compiled.why_not() or "not compiled"
         self._point_rows = fast.point_rows if fast else self._python_point_rows
         self._point_rows_and_bias_at = fast.point_rows_and_bias if fast else self._python_point_rows_and_bias
-        self.evaluations = "compiled" if fast else "python: " + (
-            compiled.why_not() or "not compiled" if closure.revolute_only and closure.specs and not cfg.has_planar
-            else "not compiled: " + ("drives only" if not closure.specs else
-                                     "a planar joint" if cfg.has_planar else "prismatic or weld cut joints"))
+        self.evaluations = "compiled" if fast else f"python: {why}"
 
     def forces_changed(self):
         """Nothing to rebuild: every evaluation reads ``cfg.forces``."""
 
     # -- constraint evaluation on the tree
+    def _kinematics(self, qp, v=None) -> None:
+        """One kinematics pass on the configuration's data through the Python binding: frame
+        placements and joint Jacobians at ``qp``, and with ``v`` also the velocities and the
+        accelerations at a = 0 (what the bias terms read), the Jacobians taken from them."""
+        cfg = self.cfg
+        if v is None:
+            pin.computeJointJacobians(cfg.model, cfg.data, qp)  # computes the placements itself
+        else:
+            pin.forwardKinematics(cfg.model, cfg.data, qp, v, self._zeros)
+            pin.computeJointJacobians(cfg.model, cfg.data)
+        pin.updateFramePlacements(cfg.model, cfg.data)
+
     def _python_point_rows(self, qp):
         """(Phi, Phi_q) of revolute cut joints at Pinocchio's ``qp``, through the Python binding."""
-        cfg = self.cfg
-        pin.computeJointJacobians(cfg.model, cfg.data, qp)  # computes the placements itself
-        pin.updateFramePlacements(cfg.model, cfg.data)
-        return self.closure.point_rows(cfg.model, cfg.data)
+        self._kinematics(qp)
+        return self.closure.point_rows(self.cfg.model, self.cfg.data)
 
     def _python_point_rows_and_bias(self, qp, v):
-        """(Phi_q, bias) of revolute cut joints at (``qp``, v) in one kinematics pass (placements,
-        velocities and accelerations at a = 0, then the Jacobians from them)."""
+        """(Phi_q, bias) of revolute cut joints at (``qp``, v) in one kinematics pass."""
+        self._kinematics(qp, v)
         cfg = self.cfg
-        pin.forwardKinematics(cfg.model, cfg.data, qp, v, self._zeros)
-        pin.computeJointJacobians(cfg.model, cfg.data)
-        pin.updateFramePlacements(cfg.model, cfg.data)
         _, Jq = self.closure.point_rows(cfg.model, cfg.data)
         return Jq, self.closure.point_bias(cfg.model, cfg.data)
 
@@ -476,12 +484,7 @@ class PartitionedCoordinates(_Replayable):
             phi, Jq = self._point_rows(qp)
             bias = None
         else:
-            if need_bias:  # placements, velocities and accelerations at a = 0, then Jacobians from them
-                pin.forwardKinematics(cfg.model, cfg.data, qp, v, self._zeros)
-                pin.computeJointJacobians(cfg.model, cfg.data)
-            else:  # computes the placements itself
-                pin.computeJointJacobians(cfg.model, cfg.data, qp)
-            pin.updateFramePlacements(cfg.model, cfg.data)
+            self._kinematics(qp, v if need_bias else None)
             phi, Jq, bias = self.closure.evaluate(cfg.model, cfg.data, need_bias)
         if self.drives.size:  # the rheonomic rows q_j - f_j(t): their Jacobian rows are constant
             f, _, f2 = self.drives.values(t)
