@@ -176,6 +176,11 @@ class Configuration:
                                        lambda link, xy: self.point(link, xy).frame_id)
         return compile_forces(forces, self.measure_row, self.target_column, self.nv, points)
 
+    @property
+    def angle_offsets(self) -> tuple[tuple[str, float], ...]:
+        """The run's offsets {link: 2 pi k} its measures read the link angles with, as sorted pairs."""
+        return tuple(sorted(self._angle_offsets.items()))
+
     def continue_angles(self, offsets: dict[str, float]) -> None:
         """Measure link angles as the run's series give them: ``A q + b`` plus the run's offset
         {link: 2 pi k} of each link.  A configuration entered from another may write a link's angle

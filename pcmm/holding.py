@@ -134,7 +134,8 @@ class Holds:
         spring pushes it into the pin carries that moment.  A configuration with the held joints
         free may drive, spring or damp otherwise (a motor on only while a stop holds), and the hold
         balances what acts in ``cfg``, not there."""
-        key = (ref.name, cfg.name, tuple(h.label for h in self.items))
+        # ref's measures as they are now (its angle offsets: pcmm.configuration.Configuration.continue_angles)
+        key = (ref.name, cfg.name, tuple(h.label for h in self.items), ref.angle_offsets)
         if key not in self._maps:
             mine = list(self.scene.forces_in(cfg.name))
             for h in self.items:
