@@ -1,4 +1,4 @@
-"""Build of pcmm's one optional compiled piece, ``pcmm._tree_dynamics`` (pcmm/compiled.py says
+"""Build of pcmm's one optional compiled piece, ``pcmm.model._tree_dynamics`` (pcmm/compiled.py says
 what it is and when it is used).  Everything else is in pyproject.toml.
 
 It compiles against the ``pin`` wheel's own Pinocchio headers and library and ``cmeel-eigen``'s
@@ -25,18 +25,18 @@ def _cmeel_prefix() -> Path | None:
 prefix = _cmeel_prefix()
 extensions = []
 if prefix is None:
-    print("pcmm: Pinocchio's headers were not found; building without pcmm._tree_dynamics", file=sys.stderr)
+    print("pcmm: Pinocchio's headers were not found; building without pcmm.model._tree_dynamics", file=sys.stderr)
 else:
     extensions.append(Extension(
-        "pcmm._tree_dynamics",
-        sources=["pcmm/_tree_dynamics.cpp"],
+        "pcmm.model._tree_dynamics",
+        sources=["pcmm/model/_tree_dynamics.cpp"],
         language="c++",
         include_dirs=[str(prefix / "include"), str(prefix / "include" / "eigen3"), numpy.get_include()],
         library_dirs=[str(prefix / "lib")],
         libraries=["pinocchio_default"],
         # the library Pinocchio's own bindings load; found by its soname once pinocchio is imported
         # (pcmm.compiled imports it first), or beside an installed pcmm in site-packages
-        extra_link_args=["-Wl,-rpath,$ORIGIN/../cmeel.prefix/lib"],
+        extra_link_args=["-Wl,-rpath,$ORIGIN/../../cmeel.prefix/lib"],
         # the definitions the pin wheel's Pinocchio was built with (its CMake config's interface)
         define_macros=[("NDEBUG", None), ("PINOCCHIO_ENABLE_TEMPLATE_INSTANTIATION", None),
                        ("BOOST_MPL_LIMIT_LIST_SIZE", "30"), ("BOOST_MPL_LIMIT_VECTOR_SIZE", "30"),

@@ -155,8 +155,8 @@ def timed_segments(log: list):
     """For the duration of a run, wrap every method of pcmm's integrator registry so that each
     integrated segment appends a :class:`SegmentTiming` to ``log`` (one perf_counter pair per
     segment).  pcmm itself is not modified."""
-    sim = importlib.import_module("pcmm.simulate")
-    integ = importlib.import_module("pcmm.integrators")  # method_for ("auto") picks from this module's registry
+    sim = importlib.import_module("pcmm.run.loop")
+    integ = importlib.import_module("pcmm.ode.integrators")  # method_for ("auto") picks from this module's registry
     original = sim.INTEGRATORS
 
     class Timed:

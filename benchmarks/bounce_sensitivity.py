@@ -28,7 +28,7 @@ def event_times(scene) -> list[float]:
 
 
 def growth(e: float) -> tuple[int, list[float]]:
-    integrators = sys.modules["pcmm.integrators"]
+    integrators = sys.modules["pcmm.ode.integrators"]
     scene = pcmm.load_scene(ROOT / "examples" / "three_bar_cycle.toml").with_values(
         {f"transitions.{n}.restitution": e for n in PINS})
     a = event_times(scene)

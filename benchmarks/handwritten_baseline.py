@@ -46,10 +46,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import DOCS, EXAMPLES, command_line, machine, machine_md, md_table, median, per_call  # noqa: E402
 
 import pcmm  # noqa: E402
-from pcmm.mechanism import Mechanism  # noqa: E402
-from pcmm.guards import make_guard  # noqa: E402
-from pcmm.integrators import INTEGRATORS  # noqa: E402
-from pcmm.simulate import RunOptions, resolve  # noqa: E402
+from pcmm.model.mechanism import Mechanism  # noqa: E402
+from pcmm.events.guards import make_guard  # noqa: E402
+from pcmm.ode.integrators import INTEGRATORS  # noqa: E402
+from pcmm.run.loop import RunOptions, resolve  # noqa: E402
 
 # ---- Table 1 -------------------------------------------------------------------------------
 RHO, AREA, G = 7800.0, 2e-4, 9.81
@@ -260,7 +260,7 @@ def main(argv=None):
          "scanner); atol = rtol × 1e-2. "
          f"Times: median of {args.reps} interleaved repetitions in this one run.", "",
          "* **pcmm (DOP853)**: `Mechanism(scene)['config1'].coords.rhs` (one `pin.aba` + the force elements' "
-         "`KD @ y`) with the latch guard, through `pcmm.integrators.INTEGRATORS['DOP853']` — exactly the call "
+         "`KD @ y`) with the latch guard, through `pcmm.ode.integrators.INTEGRATORS['DOP853']` — exactly the call "
          "`simulate` makes for this segment with the scenes' default method; state = relative joint angles.",
          *([f"* **pcmm ({m})**: the same through `INTEGRATORS['{m}']`"
             + (": Hairer's Fortran DOP853 (`scipy.integrate.ode`) steps, with his stabilized step-size control "

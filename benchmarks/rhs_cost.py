@@ -36,9 +36,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import DOCS, EXAMPLES, command_line, machine, machine_md, md_table, median, per_call  # noqa: E402
 
 import pcmm  # noqa: E402
-from pcmm.mechanism import Mechanism  # noqa: E402
-from pcmm.contact_laws import ContactPhase  # noqa: E402
-from pcmm.simulate import RunOptions, initial_state  # noqa: E402
+from pcmm.model.mechanism import Mechanism  # noqa: E402
+from pcmm.events.contact_laws import ContactPhase  # noqa: E402
+from pcmm.run.loop import RunOptions, initial_state  # noqa: E402
 
 
 def recorded_calls(fun, t0, y0, t_end, n_max=4000):

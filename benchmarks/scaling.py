@@ -53,7 +53,7 @@ from _common import (DOCS, command_line, loglog_slope, machine, machine_md, md_t
 
 import pcmm  # noqa: E402
 from pcmm import RunOptions  # noqa: E402
-from pcmm.mechanism import Mechanism  # noqa: E402
+from pcmm.model.mechanism import Mechanism  # noqa: E402
 
 L, RHO, AREA = 0.125, 7800.0, 2e-4
 M = RHO * AREA * L

@@ -1,6 +1,6 @@
 """Design-study throughput: runs/s for Examples 1 and 2, serially and on the local process pool.
 
-For each example, the same plan is swept twice through ``pcmm.sweep.sweep``: in this process
+For each example, the same plan is swept twice through ``pcmm.studies.sweep.sweep``: in this process
 (``workers=1``) and on the process pool over the machine's cores (worker start-up included, as
 a user sees it).  Speed-up = pool runs/s / serial runs/s; parallel efficiency = speed-up / workers.
 Each run's overhead beyond its solve is measured two ways: from the table (``wall_s`` - ``solve_s``
@@ -26,8 +26,8 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 import _common  # noqa: E402
 
 import pcmm  # noqa: E402
-from pcmm.mechanism import Mechanism  # noqa: E402
-from pcmm.sweep import Axis, ResultsTable, make_plan, sweep  # noqa: E402
+from pcmm.model.mechanism import Mechanism  # noqa: E402
+from pcmm.studies.sweep import Axis, ResultsTable, make_plan, sweep  # noqa: E402
 
 CASES = [
     # example, scene, t_end, axis, what the runs hold
@@ -66,7 +66,7 @@ def timed_sweep(scene, plan, options, workers, scheduler=None):
 
 def pieces(scene, values, options):
     """Median seconds of the per-run pieces beyond the solve, timed alone in this process."""
-    from pcmm.summary import summary
+    from pcmm.results.summary import summary
     rebuild, build, summ = [], [], []
     traj = pcmm.simulate(scene.with_values(values), options)
     for _ in range(15):
@@ -89,7 +89,7 @@ def worker_start_s() -> float:
     """What a spawned worker pays before its first run: a fresh Python importing pcmm's run path."""
     import subprocess
     t0 = time.perf_counter()
-    subprocess.run([sys.executable, "-c", "import pcmm.sweep_run, pcmm.simulate, pcmm.configuration"],
+    subprocess.run([sys.executable, "-c", "import pcmm.studies.job, pcmm.simulate, pcmm.model.configuration"],
                    check=True, env={**os.environ, "PYTHONPATH": str(ROOT)})
     return time.perf_counter() - t0
 
@@ -150,7 +150,7 @@ def main():
         "# Design-study throughput (pcmm sweep)", "",
         f"Regenerate: `{_common.command_line()}`", "",
         _common.machine_md(info) + f" Load average at the end: {load_end}.", "",
-        "Each plan is swept through `pcmm.sweep.sweep`, once in the sweeping process (`workers=1`) and once on the "
+        "Each plan is swept through `pcmm.studies.sweep.sweep`, once in the sweeping process (`workers=1`) and once on the "
         f"local process pool of {workers} spawned workers. Whole-sweep rates are what a user sees: validation "
         "of every run's scene, worker start-up, every run, and the table written row by row.", "",
         _common.md_table(["", *(c[0] for c in CASES)], table), "",

@@ -2,7 +2,7 @@
 
     python benchmarks/urdf_validation.py
 
-Reads serial chains of 1,000 to 8,000 links through ``pcmm.urdf.read_urdf`` (parse, validate,
+Reads serial chains of 1,000 to 8,000 links through ``pcmm.scene.urdf.read_urdf`` (parse, validate,
 build nothing), interleaved repetitions, median per size.  Linear validation gives 8x from
 1,000 to 8,000 links, quadratic 64x.  (This was a timed unit test once; ratios belong here.)
 """
@@ -17,7 +17,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from builders import bar_xml, joint_xml, link_xml, robot_xml  # noqa: E402
 
-from pcmm.urdf import read_urdf  # noqa: E402
+from pcmm.scene.urdf import read_urdf  # noqa: E402
 
 SIZES = (1000, 2000, 4000, 8000)
 

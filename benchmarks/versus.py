@@ -39,7 +39,7 @@ for _ in range(int(sys.argv[2])):
     t0 = time.process_time()
     traj = pcmm.simulate(scene)
     times.append(time.process_time() - t0)
-try:  # which right-hand side the tree's runs used (trees before pcmm.compiled have only Python's)
+try:  # which right-hand side the tree's runs used (trees before pcmm.model.compiled have only Python's)
     from pcmm import compiled
     rhs = "compiled" if compiled.trees_built() else "python"
 except ImportError:

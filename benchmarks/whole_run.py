@@ -46,7 +46,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import DOCS, EXAMPLES, ROOT, command_line, machine, machine_md, md_table, median  # noqa: E402
 
 import pcmm  # noqa: E402
-from pcmm.urdf import dynamics_xml  # noqa: E402
+from pcmm.scene.urdf import dynamics_xml  # noqa: E402
 
 REF_CALLS = 20000
 

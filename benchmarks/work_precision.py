@@ -50,7 +50,7 @@ from _common import (DOCS, EXAMPLES, command_line, fmt, machine, machine_md, md_
 import pcmm  # noqa: E402
 from pcmm import RunOptions  # noqa: E402
 
-SIM = importlib.import_module("pcmm.simulate")
+SIM = importlib.import_module("pcmm.run.loop")
 
 REF = dict(method="DOP853", rtol=1e-13, atol=1e-15)
 CHECKS = [dict(method="DOP853", rtol=1e-12, atol=1e-14), dict(method="RK45", rtol=1e-12, atol=1e-14)]
@@ -59,7 +59,7 @@ ACC_MAX_EVENTS = 300  # accumulation sweep: a macro-impact that does not end is 
 MISSED = 1e-9  # m: a slider found this far past its stop in the free configuration has missed the stop
 ADAPTIVE = ("RK45", "DOP853", "DOP853F", "Radau", "LSODA")
 ATOL_FACTOR = 1e-2
-_DEFAULTS = pcmm.settings.SolverSettings()  # the scenes' defaults, so this page follows them
+_DEFAULTS = pcmm.scene.settings.SolverSettings()  # the scenes' defaults, so this page follows them
 DEFAULT = dict(method=_DEFAULTS.method, rtol=_DEFAULTS.rtol, atol=_DEFAULTS.atol)
 DEFAULT_TAG = f"{DEFAULT['method']} {DEFAULT['rtol']:.0e}"
 

@@ -8,53 +8,36 @@ Planar Constrained Metamorphic Mechanism", Shock and Vibration 2020.
     >>> traj = pcmm.simulate(scene, pcmm.RunOptions(t_end=0.2))
     >>> round(traj.events[0]["t"], 4)  # the paper's t_p = 0.1674 s
     0.1673
+
+The package's face is lazy (PEP 562): ``import pcmm`` loads only the errors; each name below is
+imported from its layer when first used, so validating a scene loads no Pinocchio and a saved
+run replays without one.
 """
-import os as _os
-import sys as _sys
+from .errors import ModelError, PcmmError, SceneError, SimulationError, UsageError
 
-_argv = getattr(_sys, "orig_argv", _sys.argv)
-_as_command = (_os.path.basename(_sys.argv[0] if _sys.argv else "") == "pcmm" or "pcmm.cli" in _argv[:4])
-try:
-    from .errors import ModelError, PcmmError, SceneError, SimulationError, UsageError
-    from .scene import load_scene
-    from .settings import RunOptions
-    from .simulate import simulate
-    from .spec import Scene
-    from .trajectory import Trajectory
-    if _as_command:  # the console script's next line imports the command line: inside this guard too
-        from . import cli as _cli  # noqa: F401
-except (KeyboardInterrupt, ImportError) as _exc:
-    # Ctrl-C while Pinocchio and scipy load, before the command line's own handling. A compiled
-    # (pybind11) module that is initialising when the signal lands turns the KeyboardInterrupt
-    # into "ImportError: initialization failed" with the interrupt as its cause: both are Ctrl-C.
-    _chain, _interrupted = _exc, False
-    while _chain is not None and not _interrupted:
-        _interrupted = isinstance(_chain, KeyboardInterrupt)
-        _chain = _chain.__cause__ or _chain.__context__
-    if _interrupted and _as_command:
-        print("pcmm: interrupted by the user (Ctrl-C) while starting", file=_sys.stderr)
-        raise SystemExit(130) from None
-    raise
+__version__ = "0.1.0"
 
-# The data model and the results call the layers above them through these bindings (the loader's
-# validation for Scene.with_values; the views for Trajectory.show/plot, imported when first used).
-from . import spec as _spec, trajectory as _trajectory  # noqa: E402
-from .variations import with_values as _with_values  # noqa: E402
-
-
-def _show(traj, *others, **options):
-    from .replay import Inline
-    return Inline(traj, *others, **options)
-
-
-def _plot(traj, **options):
-    from .plots import figures
-    return figures(traj, **options)
-
-
-_spec.EDIT_VALUES = _with_values
-_trajectory.VIEWS.update(show=_show, plot=_plot)
+#: the public names and the module of each
+_PUBLIC = {
+    "load_scene": "pcmm.scene.load",
+    "simulate": "pcmm.run.loop",
+    "RunOptions": "pcmm.scene.settings",
+    "Scene": "pcmm.scene.spec",
+    "Trajectory": "pcmm.results.trajectory",
+}
 
 __all__ = ["load_scene", "simulate", "RunOptions", "Trajectory", "Scene", "PcmmError", "SceneError",
            "ModelError", "SimulationError", "UsageError"]
-__version__ = "0.1.0"
+
+
+def __getattr__(name: str):
+    if name in _PUBLIC:
+        import importlib
+        value = getattr(importlib.import_module(_PUBLIC[name]), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module 'pcmm' has no attribute {name!r}")
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_PUBLIC))

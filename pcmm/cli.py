@@ -20,7 +20,7 @@ import time
 from pathlib import Path
 
 from .errors import OutputError, PcmmError, SimulationError, UsageError
-from .outputs import terminal_text
+from .files import terminal_text
 
 
 def _number(name, strict=True):
@@ -82,7 +82,7 @@ def _count(text):
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from . import settings
+    from .scene import settings
     p = argparse.ArgumentParser(prog="pcmm", description="Impact dynamics of planar constrained "
                                 "metamorphic mechanisms (Song et al., Shock and Vibration 2020).")
     sub = p.add_subparsers(dest="command", required=True)
@@ -242,7 +242,7 @@ def _check_geometry(scene):
     """The check-time consistency of the geometry (pcmm.checks): problems stop before any
     simulation, warnings are printed (also under --quiet, which silences progress and tables,
     not what the user must know)."""
-    from .checks import check_scene
+    from .run.checks import check_scene
     from .errors import SceneError
     report = check_scene(scene)
     for w in report.warnings:
@@ -255,9 +255,9 @@ def _check_geometry(scene):
 def cmd_check(args) -> int:
     """Validate the scene and its URDFs, then build every configuration's Pinocchio model, so a
     URDF that Pinocchio rejects fails here and not when a run reaches that configuration."""
-    from .derive import check_derived
-    from .mechanism import Mechanism
-    from .scene import load_scene
+    from .scene.derive import check_derived
+    from .model.mechanism import Mechanism
+    from .scene.load import load_scene
     scene = load_scene(args.scene)
     mech = Mechanism(scene)
     problems = []
@@ -284,7 +284,7 @@ def cmd_check(args) -> int:
 
 def _derive_run(scene, progress):
     """The run ``pcmm derive`` needs for values at entry: (the models it built, its end note)."""
-    from .simulate import RunOptions, simulate
+    from .run.loop import RunOptions, simulate
     try:
         traj, note = simulate(scene, RunOptions(), progress=progress), None
     except SimulationError as exc:
@@ -295,9 +295,9 @@ def _derive_run(scene, progress):
 
 
 def cmd_derive(args) -> int:
-    from .derive import derived_urdfs
-    from .scene import load_scene
-    from .trajectory import atomic_write
+    from .scene.derive import derived_urdfs
+    from .scene.load import load_scene
+    from .results.trajectory import atomic_write
     scene = load_scene(args.scene)
     if not any(s.derivation is not None for s in scene.configurations.values()):
         raise UsageError(f"{args.scene}: has no derived configuration (from = NAME, lock = [...]); "
@@ -361,10 +361,10 @@ def _progress(quiet: bool, t_end: float):
 
 
 def cmd_run(args) -> int:
-    from .scene import load_scene
-    from .settings import options_from_arguments
-    from .simulate import simulate
-    from .summary import event_table
+    from .scene.load import load_scene
+    from .scene.settings import options_from_arguments
+    from .run.loop import simulate
+    from .results.summary import event_table
     _check_outputs([("--out", args.out), ("--summary", args.summary), ("--csv", args.csv),
                     ("--html", args.html)], args.force, folders=[("--plots", args.plots)])
     scene = load_scene(args.scene)
@@ -391,7 +391,7 @@ def cmd_run(args) -> int:
             f"{traj.stats['wall_s']:.3f} s solve")
         say(event_table(traj))
         if traj.stats.get("closest_approach"):
-            from .approach import describe as describe_approach
+            from .run.approach import describe as describe_approach
             say(describe_approach(traj.stats["closest_approach"]))
     for w in (w for e in traj.events for w in e.get("warnings", ())):  # check printed the assembly's
         _error(w, prefix="pcmm: warning: ")
@@ -410,7 +410,7 @@ def cmd_run(args) -> int:
     if problems:
         return max(p.exit_code for p in problems)
     if args.replay:
-        from .replay import serve
+        from .viz.replay import serve
         _check_frames(traj, 60.0, "--replay")
         serve(traj)
     return 0
@@ -422,9 +422,9 @@ def _write_results(args, scene, opts, traj, partial: bool):
     fallback folder that is named.  A partial run writes its trajectory (to ``--out``, else
     ``<scene>-partial.npz``, never over another file) and the requested summary, both
     marked ``status: "partial"``.  Returns ([(what, path)], [warnings], [errors])."""
-    from .outputs import write_new
-    from .summary import summary
-    from .trajectory import dumps_json_finite
+    from .files import write_new
+    from .results.summary import summary
+    from .results.trajectory import dumps_json_finite
     written, warnings, problems = [], [], []
 
     def write_summary(path, force):
@@ -437,7 +437,7 @@ def _write_results(args, scene, opts, traj, partial: bool):
         if not comparison and not scene.transitions:  # nothing to compare without a transition
             comparison.append(None)
         if not comparison:
-            from .simulate import simulate
+            from .run.loop import simulate
             try:
                 other = simulate(scene, type(opts)(**{**opts.__dict__, "impact": not opts.impact}))
                 comparison.append(other)
@@ -453,12 +453,12 @@ def _write_results(args, scene, opts, traj, partial: bool):
         return run.resampled(args.dt) if (run is not None and getattr(args, "dt", None)) else run
 
     def write_plots(folder, force):
-        from .plots import write_figures
+        from .viz.plots import write_figures
         other = compare_run()
         return _figures_into(folder, force, lambda d: write_figures(shown(traj), d, compare=shown(other)))
 
     def write_html(path, force):
-        from .replay import html_page
+        from .viz.replay import html_page
         _check_frames(traj, 60.0, "--html")
         return atomic_write_text(path, html_page(traj), force)
 
@@ -510,7 +510,7 @@ class _Kept(OutputError):
 
 def _fallback(path: Path, fn):
     """Write the output ``fn`` makes to a free name in the first folder that takes it."""
-    from .outputs import fallback_folders, fallback_path
+    from .files import fallback_folders, fallback_path
     for folder in fallback_folders(_resolved(path).parent):
         try:
             target = fallback_path(path, folder)
@@ -522,14 +522,14 @@ def _fallback(path: Path, fn):
 
 
 def atomic_write_text(path, text: str, force: bool):
-    from .outputs import atomic_write
+    from .files import atomic_write
     return atomic_write(path, lambda f: f.write(text), force=force)
 
 
 def _figures_into(folder: Path, force: bool, draw) -> list[Path]:
     """Draw the figures into a fresh staging folder next to ``folder``, then move them in;
     an existing figure is refused (without --force) before any is moved."""
-    from .outputs import publish_folder
+    from .files import publish_folder
     parent = _resolved(folder).parent
     try:
         parent.mkdir(parents=True, exist_ok=True)
@@ -547,7 +547,7 @@ def _figures_into(folder: Path, force: bool, draw) -> list[Path]:
 
 
 def cmd_new(args) -> int:
-    from .template import write_template
+    from .scene.template import write_template
     files = write_template(args.name, args.dir, links=args.links, closed=args.closed, force=args.force)
     print(f"wrote {', '.join(str(f) for f in files)}; next: pcmm check {files[0]}")
     return 0
@@ -555,9 +555,9 @@ def cmd_new(args) -> int:
 
 def cmd_sweep(args) -> int:
     import signal
-    from .scene import load_scene
-    from .simulate import RunOptions
-    from .sweep import make_plan, parse_set, read_plan_file, sweep
+    from .scene.load import load_scene
+    from .run.loop import RunOptions
+    from .studies.sweep import make_plan, parse_set, read_plan_file, sweep
     if args.resume and args.force:
         raise UsageError("--resume and --force: give one (complete the table, or start it over)")
     plan_file = read_plan_file(args.plan) if args.plan else {"axes": [], "collect": []}
@@ -570,7 +570,7 @@ def cmd_sweep(args) -> int:
     t_end = args.t_end if args.t_end is not None else plan_file.get("t_end")
     if args.plots is not None and not args.plots.parent.exists():
         raise UsageError(f"{args.plots}: folder {args.plots.parent} does not exist")
-    from .sweep import QUANTITIES
+    from .studies.sweep import QUANTITIES
     for q in args.plot_quantities or ():
         if q not in QUANTITIES and q not in collect:
             raise UsageError(f"--plot {q!r}: not a quantity of the table; quantities: {', '.join(QUANTITIES)}, "
@@ -593,7 +593,7 @@ def cmd_sweep(args) -> int:
     for c in res.uncollected:
         print(f"pcmm: warning: --collect {c!r}: no run's summary has a value there", file=sys.stderr)
     if args.plots is not None:
-        from .sweep_plots import plot_sweep
+        from .studies.plots import plot_sweep
         args.plots.mkdir(exist_ok=True)
         files = plot_sweep(args.out, plan.paths, args.plots, quantities=args.plot_quantities)
         print(f"figures: {len(files)} files in {args.plots}")
@@ -605,23 +605,23 @@ def _terminate(signum, frame):
 
 
 def cmd_replay(args) -> int:
-    from .trajectory import Trajectory
+    from .results.trajectory import Trajectory
     traj, *others = [Trajectory.load(p) for p in args.trajectory]
     _check_frames(traj, args.fps, "replay")
     if args.html:
         _check_outputs([("--html", args.html)], args.force)
-        from .replay import html_page
+        from .viz.replay import html_page
         atomic_write_text(args.html, html_page(traj, fps=args.fps, others=others), args.force)
         say(f"replay page: {args.html}")
         return 0
-    from .replay import serve
+    from .viz.replay import serve
     serve(traj, fps=args.fps, others=others)
     return 0
 
 
 def cmd_plot(args) -> int:
-    from .plots import write_figures
-    from .trajectory import Trajectory
+    from .viz.plots import write_figures
+    from .results.trajectory import Trajectory
     _check_outputs([], args.force, folders=[("--out", args.out)])
     traj = Trajectory.load(args.trajectory)
     other = Trajectory.load(args.compare) if args.compare else None

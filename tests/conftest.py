@@ -28,7 +28,7 @@ def make_scene(tmp_path):
 def configuration(make_scene):
     """``configuration(urdfs, name="c1", **scene kwargs) -> (scene, Configuration)``."""
     import pcmm
-    from pcmm.mechanism import Mechanism
+    from pcmm.model.mechanism import Mechanism
 
     def build(urdfs, name="c1", **kw):
         scene = pcmm.load_scene(make_scene(urdfs, **kw))

@@ -26,9 +26,9 @@ import pytest
 
 import builders
 import pcmm
-import pcmm.guards
+import pcmm.events.guards
 
-SIMULATE = importlib.import_module("pcmm.simulate")  # the module (pcmm.simulate is also the function)
+SIMULATE = importlib.import_module("pcmm.run.loop")  # the module (pcmm.simulate is also the function)
 
 E = 0.7
 SLIDER_CRANK = dict(a=0.1, b=0.3, m_crank=0.5, m_rod=0.8, m_slider=2.0, torque=2.0, theta_stop=-1.0)
@@ -91,7 +91,7 @@ def _series_violations(traj, a_n, ulp_x, rel=1e-9, ulps=16):
 def _old_shifted_make_guard(shift=1e-12):
     """pcmm 0.1's re-arming: the restarted guard shifted ``shift`` into the stop, armed only
     once the gap had opened by more than that."""
-    plain = pcmm.guards.make_guard
+    plain = pcmm.events.guards.make_guard
 
     def make_guard(cfg, tr, rearm=False, **kw):
         g_raw = plain(cfg, tr, **kw)
@@ -297,7 +297,7 @@ def test_the_event_table_keeps_every_transformation_of_a_long_run(tmp_path):
     """46 events: the table shows the first and last 20 and, between them, the merge and the
     tensile release that a newcomer was looking for (they were cut out), and a prismatic joint
     stop's row keeps the header's units (it said rad/s and N m s)."""
-    from pcmm.summary import event_table
+    from pcmm.results.summary import event_table
     traj = pcmm.simulate(_telescoping_arm(tmp_path, False), pcmm.RunOptions(t_end=3.0))
     table = event_table(traj)
     assert len(traj.events) > 42

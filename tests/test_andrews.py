@@ -74,7 +74,7 @@ def test_initial_accelerations_and_pin_forces_are_the_published_ones(scene):
     """The multipliers are the pin forces on body 3, 4 and 6 at P (world x, y); the test set's
     lambda multiplies the rows P_crank - P_other, pcmm's the rows P_other - P_crank with
     M a = Q + J^T lam, so the two are the same numbers."""
-    from pcmm.mechanism import Mechanism
+    from pcmm.model.mechanism import Mechanism
     cfg = Mechanism(scene)["squeezer"]
     q = cfg.vector(scene.q0)
     a, lam = cfg.coords.accelerations(0.0, q, np.zeros(cfg.nv))

@@ -16,12 +16,12 @@ import builders
 import pcmm
 import pcmm.cli
 from builders import EXAMPLES, URDF_DIR, copy_example, example_text
-from pcmm.assembly import assemble
-from pcmm.checks import check_scene
-from pcmm.mechanism import Mechanism
+from pcmm.model.assembly import assemble
+from pcmm.run.checks import check_scene
+from pcmm.model.mechanism import Mechanism
 from pcmm.errors import SceneError, SimulationError
-from pcmm.momentum import balance
-from pcmm.template import FOUR_BAR, four_bar_angles, write_template
+from pcmm.events.momentum import balance
+from pcmm.scene.template import FOUR_BAR, four_bar_angles, write_template
 
 
 def cli(argv):
@@ -324,8 +324,8 @@ def test_no_impact_record_matches_the_trajectory():
 
 
 def test_no_impact_switch_that_raises_energy_warns():
-    from pcmm.events import event_record
-    from pcmm.impulse import no_impulse
+    from pcmm.events.records import event_record
+    from pcmm.events.impulse import no_impulse
     scene = pcmm.load_scene(EXAMPLES / "three_bar.toml")
     cfg = Mechanism(scene)["config1"]
     q, v = np.array([0.3, -0.2, 2.0]), np.array([1.0, -1.0, 2.0])
@@ -536,7 +536,7 @@ def test_a_guard_crossed_against_its_direction_says_so(tmp_path):
     assert traj.events == []
     (rec,) = traj.stats["closest_approach"]
     assert rec["crossed_against"] == pytest.approx(0.16728511518199546, abs=1e-4)  # linear between samples
-    from pcmm.approach import describe
+    from pcmm.run.approach import describe
     assert "crossed 3.14159265 increasing at t = 0.1672" in describe([rec]) and "check `direction`" in describe([rec])
 
 
@@ -549,7 +549,7 @@ def test_a_timer_the_run_was_not_there_for_says_so(tmp_path):
     traj = pcmm.simulate(copy_example(tmp_path, "three_bar.toml", text), pcmm.RunOptions(t_end=0.3))
     assert [e["name"] for e in traj.events] == ["O3 latches"]
     (rec,) = traj.stats["closest_approach"]
-    from pcmm.approach import describe
+    from pcmm.run.approach import describe
     message = describe([rec])
     assert message.startswith("time guard of 'early release' (at = 0.1 s) did not fire: the run entered 'config2' "
                               "at t = 0.167285115 s, after it")

@@ -11,7 +11,7 @@ import pytest
 import pcmm
 import pcmm.cli
 from builders import EXAMPLES
-from pcmm.trajectory import dumps_json
+from pcmm.results.trajectory import dumps_json
 
 SCENE = EXAMPLES / "three_bar.toml"
 LINKS = ["frame", "link1", "link2", "link3"]
@@ -101,7 +101,7 @@ def test_constraint_columns_carry_their_own_unit(tmp_path):
     header = traj.to_csv(tmp_path / "r.csv").read_text().splitlines()[0].split(",")
     assert [h for h in header if h.startswith("constraint_")] == [
         "constraint_C.fx [N]", "constraint_C.fy [N]", "constraint_A.drive [N m]", "constraint_slider stop E.hold [N|N m]"]
-    from pcmm.trajectory import constraint_unit
+    from pcmm.results.trajectory import constraint_unit
     assert constraint_unit("E.drive", {"E": "prismatic"}) == "N" and constraint_unit("O3.hold", {"O3": "revolute"}) == "N m"
     assert constraint_unit("P.mz", {}) == "N m" and constraint_unit("P.fn", {}) == "N"
 

@@ -10,7 +10,7 @@ import pinocchio as pin
 import pytest
 
 import pcmm
-from pcmm import compiled
+from pcmm.model import compiled
 from builders import EXAMPLES, Bar, chain_urdf, copy_example, example_text
 
 needs_extension = pytest.mark.skipif(compiled._tree_dynamics is None, reason=f"{compiled.why_not()}")
@@ -30,7 +30,7 @@ def _every_kind_model():
 
 
 def _tree_rhs(model, Q0, KD):
-    """The compiled right-hand side, checked by pcmm.compiled against Python's pin.aba."""
+    """The compiled right-hand side, checked by pcmm.model.compiled against Python's pin.aba."""
     data = model.createData()
 
     def reference(t, y):
@@ -168,7 +168,7 @@ def test_whole_runs_are_the_python_runs(tmp_path, monkeypatch, scene):
 
 # ---- closed loops: the revolute cut joints' rows (Example 2's double-folded mechanism) -------------------------------
 def _loop_coordinates():
-    from pcmm.mechanism import Mechanism
+    from pcmm.model.mechanism import Mechanism
     scene = pcmm.load_scene(EXAMPLES / "double_folded.toml")
     return Mechanism(scene)["config1"].coords
 
@@ -249,11 +249,11 @@ def test_without_the_extension_pcmm_runs_the_same_and_says_why(tmp_path):
     import sys
     from builders import ROOT
     shutil.copytree(ROOT / "pcmm", tmp_path / "pcmm", ignore=shutil.ignore_patterns("*.so", "__pycache__"))
-    # an editable install's finder (setuptools) maps pcmm._tree_dynamics to the source tree by name,
+    # an editable install's finder (setuptools) maps pcmm.model._tree_dynamics to the source tree by name,
     # past the copy's own folder: only the copy may be imported
     script = ("import sys\n"
               "sys.meta_path[:] = [f for f in sys.meta_path if '__editable__' not in getattr(f, '__module__', '')]\n"
-              "import pcmm, pcmm.compiled as c\n"
+              "import pcmm, pcmm.model.compiled as c\n"
               f"t = pcmm.simulate({str(EXAMPLES / 'three_bar.toml')!r})\n"
               "print(repr(t.events[0]['t']))\nprint(c.why_not())\nprint(t.stats['evaluations']['config1'])\n"
               "print(pcmm.__file__)\n")
@@ -261,5 +261,5 @@ def test_without_the_extension_pcmm_runs_the_same_and_says_why(tmp_path):
                          "PYTHONPATH": str(tmp_path)}, capture_output=True, text=True, check=True).stdout.splitlines()
     assert out[3] == str(tmp_path / "pcmm" / "__init__.py")  # the copy, not the installed sources
     assert abs(float(out[0]) - 0.16728511518199546) <= 1e-12
-    assert out[1].startswith("pcmm._tree_dynamics was not built when pcmm was installed (no C++ compiler?)")
+    assert out[1].startswith("pcmm.model._tree_dynamics was not built when pcmm was installed (no C++ compiler?)")
     assert out[2] == "python: " + out[1]

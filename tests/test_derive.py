@@ -16,10 +16,10 @@ import builders
 import pcmm
 import pcmm.cli
 from builders import EXAMPLES, URDF_DIR, Bar, chain_urdf, copy_example, dump_toml, example_text, scene_doc
-from pcmm.mechanism import Mechanism
+from pcmm.model.mechanism import Mechanism
 from pcmm.errors import SceneError, SimulationError
-from pcmm.simulate import RunOptions, simulate
-from pcmm.urdf import read_urdf
+from pcmm.run.loop import RunOptions, simulate
+from pcmm.scene.urdf import read_urdf
 
 HAND_CONFIG2 = 'urdf = "three_bar_config2.urdf"'  # as copy_example writes it
 DERIVED_CONFIG2 = 'from = "config1"\nlock = ["O3"]'
@@ -310,9 +310,9 @@ def test_pcmm_derive_command_line_errors(tmp_path, capsys):
     (("joint", ("O2",)), 2.5, None),
 ])
 def test_the_guard_value_that_fixes_a_locked_joint(measure, value, expected):
-    from pcmm.derive import _fixed_by
-    from pcmm.spec import GuardSpec, Measure
-    from pcmm.urdf import UrdfJoint
+    from pcmm.scene.derive import _fixed_by
+    from pcmm.scene.spec import GuardSpec, Measure
+    from pcmm.scene.urdf import UrdfJoint
     joint = UrdfJoint("O3", "revolute", "link2", "link3", (0.125, 0.0, 0.0), (0.0, 0.0, 0.25), (0.0, 0.0, 1.0))
     guard = GuardSpec("coordinate", Measure(*measure), value, +1)
     assert _fixed_by(guard, joint, "frame") == expected

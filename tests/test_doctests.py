@@ -9,7 +9,7 @@ import pytest
 
 from builders import ROOT
 
-MODULES = ["pcmm", "pcmm.scene", "pcmm.simulate", "pcmm.settings", "pcmm.trajectory"]
+MODULES = ["pcmm", "pcmm.scene.load", "pcmm.run.loop", "pcmm.scene.settings", "pcmm.results.trajectory"]
 
 
 @pytest.mark.parametrize("name", MODULES)

@@ -17,7 +17,7 @@ from scipy.integrate import solve_ivp
 import pcmm
 from builders import EXAMPLES, G, URDF_DIR
 from builders import cross2
-from pcmm.mechanism import Mechanism
+from pcmm.model.mechanism import Mechanism
 
 MASS = np.array([0.39, 0.195, 0.195])
 LEN = np.array([0.25, 0.125, 0.125])

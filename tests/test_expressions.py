@@ -12,7 +12,7 @@ import pytest
 import pcmm
 from builders import copy_example, example_text
 from pcmm.errors import SceneError
-from pcmm.expressions import ExpressionError, evaluate
+from pcmm.scene.expressions import ExpressionError, evaluate
 
 
 @pytest.mark.parametrize("text, value", [

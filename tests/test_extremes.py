@@ -28,7 +28,7 @@ G = builders.G
 ACC_SPEED = 1e-6  # pcmm's default solver.accumulation_speed
 ACC_INTERVAL = 1e-9  # pcmm's default solver.accumulation_interval
 # After a bounce pcmm re-arms a stop's guard only once the gap has opened by a band of
-# 1e-12 m (pcmm.guards.REARM_BAND, relative to max(1, |value|)); a ball whose bounce stays
+# 1e-12 m (pcmm.events.guards.REARM_BAND, relative to max(1, |value|)); a ball whose bounce stays
 # inside that band lands on the band instead of the floor: its next pre-impact speed is
 # sqrt(v^2 + 2 g band), e.g. 45 % above the series for v = 4e-6 m/s.  Analytic impact times
 # and speeds are checked only while the bounces clear the band with a wide margin.

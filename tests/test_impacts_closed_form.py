@@ -18,8 +18,8 @@ from scipy.optimize import brentq
 import pcmm
 from builders import G, Bar, chain_urdf, free_bar_urdf
 from builders import cross2, rot
-from pcmm.mechanism import Mechanism
-from pcmm.impulse import solve_impulse
+from pcmm.model.mechanism import Mechanism
+from pcmm.events.impulse import solve_impulse
 
 LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
 

@@ -23,11 +23,11 @@ import pytest
 
 import pcmm
 from builders import EXAMPLES
-from pcmm.mechanism import Mechanism
+from pcmm.model.mechanism import Mechanism
 from pcmm.errors import Repartition, SimulationError
-from pcmm.guards import make_guard
-from pcmm.integrators import INTEGRATORS
-from pcmm.simulate import initial_state
+from pcmm.events.guards import make_guard
+from pcmm.ode.integrators import INTEGRATORS
+from pcmm.run.loop import initial_state
 
 W = 3.0  # rad/s
 
@@ -160,7 +160,7 @@ def test_fortran_stops_within_a_few_hundred_calls_of_an_exception(monkeypatch):
     class CountingOde(integrate.ode):
         def __init__(self, f, jac=None):
             super().__init__(lambda t, y: (calls.append(t), f(t, y))[1], jac)
-    monkeypatch.setattr("pcmm.integrators.si.ode", CountingOde)
+    monkeypatch.setattr("pcmm.ode.integrators.si.ode", CountingOde)
     fun = _Raising(KeyboardInterrupt(), 0.5)
     with pytest.raises(KeyboardInterrupt):
         INTEGRATORS["DOP853F"].integrate(fun, 0.0, exact(0.0), 1e4, [], options())
@@ -236,7 +236,7 @@ def test_bracketed_newton_finds_the_crossing_with_few_evaluations(g, dg, lo, hi,
     in fewer evaluations than scipy's brentq takes for the same bracket and tolerance (8, 11 and
     9 here, its two end-point calls included), and never outside the bracket where Newton's step
     would leave it."""
-    from pcmm.integrators import _bracketed_newton
+    from pcmm.ode.integrators import _bracketed_newton
     calls = []
 
     def counted(t):

@@ -15,8 +15,8 @@ import pytest
 
 import builders
 import pcmm
-from pcmm.mechanism import Mechanism
-from pcmm.simulate import KNOWN_MOTION_SAMPLES, _known_motion, initial_state, resolve
+from pcmm.model.mechanism import Mechanism
+from pcmm.run.loop import KNOWN_MOTION_SAMPLES, _known_motion, initial_state, resolve
 
 A, B, TH0 = 0.1, 0.3, 0.5
 

@@ -16,7 +16,7 @@ import pytest
 import builders
 import pcmm
 from builders import joint_xml, link_xml, robot_xml, scene_doc, write_scene
-from pcmm.mechanism import Mechanism
+from pcmm.model.mechanism import Mechanism
 
 G = 9.81
 
@@ -205,7 +205,7 @@ def test_accumulation_without_merge_target_is_a_clear_error(tmp_path):
 def test_loop_solve_is_numpys_solve(A, b, expected):
     """The loops' small dense solve (LAPACK dgesv directly) answers like np.linalg.solve,
     including its LinAlgError, which the Newton solve of the dependent coordinates relies on."""
-    from pcmm.constraints import solve
+    from pcmm.model.constraints import solve
     if expected is np.linalg.LinAlgError:
         with pytest.raises(np.linalg.LinAlgError):
             solve(A, b)

@@ -12,7 +12,7 @@ import pinocchio as pin
 
 import pcmm
 from builders import joint_xml, link_xml, robot_xml, scene_doc, write_scene
-from pcmm.mechanism import Mechanism
+from pcmm.model.mechanism import Mechanism
 
 ROOT = Path(__file__).resolve().parents[1]
 THREE_BAR = ROOT / "examples" / "three_bar.toml"
@@ -35,10 +35,10 @@ def test_only_declared_points_are_modelled():
 
 def test_a_run_without_display_loads_no_geometry_and_no_viewer(tmp_path):
     code = ("import json, sys, pcmm; s = pcmm.load_scene(sys.argv[1]); pcmm.simulate(s, pcmm.RunOptions(t_end=0.2)); "
-            "print(json.dumps(sorted(m for m in ('meshcat', 'matplotlib', 'pcmm.replay', 'pcmm.plots') if m in sys.modules)))")
+            "print(json.dumps(sorted(m for m in ('meshcat', 'matplotlib', 'pcmm.viz.replay', 'pcmm.viz.plots') if m in sys.modules)))")
     out = subprocess.run([sys.executable, "-c", code, str(THREE_BAR)], capture_output=True, text=True, check=True)
     loaded = json.loads(out.stdout.strip().splitlines()[-1])
-    assert "meshcat" not in loaded and "pcmm.replay" not in loaded and "matplotlib" not in loaded
+    assert "meshcat" not in loaded and "pcmm.viz.replay" not in loaded and "matplotlib" not in loaded
 
 
 def test_the_dynamics_model_reads_no_visuals(tmp_path, capfd):

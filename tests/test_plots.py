@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 
 import pcmm
-from pcmm.trajectory import SegmentRecord, Trajectory
+from pcmm.results.trajectory import SegmentRecord, Trajectory
 
 pytest.importorskip("matplotlib")
-from pcmm import plots  # noqa: E402
+from pcmm.viz import plots  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENE = ROOT / "examples" / "three_bar.toml"

@@ -44,7 +44,7 @@ def _equilibrium():
 
 
 def test_slider_rests_at_the_static_equilibrium(make_scene):
-    from pcmm.mechanism import Mechanism
+    from pcmm.model.mechanism import Mechanism
     y_eq = _equilibrium()
     scene = _slider_scene(make_scene, y_eq)
     cfg = Mechanism(scene)["c1"]
@@ -127,7 +127,7 @@ def test_free_bar_on_a_central_spring_conserves_energy_and_angular_momentum(make
                       solver={"rtol": 1e-12, "atol": 1e-14})
     scene = pcmm.load_scene(path)
     traj = pcmm.simulate(scene)
-    from pcmm.mechanism import Mechanism
+    from pcmm.model.mechanism import Mechanism
     cfg = Mechanism(scene)["c1"]
     seg = traj.segments[0]
     rates = np.array([cfg.qdot(q, v) for q, v in zip(seg.q, seg.v)])  # world (x', y', theta')
@@ -144,7 +144,7 @@ def test_free_bar_on_a_central_spring_conserves_energy_and_angular_momentum(make
 
 
 def test_scenes_without_point_springs_keep_the_linear_fast_path():
-    from pcmm.mechanism import Mechanism
+    from pcmm.model.mechanism import Mechanism
     cfg = Mechanism(pcmm.load_scene("examples/three_bar.toml"))["config1"]
     assert cfg.forces.points is None
     assert cfg.coords.rhs.__name__ != "rhs_points"  # the closure with one product and one aba, no Jacobians

@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 
 import pcmm
-from pcmm import replay
+from pcmm.viz import replay
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENE = ROOT / "examples" / "three_bar.toml"

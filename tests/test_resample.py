@@ -19,7 +19,7 @@ import pytest
 import builders
 import pcmm
 from pcmm.cli import main as cli_main
-from pcmm.mechanism import Mechanism
+from pcmm.model.mechanism import Mechanism
 
 K, I_C, Q0 = 1.0, 1e-2, 0.1  # w = 10 rad/s
 W = math.sqrt(K / I_C)
@@ -133,7 +133,7 @@ def test_deferred_series_are_the_same_from_another_thread_and_after_pickling(tmp
 def test_cli_dt_draws_the_figures_from_the_resampled_run(tmp_path, monkeypatch):
     """``--plots`` with ``--dt``: the run reaches the figures resampled on the grid (the curves
     are drawn through the dense output)."""
-    import pcmm.plots as plots
+    import pcmm.viz.plots as plots
     seen = []
     real = plots.write_figures
 

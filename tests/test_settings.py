@@ -1,4 +1,4 @@
-"""One declaration per solver setting (pcmm.settings): the scene's [solver] schema, RunOptions,
+"""One declaration per solver setting (pcmm.scene.settings): the scene's [solver] schema, RunOptions,
 the CLI flags and resolve()'s checks all come from the registry."""
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import pytest
 
 import pcmm
 from builders import copy_example
-from pcmm import schema, settings
+from pcmm.scene import schema, settings
 from pcmm.cli import build_parser
 
 

@@ -1,4 +1,4 @@
-"""Design studies (pcmm.sweep, ``pcmm sweep``).
+"""Design studies (pcmm.studies.sweep, ``pcmm sweep``).
 
 Every run's numbers are checked against the same scene run one by one in this
 process, built by another route (``dataclasses.replace`` on the loaded scene) and
@@ -22,7 +22,7 @@ import pytest
 
 import pcmm
 from pcmm.errors import SceneError, UsageError
-from pcmm.sweep import (QUANTITIES, Axis, Plan, ResultsTable, check_collect, collect_value, columns, make_plan,
+from pcmm.studies.sweep import (QUANTITIES, Axis, Plan, ResultsTable, check_collect, collect_value, columns, make_plan,
                         parse_set, quantities, read_plan_file, sweep)
 
 from builders import EXAMPLES
@@ -151,7 +151,7 @@ def test_cli_bad_value_exit_2_and_nothing_written(tmp_path, capsys):
 
 
 def test_failed_and_partial_runs_are_rows(tmp_path, monkeypatch):
-    sim = sys.modules["pcmm.simulate"]
+    sim = sys.modules["pcmm.run.loop"]
     real = sim.simulate
 
     def flaky(scene, options=pcmm.RunOptions(), progress=None):
@@ -321,7 +321,7 @@ def test_scheduler_without_distributed_is_a_clear_message(tmp_path, monkeypatch,
 
 def test_figures_and_parquet(tmp_path):
     pytest.importorskip("matplotlib")
-    from pcmm.sweep_plots import numeric_columns, plot_sweep, read_rows
+    from pcmm.studies.plots import numeric_columns, plot_sweep, read_rows
     out = tmp_path / "r.csv"
     plan = make_plan([Axis("forces.tau3.value", (0.25, 0.3)), Axis("forces.tau1.value", (1.9, 2.0))])
     res = sweep(pcmm.load_scene(THREE_BAR), plan, out, pcmm.RunOptions(t_end=0.2), collect=["stats.steps"],

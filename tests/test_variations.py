@@ -1,4 +1,4 @@
-"""Scene variations by value path (pcmm.variations, Scene.with_values).
+"""Scene variations by value path (pcmm.scene.variations, Scene.with_values).
 
 A variation must be the scene its edited TOML file would be: the same dataclasses,
 the same run, and for a bad value the very same validator messages.  Each edited
@@ -13,7 +13,7 @@ import pytest
 
 import pcmm
 from pcmm.errors import SceneError
-from pcmm.variations import parse_scalar, value_text
+from pcmm.scene.variations import parse_scalar, value_text
 
 from builders import EXAMPLES, URDF_DIR
 

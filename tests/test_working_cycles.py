@@ -79,7 +79,7 @@ def test_pendulum_striking_a_joint_stop(tmp_path):
     assert ev["impulse"]["vector"] == pytest.approx([-math.sin(th) * ev["impulse"]["normal"],
                                                       math.cos(th) * ev["impulse"]["normal"]], abs=1e-9)
     assert ev["contact_point"] == pytest.approx([0.3 * math.cos(th), 0.3 * math.sin(th)], abs=1e-12)
-    from pcmm.summary import event_table  # the table says the joint stop's vn is a joint rate
+    from pcmm.results.summary import event_table  # the table says the joint stop's vn is a joint rate
     row = event_table(traj).splitlines()[2]
     assert "joint stop J1: vn in rad/s, P at its 0.3 m arm" in row
     assert f"{ev['impulse']['normal']:11.4e}" in row and "-0.0000e+00" not in row
@@ -407,7 +407,7 @@ def test_switches_that_take_no_time_are_named_not_counted_to_the_event_budget():
     the cycle (it used to say "more than 10000 events ... raise solver.max_events", advice that
     cannot help).  Bounces at one instant (same configuration) and switches at different times
     are not such a cycle."""
-    from pcmm.simulate import ZERO_TIME_CYCLE, _zero_time_cycle
+    from pcmm.run.loop import ZERO_TIME_CYCLE, _zero_time_cycle
     back_and_forth = [{"t": 0.9, "name": "let go", "from": "locked", "to": "coast"},
                       {"t": 0.9, "name": "stop again", "from": "coast", "to": "locked"}] * (ZERO_TIME_CYCLE // 2)
     assert _zero_time_cycle(back_and_forth) == "'let go' (locked -> coast), 'stop again' (coast -> locked)"
@@ -462,7 +462,7 @@ def test_a_guard_nearest_where_its_configuration_was_entered_says_so(tmp_path):
     (rec,) = traj.stats["closest_approach"]
     assert rec["transition"] == "stop again" and rec["at_entry"] and rec["t"] == pytest.approx(0.9, abs=1e-12)
     assert rec["distance"] < 1e-12
-    from pcmm.approach import describe
+    from pcmm.run.approach import describe
     assert "at t = 0.9 s (where the run entered the configuration), " in describe([rec])
 
 
@@ -489,5 +489,5 @@ def test_a_reaction_guard_already_past_its_value_says_so(tmp_path):
     value (it read "4.997 short", as if the force had to fall further)."""
     rec = _held_until(tmp_path, 10.0)
     assert rec["past"] and rec["distance"] == pytest.approx(10.0 - _motor_hold(), abs=1e-9)
-    from pcmm.approach import describe
+    from pcmm.run.approach import describe
     assert "past it, on the side it fires to (a guard fires on a crossing in its direction)" in describe([rec])

@@ -1,0 +1,225 @@
+"""Holding forces: what keeps each locked joint and each merged stop locked.
+
+A latch or a stop-merge locks joints: the run goes on in a configuration whose URDF fixes
+them.  Their holding forces are the multipliers of the locks seen from a *reference*
+configuration in which those joints are free (a scene configuration whose movable joints
+include the current configuration's and every locked one): the current state is mapped onto
+it (locked joints at their values, at rest relative to each other) and its dynamics are
+solved with one extra row per lock, ``M a + h = Q + J^T lam`` (the loops' and drives' rows
+too).  A latch-locked joint's row is its own coordinate's (``lam`` is the moment, or the axial
+force, the lock applies to the child); a merged stop's row is the stop's contact normal
+(``lam`` is the normal contact force, > 0 compressive).
+
+A merge held by compression only (``unmerge``) is undone when its force would turn tensile,
+in whatever configuration the run is then: that needs the configuration with the stop's
+joints free again, found among the scene's configurations by its set of movable joints.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..model.configuration import Configuration
+from ..model.constraints import constrained_accelerations
+from ..errors import SimulationError
+from ..model.forces import compile_forces
+from .contact import contact_row
+from ..model.mechanism import Mechanism
+from ..scene.spec import TransitionSpec
+from .transitions import joints_from_poses
+from ..ode.witness import Guard
+
+
+@dataclass
+class Hold:
+    """Joints locked by one transition and still locked."""
+
+    label: str  # the locked joint (latch) or the stop transition's name (merge)
+    transition: TransitionSpec
+    joints: dict[str, np.ndarray]  # locked joint -> its value when it locked
+    merge: bool  # a stop-merge: held by the stop's contact force
+    unilateral: bool  # undone when the contact force would turn tensile
+
+
+class Holds:
+    """The locks in force during a run, their holding forces and their releases."""
+
+    def __init__(self, mechanism: Mechanism, unmerge: bool | None = None):
+        self.mechanism = mechanism
+        self.scene = mechanism.scene
+        # the run's solver setting (RunOptions, --unmerge) or the scene's; a stop's own wins
+        self.unmerge = self.scene.solver.unmerge if unmerge is None else unmerge
+        self.items: list[Hold] = []
+        self._maps: dict = {}  # (reference, configuration, holds) -> the forces acting while it holds
+        self._refs: dict = {}  # (configuration, holds) -> its reference configuration
+
+    # -- book-keeping
+    def lock(self, src: Configuration, dst: Configuration, tr: TransitionSpec, q: np.ndarray, merge: bool) -> None:
+        """``tr`` switched ``src`` -> ``dst`` by locking the joints ``dst`` lacks."""
+        locked = {n: q[src.joint_slice[n]].copy() for n in src.joint_names if n not in dst.joint_slice}
+        if not locked:
+            return
+        if merge:
+            unilateral = self.unmerge if tr.unmerge is None else tr.unmerge
+            self.items.append(Hold(tr.name, tr, locked, True, bool(unilateral)))
+        else:
+            self.items += [Hold(n, tr, {n: val}, False, False) for n, val in locked.items()]
+
+    def adopt(self, cfg: Configuration, q: np.ndarray, v: np.ndarray) -> None:
+        """Locks the run starts with: a joint that a reaction guard watches and the initial
+        configuration lacks is held from the start, at the value its links give it."""
+        watched = {tr.guard.of for tr in self.scene.transitions if tr.guard.type == "reaction"}
+        joints = self._joint_sets()
+        for of in sorted(watched):
+            if of in cfg.joint_slice or of not in set().union(*joints.values()) or self.holds(of, cfg):
+                continue
+            source = next(name for name, js in joints.items() if of in js and set(cfg.joint_names) <= js)
+            src = self.mechanism[source]
+            q_s, v_s = joints_from_poses(cfg, src, q, v, src.neutral(), np.zeros(src.nv), [of])
+            tr = next(t for t in self.scene.transitions if t.guard.type == "reaction" and t.guard.of == of)
+            self.items.append(Hold(of, tr, {of: q_s[src.joint_slice[of]].copy()}, False, False))
+
+    def snapshot(self) -> "Holds":
+        """The locks in force now, kept as they are (a recorded segment computes its holding
+        forces later, when they are read, while the run's own locks change)."""
+        out = Holds.__new__(Holds)
+        out.__dict__.update(self.__dict__, items=list(self.items))
+        return out
+
+    def follow(self, cfg: Configuration) -> None:
+        """Drop the holds whose joints ``cfg`` has free (a release undid them)."""
+        self.items = [h for h in self.items if not any(j in cfg.joint_slice for j in h.joints)]
+
+    def holds(self, of: str, cfg: Configuration) -> bool:
+        return any(h.label == of or of in h.joints for h in self.items)
+
+    def label(self, of: str) -> str:
+        for h in self.items:
+            if h.label == of or of in h.joints:
+                return h.label
+        raise KeyError(of)
+
+    def labels(self) -> list[str]:
+        return [f"{h.label}.hold" for h in self.items]
+
+    # -- the reference configuration and the state mapped onto it
+    def _joint_sets(self):
+        sets = self.__dict__.get("_sets")
+        if sets is None:  # the scene's configurations do not change: read their URDF joints once
+            sets = self._sets = {name: set(spec.info.movable_joints) for name, spec in self.scene.configurations.items()}
+        return sets
+
+    def reference(self, cfg: Configuration) -> str | None:
+        """The configuration the holding forces are solved in: one whose movable joints include
+        ``cfg``'s and every held one, with ``cfg``'s drives; of those the fewest joints, then one
+        a hold was locked from.  Only its model (its joints, loops and drives) is used: the
+        forces are always ``cfg``'s own (:meth:`forces`), whatever the reference applies."""
+        key = (cfg.name, tuple(h.label for h in self.items))  # asked at every sample and guard value
+        if key not in self._refs:
+            need = set(cfg.joint_names).union(*(h.joints for h in self.items))
+            drives = {(d.joint, d.coefficients) for d in self.scene.drives_in(cfg.name)}
+            sources = {h.transition.source for h in self.items}
+            fits = [(len(js), name not in sources, name) for name, js in self._joint_sets().items()
+                    if need <= js and {(d.joint, d.coefficients) for d in self.scene.drives_in(name)} == drives]
+            self._refs[key] = min(fits)[2] if fits else None
+        return self._refs[key]
+
+    def _forces_on(self, ref: Configuration, cfg: Configuration):
+        """The force elements acting while ``cfg`` holds, on ``ref``'s coordinates (None when
+        ``ref`` applies the same ones): ``cfg``'s own, plus each held joint's own elements (a
+        spring or motor on the joint, which the scene lists only where the joint is free) as the
+        configuration the hold was locked from has them.  A locked joint's element is internal to
+        the welded links, so it does not move them, but the lock holds it: the pin of a joint whose
+        spring pushes it into the pin carries that moment.  A configuration with the held joints
+        free may drive, spring or damp otherwise (a motor on only while a stop holds), and the hold
+        balances what acts in ``cfg``, not there."""
+        # ref's measures as they are now (its angle offsets: pcmm.configuration.Configuration.continue_angles)
+        key = (ref.name, cfg.name, tuple(h.label for h in self.items), ref.angle_offsets)
+        if key not in self._maps:
+            mine = list(self.scene.forces_in(cfg.name))
+            for h in self.items:
+                for f in self.scene.forces_in(h.transition.source):
+                    on_joint = f.on is not None and f.on.kind == "joint" and f.on.name in h.joints
+                    measures = f.measure is not None and f.measure.kind == "joint" and f.measure.names[0] in h.joints
+                    if (on_joint or measures) and f not in mine:
+                        mine.append(f)
+            theirs = self.scene.forces_in(ref.name)
+            if len(mine) == len(theirs) and all(f in theirs for f in mine):
+                self._maps[key] = None
+            elif any(f.points is not None for f in mine + list(theirs)):
+                raise SimulationError(
+                    f"configuration '{cfg.name}': its holding forces are solved in '{ref.name}' (the "
+                    "configuration with the held joints free), whose force elements differ, and one of "
+                    "them is a point_spring, which pcmm cannot carry over; give both configurations the "
+                    "same point springs")
+            else:
+                self._maps[key] = compile_forces(tuple(mine), ref.measure_row, ref.target_column, ref.nv)
+        return self._maps[key]
+
+    def release_target(self, hold: Hold, cfg: Configuration) -> str:
+        need = set(cfg.joint_names) | set(hold.joints)
+        for name, js in self._joint_sets().items():
+            if js == need:
+                return name
+        raise SimulationError(
+            f"configuration '{cfg.name}': the merge of '{hold.label}' is held by compression only "
+            f"(unmerge), so pcmm must be able to release it here, into a configuration with the joints "
+            f"of '{cfg.name}' plus {', '.join(sorted(hold.joints))} free; the scene has none. Add it "
+            f"(a URDF, or a configuration derived by locking joints) or set unmerge = false on "
+            f"'{hold.label}'")
+
+    def forces(self, cfg: Configuration, t: float, q: np.ndarray, v: np.ndarray) -> dict[str, float]:
+        """{label: holding force or moment} of every hold at (t, q, v) of ``cfg``."""
+        if not self.items:
+            return {}
+        ref_name = self.reference(cfg)
+        if ref_name is None:
+            raise SimulationError(
+                f"configuration '{cfg.name}': no configuration of the scene has its joints plus the locked "
+                f"{', '.join(sorted(set().union(*(h.joints for h in self.items))))} free and its drives, "
+                "so the holding forces cannot be computed")
+        ref = self.mechanism[ref_name]
+        qs, vs = np.zeros(ref.nv), np.zeros(ref.nv)
+        for name in ref.joint_names:
+            sl = ref.joint_slice[name]
+            if name in cfg.joint_slice:
+                qs[sl], vs[sl] = q[cfg.joint_slice[name]], v[cfg.joint_slice[name]]
+        for h in self.items:
+            for name, val in h.joints.items():
+                qs[ref.joint_slice[name]] = val
+        Jc, bc = ref.coords.rows(t, qs, vs)
+        rows, bias, owners = [Jc], [bc], []
+        for h in self.items:
+            if h.merge:
+                Jn, bn = contact_row(ref, qs, vs, h.transition.contact)
+                rows.append(Jn[None, :])
+                bias.append([bn])
+                owners.append(h.label)
+            else:
+                (name,) = h.joints
+                e = np.zeros(ref.nv)
+                e[ref.joint_slice[name].start] = 1.0
+                rows.append(e[None, :])
+                bias.append([0.0])
+                owners.append(h.label)
+        own = self._forces_on(ref, cfg)
+        extra = None if own is None else own.generalized(qs, vs) - ref.forces.generalized(qs, vs)
+        _, lam = constrained_accelerations(ref, qs, vs, np.vstack(rows), np.concatenate(bias), extra)
+        return {label: float(x) for label, x in zip(owners, lam[Jc.shape[0]:])}
+
+    # -- guards
+    def unmerge_guards(self, cfg: Configuration) -> list[Guard]:
+        """One guard per merge held by compression only: fires when its force would turn tensile."""
+        out = []
+        for h in self.items:
+            if not (h.merge and h.unilateral):
+                continue
+            self.release_target(h, cfg)  # a merge that could not be released here is an error now
+
+            def value(t, y, h=h):
+                q, v = cfg.coords.unpack(t, y)
+                return self.forces(cfg, t, q, v)[h.label]
+            out.append(Guard(f"the merge of '{h.label}': its holding force turns tensile", value, -1,
+                             "unmerge", h.transition, payload=h))
+        return out

@@ -1,0 +1,237 @@
+"""Impulse solving by joint cutting (paper section 3, Eqs. 21-43).
+
+At a configuration transformation the metamorphic joint(s) are cut (module
+:mod:`pcmm.cutting`), giving the system f with inertia ``M_f`` and the cut
+joints' constraint rows ``J_cut``; loops and drives of the configuration add
+their own ideal-constraint rows.  With ``G`` all those rows and
+``W = M_f^-1``, eliminating the constraint impulses gives the effective
+inverse inertia of the cut system (the inverse of the paper's ``M_f``, Eq. 25;
+for a mobile impact the sum over f1 and f2, Eqs. 39 and 42):
+
+    W_eff = W - W G^T (G W G^T)^-1 G W
+
+Newton's restitution law on the contact normal (Eq. 21) then gives the
+impulse ``P = -(1 + e) (J_n W_eff J_n^T)^-1 J_n v_f^-`` (Eqs. 29, 42), the
+velocity jump ``dv_f = W_eff J_n^T P`` (Eqs. 24, 30, 35, 38, 43) and the
+cut joints' impulsive reactions ``-(G W G^T)^-1 G W J_n^T P``.
+
+The impulse carried by every joint of the tree comes from a second route:
+RNEA on a gravity-free copy of the tree with zero velocity, the velocity jump
+as acceleration and the contact impulse as an external force.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import pinocchio as pin
+import scipy.linalg as sla
+
+from ..model.configuration import Configuration
+from .contact import contact_point, contact_state, impact_kind, joint_stop_row
+from .cutting import cut
+from ..errors import SimulationError
+from ..model.pinocchio_helpers import cholesky, frame_jacobian, mass_matrix
+from ..scene.spec import ContactSpec
+
+
+@dataclass
+class Impulse:
+    """Everything one impact produces; vectors in world axes."""
+
+    kind: str  # "stable" (component with frame) or "mobile" (component with component)
+    restitution: float | None  # None: a switch without impact (no_impulse)
+    normal: np.ndarray  # unit normal, world, from a towards b
+    P: float  # normal impulse on b (N s); -P n acts on a
+    vn_before: float  # relative normal velocity n . (v_b - v_a) before (< 0: approaching)
+    vn_after: float
+    v_before: np.ndarray
+    v_after: np.ndarray
+    ke_before: float  # from the tree's mass matrix at the impact pose
+    ke_after: float
+    point: np.ndarray  # world (x, y) of b's contact point
+    impact: bool = True  # False: a switch without impulse (the paper's comparison runs)
+    drive_work: float = 0.0  # the drives' impulsive work: a driven joint keeps its prescribed speed
+    cut_impulses: dict[str, list[float]] = field(default_factory=dict)  # on the child, world [fx, fy, mz]
+    # loops and drives: per cut joint [fx, fy, mz] on link b from link a (world axes, moment about
+    # point_b); per drive "J.drive" the motor's impulse on the joint's child ([0, 0, mz] revolute,
+    # the force along the axis prismatic).  Same form as joint_impulses.
+    constraint_impulses: dict[str, list[float]] = field(default_factory=dict)
+    constraint_rows: dict[str, float] = field(default_factory=dict)  # the multiplier of each row, by label
+    contact_impulses: list = field(default_factory=list)  # (link, world point, F, mz): on b, then on a
+    joint_impulses: dict[str, list[float]] = field(default_factory=dict)  # every joint, world [fx, fy, mz]
+    rnea_residual: np.ndarray | None = None  # generalized impulse the joints' actuators carry
+
+    @property
+    def vector(self) -> np.ndarray:
+        return self.P * self.normal
+
+    @property
+    def energy_dissipated(self) -> float:
+        """KE- + drive_work - KE+ (>= 0): the drives' work may raise the kinetic energy, never this."""
+        return self.ke_before + self.drive_work - self.ke_after
+
+
+def solve_impulse(cfg: Configuration, t: float, q: np.ndarray, v: np.ndarray, contact: ContactSpec,
+                  restitution: float, cut_joints: tuple[str, ...]) -> Impulse:
+    """Solve the stable or mobile impulse at (t, q, v) by cutting ``cut_joints``."""
+    n, _, vn, _ = contact_state(cfg, q, v, contact)
+    point = contact_point(cfg, contact)  # where the event reports the contact
+    if contact.joint is None:
+        pa = cfg.point(contact.a, contact.point_a)
+        pb = cfg.point(contact.b, contact.point_b)
+        pos_a, pos_b = cfg.point_position(pa), cfg.point_position(pb)
+    else:
+        pos_a = pos_b = cfg.data.oMf[cfg.link_frame[contact.b]].translation[:2].copy()
+    cs = cut(cfg, q, cut_joints)
+    v_f = cs.T @ v
+    M_f = mass_matrix(cs.model, cs.data, cs.q)
+    if contact.joint is None:
+        J_n = (n @ (frame_jacobian(cs.model, cs.data, pb.frame_id)[:2]
+                    - frame_jacobian(cs.model, cs.data, pa.frame_id)[:2]))[None, :]
+    else:
+        J_n = joint_stop_row(cfg, cs.model, cs.data, contact)[1][None, :]
+    G = np.vstack([cs.J_cut, cfg.coords.equality(t, cs.model, cs.data)])
+    chol = cholesky(M_f, cfg.name)
+    W = sla.cho_solve(chol, np.eye(M_f.shape[0]))
+    if G.shape[0]:
+        WGt = W @ G.T
+        S = G @ WGt
+        W_eff = W - WGt @ np.linalg.solve(S, WGt.T)  # inverse of the paper's M_f, Eq. 25
+    else:
+        W_eff = W
+    denom = J_n @ W_eff @ J_n.T  # Eq. 29 / 42 denominator: n^T J M_f^-1 J^T n
+    if not np.all(np.isfinite(denom)) or denom[0, 0] <= 1e-14 * np.trace(W_eff):
+        raise SimulationError(
+            f"t = {t:.9g} s: the contact {contact.a}/{contact.b} cannot take an impulse along its normal "
+            "(the normal is orthogonal to every allowed motion); check the contact normal and cut joints")
+    P = -(1.0 + restitution) * np.linalg.solve(denom, J_n @ v_f)  # Eqs. 29, 42
+    dv_f = W_eff @ J_n.T @ P  # Eqs. 24, 38 (and 35 with its sign)
+    v_f_after = v_f + dv_f  # Eqs. 30, 43
+    mult = -np.linalg.solve(S, G @ W @ J_n.T @ P) if G.shape[0] else np.zeros(0)
+    v_after, res, *_ = np.linalg.lstsq(cs.T, v_f_after, rcond=None)
+    if np.linalg.norm(cs.T @ v_after - v_f_after) > 1e-8 * max(1.0, np.linalg.norm(v_f_after)):
+        raise SimulationError(f"t = {t:.9g} s: the cut system's post-impact velocity does not reassemble "
+                              "the tree (internal error in joint cutting)")
+    M = cfg.mass_matrix(q)
+    out = Impulse(
+        kind=impact_kind(cfg, contact), restitution=restitution, normal=n, P=float(P[0]),
+        vn_before=vn, vn_after=float((J_n @ v_f_after)[0]), v_before=v.copy(), v_after=v_after,
+        ke_before=float(0.5 * v @ M @ v), ke_after=float(0.5 * v_after @ M @ v_after), point=point)
+    k = 0
+    for name in cut_joints:
+        F = np.zeros(3)
+        while k < len(cs.row_owner) and cs.row_owner[k] == name:
+            F += mult[k] * cs.row_dirs[k]
+            k += 1
+        out.cut_impulses[name] = [*(cs.child_rotation[name] @ F[:2]), float(F[2])]
+    labels = cfg.coords.labels
+    out.constraint_rows = {lab: float(val) for lab, val in zip(labels, mult[len(cs.row_owner):])}
+    # A driven joint keeps its prescribed speed through the impact: its motor's impulsive
+    # moment does work (mu q'), so the kinetic energy may rise by that much; what never
+    # rises is KE_before + drive_work - KE_after (the energy the impact dissipates).
+    out.drive_work = sum(mu * float(v[cfg.joint_slice[lab[:-6]]][0])
+                         for lab, mu in out.constraint_rows.items() if lab.endswith(".drive"))
+    if contact.joint is None:
+        point_impulses = [(contact.b, pos_b, out.vector, 0.0), (contact.a, pos_a, -out.vector, 0.0)]
+    elif cfg.spec.info.joints[contact.joint].type == "prismatic":  # a force along the axis at the child
+        point_impulses = [(contact.b, pos_b, out.vector, 0.0), (contact.a, pos_b, -out.vector, 0.0)]
+    else:  # a couple: -s P on the child, +s P on the parent
+        s_ = contact.stop_sign
+        point_impulses = [(contact.b, pos_b, np.zeros(2), -s_ * out.P), (contact.a, pos_b, np.zeros(2), s_ * out.P)]
+    out.contact_impulses = list(point_impulses)
+    loop = loop_point_impulses(cfg, out.constraint_rows)
+    point_impulses += loop
+    out.constraint_impulses = constraint_impulses(cfg, out.constraint_rows, loop)
+    out.joint_impulses, out.rnea_residual = joint_impulses(cfg, q, v_after - v, point_impulses)
+    return out
+
+
+def no_impulse(cfg: Configuration, q: np.ndarray, v_before: np.ndarray, v_after: np.ndarray,
+               contact: ContactSpec) -> Impulse:
+    """A transformation without impact (the paper's comparison runs): no impulse acts, the
+    velocity changes from ``v_before`` to ``v_after`` by the switch alone; the contact's
+    kinematics and the kinetic energies are those of the record."""
+    n, _, vn, Jn = contact_state(cfg, q, v_before, contact)
+    point = contact_point(cfg, contact)
+    M = cfg.mass_matrix(q)
+    return Impulse(kind=impact_kind(cfg, contact), restitution=None, normal=n, P=0.0, vn_before=vn,
+                   vn_after=float(Jn @ v_after), v_before=v_before.copy(), v_after=v_after,
+                   ke_before=float(0.5 * v_before @ M @ v_before), ke_after=float(0.5 * v_after @ M @ v_after),
+                   point=point, impact=False)
+
+
+def loop_point_impulses(cfg: Configuration, by_label: dict[str, float]):
+    """The loop cut joints' impulses as (link, point, force, moment) on b and, opposite, on a."""
+    out = []
+    for s, fa, fb in cfg.coords.cut_joint_frames():
+        pa, pb = cfg.data.oMf[fa].translation[:2], cfg.data.oMf[fb].translation[:2]
+        if s.type == "prismatic":
+            n = cfg.rotation(s.a) @ np.array([-s.axis[1], s.axis[0]]) / np.linalg.norm(s.axis)
+            F, m = by_label[f"{s.name}.fn"] * n, by_label[f"{s.name}.mz"]
+            out += [(s.b, pb, F, m), (s.a, pb, -F, -m)]
+            continue
+        F = np.array([by_label[f"{s.name}.fx"], by_label[f"{s.name}.fy"]])
+        m = by_label.get(f"{s.name}.mz", 0.0)
+        out += [(s.b, pb, F, m), (s.a, pa, -F, -m)]
+    return out
+
+
+def constraint_impulses(cfg: Configuration, rows: dict[str, float], loop_points) -> dict[str, list[float]]:
+    """Each loop cut joint's impulse as [fx, fy, mz] on its link b (the first of the pair
+    :func:`loop_point_impulses` gives), and each drive's as the impulse its motor applies on the
+    driven joint's child, in the same [fx, fy, mz] form as the joint impulses."""
+    out = {}
+    specs = cfg.coords.closure.specs if getattr(cfg.coords, "constrained", False) else ()
+    for s, (_, _, F, m) in zip(specs, loop_points[::2]):
+        out[s.name] = [float(F[0]), float(F[1]), float(m)]
+    for lab, mu in rows.items():
+        if not lab.endswith(".drive"):
+            continue
+        joint = lab[:-len(".drive")]
+        uj = cfg.spec.info.joints[joint]
+        if uj.type == "prismatic":
+            axis = cfg.data.oMi[cfg.joint_id[joint]].rotation[:2, :] @ np.asarray(uj.axis, float)
+            axis /= np.linalg.norm(axis)
+            out[lab] = [float(mu * axis[0]), float(mu * axis[1]), 0.0]
+        else:
+            out[lab] = [0.0, 0.0, float(mu)]
+    return out
+
+
+def joint_impulses(cfg: Configuration, q, dv, point_impulses):
+    """Impulse carried by every joint: RNEA with zero velocity and gravity,
+    ``dv`` as acceleration and the point impulses as external forces.
+
+    Returns ({joint: [fx, fy, mz]} on the child from the parent, world axes,
+    moment about the joint centre) and the generalized residual, which is the
+    impulse the actuators (drives) supply and is zero on passive joints.
+    """
+    model = cfg.model
+    cache = cfg.__dict__.setdefault("_impulse_models", {})  # built once per model (createData is costly)
+    if "zero_gravity" not in cache:
+        m0 = model.copy()
+        m0.gravity.linear[:] = 0.0
+        cache["zero_gravity"] = (m0, m0.createData())
+    m0, d0 = cache["zero_gravity"]
+    qp = cfg.to_pin(q)
+    pin.forwardKinematics(m0, d0, qp)
+    fext = pin.StdVec_Force()
+    for _ in range(model.njoints):
+        fext.append(pin.Force.Zero())
+    for link, p, F, mz in point_impulses:
+        jid = model.frames[cfg.link_frame[link]].parentJoint
+        if jid == 0:
+            continue
+        F3 = np.array([F[0], F[1], 0.0])
+        p3 = np.array([p[0], p[1], 0.0])
+        f_world = pin.Force(F3, np.cross(p3, F3) + np.array([0.0, 0.0, mz]))
+        fext[jid] = fext[jid] + d0.oMi[jid].actInv(f_world)
+    tau = pin.rnea(m0, d0, qp, np.zeros(model.nv), dv, fext)
+    out = {}
+    for jid in range(1, model.njoints):
+        f = d0.f[jid]
+        R = d0.oMi[jid].rotation
+        lin = R @ f.linear
+        out[model.names[jid]] = [float(lin[0]), float(lin[1]), float((R @ f.angular)[2])]
+    return out, np.asarray(tau).copy()

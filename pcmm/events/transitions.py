@@ -1,0 +1,366 @@
+"""Configuration transformations: what happens when a guard fires.
+
+Transition types form a registry (``TRANSITIONS``); each handler takes the
+run context, the configuration, the transition and the pre-impact state, and
+returns an :class:`Outcome`: the next configuration and its state, plus the
+event record for the summary.
+
+* ``latch``: the metamorphic joint locks on contact.  The impact is perfectly
+  plastic in the locked direction (e = 0), then the run continues in the next
+  configuration's URDF.
+* ``stop``: a unilateral stop with Newton's restitution e; the configuration
+  does not change and the bodies separate.  When the impacts accumulate
+  (post-impact normal speed or interval below the accumulation tolerances) the
+  last impact is made perfectly plastic and the bodies merge into
+  ``merge_to``.
+* ``release``: a transformation that frees locked joints and goes to a configuration with
+  more freedom.  It carries no impulse (paper section 2.2): the freed joints take the values
+  and rates the links' poses and velocities give them, so every body's position and
+  velocity is continuous (checked, like the poses at any switch) and the kinetic energy is
+  unchanged (checked).  A stop-merge held by compression only is released the same way
+  when its holding force would turn tensile (:func:`unmerge`).
+
+Without impact (the paper's comparison runs) a transformation switches
+configuration with no impulse: surviving joints keep their velocities, locked
+ones drop theirs.
+"""
+from __future__ import annotations
+
+import math
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..model.configuration import Configuration
+from ..model.mechanism import Mechanism
+from ..errors import SimulationError
+from .contact import contact_point, contact_state
+from .contact_faults import POSE_TOL, contact_findings
+from .records import by_link, event_record
+from .guards import guard_value
+from .impulse import no_impulse, solve_impulse
+from ..scene.spec import LatchSpec, StopSpec, TransitionSpec
+
+RESTING_FACTOR = 100.0  # a guard crossing at a separating speed below 100 x the accumulation speed is rest
+
+
+@dataclass
+class Context:
+    mechanism: Mechanism
+    impact: bool
+    accumulation_speed: float
+    accumulation_interval: float
+    forced_speed: float | None = None  # given for the run (CLI, RunOptions): wins over every transition's
+    forced_interval: float | None = None
+    last_impact: dict[str, float] = field(default_factory=dict)
+
+    def tolerances(self, tr: StopSpec) -> tuple[float, float]:
+        """(speed, interval) for a stop: the run's explicit value, else the transition's, else the scene's."""
+        def pick(forced, own, default):
+            return forced if forced is not None else own if own is not None else default
+        return (pick(self.forced_speed, tr.accumulation_speed, self.accumulation_speed),
+                pick(self.forced_interval, tr.accumulation_interval, self.accumulation_interval))
+
+
+@dataclass
+class Outcome:
+    configuration: str
+    q: np.ndarray
+    v: np.ndarray
+    event: dict
+    angle_offsets: dict[str, float]
+    locks: str | None = None  # the switch locked joints: "latch" or "merge" (a stop's accumulation)
+
+
+# ---- state mapping -----------------------------------------------------------------------
+def switch(src: Configuration, dst: Configuration, t: float, q: np.ndarray, v: np.ndarray,
+           known: dict | None = None):
+    """Map (q, v) of ``src`` onto ``dst`` by joint name and check the common links' poses.
+
+    Joints ``dst`` has and ``src`` lacks take their value from ``known`` (at rest),
+    else from the links' poses.  Returns (q, v, dropped velocities {joint: v},
+    angle offsets {link: 2 pi k}).
+    """
+    q_new, v_new, dropped = map_state(src, dst, q, v, known)
+    q_new, v_new = dst.coords.project(t, q_new, v_new)
+    offsets, problems = pose_mismatches(src, dst, q, q_new)
+    if problems:
+        raise SimulationError([f"t = {t:.9g} s, switching '{src.name}' -> '{dst.name}': {p}" for p in problems]
+                              + ["the two URDFs must place every shared link identically at the switch "
+                                 "(check the fixed joint's origin in the merged configuration)"])
+    return q_new, v_new, dropped, offsets
+
+
+def map_state(src: Configuration, dst: Configuration, q, v, known: dict | None = None):
+    """(q, v) of ``src`` as ``dst``'s coordinates, by joint name (not yet projected onto
+    ``dst``'s constraints), and the velocities of the joints ``dst`` drops."""
+    q_new = dst.neutral()
+    v_new = np.zeros(dst.nv)
+    missing = []
+    for name in dst.joint_names:
+        if name in src.joint_slice:
+            q_new[dst.joint_slice[name]] = q[src.joint_slice[name]]
+            v_new[dst.joint_slice[name]] = v[src.joint_slice[name]]
+        elif known and name in known:
+            q_new[dst.joint_slice[name]] = known[name]
+        else:
+            missing.append(name)
+    if missing:
+        q_new, v_new = joints_from_poses(src, dst, q, v, q_new, v_new, missing)
+    dropped = {n: float(v[src.joint_slice[n]][0]) for n in src.joint_names
+               if n not in dst.joint_slice and src.joint_slice[n].stop - src.joint_slice[n].start == 1}
+    return q_new, v_new, dropped
+
+
+def pose_mismatches(src: Configuration, dst: Configuration, q_src, q_dst):
+    """Angle offsets {link: 2 pi k} of the links both configurations share, and one text per
+    shared link whose pose differs by more than ``POSE_TOL``."""
+    poses_src = src.link_poses(q_src)
+    poses_dst = dst.link_poses(q_dst)
+    offsets = {}
+    problems = []
+    for link in dst.links:
+        if link not in src.link_index:
+            continue
+        a, b = poses_src[src.link_index[link]], poses_dst[dst.link_index[link]]
+        dtheta = a[2] - b[2]
+        k = np.round(dtheta / (2 * np.pi))
+        dpos = np.linalg.norm(a[:2] - b[:2])
+        dang = abs(dtheta - 2 * np.pi * k)
+        if dpos > POSE_TOL or dang > POSE_TOL:
+            problems.append(f"link '{link}' is at (x, y, theta) = ({a[0]:.9g}, {a[1]:.9g}, {a[2]:.9g}) in "
+                            f"'{src.name}' ({src.spec.source}) but at ({b[0]:.9g}, {b[1]:.9g}, {b[2]:.9g}) "
+                            f"in '{dst.name}' ({dst.spec.source}): position differs by {dpos:.3g} m, "
+                            f"angle by {dang:.3g} rad (allowed {POSE_TOL:g})")
+        offsets[link] = float(2 * np.pi * k)
+    return offsets, problems
+
+
+def joints_from_poses(src, dst, q, v, q_new, v_new, names):
+    """Values and rates of joints that ``src`` does not have (a released lock): from the poses
+    and velocities of their parent and child links in ``src``."""
+    poses = src.link_poses(q)
+    vel = src.link_velocities(q, v)
+    for name in names:
+        uj = dst.spec.info.joints[name]
+        if uj.type not in ("revolute", "continuous", "prismatic") or uj.parent not in src.link_index \
+                or uj.child not in src.link_index:
+            raise SimulationError(f"switching '{src.name}' -> '{dst.name}': joint '{name}' ({uj.type}) appears "
+                                  "and pcmm derives only a revolute or prismatic joint's value from the poses "
+                                  "of its two links, which must both be in the source configuration")
+        ip, ic = src.link_index[uj.parent], src.link_index[uj.child]
+        if uj.type == "prismatic":
+            # child origin = parent origin + R_p (xyz + R_o axis q): q = axis . R_o^T (R_p^T r - xyz)
+            th = poses[ip, 2]
+            Rp = np.array([[np.cos(th), -np.sin(th)], [np.sin(th), np.cos(th)]])
+            c, s_ = np.cos(uj.rpy[2]), np.sin(uj.rpy[2])
+            Ro = np.array([[c, -s_], [s_, c]])
+            axis = np.asarray(uj.axis[:2], dtype=float) / np.linalg.norm(uj.axis[:2])
+            r = poses[ic, :2] - poses[ip, :2]
+            q_new[dst.joint_slice[name]] = axis @ (Ro.T @ (Rp.T @ r - np.asarray(uj.xyz[:2])))
+            w = vel[ip, 2]
+            rel = vel[ic, :2] - vel[ip, :2] - w * np.array([-r[1], r[0]])
+            v_new[dst.joint_slice[name]] = (Rp @ Ro @ axis) @ rel
+        else:
+            q_new[dst.joint_slice[name]] = poses[ic, 2] - poses[ip, 2] - uj.rpy[2]
+            v_new[dst.joint_slice[name]] = vel[ic, 2] - vel[ip, 2]
+    return q_new, v_new
+
+
+def _check_continuity(src, dst, t, q, v, q_new, v_new, what: str) -> tuple[float, float]:
+    """Every shared body's velocity (and so the kinetic energy) is the same before and after a
+    switch without impulse; returns (largest velocity difference, kinetic energy change)."""
+    before, after = src.link_velocities(q, v), dst.link_velocities(q_new, v_new)
+    scale = max(1.0, float(np.max(np.abs(before))) if before.size else 1.0)
+    worst = 0.0
+    for link in dst.links:
+        if link in src.link_index:
+            worst = max(worst, float(np.max(np.abs(before[src.link_index[link]] - after[dst.link_index[link]]))))
+    ke0, ke1 = src.kinetic_energy(q, v), dst.kinetic_energy(q_new, v_new)
+    if worst > 1e-9 * scale or abs(ke1 - ke0) > 1e-9 * max(ke0, 1e-12):
+        raise SimulationError(
+            f"t = {t:.9g} s, {what} '{src.name}' -> '{dst.name}': a transformation without impulse must keep every "
+            f"body's velocity, but a link's velocity changes by {worst:.3g} and the kinetic energy from {ke0:.9g} "
+            f"to {ke1:.9g} J; the freed joints' rates could not be derived from the links (check that "
+            f"'{dst.name}' has the same links as '{src.name}')")
+    return worst, ke1 - ke0
+
+
+def check_latch_compressive(tr: TransitionSpec, t, imp: Impulse, v) -> None:
+    """A latch locks by a compressive impulse along its contact normal.  A tensile one means the
+    declared normal points the wrong way (from b towards a); the merge would pull the bodies."""
+    scale = max(1.0, float(np.max(np.abs(v)))) if len(v) else 1.0
+    if imp.P < 0 and imp.vn_before > 1e-9 * scale:
+        n = tr.contact.normal
+        raise SimulationError(
+            f"t = {t:.9g} s, transition '{tr.name}': the latch's impulse comes out tensile (P = {imp.P:.6g} N s "
+            f"along the declared normal ({n[0]:g}, {n[1]:g}) in link '{tr.contact.a}''s frame; normal "
+            f"velocity {imp.vn_before:.3g} m/s, separating): the normal must point from link a "
+            f"('{tr.contact.a}') towards link b ('{tr.contact.b}'); flip its sign")
+
+
+def _contact_faults(cfg: Configuration, tr: TransitionSpec, q, otherwise: str) -> list[str]:
+    """What is wrong with the contact at ``q`` (:func:`pcmm.contact_faults.contact_findings`: the points
+    or the normal, whichever is at fault), else ``otherwise``."""
+    return [f"transition '{tr.name}', {f.field}: {f.text}" for f in contact_findings(cfg, tr, q)] or [otherwise]
+
+
+def _merge(ctx: Context, cfg: Configuration, tr: TransitionSpec, target: str, t, q, v, transition_type):
+    """Plastic impact (or none without impact), then switch to ``target``."""
+    dst = ctx.mechanism.enter(target, cfg, q)  # a derived configuration locks the values at this instant
+    locked = [n for n in cfg.joint_names if n not in dst.joint_slice]
+    if ctx.impact:
+        imp = solve_impulse(cfg, t, q, v, tr.contact, 0.0, tr.cut)
+        v_after = imp.v_after
+    else:  # the paper's comparison: surviving joints keep their velocities, locked ones drop theirs
+        v_after = v.copy()
+        for n in locked:
+            v_after[cfg.joint_slice[n]] = 0.0
+        imp = no_impulse(cfg, q, v, v_after, tr.contact)
+    if imp.impact and transition_type == "latch":
+        check_latch_compressive(tr, t, imp, v)
+    if imp.impact:
+        scale = max(1.0, float(np.max(np.abs(v))))
+        moving = {n: float(v_after[cfg.joint_slice[n]][0]) for n in locked
+                  if abs(v_after[cfg.joint_slice[n]][0]) > 1e-8 * scale}
+        if moving:
+            raise SimulationError(
+                [f"t = {t:.9g} s, transition '{tr.name}': after the plastic impact the joints that "
+                 f"'{target}' locks still move ({moving}), so the merge would silently drop velocity"]
+                + _contact_faults(cfg, tr, q, "the contact impulse does not act along the locked joint's motion "
+                                  "(check cut and the contact)"))
+    if tr.guard.type == "coordinate":
+        residual = abs(guard_value(cfg, tr, t, q, v))
+        if residual > POSE_TOL:
+            raise SimulationError(
+                f"t = {t:.9g} s, transition '{tr.name}': the event was located {residual:.3g} away from "
+                f"the guard's value, more than the {POSE_TOL:g} the switch to '{target}' allows: lower "
+                "solver.event_tol (--event-tol) or rtol")
+    q_new, v_new, dropped, offsets = switch(cfg, dst, t, q, v if not imp.impact else v_after)
+    if not imp.impact:  # the record shows the velocities the run goes on with (projected onto the target)
+        for n in dst.joint_names:
+            if n in cfg.joint_slice:
+                v_after[cfg.joint_slice[n]] = v_new[dst.joint_slice[n]]
+        imp = no_impulse(cfg, q, v, v_after, tr.contact)
+    record = event_record(cfg, tr, t, target, True, imp, transition_type, q=q)
+    record["dropped_velocities"] = dropped
+    return Outcome(target, q_new, v_new, record, offsets, "merge" if transition_type == "stop" else "latch")
+
+
+def handle_latch(ctx: Context, cfg: Configuration, tr: LatchSpec, t, q, v) -> Outcome:
+    return _merge(ctx, cfg, tr, tr.target, t, q, v, "latch")
+
+
+def handle_stop(ctx: Context, cfg: Configuration, tr: StopSpec, t, q, v) -> Outcome:
+    if not ctx.impact:
+        if tr.merge_to is None:
+            raise SimulationError(f"transition '{tr.name}': a run without impact switches configuration at "
+                                  "the stop, so the stop needs merge_to (the merged configuration)")
+        return _merge(ctx, cfg, tr, tr.merge_to, t, q, v, "stop")
+    speed, interval = ctx.tolerances(tr)
+    _, _, vn, _ = contact_state(cfg, q, v, tr.contact)
+    if vn >= 0:
+        # The guard fired while the contact does not approach.  A tiny separating speed is the
+        # integrator's resolution at the end of an accumulation (the bounces are shorter than its
+        # dense-output error): the bodies rest in contact.  A clear one means a wrong normal.
+        if vn > RESTING_FACTOR * speed:
+            raise SimulationError(_separating_with_faults(cfg, tr, t, q, v, vn))
+        accumulated, rest_speed = True, vn
+    else:
+        imp = solve_impulse(cfg, t, q, v, tr.contact, tr.restitution, tr.cut)
+        last = ctx.last_impact.get(tr.name)
+        rest_speed = imp.vn_after
+        # impacts at the same instant are a sequential resolution of simultaneous contacts, not an
+        # accumulation: only a positive interval counts
+        accumulated = abs(imp.vn_after) <= speed or (last is not None and 0 < t - last <= interval)
+    ctx.last_impact[tr.name] = t
+    if accumulated:
+        if tr.merge_to is None:
+            raise SimulationError(
+                f"t = {t:.9g} s, transition '{tr.name}': the impacts accumulate (post-impact normal speed "
+                f"{abs(rest_speed):.3g} m/s) and the bodies come to rest in contact; give the stop a "
+                "merge_to configuration so the run can continue with the bodies merged")
+        return _merge(ctx, cfg, tr, tr.merge_to, t, q, v, "stop")
+    record = event_record(cfg, tr, t, cfg.name, False, imp, q=q)
+    q_new, v_new = cfg.coords.project(t, q, imp.v_after)
+    return Outcome(cfg.name, q_new, v_new, record, {})
+
+
+def _separating(cfg: Configuration, tr: TransitionSpec, t, q, v, vn) -> str:
+    """Why a guard fired while its contact separates.  If the guard really moves towards its
+    firing side there, the declared normal contradicts the guard: the normal is wrong.  If it
+    moves away, the crossing is an artefact of an inaccurate step (typically fixed-step RK4
+    at a step beyond its stability limit, whose state then oscillates wildly): the step is."""
+    head = (f"t = {t:.9g} s, transition '{tr.name}': the guard fired but the contact is separating "
+            f"(relative normal velocity {vn:.3g} m/s along the declared normal)")
+    try:
+        from .guards import guard_value
+        qd = cfg.qdot(q, v)
+        eps = 1e-7 / max(1.0, float(np.max(np.abs(qd)))) if qd.size else 0.0
+        rate = (guard_value(cfg, tr, t, q + eps * qd, v) - guard_value(cfg, tr, t, q - eps * qd, v)) / (2 * eps)
+    except Exception:  # noqa: BLE001 - the diagnosis is a hint; never let it mask the error itself
+        rate = None
+    if rate is not None and rate * tr.guard.direction < 0:
+        return (f"{head}, and the guard itself is moving away from its value (rate {rate:.3g}/s), so the "
+                "crossing comes from an inaccurate step, not from the normal: the integration is unstable "
+                "or too coarse here; with RK4 lower solver.step (--step), else tighten rtol")
+    return f"{head}; the normal must point from link a towards link b"
+
+
+def _separating_with_faults(cfg: Configuration, tr: TransitionSpec, t, q, v, vn) -> list[str]:
+    """:func:`_separating`'s diagnosis; where it blames the normal, what the contact check finds
+    at fault (the points or the normal)."""
+    text = _separating(cfg, tr, t, q, v, vn)
+    if not text.endswith("the normal must point from link a towards link b"):
+        return [text]
+    head = text[:text.rindex(";")]
+    return [head] + _contact_faults(cfg, tr, q, "the normal must point from link a towards link b")
+
+
+def _release_event(cfg: Configuration, dst: Configuration, tr: TransitionSpec, t, q, v, q_new, v_new,
+                   freed, continuity, cause: str) -> dict:
+    """The event of a transformation without impulse that frees joints."""
+    ke = cfg.kinetic_energy(q, v)
+    dst.kinematics(q_new, v_new)
+    child = dst.spec.info.joints[freed[0]].child if freed else dst.links[0]
+    point = dst.data.oMf[dst.link_frame[child]].translation[:2]
+    return {
+        "t": float(t), "name": tr.name, "kind": "release", "transition": "release", "cause": cause,
+        "from": cfg.name, "to": dst.name, "restitution": None, "merge": False, "impact": False,
+        "impulse": {"normal": 0.0, "vector": [0.0, 0.0]}, "normal": [0.0, 0.0],
+        "contact_point": [float(point[0]), float(point[1])],
+        "normal_velocity": {"before": 0.0, "after": 0.0},
+        "omega_before": by_link(cfg, v), "omega_after": by_link(dst, v_new),
+        "v_before": cfg.by_joint(v), "v_after": dst.by_joint(v_new), "joint_impulses": {},
+        "kinetic_energy_before": float(ke), "kinetic_energy_after": float(ke + continuity[1]),
+        "freed": {n: float(q_new[dst.joint_slice[n]][0]) for n in freed},
+        "velocity_jump_max": continuity[0],
+    }
+
+
+def release(ctx: Context, cfg: Configuration, tr: TransitionSpec, target: str, t, q, v, known=None,
+            cause: str = "guard") -> Outcome:
+    """Free the joints ``target`` has and ``cfg`` lacks: no impulse (paper section 2.2); the freed
+    joints' values and rates come from their links (or ``known`` values), every shared link's
+    pose and velocity is checked continuous and the kinetic energy unchanged."""
+    dst = ctx.mechanism.enter(target, cfg, q)  # a derived target locks the values it has now
+    freed = [n for n in dst.joint_names if n not in cfg.joint_slice]
+    q_new, v_new, _, offsets = switch(cfg, dst, t, q, v, known=known)
+    continuity = _check_continuity(cfg, dst, t, q, v, q_new, v_new, "release")
+    record = _release_event(cfg, dst, tr, t, q, v, q_new, v_new, freed, continuity, cause)
+    return Outcome(target, q_new, v_new, record, offsets)
+
+
+def handle_release(ctx: Context, cfg: Configuration, tr: TransitionSpec, t, q, v) -> Outcome:
+    """A ``release`` transition of the scene, fired by its guard."""
+    return release(ctx, cfg, tr, tr.target, t, q, v, cause=tr.guard.type)
+
+
+def unmerge(ctx: Context, cfg: Configuration, hold, target: str, t, q, v) -> Outcome:
+    """Undo a stop-merge whose holding force would turn tensile: the stop's joints are freed at
+    rest relative to each other, at the values they locked at."""
+    return release(ctx, cfg, hold.transition, target, t, q, v, known=hold.joints, cause="tensile holding force")
+
+
+TRANSITIONS = {"latch": handle_latch, "stop": handle_stop, "release": handle_release}

@@ -1,0 +1,235 @@
+"""The compiled evaluations (a tree's right-hand side, a loop's closure rows): an optional
+speed-up, never a different answer.
+
+A tree configuration's right-hand side (``TreeCoordinates``) is ``[v, aba(q, v, Q0 - KD y)]``.
+From Python it costs about 3.7 us per evaluation, of which Pinocchio's ABA is 0.65 us; Example 1
+spends 90 % of its run there.  A loop's Newton solves and constrained accelerations
+(``PartitionedCoordinates``) evaluate the revolute cut joints' rows ``p_b - p_a`` and their
+Jacobian rows (and the acceleration bias) some 13 000 times in Example 2, each about 11 us through
+the binding.  ``pcmm.model._tree_dynamics`` (C++, built by ``pip install`` where a compiler is at hand,
+against the ``pin`` wheel's own headers and library) does each evaluation in one call with
+Pinocchio's own algorithms, on a model rebuilt joint by joint from the Python model's numbers.
+
+It is used only where it is the same function: the extension must load, must have been built
+against the Pinocchio version that runs, must support every joint of the model (revolute and
+prismatic, aligned or not; no ``nq != nv`` joint), and must agree with the Python evaluation it
+replaces at probe states to round-off (:data:`AGREEMENT`), once per model and thread, before a
+configuration uses it.  Otherwise the Python evaluation runs and :func:`why_not` says why.
+``PCMM_COMPILED=0`` in the environment turns it off (benchmarks and tests compare the two).
+"""
+from __future__ import annotations
+
+import importlib.util
+import os
+import threading
+from typing import Callable
+
+import numpy as np
+import pinocchio as pin  # loaded first: the extension finds libpinocchio_default by its soname
+
+if importlib.util.find_spec(f"{__package__}._tree_dynamics") is None:  # pip had no C++ compiler, say
+    _tree_dynamics = None
+    _UNAVAILABLE = ("pcmm.model._tree_dynamics was not built when pcmm was installed (no C++ compiler?): the Python "
+                    "evaluations run, with the same results; with g++ at hand, reinstalling pcmm builds it")
+else:
+    try:
+        from . import _tree_dynamics
+    except ImportError as exc:  # built, but not loadable here (another Pinocchio library, say)
+        _tree_dynamics = None
+        _UNAVAILABLE = f"pcmm.model._tree_dynamics does not load here ({exc}): reinstall pcmm to rebuild it"
+    else:
+        _UNAVAILABLE = None
+
+
+def version_problem(built: str, running: str) -> str | None:
+    """Why an extension built against Pinocchio ``built`` must not run beside ``running``."""
+    if built != running:
+        return (f"pcmm.model._tree_dynamics was built against Pinocchio {built}, this process runs {running}: "
+                "reinstall pcmm (pip install -e .) to rebuild it")
+    return None
+
+
+if _tree_dynamics is not None:
+    _UNAVAILABLE = version_problem(_tree_dynamics.PINOCCHIO_VERSION, pin.__version__)
+    if _UNAVAILABLE:
+        _tree_dynamics = None
+
+ENV = "PCMM_COMPILED"
+# |a_compiled - a_python| <= AGREEMENT * (1 + max|a_python|) at every probe state
+AGREEMENT = 1e-11
+_PROBES = 3
+# Above this many coordinates the compiled evaluations are not worth their memory: Pinocchio's own
+# aba dominates (a chain's right-hand side, compiled against Python: 2.8 vs 6.2 us at nv = 5,
+# 8.9 vs 9.7 at 20, 16 vs 18 at 40, 42 vs 45 at 100), while each compiled tree holds a Pinocchio
+# 4.1 Data with nv^3-sized tensors (266 MB at nv = 200, beside the Python model's own).
+MAX_NV = 32
+# Built trees per thread (each holds its own Pinocchio Data: scratch space, never shared between
+# threads), by model and force elements: a run of a scene seen before reuses its trees (Pinocchio
+# 4.1's Data constructor allocates nv^3-sized tensors: 29 ms at nv = 100).
+_CACHE = threading.local()
+_CACHE_MAX = 32
+
+_last_reason: list[str] = []
+
+
+def enabled() -> bool:
+    """Whether the compiled evaluations may be used in this process."""
+    return _tree_dynamics is not None and os.environ.get(ENV, "1") != "0"
+
+
+def why_not() -> str | None:
+    """Why the last configuration that asked runs the Python evaluations (None: it runs the compiled ones)."""
+    if _UNAVAILABLE:
+        return _UNAVAILABLE
+    if os.environ.get(ENV, "1") == "0":
+        return f"{ENV}=0 in the environment"
+    return _last_reason[-1] if _last_reason else None
+
+
+def trees_built() -> int:
+    """How many compiled objects this thread holds (a run that built none ran Python's)."""
+    return sum(1 for _, built in _CACHE.__dict__.get("trees", {}).values() for _, checked in built.values() if checked)
+
+
+def _refuse(reason: str) -> None:
+    _last_reason[:] = [reason]
+
+
+def tree_rhs(model: pin.Model, Q0: np.ndarray, KD: np.ndarray, reference: Callable) -> Callable | None:
+    """The compiled ``rhs(t, y) = [v, aba(q, v, Q0 - KD y)]`` of a tree ``model`` (Pinocchio
+    coordinates are the state's: ``nq == nv``), or None where it cannot be ``reference``, the
+    Python right-hand side it replaces."""
+    Q0, KD = np.asarray(Q0, float), np.asarray(KD, float)
+    entry = _tree(model, ("rhs", Q0.tobytes(), KD.tobytes()), lambda tree: tree.finalize(model.gravity.linear, Q0, KD))
+    if entry is None:
+        return None
+    tree, checked = entry
+    probes = [(0.0, y) for y in _probe_states(model.nv)]
+    if not _agrees(checked, tree.rhs, reference, probes, "right-hand side"):
+        return None
+    return tree.rhs
+
+
+def closure_kinematics(model: pin.Model, frames_a, frames_b, rows: Callable, rows_and_bias: Callable):
+    """A compiled object whose ``point_rows(q) -> (Phi, Phi_q)`` and ``point_rows_and_bias(q, v)
+    -> (Phi_q, bias)`` are the kinematic constraint of each revolute cut joint (point ``b`` on
+    point ``a``, frames of ``model``), equal to ``rows`` and ``rows_and_bias``, their Python
+    evaluation; or None."""
+    frames_a, frames_b = tuple(map(int, frames_a)), tuple(map(int, frames_b))
+    nv = model.nv
+
+    def build(tree):
+        index = {f: tree.add_frame(int(model.frames[f].parentJoint), model.frames[f].placement.rotation,
+                                   model.frames[f].placement.translation) for f in sorted({*frames_a, *frames_b})}
+        for fa, fb in zip(frames_a, frames_b):
+            tree.add_pair(index[fa], index[fb])
+        tree.finalize(model.gravity.linear, np.zeros(nv), np.zeros((nv, 2 * nv)))
+    entry = _tree(model, ("closure", frames_a, frames_b), build)
+    if entry is None:
+        return None
+    tree, checked = entry
+    states = _probe_states(nv)
+    if not (_agrees(checked, tree.point_rows, rows, [(y[:nv],) for y in states], "closure rows")
+            and _agrees(checked, tree.point_rows_and_bias, rows_and_bias, [(y[:nv], y[nv:]) for y in states],
+                        "closure rows and bias")):
+        return None
+    return tree
+
+
+def _probe_states(nv: int) -> list[np.ndarray]:
+    """Fixed-seed states: angles over a turn, velocities of order one."""
+    rng = np.random.default_rng(20201001)
+    return [np.concatenate([rng.uniform(-np.pi, np.pi, nv), rng.uniform(-2.0, 2.0, nv)]) for _ in range(_PROBES)]
+
+
+def _tree(model: pin.Model, key: tuple, finalize: Callable):
+    """(compiled tree, the names of its functions checked so far) for ``key`` on ``model``: built
+    once per thread (the model's joints and bodies, then ``finalize(tree)``), or None (why_not says)."""
+    if not enabled():
+        return None
+    cache = _CACHE.__dict__.setdefault("trees", {})
+    # the model is held by identity (pcmm never edits a built model's bodies or joints); its
+    # gravity and armature, plain arrays a caller may set, are part of the key
+    key = (*key, model.gravity.linear.tobytes(), np.asarray(model.armature).tobytes())
+    held, built = cache.get(id(model), (None, {}))
+    if held is model and key in built:
+        return built[key]
+    tree = _rebuild(model)
+    if tree is None:
+        return None
+    try:
+        finalize(tree)
+    except ValueError as exc:
+        _refuse(str(exc))
+        return None
+    if held is not model:
+        if len(cache) >= _CACHE_MAX:
+            cache.pop(next(iter(cache)))
+        built = {}
+        cache[id(model)] = (model, built)  # the model is held: its id stays its own
+    built[key] = (tree, set())
+    return built[key]
+
+
+def _rebuild(model: pin.Model):
+    """The model's joints and bodies in a compiled tree (not finalized), or None (why_not says)."""
+    nv = model.nv
+    if model.nq != nv or nv == 0:
+        _refuse(f"nq = {model.nq}, nv = {nv}: only nq == nv > 0 is compiled")
+        return None
+    if nv > MAX_NV:
+        _refuse(f"nv = {nv} > {MAX_NV}: Pinocchio's aba dominates there, and a compiled tree's Data would "
+                "hold nv^3-sized tensors")
+        return None
+    if np.any(model.gravity.angular != 0):
+        _refuse("gravity with an angular part")
+        return None
+    tree = _tree_dynamics.Tree()
+    try:
+        for j in range(1, model.njoints):
+            joint = model.joints[j]
+            if joint.nv != 1 or joint.nq != 1:
+                raise ValueError(f"joint {model.names[j]!r} ({joint.shortname()}) has nq = {joint.nq}, nv = {joint.nv}")
+            kind = joint.shortname()
+            axis = joint.extract().axis if kind.endswith("Unaligned") else np.zeros(3)
+            placement = model.jointPlacements[j]
+            added = tree.add_joint(kind, int(model.parents[j]), placement.rotation, placement.translation,
+                                   np.asarray(axis, float), float(model.armature[joint.idx_v]))
+            if added != j:
+                raise ValueError(f"joint {model.names[j]!r} came out as joint {added}")
+            inertia = model.inertias[j]
+            tree.set_inertia(j, inertia.mass, inertia.lever, inertia.inertia)
+    except ValueError as exc:
+        _refuse(str(exc))
+        return None
+    return tree
+
+
+def _agrees(checked: set, fn, reference, probes, what: str) -> bool:
+    """``fn`` and ``reference`` at the probe arguments, output by output, to round-off; once per
+    compiled tree and function (``checked`` remembers)."""
+    if what in checked:
+        _last_reason.clear()
+        return True
+    for args in probes:
+        with np.errstate(all="ignore"):
+            expected = reference(*args)
+        expected = expected if isinstance(expected, tuple) else (expected,)
+        if not all(np.all(np.isfinite(e)) for e in expected):  # non-finite forces: Python reports them
+            _refuse(f"the Python {what} is not finite at a probe state")
+            return False
+        got = fn(*args)
+        got = got if isinstance(got, tuple) else (got,)
+        for g, e in zip(got, expected, strict=True):
+            e = np.asarray(e, float)
+            scale = 1.0 + float(np.max(np.abs(e), initial=0.0))
+            if np.shape(g) != e.shape:
+                _refuse(f"it disagrees with the Python {what}: shape {np.shape(g)} against {e.shape}")
+                return False
+            if not np.all(np.abs(g - e) <= AGREEMENT * scale):
+                _refuse(f"it disagrees with the Python {what} by {np.max(np.abs(g - e)):.3g} "
+                        f"(allowed {AGREEMENT * scale:.3g})")
+                return False
+    checked.add(what)
+    _last_reason.clear()
+    return True

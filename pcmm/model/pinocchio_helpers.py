@@ -1,0 +1,53 @@
+"""Thin helpers over Pinocchio's algorithms, shared by every layer above.
+
+Pure functions over a Pinocchio ``(model, data)`` pair, in Pinocchio's own
+style: nothing here knows about scenes, configurations or transitions, so any
+module may import it without creating a cycle.
+
+* :func:`frame_jacobian`, :func:`joint_jacobian`: 6 x nv Jacobians that are
+  always 2-D (eigenpy returns a 1-D array when nv = 1) and never reach
+  Pinocchio with nv = 0 (Pinocchio 4.1 crashes on such a model);
+* :func:`mass_matrix`: ``D(q)`` of paper Eq. 1 by CRBA, symmetrized;
+* :func:`cholesky`: its factor, or a clear :class:`~pcmm.errors.SimulationError`.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pinocchio as pin
+import scipy.linalg as sla
+
+from ..errors import SimulationError
+
+LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
+LOCAL = pin.ReferenceFrame.LOCAL
+
+
+def frame_jacobian(model, data, frame_id: int, ref=LWA) -> np.ndarray:
+    """6 x nv frame Jacobian (eigenpy returns a 1-D array when nv = 1; Pinocchio
+    4.1 crashes on a model with nv = 0, so that case never reaches it)."""
+    if model.nv == 0:
+        return np.zeros((6, 0))
+    return np.asarray(pin.getFrameJacobian(model, data, frame_id, ref)).reshape(6, model.nv)
+
+
+def joint_jacobian(model, data, joint_id: int, ref) -> np.ndarray:
+    """6 x nv joint Jacobian in ``ref`` (same shape guarantees as :func:`frame_jacobian`)."""
+    if model.nv == 0:
+        return np.zeros((6, 0))
+    return np.asarray(pin.getJointJacobian(model, data, joint_id, ref)).reshape(6, model.nv)
+
+
+def mass_matrix(model, data, q_pin) -> np.ndarray:
+    """D(q) of Eq. 1 by CRBA, symmetrized (CRBA fills the upper triangle only)."""
+    M = pin.crba(model, data, q_pin)
+    return np.triu(M) + np.triu(M, 1).T
+
+
+def cholesky(M: np.ndarray, configuration: str):
+    """Cholesky factor of a mass matrix, or a clear error when it is not positive definite."""
+    try:
+        return sla.cho_factor(M)
+    except np.linalg.LinAlgError:
+        raise SimulationError(
+            f"configuration '{configuration}': the mass matrix is not positive definite (a link without "
+            "mass or inertia?); every moving link needs <inertial> with mass > 0") from None

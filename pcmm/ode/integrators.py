@@ -1,0 +1,542 @@
+"""Integrators: a registry of methods sharing one contract.
+
+Contract: ``method.integrate(fun, t0, y0, t_bound, events, opts)`` integrates
+``y' = fun(t, y)`` from ``t0`` until ``t_bound`` or the first terminal event
+and returns a :class:`Segment`.  ``events`` are functions with ``terminal``
+and ``direction`` attributes (scipy's convention).  ``opts`` has ``rtol``,
+``atol``, ``max_step``, ``step`` (fixed-step methods), ``event_tol`` and
+``max_steps``.
+
+Every method hands its accepted steps to one event scanner
+(:func:`_scan`).  A guard fires when it changes sign in its direction
+between the ends of a step, or when the cubic Hermite model of the guard
+(values and rates at both ends) predicts that it enters and leaves within the
+step: a grazing impact.  The crossing is bracketed on the method's dense
+output and located by Brent's method to ``event_tol`` (s).  Event accuracy
+is the dense output's: DOP853 7th order, RK45 4th, RK4 cubic Hermite.
+
+A step with a non-finite state, a step size collapsed to round-off, or more
+than ``max_steps`` steps end the run with an error that says which setting
+to change; an error or Ctrl-C inside a segment carries the steps already
+taken (``exc.segment``) so no result is lost.
+"""
+from __future__ import annotations
+
+import math
+import warnings
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import integrate as si
+from scipy.optimize import brentq
+
+from ..errors import Repartition, SimulationError
+
+EPS = np.finfo(float).eps
+
+
+@dataclass
+class Segment:
+    t: np.ndarray  # (n,)
+    y: np.ndarray  # (ny, n)
+    event: int | None  # index into events of the event that ended it
+    nfev: int
+    nsteps: int
+    status: int  # 0 reached t_bound, 1 event, -1 failure
+    message: str
+
+
+class _Counted:
+    """The right-hand side with an evaluation counter; a derivative that is not finite stops the
+    run at once (scipy's step-size loop would otherwise shrink a NaN step forever, t = NaN)."""
+
+    def __init__(self, fun):
+        self.fun, self.n = fun, 0
+
+    def __call__(self, t, y):
+        self.n += 1
+        return finite_rate(self.fun(t, y), t, y)
+
+
+def finite_rate(f, t, y):
+    """``f`` if every entry is finite, else a :class:`SimulationError` naming the time and state."""
+    if type(f) is not np.ndarray:
+        f = np.asarray(f, float)
+    # one cheap test first (a NaN or an inf makes the sum non-finite; it may overflow, hence the
+    # second): a Python sum of a small vector's floats costs a quarter of a numpy dot
+    if math.isfinite(sum(f.tolist())) or np.all(np.isfinite(f)):
+        return f
+    raise SimulationError(
+        f"the derivative of the state is not finite at t = {t:.9g} s (state {np.asarray(y).tolist()}): a "
+        "velocity, force, stiffness or inertia is too large for floating point; check the initial "
+        "values and the model's numbers")
+
+
+def _too_many_steps(max_steps, t, t0=None, t_bound=None) -> str:
+    """The step budget is spent.  A long smooth run needs a larger budget, not another method:
+    the message gives the mean step and the budget the whole segment needs at that pace."""
+    if t0 is None or t_bound is None or not t > t0:
+        return (f"more than {max_steps} steps by t = {t:.9g} s; raise solver.max_steps (--max-steps), "
+                "or see README 'Choosing a method' if the steps are far shorter than the motion's time scale")
+    h = (t - t0) / max_steps
+    need = math.ceil(max_steps * (t_bound - t0) / (t - t0))
+    return (f"more than {max_steps} steps by t = {t:.9g} s (mean step {h:.3g} s since t = {t0:.9g} s); at this "
+            f"pace the segment to t = {t_bound:.9g} s needs about {need} steps: raise solver.max_steps "
+            f"(--max-steps {need}).  If that step is far shorter than the motion's time scale, a stiff "
+            "force element holds it back: see README 'Choosing a method'")
+
+
+def _step_collapsed(h, t) -> str:
+    size = "round-off" if h is None else f"{h:.3g} s"
+    return (f"the step size collapsed to {size} at t = {t:.9g} s: the problem is stiff or singular here; "
+            "check forces and stiffness values (an implicit method, Radau or LSODA, pays only for a "
+            "strongly damped fast mode: README 'Choosing a method')")
+
+
+def _needs_derivative(events) -> bool:
+    """Does the graze test need the state derivative at the end of each step?  A guard's rate
+    comes from its own ``rate`` when that reads the state alone, else from the derivative."""
+    return any(not getattr(e, "rate_from_state", False) for e in events)
+
+
+def _crossed(g_old, g_new, direction) -> bool:
+    """scipy's rule: a sign change (zero counts) in the event's direction."""
+    up = g_old <= 0 <= g_new and g_old != g_new
+    down = g_old >= 0 >= g_new and g_old != g_new
+    return (direction >= 0 and up) or (direction <= 0 and down)
+
+
+def _rate(e, t, y, f, h):
+    """The guard's time derivative along the flow: its own ``rate`` where it has one,
+    else a forward difference."""
+    if getattr(e, "rate", None) is not None:
+        return e.rate(t, y, f)
+    d = max(1e-7 * abs(h), 1e-12 * max(1.0, abs(t)))
+    return (e(t + d, y + d * f) - e(t, y)) / d
+
+
+def _hermite_dips(g0, d0, g1, d1, h, direction) -> bool:
+    """Does the cubic Hermite g(s) on [0, h] cross zero in ``direction`` inside the step
+    although both ends are on the same side, or come within 20 % of the ends' values of it
+    (a near miss, then checked on the dense output)?"""
+    if (g0 > 0) != (g1 > 0) or g0 == 0 or g1 == 0:
+        return False
+    if (g0 < 0 and direction < 0) or (g0 > 0 and direction > 0):
+        return False  # a dip from this side would cross against the guard's direction
+    # cubic in x = s/h: a x^3 + b x^2 + c x + g0; its extrema solve 3a x^2 + 2b x + c = 0
+    c = d0 * h
+    b = 3 * (g1 - g0) - (2 * d0 + d1) * h
+    a = 2 * (g0 - g1) + (d0 + d1) * h
+    if a == 0:
+        xs = [-c / (2 * b)] if b != 0 else []
+    else:
+        disc = b * b - 3 * a * c
+        if disc < 0:
+            return False
+        r = disc ** 0.5
+        xs = [(-b - r) / (3 * a), (-b + r) / (3 * a)]
+    for x in xs:
+        if 0.0 < x < 1.0:
+            g = ((a * x + b) * x + c) * x + g0
+            if (g0 < 0 and g >= 0) or (g0 > 0 and g <= 0) or abs(g) < 0.2 * max(abs(g0), abs(g1)):
+                return True
+    return False
+
+
+class _Stepper:
+    """Event scanning over accepted steps, shared by every method."""
+
+    def __init__(self, fun, events, opts, t0, y0, f0, t_bound):
+        self.fun, self.events, self.opts, self.t_bound = fun, events, opts, t_bound
+        self.ts, self.ys = [t0], [np.array(y0, float)]
+        self.g = [e(t0, self.ys[0]) for e in events]
+        self.rates = [_rate(e, t0, self.ys[0], f0, 1e-6) for e in events] if events else []
+        self.count = 0
+        self.max_steps = opts.max_steps  # read once: opts may resolve attributes through a fallback
+
+    def accept(self, t_old, y_old, t_new, y_new, f_new, dense):
+        """Record one step; return (event index, t_event, y_event) if a guard fires in it."""
+        if not math.isfinite(y_new @ y_new) and not np.all(np.isfinite(y_new)):  # (the dot: one cheap test)
+            raise SimulationError(
+                f"the state became {y_new.tolist()} (not finite) at t = {t_new:.9g} s: the method "
+                "is unstable at this step size; use a smaller step (solver.step for RK4) or a tighter rtol, "
+                "and check forces and stiffness values")
+        self.count += 1
+        if self.count > self.max_steps:
+            raise SimulationError(_too_many_steps(self.max_steps, t_new, self.ts[0], self.t_bound))
+        h = t_new - t_old
+        if self.count > 100 and 0 < abs(h) < 64 * EPS * max(1.0, abs(t_new)) and t_new != self.t_bound:
+            raise SimulationError(_step_collapsed(h, t_new))
+        hit = None
+        if self.events:
+            g_new = [e(t_new, y_new) for e in self.events]
+            r_new = [_rate(e, t_new, y_new, f_new, h)
+                     if f_new is not None or getattr(e, "rate_from_state", False) else None for e in self.events]
+            for i, e in enumerate(self.events):
+                if _crossed(self.g[i], g_new[i], e.direction) or (
+                        r_new[i] is not None and self.rates[i] is not None
+                        and _hermite_dips(self.g[i], self.rates[i], g_new[i], r_new[i], h, e.direction)):
+                    found = _locate(e, dense(), t_old, t_new, self.g[i], self.opts.event_tol)
+                    if found is not None and (hit is None or found < hit[1]):
+                        hit = (i, found)
+            self.g, self.rates = g_new, r_new
+        if hit is not None:
+            i, te = hit
+            ye = np.asarray(dense()(te), float)
+            self.ts.append(te)
+            self.ys.append(ye)
+            return i, te, ye
+        self.ts.append(t_new)
+        self.ys.append(np.array(y_new, float))
+        return None
+
+    def segment(self, event, nfev, status, message) -> Segment:
+        return Segment(np.array(self.ts), np.array(self.ys).T.reshape(len(self.ys[0]), len(self.ts)),
+                       event, nfev, len(self.ts) - 1, status, message)
+
+
+def _locate(e, sol, t_a, t_b, g_a, tol):
+    """First crossing of ``e`` in its direction on the dense output ``sol`` over [t_a, t_b], or
+    None.  The guard is sampled on a grid; where no sample crosses, the sample closest to a
+    crossing is refined by a bounded search for the extremum between its neighbours, so a graze
+    shorter than the grid spacing is still found."""
+    from scipy.optimize import minimize_scalar
+    n = 16
+    grid = np.linspace(t_a, t_b, n + 1)
+    ys = sol(grid)  # every dense output here takes an array of times: one call, (ny, n + 1)
+    vals = [e(s, ys[:, k]) for k, s in enumerate(grid)]
+    if _crossed(g_a, vals[0], e.direction) and vals[0] != g_a:
+        return float(t_a)  # already across at the start of the dense output (round-off)
+    xtol = max(tol, 4 * EPS * max(1.0, abs(t_b)))
+    rate = e.rate if getattr(e, "rate_from_state", False) else None
+
+    def root(lo, hi, g_lo, g_hi):
+        if rate is not None:  # the guard's own rate: Newton's steps, kept in the bracket
+            return _bracketed_newton(lambda u: e(u, sol(u)), lambda u: rate(u, sol(u), None), lo, hi, g_lo, g_hi, xtol)
+        return brentq(lambda u: e(u, sol(u)), lo, hi, xtol=xtol, rtol=4 * EPS)
+    for k in range(n):
+        if _crossed(vals[k], vals[k + 1], e.direction):
+            return float(grid[k + 1]) if vals[k + 1] == 0 else root(grid[k], grid[k + 1], vals[k], vals[k + 1])
+    # no sample crosses: look for a dip between samples, towards the side the guard crosses to
+    sign = 1.0 if e.direction >= 0 else -1.0  # direction >= 0: a crossing makes the guard rise
+    k = int(np.argmax([sign * v for v in vals]))
+    lo, hi = grid[max(k - 1, 0)], grid[min(k + 1, n)]
+    best = minimize_scalar(lambda u: -sign * e(u, sol(u)), bounds=(lo, hi), method="bounded",
+                           options={"xatol": xtol})
+    t_x = float(best.x)
+    g_x = e(t_x, sol(t_x))
+    start_side = vals[max(k - 1, 0)]
+    if _crossed(start_side, g_x, e.direction) and g_x != start_side:
+        return t_x if g_x == 0 else root(lo, t_x, start_side, g_x)
+    return None
+
+
+def _bracketed_newton(g, dg, lo, hi, g_lo, g_hi, xtol, max_iter=100) -> float:
+    """A zero of ``g`` in [lo, hi], where ``g`` changes sign, to ``xtol``: Newton's steps on
+    the guard's own rate (``dg``, read from the state), replaced by bisection wherever a step
+    would leave the shrinking bracket or not halve the error (Numerical Recipes' rtsafe).
+    Near a simple root it converges quadratically: 4 or 5 evaluations from a grid cell where
+    Brent's method, which cannot use the rate, took about 16 (with a Newton solve of the loop
+    each in a closed loop)."""
+    if g_lo == 0:
+        return float(lo)
+    if g_hi == 0:
+        return float(hi)
+    neg, pos = (lo, hi) if g_lo < 0 else (hi, lo)  # g(neg) < 0 < g(pos)
+    x = lo - g_lo * (hi - lo) / (g_hi - g_lo)  # the secant's zero: the first estimate
+    step = step_old = abs(hi - lo)
+    f, df = g(x), dg(x)
+    for _ in range(max_iter):
+        if f == 0:
+            return float(x)
+        if f < 0:
+            neg = x
+        else:
+            pos = x
+        newton_out = ((x - pos) * df - f) * ((x - neg) * df - f) > 0  # the step would leave the bracket
+        if newton_out or not df or abs(2 * f) > abs(step_old * df):
+            step_old, step = step, 0.5 * (pos - neg)
+            x = neg + step
+        else:
+            step_old, step = step, f / df
+            x -= step
+        if abs(step) < xtol or abs(pos - neg) < xtol:
+            return float(x)
+        f, df = g(x), dg(x)
+    return float(x)
+
+
+def _run(driver, fun, t0, y0, t_bound, events, opts):
+    """Set up the counted right-hand side and the event scanner, let ``driver(counted, f0, st)``
+    step (it returns ``(hit, failure)``), and turn what it raises into pcmm errors that carry
+    the steps already taken."""
+    counted = _Counted(fun)
+    f0 = counted(t0, np.asarray(y0, float))
+    st = _Stepper(counted, events, opts, t0, y0, f0, t_bound)
+    try:
+        hit, failure = driver(counted, f0, st)
+    except (SimulationError, KeyboardInterrupt, Repartition) as exc:
+        exc.segment = st.segment(None, counted.n, -1, str(exc))
+        raise
+    except (ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:  # NaN/inf inside the method
+        err = SimulationError(
+            f"the integration broke down after t = {st.ts[-1]:.9g} s ({type(exc).__name__}: {exc}): "
+            "the state is no longer finite; use a smaller step or tolerance, and check forces and "
+            "stiffness values")
+        err.segment = st.segment(None, counted.n, -1, str(err))
+        raise err from None
+    if failure:
+        return st.segment(None, counted.n, -1, failure)
+    if hit is not None:
+        return st.segment(hit[0], counted.n, 1, "event")
+    return st.segment(None, counted.n, 0, "reached t_end")
+
+
+def _scan(steps, st):
+    """Feed a method's accepted steps to the event scanner: ``(hit, failure)``."""
+    for t_old, y_old, t_new, y_new, f_new, dense, failure in steps:
+        if failure:
+            return None, failure
+        hit = st.accept(t_old, y_old, t_new, y_new, f_new, dense)
+        if hit is not None:
+            return hit, None
+    return None, None
+
+
+class ScipyMethod:
+    """One of scipy's ``OdeSolver`` classes, stepped by pcmm."""
+
+    fixed_step = False
+
+    def __init__(self, name: str):
+        self.name = name
+        self.cls = getattr(si, name)
+
+    def integrate(self, fun, t0, y0, t_bound, events, opts) -> Segment:
+        needs_f = _needs_derivative(events)
+
+        def steps(counted, f0, st):
+            solver = self.cls(counted, t0, np.array(y0, float), t_bound, rtol=opts.rtol, atol=opts.atol,
+                              max_step=opts.max_step)
+            while solver.status == "running":
+                t_old, y_old = solver.t, solver.y.copy()
+                message = solver.step()
+                if solver.status == "failed":
+                    yield t_old, y_old, solver.t, solver.y, None, None, f"{self.name} failed: {message}"
+                    return
+                f_new = getattr(solver, "f", None)  # BDF and LSODA keep none
+                if f_new is None and needs_f:
+                    f_new = counted(solver.t, solver.y)
+                yield t_old, y_old, solver.t, solver.y, f_new, _lazy(solver.dense_output), None
+        return _run(lambda counted, f0, st: _scan(steps(counted, f0, st), st), fun, t0, y0, t_bound, events, opts)
+
+
+def _lazy(make):
+    cache = []
+
+    def get():
+        if not cache:
+            cache.append(make())
+        return cache[0]
+    return get
+
+
+class FortranDOP853:
+    """Hairer's DOP853 in Fortran (scipy.integrate.ode) for the stepping.
+
+    The Fortran code calls the right-hand side with almost no overhead per
+    evaluation (scipy's Python ``OdeSolver`` loop adds several microseconds
+    per call, more than a lean right-hand side costs).  Each accepted step is
+    scanned for events like every method's; the step that holds an event is
+    taken again by scipy's DOP853 (:func:`_dop853_dense`) for its dense output,
+    so events are located to DOP853's 7th-order accuracy.
+    """
+
+    fixed_step = False
+    name = "DOP853F"
+    # Hairer's stabilized (PI) step-size control, as his DOPRI5 uses by default (DOP853's own
+    # default is 0): fewer rejected steps at the same error (Example 1 at rtol 1e-10: 456 instead
+    # of 535 evaluations, 2 instead of 7 rejections; benchmarks/handwritten_baseline.py).
+    beta = 0.04
+
+    def integrate(self, fun, t0, y0, t_bound, events, opts) -> Segment:
+        needs_f = _needs_derivative(events)
+
+        def drive(counted, f0, st):
+            hits, raised = [], []
+            rhs, zeros = counted.fun, np.zeros(len(y0))
+
+            # An exception raised in a call-back does not stop the Fortran code: f2py keeps it
+            # until the integration ends (millions of steps later, on garbage).  So a failing
+            # right-hand side is recorded and answered with zeros, and solout stops at the next
+            # accepted step before recording it.  The trial steps in between mix the last real
+            # stage with zeros: they are rejected while the step shrinks (about 15 of them, a
+            # few hundred calls that cost nothing), until one is accepted.  Each call-back's
+            # whole body is guarded, so even a Ctrl-C between two statements is kept.
+            # Finiteness is not tested here, at every evaluation (a sixth of Example 1's run): a
+            # non-finite stage makes the Fortran code's error estimate non-finite, the step is
+            # rejected, and it stops at once with "step size too small" (-3) within a few hundred
+            # evaluations; only then is the cause found (:meth:`_diagnose`).
+            def f(t, y):
+                try:
+                    if raised:
+                        return zeros
+                    counted.n += 1
+                    return rhs(t, y)
+                except BaseException as exc:  # incl. Ctrl-C and Repartition: re-raised below
+                    raised.append(exc.__cause__ if isinstance(exc, SystemError) and exc.__cause__ else exc)
+                    return zeros
+
+            def solout(t, y):  # called by the Fortran code after every accepted step
+                try:
+                    if raised:
+                        return -1
+                    if t == st.ts[-1]:  # the call at t0, before any step
+                        return 0
+                    t_old, y_old = st.ts[-1], st.ys[-1]
+                    y = y.copy()
+                    # the derivative only where a guard's rate needs it (most read it from the state)
+                    f_new = counted(t, y) if needs_f else None
+                    dense = _lazy(lambda: _dop853_dense(counted, t_old, y_old, t, opts))
+                    hit = st.accept(t_old, y_old, t, y, f_new, dense)
+                    if hit is not None:
+                        hits.append(hit)
+                        return -1
+                    return 0
+                except BaseException as exc:
+                    raised.append(exc)
+                    return -1
+            solver = si.ode(f).set_integrator(
+                "dop853", rtol=opts.rtol, atol=opts.atol, nsteps=opts.max_steps, beta=self.beta,
+                max_step=opts.max_step if np.isfinite(opts.max_step) else 0.0)
+            solver.set_solout(solout)
+            solver.set_initial_value(np.array(y0, float), t0)
+            with warnings.catch_warnings():  # scipy warns on a failure code; the message below says it
+                warnings.filterwarnings("ignore", category=UserWarning, module="scipy.integrate._ode")
+                solver.integrate(t_bound)
+            if raised:
+                raise raised[0]
+            if hits:
+                return hits[0], None
+            code = solver.get_return_code()
+            if code < 0:
+                self._diagnose(counted, st, opts)
+                raise SimulationError(self._failure(code, st, opts))
+            if t_bound - st.ts[-1] <= 4 * EPS * max(1.0, abs(t_bound)):
+                st.ts[-1] = t_bound  # Hairer's last step, x + (xend - x), may round an ulp short
+            else:
+                return None, f"DOP853 (Fortran) stopped at t = {st.ts[-1]:.17g} s before t_end = {t_bound:.17g} s"
+            return None, None
+        return _run(drive, fun, t0, y0, t_bound, events, opts)
+
+    @staticmethod
+    def _diagnose(counted, st, opts, steps: int = 200) -> None:
+        """After a failure: raise the non-finite-derivative error if that is what stopped the
+        Fortran code, by stepping on from the last accepted state with the checked right-hand
+        side (scipy's DOP853, the same tableau) until the failing stage comes round again."""
+        t, y = st.ts[-1], np.array(st.ys[-1], float)
+        counted(t, y)  # raises if the derivative at the last accepted state is not finite
+        try:
+            solver = si.DOP853(counted, t, y, st.t_bound, rtol=opts.rtol, atol=opts.atol)
+            for _ in range(steps):
+                if solver.status != "running" or solver.step() is not None:
+                    return
+        except SimulationError:
+            raise
+        except (ValueError, ArithmeticError, np.linalg.LinAlgError):
+            return
+
+    @staticmethod
+    def _failure(code, st, opts) -> str:
+        """Hairer's return codes in pcmm's words (the same advice as the other methods')."""
+        t = st.ts[-1]
+        if code == -2:
+            return _too_many_steps(opts.max_steps, t, st.ts[0], st.t_bound)
+        if code == -3:
+            return _step_collapsed(None, t)
+        if code == -4:
+            return (f"DOP853 (Fortran) found the problem stiff at t = {t:.9g} s; use a stiff method "
+                    "(Radau, LSODA) or check forces and stiffness values")
+        return f"DOP853 (Fortran) rejected its input (code {code}) at t = {t:.9g} s"
+
+
+def _dop853_dense(fun, t_a, y_a, t_b, opts):
+    """DOP853's 7th-order dense output over one step [t_a, t_b] of the Fortran code: scipy's
+    DOP853 (the same tableau and error control) started with that step size.  It normally
+    takes the step in one; where it splits it, the pieces are joined."""
+    solver = si.DOP853(fun, t_a, y_a, t_b, rtol=opts.rtol, atol=opts.atol, first_step=t_b - t_a)
+    ts, pieces = [t_a], []
+    while solver.status == "running":
+        message = solver.step()
+        if solver.status == "failed":
+            raise SimulationError(f"DOP853 failed while re-integrating the step [{t_a:.9g}, {t_b:.9g}] s "
+                                  f"that holds an event: {message}")
+        ts.append(solver.t)
+        pieces.append(solver.dense_output())
+    return pieces[0] if len(pieces) == 1 else si.OdeSolution(ts, pieces)
+
+
+class FixedStepRK4:
+    """Classical Runge-Kutta with a fixed step (the paper's MATLAB route).
+
+    Its dense output is the cubic Hermite interpolant of each step."""
+
+    fixed_step = True
+    name = "RK4"
+
+    def integrate(self, fun, t0, y0, t_bound, events, opts) -> Segment:
+        def steps(counted, f0, st):
+            h = opts.step
+            t, y, f = t0, np.array(y0, float), f0
+            while t < t_bound - 1e-15 * max(1.0, abs(t_bound)):
+                hh = min(h, t_bound - t)
+                if y.size == 0:  # nothing to integrate (a locked or fully driven configuration)
+                    t_new = t + hh
+                    f_new = counted(t_new, y)
+                    yield t, y, t_new, y, f_new, _lazy(lambda a=(t, y, f, t_new, y, f_new): _hermite(*a)), None
+                    t = t_new
+                    continue
+                k2 = counted(t + hh / 2, y + hh / 2 * f)
+                k3 = counted(t + hh / 2, y + hh / 2 * k2)
+                k4 = counted(t + hh, y + hh * k3)
+                y_new = y + hh / 6 * (f + 2 * k2 + 2 * k3 + k4)
+                t_new = t + hh
+                f_new = counted(t_new, y_new) if np.all(np.isfinite(y_new)) else y_new
+                yield t, y, t_new, y_new, f_new, _lazy(lambda a=(t, y, f, t_new, y_new, f_new): _hermite(*a)), None
+                t, y, f = t_new, y_new, f_new
+        return _run(lambda counted, f0, st: _scan(steps(counted, f0, st), st), fun, t0, y0, t_bound, events, opts)
+
+
+def _hermite(t0, y0, f0, t1, y1, f1):
+    """The cubic Hermite interpolant of a step; like scipy's dense outputs it takes a time
+    (returns (ny,)) or an array of times (returns (ny, n))."""
+    h = t1 - t0
+    outer = np.multiply.outer
+
+    def y(s):
+        x = (np.asarray(s, float) - t0) / h
+        h00, h10 = 2 * x**3 - 3 * x**2 + 1, x**3 - 2 * x**2 + x
+        h01, h11 = -2 * x**3 + 3 * x**2, x**3 - x**2
+        return outer(y0, h00) + outer(h * f0, h10) + outer(y1, h01) + outer(h * f1, h11)
+    return y
+
+
+INTEGRATORS = {name: ScipyMethod(name) for name in ("RK45", "DOP853", "Radau", "LSODA", "BDF", "RK23")}
+INTEGRATORS["DOP853F"] = FortranDOP853()
+INTEGRATORS["RK4"] = FixedStepRK4()
+
+# "auto": per configuration, the cheaper method at equal accuracy (docs/benchmarks/work_precision.md).
+# On a tree the right-hand side is one aba, and scipy's Python step loop would cost more than it:
+# Hairer's Fortran DOP853 is about 2x faster there, with event times as accurate (Example 1 at rtol
+# 1e-10: 3.9e-13 s against DOP853's 7.2e-13 s).  With loops or drives the Newton-solved right-hand
+# side dominates and every impact re-takes a step for the dense output, so scipy's DOP853 is cheaper.
+AUTO = "auto"
+METHODS = (AUTO, *INTEGRATORS)
+
+
+def method_for(name: str, constrained: bool):
+    """The integrator a configuration uses under the run's ``method`` setting."""
+    if name == AUTO:
+        return INTEGRATORS["DOP853" if constrained else "DOP853F"]
+    return INTEGRATORS[name]
+

@@ -1,0 +1,52 @@
+"""The guard type: a witness function of the integrator's state.
+
+A :class:`Guard` is what Drake calls a witness function: a scalar of the state whose
+crossing of zero, in its ``direction``, fires something in the paper's Fig. 3 loop.  It
+carries what it watches (``description``), its value and (where it has one) its rate read
+from the state, and the ``action`` the loop takes when it fires:
+
+* ``"transition"``: the scene transition ``transition`` (a latch, a stop, a release) fires;
+* ``"unmerge"``: a stop-merge held by compression only would have to pull (``payload`` is
+  the merge); the bodies separate with no impulse;
+* ``"separation"``: a collision resolved by a continuous contact law ends (the gap reopens);
+* ``"repartition"``: a loop's partition of its coordinates degenerates (a new one is chosen,
+  or the loop is at a singular posture).
+
+The integrators read the value by calling the guard, ``terminal`` and ``direction`` (scipy's
+event convention), and ``rate(t, y, f)`` for their graze test where it is given.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from typing import Any, Callable
+
+import numpy as np
+
+ACTIONS = ("transition", "unmerge", "separation", "repartition")
+
+
+@dataclass(eq=False)
+class Guard:
+    description: str
+    value: Callable[[float, np.ndarray], float]
+    direction: int  # +1: fires when rising through zero, -1: falling, 0: either
+    action: str = "transition"
+    transition: Any = None  # the scene's TransitionSpec it fires ("transition", "unmerge")
+    rate: Callable[[float, np.ndarray, np.ndarray | None], float] | None = None
+    rate_from_state: bool = False  # the rate needs no state derivative (the graze test is cheap)
+    payload: Any = None  # what the action needs ("unmerge": the merge it watches)
+    terminal: bool = True
+
+    def __post_init__(self):
+        if self.action not in ACTIONS:
+            raise ValueError(f"guard action {self.action!r}: must be one of {', '.join(ACTIONS)}")
+
+    def __call__(self, t: float, y: np.ndarray) -> float:
+        return self.value(t, y)
+
+    def on_state(self, n: int) -> "Guard":
+        """This guard read on the first ``n`` components of a longer state (an integrated
+        quantity appended to it: a flight's work, a contact law's impulse), its rate too."""
+        value, rate = self.value, self.rate
+        return replace(self, value=lambda t, y: value(t, y[:n]),
+                       rate=None if rate is None else (lambda t, y, f: rate(t, y[:n], None if f is None else f[:n])))

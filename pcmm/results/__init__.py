@@ -1,0 +1,1 @@
+"""A run's record: the trajectory (segments, events, stats; NPZ, CSV, JSON) and its summary."""

@@ -1,0 +1,624 @@
+"""Run results: segments (one per stay in a configuration), events and stats.
+
+A :class:`Trajectory` saves to one NPZ file (arrays plus a JSON header) and
+loads back without the scene; it exports CSV with one column per named
+quantity and units in the header.  Files are written atomically (temporary
+file, then rename) so an interrupted write never leaves half a file.
+
+The file also records what the views need (:attr:`Trajectory.views`): each
+visited configuration's URDF text and joints (name, type, parent, child) and
+each force element's target.  ``pcmm replay`` and ``pcmm plot`` read only
+that, so a saved run replays and plots after its scene and URDFs are gone.
+Files of the first format (``pcmm-trajectory-1``, without views) still load;
+their views are read from the scene file they name while it exists.
+"""
+from __future__ import annotations
+
+import csv
+import json
+import math
+import os
+import tempfile
+import tomllib
+import xml.etree.ElementTree as ET
+import zipfile
+import zlib
+from dataclasses import dataclass, field
+from typing import Callable
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import SimulationError, UsageError
+from ..files import atomic_write
+
+FORMAT = "pcmm-trajectory-2"
+_FORMATS = ("pcmm-trajectory-1", FORMAT)
+_ARRAYS = ("t", "q", "v", "theta", "omega", "xy", "kinetic", "potential", "forces", "constraint_forces")
+_DERIVED = _ARRAYS[1:]  # everything but t: computed from the integrator's states when first asked for
+
+
+@dataclass
+class SegmentRecord:
+    """Samples of one stay in one configuration (the integrator's steps).
+
+    A run records a segment as the integrator's states only (:meth:`deferred`); the
+    coordinates and the derived series (angles, positions, energies, force elements,
+    constraint forces) are computed on first access of any of them, once, so a run
+    that nobody reads pays nothing for them."""
+
+    configuration: str
+    coordinates: list[str]  # one name per velocity: "O1", or "P.x", "P.y", "P.theta"
+    links: list[str]
+    force_names: list[str]
+    constraint_labels: list[str]
+    t: np.ndarray
+    q: np.ndarray  # (n, nv)
+    v: np.ndarray  # (n, nv)
+    theta: np.ndarray  # (n, nlinks) absolute angles, continuous across switches
+    omega: np.ndarray  # (n, nlinks)
+    xy: np.ndarray  # (n, nlinks, 2) link frame origins
+    kinetic: np.ndarray  # (n,)
+    potential: np.ndarray  # (n,) gravity + springs
+    forces: np.ndarray  # (n, nforces) each force element's output (N or N m)
+    constraint_forces: np.ndarray  # (n, m) cut-joint reactions and driving moments
+
+    @classmethod
+    def deferred(cls, derive, t: np.ndarray, resample=None, **meta) -> "SegmentRecord":
+        """A segment whose arrays other than ``t`` come from ``derive()`` (a dict of them)
+        when first needed; ``resample(times)`` gives the same dict at other times (on the
+        integrator's dense output)."""
+        rec = object.__new__(cls)
+        rec.__dict__.update(meta, t=t, _derive=derive, _resample=resample)
+        return rec
+
+    def resampled(self, times: np.ndarray) -> "SegmentRecord":
+        """The segment at ``times`` (within its own span), from the dense output of the run's
+        steps: only a segment of the run that made it can do this, not one loaded from a file."""
+        resample = self.__dict__.get("_resample")
+        if resample is None:
+            raise UsageError("resampling at a chosen rate needs the run's dense output: ask for it when "
+                             "running (pcmm run --dt); a saved trajectory holds its steps only")
+        times = np.asarray(times, float)
+        rec = object.__new__(type(self))
+        rec.__dict__.update({k: self.__dict__[k] for k in ("configuration", "coordinates", "links", "force_names",
+                                                           "constraint_labels")}, t=times)
+        rec.__dict__.update(resample(times))
+        return rec
+
+    def __getattr__(self, name):  # only called for attributes not yet set: the deferred arrays
+        derive = self.__dict__.get("_derive")
+        if name not in _DERIVED or derive is None:
+            raise AttributeError(name)
+        self.__dict__.update(derive())
+        del self.__dict__["_derive"]
+        return self.__dict__[name]
+
+    def __getstate__(self):  # pickled (e.g. sent to another process) with its arrays, not its source
+        for name in _DERIVED:
+            getattr(self, name)
+        return {k: v for k, v in self.__dict__.items() if k not in ("_derive", "_resample")}
+
+
+class RunStats(dict):
+    """A run's statistics; the entries given as functions (``RunStats(d, holding=f)``) are
+    computed the first time they are read, however they are read (item, ``get``, iteration,
+    ``items``, JSON, pickle): they derive from series that are themselves computed on demand."""
+
+    def __init__(self, data=(), **deferred):
+        super().__init__(data)
+        for key in deferred:
+            super().__setitem__(key, None)
+        self._deferred = dict(deferred)
+
+    def defer(self, key: str, fn) -> None:
+        """Make ``key``'s value ``fn()``, computed the first time it is read."""
+        super().__setitem__(key, None)
+        self._deferred[key] = fn
+
+    def _settle(self, key=None):
+        for k in ([key] if key is not None else list(self._deferred)):
+            fn = self._deferred.pop(k, None)
+            if fn is not None:
+                super().__setitem__(k, fn())
+
+    def __getitem__(self, key):
+        self._settle(key) if key in self._deferred else None
+        return super().__getitem__(key)
+
+    def get(self, key, default=None):
+        self._settle(key) if key in self._deferred else None
+        return super().get(key, default)
+
+    def __iter__(self):
+        self._settle()
+        return super().__iter__()
+
+    def items(self):
+        self._settle()
+        return super().items()
+
+    def values(self):
+        self._settle()
+        return super().values()
+
+    def copy(self):
+        self._settle()
+        return dict(super().items())
+
+    def __repr__(self):
+        self._settle()
+        return super().__repr__()
+
+    def __reduce__(self):
+        self._settle()
+        return (dict, (dict(super().items()),))
+
+
+def holding_extremes(traj: "Trajectory") -> dict:
+    """{lock: {min, t_min, max, t_max}} of every holding force or moment over the recorded
+    samples (constraint forces labelled ``<lock>.hold``): what a designer sizes a latch by."""
+    out: dict = {}
+    for s in traj.segments:
+        for k, label in enumerate(s.constraint_labels):
+            if not label.endswith(".hold"):
+                continue
+            col = s.constraint_forces[:, k]
+            ext = out.setdefault(label, {"min": math.inf, "t_min": None, "max": -math.inf, "t_max": None})
+            i_lo, i_hi = int(np.argmin(col)), int(np.argmax(col))
+            if col[i_lo] < ext["min"]:
+                ext["min"], ext["t_min"] = float(col[i_lo]), float(s.t[i_lo])
+            if col[i_hi] > ext["max"]:
+                ext["max"], ext["t_max"] = float(col[i_hi]), float(s.t[i_hi])
+    return out
+
+
+@dataclass
+class Trajectory:
+    """The result of a run: one :class:`SegmentRecord` per stay in a configuration, the events
+    and the stats.
+
+    Attributes
+    ----------
+    scene : str
+        Path of the scene file the run read.
+    scene_name : str
+    impact : bool
+        ``False`` for the comparison run without impact (the paper's Figs. 6-9).
+    segments : list of SegmentRecord
+    events : list of dict
+        One :class:`pcmm.events.EventRecord` per transformation, in time order.
+    stats : dict
+        ``steps``, ``rhs_evals``, ``wall_s``, ``constraint_drift_max``, ...
+    status : str
+        ``"complete"``, or ``"partial"`` for a run stopped by an error or Ctrl-C.
+    message : str
+        Why a partial run stopped.
+
+    Examples
+    --------
+    >>> import pcmm
+    >>> traj = pcmm.simulate(pcmm.load_scene("examples/three_bar.toml"), pcmm.RunOptions(t_end=0.2))
+    >>> [s.configuration for s in traj.segments], traj.status
+    (['config1', 'config2'], 'complete')
+    """
+
+    scene: str  # path of the scene file
+    scene_name: str
+    impact: bool  # False: the comparison run without impact (Figs. 6-9)
+    segments: list[SegmentRecord] = field(default_factory=list)
+    events: list[dict] = field(default_factory=list)
+    stats: dict = field(default_factory=dict)
+    status: str = "complete"  # or "partial"
+    message: str = ""
+    #: What the replay and the figures need, recorded at run time (see :func:`record_views`):
+    #: ``{"configurations": {name: {"urdf": text, "joints": {joint: {"type", "parent", "child"}}}},
+    #: "forces": {name: {"on": {"kind", "name"}}}}``.
+    views: dict = field(default_factory=dict)
+    #: The file this trajectory was loaded from (not saved), for messages.
+    source: str | None = field(default=None, compare=False)
+
+    # ---- access -----------------------------------------------------------------------
+    @property
+    def t(self) -> np.ndarray:
+        """Every sample time of the run, segment after segment (s).
+
+        Examples
+        --------
+        >>> import pcmm
+        >>> traj = pcmm.simulate(pcmm.load_scene("examples/three_bar.toml"), pcmm.RunOptions(t_end=0.2))
+        >>> float(traj.t[0]), float(traj.t[-1])
+        (0.0, 0.2)
+        """
+        return np.concatenate([s.t for s in self.segments]) if self.segments else np.zeros(0)
+
+    @property
+    def links(self) -> list[str]:
+        """Every link of the run, in order of first appearance.
+
+        Examples
+        --------
+        >>> import pcmm
+        >>> pcmm.simulate(pcmm.load_scene("examples/three_bar.toml"), pcmm.RunOptions(t_end=0.2)).links
+        ['frame', 'link1', 'link2', 'link3']
+        """
+        out: list[str] = []
+        for s in self.segments:
+            out += [n for n in s.links if n not in out]
+        return out
+
+    def series(self, quantity: str, name: str | None = None) -> np.ndarray:
+        """A quantity over the whole run, one value per sample of :attr:`t`.
+
+        Parameters
+        ----------
+        quantity : str
+            ``theta``/``omega``/``xy`` (by link), ``q``/``v`` (by coordinate), ``forces``
+            (by force name), ``constraint_forces`` (by row label), ``kinetic``/``potential``
+            (no name).
+        name : str, optional
+            The link, coordinate, force or row.
+
+        Returns
+        -------
+        numpy.ndarray
+            NaN where a segment lacks ``name`` (a joint that a configuration locks).
+
+        Examples
+        --------
+        After the latch, joint O3 no longer exists; the absolute angles go on.
+
+        >>> import numpy as np, pcmm
+        >>> traj = pcmm.simulate(pcmm.load_scene("examples/three_bar.toml"), pcmm.RunOptions(t_end=0.2))
+        >>> q3 = traj.series("q", "O3")
+        >>> bool(np.isnan(q3[-1])), bool(np.isnan(q3[0]))
+        (True, False)
+        >>> traj.series("theta", "link3").shape == traj.t.shape
+        True
+        """
+        names_of = {"theta": "links", "omega": "links", "xy": "links", "q": "coordinates",
+                    "v": "coordinates", "forces": "force_names", "constraint_forces": "constraint_labels"}
+        unnamed = ("kinetic", "potential")
+        if quantity not in names_of and quantity not in unnamed:
+            raise UsageError(f"series: no quantity {quantity!r}; the quantities are "
+                             f"{', '.join([*names_of, *unnamed])}")
+        if quantity in unnamed and name is not None:
+            raise UsageError(f"series: {quantity!r} is the whole mechanism's: give no name (got {name!r})")
+        if quantity in names_of:
+            known = list(dict.fromkeys(n for s in self.segments for n in getattr(s, names_of[quantity])))
+            if name not in known:
+                what = {"links": "link", "coordinates": "coordinate", "force_names": "force",
+                        "constraint_labels": "constraint row"}[names_of[quantity]]
+                head = f"series: {quantity!r} needs a {what}" if name is None else f"series: no {what} {name!r} in this run"
+                raise UsageError(f"{head}; the run's {what}s: {', '.join(known) or '(none)'}")
+        parts = []
+        for s in self.segments:
+            arr = getattr(s, quantity)
+            if quantity in names_of:
+                names = getattr(s, names_of[quantity])
+                if name in names:
+                    parts.append(arr[:, names.index(name)])
+                else:
+                    parts.append(np.full((len(s.t),) + arr.shape[2:], np.nan))
+            else:
+                parts.append(arr)
+        return np.concatenate(parts) if parts else np.zeros(0)
+
+    def resampled(self, dt: float) -> "Trajectory":
+        """The run at times 0, dt, 2 dt, ... (and at every segment's ends, so events keep their
+        instants), on the integrator's dense output instead of its steps: curves between long
+        steps follow the solution, not a polygon."""
+        if not (dt > 0 and np.isfinite(dt)):
+            raise UsageError(f"dt = {dt!r}: must be a number > 0")
+        segs = []
+        for s in self.segments:
+            a, b = float(s.t[0]), float(s.t[-1])
+            k = np.arange(np.ceil(a / dt), np.floor(b / dt) + 1)
+            inner = k * dt
+            inner = inner[(inner > a) & (inner < b)]
+            times = np.concatenate(([a], inner, [b])) if b > a else np.array([a])
+            segs.append(s.resampled(times))
+        return Trajectory(scene=self.scene, scene_name=self.scene_name, impact=self.impact, segments=segs,
+                          events=self.events, stats=self.stats, status=self.status, message=self.message,
+                          views=self.views)
+
+    def configuration_at(self) -> list[str]:
+        """The configuration of every sample of :attr:`t`.
+
+        Examples
+        --------
+        >>> import pcmm
+        >>> c = pcmm.simulate(pcmm.load_scene("examples/three_bar.toml"), pcmm.RunOptions(t_end=0.2)).configuration_at()
+        >>> c[0], c[-1]
+        ('config1', 'config2')
+        """
+        return [s.configuration for s in self.segments for _ in s.t]
+
+    def visited(self) -> list[str]:
+        """The configurations the run stays in, in order of first visit."""
+        return list(dict.fromkeys(s.configuration for s in self.segments))
+
+    def configuration_views(self) -> dict[str, dict]:
+        """``{configuration: {"urdf": text, "joints": {...}}}`` for every visited configuration.
+
+        Raises :class:`UsageError` naming the trajectory file when a configuration's
+        view is not recorded (a first-format file whose scene file is gone)."""
+        views = self.views.get("configurations", {})
+        missing = [c for c in self.visited() if c not in views]
+        if missing:
+            why = ("it was written by an earlier pcmm version (format pcmm-trajectory-1)" if self.source
+                   else "its views were not recorded")
+            raise UsageError(
+                f"{self.source or 'trajectory'}: holds no geometry for configuration(s) {missing}: {why}, "
+                f"and its scene file {self.scene} is not found; run the scene again with this version "
+                "('pcmm run SCENE --out FILE') to get a file that replays on its own")
+        return {c: views[c] for c in self.visited()}
+
+    # ---- notebook views -------------------------------------------------------------------
+    def show(self, *others: "Trajectory", fps: float = 60, height: int = 520):
+        """The offline replay page, inline in Jupyter (an ``<iframe srcdoc>``, no server).
+
+        ``others`` are overlaid, each in its own colour (e.g. the run without impact)."""
+        from ..viz.replay import Inline  # the views read a run's record alone: they sit below it
+        return Inline(self, *others, fps=fps, height=height)
+
+    def plot(self, compare: "Trajectory | None" = None, impulse_sign: str = "body_b") -> dict:
+        """The paper's figure set as matplotlib figures, ``{file stem: Figure}``."""
+        from ..viz.plots import figures
+        return figures(self, compare=compare, impulse_sign=impulse_sign)
+
+    # ---- files ------------------------------------------------------------------------
+    def save(self, path: str | Path, force: bool = True) -> Path:
+        """Write the trajectory to one NPZ file, atomically; :meth:`load` reads it back.  The file
+        holds what the replay and the figures need (each visited configuration's URDF text and
+        joints), so it stands alone without its scene.
+
+        Parameters
+        ----------
+        path : str or pathlib.Path
+        force : bool
+            Overwrite an existing file (else :class:`~pcmm.errors.UsageError`).
+
+        Examples
+        --------
+        >>> import os, tempfile, pcmm
+        >>> traj = pcmm.simulate(pcmm.load_scene("examples/three_bar.toml"), pcmm.RunOptions(t_end=0.2))
+        >>> path = traj.save(os.path.join(tempfile.mkdtemp(), "run.npz"))
+        >>> back = pcmm.Trajectory.load(path)
+        >>> back.events[0]["t"] == traj.events[0]["t"], len(back.t) == len(traj.t)
+        (True, True)
+        """
+        visited = self.visited()
+        views = {"configurations": {c: v for c, v in self.views.get("configurations", {}).items() if c in visited},
+                 "forces": self.views.get("forces", {})}
+        header = {"format": FORMAT, "scene": self.scene, "scene_name": self.scene_name,
+                  "impact": self.impact, "events": self.events, "stats": self.stats,
+                  "status": self.status, "message": self.message, "views": views,
+                  "segments": [{"configuration": s.configuration, "coordinates": s.coordinates,
+                                "links": s.links, "force_names": s.force_names,
+                                "constraint_labels": s.constraint_labels} for s in self.segments]}
+        arrays = {"header": np.array(json.dumps(header, default=_json_default))}
+        for i, s in enumerate(self.segments):
+            for a in _ARRAYS:
+                arrays[f"s{i}_{a}"] = getattr(s, a)
+
+        def write(f):
+            np.savez_compressed(f, **arrays)
+        return atomic_write(path, write, force=force, binary=True)
+
+    @classmethod
+    def load(cls, path: str | Path) -> "Trajectory":
+        """Read a trajectory written by :meth:`save` (no scene or model needed).
+
+        Raises
+        ------
+        UsageError
+            The file is missing, truncated, empty or foreign, or its arrays do not fit its header.
+        """
+        path = Path(path)
+        what = f"{path}: not a pcmm trajectory file (.npz written by 'pcmm run --out')"
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                header = json.loads(str(z["header"][()]))
+                if not isinstance(header, dict) or header.get("format") not in _FORMATS:
+                    fmt = header.get("format") if isinstance(header, dict) else None
+                    raise ValueError(f"format {fmt!r} is not one of {', '.join(_FORMATS)}"
+                                     + (" (written by a newer pcmm?)" if str(fmt or "")
+                                        .startswith("pcmm-trajectory-") else ""))
+                segs = []
+                for i, meta in enumerate(header["segments"]):
+                    segs.append(_segment(meta, {a: np.asarray(z[f"s{i}_{a}"]) for a in _ARRAYS}, i))
+                traj = cls(scene=_text(header["scene"]), scene_name=_text(header["scene_name"]),
+                           impact=bool(header["impact"]), segments=segs, events=list(header["events"]),
+                           stats=dict(header["stats"]), status=_text(header["status"]),
+                           message=_text(header["message"]))
+        except FileNotFoundError:
+            raise UsageError(f"{path}: trajectory file not found") from None
+        except IsADirectoryError:
+            raise UsageError(f"{path}: is a folder, not a trajectory file") from None
+        except (OSError, EOFError, ValueError, KeyError, TypeError, IndexError, AttributeError, ArithmeticError,
+                MemoryError, zipfile.BadZipFile, zlib.error, RecursionError) as exc:
+            raise UsageError(f"{what}: {type(exc).__name__}: {exc}") from None
+        if any(not isinstance(e, dict) for e in traj.events):
+            raise UsageError(f"{what}: its events are not records")
+        views = header.get("views")
+        traj.views = views if isinstance(views, dict) and views else legacy_views(traj.scene)
+        traj.source = str(path)
+        return traj
+
+    def to_csv(self, path: str | Path, force: bool = True) -> Path:
+        """Write one CSV row per sample: ``t``, ``configuration``, then every named quantity,
+        units in the header; atomically.
+
+        Examples
+        --------
+        >>> import os, tempfile, pcmm
+        >>> traj = pcmm.simulate(pcmm.load_scene("examples/three_bar.toml"), pcmm.RunOptions(t_end=0.2))
+        >>> path = traj.to_csv(os.path.join(tempfile.mkdtemp(), "run.csv"))
+        >>> path.read_text().splitlines()[0].split(",")[:4]
+        ['t [s]', 'configuration', 'theta_frame [rad]', 'omega_frame [rad/s]']
+        """
+        cols: list[tuple[str, np.ndarray]] = [("t [s]", self.t)]
+        for link in self.links:
+            cols.append((f"theta_{link} [rad]", self.series("theta", link)))
+            cols.append((f"omega_{link} [rad/s]", self.series("omega", link)))
+            xy = self.series("xy", link)
+            cols.append((f"x_{link} [m]", xy[:, 0]))
+            cols.append((f"y_{link} [m]", xy[:, 1]))
+        coords = []
+        for s in self.segments:
+            coords += [c for c in s.coordinates if c not in coords]
+        types = {j: d["type"] for view in self.views.get("configurations", {}).values()  # where it moves
+                 for j, d in (view.get("joints") or {}).items()
+                 if isinstance(d, dict) and d.get("type") in ("revolute", "prismatic")}
+        for c in coords:  # a revolute joint's coordinate is an angle, a prismatic one's a length
+            q_unit, v_unit = {"revolute": ("rad", "rad/s"), "prismatic": ("m", "m/s")}.get(
+                types.get(c), ("rad|m", "rad/s|m/s"))
+            cols.append((f"q_{c} [{q_unit}]", self.series("q", c)))
+            cols.append((f"v_{c} [{v_unit}]", self.series("v", c)))
+        forces = self.views.get("forces", {})
+        for name in dict.fromkeys(n for s in self.segments for n in s.force_names):
+            on = (forces.get(name) or {}).get("on") or {}
+            unit = "N" if on.get("kind") == "joint" and types.get(on.get("name")) == "prismatic" else \
+                "N m" if on.get("kind") == "link" or types.get(on.get("name")) == "revolute" else "N m|N"
+            cols.append((f"force_{name} [{unit}]", self.series("forces", name)))
+        for name in dict.fromkeys(n for s in self.segments for n in s.constraint_labels):
+            cols.append((f"constraint_{name} [{constraint_unit(name, types)}]", self.series("constraint_forces", name)))
+        cols.append(("kinetic_energy [J]", self.series("kinetic")))
+        cols.append(("potential_energy [J]", self.series("potential")))
+        config = self.configuration_at()
+
+        def write(f):
+            out = csv.writer(f, lineterminator="\n")
+            out.writerow([spreadsheet_text(h) for h in ["t [s]", "configuration"] + [c[0] for c in cols[1:]]])
+            data = np.column_stack([c[1] for c in cols]) if cols else np.zeros((0, 0))
+            for i, row in enumerate(data):
+                out.writerow([repr(float(row[0])), spreadsheet_text(config[i])]
+                             + ["" if np.isnan(x) else repr(float(x)) for x in row[1:]])
+        return atomic_write(path, write, force=force)
+
+
+def constraint_unit(label: str, joint_types: dict[str, str]) -> str:
+    """The unit of a constraint-force series from its label: a cut joint's force components
+    (``.fx``, ``.fy``, ``.fn``) in N, its moment (``.mz``) in N m; a drive's or a lock's
+    (``<joint>.drive``, ``<joint>.hold``) by its joint's type; "N|N m" where the label does not
+    tell (the hold of a stop-merge: a normal force, or a joint stop's moment)."""
+    what, _, part = label.rpartition(".")
+    if part in ("fx", "fy", "fn"):
+        return "N"
+    if part == "mz":
+        return "N m"
+    if part in ("drive", "hold"):
+        return {"revolute": "N m", "prismatic": "N"}.get(joint_types.get(what), "N|N m")
+    return "N|N m"
+
+
+def _text(x) -> str:
+    if not isinstance(x, str):
+        raise TypeError(f"expected text, found {type(x).__name__}")
+    return x
+
+
+def _segment(meta: dict, arrays: dict, i: int) -> SegmentRecord:
+    """One segment read back, its arrays checked against the names in its header."""
+    names = {k: [_text(n) for n in meta[k]] for k in ("coordinates", "links", "force_names", "constraint_labels")}
+    t = arrays["t"]
+    n = t.shape[0] if t.ndim == 1 else -1
+    if n < 1 or not np.all(np.isfinite(t)) or np.any(np.diff(t) < 0):
+        raise ValueError(f"segment {i}: its times are not a finite, non-decreasing series")
+    shapes = {"q": (n, len(names["coordinates"])), "v": (n, len(names["coordinates"])),
+              "theta": (n, len(names["links"])), "omega": (n, len(names["links"])),
+              "xy": (n, len(names["links"]), 2), "kinetic": (n,), "potential": (n,),
+              "forces": (n, len(names["force_names"])), "constraint_forces": (n, len(names["constraint_labels"]))}
+    for a, shape in shapes.items():
+        if arrays[a].shape != shape or arrays[a].dtype.kind not in "fi":
+            raise ValueError(f"segment {i}: array '{a}' has shape {arrays[a].shape} ({arrays[a].dtype}), "
+                             f"expected {shape} numbers")
+    return SegmentRecord(configuration=_text(meta["configuration"]), **names,
+                         **{a: arrays[a].astype(float) for a in _ARRAYS})
+
+
+def spreadsheet_text(text: str) -> str:
+    """A text cell a spreadsheet shows as text: a leading = + - @ (or tab, carriage return)
+    would make it a formula, so such a cell starts with an apostrophe (OWASP's rule)."""
+    return "'" + text if text[:1] in ("=", "+", "-", "@", "\t", "\r") else text
+
+
+def non_finite_fields(obj, where: str = "") -> list[str]:
+    """The paths (``events[3].impulse.normal``) of every NaN or infinite number in ``obj``."""
+    if isinstance(obj, dict):
+        return [p for k, v in obj.items() for p in non_finite_fields(v, f"{where}.{k}" if where else str(k))]
+    if isinstance(obj, (list, tuple)):
+        return [p for i, v in enumerate(obj) for p in non_finite_fields(v, f"{where}[{i}]")]
+    if isinstance(obj, np.ndarray):
+        return non_finite_fields(obj.tolist(), where)
+    if isinstance(obj, (float, np.floating)) and not math.isfinite(obj):
+        return [f"{where} = {float(obj)!r}"]
+    return []
+
+
+def dumps_json_finite(obj, what: str) -> str:
+    """JSON text of ``obj``, refusing NaN and infinities (which are not JSON): a result that
+    overflowed is an error naming the fields, never ``Infinity`` in a file."""
+    bad = non_finite_fields(obj)
+    if bad:
+        shown = ", ".join(bad[:5]) + (f" and {len(bad) - 5} more" if len(bad) > 5 else "")
+        raise SimulationError(f"{what}: not written: the run produced numbers that are not finite "
+                              f"({shown}); the model or its values overflowed")
+    return json.dumps(obj, indent=2, default=_json_default, allow_nan=False)
+# ---- what the views need ---------------------------------------------------------------------
+def urdf_joints(urdf_text: str) -> dict[str, dict]:
+    """``{joint: {"type", "parent", "child"}}`` of a URDF's text (no validation: the scene did it)."""
+    out = {}
+    for j in ET.fromstring(urdf_text).findall("joint"):
+        parent, child = j.find("parent"), j.find("child")
+        out[j.get("name")] = {"type": j.get("type"), "parent": parent.get("link") if parent is not None else None,
+                              "child": child.get("link") if child is not None else None}
+    return out
+
+
+def _view(urdf_path) -> dict:
+    text = Path(urdf_path).read_text(encoding="utf-8")
+    return {"urdf": text, "joints": urdf_joints(text)}
+
+
+def record_views(scene) -> dict:
+    """The views of a scene (its data model, duck-typed: ``configurations[name].urdf``,
+    ``forces[i].name`` / ``.on.kind`` / ``.on.name``), recorded when a run starts."""
+    return {"configurations": {name: _view(c.urdf) for name, c in scene.configurations.items()},
+            "forces": {f.name: ({"on": {"kind": f.on.kind, "name": f.on.name}} if f.on is not None else
+                                {"on": None, "points": [f.points.a, f.points.b]})
+                       for f in scene.forces}}
+
+
+def legacy_views(scene_path: str) -> dict:
+    """Views for a first-format file, read from the scene TOML it names while that exists
+    (only ``[configurations.*].urdf`` and ``[[forces]]`` targets; nothing is validated or run)."""
+    path = Path(scene_path)
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+        confs = {}
+        for name, c in data.get("configurations", {}).items():
+            with_path = (path.parent / c["urdf"])
+            if with_path.is_file():
+                confs[name] = _view(with_path)
+        forces = {}
+        for f in data.get("forces", []):
+            on = f.get("on", {})
+            kind = next(iter(on), None)
+            forces[f["name"]] = {"on": {"kind": kind, "name": on.get(kind)}}
+        return {"configurations": confs, "forces": forces}
+    except (OSError, ValueError, KeyError, TypeError, AttributeError, ET.ParseError):
+        return {}
+
+
+def _json_default(o):
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, (np.floating, np.integer)):
+        return o.item()
+    raise TypeError(f"not JSON serializable: {type(o)}")
+
+
+def dumps_json(obj) -> str:
+    return json.dumps(obj, indent=2, default=_json_default)

@@ -1,0 +1,155 @@
+"""Check-time consistency of a scene's geometry (``pcmm check``), before anything is simulated.
+
+The schema (:mod:`pcmm.scene`) validates each value on its own; this module builds the
+configurations' models and checks that the values agree with each other where a guard fixes the
+posture, so a scene that would fail at its first switch, after the whole pre-switch run, fails
+here at once, each problem naming the file and the field:
+
+* **the pose at a switch**: at the posture where a guard sits at its value (an open chain: the
+  guard coordinate set; a loop: assembled with the guard as one more equation), every link the
+  target configuration shares with the source sits where the source puts it;
+* **the contact at the guard value**: the two contact points meet (gap zero along the normal and
+  nothing across it), and the normal is the direction in which the pair's joint moves the contact
+  point: for a revolute pair, perpendicular to the lever from the joint axis to the contact point
+  (how far it is off, in degrees); it points from a towards b, so the guard's direction approaches;
+* **reach**: each guard value lies in the range its coordinate can reach (the URDF's joint limits;
+  a loop that cannot close there), else a warning.
+
+A message blames the normal only when the normal is at fault: rounded contact points that do not
+meet are reported as points (:func:`pcmm.contact_faults.contact_findings`, also used by the run's
+latch check).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..model.configuration import Configuration
+from ..model.mechanism import Mechanism
+from ..errors import PcmmError
+from ..scene.spec import Scene, TransitionSpec
+from ..events.contact_faults import contact_findings
+from ..events.transitions import map_state, pose_mismatches
+
+NEWTON_TOL = 1e-13
+
+
+@dataclass
+class CheckReport:
+    problems: list[str] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
+    postures: dict[str, np.ndarray] = field(default_factory=dict)  # transition name -> q at its guard
+
+
+# ---- the posture at a guard ---------------------------------------------------------------
+def _closure(cfg: Configuration, q):
+    """(phi, Phi_q) of the loop-closure rows only (drives are functions of time, not posture)."""
+    return cfg.coords.loop_rows(q)
+
+
+def _guard_row(cfg: Configuration, tr: TransitionSpec, q):
+    """(residual, gradient) of the guard at q: measure - value, or gap - value."""
+    if tr.guard.type == "coordinate":
+        row, offset = cfg.measure_row(tr.guard.measure)
+        return float(row @ q + offset - tr.guard.value), row
+    from ..events.contact import contact_state
+
+    def gap(x):
+        return contact_state(cfg, x, np.zeros(cfg.nv), tr.contact)[1]
+    grad = np.zeros(cfg.nv)
+    for i in range(cfg.nv):
+        e = np.zeros(cfg.nv)
+        e[i] = 1e-7
+        grad[i] = (gap(q + e) - gap(q - e)) / 2e-7
+    return gap(q) - tr.guard.value, grad
+
+
+def guard_posture(cfg: Configuration, tr: TransitionSpec, q_start) -> tuple[np.ndarray, float]:
+    """The posture nearest ``q_start`` (minimum-norm Newton steps) with the guard at its value
+    and every loop closed; returns (q, largest residual), the residual ~1e-13 when reached."""
+    q = np.array(q_start, dtype=float)
+    worst = math.inf
+    for _ in range(60):
+        phi, Jq = _closure(cfg, q)
+        r, g = _guard_row(cfg, tr, q)
+        res = np.append(phi, r)
+        worst = float(np.max(np.abs(res)))
+        if worst < NEWTON_TOL:
+            break
+        step = np.linalg.lstsq(np.vstack([Jq, g]), -res, rcond=None)[0]
+        q = q + step
+        if not np.all(np.isfinite(q)):
+            return q_start, math.inf
+    return q, worst
+
+
+# ---- the whole scene ------------------------------------------------------------------------
+def _limits(cfg: Configuration, q) -> list[str]:
+    out = []
+    for name, j in cfg.spec.info.joints.items():
+        if j.limits is None or name not in cfg.joint_slice or j.type not in ("revolute", "prismatic"):
+            continue
+        x = float(q[cfg.joint_slice[name].start])
+        lo, hi = j.limits
+        if not lo - 1e-12 <= x <= hi + 1e-12:
+            out.append(f"joint '{name}' is at {x:.9g} there, outside its URDF limits [{lo:g}, {hi:g}] "
+                       f"({cfg.spec.urdf.name})")
+    return out
+
+
+def check_scene(scene: Scene, mechanism: Mechanism | None = None) -> CheckReport:
+    """Every check-time problem (and warning) of ``scene``, each naming the file and the field."""
+    from ..model.assembly import assemble
+    mech = mechanism or Mechanism(scene)
+    report = CheckReport()
+    where = str(scene.path)
+    starts: dict[str, np.ndarray] = {}
+    try:
+        cfg0 = mech[scene.initial_configuration]
+        q0, _, notes = assemble(scene, cfg0)
+        starts[cfg0.name] = q0
+        report.warnings += [f"{where}: initial: {w}" for w in notes]
+    except PcmmError as exc:
+        report.problems += [p if p.startswith(where) else f"{where}: initial: {p}" for p in exc.problems]
+        return report
+    todo = [scene.initial_configuration]
+    entered: dict = {}
+    while todo:  # configurations in the order a run reaches them, each started where it is entered
+        name = todo.pop(0)
+        cfg = entered.get(name) or mech[name]
+        for tr in scene.transitions_from(name):
+            if tr.guard.type not in ("coordinate", "gap"):  # time and reaction guards fix no posture
+                continue
+            i = scene.transitions.index(tr)
+            here = f"{where}: transitions[{i}] ({tr.name})"
+            q, residual = guard_posture(cfg, tr, starts[name])
+            if residual > 1e-9:
+                what = "the loop cannot close" if cfg.coords.constrained else "no posture reaches it"
+                report.warnings.append(
+                    f"{here}.guard.value: = {tr.guard.value:.12g}: {what} with the guard there (closest "
+                    f"residual {residual:.3g}): the guard may never fire; check its value and direction")
+                continue
+            report.postures[tr.name] = q
+            report.warnings += [f"{here}.guard.value: = {tr.guard.value:.12g}: {w}" for w in _limits(cfg, q)]
+            report.problems += [f"{here}.{f.field}: {f.text}" for f in contact_findings(cfg, tr, q)]
+            target = tr.merge_to if tr.type == "stop" else tr.target
+            if target is None or target not in scene.configurations:
+                continue
+            key = "merge_to" if tr.type == "stop" else "to"
+            try:
+                dst = mech.enter(target, cfg, q)  # a derived target locks the values the guard gives
+                entered.setdefault(target, dst)
+                q_dst, _, _ = map_state(cfg, dst, q, np.zeros(cfg.nv))
+                _, mismatches = pose_mismatches(cfg, dst, q, q_dst)
+            except PcmmError as exc:
+                report.problems += [f"{here}.{key}: {p}" for p in exc.problems]
+                continue
+            report.problems += [f"{here}.{key}: at the guard value ({tr.guard.measure} = {tr.guard.value:.12g}) "
+                                f"{m}; the two URDFs must place every shared link identically there "
+                                "(check the fixed joint's origin in the merged configuration)" for m in mismatches]
+            if target not in starts:
+                starts[target] = q_dst
+                todo.append(target)
+    return report

@@ -1,0 +1,762 @@
+"""Scene files: TOML data describing a metamorphic mechanism run.
+
+A scene is data, parsed with :mod:`tomllib` and never evaluated.  Paths in a
+scene resolve relative to the scene file.  :func:`load_scene` validates the
+whole file and every URDF it names before anything is simulated, and reports
+every problem at once (:class:`~pcmm.errors.SceneError`).
+
+The format is documented in the README ("Scene format").
+"""
+from __future__ import annotations
+
+import math
+import tomllib
+from pathlib import Path
+
+from . import schema as S
+from . import settings
+from ..errors import ModelError, SceneError
+from .spec import (ConfigurationSpec, ContactSpec, CutJointSpec, Derivation, DriveSpec, ForceSpec, GuardSpec,
+                   BranchSpec, LatchSpec, Measure, PointPair, ReleaseSpec, Scene, StopSpec, Target)
+from .urdf import MOVABLE, read_urdf
+from .variations import read_urdf_cached, set_values
+
+
+# ---- schema tables ---------------------------------------------------------------
+_DIRECTIONS = {"increasing": +1, "decreasing": -1}
+FORCE_TYPES = {
+    # type: (keys required, keys allowed) -- all compile to f = value - k (x - rest) - c x'
+    "torque": ({"value"}, {"value"}),
+    "spring": ({"k"}, {"k", "rest"}),
+    "damper": ({"c"}, {"c"}),
+    "spring_damper": ({"k", "c"}, {"k", "c", "rest"}),
+    "linear": (set(), {"value", "k", "rest", "c"}),
+    # between two points: x is their distance, f acts along their line (> 0 pushes them apart)
+    "point_spring": ({"k", "rest"}, {"value", "k", "rest", "c"}),
+}
+TRANSITION_TYPES = ("latch", "stop", "release")
+GUARD_TYPES = ("coordinate", "gap", "time", "reaction")
+CUT_JOINT_TYPES = {"revolute": 2, "prismatic": 2, "weld": 3}
+
+SCENE_KEYS = [
+    S.Key("name", "str", doc="a short name for the scene"),
+    S.Key("description", "str", required=False, default=""),
+    S.Key("gravity", "list", check=S.vector(2), doc="[gx, gy] in m/s^2, e.g. [0.0, -9.81]"),
+    S.Key("t_end", "number", check=S.positive, doc="end time of the run in s"),
+    S.Key("initial_configuration", "str", doc="name of a [configurations.NAME] table"),
+    S.Key("momentum_point", "list", required=False, check=S.vector(2),
+          doc="[x, y]: the point the events' angular momenta are taken about (default: the first frame pivot)"),
+]
+CONFIG_KEYS = [
+    S.Key("urdf", "str", required=False, doc="path of the configuration's URDF, relative to the scene file"),
+    S.Key("from", "str", required=False, doc="a derived configuration: the configuration whose joints it locks"),
+    S.Key("lock", "list|table", required=False,
+          doc="[joints] locked at their values when the run enters, or {joint = value}"),
+    S.Key("cut_joints", "list", required=False, default=[]),
+]
+CUT_JOINT_KEYS = [
+    S.Key("name", "str"),
+    S.Key("type", "str", check=S.one_of(*CUT_JOINT_TYPES)),
+    S.Key("a", "str", doc="link on one side of the cut"),
+    S.Key("point_a", "list", check=S.vector(2), doc="[x, y] in link a's frame"),
+    S.Key("b", "str", doc="link on the other side of the cut"),
+    S.Key("point_b", "list", check=S.vector(2), doc="[x, y] in link b's frame"),
+    S.Key("axis", "list", required=False, check=S.nonzero_vector(2),
+          doc="prismatic only: sliding direction [x, y] in link a's frame"),
+    S.Key("angle", "number", required=False,
+          doc="prismatic and weld: the fixed relative angle theta_b - theta_a in rad"),
+]
+INITIAL_KEYS = [
+    S.Key("q", "table", doc="{joint = value, ...} for every movable joint"),
+    S.Key("v", "table", doc="{joint = velocity, ...} for every movable joint"),
+    S.Key("independent", "list", required=False, default=[], check=S.names_list,
+          doc="closed loops: joints whose given q and v are kept when the loop is assembled"),
+    S.Key("branch", "table", required=False,
+          doc='closed loops: { between = [A, B], sign = "+" } (or joint = J, link = L): the assembly whose '
+              "angle, wrapped into (-pi, pi], has that sign"),
+]
+MEASURE_KEYS = [
+    S.Key("joint", "str", required=False),
+    S.Key("link", "str", required=False),
+    S.Key("between", "list", required=False, check=S.names_list),
+]
+FORCE_KEYS = [
+    S.Key("name", "str"),
+    S.Key("type", "str", check=S.one_of(*FORCE_TYPES)),
+    S.Key("on", "table", required=False, doc="{joint = NAME} or {link = NAME}"),
+    S.Key("a", "str", required=False, doc="point_spring: the link carrying point_a"),
+    S.Key("point_a", "list", required=False, check=S.vector(2), doc="point_spring: [x, y] in link a's frame"),
+    S.Key("b", "str", required=False, doc="point_spring: the link (or the frame) carrying point_b"),
+    S.Key("point_b", "list", required=False, check=S.vector(2), doc="point_spring: [x, y] in link b's frame"),
+    S.Key("measure", "table", required=False, doc="{joint = NAME}, {link = NAME} or {between = [A, B]}"),
+    S.Key("value", "number", required=False, default=0.0),
+    S.Key("k", "number", required=False, default=0.0, check=S.non_negative,
+          doc="stiffness >= 0 (a negative spring is an energy source: model it as a torque)"),
+    S.Key("rest", "number", required=False, default=0.0),
+    S.Key("c", "number", required=False, default=0.0, check=S.non_negative,
+          doc="damping >= 0 (a negative damper feeds energy in)"),
+    S.Key("configurations", "list", required=False, check=S.names_list),
+]
+GUARD_KEYS = [
+    S.Key("type", "str", check=S.one_of(*GUARD_TYPES)),
+    S.Key("measure", "table", required=False),
+    S.Key("value", "number", required=False,
+          doc="the guard fires when the measure, gap or holding force crosses this value"),
+    S.Key("direction", "str", required=False, check=S.one_of(*_DIRECTIONS)),
+    S.Key("at", "number", required=False, check=S.non_negative, doc="time guard: the instant in s"),
+    S.Key("every", "number", required=False, check=S.positive, doc="time guard: the period in s"),
+    S.Key("start", "number", required=False, default=0.0, doc="time guard with every: the first instant in s"),
+    S.Key("of", "str", required=False,
+          doc="reaction guard: the locked joint, or the stop transition whose merge it watches"),
+]
+CONTACT_KEYS = [
+    S.Key("a", "str", required=False), S.Key("point_a", "list", required=False, check=S.vector(2)),
+    S.Key("b", "str", required=False), S.Key("point_b", "list", required=False, check=S.vector(2)),
+    S.Key("normal", "list", required=False, check=S.nonzero_vector(2),
+          doc="[nx, ny] in link a's frame, from a towards b"),
+    S.Key("joint", "str", required=False, doc="a joint stop: the joint whose coordinate strikes the stop"),
+    S.Key("arm", "number", required=False, check=S.positive,
+          doc="joint stop: the lever (m) at which the impulse moment is also reported as a force"),
+]
+POINT_CONTACT = ("a", "point_a", "b", "point_b", "normal")
+TRANSITION_KEYS = [
+    S.Key("name", "str"),
+    S.Key("type", "str", check=S.one_of(*TRANSITION_TYPES)),
+    S.Key("from", "str"),
+    S.Key("to", "str", required=False),
+    S.Key("merge_to", "str", required=False),
+    S.Key("restitution", "number", required=False, check=S.unit_interval),
+    S.Key("cut", "list", required=False, check=S.names_list,
+          doc="metamorphic joint(s) cut to solve the impulse; [] if none (latch and stop)"),
+    S.Key("guard", "table"),
+    S.Key("contact", "table", required=False, doc="latch and stop: the two points that strike, or a joint stop"),
+    S.Key("accumulation_speed", "number", required=False, check=S.non_negative),
+    S.Key("accumulation_interval", "number", required=False, check=S.non_negative),
+    S.Key("law", "str", required=False, default="impulse",
+          check=S.one_of("impulse", "hunt_crossley", "lankarani_nikravesh", "flores"),
+          doc="how the impact is resolved: the instantaneous impulse or a continuous contact-force law"),
+    S.Key("stiffness", "number", required=False, check=S.positive, doc="continuous laws: k in N/m^n"),
+    S.Key("exponent", "number", required=False, check=S.positive, doc="continuous laws: n, e.g. 1.5 (Hertz)"),
+    S.Key("unmerge", "bool", required=False,
+          doc="stop only: undo the merge when the holding force turns tensile (default: solver.unmerge)"),
+]
+DRIVE_KEYS = [
+    S.Key("joint", "str"),
+    S.Key("coefficients", "list", check=S.numbers_list, doc="q(t) = c0 + c1 t + c2 t^2 + ..."),
+    S.Key("configurations", "list", required=False, check=S.names_list),
+]
+TOP_KEYS = [
+    S.Key("scene", "table"), S.Key("solver", "table", required=False, default={}),
+    S.Key("configurations", "table"), S.Key("initial", "table"),
+    S.Key("forces", "list", required=False, default=[]),
+    S.Key("transitions", "list", required=False, default=[]),
+    S.Key("drives", "list", required=False, default=[]),
+]
+
+
+# ---- loading ----------------------------------------------------------------------
+#: The largest initial angle accepted (rad).  A double's spacing grows with the angle: 1e-10 rad
+#: at 1e6, 16 rad at 1e17, where every angle of the mechanism would freeze.
+MAX_ANGLE = 1e6
+
+
+def _too_large_angle(val) -> str:
+    return (f"= {S.show(val)}: an angle beyond +-{MAX_ANGLE:g} rad loses its precision (at this size "
+            f"neighbouring floating-point values are {math.ulp(float(val)):.3g} rad apart); "
+            "give the angle modulo 2 pi")
+
+
+def load_scene(path: str | Path) -> Scene:
+    """Read, validate and return the scene at ``path``.
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        The scene file (TOML, never evaluated).  The URDF paths inside it resolve
+        relative to the file, whatever the working directory.
+
+    Returns
+    -------
+    Scene
+        Frozen dataclasses (:mod:`pcmm.spec`), every name checked against the URDFs.
+
+    Raises
+    ------
+    SceneError
+        Every problem of the file and of its URDFs at once, each naming the file, the
+        field, the bad value and what is allowed.
+
+    Examples
+    --------
+    >>> import pcmm
+    >>> scene = pcmm.load_scene("examples/three_bar.toml")
+    >>> scene.name, scene.initial_configuration, list(scene.configurations)
+    ('three_bar', 'config1', ['config1', 'config2'])
+    >>> scene.transitions[0].type, scene.transitions[0].target, scene.solver.rtol
+    ('latch', 'config2', 1e-10)
+    """
+    path = Path(path)
+    try:
+        if not path.is_file():
+            raise SceneError(f"{path}: scene file not found")
+        text = path.read_text(encoding="utf-8")
+        path.resolve()
+    except (OSError, ValueError, RuntimeError) as exc:  # NUL in the name, a symlink loop, no permission
+        raise SceneError(f"{path!s:.200}: cannot read the scene file: {exc}") from None
+    except UnicodeDecodeError as exc:
+        raise SceneError(f"{path}: not UTF-8 text: {exc}") from None
+    text = text.removeprefix("\ufeff")  # a byte-order mark some editors write: not part of the TOML
+    try:
+        raw = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise SceneError(f"{path}: not valid TOML: {exc}") from None
+    except RecursionError:
+        raise SceneError(f"{path}: not valid TOML for a scene: arrays or tables nested too deeply") from None
+    except ValueError as exc:  # an integer of more than 4300 digits
+        raise SceneError(f"{path}: not valid TOML for a scene: {exc}") from None
+    S.check_plain(raw, str(path))
+    return load_scene_data(raw, path)
+
+
+def with_values(scene: Scene, values) -> Scene:
+    """Return a new :class:`~pcmm.scene.spec.Scene`: ``scene`` with each value path of ``values``
+    set to its value (:mod:`pcmm.scene.variations`), validated as the TOML file is
+    (:class:`SceneError`, the same messages).  What :meth:`Scene.with_values` calls."""
+    raw = set_values(scene.source, values, scene.path)
+    return load_scene_data(raw, scene.path, read=read_urdf_cached)
+
+
+def load_scene_data(raw: dict, path: str | Path, read=read_urdf) -> Scene:
+    """Validate and return the scene parsed from ``raw`` (a TOML document as a dict);
+    ``path`` is the file it stands for (relative URDF paths, messages); ``read`` reads a URDF."""
+    return _Builder(Path(path), raw, read).build()
+
+
+class _Builder:
+    def __init__(self, path: Path, raw: dict, read=read_urdf):
+        self.read_urdf = read
+        self.path = path
+        self.base = path.resolve().parent
+        self.raw = raw
+        self.p = S.Problems(str(path))
+        # configurations the file declares, valid or not: a reference to one whose own table is at
+        # fault is not reported again as "no such configuration" (its own problem says it)
+        self.declared: set[str] = set()
+
+    # -- helpers
+    def _measure(self, table, where) -> Measure | None:
+        m = S.check_table(table, MEASURE_KEYS, where, self.p)
+        given = [k for k in ("joint", "link", "between") if m.get(k) is not None]
+        if len(given) != 1:
+            if not any(k in table for k in ("joint", "link", "between")) or len(given) > 1:
+                self.p.add(where, "give exactly one of joint = NAME, link = NAME, between = [A, B]")
+            return None
+        kind = given[0]
+        if kind == "between":
+            if len(m["between"]) != 2:
+                self.p.add(f"{where}.between", f"= {S.show(m['between'])}: must name two links [A, B]")
+                return None
+            return Measure("between", tuple(m["between"]))
+        return Measure(kind, (m[kind],))
+
+    def _branch(self, table) -> BranchSpec | None:
+        if table is None:
+            return None
+        sign = table.get("sign")
+        if sign not in ("+", "-"):
+            self.p.add("initial.branch.sign", f"= {S.show(sign)}: must be \"+\" or \"-\" (the sign of the angle "
+                       "in (-pi, pi] on the assembly to start on)" if sign is not None else "missing; \"+\" or \"-\"")
+        m = self._measure({k: v for k, v in table.items() if k != "sign"}, "initial.branch")
+        return BranchSpec(m, 1 if sign == "+" else -1) if m is not None and sign in ("+", "-") else None
+
+    def _target(self, table, where) -> Target | None:
+        keys = [S.Key("joint", "str", required=False), S.Key("link", "str", required=False)]
+        t = S.check_table(table, keys, where, self.p)
+        given = [k for k in ("joint", "link") if t.get(k) is not None]
+        if len(given) != 1:
+            self.p.add(where, "give exactly one of joint = NAME or link = NAME")
+            return None
+        return Target(given[0], t[given[0]])
+
+    def _list_of_tables(self, items, keys, where):
+        """Each table of an array of tables with its place: ``transitions[2] (O2 pin)``, the
+        index and, where the table names itself, the name (as every later message about it)."""
+        out = []
+        for i, item in enumerate(items or []):
+            raw = item if isinstance(item, dict) else {}
+            name = raw.get("name")
+            place = f"{where}[{i}] ({name})" if isinstance(name, str) and name else f"{where}[{i}]"
+            out.append((place, S.check_table(item, keys, place, self.p), raw))
+        return out
+
+    # -- the build
+    def build(self) -> Scene:
+        top = S.check_table(self.raw, TOP_KEYS, "", self.p)
+        sc = S.check_table(top["scene"] or {}, SCENE_KEYS, "scene", self.p) if top["scene"] is not None else {}
+        solver = S.check_table(top["solver"] if top["solver"] is not None else {}, settings.solver_keys(), "solver",
+                               self.p)
+        configs = self._configurations(top["configurations"] or {})
+        self._joint_types_agree(configs)
+        forces = self._forces(top["forces"])
+        transitions = self._transitions(top["transitions"], configs)
+        drives = self._drives(top["drives"])
+        init = S.check_table(top["initial"] or {}, INITIAL_KEYS, "initial", self.p) if top["initial"] is not None else {}
+        initial = sc.get("initial_configuration")
+        if initial is not None and initial not in configs and initial not in self.declared and top["configurations"]:
+            self.p.add("scene.initial_configuration", f"= {initial!r}: no such configuration; "
+                       f"defined: {', '.join(configs) or '(none valid)'}")
+        if initial in configs and configs[initial].derivation is not None:
+            from .derive import check_initial
+            check_initial(configs, initial, self.p)
+        q0 = self._joint_values(init.get("q"), "initial.q", configs.get(initial))
+        v0 = self._joint_values(init.get("v"), "initial.v", configs.get(initial))
+        # Built even when problems were found, so the cross-checks of every valid part
+        # run too and the user sees all that is wrong at once; never returned then.
+        scene = Scene(
+            path=self.path, name=sc.get("name") or "", description=sc.get("description") or "",
+            gravity=tuple(float(x) for x in (sc.get("gravity") or (0.0, 0.0))), t_end=float(sc.get("t_end") or 0.0),
+            configurations=configs, initial_configuration=initial or "", q0=q0, v0=v0,
+            independent=tuple(init.get("independent") or ()),
+            forces=tuple(forces), transitions=tuple(transitions), drives=tuple(drives),
+            solver=settings.solver_settings_type()(**{k: v for k, v in solver.items() if v is not None}),
+            branch=self._branch(init.get("branch")),
+            momentum_point=tuple(sc["momentum_point"]) if sc.get("momentum_point") else None,
+            source=self.raw, loader=with_values,
+        )
+        self._cross_check(scene)
+        if self.p:
+            raise SceneError(self.p.items)
+        return scene
+
+    def _configurations(self, table) -> dict[str, ConfigurationSpec]:
+        out, derived = {}, {}
+        self.declared = set(table) if isinstance(table, dict) else set()
+        if not table:
+            self.p.add("configurations", "needs at least one [configurations.NAME] table")
+        for name, body in table.items():
+            where = f"configurations.{name}"
+            c = S.check_table(body, CONFIG_KEYS, where, self.p)
+            if isinstance(body, dict) and ("from" in body or "lock" in body):
+                derived[name] = (c, body)  # resolved once every URDF configuration is read
+                continue
+            if c["urdf"] is None:
+                if isinstance(body, dict) and "urdf" not in body:
+                    self.p.add(f"{where}.urdf", "missing; give urdf = PATH, or from = NAME with lock = [joints] "
+                               "for a configuration derived by locking joints")
+                continue
+            try:
+                urdf = (self.base / c["urdf"]).resolve()
+                info = self.read_urdf(urdf)
+            except ModelError as exc:
+                for prob in exc.problems:
+                    self.p.add(f"{where}.urdf", prob)
+                continue
+            except (OSError, ValueError, RuntimeError) as exc:  # NUL in the path, a symlink loop
+                self.p.add(f"{where}.urdf", f"= {S.show(c['urdf'])}: cannot read this file: {exc}")
+                continue
+            out[name] = ConfigurationSpec(name=name, urdf=urdf, info=info,
+                                          cut_joints=self._cut_joints(c["cut_joints"], where))
+        if derived:
+            from .derive import derive_configurations
+            out.update(derive_configurations(derived, out, self.p, self._cut_joints, declared=list(table)))
+        return out
+
+    def _cut_joints(self, items, where) -> tuple[CutJointSpec, ...]:
+        cuts = []
+        for cw, cj, _ in self._list_of_tables(items, CUT_JOINT_KEYS, f"{where}.cut_joints"):
+            if None in (cj["name"], cj["type"], cj["a"], cj["point_a"], cj["b"], cj["point_b"]):
+                continue
+            if cj["type"] == "prismatic" and cj["axis"] is None:
+                self.p.add(f"{cw}.axis", "missing; a prismatic cut joint needs its sliding axis [x, y]")
+            if cj["type"] in ("prismatic", "weld") and cj["angle"] is None:
+                self.p.add(f"{cw}.angle", f"missing; a {cj['type']} cut joint needs the relative angle it holds")
+            cuts.append(CutJointSpec(cj["name"], cj["type"], cj["a"], tuple(cj["point_a"]),
+                                     cj["b"], tuple(cj["point_b"]),
+                                     tuple(cj["axis"]) if cj["axis"] else None, cj["angle"]))
+        return tuple(cuts)
+
+    def _forces(self, items) -> list[ForceSpec]:
+        out = []
+        for where, f, raw in self._list_of_tables(items, FORCE_KEYS, "forces"):
+            if f["type"] is None or f["name"] is None:
+                continue
+            if f["type"] == "point_spring":
+                out += self._point_spring(where, f, raw)
+                continue
+            for k in ("a", "point_a", "b", "point_b"):
+                if k in raw:
+                    self.p.add(f"{where}.{k}", f"only used by a 'point_spring' force (a {f['type']!r} force "
+                               "acts on a joint or link: give on = {joint = NAME} or {link = NAME})")
+            if f["on"] is None:
+                if "on" not in raw:
+                    self.p.add(f"{where}.on", f"missing; a {f['type']!r} force acts on {{joint = NAME}} or {{link = NAME}}")
+                continue
+            required, allowed = FORCE_TYPES[f["type"]]
+            given = {k for k in ("value", "k", "rest", "c") if k in raw}
+            for k in sorted(required - given):
+                self.p.add(f"{where}.{k}", f"missing; a {f['type']!r} force needs {', '.join(sorted(required))}")
+            for k in sorted(given - allowed):
+                self.p.add(f"{where}.{k}", f"not used by a {f['type']!r} force (allowed: {', '.join(sorted(allowed))})")
+            on = self._target(f["on"], f"{where}.on")
+            needs_measure = bool(given & {"k", "c"})
+            measure = self._measure(f["measure"], f"{where}.measure") if f["measure"] is not None else None
+            if needs_measure and f["measure"] is None:
+                self.p.add(f"{where}.measure", "missing; a spring or damper needs the coordinate it measures")
+            if on is None or None in (f["value"], f["k"], f["rest"], f["c"]) or (needs_measure and measure is None):
+                continue
+            out.append(ForceSpec(f["name"], f["type"], on, measure, float(f["value"]), float(f["k"]),
+                                 float(f["rest"]), float(f["c"]),
+                                 tuple(f["configurations"]) if f["configurations"] else None))
+        return out
+
+    def _point_spring(self, where, f, raw) -> list[ForceSpec]:
+        """A spring-damper between two points: the points and k, rest are required, on and measure
+        are not used (the element measures the distance itself)."""
+        required, allowed = FORCE_TYPES["point_spring"]
+        for k in ("a", "point_a", "b", "point_b"):
+            if k not in raw:
+                self.p.add(f"{where}.{k}", "missing; a 'point_spring' force needs a, point_a, b and point_b "
+                           "(the links and the points in their frames it connects)")
+        for k in sorted(required - set(raw)):
+            self.p.add(f"{where}.{k}", "missing; a 'point_spring' force needs k (N/m) and rest (its rest length, m)")
+        for k in ("on", "measure"):
+            if k in raw:
+                self.p.add(f"{where}.{k}", "not used by a 'point_spring' force (it acts along the line between "
+                           "its two points and measures their distance)")
+        if f["rest"] is not None and f["rest"] < 0:
+            self.p.add(f"{where}.rest", f"= {S.show(f['rest'])}: a rest length must be >= 0 (m)")
+            return []
+        if f["a"] is not None and f["a"] == f["b"]:
+            self.p.add(f"{where}.b", f"= {f['b']!r}: both points are on the same link, so the distance never changes "
+                       "(connect two different links, or a link and the frame)")
+            return []
+        if None in (f["a"], f["point_a"], f["b"], f["point_b"], f["value"], f["k"], f["rest"], f["c"]) \
+                or not required <= set(raw):
+            return []
+        return [ForceSpec(f["name"], f["type"], None, None, float(f["value"]), float(f["k"]), float(f["rest"]),
+                          float(f["c"]), tuple(f["configurations"]) if f["configurations"] else None,
+                          PointPair(f["a"], tuple(float(x) for x in f["point_a"]), f["b"],
+                                    tuple(float(x) for x in f["point_b"])))]
+
+    def _transitions(self, items, configs) -> list[LatchSpec | StopSpec | ReleaseSpec]:
+        out = []
+        for where, t, raw in self._list_of_tables(items, TRANSITION_KEYS, "transitions"):
+            if None in (t["name"], t["type"], t["from"], t["guard"]):
+                continue
+            kind = t["type"]
+            guard = self._guard(t["guard"], f"{where}.guard", kind)
+            e = t["restitution"]
+            if kind in ("latch", "stop"):
+                if t["contact"] is None:
+                    self.p.add(f"{where}.contact", f"missing; a {kind} needs the contact that strikes: "
+                               "{ a, point_a, b, point_b, normal } or a joint stop { joint, arm }")
+                if t["cut"] is None:
+                    self.p.add(f"{where}.cut", "missing; the metamorphic joint(s) cut to solve the impulse, [] if none")
+            if kind == "latch":
+                if t["to"] is None:
+                    self.p.add(f"{where}.to", "missing; a latch names the configuration it switches to")
+                for k in ("restitution", "merge_to", "unmerge"):
+                    if k in raw:
+                        self.p.add(f"{where}.{k}", "not used by a latch (the merge is perfectly plastic, e = 0)")
+                e = 0.0
+            elif kind == "stop":
+                if t["to"] is not None:
+                    self.p.add(f"{where}.to", "not used by a stop (the configuration does not change); "
+                               "name the merged configuration with merge_to")
+                if "restitution" not in raw:
+                    self.p.add(f"{where}.restitution", "missing; a stop needs Newton's coefficient e in [0, 1]")
+            elif kind == "release":
+                if t["to"] is None:
+                    self.p.add(f"{where}.to", "missing; a release names the configuration with more freedom it goes to")
+                for k in ("contact", "cut", "restitution", "merge_to", "unmerge", "law", "stiffness", "exponent",
+                          "accumulation_speed", "accumulation_interval"):
+                    if k in raw:
+                        self.p.add(f"{where}.{k}", "not used by a release (a transformation that frees a joint "
+                                   "carries no impulse, paper section 2.2)")
+                e = 0.0
+            law = t["law"]
+            if law is not None and law != "impulse":
+                if kind != "stop":
+                    self.p.add(f"{where}.law", f"= {law!r}: a continuous contact law resolves a stop; "
+                               "a latch locks on contact (law = 'impulse')")
+                for k in ("stiffness", "exponent"):
+                    if k not in raw:
+                        self.p.add(f"{where}.{k}", f"missing; the {law!r} contact law needs stiffness and exponent")
+                if law == "flores" and e is not None and e <= 0:
+                    self.p.add(f"{where}.restitution", f"= {e!r}: the Flores law needs e > 0 (its damping is 8(1-e)/(5e))")
+            elif kind != "release":
+                for k in ("stiffness", "exponent"):
+                    if k in raw:
+                        self.p.add(f"{where}.{k}", "only used with a continuous contact law (law = 'hunt_crossley', "
+                                   "'lankarani_nikravesh' or 'flores')")
+            contact = None
+            if kind != "release" and t["contact"] is not None:
+                contact = self._contact(t["contact"], f"{where}.contact", guard, configs.get(t["from"]))
+                if contact is None:
+                    continue
+            if guard is None or e is None or (kind != "release" and (contact is None or t["cut"] is None)):
+                continue
+            common = dict(name=t["name"], source=t["from"], cut=tuple(t["cut"] or ()), guard=guard, contact=contact)
+            if kind == "latch":  # a missing 'to' is reported above; the rest is still cross-checked
+                out.append(LatchSpec(**common, target=t["to"]))
+            elif kind == "release":
+                out.append(ReleaseSpec(**common, target=t["to"]))
+            else:
+                out.append(StopSpec(
+                    **common, restitution=float(e), merge_to=t["merge_to"],
+                    accumulation_speed=t["accumulation_speed"], accumulation_interval=t["accumulation_interval"],
+                    law=t["law"] or "impulse", stiffness=t["stiffness"], exponent=t["exponent"],
+                    unmerge=t["unmerge"]))
+        return out
+
+    def _guard(self, table, where, kind) -> GuardSpec | None:
+        g = S.check_table(table, GUARD_KEYS, where, self.p)
+        # a key written but at fault (a broken expression, a wrong type) is given: its own problem
+        # is reported, not a second one saying it is missing
+        raw = table if isinstance(table, dict) else {}
+        given = {k for k in ("measure", "value", "direction", "at", "every", "of") if k in raw}
+        failed = any(g.get(k) is None for k in given)
+        needs = {"coordinate": {"measure", "value", "direction"}, "gap": {"value", "direction"},
+                 "time": set(), "reaction": {"of", "value", "direction"}}.get(g["type"])
+        allowed = {"coordinate": {"measure", "value", "direction"}, "gap": {"value", "direction"},
+                   "time": {"at", "every"}, "reaction": {"of", "value", "direction"}}.get(g["type"])
+        if needs is None:
+            return None
+        ok = not failed
+        for k in sorted(needs - given):
+            self.p.add(f"{where}.{k}", f"missing; a {g['type']} guard needs {', '.join(sorted(needs))}")
+            ok = False
+        for k in sorted(given - allowed):
+            self.p.add(f"{where}.{k}", f"not used by a {g['type']} guard (it takes {', '.join(sorted(allowed))})")
+            ok = False
+        if g["type"] == "time" and (("at" in given) == ("every" in given)):
+            self.p.add(where, "a time guard takes either at (one instant) or every (a period, from start)")
+            ok = False
+        if g["type"] == "gap" and kind == "release":
+            self.p.add(f"{where}.type", "= 'gap': a release has no contact; use a coordinate, time or reaction guard")
+            ok = False
+        measure = self._measure(g["measure"], f"{where}.measure") if g["type"] == "coordinate" and \
+            g["measure"] is not None else None
+        if g["type"] == "coordinate" and measure is None:
+            ok = False
+        if not ok:
+            return None
+        return GuardSpec(g["type"], measure, float(g["value"] or 0.0),
+                         _DIRECTIONS[g["direction"]] if g["direction"] else +1,
+                         at=g["at"], every=g["every"], start=float(g["start"] or 0.0), of=g["of"])
+
+    def _contact(self, table, where, guard: GuardSpec | None, source: ConfigurationSpec | None) -> ContactSpec | None:
+        c = S.check_table(table, CONTACT_KEYS, where, self.p)
+        points = [k for k in POINT_CONTACT if c[k] is not None]
+        if c["joint"] is None:
+            for k in POINT_CONTACT:
+                if c[k] is None:
+                    self.p.add(f"{where}.{k}", "missing; a contact names a, point_a, b, point_b and normal "
+                               "(or is a joint stop: { joint, arm })")
+            if c["arm"] is not None:
+                self.p.add(f"{where}.arm", "only used by a joint stop ({ joint = NAME, arm = ... })")
+            if len(points) < len(POINT_CONTACT):
+                return None
+            return ContactSpec(c["a"], tuple(c["point_a"]), c["b"], tuple(c["point_b"]), tuple(c["normal"]))
+        for k in points:
+            self.p.add(f"{where}.{k}", "not used by a joint stop (the joint's links and axis give the contact)")
+        if guard is None or source is None:
+            return None
+        uj = source.info.joints.get(c["joint"])
+        if uj is None or uj.type not in ("revolute", "prismatic", "continuous"):
+            movable = [n for n, j in source.info.joints.items() if j.type in ("revolute", "prismatic", "continuous")]
+            self.p.add(f"{where}.joint", f"= {c['joint']!r}: a joint stop needs a revolute or prismatic joint of "
+                       f"'{source.name}' ({source.urdf.name}); its movable joints: {', '.join(movable) or '(none)'}")
+            return None
+        # the stop's position and approach side come from the guard, so the two cannot disagree
+        m = guard.measure
+        sign = None
+        if guard.type == "coordinate" and m is not None:
+            if m.kind == "joint" and m.names[0] == c["joint"]:
+                sign, value = 1, guard.value
+            elif m.kind == "between" and uj.type != "prismatic" and set(m.names) == {uj.parent, uj.child}:
+                # theta_child - theta_parent = q + the joint origin's yaw
+                sign = 1 if m.names == (uj.parent, uj.child) else -1
+                value = sign * guard.value - uj.rpy[2]
+        if sign is None:
+            self.p.add(f"{where}.joint", f"= {c['joint']!r}: a joint stop takes its position from the transition's "
+                       f"coordinate guard, which must measure that joint (measure = {{ joint = \"{c['joint']}\" }}) "
+                       f"or the angle between its links (between = [\"{uj.parent}\", \"{uj.child}\"])")
+            return None
+        if uj.type == "prismatic" and c["arm"] is not None:
+            self.p.add(f"{where}.arm", f"= {c['arm']!r}: a lever arm belongs to a revolute joint stop; the stop on "
+                       f"prismatic joint '{c['joint']}' already reports its axial impulse (N s): remove `arm`")
+            return None
+        return ContactSpec(uj.parent, None, uj.child, None, None, joint=c["joint"], arm=c["arm"],
+                           stop_value=float(value), stop_sign=sign * guard.direction)
+
+    def _drives(self, items) -> list[DriveSpec]:
+        out = []
+        for where, d, _ in self._list_of_tables(items, DRIVE_KEYS, "drives"):
+            if None in (d["joint"], d["coefficients"]):
+                continue
+            out.append(DriveSpec(d["joint"], tuple(float(x) for x in d["coefficients"]),
+                                 tuple(d["configurations"]) if d["configurations"] else None))
+        return out
+
+    def _joint_values(self, table, where, config: ConfigurationSpec | None) -> dict[str, float]:
+        out = {}
+        if table is None or config is None:
+            return out
+        movable = config.info.movable_joints
+        for name, val in table.items():
+            val, bad = S.numbers(val)
+            if bad:
+                self.p.add(f"{where}.{name}", bad)
+                continue
+            if name not in config.info.joints:
+                self._unknown(f"{where}.{name}", "joint", name, movable, config)
+            elif name not in movable:
+                self.p.add(f"{where}.{name}", f"joint '{name}' is fixed in configuration '{config.name}'")
+            elif isinstance(val, list) and config.info.joints[name].type == "planar":
+                if S.vector(3)(val):
+                    self.p.add(f"{where}.{name}", f"= {S.show(val)}: a planar joint takes [x, y, theta]")
+                elif where == "initial.q" and abs(val[2]) > MAX_ANGLE:
+                    self.p.add(f"{where}.{name}[2]", _too_large_angle(val[2]))
+                else:
+                    out[name] = tuple(float(x) for x in val)
+            elif not S._type_ok("number", val) or not math.isfinite(val):
+                self.p.add(f"{where}.{name}", f"= {S.show(val)}: must be a finite number")
+            elif where == "initial.q" and config.info.joints[name].type == "revolute" and abs(val) > MAX_ANGLE:
+                self.p.add(f"{where}.{name}", _too_large_angle(val))
+            else:
+                out[name] = float(val)
+        # in a closed loop the dependent velocities follow from the independent ones: they may be left out
+        # (pcmm.assembly says which given or missing velocity it replaced or took as zero)
+        optional = where == "initial.v" and bool(config.cut_joints)
+        for name in movable:
+            if name not in table and not optional:
+                self.p.add(where, f"joint '{name}' of configuration '{config.name}' has no value; "
+                           f"give every movable joint: {', '.join(movable)}")
+        return out
+
+    def _joint_types_agree(self, configs: dict) -> None:
+        """A joint keeps its name only with its type: states map from one configuration to the
+        next by joint name, and a planar joint's (x, y, theta) cannot become one angle."""
+        first: dict[str, tuple[str, str]] = {}
+        for cname, spec in configs.items():
+            for jname, j in spec.info.joints.items():
+                if j.type not in MOVABLE:
+                    continue
+                seen = first.setdefault(jname, (j.type, cname))
+                if seen[0] != j.type:
+                    self.p.add(f"configurations.{cname}.urdf",
+                               f"joint '{jname}' is {j.type} in '{cname}' ({spec.urdf.name}) but {seen[0]} in "
+                               f"'{seen[1]}' ({configs[seen[1]].urdf.name}); the state passes between "
+                               "configurations by joint name, so give the two joints different names")
+
+    def _unknown(self, where, what, name, known, config):
+        import difflib
+        close = difflib.get_close_matches(name, list(known), n=1, cutoff=0.5)
+        hint = f" (did you mean '{close[0]}'?)" if close else ""
+        self.p.add(where, f"= {name!r}: no {what} of that name in configuration '{config.name}' "
+                   f"({config.info.path.name}){hint}")
+
+    # -- names against URDFs
+    def _check_link(self, where, name, config):
+        if name not in config.info.links:
+            self._unknown(where, "link", name, config.info.links, config)
+
+    def _check_joint(self, where, name, config, movable=True):
+        if name not in config.info.joints:
+            self._unknown(where, "joint", name, config.info.joints, config)
+        elif movable and config.info.joints[name].type not in MOVABLE:
+            self.p.add(where, f"= {name!r}: joint is fixed in configuration '{config.name}'")
+
+    def _check_measure(self, where, m: Measure, config):
+        if m.kind == "joint":
+            self._check_joint(where, m.names[0], config)
+            if m.names[0] in config.info.joints and config.info.joints[m.names[0]].type == "planar":
+                self.p.add(where, f"= {m.names[0]!r}: a planar joint has three coordinates; measure a link instead")
+        else:
+            for n in m.names:
+                self._check_link(where, n, config)
+
+    def _configs_for(self, where, names, scene) -> list[ConfigurationSpec]:
+        if names is None:
+            return list(scene.configurations.values())
+        out = []
+        for n in names:
+            if n in scene.configurations:
+                out.append(scene.configurations[n])
+            elif n not in self.declared:
+                self.p.add(where, f"= {n!r}: no such configuration; defined: {', '.join(scene.configurations)}")
+        return out
+
+    def _cross_check(self, scene: Scene) -> None:
+        names = scene.configurations
+        for i, f in enumerate(scene.forces):
+            where = f"forces[{i}] ({f.name})"
+            for cfg in self._configs_for(f"{where}.configurations", f.configurations, scene):
+                tail = "" if f.configurations else " (the force applies in every configuration unless it lists configurations)"
+                n0 = len(self.p.items)
+                if f.points is not None:
+                    self._check_link(f"{where}.a", f.points.a, cfg)
+                    self._check_link(f"{where}.b", f.points.b, cfg)
+                elif f.on.kind == "joint":
+                    self._check_joint(f"{where}.on.joint", f.on.name, cfg)
+                else:
+                    self._check_link(f"{where}.on.link", f.on.name, cfg)
+                if f.measure is not None:
+                    self._check_measure(f"{where}.measure", f.measure, cfg)
+                if tail and len(self.p.items) > n0:
+                    self.p.items[-1] += tail
+        for i, t in enumerate(scene.transitions):
+            where = f"transitions[{i}] ({t.name})"
+            for key, ref in (("from", t.source), ("to", getattr(t, "target", None)),
+                             ("merge_to", getattr(t, "merge_to", None))):
+                if ref is not None and ref not in names and ref not in self.declared:
+                    self.p.add(f"{where}.{key}", f"= {ref!r}: no such configuration; defined: {', '.join(names)}")
+            if t.source not in names:
+                continue
+            cfg = names[t.source]
+            for j in t.cut:
+                self._check_joint(f"{where}.cut", j, cfg)
+            if t.guard.measure is not None:
+                self._check_measure(f"{where}.guard.measure", t.guard.measure, cfg)
+            if t.guard.type == "reaction":
+                stops = {s.name for s in scene.transitions if s.type == "stop"}
+                joints = set().union(*(c.info.joints for c in names.values()))
+                if t.guard.of not in stops and t.guard.of not in joints:
+                    self.p.add(f"{where}.guard.of", f"= {t.guard.of!r}: names neither a joint of the scene's URDFs "
+                               f"nor a stop transition ({', '.join(sorted(stops)) or 'none'})")
+                elif t.guard.of in cfg.info.movable_joints:
+                    locked = [j for j in sorted(joints) if any(j in c.info.movable_joints for c in names.values())
+                              and j not in cfg.info.movable_joints]
+                    self.p.add(f"{where}.guard.of", f"= {t.guard.of!r}: moves freely in '{t.source}', where this "
+                               "guard is watched, so nothing holds it and its holding force is never defined; "
+                               "a reaction guard watches a joint that configuration locks "
+                               f"({', '.join(locked) or 'it locks none'}) or a stop that merged into it")
+            if t.type == "release" and t.target in names:
+                gained = set(names[t.target].info.movable_joints) - set(cfg.info.movable_joints)
+                if not gained:
+                    self.p.add(f"{where}.to", f"= {t.target!r}: a release goes to a configuration with more "
+                               f"freedom, but '{t.target}' has no movable joint that '{t.source}' lacks")
+            if t.contact is None:
+                continue
+            self._check_link(f"{where}.contact.a", t.contact.a, cfg)
+            self._check_link(f"{where}.contact.b", t.contact.b, cfg)
+            if t.contact.a == t.contact.b:
+                self.p.add(f"{where}.contact", f"a and b are the same link {t.contact.a!r}")
+        init_cfg = names.get(scene.initial_configuration)
+        for j in scene.independent:
+            if init_cfg is not None:
+                self._check_joint("initial.independent", j, init_cfg)
+        if scene.branch is not None and init_cfg is not None:
+            self._check_measure("initial.branch", scene.branch.measure, init_cfg)
+        for i, d in enumerate(scene.drives):
+            for cfg in self._configs_for(f"drives[{i}].configurations", d.configurations, scene):
+                self._check_joint(f"drives[{i}].joint", d.joint, cfg)
+        for cfg in names.values():
+            base = names.get(cfg.derivation.base) if cfg.derivation is not None else None
+            if base is not None and cfg.cut_joints == base.cut_joints:
+                continue  # inherited with the base's links: reported once, at the base
+            for k, cj in enumerate(cfg.cut_joints):
+                where = f"configurations.{cfg.name}.cut_joints[{k}]"
+                self._check_link(f"{where}.a", cj.a, cfg)
+                self._check_link(f"{where}.b", cj.b, cfg)

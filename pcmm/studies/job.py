@@ -1,0 +1,145 @@
+"""One run of a design study: the varied scene rebuilt in the worker, simulated, and reduced
+to one row of quantities.  A run that fails is a row with its status and error message."""
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import time
+import traceback
+from dataclasses import dataclass
+from typing import Any, Iterable
+
+from ..errors import PcmmError, SceneError, SimulationError, UsageError
+
+#: the quantities of every row, after the swept values, ``status`` and ``error``
+QUANTITIES = {
+    "events": "number of events (impacts, merges, switches, releases)",
+    "impacts": "number of events with an impulse",
+    "first_impact_t": "time of the first impact, s",
+    "first_impulse": "normal impulse of the first impact, N s",
+    "peak_impulse": "largest |normal impulse| of the run, N s",
+    "total_impulse": "sum of |normal impulse| over the run, N s",
+    "kinetic_energy_lost": "sum over impacts of KE before - KE after, J",
+    "energy_dissipated": "sum over impacts of KE before + drive work - KE after, J",
+    "max_holding_force": "largest |holding force or moment| of any lock (stats.holding), N or N m; "
+                         "empty when nothing was locked",
+    "configuration_final": "the configuration the run ends in",
+    "t_final": "the time the run ends at, s",
+    "solve_s": "the solve's own wall time (integration and impacts), s",
+    "wall_s": "the run's whole wall time in its worker (scene rebuild, model build, solve, summary), s",
+}
+SUMMARY_KEYS = ("scene", "scene_name", "impact", "status", "message", "configuration_initial",
+                "configuration_final", "events", "final", "stats")
+
+
+
+_BASES: dict[tuple[str, str], Any] = {}  # per worker process: the base scene, validated once
+
+
+def _token(raw: dict) -> str:
+    return hashlib.sha1(json.dumps(raw, sort_keys=True, default=str).encode()).hexdigest()
+
+
+def base_scene(scene_path: str, raw: dict, token: str | None = None):
+    """The scene parsed from ``raw``, kept per process (each worker validates it once)."""
+    from ..scene.load import load_scene_data
+    from ..scene.variations import read_urdf_cached
+    key = (scene_path, token or _token(raw))
+    if key not in _BASES:
+        _BASES[key] = load_scene_data(raw, scene_path, read=read_urdf_cached)
+    return _BASES[key]
+
+
+@dataclass(frozen=True)
+class Job:
+    """What a worker needs for one run (picklable, small)."""
+
+    index: int
+    scene_path: str
+    raw: dict
+    token: str
+    values: dict
+    options: Any  # RunOptions
+    collect: tuple[str, ...] = ()
+
+
+def run_one(job: Job) -> dict:
+    """Simulate one variation and return its row (never raises for a failing run)."""
+    from ..run.loop import simulate
+    from ..results.summary import summary
+    t0 = time.perf_counter()
+    row: dict[str, Any] = {"run": job.index, **job.values}
+    summ = None
+    try:
+        scene = base_scene(job.scene_path, job.raw, job.token).with_values(job.values)
+        try:
+            traj = simulate(scene, job.options)
+            row.update(status="complete", error="")
+        except SimulationError as exc:
+            if isinstance(exc.__context__, KeyboardInterrupt):
+                raise KeyboardInterrupt from None  # the sweep is stopping: not a result of this run
+            traj = exc.partial
+            row.update(status="partial", error=exc.text())
+        if traj is not None:
+            summ = summary(traj, scene.initial_configuration)
+    except PcmmError as exc:
+        row.update(status="failed", error=exc.text())
+    except KeyboardInterrupt:
+        raise
+    except Exception as exc:  # a defect in pcmm must not lose the sweep: the run is a row with its error
+        row.update(status="failed", error=f"{type(exc).__name__}: {exc} "
+                   f"({traceback.extract_tb(exc.__traceback__)[-1].name})")
+    row.update(quantities(summ) if summ is not None else {})
+    for path in job.collect:
+        row[path] = collect_value(summ, path) if summ is not None else None
+    row["wall_s"] = time.perf_counter() - t0
+    return row
+
+
+def quantities(summ: dict) -> dict:
+    """The per-run quantities of :data:`QUANTITIES` from a run summary."""
+    events = summ["events"]
+    impacts = [e for e in events if e.get("impact")]
+    impulses = [abs(e["impulse"]["normal"]) for e in impacts]
+    dissipated = [e["energy_dissipated"] for e in impacts if e.get("energy_dissipated") is not None]
+    holding = [abs(v) for h in ((summ.get("stats") or {}).get("holding") or {}).values()
+               for v in (h.get("min"), h.get("max")) if isinstance(v, (int, float)) and math.isfinite(v)]
+    return {
+        "events": len(events), "impacts": len(impacts),
+        "first_impact_t": impacts[0]["t"] if impacts else None,
+        "first_impulse": impacts[0]["impulse"]["normal"] if impacts else None,
+        "peak_impulse": max(impulses) if impulses else 0.0,
+        "total_impulse": math.fsum(impulses),
+        "kinetic_energy_lost": math.fsum(e["kinetic_energy_before"] - e["kinetic_energy_after"] for e in impacts),
+        "energy_dissipated": math.fsum(dissipated),
+        "max_holding_force": max(holding) if holding else None,
+        "configuration_final": summ.get("configuration_final"),
+        "t_final": (summ.get("final") or {}).get("t"),
+        "solve_s": (summ.get("stats") or {}).get("wall_s"),
+    }
+
+
+def collect_value(summ: dict, path: str):
+    """The summary value at ``path`` (``final.theta.link3``, ``events[0].impulse.normal``,
+    ``stats.steps``); ``None`` when this run's summary has none there."""
+    from ..scene.variations import resolve
+    try:
+        steps = resolve(summ, path, "summary")
+        node = summ
+        for s in steps:
+            node = node[s]
+    except (SceneError, KeyError, IndexError, TypeError):
+        return None
+    return node if isinstance(node, (int, float, str, bool)) or node is None else json.dumps(node)
+
+
+def check_collect(paths: Iterable[str]) -> None:
+    import difflib
+    for p in paths:
+        head = p.split(".", 1)[0].split("[", 1)[0]
+        if head not in SUMMARY_KEYS:
+            close = difflib.get_close_matches(head, SUMMARY_KEYS, n=2, cutoff=0.4)
+            hint = f" (did you mean {' or '.join(map(repr, close))}?)" if close else ""
+            raise UsageError(f"--collect {p!r}: the summary has no {head!r}{hint}; its top-level keys: "
+                             f"{', '.join(SUMMARY_KEYS)}")
