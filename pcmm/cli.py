@@ -173,6 +173,23 @@ def main(argv=None) -> int:
         from .signals import describe
         _error(describe(exc), prefix="pcmm: ")
         return exit_status(exc)
+    except ImportError as exc:
+        # Ctrl-C while Pinocchio or scipy load (on first use, inside a command): a compiled
+        # (pybind11) module initialising when the signal lands turns the KeyboardInterrupt into
+        # "ImportError: initialization failed" with the interrupt as its cause
+        interrupt = _interrupt_in(exc)
+        if interrupt is None:
+            raise
+        from .signals import describe
+        _error(describe(interrupt) + " while starting", prefix="pcmm: ")
+        return exit_status(interrupt)
+
+
+def _interrupt_in(exc: BaseException) -> KeyboardInterrupt | None:
+    """The KeyboardInterrupt in an exception's chain of causes, if any."""
+    while exc is not None and not isinstance(exc, KeyboardInterrupt):
+        exc = exc.__cause__ or exc.__context__
+    return exc
 
 
 def say(text: str = "", file=None) -> None:
