@@ -31,6 +31,7 @@ from scipy import integrate as si
 from scipy.optimize import brentq
 
 from ..errors import Repartition, SimulationError
+from .methods import AUTO, INTEGRATOR_NAMES, METHODS  # noqa: F401  (METHODS: the run loop's import)
 
 EPS = np.finfo(float).eps
 
@@ -524,14 +525,13 @@ def _hermite(t0, y0, f0, t1, y1, f1):
 INTEGRATORS = {name: ScipyMethod(name) for name in ("RK45", "DOP853", "Radau", "LSODA", "BDF", "RK23")}
 INTEGRATORS["DOP853F"] = FortranDOP853()
 INTEGRATORS["RK4"] = FixedStepRK4()
+assert tuple(INTEGRATORS) == INTEGRATOR_NAMES, "pcmm.ode.methods names every integrator of the registry"
 
 # "auto": per configuration, the cheaper method at equal accuracy (docs/benchmarks/work_precision.md).
 # On a tree the right-hand side is one aba, and scipy's Python step loop would cost more than it:
 # Hairer's Fortran DOP853 is about 2x faster there, with event times as accurate (Example 1 at rtol
 # 1e-10: 3.9e-13 s against DOP853's 7.2e-13 s).  With loops or drives the Newton-solved right-hand
 # side dominates and every impact re-takes a step for the dense output, so scipy's DOP853 is cheaper.
-AUTO = "auto"
-METHODS = (AUTO, *INTEGRATORS)
 
 
 def method_for(name: str, constrained: bool):

@@ -25,7 +25,7 @@ from typing import Any, Callable, Sequence
 
 from . import schema as S
 from ..errors import UsageError
-from ..ode.integrators import INTEGRATORS, METHODS  # noqa: F401
+from ..ode.methods import METHODS
 
 _PYTHON_TYPE = {"str": str, "number": float, "int": int, "bool": bool}
 
