@@ -6,11 +6,17 @@ Eigen headers (build requirements in pyproject.toml), so it needs only a C++ com
 is optional: where it does not build (no compiler, a wheel without headers), pcmm installs
 without it and runs its pure-Python right-hand side, with the same results.
 """
+import hashlib
+import os
+import shutil
+import subprocess
 import sys
+import sysconfig
 from pathlib import Path
 
 import numpy
 from setuptools import Extension, setup
+from setuptools.command.build_ext import build_ext
 
 
 def _cmeel_prefix() -> Path | None:
@@ -46,4 +52,55 @@ else:
         optional=True,
     ))
 
-setup(ext_modules=extensions)
+def _cache_folder() -> Path:
+    """Where compiled extensions are kept between installs: ``$PCMM_BUILD_CACHE``, else the
+    user's cache folder (``$XDG_CACHE_HOME/pcmm/extensions``)."""
+    if os.environ.get("PCMM_BUILD_CACHE"):
+        return Path(os.environ["PCMM_BUILD_CACHE"])
+    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "pcmm" / "extensions"
+
+
+class CachedBuildExt(build_ext):
+    """setuptools' build_ext with a content-keyed cache: an extension whose sources, headers'
+    Pinocchio version, compiler, flags and Python ABI are those of an earlier build is copied
+    from that build instead of compiled again (the README's second command would otherwise
+    recompile, for a minute, what the first built).  ``PCMM_BUILD_CACHE=0`` turns it off."""
+
+    def _key(self, ext) -> str:
+        h = hashlib.sha256()
+        for src in ext.sources:
+            h.update(Path(src).read_bytes())
+        config = prefix / "include" / "pinocchio" / "config.hpp" if prefix else None
+        h.update(config.read_bytes() if config and config.is_file() else b"")
+        compiler = self.compiler.compiler_cxx if hasattr(self.compiler, "compiler_cxx") else [""]
+        try:
+            h.update(subprocess.run([compiler[0], "--version"], capture_output=True, timeout=30).stdout)
+        except (OSError, subprocess.SubprocessError, IndexError):
+            h.update(b"unknown compiler")
+        h.update(repr((ext.define_macros, ext.extra_compile_args, ext.extra_link_args, ext.libraries,
+                       sysconfig.get_config_var("EXT_SUFFIX"), sys.version, numpy.__version__)).encode())
+        return h.hexdigest()[:32]
+
+    def build_extension(self, ext):
+        if os.environ.get("PCMM_BUILD_CACHE") == "0":
+            return super().build_extension(ext)
+        target = Path(self.get_ext_fullpath(ext.name))
+        cached = _cache_folder() / f"{ext.name}-{self._key(ext)}{sysconfig.get_config_var('EXT_SUFFIX')}"
+        if cached.is_file():
+            target.parent.mkdir(parents=True, exist_ok=True)
+            shutil.copyfile(cached, target)
+            print(f"pcmm: {ext.name} taken from the build cache {cached} (not compiled again)", file=sys.stderr)
+            return
+        super().build_extension(ext)
+        if target.is_file():
+            try:
+                cached.parent.mkdir(parents=True, exist_ok=True)
+                tmp = cached.with_name(cached.name + f".{os.getpid()}.tmp")
+                shutil.copyfile(target, tmp)
+                os.replace(tmp, cached)
+            except OSError as exc:  # a read-only home: the build stands, only the cache is lost
+                print(f"pcmm: the build cache {cached.parent} is not writable ({exc}); next install compiles again",
+                      file=sys.stderr)
+
+
+setup(ext_modules=extensions, cmdclass={"build_ext": CachedBuildExt})
