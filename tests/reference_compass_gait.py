@@ -250,5 +250,18 @@ class CompassGait:
         return x, self.section(x), T, np.linalg.eigvals(Jm)
 
 
+def slope_frame_state(walker: CompassGait, y):
+    """A scene's view of the Drake-convention state y = (theta_s, theta_w, rates), stance foot at
+    the origin of the *slope* frame (x downhill along the slope, y its normal; gravity there is
+    g (sin gamma, -cos gamma)).  Each leg is a link whose frame sits at the hip with the leg along
+    its -y axis, so its absolute angle is psi = -(theta - gamma).  Returns a dict: hip (x, y) and
+    hip velocity, psi_stance, psi_swing, their rates, and the hip joint's angle psi_swing - psi_stance."""
+    ps, pw = y[0] - walker.gamma, y[1] - walker.gamma  # angles from the slope normal
+    hip = walker.l * np.array([math.sin(ps), math.cos(ps)])
+    vhip = walker.l * y[2] * np.array([math.cos(ps), -math.sin(ps)])
+    return {"hip": hip, "hip_velocity": vhip, "psi_stance": -ps, "psi_swing": -pw,
+            "psi_stance_rate": -y[2], "psi_swing_rate": -y[3], "hip_joint": ps - pw, "hip_joint_rate": y[2] - y[3]}
+
+
 DRAKE = CompassGait()  # Drake's compass_gait parameters (slope 0.0525)
 GOSWAMI = CompassGait(gamma=math.radians(3.0))  # Goswami et al. 1998: mu = 2, beta = 1, phi = 3 deg

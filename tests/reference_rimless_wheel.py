@@ -201,6 +201,22 @@ class RimlessWheel:
         return out
 
 
+def spoke_tip(wheel: RimlessWheel, k: int) -> np.ndarray:
+    """Spoke k's tip in the wheel's own frame, the numbering a scene would use: spoke 0 points
+    down at psi = 0 and k counts counter-clockwise, so that spoke k + 1 is the next to strike when
+    the wheel rolls downhill (+x, psi decreasing): l (sin 2 alpha k, -cos 2 alpha k)."""
+    a = 2 * wheel.alpha * k
+    return wheel.l * np.array([math.sin(a), -math.cos(a)])
+
+
+def slope_frame_state(wheel: RimlessWheel, phi: float, omega: float, foot=(0.0, 0.0)):
+    """(q, v) of the hub as a free planar body in the slope frame, (x, y, psi) and their rates,
+    standing on spoke 0 at ``foot`` with stance angle phi and rate omega = phi' (psi = -phi)."""
+    hub = np.asarray(foot, float) + wheel.l * np.array([math.sin(phi), math.cos(phi)])
+    vel = wheel.l * omega * np.array([math.cos(phi), -math.sin(phi)])
+    return np.array([hub[0], hub[1], -phi]), np.array([vel[0], vel[1], -omega])
+
+
 def kkt_impulse(M, J, v_minus, target=None):
     """Impulsive KKT system  [[M, -J^T], [J, 0]] [v+; P] = [M v-; target]  (target 0: the rows
     J v+ = 0, plastic and no slip).  Returns (v+, P); P is the impulse along the rows.  Needs M

@@ -121,6 +121,21 @@ def test_stance_forces_match_the_hub_acceleration_and_stay_compressive():
     assert abs(Ft0) / Fn0 == pytest.approx(0.5525, abs=1e-4) and abs(Ft0) / Fn0 > max(ratios)
 
 
+def test_slope_frame_state_of_the_wheel():
+    """The scene's initial state: spoke 0's tip on the slope, spoke 1's tip on the slope exactly
+    when phi reaches alpha, and the hub's speed l omega."""
+    q, v = rw.slope_frame_state(W, -W.alpha, 1.5)
+    R = lambda p: np.array([[math.cos(p), -math.sin(p)], [math.sin(p), math.cos(p)]])  # noqa: E731
+    tip = lambda q, k: q[:2] + R(q[2]) @ rw.spoke_tip(W, k)  # noqa: E731
+    np.testing.assert_allclose(tip(q, 0), 0.0, atol=1e-15)
+    assert tip(q, 5)[1] == pytest.approx(0.0, abs=1e-15)  # the old foot, just left behind at the strike
+    assert min(tip(q, k)[1] for k in (1, 2, 3, 4)) > 0.49
+    assert np.linalg.norm(v[:2]) == pytest.approx(1.5 * W.l, rel=1e-15)
+    q, _ = rw.slope_frame_state(W, W.alpha, 1.5)
+    assert tip(q, 1)[1] == pytest.approx(0.0, abs=1e-15)  # the next strike: spoke 1
+    assert tip(q, 1)[0] - tip(q, 0)[0] == pytest.approx(2 * W.l * math.sin(W.alpha), abs=1e-15)  # step length
+
+
 # ======================================================================================= compass gait
 C = cg.DRAKE
 
@@ -210,6 +225,21 @@ def test_trailing_foot_lifts_off_at_the_fixed_point():
     # momentum (P = Delta p is checked in test_heel_strike_closed_form_against_floating_base_impulse)
     assert n @ P > 0
     assert abs(t @ P) / (n @ P) == pytest.approx(0.24579, abs=1e-5)
+
+
+def test_slope_frame_state_of_the_walker():
+    """The slope-frame view a scene uses: both feet where the reference puts them (rotated by gamma),
+    and the hip velocity consistent."""
+    _, ystar, _, _ = C.fixed_point()
+    st = cg.slope_frame_state(C, ystar)
+    Rg = np.array([[math.cos(C.gamma), -math.sin(C.gamma)], [math.sin(C.gamma), math.cos(C.gamma)]])  # world -> slope
+    pts = C.points(ystar[:2])
+    leg = lambda psi: np.array([math.sin(psi), -math.cos(psi)]) * C.l  # noqa: E731
+    np.testing.assert_allclose(st["hip"], Rg @ pts[1], atol=1e-15)
+    np.testing.assert_allclose(st["hip"] + leg(st["psi_stance"]), 0.0, atol=1e-15)
+    np.testing.assert_allclose(st["hip"] + leg(st["psi_swing"]), Rg @ pts[3], atol=1e-15)
+    np.testing.assert_allclose(st["hip_velocity"], Rg @ (C.point_jacobians(ystar[:2])[1] @ ystar[2:]), atol=1e-14)
+    assert st["hip_joint"] == pytest.approx(st["psi_swing"] - st["psi_stance"], abs=1e-15)
 
 
 def test_foot_scuffing_at_mid_stance():
