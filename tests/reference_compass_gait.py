@@ -164,6 +164,18 @@ class CompassGait:
             H += self.masses()[i] * (r[0] * vel[1] - r[1] * vel[0])
         return float(H)
 
+    def stance_foot_force(self, y, h=1e-6):
+        """The ground's force on the walker at the stance foot during a swing (world axes):
+        F = sum m_i a_i - sum m_i g, with a_i = J_i q'' + J_i' q' (J_i' q' by central differences
+        of the complex-step Jacobians along q')."""
+        q, v = np.asarray(y[:2], float), np.asarray(y[2:], float)
+        a = self.accelerations(q, v)
+        Js, Jp, Jm = (self.point_jacobians(x)[:3] for x in (q, q + h * v, q - h * v))
+        F = np.zeros(2)
+        for mi, J, A, B in zip(self.masses(), Js, Jp, Jm):
+            F += mi * (J @ a + (A - B) / (2 * h) @ v) - mi * np.array([0.0, -self.g])
+        return F
+
     # ---- heel strike
     def swing_foot_height(self, q):
         """Height of the swing foot above the slope (along the slope normal)."""

@@ -187,6 +187,13 @@ def test_period_one_gait_and_published_values():
     np.testing.assert_allclose(C.step_map(x), x, atol=1e-10)
     assert np.all(np.abs(eig) < 1)  # stable
     assert T == pytest.approx(0.73446, abs=1e-5)
+    # energy balance of the period-one gait: what the strike takes is what the step's descent gives,
+    # (2 m + mh) g d sin(gamma) with d = 2 l sin(alpha) the step length along the slope
+    _, yb, ya = C.step(ystar)
+    ke = lambda y: 0.5 * y[2:] @ C.mass_matrix(y[:2]) @ y[2:]  # noqa: E731
+    d = 2 * C.l * math.sin((yb[0] - yb[1]) / 2)
+    assert ke(yb) - ke(ya) == pytest.approx((2 * C.m + C.mh) * C.g * d * math.sin(C.gamma), rel=1e-9)
+    np.testing.assert_allclose(ya, ystar, atol=1e-10)
     # Goswami, Thuilot & Espiau (1998), mu = mh/m = 2, beta = b/a = 1, phi = 3 deg: the stable
     # symmetric gait starts (just after heel strike) at (theta_ns, theta_s, theta_ns', theta_s')
     # = (-0.3234, 0.2187, -0.3772, -1.0918) rad, rad/s in their (counter-clockwise) convention.
@@ -240,6 +247,32 @@ def test_slope_frame_state_of_the_walker():
     np.testing.assert_allclose(st["hip"] + leg(st["psi_swing"]), Rg @ pts[3], atol=1e-15)
     np.testing.assert_allclose(st["hip_velocity"], Rg @ (C.point_jacobians(ystar[:2])[1] @ ystar[2:]), atol=1e-14)
     assert st["hip_joint"] == pytest.approx(st["psi_swing"] - st["psi_stance"], abs=1e-15)
+
+
+def test_stance_foot_force_compressive_over_the_gait():
+    """The stance foot's ground force against the rate of change of the walker's linear momentum
+    along the integrated step (central differences of the ODE's dense output): it stays
+    compressive (no lift-off in stance) and needs mu >= 0.2744 to stick."""
+    from scipy.integrate import solve_ivp
+    _, ystar, T, _ = C.fixed_point()
+    sol = solve_ivp(C.rhs, (0, T), ystar, method="DOP853", rtol=1e-13, atol=1e-14, dense_output=True)
+
+    def momentum(t):
+        y = sol.sol(t)
+        return sum(m * J @ y[2:] for m, J in zip(C.masses(), C.point_jacobians(y[:2])[:3]))
+    t_, n_ = C.slope_axes()
+    ratios, normals = [], []
+    for t in np.linspace(0.01, T - 0.01, 40):
+        F = C.stance_foot_force(sol.sol(t))
+        h = 1e-4
+        dp = (momentum(t + h) - momentum(t - h)) / (2 * h)
+        np.testing.assert_allclose(F, dp - sum(C.masses()) * np.array([0.0, -C.g]), atol=1e-5)
+    for t in np.linspace(0.0, T, 201):
+        F = C.stance_foot_force(sol.sol(t))
+        normals.append(n_ @ F)
+        ratios.append(abs(t_ @ F) / (n_ @ F))
+    assert min(normals) > 135.0
+    assert max(ratios) == pytest.approx(0.2744, abs=1e-4)
 
 
 def test_foot_scuffing_at_mid_stance():
