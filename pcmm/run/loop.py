@@ -170,6 +170,10 @@ def simulate(scene: Scene | str | os.PathLike, options: RunOptions = RunOptions(
                     stats["rhs_evals"] += exc.segment.nfev
                     if exc.segment.t.size > 1:
                         _record(traj, cfg, exc.segment, offsets, q, holds, stepping)
+                    at, stop = getattr(exc, "at", None), float(exc.segment.t[-1])
+                    if isinstance(exc, SimulationError) and at is not None and at != stop:
+                        exc.problems[-1] += (f"; the run stopped at t = {stop:.9g} s, its last accepted step "
+                                             f"(t = {at:.9g} s was a trial instant of the next one)")
                 raise
             finally:
                 stats["wall_s"] += time.perf_counter() - t0
@@ -532,7 +536,7 @@ def _record_samples(traj: Trajectory, cfg: Configuration, seg, offsets, q_start,
                 threading.get_ident(), cfg.model.createData())
         cfg.forces = forces  # as they were (a later entry may have compiled them at other angle offsets)
         try:
-            with coords.restored(frozen, q_start):  # the segment was accepted: nothing here stops anything
+            with coords.restored(frozen, q_start, (t, y)):  # accepted: nothing here stops anything
                 return work()
         finally:
             cfg.data, cfg.forces = data, now
