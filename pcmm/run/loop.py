@@ -626,7 +626,7 @@ def _derived_series(cfg: Configuration, t, y, offsets) -> dict:
     lam = np.empty((n, m))
     for i in range(n):
         q, v = cfg.coords.unpack(t[i], y[:, i])
-        Q[i], V[i] = q, v
+        Q[i], V[i] = q, cfg.qdot(q, v)  # the coordinates' rates: a planar joint's x', y' in world axes
         xy[i] = cfg.link_poses(q)[:, :2]
         ke[i] = cfg.kinetic_energy(q, v)
         pe[i] = cfg.potential_energy(q)
