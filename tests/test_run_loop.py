@@ -9,6 +9,7 @@ configurations), and the same run taken to two different ``t_end``.
 from __future__ import annotations
 
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -130,3 +131,79 @@ def test_a_segments_series_do_not_depend_on_what_comes_after_it(tmp_path):
     for name in ("q", "v", "constraint_forces", "kinetic", "potential"):
         np.testing.assert_allclose(getattr(a, name)[ia], getattr(b, name)[ib], rtol=1e-12, atol=1e-12,
                                    err_msg=name)
+
+
+# ---- issue 22.2: a switch whose target's constraints the impulse does not satisfy -----------------
+FOOT = dict(L=0.8, m=2.0, h=0.5, theta=-0.4)
+
+
+def pinned_foot(folder: Path, t_end: float = 0.6) -> Path:
+    """A bar on a planar joint P (centroid at P), tilted by ``theta`` and dropped from rest; its
+    lower tip strikes the ground and latches into 'pinned', where the cut joint F pins that tip
+    to the ground.  The contact has the single normal (0, 1): its impulse cannot stop the tip's
+    sliding, which F's x row forbids."""
+    L, m, h, th = FOOT["L"], FOOT["m"], FOOT["h"], FOOT["theta"]
+    urdf = builders.robot_xml("foot", builders.link_xml("frame"), builders.joint_xml("P", "planar", "frame", "bar"),
+                              builders.solid_xml("bar", m, m * L * L / 12))
+    x_tip = L / 2 * math.cos(th)
+    contact = {"a": "frame", "point_a": [x_tip, 0.0], "b": "bar", "point_b": [L / 2, 0.0], "normal": [0.0, 1.0]}
+    pin_f = [{"name": "F", "type": "revolute", "a": "frame", "point_a": [x_tip, 0.0], "b": "bar",
+              "point_b": [L / 2, 0.0]}]
+    tr = {"name": "strike", "type": "latch", "from": "flight", "to": "pinned", "cut": [],
+          "guard": {"type": "gap", "value": 0.0, "direction": "decreasing"}, "contact": contact}
+    doc = builders.base_doc("foot", "flight", {"flight": "foot.urdf", "pinned": {"urdf": "foot.urdf", "cut_joints": pin_f}},
+                            {"P": [0.0, h, th]}, {"P": [0.0, 0.0, 0.0]}, t_end=t_end, transitions=[tr])
+    return builders.write_scene(folder, doc, {"foot.urdf": urdf})
+
+
+def test_a_latch_whose_impulse_cannot_satisfy_a_new_cut_joint_stops_and_says_why(tmp_path):
+    """Issue 22.2: the plastic normal impulse at the tip, by hand (r = tip - centroid, I = m L^2/12):
+    P = v- / (1/m + r_x^2 / I), the bar spins up by r_x P / I and the tip slides at
+    -omega r_y: the cut joint F's x row is left violated by that speed at the strike, which
+    happens at t = sqrt(2 d / g) (d the tip's drop).  The run stops there and says so; before,
+    the velocity was projected onto the pin silently (kinetic energy 2.4 -> 1.3 J, no word)."""
+    L, m, h, th = FOOT["L"], FOOT["m"], FOOT["h"], FOOT["theta"]
+    I = m * L * L / 12
+    r = np.array([L / 2 * math.cos(th), L / 2 * math.sin(th)])
+    d = h + r[1]
+    v_minus = math.sqrt(2 * G * d)
+    P = v_minus / (1 / m + r[0] ** 2 / I)
+    slide = -(r[0] * P / I) * r[1]
+    with pytest.raises(pcmm.SimulationError) as info:
+        pcmm.simulate(pcmm.load_scene(pinned_foot(tmp_path)))
+    text = str(info.value)
+    assert float(re.search(r"t = (\S+) s, latch", text).group(1)) == pytest.approx(math.sqrt(2 * d / G), rel=1e-7)
+    assert "latch 'strike' 'flight' -> 'pinned'" in text and "'F.fx' (cut joint F)" in text
+    found = float(re.search(r"'F\.fx' \(cut joint F\) by (\S+) m/s", text).group(1))
+    assert abs(found) == pytest.approx(abs(slide), rel=1e-5)
+    assert "'F.fy'" not in text  # the normal row is what the impulse did satisfy
+    assert info.value.partial is not None and info.value.partial.segments[-1].configuration == "flight"
+
+
+def test_a_latch_in_a_loop_enters_with_its_constraints_at_round_off(tmp_path):
+    """Issue 22.2, the normal case: the four-bar's latch (cut joint D kept, J3 locked) enters
+    'latched' with exactly the impulse's velocity (no projection moves it) and the cut joint's
+    velocity rows hold at round-off, checked here on the URDF with Pinocchio alone."""
+    path = builders.four_bar_latch(tmp_path, t_end=0.79)
+    traj = pcmm.simulate(pcmm.load_scene(path))
+    ev = next(e for e in traj.events if e["name"] == "latch")
+    after = next(s for s in traj.segments if s.configuration == "latched")
+    assert after.t[0] == ev["t"]
+    v_after = ev["v_after"]
+    v_full = np.array([v_after["J1"], v_after["J2"], v_after["J3"]])
+    scale = max(abs(w) for w in ev["v_before"].values())  # round-off of the pre-impact velocities
+    assert scale > 0.1
+    assert abs(v_full[2]) < 1e-12 * scale  # J3 stopped by the impulse
+    np.testing.assert_allclose(after.v[0], v_full[:2], rtol=0, atol=1e-12 * scale)
+    model = pin.buildModelFromXML((tmp_path / "fb.urdf").read_text())
+    data = model.createData()
+    q3 = next(s for s in traj.segments if s.configuration == "open").q[-1][2]  # J3 where it latched
+    q_full = np.array([after.q[0][0], after.q[0][1], q3])
+    tip = model.addFrame(pin.Frame("tip", model.getJointId("J3"), model.getFrameId("link3"),
+                                   pin.SE3(np.eye(3), np.array([0.12, 0.0, 0.0])), pin.FrameType.OP_FRAME))
+    data = model.createData()
+    pin.computeJointJacobians(model, data, q_full)
+    pin.updateFramePlacements(model, data)
+    np.testing.assert_allclose(data.oMf[tip].translation[:2], [0.2, 0.0], atol=1e-9)
+    J = pin.getFrameJacobian(model, data, tip, pin.LOCAL_WORLD_ALIGNED)[:2]
+    assert np.max(np.abs(J @ v_full)) < 1e-12 * scale
