@@ -101,7 +101,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--dt", type=_positive("dt"), help="write the CSV and the figures at times 0, dt, 2 dt, ... "
                    "(and at every event) on the integrator's dense output, s (default: at its steps)")
     r.add_argument("--force", action="store_true", help="overwrite existing output files")
-    r.add_argument("--quiet", action="store_true", help="no progress bar, no event table (warnings still print)")
+    r.add_argument("--quiet", action="store_true", help="no progress bar, no event table (warnings still print, a guard that never fired among them)")
     sw = sub.add_parser("sweep", help="run a design study: variations of a scene, one results row per run")
     sw.add_argument("scene", type=Path)
     sw.add_argument("--set", dest="sets", action="append", default=[], metavar="PATH=VALUES",
@@ -407,9 +407,10 @@ def cmd_run(args) -> int:
             f"{traj.stats['steps']} steps, {traj.stats['rhs_evals']} rhs evaluations, "
             f"{traj.stats['wall_s']:.3f} s solve")
         say(event_table(traj))
-        if traj.stats.get("closest_approach"):
-            from .run.approach import describe as describe_approach
-            say(describe_approach(traj.stats["closest_approach"]))
+    if failure is None and traj.stats.get("closest_approach"):  # a guard that never fired: a warning
+        from .run.approach import describe as describe_approach  # (stderr), which --quiet does not hide
+        for line in describe_approach(traj.stats["closest_approach"]).splitlines():
+            _error(line, prefix="pcmm: warning: ")
     for w in (w for e in traj.events for w in e.get("warnings", ())):  # check printed the assembly's
         _error(w, prefix="pcmm: warning: ")
     if failure is not None:

