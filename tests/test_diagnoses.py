@@ -45,3 +45,38 @@ def test_quiet_still_warns_that_the_guard_never_fired(tmp_path, capsys):
     closest, t = (float(x) for x in __import__("re").search(r"closest (\S+) at t = (\S+) s", lines[0]).groups())
     assert closest == pytest.approx(HANG - 0.3, abs=1e-6) and t == pytest.approx(half, abs=2e-3)
     assert lines[0].endswith(", 0.1 short")
+
+
+# ---- (g) the other branch's angles are printed on the guess's turn ----------------------------------
+def test_other_branch_warning_prints_angles_near_the_guess(tmp_path):
+    """A four-bar (crank 0.1 on A, coupler 0.3, rocker 0.25 on D at (0.3, 0)) guessed at A = 1,
+    B = 2, D = -1.7: Newton from one of the grid starts lands 27 turns away (B = -134.192, D =
+    167.432 were printed).  The warning must print the other assembly within pi of each guessed
+    angle; it must close the loop (the coupler's tip on the rocker's, by the bars' geometry), be
+    the other branch (not the assembled posture), and lie nearer the guess than it."""
+    import re
+    import tomllib
+    import pcmm
+    from pcmm.model.assembly import assemble
+    from pcmm.model.mechanism import Mechanism
+    path = builders.four_bar_rocker_stop(tmp_path, 0.5, rocker_stop=1.0)
+    doc = tomllib.loads(path.read_text())
+    guess = {"A": 1.0, "B": 2.0, "D": -1.7}
+    doc["initial"]["q"] = guess
+    path.write_text(builders.dump_toml(doc))
+    scene = pcmm.load_scene(path)
+    q, _, notes = assemble(scene, Mechanism(scene)[scene.initial_configuration])
+    (note,) = [n for n in notes if "lies nearer" in n]
+    other = {k: float(v) for k, v in re.findall(r"(\w) = (-?[\d.]+(?:e[-+]?\d+)?)", note.split("given values:")[1])}
+    assert all(abs(other[j] - guess[j]) <= math.pi for j in "ABD"), note
+
+    def tip_gap(A, B, D, a=0.1, b=0.3, c=0.25, d=0.3):
+        coupler = (a * math.cos(A) + b * math.cos(A + B), a * math.sin(A) + b * math.sin(A + B))
+        rocker = (d + c * math.cos(D), c * math.sin(D))
+        return math.dist(coupler, rocker)
+    assert tip_gap(*(other[j] for j in "ABD")) < 1e-5  # 6 printed digits
+    assembled = dict(zip("ABD", q))
+    assert tip_gap(*(assembled[j] for j in "ABD")) < 1e-12
+    wrap = lambda x: (x + math.pi) % (2 * math.pi) - math.pi  # noqa: E731
+    assert abs(wrap(other["D"] - assembled["D"])) > 0.1  # the mirrored assembly, not the same posture
+    assert max(abs(other[j] - guess[j]) for j in "BD") < max(abs(wrap(assembled[j] - guess[j])) for j in "BD")
