@@ -80,3 +80,22 @@ def test_other_branch_warning_prints_angles_near_the_guess(tmp_path):
     wrap = lambda x: (x + math.pi) % (2 * math.pi) - math.pi  # noqa: E731
     assert abs(wrap(other["D"] - assembled["D"])) > 0.1  # the mirrored assembly, not the same posture
     assert max(abs(other[j] - guess[j]) for j in "BD") < max(abs(wrap(assembled[j] - guess[j])) for j in "BD")
+
+
+# ---- (f) a revolute guard written in degrees ------------------------------------------------------
+@pytest.mark.parametrize("qs, warned", [(-50.0, True), (math.radians(-50.0), False), (-2 * math.pi + 0.01, False),
+                                        (7.0, True)])
+def test_check_warns_of_a_guard_angle_beyond_a_turn(tmp_path, capsys, qs, warned):
+    """A stop on a pendulum's revolute joint at -50 (meant in degrees) passed `pcmm check` without a
+    word.  Outside [-2 pi, 2 pi] a warning gives the value in radians (math.radians: -0.872665);
+    inside, nothing is said."""
+    path = builders.pendulum(tmp_path, 0.5, q0=0.3, qs=qs)
+    rc, out, err = cli(["check", path], capsys)
+    assert rc == 0 and "valid" in out
+    if warned:
+        assert err == (f"pcmm: warning: {path}: transitions[0] (stop).guard.value: = {qs:g}: an angle (joint J1) of "
+                       f"{qs:g} rad, {qs / (2 * math.pi):.3g} turns, outside [-2 pi, 2 pi]; guard values are in "
+                       f"radians: if {qs:g} degrees is meant, write value = \"{qs:g} deg\" (= "
+                       f"{qs * math.pi / 180:.6g} rad)\n")
+    else:
+        assert "outside [-2 pi, 2 pi]" not in err
