@@ -99,3 +99,30 @@ def test_check_warns_of_a_guard_angle_beyond_a_turn(tmp_path, capsys, qs, warned
                        f"{qs * math.pi / 180:.6g} rad)\n")
     else:
         assert "outside [-2 pi, 2 pi]" not in err
+
+
+# ---- (d) an integer literal beyond Python's int conversion ----------------------------------------
+@pytest.mark.parametrize("old, new, field", [
+    ("k = 2.0", "k = " + "7" * 5000, "forces[0].k"),
+    ("k = 2.0", "k = 2.0\nc = [0.5, -" + "1_0" * 2500 + "]", "forces[0].c"),
+])
+def test_huge_integer_literal_is_a_field_message(tmp_path, old, new, field):
+    """tomllib refuses an integer of more than 4300 digits with Python's advice to call
+    sys.set_int_max_str_digits(), which pcmm passed on.  The message names the line and the field,
+    in the words of the schema's check of integers too large for a double (401 digits and up)."""
+    import pcmm
+    from pcmm.errors import SceneError
+    path = builders.pendulum(tmp_path, 0.5, q0=0.3, qs=-1.0, k=2.0)
+    text = path.read_text()
+    assert old in text
+    path.write_text(text.replace(old, new))
+    line = 1 + next(i for i, ln in enumerate(path.read_text().splitlines()) if "7777" in ln or "1_01_0" in ln)
+    with pytest.raises(SceneError) as info:
+        pcmm.load_scene(path)
+    digits = 5000
+    assert info.value.problems == [f"{path}: line {line}: {field}: = an integer of {digits} digits: beyond the "
+                                   "range of a floating-point number (about 1.8e308)"]
+    # the same words as for an integer short enough to parse (the schema's own check)
+    path.write_text(text.replace(old, "k = 1" + "0" * 400))
+    with pytest.raises(SceneError, match=r"forces\[0\]\.k: = an integer of 401 digits: beyond the range"):
+        pcmm.load_scene(path)
