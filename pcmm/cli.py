@@ -101,7 +101,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--dt", type=_positive("dt"), help="write the CSV and the figures at times 0, dt, 2 dt, ... "
                    "(and at every event) on the integrator's dense output, s (default: at its steps)")
     r.add_argument("--force", action="store_true", help="overwrite existing output files")
-    r.add_argument("--quiet", action="store_true", help="no progress bar, no event table (warnings still print)")
+    r.add_argument("--quiet", action="store_true", help="no progress bar, no event table (warnings still print, a guard that never fired among them)")
     sw = sub.add_parser("sweep", help="run a design study: variations of a scene, one results row per run")
     sw.add_argument("scene", type=Path)
     sw.add_argument("--set", dest="sets", action="append", default=[], metavar="PATH=VALUES",
@@ -407,9 +407,8 @@ def cmd_run(args) -> int:
             f"{traj.stats['steps']} steps, {traj.stats['rhs_evals']} rhs evaluations, "
             f"{traj.stats['wall_s']:.3f} s solve")
         say(event_table(traj))
-        if traj.stats.get("closest_approach"):
-            from .run.approach import describe as describe_approach
-            say(describe_approach(traj.stats["closest_approach"]))
+    if failure is None and traj.stats.get("closest_approach"):
+        _say_approach(traj.stats["closest_approach"], args.quiet)
     for w in (w for e in traj.events for w in e.get("warnings", ())):  # check printed the assembly's
         _error(w, prefix="pcmm: warning: ")
     if failure is not None:
@@ -431,6 +430,18 @@ def cmd_run(args) -> int:
         _check_frames(traj, 60.0, "--replay")
         serve(traj)
     return 0
+
+
+def _say_approach(records: list[dict], quiet: bool) -> None:
+    """Each guard of the final configuration that did not fire: one that never fired in the run
+    (or crossed its value against its direction) is a warning on stderr, which --quiet does not
+    hide; one that fired before and not again by t_end is information (stdout, not with --quiet)."""
+    from .run.approach import describe as describe_approach
+    for r in records:
+        if r.get("last_fired") is None or r.get("crossed_against") is not None:
+            _error(describe_approach([r]), prefix="pcmm: warning: ")
+        elif not quiet:
+            say(describe_approach([r]))
 
 
 def _write_results(args, scene, opts, traj, partial: bool):
