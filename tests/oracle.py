@@ -230,7 +230,11 @@ class Oracle:
         return own if need <= own.movable else self.model(self.texts[fits[0][1]])
 
     # -- the whole run
-    def check(self, traj, samples: int = 6):
+    def check(self, traj, samples: int = 6, locks: dict | None = None):
+        """Check every segment at ``samples`` instants, and every switch; ``locks`` gives the values of
+        joints locked where the trajectory starts, if it starts in a derived configuration entered
+        before (a part of a run)."""
+        self.start_locks = dict(locks or {})
         locks: dict[str, float] = {}  # joint -> value while locked (from the last state it was free)
         prev = None
         contexts = []
@@ -263,6 +267,8 @@ class Oracle:
                 values[j] = float(pseg.q[-1, pseg.coordinates.index(j)])
             elif prev is not None and j in prev[1]["locks"]:
                 values[j] = prev[1]["locks"][j]
+            elif prev is None and j in getattr(self, "start_locks", {}):
+                values[j] = self.start_locks[j]
             else:
                 values[j] = None
         if any(v is None for v in values.values()) or (spec.derivation is None and own is not F):
