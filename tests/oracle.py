@@ -631,6 +631,32 @@ def _csv_rows(path) -> tuple[list[str], dict[float, list[str]]]:
     return rows[0], out
 
 
+def compare_csv(short, long, rel: float = 1e-7) -> list[str]:
+    """Every row of the CSV ``short`` whose time the CSV ``long`` has must agree with it, column by
+    column name (the longer run may have more columns: a lock it reaches later)."""
+    problems = []
+    hs, rs = _csv_rows(short)
+    hl, rl = _csv_rows(long)
+    missing = [h for h in hs if h not in hl]
+    if missing:
+        problems.append(f"CSV columns of the shorter run missing in the longer one: {missing}")
+    col = {h: hl.index(h) for h in hs if h in hl}
+    for tt, rows in rs.items():
+        for ra, rb in zip(rows, rl.get(tt, [])):
+            for c, h in enumerate(hs):
+                x, y = ra[c], rb[col[h]] if h in col else None
+                if y is None or x == y:
+                    continue
+                try:
+                    fx, fy = float(x), float(y)
+                except ValueError:
+                    problems.append(f"CSV t = {tt}: {h}: {x!r} vs {y!r}")
+                    continue
+                if not abs(fx - fy) <= rel * max(1.0, abs(fy)) * 10:
+                    problems.append(f"CSV t = {tt}: {h}: {x} vs {y}")
+    return problems
+
+
 def check_prefix(scene_path, t_short: float, t_long: float, dt: float, folder: Path, rel: float = 1e-7,
                  **options) -> list[str]:
     """The run to ``t_short`` must be the first part of the run to ``t_long``: same events,
@@ -662,24 +688,32 @@ def check_prefix(scene_path, t_short: float, t_long: float, dt: float, folder: P
                     problems.append(f"{kind}: segment {k} ({s.configuration}) {name} differs by {err:.3g} "
                                     f"at t = {common[j]:.9g} s (scale {scale:.3g})")
         if kind == "dt":
-            ps, pl = ts.to_csv(folder / "short.csv"), tl.to_csv(folder / "long.csv")
-            hs, rs = _csv_rows(ps)
-            hl, rl = _csv_rows(pl)
-            missing = [h for h in hs if h not in hl]
-            if missing:
-                problems.append(f"CSV columns of the shorter run missing in the longer one: {missing}")
-            col = {h: hl.index(h) for h in hs if h in hl}
-            for tt, rows in rs.items():
-                for ra, rb in zip(rows, rl.get(tt, [])):
-                    for c, h in enumerate(hs):
-                        x, y = ra[c], rb[col[h]] if h in col else None
-                        if y is None or x == y:
-                            continue
-                        try:
-                            fx, fy = float(x), float(y)
-                        except ValueError:
-                            problems.append(f"CSV t = {tt}: {h}: {x!r} vs {y!r}")
-                            continue
-                        if not abs(fx - fy) <= rel * max(1.0, abs(fy)) * 10:
-                            problems.append(f"CSV t = {tt}: {h}: {x} vs {y}")
+            problems += compare_csv(ts.to_csv(folder / "short.csv"), tl.to_csv(folder / "long.csv"), rel)
+    return problems
+
+
+def check_resampled_states(scene_path, t_end: float, dt: float, rel: float = 1e-6, **options) -> list[str]:
+    """The ``dt`` resampling of a run must follow the solution between its steps: compared with a
+    second run whose steps are at most ``dt / 8`` (and tolerances 100 times tighter), sampled at
+    the same times, on segments that exist in both (the same events)."""
+    import pcmm
+    scene = pcmm.load_scene(scene_path)
+    a = pcmm.simulate(scene, pcmm.RunOptions(t_end=t_end, **options)).resampled(dt)
+    s = scene.solver
+    b = pcmm.simulate(scene, pcmm.RunOptions(t_end=t_end, max_step=dt / 8, rtol=s.rtol / 100, atol=s.atol / 100,
+                                             **options)).resampled(dt)
+    problems = []
+    if [x.configuration for x in a.segments] != [x.configuration for x in b.segments]:
+        return [f"the finer run visits other configurations: {[x.configuration for x in b.segments][:6]}"]
+    for k, (sa, sb) in enumerate(zip(a.segments, b.segments)):
+        inner_a, inner_b = sa.t[1:-1], sb.t[1:-1]  # the grid times (the ends are the events')
+        common, ia, ib = np.intersect1d(inner_a, inner_b, return_indices=True)
+        for name in ("q", "v", "kinetic"):
+            A, B = getattr(sa, name)[1:-1][ia], getattr(sb, name)[1:-1][ib]
+            scale = max(1.0, float(np.max(np.abs(B), initial=0.0)))
+            err = float(np.max(np.abs(A - B), initial=0.0))
+            if not err <= rel * scale:
+                j = int(np.argmax(np.max(np.abs(A - B).reshape(len(common), -1), axis=1)))
+                problems.append(f"segment {k} ({sa.configuration}) resampled {name} off by {err:.3g} at "
+                                f"t = {common[j]:.9g} s")
     return problems

@@ -115,6 +115,37 @@ def test_a_shorter_run_is_the_first_part_of_a_longer_one(name, t_short, t_long, 
     assert not problems, "\n".join(problems[:20])
 
 
+RESAMPLED = {
+    "three_bar": lambda d: (EXAMPLES / "three_bar.toml", 0.4, 0.01, {}),
+    "double_folded": lambda d: (EXAMPLES / "double_folded.toml", 1.0, 0.05, {}),
+    "ball": lambda d: (builders.ball(d, 0.5, h=0.3, t_end=0.8), 0.8, 0.01, {}),
+    "spring_pendulum_rk4": lambda d: (builders.spring_pendulum(d, 3.0, 0.1, t_end=2.0), 2.0, 0.05,
+                                      {"method": "RK4", "step": 0.02}),
+}
+
+
+@pytest.mark.parametrize("name", sorted(RESAMPLED))
+def test_the_dt_resampling_follows_the_solution_between_steps(name, tmp_path):
+    """The dense output at dt against a run whose steps are at most dt / 8 (tolerances 100 times
+    tighter): the resampling is the solution's, not a polygon of the steps or a step taken wrongly."""
+    path, t_end, dt, options = RESAMPLED[name](tmp_path)
+    problems = oracle.check_resampled_states(path, t_end, dt, **options)
+    assert not problems, "\n".join(problems[:20])
+
+
+def test_the_command_lines_csv_of_a_shorter_run_is_the_first_part_of_a_longer_ones(tmp_path):
+    """pcmm run --dt --csv to t_end 0.12 s (before Example 1's latch) and 0.3 s (after it): every
+    row of the shorter CSV is the longer one's, column by column."""
+    from pcmm.cli import main
+    for name, t_end in (("short", "0.12"), ("long", "0.3")):
+        assert main(["run", str(EXAMPLES / "three_bar.toml"), "--t-end", t_end, "--dt", "0.01", "--quiet",
+                     "--csv", str(tmp_path / f"{name}.csv")]) == 0
+    rows = (tmp_path / "short.csv").read_text().splitlines()
+    assert len(rows) == 1 + 13  # header, t = 0 ... 0.12 at 0.01
+    problems = oracle.compare_csv(tmp_path / "short.csv", tmp_path / "long.csv")
+    assert not problems, "\n".join(problems[:20])
+
+
 def test_the_oracle_sees_a_wrong_number(tmp_path):
     """The oracle can fail: one recorded holding moment, energy and pose changed by a little
     are each reported at their instant."""
