@@ -285,3 +285,33 @@ def test_a_lock_held_from_the_start_without_a_spring_agrees(tmp_path):
 def test_andrews_resampled_at_a_coarse_dt():
     _, found = _findings(EXAMPLES / "andrews.toml", 0.03, 0.01)
     assert not found, _show(found)
+
+
+def planted_foot(folder, vx=1.0, h=0.2, L=0.6, m=1.0, t_end=0.4):
+    """A uniform bar (m, L) on a URDF planar joint, upright (its frame at its centre, its foot at
+    (0, -L/2)), moving at vx and dropped from h: its foot strikes the floor at x = vx sqrt(2 h / g),
+    where a latch plants it into 'pinned' (a revolute cut joint F holds the foot there).  The
+    contact's one normal cannot stop the foot's sliding: only F's two rows can."""
+    urdf = builders.robot_xml("bar", builders.link_xml("frame"), builders.joint_xml("P", "planar", "frame", "bar"),
+                              builders.solid_xml("bar", m, m * L * L / 12))
+    x_hit = vx * math.sqrt(2 * h / builders.G)
+    foot = {"a": "frame", "point_a": [x_hit, 0.0], "b": "bar", "point_b": [0.0, -L / 2]}
+    tr = {"name": "plant", "type": "latch", "from": "flying", "to": "pinned", "cut": [],
+          "guard": {"type": "gap", "value": 0.0, "direction": "decreasing"}, "contact": {**foot, "normal": [0.0, 1.0]}}
+    doc = builders.base_doc("planted_foot", "flying",
+                            {"flying": "bar.urdf", "pinned": {"urdf": "bar.urdf",
+                                                              "cut_joints": [{"name": "F", "type": "revolute", **foot}]}},
+                            {"P": [0.0, h + L / 2, 0.0]}, {"P": [vx, 0.0, 0.0]}, t_end=t_end, transitions=[tr])
+    return builders.write_scene(folder, doc, {"bar.urdf": urdf})
+
+
+@pytest.mark.xfail(strict=True, raises=AssertionError, reason=(
+    "pcmm/events/transitions.py (issue 22 item 2): the plant's impulse acts along the contact normal "
+    "only, leaving the foot sliding at 1 m/s; the event reports kinetic_energy_after 0.5 J, but the "
+    "pinned segment starts at rest (0 J: the velocity projected silently onto F's rows), and the "
+    "angular momentum about the foot (-0.3 kg m^2/s before) is not conserved. The impulse must act "
+    "on every row of the target (F's two) or the run stop naming F. For h-run."))
+def test_a_latch_that_pins_a_foot_conserves_momentum_about_it(tmp_path):
+    traj, found = _findings(planted_foot(tmp_path))
+    assert [s.configuration for s in traj.segments] == ["flying", "pinned"]
+    assert not found, _show(found)
