@@ -315,3 +315,35 @@ def test_a_latch_that_pins_a_foot_conserves_momentum_about_it(tmp_path):
     traj, found = _findings(planted_foot(tmp_path))
     assert [s.configuration for s in traj.segments] == ["flying", "pinned"]
     assert not found, _show(found)
+
+
+def pinned_planar_bar(folder, L=0.5, m=1.0, q0=0.8, pivot=(0.2, 0.1), at=0.4, t_end=1.0):
+    """A uniform bar on a URDF planar joint (x, y, theta), pinned to the frame at ``pivot`` by a
+    revolute cut joint through its point (at, 0): a compound pendulum (one degree of freedom),
+    started at rest at theta = -q0."""
+    urdf = builders.robot_xml("pp", builders.link_xml("frame"), builders.joint_xml("P", "planar", "frame", "bar"),
+                              builders.bar_xml("bar", L, m))
+    cut = [{"name": "pivot", "type": "revolute", "a": "frame", "point_a": list(pivot), "b": "bar",
+            "point_b": [at, 0.0]}]
+    x0 = [pivot[0] - at * math.cos(-q0), pivot[1] - at * math.sin(-q0), -q0]
+    doc = builders.base_doc("pinned_planar_bar", "c", {"c": {"urdf": "pp.urdf", "cut_joints": cut}}, {"P": x0},
+                            {"P": [0.0, 0.0, 0.0]}, t_end=t_end)
+    return builders.write_scene(folder, doc, {"pp.urdf": urdf})
+
+
+def test_a_planar_bar_pinned_at_its_frames_origin_agrees(tmp_path):
+    traj = pcmm.simulate(pcmm.load_scene(pinned_planar_bar(tmp_path, pivot=(0.0, 0.0), at=0.0)))
+    assert traj.t[-1] == 1.0
+    found = oracle.check_run(tmp_path / "scene.toml", traj=traj)
+    assert not found, _show(found)
+
+
+@pytest.mark.xfail(strict=True, raises=SimulationError, reason=(
+    "pcmm/model (issue 22 item 3b): a planar floating base pinned by a revolute cut joint away from "
+    "its frame's origin stops at t = 0.0016 s with 'the loop cannot be closed ... (residual "
+    "1.19e-09) ... singular posture' on a regular posture (the pin's Jacobian has full rank). For "
+    "h-model."))
+def test_a_planar_bar_pinned_off_its_frames_origin_swings(tmp_path):
+    traj = pcmm.simulate(pcmm.load_scene(pinned_planar_bar(tmp_path)))
+    found = oracle.check_run(tmp_path / "scene.toml", traj=traj)
+    assert not found, _show(found)
