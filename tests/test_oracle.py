@@ -275,15 +275,25 @@ def test_a_lock_held_from_the_start_without_a_spring_agrees(tmp_path):
     assert not found, _show(found)
 
 
+COARSE = {
+    "andrews": lambda d: (EXAMPLES / "andrews.toml", 0.03),
+    # a Grashof crank-rocker (no singular posture on its way) turned fast by a constant torque
+    "crank_rocker": lambda d: (builders.four_bar_rocker_stop(d, 0.5, -5.0, torque=3.0, t_end=1.0, g=0.0), 1.0),
+}
+
+
+@pytest.mark.parametrize("name", sorted(COARSE))
 @pytest.mark.xfail(strict=True, raises=SimulationError, reason=(
-    "Andrews' squeezer resampled at dt = 0.01 s (pcmm run --dt 0.01): pcmm/run/loop.py "
+    "resampling a fast loop at dt = 0.01 s (pcmm run --dt 0.01): pcmm/run/loop.py "
     "_record_samples.resample seeds the loop at the segment's start and _derived_series then "
     "warm-starts each requested time from the previous one, 0.01 s (a large part of a crank turn) "
-    "away, so Newton fails: 'the loop cannot be closed at t = 0.00994615 s (residual 0.0568)' on a "
-    "regular posture the steps passed through. Fix: warm-start each time from the recorded step "
-    "that holds it. For h-model / h-run (issue 22 item 3)."))
-def test_andrews_resampled_at_a_coarse_dt():
-    _, found = _findings(EXAMPLES / "andrews.toml", 0.03, 0.01)
+    "away, so Newton fails on regular postures the steps passed through: Andrews 'the loop cannot "
+    "be closed at t = 0.00994615 s (residual 0.0568)', the crank-rocker at t = 0.629929 s (residual "
+    "0.424); both resample at dt = 0.001 s. Fix: warm-start each time from the recorded step that "
+    "holds it. For h-model / h-run (issue 22 item 3)."))
+def test_a_fast_loop_resampled_at_a_coarse_dt(name, tmp_path):
+    path, t_end = COARSE[name](tmp_path)
+    _, found = _findings(path, t_end, 0.01)
     assert not found, _show(found)
 
 
