@@ -284,13 +284,13 @@ COARSE = {
 
 @pytest.mark.parametrize("name", sorted(COARSE))
 @pytest.mark.xfail(strict=True, raises=SimulationError, reason=(
-    "resampling a fast loop at dt = 0.01 s (pcmm run --dt 0.01): pcmm/run/loop.py "
-    "_record_samples.resample seeds the loop at the segment's start and _derived_series then "
-    "warm-starts each requested time from the previous one, 0.01 s (a large part of a crank turn) "
-    "away, so Newton fails on regular postures the steps passed through: Andrews 'the loop cannot "
+    "resampling a fast loop at dt = 0.01 s (pcmm run --dt 0.01) fails in pcmm/run/loop.py "
+    "_record_samples.resample (its loop solves, pcmm/model/constraints.py): Andrews 'the loop cannot "
     "be closed at t = 0.00994615 s (residual 0.0568)', the crank-rocker at t = 0.629929 s (residual "
-    "0.424); both resample at dt = 0.001 s. Fix: warm-start each time from the recorded step that "
-    "holds it. For h-model / h-run (issue 22 item 3)."))
+    "0.424), a step time whose recorded state the segment's own series derive without trouble; the "
+    "same segments resample at dt = 0.001 s, and adding every step time to the dt = 0.01 grid does not "
+    "help, so it is not only the distance between warm starts (the dense re-stepping before the "
+    "solves is the suspect). For h-model / h-run (issue 22 item 3)."))
 def test_a_fast_loop_resampled_at_a_coarse_dt(name, tmp_path):
     path, t_end = COARSE[name](tmp_path)
     _, found = _findings(path, t_end, 0.01)
