@@ -185,6 +185,17 @@ def _poly(coefficients, t, order=0):
     return float(c(t))
 
 
+def _kind(what: str) -> str:
+    """The kind of a comparison, without the configuration, joint or link it names."""
+    for kind in ("constraint force", "kinetic energy rises beyond the drives' work", "kinetic energy rises",
+                 "momentum not conserved", "normal velocity after", "kinetic_energy_after", "kinetic_energy_before",
+                 "without impact", "residual rate", "residual", "force element", "potential energy",
+                 "kinetic energy", "omega of", "theta of", "x,y of", "jumps", "segments meet"):
+        if kind in what:
+            return kind
+    return what
+
+
 class Oracle:
     """The oracle of one scene: its configurations as URDF models, locks and holds by name."""
 
@@ -196,7 +207,7 @@ class Oracle:
         self.texts = {}  # configuration -> (URDF text of its free joints, locks it derives)
         for name, spec in scene.configurations.items():
             self.texts[name] = urdf_text(spec.urdf)  # a derived configuration's root URDF
-        self.held_by = {}  # a hold's label -> the joints it holds
+        self.counts: dict[str, int] = {}  # how many comparisons of each kind were made
 
     def model(self, text: str) -> Model:
         if text not in self._models:
@@ -204,6 +215,7 @@ class Oracle:
         return self._models[text]
 
     def report(self, t, what, recorded, oracle, error, tol):
+        self.counts[_kind(what)] = self.counts.get(_kind(what), 0) + 1
         if not (error <= tol):
             self.findings.append(Finding(str(self.scene.path), float(t), what, recorded, oracle, float(error)))
 
@@ -587,19 +599,33 @@ class Oracle:
                             tol.event * max(1.0, abs(vn_m)))
         for cj in list(ca["spec"].cut_joints) + [c for c in cb["spec"].cut_joints if c not in ca["spec"].cut_joints]:
             rows += list(self.cut_rows(cj, Fa, qa, va)[1])
+        driven = {d.joint for d in list(ca["drives"]) + list(cb["drives"])}
+        drive_rows = []  # (row index, coordinate) of the drives' rows
         for name, sl in Fa.vslice.items():
-            if name not in brates or name in {d.joint for d in list(ca["drives"]) + list(cb["drives"])}:
+            if name not in brates or name in driven:
                 for c in range(sl.start, sl.stop):
                     e_ = np.zeros(Fa.nv)
                     e_[c] = 1.0
+                    if name in driven:
+                        drive_rows.append((len(rows), c))
                     rows.append(e_)
         r = M @ (vplus - va)
+        impulses = None
         if rows:
             R = np.array(rows).T
-            r = r - R @ np.linalg.lstsq(R, r, rcond=None)[0]
+            impulses = np.linalg.lstsq(R, r, rcond=None)[0]
+            r = r - R @ impulses
+            if np.linalg.matrix_rank(R) < R.shape[1]:
+                impulses = None  # redundant rows: the impulses, and a drive's share, are not unique
         p = float(np.linalg.norm(M @ va))
         self.report(t, f"{a.configuration} -> {b.configuration}: momentum not conserved outside the impulse's rows",
                     0.0, float(np.linalg.norm(r)), float(np.linalg.norm(r)), tol.event * max(1.0, p))
+        if drives and impulses is not None:
+            # the drive's impulse P works P f'(t) (its coordinate's rate is prescribed, the same on both
+            # sides); every other row's impulse works P (v- + v+) / 2 <= 0 (restitution <= 1, locks)
+            work = sum(float(impulses[i] * va[c]) for i, c in drive_rows)
+            self.report(t, f"{a.configuration} -> {b.configuration}: kinetic energy rises beyond the drives' work "
+                        f"({work:.6g} J)", ke_a + work, ke_b, ke_b - ke_a - work, tol.event * max(scale, abs(work)))
 
 
 # ---- runs --------------------------------------------------------------------------------------------------
