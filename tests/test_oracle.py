@@ -211,24 +211,12 @@ def held_elbow_arm(folder, spring_value=0.3, spring_k=2.0, phi0=0.4, t_end=0.4):
     return builders.write_scene(folder, doc, {"locked.urdf": locked, "free.urdf": free})
 
 
-@pytest.mark.xfail(strict=True, raises=AssertionError, reason=(
-    "pcmm/run/loop.py _record_samples.derive: _holding_forces(cfg, holds, t, y) unpacks every state "
-    "again after _derived_series has left the loop's Newton warm start at the segment's end, so the "
-    "four-bar's dependent coordinates land on its other assembly (up to 3.9 rad away) and J3.hold is "
-    "solved at a posture the run never had (recorded 2.61 N m at t = 0.1468 s, KKT 1.05 N m); the "
-    "cut joint's forces, from the right postures, agree. Fix: holding forces from the q, v that "
-    "_derived_series returns (or coords.seed(q_start) first). For h-run."))
 def test_the_holding_moment_of_a_latched_loop_is_solved_at_the_recorded_posture(tmp_path):
     traj, found = _findings(five_bar_latch(tmp_path), dt=0.01)
     assert [e["name"] for e in traj.events] == ["latch"]
     assert not found, _show(found)
 
 
-@pytest.mark.xfail(strict=True, raises=AssertionError, reason=(
-    "the same cause as the case above (pcmm/run/loop.py _record_samples.derive re-solving the loop "
-    "for the holding forces from the warm start the segment's end left): the latched segment's "
-    "J3.hold depends on where the run ends, by 1.41 N m at t = 0.1417 s between t_end = 0.15 s and "
-    "0.2 s (issue 22 item 1). For h-run."))
 def test_a_latched_loops_holding_moment_does_not_depend_on_t_end(tmp_path):
     problems = oracle.check_prefix(five_bar_latch(tmp_path / "scene"), 0.15, 0.2, 0.01, tmp_path)
     assert not problems, "\n".join(problems[:20])
@@ -325,16 +313,16 @@ def planted_foot(folder, vx=1.0, h=0.2, L=0.6, m=1.0, t_end=0.4):
     return builders.write_scene(folder, doc, {"bar.urdf": urdf})
 
 
-@pytest.mark.xfail(strict=True, raises=AssertionError, reason=(
-    "pcmm/events/transitions.py (issue 22 item 2): the plant's impulse acts along the contact normal "
-    "only, leaving the foot sliding at 1 m/s; the event reports kinetic_energy_after 0.5 J, but the "
-    "pinned segment starts at rest (0 J: the velocity projected silently onto F's rows), and the "
-    "angular momentum about the foot (-0.3 kg m^2/s before) is not conserved. The impulse must act "
-    "on every row of the target (F's two) or the run stop naming F. For h-run."))
-def test_a_latch_that_pins_a_foot_conserves_momentum_about_it(tmp_path):
-    traj, found = _findings(planted_foot(tmp_path))
-    assert [s.configuration for s in traj.segments] == ["flying", "pinned"]
-    assert not found, _show(found)
+def test_a_latch_whose_normal_cannot_pin_a_foot_stops_naming_the_cut_joint(tmp_path):
+    """The plant's impulse acts along the contact normal only, so it cannot stop the foot sliding
+    at vx = 1 m/s along the floor; entering 'pinned' would need F's tangential row to jump by
+    1 m/s. The run stops and names F's row and the velocity left (issue 22 item 2), instead of
+    projecting the velocity silently (which lost 0.5 J and the momentum about the foot)."""
+    with pytest.raises(SimulationError) as err:
+        pcmm.simulate(pcmm.load_scene(planted_foot(tmp_path)))
+    text = str(err.value)
+    assert "'F.fx' (cut joint F) by 1 m/s" in text
+    assert "P.x' = 1 where the constraints need P.x' = 0" in text
 
 
 def pinned_planar_bar(folder, L=0.5, m=1.0, q0=0.8, pivot=(0.2, 0.1), at=0.4, t_end=1.0):
@@ -358,24 +346,12 @@ def test_a_planar_bar_pinned_at_its_frames_origin_agrees(tmp_path):
     assert not found, _show(found)
 
 
-@pytest.mark.xfail(strict=True, raises=SimulationError, reason=(
-    "pcmm/model (issue 22 item 3b): a planar floating base pinned by a revolute cut joint away from "
-    "its frame's origin stops at t = 0.0016 s with 'the loop cannot be closed ... (residual "
-    "1.19e-09) ... singular posture' on a regular posture (the pin's Jacobian has full rank). For "
-    "h-model."))
 def test_a_planar_bar_pinned_off_its_frames_origin_swings(tmp_path):
     traj = pcmm.simulate(pcmm.load_scene(pinned_planar_bar(tmp_path)))
     found = oracle.check_run(tmp_path / "scene.toml", traj=traj)
     assert not found, _show(found)
 
 
-@pytest.mark.xfail(strict=True, raises=AssertionError, reason=(
-    "issue 22 item 1 on a shipped example: examples/double_folded_cycle.toml to t_end = 6.3 s ends "
-    "released (the unmerge at 6.028 s); the merged stretch's 'slider stop E.hold' is recorded -89.5 N "
-    "at 3.163 s and -58.8 N at the release, where the KKT solve gives +1.865 N and 0 N (the unmerge "
-    "fires at zero), and the run to t_end = 3.3 s records +1.865 N. The holding series, computed "
-    "when first read (pcmm/run/loop.py _record_samples.derive, pcmm/events/holding.py), reads state "
-    "that the later segments changed. For h-run."))
 def test_the_merged_stretch_of_example2s_cycle_holds_what_the_kkt_solve_gives():
     _, found = _findings(EXAMPLES / "double_folded_cycle.toml", 6.3)
     assert not found, _show(found)
