@@ -172,6 +172,7 @@ def cli_reference() -> str:
     helps = {c.dest: c.help for c in sub._choices_actions}
     out = []
     for name, p in sub.choices.items():
+        p.formatter_class = lambda prog: argparse.HelpFormatter(prog, width=100)  # not the terminal's
         usage = p.format_usage().replace("usage: ", "").strip()
         out += [f"### `pcmm {name}`", "", _cell(helps.get(name, "")), "", "```text", usage, "```", "",
                 "| argument | meaning | default |", "|---|---|---|"]
