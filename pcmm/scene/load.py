@@ -5,7 +5,8 @@ scene resolve relative to the scene file.  :func:`load_scene` validates the
 whole file and every URDF it names before anything is simulated, and reports
 every problem at once (:class:`~pcmm.errors.SceneError`).
 
-The format is documented in the README ("Scene format").
+The format is documented in docs/scene_format.md, whose key tables are generated from the
+``*_KEYS`` tables below.
 """
 from __future__ import annotations
 
