@@ -121,6 +121,8 @@ def build_parser() -> argparse.ArgumentParser:
     sw.add_argument("--scheduler", metavar="ADDRESS", help="a Dask distributed scheduler (tcp://host:8786), or "
                     "'local' to start a LocalCluster of --workers processes")
     sw.add_argument("--resume", action="store_true", help="run only the runs missing from --out")
+    sw.add_argument("--retry-failed", action="store_true", help="with --resume: run again the runs whose row "
+                    "says crashed or timeout")
     sw.add_argument("--force", action="store_true", help="start over, replacing --out")
     sw.add_argument("--plots", type=Path, help="write each quantity against each swept value (PNG) into this folder")
     sw.add_argument("--plot", dest="plot_quantities", action="append", metavar="QUANTITY",
@@ -571,7 +573,6 @@ def cmd_new(args) -> int:
 
 
 def cmd_sweep(args) -> int:
-    import signal
     from .scene.load import load_scene
     from .run.loop import RunOptions
     from .studies.sweep import make_plan, parse_set, read_plan_file, sweep
@@ -593,32 +594,38 @@ def cmd_sweep(args) -> int:
             raise UsageError(f"--plot {q!r}: not a quantity of the table; quantities: {', '.join(QUANTITIES)}, "
                              "or a --collect path")
     scene = load_scene(args.scene)
-    previous = signal.signal(signal.SIGTERM, _terminate)  # a killed sweep stops like Ctrl-C: rows kept
-    try:
+    try:  # SIGTERM and SIGHUP are interrupts already (main: signals.as_interrupts): rows kept, exit 128 + N
         res = sweep(scene, plan, args.out, RunOptions(t_end=t_end), collect, workers=args.workers,
-                    scheduler=args.scheduler, resume=args.resume, force=args.force, progress=not args.quiet)
-    except KeyboardInterrupt:
-        print(f"pcmm: sweep interrupted; the finished runs are in {args.out}: complete it with --resume",
-              file=sys.stderr)
-        return 130
-    finally:
-        signal.signal(signal.SIGTERM, previous)
-    counts = ", ".join(f"{n} {s}" for s, n in sorted(res.status.items()))
-    print(f"{scene.name}: {res.planned} runs planned, {res.skipped} already in {res.out}, {res.ran} run; "
-          f"table: {counts}")
-    print(f"results: {res.out}" + (f" and {res.parquet}" if res.parquet else " (Parquet: install pyarrow)"))
-    for c in res.uncollected:
-        print(f"pcmm: warning: --collect {c!r}: no run's summary has a value there", file=sys.stderr)
+                    scheduler=args.scheduler, resume=args.resume, force=args.force, progress=not args.quiet,
+                    retry_failed=args.retry_failed)
+    except KeyboardInterrupt as exc:
+        from .signals import describe, exit_status
+        _error(f"sweep {describe(exc)}; the finished runs are in {args.out}: complete it with --resume",
+               prefix="pcmm: ")
+        return exit_status(exc)
+    _report_study(scene, res, args)
     if args.plots is not None:
         from .studies.plots import plot_sweep
-        args.plots.mkdir(exist_ok=True)
-        files = plot_sweep(args.out, plan.paths, args.plots, quantities=args.plot_quantities)
-        print(f"figures: {len(files)} files in {args.plots}")
+        try:
+            args.plots.mkdir(exist_ok=True)
+            files = plot_sweep(args.out, plan.paths, args.plots, quantities=args.plot_quantities)
+        except OSError as exc:
+            raise OutputError(args.plots, exc) from None
+        say(f"figures: {len(files)} files in {args.plots}")
     return 0
 
 
-def _terminate(signum, frame):
-    raise KeyboardInterrupt
+def _report_study(scene, res, args) -> None:
+    """What a sweep or an optimisation did to its table (names shown without control characters)."""
+    for why in res.dropped:
+        _error(f"{args.out}: {why}", prefix="pcmm: warning: ")
+    counts = ", ".join(f"{n} {s}" for s, n in sorted(res.status.items()))
+    retried = f" ({res.retried} crashed or timed-out runs again)" if res.retried else ""
+    say(f"{scene.name}: {res.planned} runs planned, {res.skipped} already in {res.out}, {res.ran} run{retried}; "
+        f"table: {counts}")
+    say(f"results: {res.out}" + (f" and {res.parquet}" if res.parquet else " (Parquet: install pyarrow)"))
+    for c in res.uncollected:
+        _error(f"--collect {c!r}: no run's summary has a value there", prefix="pcmm: warning: ")
 
 
 def cmd_replay(args) -> int:

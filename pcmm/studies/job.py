@@ -78,7 +78,7 @@ def run_one(job: Job) -> dict:
             row.update(status="complete", error="")
         except SimulationError as exc:
             if isinstance(exc.__context__, KeyboardInterrupt):
-                raise KeyboardInterrupt from None  # the sweep is stopping: not a result of this run
+                raise exc.__context__ from None  # the sweep is stopping (Ctrl-C, SIGTERM): not a result of this run
             traj = exc.partial
             row.update(status="partial", error=exc.text())
         if traj is not None:

@@ -29,7 +29,7 @@ from .backends import DaskCluster, _distributed, run_dask, run_pool, run_serial
 from .plan import SAMPLES, Axis, Plan, axis_from_spec, make_plan, parse_set, read_plan_file  # noqa: F401
 from .job import QUANTITIES, Job, _token, check_collect, collect_value, quantities, run_one  # noqa: F401
 from .table import ResultsTable, columns, write_parquet
-from ..results.trajectory import atomic_write
+from ..files import atomic_write
 from ..scene.variations import value_text
 
 
@@ -42,6 +42,8 @@ class SweepResult:
     status: dict = field(default_factory=dict)  # status -> count, over the whole table
     parquet: Path | None = None
     uncollected: list = field(default_factory=list)  # --collect paths no run's summary had
+    dropped: list = field(default_factory=list)  # rows of the table dropped on resume, and why
+    retried: int = 0  # crashed or timed-out rows run again (retry_failed)
 
 
 def validate_plan(scene, plan: Plan) -> None:
@@ -67,7 +69,7 @@ def validate_plan(scene, plan: Plan) -> None:
 
 def sweep(scene, plan: Plan, out: str | Path, options=None, collect: Iterable[str] = (), workers: int | None = None,
           scheduler: str | None = None, resume: bool = False, force: bool = False,
-          progress: bool = False) -> SweepResult:
+          progress: bool = False, retry_failed: bool = False) -> SweepResult:
     """Run every run of ``plan`` on variations of ``scene`` and write the results table ``out``.
 
     ``workers`` = 1 runs in this process; more (default: the machine's cores) use a local
@@ -87,11 +89,12 @@ def sweep(scene, plan: Plan, out: str | Path, options=None, collect: Iterable[st
     meta = _meta(out, scene, plan, options, collect, resume)
     dask = DaskCluster(scheduler, workers) if scheduler else None
     try:
-        table = ResultsTable(out, columns(plan.paths, collect), len(plan.paths), resume, force)
+        table = ResultsTable(out, columns(plan.paths, collect), len(plan.paths), resume, force, retry_failed)
         try:
             atomic_write(out.with_name(out.name + ".sweep.json"), lambda f: f.write(meta), force=True)
-            todo = [i for i in range(len(plan.runs)) if plan.key(i) not in table.done]
-            result = SweepResult(out, len(plan.runs), len(plan.runs) - len(todo), 0)
+            todo = [i for i in range(len(plan.runs)) if table.key_of(plan.runs[i]) not in table.done]
+            result = SweepResult(out, len(plan.runs), len(plan.runs) - len(todo), 0, dropped=table.dropped,
+                                 retried=table.retried)
             raw, path = scene.source, str(scene.path)
             token = _token(raw)
             jobs = (Job(i, path, raw, token, plan.values(i), options, collect) for i in todo)
