@@ -121,6 +121,9 @@ def build_parser() -> argparse.ArgumentParser:
     sw.add_argument("--scheduler", metavar="ADDRESS", help="a Dask distributed scheduler (tcp://host:8786), or "
                     "'local' to start a LocalCluster of --workers processes")
     sw.add_argument("--resume", action="store_true", help="run only the runs missing from --out")
+    sw.add_argument("--run-timeout", type=_non_negative("run-timeout"), default=600.0, metavar="SECONDS",
+                    help="stop a run that takes longer than this and record it as 'timeout' (default: 600 s; "
+                         "0: no limit; not with --workers 1, which runs in this process)")
     sw.add_argument("--retry-failed", action="store_true", help="with --resume: run again the runs whose row "
                     "says crashed or timeout")
     sw.add_argument("--force", action="store_true", help="start over, replacing --out")
@@ -597,7 +600,7 @@ def cmd_sweep(args) -> int:
     try:  # SIGTERM and SIGHUP are interrupts already (main: signals.as_interrupts): rows kept, exit 128 + N
         res = sweep(scene, plan, args.out, RunOptions(t_end=t_end), collect, workers=args.workers,
                     scheduler=args.scheduler, resume=args.resume, force=args.force, progress=not args.quiet,
-                    retry_failed=args.retry_failed)
+                    retry_failed=args.retry_failed, run_timeout=args.run_timeout or None)
     except KeyboardInterrupt as exc:
         from .signals import describe, exit_status
         _error(f"sweep {describe(exc)}; the finished runs are in {args.out}: complete it with --resume",

@@ -97,6 +97,12 @@ def run_one(job: Job) -> dict:
     return row
 
 
+def failed_row(job: Job, status: str, message: str, seconds: float) -> dict:
+    """The row of a run that gave no row itself: its worker crashed (``crashed``) or it was
+    stopped at the time limit (``timeout``)."""
+    return {"run": job.index, **job.values, "status": status, "error": message, "wall_s": seconds}
+
+
 def quantities(summ: dict) -> dict:
     """The per-run quantities of :data:`QUANTITIES` from a run summary."""
     events = summ["events"]

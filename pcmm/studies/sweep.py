@@ -26,6 +26,7 @@ from typing import Iterable
 
 from ..errors import SceneError, UsageError
 from .backends import DaskCluster, _distributed, run_dask, run_pool, run_serial
+from .pool import DEFAULT_RUN_TIMEOUT
 from .plan import SAMPLES, Axis, Plan, axis_from_spec, make_plan, parse_set, read_plan_file  # noqa: F401
 from .job import QUANTITIES, Job, _token, check_collect, collect_value, quantities, run_one  # noqa: F401
 from .table import ResultsTable, columns, write_parquet
@@ -69,13 +70,18 @@ def validate_plan(scene, plan: Plan) -> None:
 
 def sweep(scene, plan: Plan, out: str | Path, options=None, collect: Iterable[str] = (), workers: int | None = None,
           scheduler: str | None = None, resume: bool = False, force: bool = False,
-          progress: bool = False, retry_failed: bool = False) -> SweepResult:
+          progress: bool = False, retry_failed: bool = False, run_timeout: float | None = DEFAULT_RUN_TIMEOUT,
+          worker_init: str | None = None) -> SweepResult:
     """Run every run of ``plan`` on variations of ``scene`` and write the results table ``out``.
 
-    ``workers`` = 1 runs in this process; more (default: the machine's cores) use a local
-    process pool, or the Dask cluster at ``scheduler`` (``"local"``: a LocalCluster).
-    Rows are appended and flushed as runs finish, so an interrupted sweep keeps every
-    finished run; ``resume`` runs only what the table lacks.
+    ``workers`` = 1 runs in this process; otherwise (default: the cores this process may use)
+    a local pool of worker processes, or the Dask cluster at ``scheduler`` (``"local"``: a
+    LocalCluster).  On the pool and on Dask a run that crashes its worker or runs longer than
+    ``run_timeout`` seconds is a ``crashed`` or ``timeout`` row and the sweep goes on.
+    Rows are written whole as runs finish, so an interrupted sweep keeps every finished run;
+    ``resume`` runs only what the table lacks (and the crashed or timed-out runs with
+    ``retry_failed``).  ``worker_init`` (``"module:function"``) is called in each pool worker
+    as it starts.
     """
     from ..run.loop import RunOptions
     options = options or RunOptions()
@@ -85,6 +91,7 @@ def sweep(scene, plan: Plan, out: str | Path, options=None, collect: Iterable[st
         _distributed()
     validate_plan(scene, plan)
     out = Path(out)
+    in_process = workers == 1
     workers = workers or usable_cores()
     meta = _meta(out, scene, plan, options, collect, resume)
     dask = DaskCluster(scheduler, workers) if scheduler else None
@@ -99,11 +106,11 @@ def sweep(scene, plan: Plan, out: str | Path, options=None, collect: Iterable[st
             token = _token(raw)
             jobs = (Job(i, path, raw, token, plan.values(i), options, collect) for i in todo)
             if dask is not None:
-                stream = run_dask(jobs, dask)
-            elif workers == 1 or len(todo) <= 1:
+                stream = run_dask(jobs, dask, run_timeout)
+            elif in_process or not todo:
                 stream = run_serial(jobs)
             else:
-                stream = run_pool(jobs, min(workers, len(todo)))
+                stream = run_pool(jobs, min(workers, len(todo)), run_timeout, worker_init)
             _consume(stream, table, result, collect, _bar(progress, len(todo)))
         finally:
             table.close()
