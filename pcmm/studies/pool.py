@@ -94,92 +94,116 @@ class _Worker:
                 pass
 
 
-def run_isolated(fn: Callable, jobs: Iterable, workers: int, timeout: float | None,
-                 on_failure: Callable[[object, str, str, float], dict], init: str | None = None) -> Iterator[dict]:
-    """``fn(job)`` for every job on ``workers`` worker processes, yielded as each finishes.
+class WorkerPool:
+    """``workers`` worker processes kept for the length of a study (an optimisation hands them
+    batch after batch).  A job whose worker dies gives ``on_failure(job, "crashed", message,
+    seconds)``, one that runs longer than ``timeout`` seconds ``on_failure(job, "timeout", ...)``;
+    ``init`` (``"module:function"``) is called in each worker when it starts."""
 
-    A job whose worker dies gives ``on_failure(job, "crashed", message, seconds)``, one that runs
-    longer than ``timeout`` seconds ``on_failure(job, "timeout", ...)``.  ``init``
-    (``"module:function"``) is called in each worker when it starts.  Stopping early (an error,
-    Ctrl-C) kills the workers and the runs in flight."""
-    jobs = iter(jobs)
-    pool: list[_Worker] = []
-    idle: list[_Worker] = []
-    busy: dict = {}  # recv_conn -> worker
-    starting: dict = {}  # recv_conn -> worker not ready yet
-    ok = False
-    try:
-        for _ in range(workers):
-            w = _Worker(init)
-            pool.append(w)
-            starting[w.recv_conn] = w
-        exhausted = False
-        while True:
-            while idle and not exhausted:
-                job = next(jobs, None)
-                if job is None:
-                    exhausted = True
-                    break
-                w = idle.pop()
-                w.give(fn, job)
-                busy[w.recv_conn] = w
-            if not busy and (exhausted or not starting):
-                ok = True
-                return
-            wait_for = None
-            if timeout is not None and busy:
-                wait_for = max(0.0, min(w.started + timeout for w in busy.values()) - time.monotonic())
-            for conn in wait([*busy, *starting], timeout=wait_for):
-                if conn in starting:
-                    w = starting.pop(conn)
+    def __init__(self, workers: int, timeout: float | None, on_failure: Callable[[object, str, str, float], dict],
+                 init: str | None = None):
+        self.timeout, self.on_failure, self.init = timeout, on_failure, init
+        self.pool: list[_Worker] = []
+        self.idle: list[_Worker] = []
+        self.starting: dict = {}  # recv_conn -> worker not ready yet
+        try:
+            for _ in range(workers):
+                self._start()
+        except BaseException:
+            self.close(kill=True)
+            raise
+
+    def _start(self, dead: _Worker | None = None) -> None:
+        w = _Worker(self.init)
+        if dead is None:
+            self.pool.append(w)
+        else:
+            self.pool[self.pool.index(dead)] = w
+        self.starting[w.recv_conn] = w
+
+    def imap(self, fn: Callable, jobs: Iterable) -> Iterator:
+        """``fn(job)`` for every job, yielded as each finishes.  Stopping early (an error, Ctrl-C)
+        kills the pool: the runs in flight are not results."""
+        jobs = iter(jobs)
+        busy: dict = {}  # recv_conn -> worker
+        timeout, starting, idle = self.timeout, self.starting, self.idle
+        ok = False
+        try:
+            exhausted = False
+            while True:
+                while idle and not exhausted:
+                    job = next(jobs, None)
+                    if job is None:
+                        exhausted = True
+                        break
+                    w = idle.pop()
+                    w.give(fn, job)
+                    busy[w.recv_conn] = w
+                if not busy and (exhausted or not starting):
+                    ok = True
+                    return
+                wait_for = None
+                if timeout is not None and busy:
+                    wait_for = max(0.0, min(w.started + timeout for w in busy.values()) - time.monotonic())
+                for conn in wait([*busy, *starting], timeout=wait_for):
+                    if conn in starting:
+                        w = starting.pop(conn)
+                        try:
+                            conn.recv()
+                        except (EOFError, OSError, pickle.UnpicklingError):
+                            code = w.kill()
+                            raise SimulationError(f"a worker process of the study could not start: "
+                                                  f"{death_message(code).replace('running it ', '')}") from None
+                        idle.append(w)
+                        continue
+                    w = busy.pop(conn)
                     try:
-                        conn.recv()
+                        row = conn.recv()
                     except (EOFError, OSError, pickle.UnpicklingError):
                         code = w.kill()
-                        raise SimulationError(f"a worker process of the study could not start: "
-                                              f"{death_message(code).replace('running it ', '')}") from None
-                    idle.append(w)
-                    continue
-                w = busy.pop(conn)
-                try:
-                    row = conn.recv()
-                except (EOFError, OSError, pickle.UnpicklingError):
-                    code = w.kill()
-                    row = on_failure(w.job, "crashed", death_message(code), time.monotonic() - w.started)
-                    fresh = _replace(pool, w, init)
-                    starting[fresh.recv_conn] = fresh
-                else:
-                    idle.append(w)
-                yield row
-            if timeout is not None:
-                now = time.monotonic()
-                for conn, w in list(busy.items()):
-                    if now - w.started >= timeout:
-                        del busy[conn]
-                        w.kill()
-                        row = on_failure(w.job, "timeout", f"still running after the time limit of {timeout:g} s "
-                                         "(--run-timeout); stopped", now - w.started)
-                        fresh = _replace(pool, w, init)
-                        starting[fresh.recv_conn] = fresh
-                        yield row
-    finally:
-        for w in pool:
-            if ok:  # done: the workers end when their pipe closes
-                w.close()
-            else:
+                        row = self.on_failure(w.job, "crashed", death_message(code), time.monotonic() - w.started)
+                        self._start(w)
+                    else:
+                        idle.append(w)
+                    yield row
+                if timeout is not None:
+                    now = time.monotonic()
+                    for conn, w in list(busy.items()):
+                        if now - w.started >= timeout:
+                            del busy[conn]
+                            w.kill()
+                            row = self.on_failure(w.job, "timeout", f"still running after the time limit of "
+                                                  f"{timeout:g} s (--run-timeout); stopped", now - w.started)
+                            self._start(w)
+                            yield row
+        finally:
+            if not ok:
+                self.close(kill=True)
+
+    def close(self, kill: bool = False) -> None:
+        """End the workers: when their pipe closes (done), or at once (``kill``)."""
+        for w in self.pool:
+            if kill:
                 w.kill()
-        if ok:
-            for w in pool:
+            else:
+                w.close()
+        if not kill:
+            for w in self.pool:
                 try:
                     w.proc.wait(timeout=10)
                 except subprocess.TimeoutExpired:
                     w.kill()
+        self.pool, self.idle, self.starting = [], [], {}
 
 
-def _replace(pool: list[_Worker], dead: _Worker, init: str | None) -> _Worker:
-    fresh = _Worker(init)
-    pool[pool.index(dead)] = fresh
-    return fresh
+def run_isolated(fn: Callable, jobs: Iterable, workers: int, timeout: float | None,
+                 on_failure: Callable[[object, str, str, float], dict], init: str | None = None) -> Iterator:
+    """``fn(job)`` for every job on a :class:`WorkerPool` of its own, yielded as each finishes."""
+    pool = WorkerPool(workers, timeout, on_failure, init)
+    try:
+        yield from pool.imap(fn, jobs)
+    finally:
+        pool.close(kill=False)
 
 
 # ---- the worker's side -----------------------------------------------------------------------
