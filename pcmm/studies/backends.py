@@ -112,3 +112,31 @@ def _stop_on_cluster(client, fut) -> None:
             client.restart_workers(busy)
     except Exception:  # the cluster cannot do it (an old scheduler): the run is reported all the same
         pass
+
+
+class Runner:
+    """Where a study's runs go, kept open across batches: this process (``workers`` = 1), a
+    :class:`~pcmm.studies.pool.WorkerPool`, or a Dask cluster (``scheduler``)."""
+
+    def __init__(self, workers: int, scheduler: str | None = None, run_timeout: float | None = DEFAULT_RUN_TIMEOUT,
+                 init: str | None = None):
+        from .pool import WorkerPool
+        self.run_timeout = run_timeout
+        self.dask = DaskCluster(scheduler, workers) if scheduler else None
+        self.pool = None
+        if self.dask is None and workers > 1:
+            self.pool = WorkerPool(workers, run_timeout, failed_row, init)
+        self.slots = self.dask.slots if self.dask else workers
+
+    def rows(self, jobs: Iterable[Job]) -> Iterator[dict]:
+        if self.dask is not None:
+            return run_dask(jobs, self.dask, self.run_timeout)
+        if self.pool is not None:
+            return self.pool.imap(run_one, jobs)
+        return run_serial(jobs)
+
+    def close(self) -> None:
+        if self.pool is not None:
+            self.pool.close()
+        if self.dask is not None:
+            self.dask.close()

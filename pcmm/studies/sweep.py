@@ -159,13 +159,15 @@ def _bar(show: bool, total: int):
     return tqdm(total=total, unit="run", file=sys.stderr, smoothing=0.1)
 
 
-def _meta(out: Path, scene, plan: Plan, options, collect, resume: bool) -> str:
+def _meta(out: Path, scene, plan: Plan, options, collect, resume: bool, study: dict | None = None) -> str:
     """The sweep's identity, kept beside its table: resuming with another scene or other run
     options would mix results that do not belong together, and is refused."""
     meta_path = out.with_name(out.name + ".sweep.json")
     meta = {"scene": str(Path(scene.path).resolve()), "scene_data": _token(scene.source),
             "paths": list(plan.paths), "collect": list(collect),
             "options": {k: v for k, v in asdict(options).items() if v is not None}}
+    if study is not None:  # an optimisation: its method and settings decide which runs it asks for
+        meta["optimize"] = study
     text = json.dumps(meta, indent=2, default=str)
     if resume and out.exists() and meta_path.exists():
         try:
