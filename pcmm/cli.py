@@ -139,6 +139,11 @@ def build_parser() -> argparse.ArgumentParser:
     pl.add_argument("--force", action="store_true", help="overwrite existing figures")
     pl.add_argument("--impulse-sign", choices=["body_b", "paper"], default="body_b",
                     help="impulse sign: on body b along the contact normal (default) or the paper's (Fig. 12)")
+    gr = sub.add_parser("graph", help="draw a scene's configurations and transitions (the paper's Fig. 3)")
+    gr.add_argument("scene", type=Path)
+    gr.add_argument("--run", type=Path, help="a saved run of the scene: each edge says how many times and when it fired")
+    gr.add_argument("--out", type=Path, help="the figure (.png, .svg or .pdf; default: <scene>_graph.png)")
+    gr.add_argument("--force", action="store_true", help="overwrite an existing figure")
     ck = sub.add_parser("check", help="validate a scene and its URDFs without simulating")
     ck.add_argument("scene", type=Path)
     dv = sub.add_parser("derive", help="write every configuration derived by locking joints as a URDF file")
@@ -165,7 +170,7 @@ def main(argv=None) -> int:
         with as_interrupts():
             args = build_parser().parse_args(argv)
             return {"run": cmd_run, "sweep": cmd_sweep, "replay": cmd_replay, "plot": cmd_plot, "check": cmd_check,
-                    "derive": cmd_derive, "new": cmd_new}[args.command](args)
+                    "derive": cmd_derive, "new": cmd_new, "graph": cmd_graph}[args.command](args)
     except PcmmError as exc:
         _error(exc.text())
         return exc.exit_code
@@ -645,6 +650,31 @@ def cmd_plot(args) -> int:
     files = _figures_into(args.out, args.force,
                           lambda d: write_figures(traj, d, compare=other, impulse_sign=args.impulse_sign))
     say(f"figures: {', '.join(str(f) for f in files)}")
+    return 0
+
+
+def cmd_graph(args) -> int:
+    from .results.trajectory import Trajectory, record_views
+    from .scene.load import load_scene
+    from .viz.graph import graph_figure
+    out = args.out or Path(f"{args.scene.stem}_graph.png")
+    if out.suffix.lower() not in (".png", ".svg", ".pdf"):
+        raise UsageError(f"--out {out}: the graph is written as .png, .svg or .pdf, not '{out.suffix}'")
+    _check_outputs([("--out", out)], args.force)
+    scene = load_scene(args.scene)
+    events = None
+    if args.run:
+        run = Trajectory.load(args.run)
+        if run.scene_name != scene.name:
+            raise UsageError(f"--run {args.run}: a run of scene '{run.scene_name}', not of {args.scene} "
+                             f"('{scene.name}')")
+        events = run.events
+    g = graph_figure(record_views(scene), events, title=scene.name, initial=scene.initial_configuration)
+    fmt = out.suffix.lower().lstrip(".")
+    from .files import atomic_write
+    atomic_write(out, lambda f: g.figure.savefig(f, format=fmt), force=args.force, binary=True)
+    fired = f", {sum(len(e.times) for e in g.edges)} firings of {len(events)} events" if events is not None else ""
+    say(f"graph: {out} ({len(g.nodes)} configurations, {len(g.edges)} transitions{fired})")
     return 0
 
 
