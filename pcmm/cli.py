@@ -131,6 +131,14 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("--html", type=Path, help="write a self-contained offline page instead of serving")
     rp.add_argument("--fps", type=_fps, default=60.0,
                     help=f"frames per second (default 60, at most {MAX_FPS:g})")
+    rp.add_argument("--video", type=Path, help="write a video (.mp4 through ffmpeg, or .gif) of the 2D drawing instead "
+                    "of serving")
+    rp.add_argument("--speed", type=_positive("speed"), default=1.0,
+                    help="video: simulated seconds per second of video (default 1)")
+    rp.add_argument("--slow", type=_positive("slow"), default=0.1,
+                    help="video: the speed's factor within --slow-window of every event (default 0.1)")
+    rp.add_argument("--slow-window", type=_non_negative("slow-window"), default=0.02,
+                    help="video: slow motion this long before and after each event, s (default 0.02)")
     rp.add_argument("--force", action="store_true")
     pl = sub.add_parser("plot", help="write the paper's figures for a saved trajectory")
     pl.add_argument("trajectory", type=Path)
@@ -629,6 +637,14 @@ def _terminate(signum, frame):
 def cmd_replay(args) -> int:
     from .results.trajectory import Trajectory
     traj, *others = [Trajectory.load(p) for p in args.trajectory]
+    if args.video:
+        _check_outputs([("--video", args.video)], args.force)
+        from .viz.video import write_video
+        fps = args.fps if args.fps != 60.0 else 30.0  # the page's 60 fps default; a video's is 30
+        info = write_video(traj, args.video, others=others, fps=fps, speed=args.speed, slow=args.slow,
+                           window=args.slow_window)
+        say(f"video: {args.video} ({info['frames']} frames at {fps:g} fps, {info['clock'].duration:.3g} s)")
+        return 0
     _check_frames(traj, args.fps, "replay")
     if args.html:
         _check_outputs([("--html", args.html)], args.force)
