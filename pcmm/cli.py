@@ -163,6 +163,14 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("--html", type=Path, help="write a self-contained offline page instead of serving")
     rp.add_argument("--fps", type=_fps, default=60.0,
                     help=f"frames per second (default 60, at most {MAX_FPS:g})")
+    rp.add_argument("--video", type=Path, help="write a video (.mp4 through ffmpeg, or .gif) of the 2D drawing instead "
+                    "of serving")
+    rp.add_argument("--speed", type=_positive("speed"), default=1.0,
+                    help="video: simulated seconds per second of video (default 1)")
+    rp.add_argument("--slow", type=_positive("slow"), default=0.1,
+                    help="video: the speed's factor within --slow-window of every event (default 0.1)")
+    rp.add_argument("--slow-window", type=_non_negative("slow-window"), default=0.02,
+                    help="video: slow motion this long before and after each event, s (default 0.02)")
     rp.add_argument("--force", action="store_true")
     pl = sub.add_parser("plot", help="write the paper's figures for a saved trajectory")
     pl.add_argument("trajectory", type=Path)
@@ -171,6 +179,11 @@ def build_parser() -> argparse.ArgumentParser:
     pl.add_argument("--force", action="store_true", help="overwrite existing figures")
     pl.add_argument("--impulse-sign", choices=["body_b", "paper"], default="body_b",
                     help="impulse sign: on body b along the contact normal (default) or the paper's (Fig. 12)")
+    gr = sub.add_parser("graph", help="draw a scene's configurations and transitions (the paper's Fig. 3)")
+    gr.add_argument("scene", type=Path)
+    gr.add_argument("--run", type=Path, help="a saved run of the scene: each edge says how many times and when it fired")
+    gr.add_argument("--out", type=Path, help="the figure (.png, .svg or .pdf; default: <scene>_graph.png)")
+    gr.add_argument("--force", action="store_true", help="overwrite an existing figure")
     ck = sub.add_parser("check", help="validate a scene and its URDFs without simulating")
     ck.add_argument("scene", type=Path)
     dv = sub.add_parser("derive", help="write every configuration derived by locking joints as a URDF file")
@@ -196,8 +209,8 @@ def main(argv=None) -> int:
     try:
         with as_interrupts():
             args = build_parser().parse_args(argv)
-            return {"run": cmd_run, "sweep": cmd_sweep, "optimize": cmd_optimize, "replay": cmd_replay, "plot": cmd_plot, "check": cmd_check,
-                    "derive": cmd_derive, "new": cmd_new}[args.command](args)
+            return {"run": cmd_run, "sweep": cmd_sweep, "optimize": cmd_optimize, "replay": cmd_replay, "plot": cmd_plot,
+                    "check": cmd_check, "derive": cmd_derive, "new": cmd_new, "graph": cmd_graph}[args.command](args)
     except PcmmError as exc:
         _error(exc.text())
         return exc.exit_code
@@ -704,6 +717,14 @@ def _report_study(scene, res, args) -> None:
 def cmd_replay(args) -> int:
     from .results.trajectory import Trajectory
     traj, *others = [Trajectory.load(p) for p in args.trajectory]
+    if args.video:
+        _check_outputs([("--video", args.video)], args.force)
+        from .viz.video import write_video
+        fps = args.fps if args.fps != 60.0 else 30.0  # the page's 60 fps default; a video's is 30
+        info = write_video(traj, args.video, others=others, fps=fps, speed=args.speed, slow=args.slow,
+                           window=args.slow_window)
+        say(f"video: {args.video} ({info['frames']} frames at {fps:g} fps, {info['clock'].duration:.3g} s)")
+        return 0
     _check_frames(traj, args.fps, "replay")
     if args.html:
         _check_outputs([("--html", args.html)], args.force)
@@ -725,6 +746,31 @@ def cmd_plot(args) -> int:
     files = _figures_into(args.out, args.force,
                           lambda d: write_figures(traj, d, compare=other, impulse_sign=args.impulse_sign))
     say(f"figures: {', '.join(str(f) for f in files)}")
+    return 0
+
+
+def cmd_graph(args) -> int:
+    from .results.trajectory import Trajectory, record_views
+    from .scene.load import load_scene
+    from .viz.graph import graph_figure
+    out = args.out or Path(f"{args.scene.stem}_graph.png")
+    if out.suffix.lower() not in (".png", ".svg", ".pdf"):
+        raise UsageError(f"--out {out}: the graph is written as .png, .svg or .pdf, not '{out.suffix}'")
+    _check_outputs([("--out", out)], args.force)
+    scene = load_scene(args.scene)
+    events = None
+    if args.run:
+        run = Trajectory.load(args.run)
+        if run.scene_name != scene.name:
+            raise UsageError(f"--run {args.run}: a run of scene '{run.scene_name}', not of {args.scene} "
+                             f"('{scene.name}')")
+        events = run.events
+    g = graph_figure(record_views(scene), events, title=scene.name, initial=scene.initial_configuration)
+    fmt = out.suffix.lower().lstrip(".")
+    from .files import atomic_write
+    atomic_write(out, lambda f: g.figure.savefig(f, format=fmt), force=args.force, binary=True)
+    fired = f", {sum(len(e.times) for e in g.edges)} firings of {len(events)} events" if events is not None else ""
+    say(f"graph: {out} ({len(g.nodes)} configurations, {len(g.edges)} transitions{fired})")
     return 0
 
 
