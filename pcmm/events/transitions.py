@@ -211,7 +211,7 @@ def _merge(ctx: Context, cfg: Configuration, tr: TransitionSpec, target: str, t,
     dst = ctx.mechanism.enter(target, cfg, q)  # a derived configuration locks the values at this instant
     locked = [n for n in cfg.joint_names if n not in dst.joint_slice]
     if ctx.impact:
-        imp = solve_impulse(cfg, t, q, v, tr.contact, 0.0, tr.cut)
+        imp = solve_impulse(cfg, t, q, v, tr.contact, 0.0, tr.cut, name=tr.name)
         v_after = imp.v_after
     else:  # the paper's comparison: surviving joints keep their velocities, locked ones drop theirs
         v_after = v.copy()
@@ -268,7 +268,7 @@ def handle_stop(ctx: Context, cfg: Configuration, tr: StopSpec, t, q, v) -> Outc
             raise SimulationError(_separating_with_faults(cfg, tr, t, q, v, vn))
         accumulated, rest_speed = True, vn
     else:
-        imp = solve_impulse(cfg, t, q, v, tr.contact, tr.restitution, tr.cut)
+        imp = solve_impulse(cfg, t, q, v, tr.contact, tr.restitution, tr.cut, name=tr.name)
         last = ctx.last_impact.get(tr.name)
         rest_speed = imp.vn_after
         # impacts at the same instant are a sequential resolution of simultaneous contacts, not an

@@ -117,6 +117,10 @@ CONTACT_KEYS = [
     S.Key("joint", "str", required=False, doc="a joint stop: the joint whose coordinate strikes the stop"),
     S.Key("arm", "number", required=False, check=S.positive,
           doc="joint stop: the lever (m) at which the impulse moment is also reported as a force"),
+    S.Key("friction", "number|str", required=False, check=S.friction_coefficient,
+          doc="point contacts: Coulomb's mu >= 0 along the tangent, or \"stick\" (no slip); absent: frictionless"),
+    S.Key("restitution_law", "str", required=False, default="newton", check=S.one_of("newton", "poisson", "energetic"),
+          doc="with friction: how the impact ends (Newton's kinematic law, Poisson's, Stronge's energetic)"),
 ]
 POINT_CONTACT = ("a", "point_a", "b", "point_b", "normal")
 TRANSITION_KEYS = [
@@ -494,6 +498,9 @@ class _Builder:
                 contact = self._contact(t["contact"], f"{where}.contact", guard, configs.get(t["from"]))
                 if contact is None:
                     continue
+            if contact is not None and contact.friction is not None and (t["law"] or "impulse") != "impulse":
+                self.p.add(f"{where}.contact.friction", f"a continuous contact law ({t['law']!r}) acts along the "
+                           "normal only; friction needs the impulse law (law = 'impulse')")
             if guard is None or e is None or (kind != "release" and (contact is None or t["cut"] is None)):
                 continue
             common = dict(name=t["name"], source=t["from"], cut=tuple(t["cut"] or ()), guard=guard, contact=contact)
@@ -557,7 +564,13 @@ class _Builder:
                 self.p.add(f"{where}.arm", "only used by a joint stop ({ joint = NAME, arm = ... })")
             if len(points) < len(POINT_CONTACT):
                 return None
-            return ContactSpec(c["a"], tuple(c["point_a"]), c["b"], tuple(c["point_b"]), tuple(c["normal"]))
+            mu = c["friction"]
+            return ContactSpec(c["a"], tuple(c["point_a"]), c["b"], tuple(c["point_b"]), tuple(c["normal"]),
+                               friction=None if mu is None else math.inf if mu == "stick" else float(mu),
+                               restitution_law=c["restitution_law"] or "newton")
+        for k in ("friction", "restitution_law"):
+            if isinstance(table, dict) and k in table:
+                self.p.add(f"{where}.{k}", "only used by a point contact (a joint stop has no tangent)")
         for k in points:
             self.p.add(f"{where}.{k}", "not used by a joint stop (the joint's links and axis give the contact)")
         if guard is None or source is None:

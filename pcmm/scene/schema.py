@@ -185,6 +185,13 @@ def unit_interval(v):
     return None if 0.0 <= v <= 1.0 else "must be in [0, 1]"
 
 
+def friction_coefficient(v):
+    """Coulomb's coefficient: a number >= 0, or "stick" (no slip, mu = infinity)."""
+    if isinstance(v, str):
+        return None if v == "stick" else 'must be a number >= 0 or "stick" (no slip)'
+    return None if v >= 0 else 'must be >= 0 (or "stick": no slip)'
+
+
 def one_of(*choices):
     def check(v):
         return None if v in choices else f"must be one of {', '.join(map(repr, choices))}"

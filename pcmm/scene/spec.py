@@ -94,7 +94,11 @@ class ContactSpec:
     (``stop_value``, ``stop_sign``: +1 when the joint moves towards the stop with its
     coordinate increasing); a and b are then the joint's parent and child links, the impulse
     is a moment (revolute) or a force along the axis (prismatic), and ``arm`` (m, optional)
-    is the lever at which the moment is also reported as a force."""
+    is the lever at which the moment is also reported as a force.
+
+    A point contact may carry Coulomb friction along its tangent t = (n_y, -n_x): ``friction``
+    is mu (``math.inf`` for "stick", no slip; None: frictionless, the normal impulse alone), and
+    ``restitution_law`` says how a frictional impact ends (:mod:`pcmm.events.friction`)."""
 
     a: str
     point_a: tuple[float, float] | None
@@ -105,6 +109,8 @@ class ContactSpec:
     arm: float | None = None
     stop_value: float | None = None
     stop_sign: int = 1
+    friction: float | None = None
+    restitution_law: str = "newton"
 
 
 @dataclass(frozen=True)

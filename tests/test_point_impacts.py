@@ -1,0 +1,206 @@
+"""Issue 24, item 1 and 6: two-dimensional point impacts with Coulomb friction (Routh's process).
+
+A uniform slender rod (m, L, I = m L^2 / 12) on a URDF planar joint falls in pure translation
+(v_G = (0, -v), omega = 0, no gravity) onto the floor with its end A, at angle theta to the
+horizontal (A the lower end, A - G = -(L/2)(c, s)).  Derived by hand (Stronge, *Impact Mechanics*
+ch. 4; the design note docs/design_24.md section 1):
+
+* the Delassus matrix at A in (t, n) = (x, y): W = (1/m) [[1 + 3 s^2, -3 s c], [-3 s c, 1 + 3 c^2]];
+* A does not slip before the impact; held stuck it needs |P_t| / P_n = |W_tn| / W_tt
+  = 3 s c / (1 + 3 s^2) = mu_c, independent of e and v;
+* mu >= mu_c (stick): P = (m / 4)(1 + e) v (3 s c, 1 + 3 s^2), the contact leaves with (0, e v);
+* mu < mu_c (slide towards -x, sigma = -1 throughout): P_n = m (1 + e) v / (1 + 3 c^2 - 3 mu s c),
+  P_t = mu P_n;
+* then v_G+ = v_G + P / m and omega+ = ((A - G) x P) / I.
+
+pcmm's run must reproduce these to 1e-12 on both sides of mu_c; the energy never rises, the
+impulse stays in the friction cone, and the works of the two parts sum to the change of kinetic
+energy.  The Routh process itself is checked against the independent reference
+``tests/reference_rod_friction.py`` (Newton, Poisson, Stronge).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+import pcmm
+import reference_rod_friction as rf
+from builders import free_bar_urdf, rot
+from pcmm.errors import SceneError, SimulationError
+from pcmm.events.friction import AmbiguousImpact, routh
+
+M, L, V = 1.3, 0.8, 1.7
+H = 0.01  # A starts this high above the floor: the impact at t = H / V
+
+
+def rod_scene(make_scene, theta, mu, e, vG=(0.0, -V), omega=0.0, law=None, t_end=None):
+    s, c = math.sin(theta), math.cos(theta)
+    y0 = H + 0.5 * L * s  # A = G - (L/2)(c, s) is H above the floor
+    contact = {"a": "frame", "point_a": [0.0, 0.0], "b": "bar", "point_b": [-L / 2, 0.0], "normal": [0.0, 1.0],
+               "friction": mu}
+    if law is not None:
+        contact["restitution_law"] = law
+    tr = {"name": "floor", "type": "stop", "from": "c1", "restitution": e, "cut": [],
+          "guard": {"type": "gap", "value": 0.0, "direction": "decreasing"}, "contact": contact}
+    vA = np.asarray(vG) + omega * np.array([-0.5 * L * s, 0.5 * L * c])  # omega z x (A - G)
+    t_hit = H / -vA[1]
+    return make_scene({"f.urdf": free_bar_urdf(M, L)}, q0={"P": [0.0, y0, theta]},
+                      v0={"P": [*(rot(theta).T @ np.asarray(vG, float)), omega]}, gravity=(0.0, 0.0),
+                      t_end=t_end or 1.5 * t_hit, transitions=[tr],
+                      solver={"rtol": 1e-12, "atol": 1e-13}), t_hit
+
+
+def hand(theta, mu, e):
+    """(P, v_G+, omega+) of the rod falling in translation, by the closed forms above."""
+    s, c = math.sin(theta), math.cos(theta)
+    mu_c = 3 * s * c / (1 + 3 * s * s)
+    if mu >= mu_c:
+        P = M / 4 * (1 + e) * V * np.array([3 * s * c, 1 + 3 * s * s])
+    else:
+        Pn = M * (1 + e) * V / (1 + 3 * c * c - 3 * mu * s * c)
+        P = np.array([mu * Pn, Pn])
+    r = -0.5 * L * np.array([c, s])
+    return P, np.array([0.0, -V]) + P / M, (r[0] * P[1] - r[1] * P[0]) / (M * L * L / 12)
+
+
+def run(path):
+    traj = pcmm.simulate(pcmm.load_scene(path))
+    return traj.events
+
+
+ANGLES = [15, 30, 45, 60, 75]
+
+
+@pytest.mark.parametrize("deg", ANGLES)
+@pytest.mark.parametrize("e", [0.5, 1.0])
+@pytest.mark.parametrize("side", [0.3, 0.97, 1.0, 1.03, 2.0])  # mu as a multiple of mu_c
+def test_rod_post_impact_velocities_by_hand(make_scene, deg, e, side):
+    theta = math.radians(deg)
+    s, c = math.sin(theta), math.cos(theta)
+    mu_c = 3 * s * c / (1 + 3 * s * s)
+    mu = side * mu_c
+    path, t_hit = rod_scene(make_scene, theta, mu, e)
+    ev = run(path)[0]
+    P, vG, w = hand(theta, mu, e)
+    assert ev["t"] == pytest.approx(t_hit, abs=1e-12)
+    # exactly at mu_c both labels are right to round-off (the slide then ends at v_t = 0)
+    assert ev["friction"]["phases"] in ({"stick"} if side > 1 else {"slide-"} if side < 1 else {"stick", "slide-"})
+    np.testing.assert_allclose([ev["impulse"]["tangential"], ev["impulse"]["normal"]], P, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(ev["impulse"]["vector"], P, rtol=0, atol=1e-12)  # t = (1, 0), n = (0, 1)
+    vl = np.array(ev["v_after"]["P"])  # the planar joint's velocity is in the bar's frame
+    np.testing.assert_allclose(rot(theta) @ vl[:2], vG, rtol=0, atol=1e-12)
+    assert vl[2] == pytest.approx(w, abs=1e-12)
+    # the cone, the energy, and its split
+    fr = ev["friction"]
+    assert abs(fr["impulse"]["tangential"]) <= mu * fr["impulse"]["normal"] * (1 + 1e-12)
+    lost = ev["kinetic_energy_before"] - ev["kinetic_energy_after"]
+    assert lost >= -1e-13
+    assert fr["energy_lost"]["normal"] + fr["energy_lost"]["tangential"] == pytest.approx(lost, abs=1e-13)
+    assert fr["energy_lost"]["tangential"] >= -1e-15
+    # by hand: stick loses (1 - e^2) m v^2 (1 + 3 s^2) / 8 to the normal part and nothing to friction
+    if side >= 1.0:  # (at mu_c to round-off)
+        assert fr["energy_lost"]["normal"] == pytest.approx((1 - e * e) * M * V * V * (1 + 3 * s * s) / 8, abs=1e-13)
+        assert fr["energy_lost"]["tangential"] == pytest.approx(0.0, abs=1e-13)
+        assert fr["slip"]["after"] == pytest.approx(0.0, abs=1e-12)
+    else:
+        assert fr["slip"]["after"] < 0  # still sliding away from G's side as it leaves
+    assert ev["normal_velocity"]["after"] == pytest.approx(e * V, abs=1e-12)
+
+
+@pytest.mark.parametrize("deg", ANGLES)
+def test_critical_mu_is_the_stick_ratio(make_scene, deg):
+    """Just below mu_c the end slides, at mu_c and above it sticks; mu_c = 3 s c / (1 + 3 s^2),
+    against the reference's bisection-free critical mu and a "stick" contact."""
+    theta = math.radians(deg)
+    s, c = math.sin(theta), math.cos(theta)
+    mu_c = 3 * s * c / (1 + 3 * s * s)
+    assert rf.critical_mu(rf.Rod(M, L), theta, (0.0, -V), 0.0, 0.5) == pytest.approx(mu_c, rel=1e-13)
+    below = run(rod_scene(make_scene, theta, mu_c * (1 - 1e-9), 0.5)[0])[0]
+    stick = run(rod_scene(make_scene, theta, "stick", 0.5)[0])[0]
+    assert below["friction"]["phases"] == "slide-" and stick["friction"]["mu"] == "stick"
+    # at the critical mu the two outcomes meet
+    np.testing.assert_allclose(below["v_after"]["P"], stick["v_after"]["P"], atol=1e-8)
+    assert stick["impulse"]["tangential"] / stick["impulse"]["normal"] == pytest.approx(mu_c, rel=1e-12)
+
+
+@pytest.mark.parametrize("case", range(40))
+def test_routh_against_the_reference(case):
+    """The impact law on a 2 x 2 Delassus matrix against the reference's Routh process on the rod,
+    with spin and initial slip, every law; equal to round-off (the same arithmetic in a second
+    implementation), Painleve cases refused."""
+    rng = np.random.default_rng(case)
+    rod = rf.Rod(1.0, 1.0)
+    e = [0.0, 0.5, 1.0][case % 3]
+    law = ["newton", "poisson", "energetic"][(case // 3) % 3]
+    v0 = np.zeros(2)
+    while v0[1] >= -0.05:  # an approaching contact
+        theta = rng.uniform(0.05, 1.5)
+        vG = np.array([rng.uniform(-1, 1), -rng.uniform(0.2, 1.5)])
+        omega, mu = rng.uniform(-2, 2), rng.uniform(0, 1.3)
+        v0 = rod.contact_velocity(theta, vG, omega)
+    ref = rf.routh(rod, theta, vG, omega, mu, e, law)
+    W = rod.delassus(theta)
+    if ref.painleve:
+        with pytest.raises(AmbiguousImpact, match="Painleve"):
+            routh(W, v0[0], v0[1], mu, e, law)
+        return
+    out = routh(W, v0[0], v0[1], mu, e, law)
+    np.testing.assert_allclose(out.P, ref.P, atol=1e-14)
+    assert out.work_normal + out.work_tangential == pytest.approx(ref.energy_change, abs=1e-14)
+    assert abs(out.P_t) <= mu * out.P_n * (1 + 1e-12)
+    assert out.work_tangential <= 1e-15
+
+
+def test_energy_gain_of_newtons_law_stops_with_its_cause(make_scene):
+    """The reference's ENERGY_GAIN case (45 deg, v_G = (0.1, -1), mu = 0.9, e = 1): by hand the
+    stick outcome gains 1/2 P_t v_t- = +0.034375 J (m = L = 1); pcmm refuses it naming Newton's
+    law, and Stronge's energetic law on the same data loses energy."""
+    global M, L
+    keep = M, L
+    M, L = 1.0, 1.0
+    try:
+        g = rf.ENERGY_GAIN
+        path, _ = rod_scene(make_scene, g["theta"], g["mu"], g["e"], vG=g["vG"])
+        with pytest.raises(SimulationError, match="Newton's kinematic restitution with friction creates energy"):
+            pcmm.simulate(pcmm.load_scene(path))
+        path, _ = rod_scene(make_scene, g["theta"], g["mu"], g["e"], vG=g["vG"], law="energetic")
+        ev = run(path)[0]
+        assert ev["kinetic_energy_after"] < ev["kinetic_energy_before"]
+        ref = rf.routh(rf.UNIFORM, g["theta"], g["vG"], 0.0, g["mu"], g["e"], "energetic")
+        assert ev["impulse"]["normal"] == pytest.approx(ref.P[1], abs=1e-12)
+        assert rf.routh(rf.UNIFORM, g["theta"], g["vG"], 0.0, g["mu"], g["e"]).energy_change == \
+            pytest.approx(0.034375, abs=1e-12)
+    finally:
+        M, L = keep
+
+
+def test_painleve_stops_with_a_message(make_scene):
+    """tan theta = 2, mu = 1.5 > 4/3 (the smallest Painleve threshold (1 + 3 c^2)/(3 s c)), the end
+    slipping away from G's side as it strikes: the sliding normal slope W_nn - sigma mu W_nt < 0."""
+    theta = math.atan(2.0)
+    s, c = math.sin(theta), math.cos(theta)
+    assert (1 + 3 * c * c) / (3 * s * c) == pytest.approx(4 / 3, rel=1e-14)
+    path, _ = rod_scene(make_scene, theta, 1.5, 0.5, vG=(-1.0, -0.2))
+    with pytest.raises(SimulationError, match="Painleve.*no unique answer"):
+        pcmm.simulate(pcmm.load_scene(path))
+
+
+def test_plastic_slide_is_refused(make_scene):
+    """e = 0 and mu < mu_c: the end would go on sliding on the floor, which pcmm does not model;
+    the message gives the friction a no-slip outcome needs (mu_c)."""
+    theta = math.radians(30)
+    s, c = math.sin(theta), math.cos(theta)
+    path, _ = rod_scene(make_scene, theta, 0.1, 0.0)
+    with pytest.raises(SimulationError, match=f"friction >= {3 * s * c / (1 + 3 * s * s):.6g}"):
+        pcmm.simulate(pcmm.load_scene(path))
+
+
+def test_friction_key_is_checked(make_scene):
+    path, _ = rod_scene(make_scene, 0.5, -0.2, 0.5)
+    with pytest.raises(SceneError, match=r"contact.friction.*>= 0"):
+        pcmm.load_scene(path)
+    path, _ = rod_scene(make_scene, 0.5, "sticky", 0.5)
+    with pytest.raises(SceneError, match="stick"):
+        pcmm.load_scene(path)
