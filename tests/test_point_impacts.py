@@ -204,3 +204,68 @@ def test_friction_key_is_checked(make_scene):
     path, _ = rod_scene(make_scene, 0.5, "sticky", 0.5)
     with pytest.raises(SceneError, match="stick"):
         pcmm.load_scene(path)
+
+
+# ==================================================================== a struck point pinned where it lands
+from builders import Bar, chain_urdf  # noqa: E402
+
+LB = 0.5  # three bars of 0.5 m, 1 kg
+Q3 = [-0.3, 0.5, -0.4]  # link angles relative to their parents at the start (the tip above the floor)
+
+
+def chain_tip(q):
+    th = np.cumsum(q)
+    return LB * np.array([np.cos(th).sum(), np.sin(th).sum()])
+
+
+def pinned_chain(make_scene, floor, t_end=0.6, friction=None, unilateral=False):
+    pin_joint = {"name": "tip", "type": "revolute", "a": "frame", "point_a": "entry", "b": "link3",
+                 "point_b": [LB, 0.0]}
+    if unilateral:
+        pin_joint["contact"] = {"normal": [0.0, 1.0]}
+    contact = {"a": "frame", "point_a": [0.0, floor], "b": "link3", "point_b": [LB, 0.0], "normal": [0.0, 1.0]}
+    if friction is not None:
+        contact["friction"] = friction
+    tr = {"name": "strike", "type": "pin", "from": "free", "to": "pinned",
+          "guard": {"type": "gap", "value": 0.0, "direction": "decreasing"}, "contact": contact}
+    return make_scene({"chain.urdf": chain_urdf([Bar(LB, 1.0)] * 3)},
+                      configurations={"free": "chain.urdf", "pinned": {"urdf": "chain.urdf", "cut_joints": [pin_joint]}},
+                      q0={"J1": Q3[0], "J2": Q3[1], "J3": Q3[2]}, v0={"J1": 0.0, "J2": 0.0, "J3": 0.0},
+                      t_end=t_end, transitions=[tr], solver={"rtol": 1e-11, "atol": 1e-12})
+
+
+def test_pin_impulse_is_the_projection_onto_the_pinned_motion(make_scene):
+    """A triple pendulum whose tip strikes the floor and is pinned where it lands.  By hand (impulse
+    and momentum with the pin's two rows J): M (v+ - v-) = J^T P and J v+ = 0, so v+ lies in the null
+    space of J, spanned by z, and z^T M (v+ - v-) = 0: v+ = z (z^T M v-) / (z^T M z).  M and J here
+    from Pinocchio directly, not through pcmm."""
+    import pinocchio as pin
+    floor = chain_tip(Q3)[1] - 0.05
+    traj = pcmm.simulate(pcmm.load_scene(pinned_chain(make_scene, floor)))
+    ev = traj.events[0]
+    assert ev["transition"] == "pin" and ev["to"] == "pinned"
+    q = np.asarray(traj.segments[0].q[-1])  # (n, nv): the posture at the strike
+    model = pin.buildModelFromXML(chain_urdf([Bar(LB, 1.0)] * 3))
+    data = model.createData()
+    vm = np.array([ev["v_before"][j] for j in ("J1", "J2", "J3")])
+    vp = np.array([ev["v_after"][j] for j in ("J1", "J2", "J3")])
+    assert abs(chain_tip(q)[1] - floor) < 1e-9
+    M = pin.crba(model, data, q)
+    M = np.triu(M) + np.triu(M, 1).T
+    th = np.cumsum(q)
+    # the tip's Jacobian by hand: d tip / d q_k = L sum_{i >= k} (-sin th_i, cos th_i)
+    J = np.array([[-LB * np.sin(th[k:]).sum() for k in range(3)], [LB * np.cos(th[k:]).sum() for k in range(3)]])
+    z = np.linalg.svd(J)[2][-1]
+    expect = z * (z @ M @ vm) / (z @ M @ z)
+    np.testing.assert_allclose(vp, expect, atol=1e-12)
+    P = np.linalg.lstsq(J.T, M @ (vp - vm), rcond=None)[0]  # the pin's impulse on the tip
+    np.testing.assert_allclose(ev["impulse"]["vector"], P, atol=1e-11)
+    assert ev["impulse"]["normal"] == pytest.approx(P[1], abs=1e-11) and P[1] > 0
+    assert ev["impulse"]["tangential"] == pytest.approx(P[0], abs=1e-11)
+    np.testing.assert_allclose(ev["anchor"]["tip"], [chain_tip(q)[0], floor], atol=1e-9)
+    assert ev["kinetic_energy_after"] < ev["kinetic_energy_before"]
+    # the run goes on pinned: the tip stays at the anchor
+    last = traj.segments[-1]
+    assert last.configuration == "pinned" and len(last.t) > 3
+    for qk in last.q:
+        np.testing.assert_allclose(chain_tip(qk), ev["anchor"]["tip"], atol=1e-9)

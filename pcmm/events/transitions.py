@@ -40,6 +40,7 @@ from .contact_faults import POSE_TOL, contact_findings
 from .records import by_link, event_record
 from .guards import guard_value
 from .impulse import no_impulse, solve_impulse
+from .pins import pin_strike
 from ..scene.spec import LatchSpec, StopSpec, TransitionSpec
 
 RESTING_FACTOR = 100.0  # a guard crossing at a separating speed below 100 x the accumulation speed is rest
@@ -363,4 +364,9 @@ def unmerge(ctx: Context, cfg: Configuration, hold, target: str, t, q, v) -> Out
     return release(ctx, cfg, hold.transition, target, t, q, v, known=hold.joints, cause="tensile holding force")
 
 
-TRANSITIONS = {"latch": handle_latch, "stop": handle_stop, "release": handle_release}
+def handle_pin(ctx: Context, cfg: Configuration, tr: TransitionSpec, t, q, v) -> Outcome:
+    """A struck point pinned where it lands (:mod:`pcmm.events.pins`)."""
+    return Outcome(*pin_strike(ctx, cfg, tr, t, q, v), angle_offsets={})
+
+
+TRANSITIONS = {"latch": handle_latch, "stop": handle_stop, "release": handle_release, "pin": handle_pin}

@@ -17,7 +17,7 @@ from . import schema as S
 from . import settings
 from ..errors import ModelError, SceneError
 from .spec import (ConfigurationSpec, ContactSpec, CutJointSpec, Derivation, DriveSpec, ForceSpec, GuardSpec,
-                   BranchSpec, LatchSpec, Measure, PointPair, ReleaseSpec, Scene, StopSpec, Target)
+                   BranchSpec, LatchSpec, Measure, PinSpec, PointPair, ReleaseSpec, Scene, StopSpec, Target)
 from .urdf import MOVABLE, read_urdf
 from .variations import read_urdf_cached, set_values
 
@@ -34,7 +34,7 @@ FORCE_TYPES = {
     # between two points: x is their distance, f acts along their line (> 0 pushes them apart)
     "point_spring": ({"k", "rest"}, {"value", "k", "rest", "c"}),
 }
-TRANSITION_TYPES = ("latch", "stop", "release")
+TRANSITION_TYPES = ("latch", "stop", "release", "pin")
 GUARD_TYPES = ("coordinate", "gap", "time", "reaction")
 CUT_JOINT_TYPES = {"revolute": 2, "prismatic": 2, "weld": 3}
 
@@ -58,13 +58,21 @@ CUT_JOINT_KEYS = [
     S.Key("name", "str"),
     S.Key("type", "str", check=S.one_of(*CUT_JOINT_TYPES)),
     S.Key("a", "str", doc="link on one side of the cut"),
-    S.Key("point_a", "list", check=S.vector(2), doc="[x, y] in link a's frame"),
+    S.Key("point_a", "list|str", check=S.point_or_entry,
+          doc="[x, y] in link a's frame, or \"entry\": where b's point is when the configuration is entered"),
     S.Key("b", "str", doc="link on the other side of the cut"),
     S.Key("point_b", "list", check=S.vector(2), doc="[x, y] in link b's frame"),
     S.Key("axis", "list", required=False, check=S.nonzero_vector(2),
           doc="prismatic only: sliding direction [x, y] in link a's frame"),
     S.Key("angle", "number", required=False,
           doc="prismatic and weld: the fixed relative angle theta_b - theta_a in rad"),
+    S.Key("contact", "table", required=False,
+          doc="revolute: { normal = [x, y] in a's frame, friction = mu | \"stick\" }: held by compression only"),
+]
+PIN_CONTACT_KEYS = [
+    S.Key("normal", "list", check=S.nonzero_vector(2), doc="[nx, ny] in link a's frame, from a towards b"),
+    S.Key("friction", "number|str", required=False, check=S.friction_coefficient,
+          doc="Coulomb's mu >= 0 the pin's impulse and force must respect, or \"stick\""),
 ]
 INITIAL_KEYS = [
     S.Key("q", "table", doc="{joint = value, ...} for every movable joint"),
@@ -360,6 +368,10 @@ class _Builder:
                 continue
             out[name] = ConfigurationSpec(name=name, urdf=urdf, info=info,
                                           cut_joints=self._cut_joints(c["cut_joints"], where))
+            for k, cj in enumerate(out[name].cut_joints):
+                if cj.anchor_at_entry and cj.a != info.root:
+                    self.p.add(f"{where}.cut_joints[{k}].point_a", f"= 'entry': the anchor is fixed in the world, so "
+                               f"link a must be the frame ('{info.root}', the URDF's root), not '{cj.a}'")
         if derived:
             from .derive import derive_configurations
             out.update(derive_configurations(derived, out, self.p, self._cut_joints, declared=list(table)))
@@ -374,9 +386,21 @@ class _Builder:
                 self.p.add(f"{cw}.axis", "missing; a prismatic cut joint needs its sliding axis [x, y]")
             if cj["type"] in ("prismatic", "weld") and cj["angle"] is None:
                 self.p.add(f"{cw}.angle", f"missing; a {cj['type']} cut joint needs the relative angle it holds")
-            cuts.append(CutJointSpec(cj["name"], cj["type"], cj["a"], tuple(cj["point_a"]),
+            entry = cj["point_a"] == "entry"
+            if entry and cj["type"] != "revolute":
+                self.p.add(f"{cw}.point_a", f"= 'entry': only a revolute cut joint is anchored where it is entered "
+                           f"(this one is {cj['type']!r})")
+            normal = mu = None
+            if cj["contact"] is not None:
+                c = S.check_table(cj["contact"], PIN_CONTACT_KEYS, f"{cw}.contact", self.p)
+                if cj["type"] != "revolute":
+                    self.p.add(f"{cw}.contact", "only a revolute cut joint (a pinned point) is held by compression only")
+                normal = tuple(c["normal"]) if c["normal"] is not None else None
+                mu = None if c["friction"] is None else math.inf if c["friction"] == "stick" else float(c["friction"])
+            cuts.append(CutJointSpec(cj["name"], cj["type"], cj["a"], (0.0, 0.0) if entry else tuple(cj["point_a"]),
                                      cj["b"], tuple(cj["point_b"]),
-                                     tuple(cj["axis"]) if cj["axis"] else None, cj["angle"]))
+                                     tuple(cj["axis"]) if cj["axis"] else None, cj["angle"],
+                                     anchor_at_entry=entry, normal=normal, friction=mu))
         return tuple(cuts)
 
     def _forces(self, items) -> list[ForceSpec]:
@@ -469,6 +493,21 @@ class _Builder:
                                "name the merged configuration with merge_to")
                 if "restitution" not in raw:
                     self.p.add(f"{where}.restitution", "missing; a stop needs Newton's coefficient e in [0, 1]")
+            elif kind == "pin":
+                if t["to"] is None:
+                    self.p.add(f"{where}.to", "missing; a pin names the configuration whose cut joint holds the "
+                               "struck point (point_a = \"entry\")")
+                if t["contact"] is None:
+                    self.p.add(f"{where}.contact", "missing; a pin needs the point contact that strikes: "
+                               "{ a, point_a, b, point_b, normal }")
+                for k in ("restitution", "merge_to", "unmerge", "law", "stiffness", "exponent",
+                          "accumulation_speed", "accumulation_interval"):
+                    if k in raw:
+                        self.p.add(f"{where}.{k}", "not used by a pin (the strike is plastic and the point stays)")
+                if t["cut"]:
+                    self.p.add(f"{where}.cut", "a pin's impulse is solved with every constraint of its target "
+                               "configuration at once; it cuts no joint (give [] or leave it out)")
+                e = 0.0
             elif kind == "release":
                 if t["to"] is None:
                     self.p.add(f"{where}.to", "missing; a release names the configuration with more freedom it goes to")
@@ -501,6 +540,13 @@ class _Builder:
             if contact is not None and contact.friction is not None and (t["law"] or "impulse") != "impulse":
                 self.p.add(f"{where}.contact.friction", f"a continuous contact law ({t['law']!r}) acts along the "
                            "normal only; friction needs the impulse law (law = 'impulse')")
+            if kind == "pin" and contact is not None and contact.joint is not None:
+                self.p.add(f"{where}.contact.joint", "a pin needs a point contact (a, point_a, b, point_b, normal)")
+                continue
+            if kind == "pin" and contact is not None and guard is not None and t["to"] is not None:
+                out.append(PinSpec(name=t["name"], source=t["from"], cut=(), guard=guard, contact=contact,
+                                   target=t["to"]))
+                continue
             if guard is None or e is None or (kind != "release" and (contact is None or t["cut"] is None)):
                 continue
             common = dict(name=t["name"], source=t["from"], cut=tuple(t["cut"] or ()), guard=guard, contact=contact)
@@ -750,6 +796,16 @@ class _Builder:
                 if not gained:
                     self.p.add(f"{where}.to", f"= {t.target!r}: a release goes to a configuration with more "
                                f"freedom, but '{t.target}' has no movable joint that '{t.source}' lacks")
+            if t.type == "pin" and t.target in names:
+                held = [cj for cj in names[t.target].cut_joints if cj.anchor_at_entry and cj.b == t.contact.b
+                        and tuple(cj.point_b) == tuple(t.contact.point_b)]
+                if not held:
+                    self.p.add(f"{where}.to", f"= {t.target!r}: a pin's target holds the struck point by a revolute "
+                               f"cut joint with a = the frame, point_a = \"entry\", b = {t.contact.b!r} and point_b = "
+                               f"{list(t.contact.point_b)} (the contact's point_b); '{t.target}' has none")
+                if t.contact.a != cfg.info.root:
+                    self.p.add(f"{where}.contact.a", f"= {t.contact.a!r}: a pin anchors b's point on the frame "
+                               f"('{cfg.info.root}'); a point pinned to a moving link is not modelled yet")
             if t.contact is None:
                 continue
             self._check_link(f"{where}.contact.a", t.contact.a, cfg)

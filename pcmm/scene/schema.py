@@ -221,6 +221,16 @@ def nonzero_vector(n: int):
 
 
 @_numeric_check
+def point_or_entry(v):
+    """A cut joint's point_a: [x, y], or "entry" (where b's point is when the configuration is entered)."""
+    if isinstance(v, str):
+        return None if v == "entry" else 'must be [x, y] or "entry" (anchored where b\'s point is at entry)'
+    return vector(2)(v)
+
+
+point_or_entry.numeric = True
+
+
 def numbers_list(v):
     return None if v and all(_type_ok("number", x) and math.isfinite(x) for x in v) \
         else "must be a non-empty list of numbers"

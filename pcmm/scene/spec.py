@@ -162,6 +162,18 @@ class StopSpec(TransitionSpec):
 
 
 @dataclass(frozen=True)
+class PinSpec(TransitionSpec):
+    """A point of b strikes a and is pinned where it lands (issue 24): the run continues in
+    ``target``, whose cut joint anchored at entry holds b's point; the impulse is solved with every
+    constraint of ``target`` at once and the closed unilateral contacts of the source
+    (:mod:`pcmm.events.pins`).  Plastic (e = 0) and without slip, or within the contact's friction."""
+
+    type: ClassVar[str] = "pin"
+    restitution: ClassVar[float] = 0.0
+    target: str
+
+
+@dataclass(frozen=True)
 class CutJointSpec:
     """A joint that closes a loop; the URDF holds the spanning tree."""
 
@@ -173,6 +185,14 @@ class CutJointSpec:
     point_b: tuple[float, float]
     axis: tuple[float, float] | None  # prismatic: sliding direction in a's frame
     angle: float | None  # prismatic, weld: the fixed relative angle theta_b - theta_a
+    #: ``point_a = "entry"`` (a revolute cut joint to the frame): a's point is where b's point is when
+    #: the run enters the configuration (a struck point pinned where it lands); point_a is then (0, 0)
+    #: and the anchor a per-instance offset (:class:`pcmm.model.constraints.ClosureRows`)
+    anchor_at_entry: bool = False
+    #: a contact held by compression only: the normal (in a's frame, from a towards b) along which
+    #: the cut joint may only push, and Coulomb's mu it must respect ("stick": math.inf; None: any)
+    normal: tuple[float, float] | None = None
+    friction: float | None = None
 
 
 @dataclass(frozen=True)
