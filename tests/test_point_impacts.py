@@ -269,3 +269,67 @@ def test_pin_impulse_is_the_projection_onto_the_pinned_motion(make_scene):
     assert last.configuration == "pinned" and len(last.t) > 3
     for qk in last.q:
         np.testing.assert_allclose(chain_tip(qk), ev["anchor"]["tip"], atol=1e-9)
+
+
+def knee_strike(make_scene, bar3: Bar, v1: float):
+    """The chain's tip already pinned on the floor (held by compression only: its cut joint has a
+    contact normal); its knee (link 3's origin) strikes the line y = 0 and is pinned there; the
+    target holds the knee only."""
+    def joint(name, point_b):
+        return {"name": name, "type": "revolute", "a": "frame", "point_a": "entry", "b": "link3",
+                "point_b": point_b, "contact": {"normal": [0.0, 1.0]}}
+    tr = {"name": "knee strike", "type": "pin", "from": "A", "to": "B",
+          "guard": {"type": "gap", "value": 0.0, "direction": "decreasing"},
+          "contact": {"a": "frame", "point_a": [0.0, 0.0], "b": "link3", "point_b": [0.0, 0.0], "normal": [0.0, 1.0]}}
+    urdf = chain_urdf([Bar(LB, 0.2), Bar(LB, 0.2), bar3])
+    return make_scene({"c.urdf": urdf}, configurations={"A": {"urdf": "c.urdf", "cut_joints": [joint("tip", [LB, 0.0])]},
+                                                        "B": {"urdf": "c.urdf", "cut_joints": [joint("knee", [0.0, 0.0])]}},
+                      q0={"J1": -0.3, "J2": 1.2, "J3": -1.8}, v0={"J1": v1, "J2": 0.0, "J3": 0.0}, independent=["J1"],
+                      t_end=0.6, transitions=[tr], solver={"rtol": 1e-11, "atol": 1e-12}), urdf
+
+
+def two_active_sets(urdf, q, vm):
+    """By hand, the two candidate outcomes of the knee strike: (v+ and the tip's normal speed with
+    the tip released; the tip's normal impulse with the tip held, when v+ = 0 (both ends of link 3
+    pinned, links 1-2 pinned at both ends: no motion left))."""
+    import pinocchio as pin
+    model = pin.buildModelFromXML(urdf)
+    data = model.createData()
+    M = pin.crba(model, data, q)
+    M = np.triu(M) + np.triu(M, 1).T
+    th = np.cumsum(q)
+    J_tip = np.array([[-LB * np.sin(th[k:]).sum() for k in range(3)], [LB * np.cos(th[k:]).sum() for k in range(3)]])
+    J_knee = np.array([[-LB * np.sin(th[k:2]).sum() for k in range(3)], [LB * np.cos(th[k:2]).sum() for k in range(3)]])
+    z = np.array([0.0, 0.0, 1.0])  # the knee's rows do not involve J3: its null space is e3
+    v_rel = z * (z @ M @ vm) / (z @ M @ z)
+    A = np.vstack([J_knee, J_tip[1:]])  # held: M (0 - v-) = A^T lam
+    lam = np.linalg.solve(A.T, -M @ vm)
+    return v_rel, float(J_tip[1] @ v_rel), float(lam[2])
+
+
+@pytest.mark.parametrize("v1", [-1.5, 0.0, 3.0])
+def test_old_contact_released_because_the_new_pin_separates_it(make_scene, v1):
+    """Link 3's mass outside the segment between its two ends (centroid 0.1 m behind the knee):
+    the knee's pin makes the tip rise, and holding the tip would need a tensile impulse, so the
+    complementarity problem's only solution releases it, with no impulse (design_24.md 2.3)."""
+    path, urdf = knee_strike(make_scene, Bar(LB, 5.0, com=(-0.1, 0.0), izz=0.01), v1)
+    traj = pcmm.simulate(pcmm.load_scene(path))
+    ev = traj.events[0]
+    q = np.asarray(traj.segments[0].q[-1])
+    vm = np.array([ev["v_before"][j] for j in ("J1", "J2", "J3")])
+    v_rel, vn_tip, lam_tip = two_active_sets(urdf, q, vm)
+    assert vn_tip > 0 and lam_tip < 0  # by hand: released is admissible, held is not
+    np.testing.assert_allclose([ev["v_after"][j] for j in ("J1", "J2", "J3")], v_rel, atol=1e-11)
+    assert ev["released"]["tip"]["normal_velocity_after"] == pytest.approx(vn_tip, abs=1e-11)
+    assert ev["constraint_impulses"]["tip"] == [0.0, 0.0, 0.0]
+    assert traj.segments[-1].configuration == "B"
+    assert ev["kinetic_energy_after"] <= ev["kinetic_energy_before"]
+
+
+def test_old_contact_that_stays_closed_needs_a_target_holding_it(make_scene):
+    """A uniform link 3: pinned at its knee it would turn the other way (its angular momentum about
+    the knee, -omega m L^2 / 6 before, changes sign), pushing the tip into the floor: the tip stays,
+    by hand its held impulse is compressive, and the scene's target (knee only) is refused by name."""
+    path, urdf = knee_strike(make_scene, Bar(LB, 5.0), 0.0)
+    with pytest.raises(SimulationError, match=r"\['tip'\] stay closed through the strike.*'B' does not hold them"):
+        pcmm.simulate(pcmm.load_scene(path))
