@@ -18,6 +18,7 @@ once per process for each URDF text, set of points and gravity (later runs reuse
 """
 from __future__ import annotations
 
+import math
 import threading
 from dataclasses import dataclass
 from pathlib import Path
@@ -242,6 +243,48 @@ class Configuration:
         for _, iv in self._planar:
             c, s = np.cos(q[iv + 2]), np.sin(q[iv + 2])
             out[iv], out[iv + 1] = c * v[iv] - s * v[iv + 1], s * v[iv] + c * v[iv + 1]
+        return out
+
+    def velocity(self, q: np.ndarray, rates: np.ndarray) -> np.ndarray:
+        """The velocity ``v`` whose coordinate rates (:meth:`qdot`) are ``rates``: the inverse of
+        :meth:`qdot` (``rates`` itself when there is no planar joint)."""
+        if not self._planar:
+            return rates
+        out = rates.copy()
+        for _, iv in self._planar:
+            c, s = math.cos(q[iv + 2]), math.sin(q[iv + 2])
+            out[iv], out[iv + 1] = c * rates[iv] + s * rates[iv + 1], -s * rates[iv] + c * rates[iv + 1]
+        return out
+
+    def qddot(self, q: np.ndarray, v: np.ndarray, a: np.ndarray) -> np.ndarray:
+        """Second time derivative of pcmm coordinates from the accelerations ``a = v'``: the
+        derivative of :meth:`qdot`, ``R a + theta' R' v`` for a planar joint's (x, y) (``a`` itself
+        when there is no planar joint)."""
+        if not self._planar:
+            return a
+        out = a.copy()
+        for _, iv in self._planar:
+            c, s, w = math.cos(q[iv + 2]), math.sin(q[iv + 2]), v[iv + 2]
+            vx, vy = v[iv], v[iv + 1]
+            out[iv] = c * a[iv] - s * a[iv + 1] - w * (s * vx + c * vy)
+            out[iv + 1] = s * a[iv] + c * a[iv + 1] + w * (c * vx - s * vy)
+        return out
+
+    def position_jacobian(self, q: np.ndarray, J: np.ndarray) -> np.ndarray:
+        """``d f / d q`` from the velocity Jacobian ``J`` of a function ``f`` of the posture
+        (``f' = J v``): with ``q' = T(q) v`` (:meth:`qdot`) it is ``J T(q)^-1``.  A planar joint's
+        velocity is local, ``(x', y') = R(theta) (v_x, v_y)``, so its two columns become
+        ``J[:, xy] R(theta)^T``; every other column is unchanged (``J`` itself when there is no
+        planar joint).  A Newton solve of ``f(q) = 0`` in pcmm's coordinates needs this matrix,
+        not ``J``: with ``J`` it is off by the body's rotation and diverges once that passes 90
+        degrees."""
+        if not self._planar:
+            return J
+        out = J.copy()
+        for _, iv in self._planar:
+            c, s = math.cos(q[iv + 2]), math.sin(q[iv + 2])
+            jx, jy = J[:, iv], J[:, iv + 1]
+            out[:, iv], out[:, iv + 1] = c * jx - s * jy, s * jx + c * jy
         return out
 
     def vector(self, values: dict[str, float | tuple]) -> np.ndarray:

@@ -446,8 +446,10 @@ class TreeCoordinates(_Replayable):
 
 
 class PartitionedCoordinates(_Replayable):
-    """Loops and/or drives: independent coordinates ``y = [q_I, v_I]`` (satisfies
-    :class:`~pcmm.coordinates.Coordinates`)."""
+    """Loops and/or drives: independent coordinates and their rates ``y = [q_I, q'_I]``
+    (satisfies :class:`~pcmm.coordinates.Coordinates`).  ``q'`` is ``v`` but for a planar joint's
+    (x', y'), which are world-frame where its ``v`` is body-frame (:meth:`Configuration.qdot`): the
+    dependent positions and rates then solve one block, ``dPhi/dq`` at the posture."""
 
     constrained = True
     position_noise = 4 * np.finfo(float).eps  # dependent coordinates: Newton plus one polishing step
@@ -558,6 +560,12 @@ class PartitionedCoordinates(_Replayable):
             Jq = np.vstack([Jq, Jd])
         return Jq
 
+    def _position_rows(self, t, q):
+        """``dPhi/dq`` at ``q``: the derivative in pcmm's coordinates that a Newton solve of the
+        positions, the partition and its conditioning need (not the velocity Jacobian, whose
+        planar-joint columns are in the body frame: :meth:`Configuration.position_jacobian`)."""
+        return self.cfg.position_jacobian(q, self._phi(t, q)[1])
+
     def residual(self, t, q) -> float:
         phi, _, _ = self._phi(t, q)
         return float(np.max(np.abs(phi))) if phi.size else 0.0
@@ -567,7 +575,7 @@ class PartitionedCoordinates(_Replayable):
         """Choose dependent coordinates: driven joints, then the best-conditioned
         columns of the loop rows (QR with column pivoting).  Coordinates in
         ``prefer_independent`` are kept independent when the rest allows it."""
-        _, Jq, _ = self._phi(t, q)
+        Jq = self._position_rows(t, q)
         self.D = self._best_dependent(Jq, keep=prefer_independent)
         self.I = np.array([i for i in range(self.nv) if i not in self.D], dtype=int)
         self.ny = 2 * len(self.I)
@@ -580,7 +588,10 @@ class PartitionedCoordinates(_Replayable):
                 "(e.g. a slider-crank at dead centre) or the cut joints are redundant")
 
     def _solve_dependent(self, t, qI, guess):
-        """Dependent coordinates closing the loop at ``qI`` (Newton from ``guess``).
+        """Dependent coordinates closing the loop at ``qI`` (Newton from ``guess``) and the
+        constraint Jacobians there: ``(q, Phi_q per unit velocity, dPhi/dq)``.  Newton steps with
+        ``dPhi/dq`` (the two differ in a planar joint's columns, which are body-frame in the
+        first).
 
         Once the residual is below NEWTON_TOL one more correction is taken with the Jacobian
         already at hand: Newton converges quadratically, so that step leaves an error of
@@ -590,27 +601,29 @@ class PartitionedCoordinates(_Replayable):
         rises only 5e-14 m, so that noise decided whether a tiny flight was seen at all."""
         q = guess.copy()
         q[self.I] = qI
+        position = self.cfg.position_jacobian
         for _ in range(30):
             phi, Jq, _ = self._phi(t, q)
+            Jp = position(q, Jq)
             res = _max_abs(phi)
             if res < NEWTON_TOL:
                 self.max_residual = max(self.max_residual, res)
-                self._check_conditioning(t, Jq)
+                self._check_conditioning(t, Jp)
                 if phi.size:  # one more correction with this Jacobian: exact to round-off, whatever the start
                     try:
-                        q[self.D] -= solve(Jq[:, self.D], phi)
+                        q[self.D] -= solve(Jp[:, self.D], phi)
                     except np.linalg.LinAlgError:
                         pass  # the posture check above has already judged the block
-                return q, Jq
-            JD = Jq[:, self.D]
+                return q, Jq, Jp
             try:
-                q[self.D] -= solve(JD, phi)
+                q[self.D] -= solve(Jp[:, self.D], phi)
             except np.linalg.LinAlgError:
                 break
         phi, Jq, _ = self._phi(t, q)
+        Jp = position(q, Jq)
         if np.max(np.abs(phi)) < 1e-9:
             self.max_residual = max(self.max_residual, float(np.max(np.abs(phi))))
-            return q, Jq
+            return q, Jq, Jp
         if len(self.I) == 0 and self.drives.size:
             raise SimulationError(
                 f"configuration '{self.cfg.name}': the loop cannot be closed at t = {t:.6g} s "
@@ -693,13 +706,13 @@ class PartitionedCoordinates(_Replayable):
         at the start of every segment, so it follows the posture."""
         self.partition(t, q)
         self.seed(q)
-        return np.concatenate([q[self.I], v[self.I]])
+        return np.concatenate([q[self.I], self.cfg.qdot(q, v)[self.I]])
 
     def at_degenerate_partition(self, t, q):
         """Where the singularity guard fired: if the whole constraint Jacobian keeps its rank a
         new partition goes on (the next segment picks it); if it loses rank the loop itself is
         at a singular posture (a dead centre, a change point) and the run stops."""
-        _, Jq, _ = self._phi(t, q)
+        Jq = self._position_rows(t, q)
         s = np.linalg.svd(Jq, compute_uv=False)
         if s[-1] <= 1e-6 * s[0] or np.array_equal(self._best_dependent(Jq), self.D):
             # rank lost, or no partition does better than the one that degenerated
@@ -746,7 +759,7 @@ class PartitionedCoordinates(_Replayable):
         changes sign where the current partition degenerates, which a step can jump over."""
         def g(t, y):
             self.unpack(t, y)
-            return self._scaled_det(self._last_Jq)
+            return self._scaled_det(self._last_Jp)
 
         def rate(t, y, f):
             """Its time derivative from the state alone: a central difference along q' (two
@@ -754,7 +767,7 @@ class PartitionedCoordinates(_Replayable):
             q, v = self.unpack(t, y)
             qd = self.cfg.qdot(q, v)
             eps = 1e-7 / max(1.0, float(np.max(np.abs(qd))))
-            ahead, behind = (self._scaled_det(self._phi(t, q + s * eps * qd)[1]) for s in (1.0, -1.0))
+            ahead, behind = (self._scaled_det(self._position_rows(t, q + s * eps * qd)) for s in (1.0, -1.0))
             return (ahead - behind) / (2 * eps)
         return Guard(f"configuration '{self.cfg.name}': the loop's partition of its coordinates degenerates",
                      g, 0, "repartition", rate=rate, rate_from_state=True)
@@ -768,14 +781,18 @@ class PartitionedCoordinates(_Replayable):
 
     def _unpack(self, t, y):
         k = len(self.I)
-        q, Jq = self._solve_dependent(t, y[:k], self._guess(t))
+        q, Jq, Jp = self._solve_dependent(t, y[:k], self._guess(t))
         self._qD = q
-        self._last_Jq = Jq
-        v = np.empty(self.nv)
-        v[self.I] = y[k:]
-        rhs = -(Jq[:, self.I] @ y[k:] + self._phi_t(t))
-        v[self.D] = solve(Jq[:, self.D], rhs)
-        self._recent.append((t, q, self.cfg.qdot(q, v)))
+        self._last_Jp = Jp
+        # the state's second half is the independent coordinates' rates q'_I (a planar joint's
+        # world-frame x', y', not its body-frame velocity): the dependent rates then solve the
+        # same block as the positions, dPhi/dq q' = -Phi_t, and v follows from q'
+        rates = np.empty(self.nv)
+        rates[self.I] = y[k:]
+        rhs = -(Jp[:, self.I] @ y[k:] + self._phi_t(t))
+        rates[self.D] = solve(Jp[:, self.D], rhs)
+        v = self.cfg.velocity(q, rates)
+        self._recent.append((t, q, rates))
         if len(self._recent) > 8:
             del self._recent[0]
         return q, v
@@ -785,7 +802,7 @@ class PartitionedCoordinates(_Replayable):
         (a new partition is chosen at q, preferring ``prefer_independent``)."""
         self.partition(t, q, prefer_independent)
         self.seed(q)
-        return self.unpack(t, np.concatenate([q[self.I], v[self.I]]))
+        return self.unpack(t, np.concatenate([q[self.I], self.cfg.qdot(q, v)[self.I]]))
 
     def rows(self, t, q, v):
         """(Phi_q, bias) of every constraint at (q, v): ``Phi_q a + bias = 0``."""
@@ -800,7 +817,7 @@ class PartitionedCoordinates(_Replayable):
     def derivative(self, t, q, v, extra):
         """State derivative at an assembled (q, v) with an extra generalized force (contact laws)."""
         a, _ = self.accelerations(t, q, v, extra)
-        return np.concatenate([self.cfg.qdot(q, v)[self.I], a[self.I]])
+        return np.concatenate([self.cfg.qdot(q, v)[self.I], self.cfg.qddot(q, v, a)[self.I]])
 
     def _solved_accelerations(self, t, q, v):
         """(a, lam) at an assembled (q, v): with revolute cut joints the rows and bias come from
@@ -813,7 +830,7 @@ class PartitionedCoordinates(_Replayable):
         q, v = self.unpack(t, y)
         a, _ = self._solved_accelerations(t, q, v)
         qd = self.cfg.qdot(q, v)
-        return np.concatenate((qd[self.I], a[self.I]))
+        return np.concatenate((qd[self.I], self.cfg.qddot(q, v, a)[self.I]))
 
     def rhs_with_power(self, t, y):
         """``y`` is the state with the work so far appended; the state derivative with one more component: the power of the force elements and
@@ -824,7 +841,7 @@ class PartitionedCoordinates(_Replayable):
         a, lam = self._solved_accelerations(t, q, v)
         power = float(self.cfg.forces.generalized(q, v) @ v - lam @ self._phi_t(t))
         qd = self.cfg.qdot(q, v)
-        return np.concatenate([qd[self.I], a[self.I], [power]])
+        return np.concatenate([qd[self.I], self.cfg.qddot(q, v, a)[self.I], [power]])
 
 
 def coordinates_for(cfg: Configuration) -> TreeCoordinates | PartitionedCoordinates:
