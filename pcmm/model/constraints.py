@@ -305,15 +305,26 @@ class _Replayable:
     accepted segment (its partition) kept, and restored around a later re-reading of it."""
 
     def frozen_state(self) -> dict:
-        """The partition a segment is integrated in (restored by :meth:`restored`)."""
-        return {"I": getattr(self, "I", None), "D": getattr(self, "D", None), "ny": getattr(self, "ny", None)}
+        """The partition a segment is integrated in, and the anchors of its cut joints anchored at
+        entry (a configuration entered again later holds its point elsewhere), restored by
+        :meth:`restored`."""
+        out = {"I": getattr(self, "I", None), "D": getattr(self, "D", None), "ny": getattr(self, "ny", None)}
+        closure = getattr(self, "closure", None)
+        if closure is not None and closure.anchors:
+            out["anchors"] = {k: np.array(a, float) for k, a in closure.anchors.items()}
+        return out
 
     @contextlib.contextmanager
     def restored(self, frozen: dict, q_start):
-        """Re-read an accepted segment: its partition, its warm start, no conditioning checks;
-        everything as it was afterwards."""
+        """Re-read an accepted segment: its partition, its anchors, its warm start, no conditioning
+        checks; everything as it was afterwards."""
         saved = dict(self.__dict__)
-        self.__dict__.update(frozen)
+        anchors = frozen.get("anchors")
+        saved_anchors = dict(self.closure.anchors) if anchors is not None else None
+        self.__dict__.update({k: x for k, x in frozen.items() if k != "anchors"})
+        if anchors is not None:
+            self.closure.anchors.clear()
+            self.closure.anchors.update(anchors)
         self.seed(q_start)
         self.checking = False
         try:
@@ -321,6 +332,9 @@ class _Replayable:
         finally:
             self.__dict__.clear()
             self.__dict__.update(saved)
+            if saved_anchors is not None:
+                self.closure.anchors.clear()
+                self.closure.anchors.update(saved_anchors)
 
     def fresh_rhs(self):
         """A right-hand side bound to the configuration's current data (the tree's closure holds
