@@ -105,8 +105,14 @@ FORCE_KEYS = [
           doc="damping >= 0 (a negative damper feeds energy in)"),
     S.Key("configurations", "list", required=False, check=S.names_list),
 ]
+WHEN_KEYS = [
+    S.Key("measure", "table", doc="{joint = NAME}, {link = NAME} or {between = [A, B]}"),
+    S.Key("above", "number", required=False), S.Key("below", "number", required=False),
+]
 GUARD_KEYS = [
     S.Key("type", "str", check=S.one_of(*GUARD_TYPES)),
+    S.Key("when", "table", required=False,
+          doc="coordinate and gap guards: { measure, above | below }: a crossing counts only on that side"),
     S.Key("measure", "table", required=False),
     S.Key("value", "number", required=False,
           doc="the guard fires when the measure, gap or holding force crosses this value"),
@@ -592,11 +598,26 @@ class _Builder:
             g["measure"] is not None else None
         if g["type"] == "coordinate" and measure is None:
             ok = False
+        when = None
+        if g["when"] is not None:
+            w = S.check_table(g["when"], WHEN_KEYS, f"{where}.when", self.p)
+            if g["type"] not in ("coordinate", "gap"):
+                self.p.add(f"{where}.when", f"only a coordinate or gap guard is armed by a region (this one is {g['type']!r})")
+                ok = False
+            elif (w["above"] is None) == (w["below"] is None):
+                self.p.add(f"{where}.when", "give exactly one of above = VALUE or below = VALUE")
+                ok = False
+            else:
+                wm = self._measure(w["measure"], f"{where}.when.measure") if w["measure"] is not None else None
+                if wm is None:
+                    ok = False
+                else:
+                    when = (wm, +1, float(w["above"])) if w["above"] is not None else (wm, -1, float(w["below"]))
         if not ok:
             return None
         return GuardSpec(g["type"], measure, float(g["value"] or 0.0),
                          _DIRECTIONS[g["direction"]] if g["direction"] else +1,
-                         at=g["at"], every=g["every"], start=float(g["start"] or 0.0), of=g["of"])
+                         at=g["at"], every=g["every"], start=float(g["start"] or 0.0), of=g["of"], when=when)
 
     def _contact(self, table, where, guard: GuardSpec | None, source: ConfigurationSpec | None) -> ContactSpec | None:
         c = S.check_table(table, CONTACT_KEYS, where, self.p)
@@ -778,6 +799,8 @@ class _Builder:
                 self._check_joint(f"{where}.cut", j, cfg)
             if t.guard.measure is not None:
                 self._check_measure(f"{where}.guard.measure", t.guard.measure, cfg)
+            if t.guard.when is not None:
+                self._check_measure(f"{where}.guard.when.measure", t.guard.when[0], cfg)
             if t.guard.type == "reaction":
                 stops = {s.name for s in scene.transitions if s.type == "stop"}
                 joints = set().union(*(c.info.joints for c in names.values()))

@@ -83,6 +83,10 @@ class GuardSpec:
     every: float | None = None  # time guard: the period (fires at start + k every)
     start: float = 0.0
     of: str | None = None  # reaction guard: the locked joint or the stop transition it watches
+    #: coordinate and gap guards armed by a region: (measure, +1 above / -1 below, bound); the guard
+    #: reads max(its value, -(distance into the region)) on its unfired side (Drake's witness for a
+    #: walker's heel strike): a crossing counts only inside the region
+    when: tuple | None = None
 
 
 @dataclass(frozen=True)
