@@ -333,3 +333,62 @@ def test_old_contact_that_stays_closed_needs_a_target_holding_it(make_scene):
     path, urdf = knee_strike(make_scene, Bar(LB, 5.0), 0.0)
     with pytest.raises(SimulationError, match=r"\['tip'\] stay closed through the strike.*'B' does not hold them"):
         pcmm.simulate(pcmm.load_scene(path))
+
+
+# ==================================================================== scene checks and refusals
+from builders import URDF_DIR, example_text, free_bar_urdf as _free_bar  # noqa: E402
+
+
+def wheel_scene(tmp_path, edit):
+    (tmp_path / "rimless_wheel.urdf").write_text((URDF_DIR / "rimless_wheel.urdf").read_text())
+    path = tmp_path / "wheel.toml"
+    path.write_text(edit(example_text("rimless_wheel.toml")))
+    return path
+
+
+def test_pin_outside_its_friction_cone_is_refused(tmp_path):
+    """The wheel's no-slip strike needs mu >= |P_t| / P_n = 0.5412658773652739 (the reference's
+    pin solve); with mu = 0.5 at the contact the first strike stops the run and says so."""
+    path = wheel_scene(tmp_path, lambda s: s.replace('normal = [0.0, 1.0], friction = "stick" }\nguard',
+                                                     'normal = [0.0, 1.0], friction = 0.5 }\nguard'))
+    with pytest.raises(SimulationError, match=r"strike 1'.*would slip.*friction >= 0.541266.*mu = 0.5"):
+        pcmm.simulate(pcmm.load_scene(path))
+    path = wheel_scene(tmp_path, lambda s: s.replace('normal = [0.0, 1.0], friction = "stick" }\nguard',
+                                                     'normal = [0.0, 1.0], friction = 0.55 }\nguard'))
+    scene = pcmm.load_scene(path)
+    scene = scene.with_values({"scene.t_end": 1.0})
+    assert len(pcmm.simulate(scene).events) == 1  # 0.55 is enough
+
+
+def test_pin_scene_errors(tmp_path):
+    # the target must hold the struck point with a cut joint anchored at entry
+    path = wheel_scene(tmp_path, lambda s: s.replace('to = "spoke1"', 'to = "spoke2"'))
+    with pytest.raises(SceneError, match=r"strike 1.*to: = 'spoke2': a pin's target holds the struck point"):
+        pcmm.load_scene(path)
+    # an anchor at entry is fixed in the world: only on the frame
+    path = wheel_scene(tmp_path, lambda s: s.replace('name = "foot3", type = "revolute", a = "frame"',
+                                                     'name = "foot3", type = "revolute", a = "wheel"'))
+    with pytest.raises(SceneError, match=r"spoke3.cut_joints\[0\].point_a: = 'entry'.*must be the frame"):
+        pcmm.load_scene(path)
+    # a region arms a guard from one side only
+    path = wheel_scene(tmp_path, lambda s: s.replace(
+        'guard = { type = "gap", value = 0.0, direction = "decreasing" }',
+        'guard = { type = "gap", value = 0.0, direction = "decreasing", when = { measure = { link = "wheel" }, '
+        'above = 0.0, below = 1.0 } }', 1))
+    with pytest.raises(SceneError, match="when: give exactly one of above"):
+        pcmm.load_scene(path)
+    # a pin has no restitution
+    path = wheel_scene(tmp_path, lambda s: s.replace('type = "pin"', 'type = "pin"\nrestitution = 0.5', 1))
+    with pytest.raises(SceneError, match="restitution: not used by a pin"):
+        pcmm.load_scene(path)
+
+
+def test_point_mass_on_a_free_joint_is_refused(make_scene):
+    """A planar body with zero inertia: its rotation is set by nothing in the tree (singular M)."""
+    from builders import joint_xml, link_xml, robot_xml
+    point = ('<link name="bar"><inertial><origin xyz="0 0 0" rpy="0 0 0"/><mass value="1.0"/>'
+             '<inertia ixx="0" ixy="0" ixz="0" iyy="0" iyz="0" izz="0"/></inertial></link>')
+    urdf = robot_xml("point", link_xml("frame"), joint_xml("P", "planar", "frame", "bar"), point)
+    path = make_scene({"f.urdf": urdf}, q0={"P": [0.0, 0.0, 0.0]}, v0={"P": [0.0, 0.0, 0.0]})
+    with pytest.raises(pcmm.errors.ModelError, match=r"\['bar'\] are point masses on a free \(planar\) joint"):
+        pcmm.simulate(pcmm.load_scene(path))
