@@ -220,7 +220,6 @@ def nonzero_vector(n: int):
     return _numeric_check(check)
 
 
-@_numeric_check
 def point_or_entry(v):
     """A cut joint's point_a: [x, y], or "entry" (where b's point is when the configuration is entered)."""
     if isinstance(v, str):
@@ -231,6 +230,7 @@ def point_or_entry(v):
 point_or_entry.numeric = True
 
 
+@_numeric_check
 def numbers_list(v):
     return None if v and all(_type_ok("number", x) and math.isfinite(x) for x in v) \
         else "must be a non-empty list of numbers"
