@@ -40,6 +40,7 @@ from .contact_faults import POSE_TOL, contact_findings
 from .records import by_link, event_record
 from .guards import guard_value
 from .impulse import no_impulse, solve_impulse
+from .pins import pin_strike
 from ..scene.spec import LatchSpec, StopSpec, TransitionSpec
 
 RESTING_FACTOR = 100.0  # a guard crossing at a separating speed below 100 x the accumulation speed is rest
@@ -296,7 +297,7 @@ def _merge(ctx: Context, cfg: Configuration, tr: TransitionSpec, target: str, t,
     dst = ctx.mechanism.enter(target, cfg, q)  # a derived configuration locks the values at this instant
     locked = [n for n in cfg.joint_names if n not in dst.joint_slice]
     if ctx.impact:
-        imp = solve_impulse(cfg, t, q, v, tr.contact, 0.0, tr.cut)
+        imp = solve_impulse(cfg, t, q, v, tr.contact, 0.0, tr.cut, name=tr.name)
         v_after = imp.v_after
     else:  # the paper's comparison: surviving joints keep their velocities, locked ones drop theirs
         v_after = v.copy()
@@ -354,7 +355,7 @@ def handle_stop(ctx: Context, cfg: Configuration, tr: StopSpec, t, q, v) -> Outc
             raise SimulationError(_separating_with_faults(cfg, tr, t, q, v, vn))
         accumulated, rest_speed = True, vn
     else:
-        imp = solve_impulse(cfg, t, q, v, tr.contact, tr.restitution, tr.cut)
+        imp = solve_impulse(cfg, t, q, v, tr.contact, tr.restitution, tr.cut, name=tr.name)
         last = ctx.last_impact.get(tr.name)
         rest_speed = imp.vn_after
         # impacts at the same instant are a sequential resolution of simultaneous contacts, not an
@@ -449,4 +450,9 @@ def unmerge(ctx: Context, cfg: Configuration, hold, target: str, t, q, v) -> Out
     return release(ctx, cfg, hold.transition, target, t, q, v, known=hold.joints, cause="tensile holding force")
 
 
-TRANSITIONS = {"latch": handle_latch, "stop": handle_stop, "release": handle_release}
+def handle_pin(ctx: Context, cfg: Configuration, tr: TransitionSpec, t, q, v) -> Outcome:
+    """A struck point pinned where it lands (:mod:`pcmm.events.pins`)."""
+    return Outcome(*pin_strike(ctx, cfg, tr, t, q, v), angle_offsets={})
+
+
+TRANSITIONS = {"latch": handle_latch, "stop": handle_stop, "release": handle_release, "pin": handle_pin}
