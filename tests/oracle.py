@@ -30,6 +30,7 @@ recomputed number agrees), ``check_prefix(scene_path, t_short, t_long, dt)``.
 from __future__ import annotations
 
 import csv
+import dataclasses
 import math
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
@@ -426,6 +427,19 @@ class Oracle:
         vrel = (Jb[:2] - Ja[:2]) @ v
         return n @ (Jb[:2] - Ja[:2]), float(n @ (acc_b - acc_a) + wa * np.array([-n[1], n[0]]) @ vrel)
 
+    def anchored(self, seg, ctx, i):
+        """The configuration's cut joints, a joint anchored at entry (``point_a = "entry"``, a struck
+        point pinned where it lands) given the world point where b's point was at the segment's
+        first sample; the later samples then check that the point stays there. Leaves the model
+        at sample ``i``'s state."""
+        joints = list(ctx["spec"].cut_joints)
+        if any(getattr(cj, "anchor_at_entry", False) for cj in joints):
+            F0 = self.state(seg, ctx, 0)[0]
+            joints = [dataclasses.replace(cj, point_a=tuple(float(x) for x in F0.jacobian(cj.b, cj.point_b)[0]))
+                      if getattr(cj, "anchor_at_entry", False) else cj for cj in joints]
+            self.state(seg, ctx, i)
+        return joints
+
     def check_sample(self, seg, ctx, i):
         F, q, v = self.state(seg, ctx, i)
         t, tol = float(seg.t[i]), self.tol
@@ -455,7 +469,7 @@ class Oracle:
                         tol.force * max(1.0, abs(values.get(name, 0.0))))
         # the configuration's constraints at position and velocity level, then the KKT solve
         rows, bias, labels = [], [], []
-        for cj in ctx["spec"].cut_joints:
+        for cj in self.anchored(seg, ctx, i):
             phi, J, b = self.cut_rows(cj, F, q, v)
             names = {"revolute": ["fx", "fy"], "prismatic": ["fn", "mz"], "weld": ["fx", "fy", "mz"]}[cj.type]
             for r in range(len(phi)):

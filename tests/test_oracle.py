@@ -30,6 +30,8 @@ EXAMPLE_RUNS = {
     "double_folded.toml": (3.2, 0.1),  # the driven loop, the slider's stop (3.0 s), bounces, merge (3.16 s)
     "double_folded_cycle.toml": (3.3, 0.1),  # the same with unmerge (its release: the xfail case below)
     "three_bar_cycle.toml": (1.3, 0.05),  # merges, the fold, and the first release
+    "rimless_wheel.toml": (2.5, 0.05),  # two strikes, each a pin anchored where the spoke lands
+    "compass_gait.toml": (1.6, 0.05),  # two heel strikes
 }
 
 
