@@ -96,6 +96,35 @@ def _written_angles(info, links, turned) -> np.ndarray:
     return out
 
 
+def check_point_masses(model, data, spec: ConfigurationSpec, planar, link_frame) -> None:
+    """A link may be a point mass (an all-zero ``<inertia>``) where the mass matrix stays positive
+    definite: probed at the neutral posture and at five seeded ones (smallest eigenvalue above
+    1e-12 times the largest).  Otherwise the configuration is refused, naming the link."""
+    points = [link for link, f in link_frame.items() if model.frames[f].parentJoint > 0
+              and model.inertias[model.frames[f].parentJoint].mass > 0
+              and model.inertias[model.frames[f].parentJoint].inertia[2, 2] <= 0.0]
+    if not points or model.nv == 0:
+        return
+    rng = np.random.default_rng(0)
+    for k in range(6):
+        q = pin.neutral(model) if k == 0 else pin.randomConfiguration(
+            model, -np.pi * np.ones(model.nq), np.pi * np.ones(model.nq))
+        if k and planar:  # a planar joint's (cos, sin) must stay a unit vector
+            for iq, _ in planar:
+                a = rng.uniform(-np.pi, np.pi)
+                q[iq + 2:iq + 4] = (np.cos(a), np.sin(a))
+        M = pin.crba(model, data, q)
+        eig = np.linalg.eigvalsh(np.triu(M) + np.triu(M, 1).T)
+        if eig[0] <= 1e-12 * eig[-1]:
+            free = [link for link in points if model.joints[model.frames[link_frame[link]].parentJoint].nq == 4]
+            why = (f"link(s) {free} are point masses on a free (planar) joint: their rotation is determined only "
+                   "by cut joints, and the tree's mass matrix is singular; give them a rotational inertia"
+                   if free else f"with the point mass(es) {points} the mass matrix is singular (smallest "
+                   f"eigenvalue {eig[0]:.3g}, largest {eig[-1]:.3g}): a point mass on the axis of its own joint "
+                   "has nothing to turn; give it a rotational inertia or move it off the axis")
+            raise ModelError(f"{spec.source}: configuration '{spec.name}': {why}")
+
+
 class Configuration:
     """One configuration's model and bookkeeping.
 
@@ -156,6 +185,7 @@ class Configuration:
         for link, xy in key[1]:
             self.point(link, xy)
         self.data = model.createData()
+        check_point_masses(model, self.data, spec, self._planar, self.link_frame)
         self._angle_map()
         self._cut_models = {}  # cut systems by cut joints (pcmm.cutting), built on first impact
         self._impulse_models = {}  # the zero-gravity copy for joint impulses (pcmm.impulse)

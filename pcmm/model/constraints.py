@@ -22,7 +22,7 @@ from __future__ import annotations
 import contextlib
 import functools
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import pinocchio as pin
@@ -53,6 +53,34 @@ class ClosureRows:
     frames_b: tuple[int, ...]
     links_a: tuple[int, ...]
     links_b: tuple[int, ...]
+    #: {index of a cut joint anchored at entry: its anchor A (world)}: the rows are p_b - p_a - A, set
+    #: when the run enters the configuration (:meth:`set_anchors`); a property of the instance, not of
+    #: the model (no frame is registered for A)
+    anchors: dict = field(default_factory=dict, compare=False)
+
+    @property
+    def anchored(self) -> tuple[int, ...]:
+        return tuple(k for k, s in enumerate(self.specs) if s.anchor_at_entry)
+
+    def set_anchors(self, data, keep: dict | None = None) -> dict[str, np.ndarray]:
+        """Anchor every cut joint anchored at entry where b's point is now (frame placements must be
+        computed on ``data``), except those in ``keep`` ({name: A}, e.g. still held from the source).
+        Returns {name: A}."""
+        keep = keep or {}
+        out = {}
+        for k in self.anchored:
+            s = self.specs[k]
+            A = np.asarray(keep[s.name], float).copy() if s.name in keep else \
+                data.oMf[self.frames_b[k]].translation[:2] - data.oMf[self.frames_a[k]].translation[:2]
+            self.anchors[k] = A
+            out[s.name] = A
+        return out
+
+    def anchor_of(self, name: str) -> np.ndarray | None:
+        for k, s in enumerate(self.specs):
+            if s.name == name and k in self.anchors:
+                return self.anchors[k]
+        return None
 
     @property
     def size(self) -> int:
@@ -71,6 +99,8 @@ class ClosureRows:
         rows = np.empty((2 * len(self.specs), nv))
         for k, (fa, fb) in enumerate(zip(self.frames_a, self.frames_b)):
             phi[2 * k:2 * k + 2] = oMf[fb].translation[:2] - oMf[fa].translation[:2]
+            if k in self.anchors:
+                phi[2 * k:2 * k + 2] -= self.anchors[k]
             Jb, Ja = get(model, data, fb, LWA_), get(model, data, fa, LWA_)
             if nv == 1:  # eigenpy returns a 1-D array for one column
                 Jb, Ja = Jb.reshape(6, 1), Ja.reshape(6, 1)
@@ -99,8 +129,10 @@ class ClosureRows:
         """(Phi, Phi_q, bias) with ``Phi_q a + bias = d2Phi/dt2``; kinematics (and,
         for the bias, accelerations at a = 0) must be computed on ``data``."""
         phi, rows, bias = [], [], []
-        for s, fa, fb, la, lb in zip(self.specs, self.frames_a, self.frames_b, self.links_a, self.links_b):
+        for k, (s, fa, fb, la, lb) in enumerate(zip(self.specs, self.frames_a, self.frames_b, self.links_a, self.links_b)):
             pa, pb = data.oMf[fa].translation[:2], data.oMf[fb].translation[:2]
+            if k in self.anchors:
+                pa = pa + self.anchors[k]
             Ja = frame_jacobian(model, data, fa)
             Jb = frame_jacobian(model, data, fb)
             Jrel = Jb[:2] - Ja[:2]
@@ -273,17 +305,28 @@ class _Replayable:
     accepted segment (its partition) kept, and restored around a later re-reading of it."""
 
     def frozen_state(self) -> dict:
-        """The partition a segment is integrated in (restored by :meth:`restored`)."""
-        return {"I": getattr(self, "I", None), "D": getattr(self, "D", None), "ny": getattr(self, "ny", None)}
+        """The partition a segment is integrated in, and the anchors of its cut joints anchored at
+        entry (a configuration entered again later holds its point elsewhere), restored by
+        :meth:`restored`."""
+        out = {"I": getattr(self, "I", None), "D": getattr(self, "D", None), "ny": getattr(self, "ny", None)}
+        closure = getattr(self, "closure", None)
+        if closure is not None and closure.anchors:
+            out["anchors"] = {k: np.array(a, float) for k, a in closure.anchors.items()}
+        return out
 
     @contextlib.contextmanager
     def restored(self, frozen: dict, q_start, steps=None):
-        """Re-read an accepted segment: its partition, its warm start, no conditioning checks;
-        everything as it was afterwards.  ``steps = (t, y)`` are the segment's accepted steps:
-        a loop's Newton solves then start from the step at or before the instant asked for
+        """Re-read an accepted segment: its partition, its anchors, its warm start, no conditioning
+        checks; everything as it was afterwards.  ``steps = (t, y)`` are the segment's accepted
+        steps: a loop's Newton solves then start from the step at or before the instant asked for
         (:meth:`PartitionedCoordinates._follow`), however far it lies from the last one solved."""
         saved = dict(self.__dict__)
-        self.__dict__.update(frozen)
+        anchors = frozen.get("anchors")
+        saved_anchors = dict(self.closure.anchors) if anchors is not None else None
+        self.__dict__.update({k: x for k, x in frozen.items() if k != "anchors"})
+        if anchors is not None:
+            self.closure.anchors.clear()
+            self.closure.anchors.update(anchors)
         self.seed(q_start)
         if steps is not None and hasattr(self, "_trail"):
             self._trail = (np.asarray(steps[0], float), np.asarray(steps[1], float)[:self.ny])
@@ -294,6 +337,9 @@ class _Replayable:
         finally:
             self.__dict__.clear()
             self.__dict__.update(saved)
+            if saved_anchors is not None:
+                self.closure.anchors.clear()
+                self.closure.anchors.update(saved_anchors)
 
     def fresh_rhs(self):
         """A right-hand side bound to the configuration's current data (the tree's closure holds
@@ -453,8 +499,9 @@ class PartitionedCoordinates(_Replayable):
         # revolute cut joints' rows in one compiled call where that is the same function (pcmm.compiled)
         if not closure.specs:
             fast, why = None, "not compiled: drives only"
-        elif cfg.has_planar or not closure.revolute_only:
-            fast, why = None, "not compiled: " + ("a planar joint" if cfg.has_planar else "prismatic or weld cut joints")
+        elif cfg.has_planar or not closure.revolute_only or closure.anchored:
+            fast, why = None, "not compiled: " + ("a planar joint" if cfg.has_planar else "a cut joint anchored at entry"
+                                                  if closure.anchored else "prismatic or weld cut joints")
         else:
             fast = compiled.closure_kinematics(cfg.model, closure.frames_a, closure.frames_b,
                                                self._python_point_rows, self._python_point_rows_and_bias)
