@@ -34,7 +34,8 @@ EXAMPLE_RUNS = {
 
 
 def _findings(path, t_end=None, dt=None, **options):
-    """The oracle's findings on the run (a run that stops keeps its partial trajectory)."""
+    """The oracle's findings on the run (a run that stops keeps its partial trajectory); the
+    comparisons it made are checked to cover what the run has (a check that never ran cannot fail)."""
     scene = pcmm.load_scene(path)
     try:
         traj = pcmm.simulate(scene, pcmm.RunOptions(t_end=t_end, **options) if t_end else pcmm.RunOptions(**options))
@@ -42,10 +43,29 @@ def _findings(path, t_end=None, dt=None, **options):
         if exc.partial is None or not exc.partial.segments:
             raise
         traj = exc.partial
-    found = oracle.check_run(path, traj=traj)
+    o = oracle.Oracle(scene)
+    found = o.check(traj)
+    _covered(traj, o.counts)
     if dt is not None:
-        found += oracle.check_run(path, traj=traj.resampled(dt))
+        found += oracle.Oracle(scene).check(traj.resampled(dt))
     return traj, found
+
+
+def _covered(traj, counts):
+    need = {"x,y of", "theta of", "omega of", "kinetic energy", "potential energy"}
+    if any(s.force_names for s in traj.segments):
+        need.add("force element")
+    labels = {lab for s in traj.segments for lab in s.constraint_labels}
+    if labels:
+        need.add("constraint force")
+    if any(not lab.endswith(".hold") for lab in labels):  # a cut joint's or a drive's rows
+        need |= {"residual", "residual rate"}
+    if len(traj.segments) > 1:
+        need |= {"segments meet", "jumps"}
+    if any(e.get("impact") and e.get("law", "impulse") == "impulse" for e in traj.events):
+        need |= {"momentum not conserved", "kinetic_energy_after", "kinetic_energy_before"}
+    missing = need - set(counts)
+    assert not missing, f"the oracle made no comparison of: {sorted(missing)}"
 
 
 def _show(found) -> str:
