@@ -90,6 +90,8 @@ def test_every_example_agrees_with_the_oracle(name):
 #: the scenes tests/builders.py builds, with numbers that make their events happen within t_end
 BUILT = {
     "ball": lambda d: builders.ball(d, 0.5, h=0.3, t_end=0.8),
+    "ball_hunt_crossley": lambda d: builders.ball(d, 0.8, h=0.3, t_end=0.6, merge=False, law="hunt_crossley",
+                                                  stiffness=1e7, exponent=1.5),
     "pendulum": lambda d: builders.pendulum(d, 0.5, q0=0.3, t_end=1.2),
     "spring_pendulum": lambda d: builders.spring_pendulum(d, 3.0, 0.1, t_end=0.5),
     "two_link": lambda d: builders.two_link(d, 0.6, 1.0, 0.7, t_end=0.4),
