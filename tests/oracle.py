@@ -187,7 +187,7 @@ def _poly(coefficients, t, order=0):
 
 def _kind(what: str) -> str:
     """The kind of a comparison, without the configuration, joint or link it names."""
-    for kind in ("constraint force", "kinetic energy rises beyond the drives' work", "kinetic energy rises",
+    for kind in ("v_after", "constraint force", "kinetic energy rises beyond the drives' work", "kinetic energy rises",
                  "momentum not conserved", "normal velocity after", "kinetic_energy_after", "kinetic_energy_before",
                  "without impact", "residual rate", "residual", "force element", "potential energy",
                  "kinetic energy", "omega of", "theta of", "x,y of", "jumps", "segments meet"):
@@ -562,6 +562,13 @@ class Oracle:
             if "kinetic_energy_after" in e and e is here[-1]:
                 self.report(t, f"event '{e['name']}': kinetic_energy_after vs the next segment's first state",
                             e["kinetic_energy_after"], ke_b, abs(e["kinetic_energy_after"] - ke_b), tol.event * max(1, scale))
+            if isinstance(e.get("v_after"), dict) and e is here[-1]:  # the velocity the run goes on with
+                _, rates = _coordinate_values(b, 0)
+                for j, x in e["v_after"].items():
+                    if j in rates:
+                        d = float(np.max(np.abs(np.atleast_1d(rates[j]) - np.atleast_1d(x))))
+                        self.report(t, f"event '{e['name']}': v_after of {j} vs the next segment's first state",
+                                    x, rates[j], d, tol.event * max(1.0, float(np.max(np.abs(np.atleast_1d(x))))))
             if "kinetic_energy_before" in e and e is here[0] and "duration" not in e:
                 self.report(t, f"event '{e['name']}': kinetic_energy_before vs the last state before it",
                             e["kinetic_energy_before"], ke_a, abs(e["kinetic_energy_before"] - ke_a), tol.event * max(1, scale))
