@@ -168,6 +168,19 @@ def test_the_command_lines_csv_of_a_shorter_run_is_the_first_part_of_a_longer_on
     assert not problems, "\n".join(problems[:20])
 
 
+@pytest.mark.parametrize("name, t_end", [("three_bar.toml", 0.3), ("andrews.toml", 0.01)])
+def test_a_saved_run_loads_back_as_the_oracle_checked_it(name, t_end, tmp_path):
+    """pcmm run --out: the NPZ file holds the series the oracle agrees with, bit for bit."""
+    traj = pcmm.simulate(pcmm.load_scene(EXAMPLES / name), pcmm.RunOptions(t_end=t_end))
+    back = pcmm.Trajectory.load(traj.save(tmp_path / "run.npz"))
+    assert [e["t"] for e in back.events] == [e["t"] for e in traj.events]
+    for s, b in zip(traj.segments, back.segments, strict=True):
+        for a in ("t", "q", "v", "theta", "omega", "xy", "kinetic", "potential", "forces", "constraint_forces"):
+            np.testing.assert_array_equal(getattr(b, a), getattr(s, a), err_msg=a)
+    found = oracle.check_run(EXAMPLES / name, traj=back)
+    assert not found, _show(found)
+
+
 def test_the_oracle_sees_a_wrong_number(tmp_path):
     """The oracle can fail: one recorded holding moment, energy and pose changed by a little
     are each reported at their instant."""
