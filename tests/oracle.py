@@ -187,7 +187,7 @@ def _poly(coefficients, t, order=0):
 
 def _kind(what: str) -> str:
     """The kind of a comparison, without the configuration, joint or link it names."""
-    for kind in ("v_after", "constraint force", "kinetic energy rises beyond the drives' work", "kinetic energy rises",
+    for kind in ("impulse P", "v_after", "constraint force", "kinetic energy rises beyond the drives' work", "kinetic energy rises",
                  "momentum not conserved", "normal velocity after", "kinetic_energy_after", "kinetic_energy_before",
                  "without impact", "residual rate", "residual", "force element", "potential energy",
                  "kinetic energy", "omega of", "theta of", "x,y of", "jumps", "segments meet"):
@@ -596,12 +596,14 @@ class Oracle:
                 vplus[sl] = np.atleast_1d(brates[name])
         # velocities the target does not have as coordinates: zero (locked)
         rows = []
+        contact_events = 0
         for e in here:
             tr = next((x for x in self.scene.transitions if x.name == e["name"]), None)
             if tr is None or tr.contact is None:
                 continue
             Jn, _ = self.contact_row(tr.contact, Fa, qa, va)
             rows.append(Jn)
+            contact_events += 1
             vn_m, vn_p = float(Jn @ va), float(Jn @ vplus)
             restitution = e.get("restitution", 0.0) if e["to"] == e["from"] else 0.0
             if e.get("law", "impulse") == "impulse" and e is here[-1] and len(here) == 1:
@@ -631,6 +633,13 @@ class Oracle:
         p = float(np.linalg.norm(M @ va))
         self.report(t, f"{a.configuration} -> {b.configuration}: momentum not conserved outside the impulse's rows",
                     0.0, float(np.linalg.norm(r)), float(np.linalg.norm(r)), tol.event * max(1.0, p))
+        if impulses is not None and contact_events == 1 and len(here) == 1:
+            # the contact's impulse is the first row's, unique where the rows are independent (Eqs. 21-43)
+            imp = here[0].get("impulse") or {}
+            P = imp.get("moment", imp.get("normal"))
+            if P is not None:
+                self.report(t, f"event '{here[0]['name']}': impulse P", P, float(impulses[0]),
+                            abs(P - impulses[0]), tol.event * max(1.0, abs(impulses[0]), p))
         if drives and impulses is not None:
             # the drive's impulse P works P f'(t) (its coordinate's rate is prescribed, the same on both
             # sides); every other row's impulse works P (v- + v+) / 2 <= 0 (restitution <= 1, locks)
