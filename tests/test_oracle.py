@@ -137,6 +137,17 @@ def test_a_shorter_run_is_the_first_part_of_a_longer_one(name, t_short, t_long, 
     assert not problems, "\n".join(problems[:20])
 
 
+#: built scenes whose shorter run ends inside a bounce sequence, a contact-law phase, a locked
+#: stretch without a free coordinate (its samples spaced by the time left to t_end)
+PREFIX_BUILT = [("flat_bar", 0.25, 0.35), ("ball_hunt_crossley", 0.249, 0.6), ("four_bar_latch", 0.9, 1.2)]
+
+
+@pytest.mark.parametrize("name, t_short, t_long", PREFIX_BUILT)
+def test_a_shorter_run_of_a_built_scene_is_the_first_part_of_a_longer_one(name, t_short, t_long, tmp_path):
+    problems = oracle.check_prefix(BUILT[name](tmp_path / "scene"), t_short, t_long, 0.01, tmp_path)
+    assert not problems, "\n".join(problems[:20])
+
+
 RESAMPLED = {
     "three_bar": lambda d: (EXAMPLES / "three_bar.toml", 0.4, 0.01, {}),
     "double_folded": lambda d: (EXAMPLES / "double_folded.toml", 1.0, 0.05, {}),
