@@ -447,3 +447,24 @@ def test_the_potential_energy_is_continuous_where_the_posture_is():
     for a, b in switches:
         np.testing.assert_allclose(a.xy[-1], b.xy[0], atol=1e-9)  # the posture does not move
         assert b.potential[0] == pytest.approx(a.potential[-1], abs=1e-9), (a.configuration, b.configuration)
+
+
+def block_on_cut_joint(folder, kind, incline=math.radians(30), t_end=0.5):
+    """A block on a URDF planar joint (x, y, theta) with a bar hung on it by the revolute R, held to
+    the frame by a ``kind`` cut joint S at the block's origin: prismatic along an incline (the block
+    slides, the bar swings: two degrees of freedom) or weld (the bar swings alone)."""
+    urdf = builders.robot_xml("blk", builders.link_xml("frame"), builders.joint_xml("P", "planar", "frame", "blk"),
+                              builders.solid_xml("blk", 2.0, 0.01), builders.joint_xml("R", "revolute", "blk", "arm"),
+                              builders.bar_xml("arm", 0.3, 0.5))
+    extra = {"axis": [math.cos(incline), math.sin(incline)], "angle": 0.0} if kind == "prismatic" else {"angle": 0.0}
+    cut = [{"name": "S", "type": kind, "a": "frame", "point_a": [0.0, 0.0], "b": "blk", "point_b": [0.0, 0.0], **extra}]
+    doc = builders.base_doc("block", "c", {"c": {"urdf": "b.urdf", "cut_joints": cut}}, {"P": [0.0, 0.0, 0.0], "R": -1.0},
+                            {"P": [0.0, 0.0, 0.0], "R": 0.0}, t_end=t_end)
+    return builders.write_scene(folder, doc, {"b.urdf": urdf})
+
+
+@pytest.mark.parametrize("kind", ["prismatic", "weld"])
+def test_prismatic_and_weld_cut_joints_agree_with_the_oracle(kind, tmp_path):
+    traj, found = _findings(block_on_cut_joint(tmp_path, kind), dt=0.05)
+    assert traj.segments[0].constraint_labels == (["S.fn", "S.mz"] if kind == "prismatic" else ["S.fx", "S.fy", "S.mz"])
+    assert not found, _show(found)
