@@ -187,7 +187,7 @@ def _poly(coefficients, t, order=0):
 
 def _kind(what: str) -> str:
     """The kind of a comparison, without the configuration, joint or link it names."""
-    for kind in ("impulse P", "v_after", "constraint force", "kinetic energy rises beyond the drives' work", "kinetic energy rises",
+    for kind in ("without impulse", "impulse P", "v_after", "constraint force", "kinetic energy rises beyond the drives' work", "kinetic energy rises",
                  "momentum not conserved", "normal velocity after", "kinetic_energy_after", "kinetic_energy_before",
                  "without impact", "residual rate", "residual", "force element", "potential energy",
                  "kinetic energy", "omega of", "theta of", "x,y of", "jumps", "segments meet"):
@@ -580,7 +580,25 @@ class Oracle:
         if not drives:
             self.report(t, f"{a.configuration} -> {b.configuration}: kinetic energy rises at the switch", ke_a, ke_b,
                         ke_b - ke_a, tol.event * scale)
-        if not impact:  # a release, an unmerge, a switch without impulse: velocities continuous
+        dropped = {j: x for e in here for j, x in (e.get("dropped_velocities") or {}).items()}
+        if not impact and dropped:  # a switch without impulse (impact = False): the velocities it drops are named
+            _, ra = _coordinate_values(a, len(a.t) - 1)
+            _, rb = _coordinate_values(b, 0)
+            for j, x in ra.items():
+                what = f"{a.configuration} -> {b.configuration} without impulse: velocity of {j}"
+                if j in dropped:
+                    d = float(np.max(np.abs(np.atleast_1d(dropped[j]) - np.atleast_1d(x))))
+                    self.report(t, what + " dropped (the event's dropped_velocities)", dropped[j], x, d,
+                                tol.event * max(1.0, float(np.max(np.abs(np.atleast_1d(x))))))
+                elif j in rb:
+                    d = float(np.max(np.abs(np.atleast_1d(rb[j]) - np.atleast_1d(x))))
+                    self.report(t, what + " kept", x, rb[j], d,
+                                tol.event * max(1.0, float(np.max(np.abs(np.atleast_1d(x))))))
+                else:
+                    self.report(t, what + " dropped but not named in the event's dropped_velocities", 0.0, x,
+                                math.inf, 0.0)
+            return
+        if not impact:  # a release, an unmerge, a repartition: velocities continuous
             for l in links:
                 wa, wb = ja[l][2] @ va, Fb.jacobian(l)[1][2] @ vb
                 self.report(t, f"{a.configuration} -> {b.configuration} without impact: omega of {l} jumps",
