@@ -32,7 +32,7 @@ from __future__ import annotations
 import csv
 import math
 import xml.etree.ElementTree as ET
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -187,8 +187,8 @@ def _poly(coefficients, t, order=0):
 
 def _kind(what: str) -> str:
     """The kind of a comparison, without the configuration, joint or link it names."""
-    for kind in ("without impulse", "impulse P", "v_after", "constraint force", "kinetic energy rises beyond the drives' work", "kinetic energy rises",
-                 "momentum not conserved", "normal velocity after", "kinetic_energy_after", "kinetic_energy_before",
+    for kind in ("without impulse", "impulse P", "v_after", "constraint force",
+                 "kinetic energy rises beyond the drives' work", "kinetic energy rises", "momentum not conserved", "normal velocity after", "kinetic_energy_after", "kinetic_energy_before",
                  "without impact", "residual rate", "residual", "force element", "potential energy",
                  "kinetic energy", "omega of", "theta of", "x,y of", "jumps", "segments meet"):
         if kind in what:
@@ -204,9 +204,8 @@ class Oracle:
         self.tol = tol or Tolerances()
         self.findings: list[Finding] = []
         self._models: dict[str, Model] = {}
-        self.texts = {}  # configuration -> (URDF text of its free joints, locks it derives)
-        for name, spec in scene.configurations.items():
-            self.texts[name] = urdf_text(spec.urdf)  # a derived configuration's root URDF
+        # configuration -> its URDF's text (a derived configuration's: its root URDF, its locks as rows)
+        self.texts = {name: urdf_text(spec.urdf) for name, spec in scene.configurations.items()}
         self.counts: dict[str, int] = {}  # how many comparisons of each kind were made
 
     def model(self, text: str) -> Model:
@@ -306,7 +305,7 @@ class Oracle:
         # the force elements acting: the configuration's own, plus a held joint's own elements as the
         # configuration with that joint free has them (the lock carries them)
         forces = list(self.scene.forces_in(seg.configuration))
-        for lab, joints in held.items():
+        for joints in held.values():
             for name in self.scene.configurations:
                 if not joints <= self._free(name):
                     continue
@@ -385,7 +384,7 @@ class Oracle:
         pa, Ja = F.jacobian(cj.a, cj.point_a)
         pb, Jb = F.jacobian(cj.b, cj.point_b)
         acc_a, wa = F.acceleration_bias(cj.a, cj.point_a)
-        acc_b, wb = F.acceleration_bias(cj.b, cj.point_b)
+        acc_b, _ = F.acceleration_bias(cj.b, cj.point_b)
         ta, tb = F.pose(cj.a)[1], F.pose(cj.b)[1]
         rel = tb - ta
         phi, rows, bias = [], [], []
@@ -415,8 +414,8 @@ class Oracle:
             row = np.zeros(F.nv)
             row[F.vslice[contact.joint].start] = -contact.stop_sign
             return row, 0.0
-        pa, Ja = F.jacobian(contact.a, contact.point_a)
-        pb, Jb = F.jacobian(contact.b, contact.point_b)
+        _, Ja = F.jacobian(contact.a, contact.point_a)
+        _, Jb = F.jacobian(contact.b, contact.point_b)
         acc_a, wa = F.acceleration_bias(contact.a, contact.point_a)
         acc_b, _ = F.acceleration_bias(contact.b, contact.point_b)
         ta = F.pose(contact.a)[1]
@@ -545,7 +544,8 @@ class Oracle:
         M = np.triu(M) + np.triu(M, 1).T
         ke_a = 0.5 * va @ M @ va
         Fb, qb, vb = self.state(b, cb, 0)
-        ke_b = 0.5 * vb @ (lambda m: np.triu(m) + np.triu(m, 1).T)(pin.crba(Fb.model, Fb.data, qb)) @ vb
+        Mb = pin.crba(Fb.model, Fb.data, qb)
+        ke_b = 0.5 * vb @ (np.triu(Mb) + np.triu(Mb, 1).T) @ vb
         Fb.kinematics(qb, vb)
         for l in links:  # positions never jump
             (xa, tha), (xb, thb) = pos_a[l], Fb.pose(l)
@@ -608,7 +608,7 @@ class Oracle:
         # switch locks, the loops' and drives' rows), all in the source's coordinates at the same posture
         Fa.kinematics(qa, va)
         vplus = np.zeros(Fa.nv)
-        bvals, brates = _coordinate_values(b, 0)
+        _, brates = _coordinate_values(b, 0)
         for name, sl in Fa.vslice.items():
             if name in brates:
                 vplus[sl] = np.atleast_1d(brates[name])

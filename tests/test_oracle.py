@@ -11,16 +11,15 @@ from __future__ import annotations
 
 import math
 
+import builders
 import numpy as np
+import oracle
 import pinocchio as pin
 import pytest
+from builders import EXAMPLES
 
 import pcmm
 from pcmm.errors import SimulationError
-
-import builders
-import oracle
-from builders import EXAMPLES
 
 #: every shipped example: (t_end, dt of the resampled check), short where the run is long
 EXAMPLE_RUNS = {
@@ -108,7 +107,7 @@ BUILT = {
 
 @pytest.mark.parametrize("name", sorted(BUILT))
 def test_every_built_scene_agrees_with_the_oracle(name, tmp_path):
-    traj, found = _findings(BUILT[name](tmp_path), dt=0.01)
+    _, found = _findings(BUILT[name](tmp_path), dt=0.01)
     assert not found, _show(found)
 
 
@@ -467,7 +466,7 @@ def test_the_potential_energy_is_continuous_where_the_posture_is():
         assert b.potential[0] == pytest.approx(a.potential[-1], abs=1e-9), (a.configuration, b.configuration)
 
 
-def block_on_cut_joint(folder, kind, incline=math.radians(30), t_end=0.5):
+def block_on_cut_joint(folder, kind, incline=math.pi / 6, t_end=0.5):
     """A block on a URDF planar joint (x, y, theta) with a bar hung on it by the revolute R, held to
     the frame by a ``kind`` cut joint S at the block's origin: prismatic along an incline (the block
     slides, the bar swings: two degrees of freedom) or weld (the bar swings alone)."""
