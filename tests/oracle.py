@@ -809,3 +809,53 @@ def check_resampled_states(scene_path, t_end: float, dt: float, rel: float = 1e-
                 problems.append(f"segment {k} ({sa.configuration}) resampled {name} off by {err:.3g} at "
                                 f"t = {common[j]:.9g} s")
     return problems
+
+
+def check_records(traj, folder: Path, stats: bool = True) -> list[str]:
+    """The run's other records against its series: the CSV (one column per link quantity,
+    coordinate, force element, constraint row and energy; empty where a segment lacks the name) and
+    ``stats["holding"]`` (each hold's extremes over the recorded samples, and their times; not for a
+    resampled trajectory, which keeps the run's stats)."""
+    problems = []
+    header, rows = _csv_rows(traj.to_csv(folder / "records.csv"))
+    table = [r for t in sorted(rows) for r in rows[t]]
+    if len(table) != len(traj.t):
+        return [f"CSV has {len(table)} rows, the run {len(traj.t)} samples"]
+    order = np.argsort(traj.t, kind="stable")
+    expected = {"t": traj.t}
+    for link in traj.links:
+        xy = traj.series("xy", link)
+        expected.update({f"theta_{link}": traj.series("theta", link), f"omega_{link}": traj.series("omega", link),
+                         f"x_{link}": xy[:, 0], f"y_{link}": xy[:, 1]})
+    for c in dict.fromkeys(c for s in traj.segments for c in s.coordinates):
+        expected.update({f"q_{c}": traj.series("q", c), f"v_{c}": traj.series("v", c)})
+    for n in dict.fromkeys(n for s in traj.segments for n in s.force_names):
+        expected[f"force_{n}"] = traj.series("forces", n)
+    for n in dict.fromkeys(n for s in traj.segments for n in s.constraint_labels):
+        expected[f"constraint_{n}"] = traj.series("constraint_forces", n)
+    expected.update({"kinetic_energy": traj.series("kinetic"), "potential_energy": traj.series("potential")})
+    names = {h.rsplit(" [", 1)[0]: c for c, h in enumerate(header)}
+    missing = sorted(set(expected) - set(names))
+    if missing:
+        problems.append(f"CSV lacks columns {missing}")
+    for name, series in expected.items():
+        if name not in names:
+            continue
+        col = np.array([float(r[names[name]]) if r[names[name]] != "" else np.nan for r in table])
+        want = np.asarray(series, float)[order]
+        same = (np.isnan(col) & np.isnan(want)) | (col == want)
+        if not np.all(same):
+            i = int(np.flatnonzero(~same)[0])
+            problems.append(f"CSV column {name} at t = {traj.t[order][i]:.9g} s: "
+                            f"{col[i]!r}, the series {want[i]!r}")
+    config = [r[1] for r in table]
+    if config != [traj.configuration_at()[i] for i in order]:
+        problems.append("CSV configuration column differs from the segments'")
+    for label, ext in ((traj.stats.get("holding") or {}) if stats else {}).items():
+        series = traj.series("constraint_forces", label)
+        i_lo, i_hi = int(np.nanargmin(series)), int(np.nanargmax(series))
+        got = (ext["min"], ext["t_min"], ext["max"], ext["t_max"])
+        want = (series[i_lo], traj.t[i_lo], series[i_hi], traj.t[i_hi])
+        if not np.allclose(got, want, rtol=0, atol=0):
+            problems.append(f"stats holding {label}: {got}, the series' extremes {want}")
+    return problems

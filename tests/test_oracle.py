@@ -214,6 +214,17 @@ def test_a_switch_without_impulse_names_every_velocity_it_changes(name, t_end):
     assert not found, _show(found)
 
 
+@pytest.mark.parametrize("name, t_end", [("three_bar.toml", 0.3), ("three_bar_cycle.toml", 0.4),
+                                          ("three_bar_stop.toml", 0.5)])
+def test_the_csv_and_the_holding_stats_are_the_series(name, t_end, tmp_path):
+    """Every CSV column is its series, sample for sample (empty where a segment lacks the name), in
+    the run's steps and resampled at dt; stats["holding"] are the extremes of the hold series."""
+    traj = pcmm.simulate(pcmm.load_scene(EXAMPLES / name), pcmm.RunOptions(t_end=t_end))
+    problems = oracle.check_records(traj, tmp_path)
+    problems += oracle.check_records(traj.resampled(0.01), tmp_path, stats=False)
+    assert not problems, "\n".join(problems[:20])
+
+
 def test_the_oracle_sees_a_wrong_number(tmp_path):
     """The oracle can fail: one recorded holding moment, energy and pose changed by a little
     are each reported at their instant."""
@@ -229,6 +240,8 @@ def test_the_oracle_sees_a_wrong_number(tmp_path):
     assert "config2: constraint force O3.hold" in whats
     assert "config2: kinetic energy" in whats
     assert "config2: x,y of link2" in whats
+    traj.stats["holding"]["O3.hold"]["max"] += 1e-9
+    assert any(p.startswith("stats holding O3.hold") for p in oracle.check_records(traj, tmp_path))
     # the kinetic energy after the latch is the event record's too
     assert any(f.what.startswith("event 'O3 latches': kinetic_energy_after") for f in found)
     assert all(math.isclose(f.t, seg.t[3]) or math.isclose(f.t, seg.t[0]) or math.isclose(f.t, seg.t[-1])
