@@ -26,6 +26,7 @@ import numpy as np
 import pytest
 
 import pcmm
+import reference_rimless_wheel as rw
 import reference_rod_friction as rf
 from builders import free_bar_urdf, rot
 from pcmm.errors import SceneError, SimulationError
@@ -392,3 +393,37 @@ def test_point_mass_on_a_free_joint_is_refused(make_scene):
     path = make_scene({"f.urdf": urdf}, q0={"P": [0.0, 0.0, 0.0]}, v0={"P": [0.0, 0.0, 0.0]})
     with pytest.raises(pcmm.errors.ModelError, match=r"\['bar'\] are point masses on a free \(planar\) joint"):
         pcmm.simulate(pcmm.load_scene(path))
+
+
+def test_pinned_foot_lifts_off_when_its_normal_force_turns_tensile(tmp_path):
+    """A rimless wheel rolling too fast (2.9 rad/s after a strike): during the stance the ground's
+    normal force at the pinned foot, by hand F = m a - m g (the reference's stance_forces along its
+    stance ODE), reaches zero at phi_lift; a `release` whose reaction guard watches the foot's cut
+    joint frees it there into a configuration without it ("flight"): no impulse, the state
+    continuous (a cut joint is a joint)."""
+    from scipy.integrate import solve_ivp
+    W = rw.ISSUE
+    w0 = 2.9
+
+    def lift(t, y):
+        return W.stance_forces(y[0], y[1])[1]
+    lift.terminal, lift.direction = True, -1
+    sol = solve_ivp(W.rhs, (0, 2.0), [-W.alpha, w0], method="DOP853", rtol=1e-13, atol=1e-14, events=lift)
+    t_lift = float(sol.t_events[0][0])
+    phi_lift = float(sol.y_events[0][0][0])
+    assert -W.alpha < phi_lift < W.alpha
+
+    def edit(s):
+        s = s.replace('v = { hub = ["1.5*', f'v = {{ hub = ["{w0}*').replace('", "1.5*(', f'", "{w0}*(')
+        s = s.replace(", -1.5] }", f", -{w0}] }}").replace("t_end = 15.0", "t_end = 0.8")
+        s = s.replace("[initial]", '[configurations.flight]\nurdf = "rimless_wheel.urdf"\n\n[initial]')
+        return s + ('\n[[transitions]]\nname = "lift-off"\ntype = "release"\nfrom = "spoke0"\nto = "flight"\n'
+                    'guard = { type = "reaction", of = "foot0", value = 0.0, direction = "decreasing" }\n')
+    path = wheel_scene(tmp_path, edit)
+    traj = pcmm.simulate(pcmm.load_scene(path))
+    ev = traj.events[0]
+    assert ev["name"] == "lift-off" and ev["transition"] == "release" and ev["to"] == "flight"
+    assert ev["t"] == pytest.approx(t_lift, abs=1e-8)
+    assert ev["kinetic_energy_after"] == pytest.approx(ev["kinetic_energy_before"], rel=1e-12)
+    assert ev["omega_after"]["wheel"] == pytest.approx(-float(sol.y_events[0][0][1]), abs=1e-8)
+    assert traj.segments[-1].configuration == "flight"
