@@ -427,3 +427,26 @@ def test_pinned_foot_lifts_off_when_its_normal_force_turns_tensile(tmp_path):
     assert ev["kinetic_energy_after"] == pytest.approx(ev["kinetic_energy_before"], rel=1e-12)
     assert ev["omega_after"]["wheel"] == pytest.approx(-float(sol.y_events[0][0][1]), abs=1e-8)
     assert traj.segments[-1].configuration == "flight"
+
+
+def test_cut_accepts_a_loops_cut_joint(make_scene):
+    """`cut` may name a loop's cut joint (the chain's tip pinned on the floor): it is already a set
+    of rows of the cut system, so the impact is the same as without it, and the event reports its
+    impulse among the cut impulses (the same as its constraint impulse)."""
+    pin_joint = {"name": "tip", "type": "revolute", "a": "frame", "point_a": "entry", "b": "link3", "point_b": [LB, 0.0]}
+    results = {}
+    for c in ([], ["tip"]):
+        tr = {"name": "stop", "type": "stop", "from": "pinned", "restitution": 1.0, "cut": c,
+              "guard": {"type": "coordinate", "measure": {"joint": "J1"}, "value": Q3[0] - 0.05, "direction": "decreasing"},
+              "contact": {"joint": "J1"}}
+        path = make_scene({"chain.urdf": chain_urdf([Bar(LB, 1.0)] * 3)},
+                          configurations={"pinned": {"urdf": "chain.urdf", "cut_joints": [pin_joint]}},
+                          q0={"J1": Q3[0], "J2": Q3[1], "J3": Q3[2]}, v0={"J1": 0.0, "J2": 0.0, "J3": 0.0},
+                          independent=["J1"], t_end=0.3, transitions=[tr], solver={"rtol": 1e-11, "atol": 1e-12})
+        results[tuple(c)] = pcmm.simulate(pcmm.load_scene(path)).events[0]
+    plain, cut_tip = results[()], results[("tip",)]
+    assert plain["name"] == "stop" and plain["normal_velocity"]["before"] < 0
+    np.testing.assert_allclose(cut_tip["v_after"]["J1"], plain["v_after"]["J1"], atol=1e-13)
+    assert "tip" not in plain["cut_impulses"]
+    np.testing.assert_allclose(cut_tip["cut_impulses"]["tip"], plain["constraint_impulses"]["tip"], atol=1e-12)
+    assert np.linalg.norm(cut_tip["cut_impulses"]["tip"][:2]) > 0.01

@@ -796,6 +796,8 @@ class _Builder:
                 continue
             cfg = names[t.source]
             for j in t.cut:
+                if any(c.name == j for c in cfg.cut_joints):
+                    continue  # a loop's cut joint is already cut: its rows' impulse is what it carries
                 self._check_joint(f"{where}.cut", j, cfg)
             if t.guard.measure is not None:
                 self._check_measure(f"{where}.guard.measure", t.guard.measure, cfg)
