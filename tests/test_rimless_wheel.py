@@ -100,3 +100,26 @@ def test_energy_never_rises(run):
     _, strikes = run
     for ev in strikes:
         assert ev["energy_dissipated"] >= 0.0
+
+
+def test_first_strike_against_pinocchios_impulse_dynamics(run):
+    """The first strike against Pinocchio 4.1's ``impulseDynamics`` in its Jacobian form (e = 0,
+    no damping) with the new foot's two world rows: what design_24.md section 6 found to agree with
+    a KKT solve to round-off for bilateral plastic pins on a positive-definite M."""
+    import pinocchio as pin
+    traj, strikes = run
+    ev = strikes[0]
+    q = posture_at(traj, ev)
+    model = pin.buildModelFromXML((EXAMPLE.parents[1] / "urdf" / "rimless_wheel.urdf").read_text())
+    jid = model.getJointId("hub")
+    tip = rw.spoke_tip(W, 1)
+    fid = model.addFrame(pin.Frame("tip1", jid, 0, pin.SE3(np.eye(3), np.array([tip[0], tip[1], 0.0])),
+                                   pin.FrameType.OP_FRAME))
+    data = model.createData()
+    qp = np.array([q[0], q[1], math.cos(q[2]), math.sin(q[2])])
+    pin.computeJointJacobians(model, data, qp)
+    pin.updateFramePlacements(model, data)
+    J = pin.getFrameJacobian(model, data, fid, pin.ReferenceFrame.LOCAL_WORLD_ALIGNED)[:2]
+    v_before = np.asarray(ev["v_before"]["hub"])  # pcmm's planar velocity is Pinocchio's (body frame)
+    v_after = pin.impulseDynamics(model, data, qp, v_before, J, 0.0, 0.0)
+    np.testing.assert_allclose(ev["v_after"]["hub"], v_after, atol=1e-13)
