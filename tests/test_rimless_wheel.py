@@ -123,3 +123,20 @@ def test_first_strike_against_pinocchios_impulse_dynamics(run):
     v_before = np.asarray(ev["v_before"]["hub"])  # pcmm's planar velocity is Pinocchio's (body frame)
     v_after = pin.impulseDynamics(model, data, qp, v_before, J, 0.0, 0.0)
     np.testing.assert_allclose(ev["v_after"]["hub"], v_after, atol=1e-13)
+
+
+def test_check_walks_every_strike_without_warnings():
+    """`pcmm check` enters each spoke's configuration at the previous strike's posture (its foot
+    anchored where it strikes) and finds the next strike's posture there: six guard postures, each
+    with the next tip on the slope and the wheel turned by pi/3 per strike (before the fix, the
+    posture solve took the planar joint's body-frame velocity columns for dPhi/dq and diverged,
+    and the anchors of a checked configuration were never set: a warning on 'strike 2')."""
+    from pcmm.run.checks import check_scene
+    report = check_scene(pcmm.load_scene(EXAMPLE))
+    assert not report.problems and not report.warnings
+    assert len(report.postures) == 6
+    for k in range(1, 7):
+        q = report.postures[f"strike {k}"]
+        tip = q[:2] + rot(q[2]) @ rw.spoke_tip(W, k % 6)
+        assert tip[1] == pytest.approx(0.0, abs=1e-12)
+        assert q[2] == pytest.approx(math.pi / 6 - k * math.pi / 3, abs=1e-9)

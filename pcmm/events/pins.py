@@ -71,6 +71,15 @@ def closed_unilateral(cfg: Configuration, dst: Configuration):
     return out
 
 
+def anchor_where_entered(dst: Configuration, q: np.ndarray) -> dict[str, np.ndarray]:
+    """Anchor every cut joint of ``dst`` anchored at entry where b's point is at ``q`` (what a pin
+    into ``dst`` does; for checks that enter ``dst`` at a guard's posture)."""
+    if not getattr(dst.coords, "constrained", False) or not dst.coords.closure.anchored:
+        return {}
+    dst.kinematics(q)
+    return dst.coords.closure.set_anchors(dst.data)
+
+
 def impact_with_rows(M: np.ndarray, name: str, v: np.ndarray, A: np.ndarray, b: np.ndarray):
     """(v+, lam) of ``M (v+ - v-) = A^T lam``, ``A v+ = b`` (the Schur complement; a redundant set
     of rows gets the minimum-norm multipliers, the velocity is unique either way)."""
