@@ -272,19 +272,21 @@ def test_pin_impulse_is_the_projection_onto_the_pinned_motion(make_scene):
         np.testing.assert_allclose(chain_tip(qk), ev["anchor"]["tip"], atol=1e-9)
 
 
-def knee_strike(make_scene, bar3: Bar, v1: float):
+def knee_strike(make_scene, bar3: Bar, v1: float, floor: float = 0.0):
     """The chain's tip already pinned on the floor (held by compression only: its cut joint has a
-    contact normal); its knee (link 3's origin) strikes the line y = 0 and is pinned there; the
-    target holds the knee only."""
-    def joint(name, point_b):
-        return {"name": name, "type": "revolute", "a": "frame", "point_a": "entry", "b": "link3",
-                "point_b": point_b, "contact": {"normal": [0.0, 1.0]}}
+    contact normal); its knee (link 3's origin) strikes the line y = floor and is pinned there
+    (bilaterally); the target holds the knee only."""
+    def joint(name, point_b, unilateral=True):
+        out = {"name": name, "type": "revolute", "a": "frame", "point_a": "entry", "b": "link3", "point_b": point_b}
+        if unilateral:
+            out["contact"] = {"normal": [0.0, 1.0]}
+        return out
     tr = {"name": "knee strike", "type": "pin", "from": "A", "to": "B",
           "guard": {"type": "gap", "value": 0.0, "direction": "decreasing"},
-          "contact": {"a": "frame", "point_a": [0.0, 0.0], "b": "link3", "point_b": [0.0, 0.0], "normal": [0.0, 1.0]}}
+          "contact": {"a": "frame", "point_a": [0.0, floor], "b": "link3", "point_b": [0.0, 0.0], "normal": [0.0, 1.0]}}
     urdf = chain_urdf([Bar(LB, 0.2), Bar(LB, 0.2), bar3])
     return make_scene({"c.urdf": urdf}, configurations={"A": {"urdf": "c.urdf", "cut_joints": [joint("tip", [LB, 0.0])]},
-                                                        "B": {"urdf": "c.urdf", "cut_joints": [joint("knee", [0.0, 0.0])]}},
+                                                        "B": {"urdf": "c.urdf", "cut_joints": [joint("knee", [0.0, 0.0], False)]}},
                       q0={"J1": -0.3, "J2": 1.2, "J3": -1.8}, v0={"J1": v1, "J2": 0.0, "J3": 0.0}, independent=["J1"],
                       t_end=0.6, transitions=[tr], solver={"rtol": 1e-11, "atol": 1e-12}), urdf
 
@@ -308,12 +310,15 @@ def two_active_sets(urdf, q, vm):
     return v_rel, float(J_tip[1] @ v_rel), float(lam[2])
 
 
-@pytest.mark.parametrize("v1", [-1.5, 0.0, 3.0])
+KNEE_Y0 = 0.24390335148307188  # the knee's height at the start; it strikes the line 0.03 m below
+
+
+@pytest.mark.parametrize("v1", [-3.0, -1.5, 1.5])
 def test_old_contact_released_because_the_new_pin_separates_it(make_scene, v1):
     """Link 3's mass outside the segment between its two ends (centroid 0.1 m behind the knee):
     the knee's pin makes the tip rise, and holding the tip would need a tensile impulse, so the
     complementarity problem's only solution releases it, with no impulse (design_24.md 2.3)."""
-    path, urdf = knee_strike(make_scene, Bar(LB, 5.0, com=(-0.1, 0.0), izz=0.01), v1)
+    path, urdf = knee_strike(make_scene, Bar(LB, 5.0, com=(-0.1, 0.0), izz=0.01), v1, floor=KNEE_Y0 - 0.03)
     traj = pcmm.simulate(pcmm.load_scene(path))
     ev = traj.events[0]
     q = np.asarray(traj.segments[0].q[-1])
@@ -331,7 +336,7 @@ def test_old_contact_that_stays_closed_needs_a_target_holding_it(make_scene):
     """A uniform link 3: pinned at its knee it would turn the other way (its angular momentum about
     the knee, -omega m L^2 / 6 before, changes sign), pushing the tip into the floor: the tip stays,
     by hand its held impulse is compressive, and the scene's target (knee only) is refused by name."""
-    path, urdf = knee_strike(make_scene, Bar(LB, 5.0), 0.0)
+    path, urdf = knee_strike(make_scene, Bar(LB, 5.0), -1.5, floor=KNEE_Y0 - 0.03)
     with pytest.raises(SimulationError, match=r"\['tip'\] stay closed through the strike.*'B' does not hold them"):
         pcmm.simulate(pcmm.load_scene(path))
 
@@ -450,3 +455,35 @@ def test_cut_accepts_a_loops_cut_joint(make_scene):
     assert "tip" not in plain["cut_impulses"]
     np.testing.assert_allclose(cut_tip["cut_impulses"]["tip"], plain["constraint_impulses"]["tip"], atol=1e-12)
     assert np.linalg.norm(cut_tip["cut_impulses"]["tip"][:2]) > 0.01
+
+
+def test_stance_outside_the_cone_or_tensile_stops_the_run(tmp_path):
+    """The wheel's stance needs mu >= 0.5525 at its start (the reference's stance forces, F = m a
+    - m g), more than the strike's 0.5413: with mu = 0.545 on the cut joints the first strike
+    passes and the stance that begins is refused.  Rolling at 2.9 rad/s without a release in the
+    scene, the foot's normal force turns tensile mid-stance: the run stops there, saying so, at
+    the reference's lift-off time."""
+    from scipy.integrate import solve_ivp
+    W = rw.ISSUE
+    Ft, Fn = W.stance_forces(-W.alpha, W.strikes(1.5, 1)[0][2])
+    assert 0.545 < abs(Ft) / Fn  # by hand at strike 1's omega+: the stance starts outside mu = 0.545
+    path = wheel_scene(tmp_path, lambda s: s.replace('contact = { normal = [0.0, 1.0], friction = "stick" } }',
+                                                     'contact = { normal = [0.0, 1.0], friction = 0.545 } }'))
+    with pytest.raises(SimulationError, match=r"strike 1'.*right after the strike the point held by 'foot1' would "
+                                              r"slip.*friction >= 0.55"):
+        pcmm.simulate(pcmm.load_scene(path))
+    w0 = 2.9
+
+    def lift(t, y):
+        return W.stance_forces(y[0], y[1])[1]
+    lift.terminal, lift.direction = True, -1
+    sol = solve_ivp(W.rhs, (0, 2.0), [-W.alpha, w0], method="DOP853", rtol=1e-13, atol=1e-14, events=lift)
+    t_lift = float(sol.t_events[0][0])
+
+    def fast(s):
+        s = s.replace('v = { hub = ["1.5*', f'v = {{ hub = ["{w0}*').replace('", "1.5*(', f'", "{w0}*(')
+        return s.replace(", -1.5] }", f", -{w0}] }}")
+    with pytest.raises(SimulationError, match=r"foot0' would lift off.*add a release") as err:
+        pcmm.simulate(pcmm.load_scene(wheel_scene(tmp_path, fast)))
+    import re
+    assert float(re.search(r"t = ([0-9.]+) s", str(err.value)).group(1)) == pytest.approx(t_lift, abs=1e-8)

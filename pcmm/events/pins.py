@@ -170,6 +170,19 @@ def pin_strike(ctx, cfg: Configuration, tr: PinSpec, t, q, v):
         raise SimulationError(f"{where}: the state after the strike does not fit '{tr.target}' (velocity off by "
                               f"{np.max(np.abs(v_new - v_plus)):.3g}, posture by {np.max(np.abs(q_new - q)):.3g}): "
                               "its other constraints are not those of the source")
+    # the stance that begins now: each point held by compression only must push, inside its cone
+    # (the guards of the stance watch it from here on: PartitionedCoordinates.contact_guards)
+    for name, (Fn, Ft) in dst.coords.contact_forces(t, q_new, v_new).items():
+        spec = next(s for s in dst.spec.cut_joints if s.name == name)
+        scale_F = max(abs(Fn), abs(Ft), 1e-300)
+        if Fn < -1e-12 * scale_F:
+            raise SimulationError(f"{where}: right after the strike the point held by '{name}' would be pulled "
+                                  f"(normal force {Fn:.6g} N): it lifts off at once, which '{tr.target}' cannot hold")
+        if spec.friction is not None and math.isfinite(spec.friction) and abs(Ft) > spec.friction * Fn * (1 + 1e-12):
+            raise SimulationError(f"{where}: right after the strike the point held by '{name}' would slip: its "
+                                  f"force needs friction >= {abs(Ft) / Fn:.6g} (|F_t| / F_n, F_t = {Ft:.6g}, "
+                                  f"F_n = {Fn:.6g} N) and the cut joint has mu = {spec.friction:g}; pcmm models no "
+                                  "sliding contact")
     by_label = {lab: float(x) for lab, x in zip(labels, lam[:len(labels)])}
     ke0, ke1 = float(0.5 * v @ M @ v), float(0.5 * v_plus @ M @ v_plus)
     imp = Impulse(kind="stable", restitution=0.0, normal=n, P=P_n, vn_before=vn, vn_after=float(Jn @ v_plus),
