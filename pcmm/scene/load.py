@@ -5,11 +5,14 @@ scene resolve relative to the scene file.  :func:`load_scene` validates the
 whole file and every URDF it names before anything is simulated, and reports
 every problem at once (:class:`~pcmm.errors.SceneError`).
 
-The format is documented in the README ("Scene format").
+The format is documented in docs/scene_format.md, whose key tables are generated from the
+``*_KEYS`` tables below.
 """
 from __future__ import annotations
 
 import math
+import re
+import sys
 import tomllib
 from pathlib import Path
 
@@ -230,10 +233,45 @@ def load_scene(path: str | Path) -> Scene:
         raise SceneError(f"{path}: not valid TOML: {exc}") from None
     except RecursionError:
         raise SceneError(f"{path}: not valid TOML for a scene: arrays or tables nested too deeply") from None
-    except ValueError as exc:  # an integer of more than 4300 digits
-        raise SceneError(f"{path}: not valid TOML for a scene: {exc}") from None
+    except ValueError as exc:  # an integer of more than 4300 digits: Python's int limit
+        raise SceneError(f"{path}: {_huge_integer(text) or f'not valid TOML for a scene: {exc}'}") from None
     S.check_plain(raw, str(path))
     return load_scene_data(raw, path)
+
+
+_LONG_DIGITS = re.compile(r"(?<![\w.])[+-]?\d[\d_]{300,}")
+_HEADER = re.compile(r"^\s*(\[\[?)\s*([^\]]+?)\s*\]\]?\s*(?:#.*)?$")
+_KEY = re.compile(r"([A-Za-z0-9_\-]+|\"[^\"]*\"|'[^']*')\s*=")
+
+
+def _huge_integer(text: str) -> str | None:
+    """Where a scene holds an integer literal longer than Python's int conversion takes (tomllib
+    refuses it with advice about ``sys.set_int_max_str_digits``, which is no help): 'line N:
+    table.key: = an integer of 5000 digits: ...', the table and key found in the text."""
+    limit = getattr(sys, "get_int_max_str_digits", lambda: 4300)() or math.inf
+    m = next((m for m in _LONG_DIGITS.finditer(text) if len(m.group().lstrip("+-").replace("_", "")) > limit),
+             None)
+    if m is None:
+        return None
+    lines = text[:m.start()].split("\n")
+    key, table, counts = None, "", {}
+    for line in lines:
+        h = _HEADER.match(line)
+        if h:
+            name = h.group(2).replace(" ", "")
+            if h.group(1) == "[[":
+                counts[name] = counts.get(name, -1) + 1
+                table, key = f"{name}[{counts[name]}]", None
+            else:
+                table, key = name, None
+            continue
+        keys = _KEY.findall(line.split("#")[0])
+        if keys:
+            key = keys[-1].strip("\"'")  # the literal's own line: the key just before it
+    field = ".".join(x for x in (table, key) if x) or "a value"
+    digits = m.group().lstrip("+-").replace("_", "")
+    return (f"line {len(lines)}: {field}: = an integer of {len(digits)} digits: beyond the range of a "
+            "floating-point number (about 1.8e308)")  # the words of the schema's check of shorter ones
 
 
 def with_values(scene: Scene, values) -> Scene:

@@ -25,7 +25,7 @@ class Key:
 
     ``kind`` is one of ``"str" "number" "int" "bool" "table" "list"``;
     ``check`` returns a problem text (without location) or ``None``.
-    ``default`` is used only when ``required`` is false; the README documents it.
+    ``default`` is used only when ``required`` is false; docs/scene_format.md documents it (generated).
     """
 
     name: str
