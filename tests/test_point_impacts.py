@@ -265,6 +265,15 @@ def test_pin_impulse_is_the_projection_onto_the_pinned_motion(make_scene):
     assert ev["impulse"]["tangential"] == pytest.approx(P[0], abs=1e-11)
     np.testing.assert_allclose(ev["anchor"]["tip"], [chain_tip(q)[0], floor], atol=1e-9)
     assert ev["kinetic_energy_after"] < ev["kinetic_energy_before"]
+    # the split of the loss: P_i (v_i- + v_i+) / 2 per part, with the tip's velocity by hand (J v)
+    vt0, vn0 = J @ vm
+    fr = ev["friction"]
+    assert fr["slip"]["before"] == pytest.approx(vt0, abs=1e-12) and abs(vt0) > 0.1
+    assert fr["slip"]["after"] == pytest.approx(0.0, abs=1e-12)
+    assert fr["energy_lost"]["tangential"] == pytest.approx(-0.5 * P[0] * vt0, abs=1e-11)
+    assert fr["energy_lost"]["normal"] == pytest.approx(-0.5 * P[1] * vn0, abs=1e-11)
+    assert fr["energy_lost"]["normal"] + fr["energy_lost"]["tangential"] == pytest.approx(
+        ev["kinetic_energy_before"] - ev["kinetic_energy_after"], abs=1e-12)
     # the run goes on pinned: the tip stays at the anchor
     last = traj.segments[-1]
     assert last.configuration == "pinned" and len(last.t) > 3

@@ -96,10 +96,23 @@ def test_angular_momentum_about_the_new_foot_and_the_old_foot_leaving(run):
         assert np.max(np.abs(dL)) < 1e-12 and abs(dH) < 1e-12
 
 
-def test_energy_never_rises(run):
+def test_energy_never_rises_and_its_split(run):
+    """The energy lost to the strike's normal and tangential parts (each P_i (v_i- + v_i+) / 2, the
+    relative velocity linear along the impulse) sums to KE- - KE+.  By hand, the striking tip does not
+    slip before the strike either: the wheel turns about the old foot, and the new tip lies along the
+    slope from it, so its velocity omega z x (2 l sin alpha, 0) is normal to the slope; the whole
+    loss is the normal part's, KE- (1 - r^2)."""
     _, strikes = run
     for ev in strikes:
         assert ev["energy_dissipated"] >= 0.0
+        fr = ev["friction"]
+        assert fr["energy_lost"]["normal"] + fr["energy_lost"]["tangential"] == pytest.approx(
+            ev["kinetic_energy_before"] - ev["kinetic_energy_after"], abs=1e-12)
+        assert fr["slip"]["after"] == pytest.approx(0.0, abs=1e-12)
+        assert fr["slip"]["before"] == pytest.approx(0.0, abs=1e-12)
+        assert fr["energy_lost"]["tangential"] == pytest.approx(0.0, abs=1e-12)
+        r = 0.55 / 1.05
+        assert fr["energy_lost"]["normal"] == pytest.approx(ev["kinetic_energy_before"] * (1 - r * r), rel=1e-9)
 
 
 def test_first_strike_against_pinocchios_impulse_dynamics(run):

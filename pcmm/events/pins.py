@@ -57,6 +57,13 @@ def _rows_of(cfg: Configuration, spec, k: int):
     return n / np.linalg.norm(n), Jb - Ja
 
 
+def _point_rows(cfg: Configuration, q, contact) -> np.ndarray:
+    """J_b - J_a (2 x nv, world x, y) of the contact's two points at ``q``."""
+    cfg.kinematics(q)
+    pa, pb = cfg.point(contact.a, contact.point_a), cfg.point(contact.b, contact.point_b)
+    return cfg.point_jacobian(pb) - cfg.point_jacobian(pa)
+
+
 def closed_unilateral(cfg: Configuration, dst: Configuration):
     """The source's cut joints held by compression only that the target does not have:
     [(spec, world normal, normal row)] at the current kinematics of ``cfg``."""
@@ -202,6 +209,16 @@ def pin_strike(ctx, cfg: Configuration, tr: PinSpec, t, q, v):
     record["impulse"]["tangential"] = P_t
     record["impulse"]["vector"] = [float(F[0]), float(F[1])]
     record["anchor"] = {name: [float(x) for x in A] for name, A in anchors.items()}
+    # the strike's two parts, as for a frictional impact (pcmm.events.records.friction_record): the
+    # relative velocity of b's point is linear along the proportional path from 0 to the impulse, so
+    # each part's work is P_i (v_i- + v_i+) / 2, exactly
+    J_rel = np.vstack([tang @ _point_rows(cfg, q, tr.contact), Jn])
+    (vt0, vn0), (vt1, vn1) = J_rel @ v, J_rel @ v_plus
+    record["friction"] = {"mu": "stick" if mu is None or math.isinf(mu) else mu, "law": "pin", "phases": "stick",
+                          "impulse": {"normal": P_n, "tangential": P_t},
+                          "slip": {"before": float(vt0), "after": float(vt1)},
+                          "energy_lost": {"normal": -0.5 * P_n * float(vn0 + vn1),
+                                          "tangential": -0.5 * P_t * float(vt0 + vt1)}}
     released = {}
     for (s, nu, row) in unilateral:
         released[s.name] = {"normal_velocity_after": float(row @ v_plus), "impulse": 0.0}
