@@ -496,3 +496,24 @@ def test_stance_outside_the_cone_or_tensile_stops_the_run(tmp_path):
         pcmm.simulate(pcmm.load_scene(wheel_scene(tmp_path, fast)))
     import re
     assert float(re.search(r"t = ([0-9.]+) s", str(err.value)).group(1)) == pytest.approx(t_lift, abs=1e-8)
+
+
+def test_redundant_rows_give_the_unique_velocity_and_say_so():
+    """A free planar body (m = 2, I = 0.3; v = (vx, vy, w) of its centre) pinned at two points:
+    four rows of rank 3, so v+ = 0 exactly and the split is flagged; one pin: two rows, by hand
+    v+ keeps the angular momentum about the pin, I_pin w+ = I w + m (r x v), r = centre - pin."""
+    from pcmm.events.pins import impact_with_rows
+    m, I = 2.0, 0.3
+    M = np.diag([m, m, I])
+    v = np.array([0.4, -1.1, 2.5])
+
+    def rows(p):  # the velocity of the body point at p (from the centre): (vx - w p_y, vy + w p_x)
+        return np.array([[1.0, 0.0, -p[1]], [0.0, 1.0, p[0]]])
+    v2, lam2, red2 = impact_with_rows(M, "body", v, np.vstack([rows((0.5, 0.0)), rows((-0.3, 0.2))]), np.zeros(4))
+    assert red2 and np.allclose(v2, 0.0, atol=1e-14)
+    p = np.array([0.5, 0.0])
+    v1, lam1, red1 = impact_with_rows(M, "body", v, rows(p), np.zeros(2))
+    r = -p
+    H = I * v[2] + m * (r[0] * v[1] - r[1] * v[0])
+    assert not red1 and v1[2] == pytest.approx(H / (I + m * r @ r), abs=1e-14)
+    np.testing.assert_allclose(rows(p) @ v1, 0.0, atol=1e-14)

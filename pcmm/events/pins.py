@@ -88,14 +88,15 @@ def anchor_where_entered(dst: Configuration, q: np.ndarray) -> dict[str, np.ndar
 
 
 def impact_with_rows(M: np.ndarray, name: str, v: np.ndarray, A: np.ndarray, b: np.ndarray):
-    """(v+, lam) of ``M (v+ - v-) = A^T lam``, ``A v+ = b`` (the Schur complement; a redundant set
-    of rows gets the minimum-norm multipliers, the velocity is unique either way)."""
+    """(v+, lam, redundant) of ``M (v+ - v-) = A^T lam``, ``A v+ = b`` (the Schur complement; a
+    redundant set of rows gets the minimum-norm multipliers, the velocity is unique either way, and
+    ``redundant`` says the split of the impulse among the rows is not)."""
     W = sla.cho_solve(cholesky(M, name), np.eye(M.shape[0]))
     if A.shape[0] == 0:
         return v.copy(), np.zeros(0)
     S = A @ W @ A.T
-    lam = np.linalg.lstsq(S, b - A @ v, rcond=1e-13)[0]
-    return v + W @ A.T @ lam, lam
+    lam, _, rank, _ = np.linalg.lstsq(S, b - A @ v, rcond=1e-13)
+    return v + W @ A.T @ lam, lam, rank < A.shape[0]
 
 
 def pin_strike(ctx, cfg: Configuration, tr: PinSpec, t, q, v):
@@ -137,7 +138,7 @@ def pin_strike(ctx, cfg: Configuration, tr: PinSpec, t, q, v):
         rows = [u[2] for u, h in zip(unilateral, held) if h]
         A = np.vstack([A_dst] + [r[None, :] for r in rows]) if rows else A_dst
         b = np.concatenate([b_dst, np.zeros(len(rows))])
-        v_plus, lam = impact_with_rows(M, cfg.name, v, A, b)
+        v_plus, lam, redundant = impact_with_rows(M, cfg.name, v, A, b)
         lam_u = iter(lam[A_dst.shape[0]:])
         text, ok = [], True
         for (s, _, row), h in zip(unilateral, held):
@@ -153,13 +154,13 @@ def pin_strike(ctx, cfg: Configuration, tr: PinSpec, t, q, v):
         ok &= float(n @ F) >= -SIGN_TOL * scale
         tried.append("; ".join(text + [f"the new pin's normal impulse {float(n @ F):.6g} N s"]))
         if ok:
-            solutions.append((held, v_plus, lam))
+            solutions.append((held, v_plus, lam, redundant))
     if len(solutions) != 1:
         raise SimulationError(
             [f"{where}: the strike with the closed contacts {[u[0].name for u in unilateral]} has "
              f"{'no' if not solutions else len(solutions)} consistent outcome(s) (a rigid-body impact that is "
              f"{'inconsistent' if not solutions else 'ambiguous'} here); the active sets tried:"] + tried)
-    held, v_plus, lam = solutions[0]
+    held, v_plus, lam, redundant = solutions[0]
     stays = [u[0].name for u, h in zip(unilateral, held) if h]
     if stays:
         raise SimulationError(f"{where}: the contact(s) {stays} stay closed through the strike (their impulse is "
@@ -223,4 +224,9 @@ def pin_strike(ctx, cfg: Configuration, tr: PinSpec, t, q, v):
     for (s, nu, row) in unilateral:
         released[s.name] = {"normal_velocity_after": float(row @ v_plus), "impulse": 0.0}
     record["released"] = released
+    if redundant:
+        record.setdefault("warnings", []).append(
+            f"{where}: the constraints of '{tr.target}' at the strike are redundant (two points pinned on one "
+            "rigid body, say): the velocity after is unique, but how the impulse splits among the cut joints is "
+            "not; the minimum-norm split is reported")
     return tr.target, q_new, v_new, record
