@@ -153,3 +153,18 @@ def test_check_walks_every_strike_without_warnings():
         tip = q[:2] + rot(q[2]) @ rw.spoke_tip(W, k % 6)
         assert tip[1] == pytest.approx(0.0, abs=1e-12)
         assert q[2] == pytest.approx(math.pi / 6 - k * math.pi / 3, abs=1e-9)
+
+
+def test_the_drawing_shows_each_pinned_foot_where_it_struck(run):
+    """The 2D drawing (pcmm replay --video, pcmm.viz.sketch) draws a cut joint anchored at entry as
+    a grounded pin at the anchor of each stay, shown during that stay only: at the middle of every
+    stance exactly one pin, at the event's recorded anchor (the start's: spoke 0's tip, the origin)."""
+    from pcmm.viz import sketch as sk
+    traj, strikes = run
+    syms = sk.symbols(traj)
+    starts = [0.0] + [e["t"] for e in strikes] + [float(traj.t[-1])]
+    anchors = [[0.0, 0.0]] + [next(iter(e["anchor"].values())) for e in strikes]
+    for (a, b), anchor in zip(zip(starts, starts[1:]), anchors):
+        shown = [p for p in sk.world(traj, syms, 0.5 * (a + b)) if p.symbol.kind == "cut"]
+        assert len(shown) == 1
+        np.testing.assert_allclose(shown[0].xy, anchor, atol=1e-9)
