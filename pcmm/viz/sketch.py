@@ -245,6 +245,9 @@ def plate_text(ev: dict, count: int = 1, first: dict | None = None) -> str:
         return f"release ({why})"
     if ev.get("transition") == "latch":
         return "latch: impact + merge"
+    if ev.get("transition") == "pin":  # a struck point pinned where it lands (and what it released)
+        freed = ", ".join(ev.get("released") or {})
+        return "pin: impact, point pinned" + (f", {freed} lifts off" if freed else "")
     if count > 1:
         tail = ", merge" if ev.get("merge") else ""
         return f"macro-impact ×{count}, {ev.get('kind', 'impact')}, e = {e:g}{tail}" if e is not None else \
