@@ -168,3 +168,4 @@ def test_the_drawing_shows_each_pinned_foot_where_it_struck(run):
         shown = [p for p in sk.world(traj, syms, 0.5 * (a + b)) if p.symbol.kind == "cut"]
         assert len(shown) == 1
         np.testing.assert_allclose(shown[0].xy, anchor, atol=1e-9)
+    assert sk.plate_text(strikes[0]) == "pin: impact, point pinned, foot0 lifts off"
