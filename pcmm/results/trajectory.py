@@ -587,7 +587,8 @@ def _configuration_view(c) -> dict:
     the joints a derived configuration locks (its recorded URDF is the root one, where they move)."""
     view = _view(c.urdf)
     view["cut_joints"] = [{"name": j.name, "type": j.type, "a": j.a, "point_a": list(j.point_a), "b": j.b,
-                           "point_b": list(j.point_b), "axis": list(j.axis) if j.axis else None}
+                           "point_b": list(j.point_b), "axis": list(j.axis) if j.axis else None,
+                           "anchor_at_entry": bool(getattr(j, "anchor_at_entry", False))}
                           for j in getattr(c, "cut_joints", ())]
     derivation = getattr(c, "derivation", None)
     view["locked"] = list(derivation.lock) if derivation is not None else []
