@@ -131,6 +131,11 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("--html", type=Path, help="write a self-contained offline page instead of serving")
     rp.add_argument("--fps", type=_fps, default=60.0,
                     help=f"frames per second (default 60, at most {MAX_FPS:g})")
+    rp.add_argument("--layout", choices=("overlay", "side"), default="overlay",
+                    help="several runs: overlaid, the second a faint ghost (default), or side by side")
+    rp.add_argument("--view", choices=("run", "follow", "configuration"), default="run",
+                    help="the page's view: fitted to the whole run (default), to each configuration's stay, or "
+                         "following the mechanism, with the swept envelope traced faintly")
     rp.add_argument("--video", type=Path, help="write a video (.mp4 through ffmpeg, or .gif) of the 2D drawing instead "
                     "of serving")
     rp.add_argument("--speed", type=_positive("speed"), default=1.0,
@@ -649,11 +654,12 @@ def cmd_replay(args) -> int:
     if args.html:
         _check_outputs([("--html", args.html)], args.force)
         from .viz.replay import html_page
-        atomic_write_text(args.html, html_page(traj, fps=args.fps, others=others), args.force)
+        atomic_write_text(args.html, html_page(traj, fps=args.fps, others=others, layout=args.layout,
+                                               view=args.view), args.force)
         say(f"replay page: {args.html}")
         return 0
     from .viz.replay import serve
-    serve(traj, fps=args.fps, others=others)
+    serve(traj, fps=args.fps, others=others, layout=args.layout, view=args.view)
     return 0
 
 

@@ -22,6 +22,7 @@ import pytest
 
 import pcmm
 from pcmm.viz import replay
+from pcmm.viz import sketch as sk
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENE = ROOT / "examples" / "three_bar.toml"
@@ -396,10 +397,16 @@ def test_merge_and_release_are_shown(runs, tmp_path):
     kinds = [m[0] for m in _MARKER.findall(html)]
     assert kinds == ["merge", "release"]
     clips = clips_of(decode_commands(html))
-    for i, t in enumerate((traj.events[0]["t"], 0.3)):
-        vis = clips[f"/meshcat/pcmm/events/{i}"]["visible"]
+    for i, t in enumerate((traj.events[0]["t"], 0.3)):  # each event's plate, from its own frame on
+        vis = clips[f"/meshcat/pcmm/plates/{i}/fade0"]["visible"]
         key = t * FPS
         assert value_at(vis, key) is True and value_at(vis, key - 1e-6) is False
+        n = len(replay._FADE)  # it fades in n steps over PLATE_S: step j shows in the j-th n-th of it
+        for j in range(n):
+            mid = t + (j + 0.5) * sk.PLATE_S / n
+            if mid < T_END:
+                steps = [value_at(clips[f"/meshcat/pcmm/plates/{i}/fade{k}"]["visible"], mid * FPS) for k in range(n)]
+                assert steps == [k == j for k in range(n)], (i, j, steps)
     assert "/meshcat/pcmm/arrows/1" not in clips, "a release carries no impulse arrow"
 
 
@@ -738,7 +745,8 @@ def test_browser_shows_the_impulse_arrow_and_the_time_at_the_impact(runs, page, 
     # the time readout: the DOM says the instant, and the readout's pixels differ from 30 ms before
     m = re.search(r'<span id="pcmm-time">([^<]*)</span>', dom)
     assert m and m.group(1) == f"t = {t:.6f} s", (m and m.group(1), dom[-500:])
-    assert f"last event: {replay.event_kind(ev)} &#x27;" in dom or f"last event: {replay.event_kind(ev)} '" in dom
+    said = f"last event: {sk.plate_text(ev)}: "  # what it was, in words ("latch: impact + merge")
+    assert said + "&#x27;" in dom or said + "'" in dom, said
     # the link angles the readout gives are the run's own at the event (the segment that starts there)
     angles = re.search(r'<div id="pcmm-angles">([^<]*)</div>', dom).group(1)
     seg = next(s for s in traj.segments if s.t[0] == t)
