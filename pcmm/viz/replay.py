@@ -432,7 +432,8 @@ def view_box(traj: RecordedRun, visuals: dict[str, dict[str, list[Visual]]], fps
     return fitted_view([traj], [visuals], frame_times(traj, fps))
 
 
-def _label_png(text: str, fill=(255, 244, 204), ink=(20, 20, 20), outline=(120, 100, 40)) -> tuple[bytes, float]:
+def _label_png(text: str, fill=(255, 244, 204), ink=(20, 20, 20), outline=(120, 100, 40),
+               border: int = 3) -> tuple[bytes, float]:
     """A PNG plate with ``text``; returns (bytes, width / height)."""
     from PIL import Image, ImageDraw, ImageFont
     try:
@@ -446,7 +447,7 @@ def _label_png(text: str, fill=(255, 244, 204), ink=(20, 20, 20), outline=(120, 
     img = Image.new("RGB", (w, h), fill)
     draw = ImageDraw.Draw(img)
     if outline is not None:
-        draw.rectangle([0, 0, w - 1, h - 1], outline=outline, width=3)
+        draw.rectangle([0, 0, w - 1, h - 1], outline=outline, width=border)
     draw.text((pad - x0, pad - y0), text, fill=ink, font=font)
     buf = io.BytesIO()
     img.save(buf, format="PNG")
@@ -618,6 +619,8 @@ class _TopCamera:
 #: The symbols' heights above the links (z, m): later ones drawn over earlier ones.
 _SYMBOL_Z = {"ground": 0.40, "guide": 0.40, "stop": 0.41, "pivot": 0.42, "slider": 0.43, "revolute": 0.44,
              "cut": 0.45, "locked": 0.46}
+#: An event plate's height, in configuration plates' heights.
+PLATE_H = 0.75
 #: A plate fades out in this many steps of opacity over its time (sketch.PLATE_S).
 _FADE = (1.0, 0.6, 0.3)
 PLATE_COLOURS = {"impact": (160, 0, 0), "merge": (100, 40, 150), "release": (20, 120, 40), "switch": (60, 60, 60)}
@@ -652,7 +655,7 @@ def _send_sketch(base, traj: RecordedRun, poses, frame_config, times, keys, view
             bool_track(clip(node), [c in sym.configurations for c in frame_config])
     if ghost:
         return
-    h = 0.6 * view.label_h
+    h = PLATE_H * view.label_h
     for i, mark in enumerate(m for m in sk.event_marks(traj) if m.kind == "plate"):
         a, b = _windows(times, *mark.window)
         b = min(b, len(times))
@@ -669,7 +672,7 @@ def _send_sketch(base, traj: RecordedRun, poses, frame_config, times, keys, view
             lo, hi = t0 + j * (t1 - t0) / len(_FADE), t0 + (j + 1) * (t1 - t0) / len(_FADE)
             step = node[f"fade{j}"]
             _plate(step, mark.text, h, (0.8 * s, 0.8 * s + h), 0.0, opacity=opacity, fill=(255, 255, 255),
-                   ink=ink, outline=ink)
+                   ink=ink, outline=ink, border=7)
             on = np.zeros(len(times), dtype=bool)
             fa, fb = _windows(times, lo, hi)
             on[fa:min(fb, len(times))] = True
