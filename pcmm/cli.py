@@ -487,10 +487,16 @@ def _write_results(args, scene, opts, traj, partial: bool):
     def shown(run):  # --dt: CSV and figures resampled on the dense output
         return run.resampled(args.dt) if (run is not None and getattr(args, "dt", None)) else run
 
+    def plotted(run):  # the figures: --dt, else the plot resolution, on the integrator's dense output
+        if run is None or getattr(args, "dt", None):
+            return shown(run)
+        from .viz.dense import plot_times
+        return dataclasses.replace(run, segments=[s.resampled(plot_times(run, s)) for s in run.segments])
+
     def write_plots(folder, force):
         from .viz.plots import write_figures
         other = compare_run()
-        return _figures_into(folder, force, lambda d: write_figures(shown(traj), d, compare=shown(other)))
+        return _figures_into(folder, force, lambda d: write_figures(plotted(traj), d, compare=plotted(other)))
 
     def write_html(path, force):
         from .viz.replay import html_page
@@ -667,8 +673,9 @@ def cmd_plot(args) -> int:
     from .viz.plots import write_figures
     from .results.trajectory import Trajectory
     _check_outputs([], args.force, folders=[("--out", args.out)])
-    traj = Trajectory.load(args.trajectory)
-    other = Trajectory.load(args.compare) if args.compare else None
+    from .viz.dense import hermite  # a saved run: its steps, drawn C1 through their recorded rates
+    traj = hermite(Trajectory.load(args.trajectory))
+    other = hermite(Trajectory.load(args.compare)) if args.compare else None
     files = _figures_into(args.out, args.force,
                           lambda d: write_figures(traj, d, compare=other, impulse_sign=args.impulse_sign))
     say(f"figures: {', '.join(str(f) for f in files)}")
