@@ -163,6 +163,11 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("--html", type=Path, help="write a self-contained offline page instead of serving")
     rp.add_argument("--fps", type=_fps, default=60.0,
                     help=f"frames per second (default 60, at most {MAX_FPS:g})")
+    rp.add_argument("--layout", choices=("overlay", "side"), default="overlay",
+                    help="several runs: overlaid, the second a faint ghost (default), or side by side")
+    rp.add_argument("--view", choices=("run", "follow", "configuration"), default="run",
+                    help="the page's view: fitted to the whole run (default), to each configuration's stay, or "
+                         "following the mechanism, with the swept envelope traced faintly")
     rp.add_argument("--video", type=Path, help="write a video (.mp4 through ffmpeg, or .gif) of the 2D drawing instead "
                     "of serving")
     rp.add_argument("--speed", type=_positive("speed"), default=1.0,
@@ -525,10 +530,16 @@ def _write_results(args, scene, opts, traj, partial: bool):
     def shown(run):  # --dt: CSV and figures resampled on the dense output
         return run.resampled(args.dt) if (run is not None and getattr(args, "dt", None)) else run
 
+    def plotted(run):  # the figures: --dt, else the plot resolution, on the integrator's dense output
+        if run is None or getattr(args, "dt", None):
+            return shown(run)
+        from .viz.dense import plot_times
+        return dataclasses.replace(run, segments=[s.resampled(plot_times(run, s)) for s in run.segments])
+
     def write_plots(folder, force):
         from .viz.plots import write_figures
         other = compare_run()
-        return _figures_into(folder, force, lambda d: write_figures(shown(traj), d, compare=shown(other)))
+        return _figures_into(folder, force, lambda d: write_figures(plotted(traj), d, compare=plotted(other)))
 
     def write_html(path, force):
         from .viz.replay import html_page
@@ -729,11 +740,12 @@ def cmd_replay(args) -> int:
     if args.html:
         _check_outputs([("--html", args.html)], args.force)
         from .viz.replay import html_page
-        atomic_write_text(args.html, html_page(traj, fps=args.fps, others=others), args.force)
+        atomic_write_text(args.html, html_page(traj, fps=args.fps, others=others, layout=args.layout,
+                                               view=args.view), args.force)
         say(f"replay page: {args.html}")
         return 0
     from .viz.replay import serve
-    serve(traj, fps=args.fps, others=others)
+    serve(traj, fps=args.fps, others=others, layout=args.layout, view=args.view)
     return 0
 
 
@@ -741,8 +753,9 @@ def cmd_plot(args) -> int:
     from .viz.plots import write_figures
     from .results.trajectory import Trajectory
     _check_outputs([], args.force, folders=[("--out", args.out)])
-    traj = Trajectory.load(args.trajectory)
-    other = Trajectory.load(args.compare) if args.compare else None
+    from .viz.dense import hermite  # a saved run: its steps, drawn C1 through their recorded rates
+    traj = hermite(Trajectory.load(args.trajectory))
+    other = hermite(Trajectory.load(args.compare)) if args.compare else None
     files = _figures_into(args.out, args.force,
                           lambda d: write_figures(traj, d, compare=other, impulse_sign=args.impulse_sign))
     say(f"figures: {', '.join(str(f) for f in files)}")

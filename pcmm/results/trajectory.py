@@ -643,7 +643,11 @@ def legacy_views(scene_path: str) -> dict:
         for name, c in data.get("configurations", {}).items():
             with_path = (path.parent / c["urdf"])
             if with_path.is_file():
-                confs[name] = _view(with_path)
+                confs[name] = {**_view(with_path), "locked": [],
+                               "cut_joints": [{"name": j.get("name"), "type": j.get("type"), "a": j.get("a"),
+                                               "point_a": list(j.get("point_a", ())), "b": j.get("b"),
+                                               "point_b": list(j.get("point_b", ())), "axis": j.get("axis")}
+                                              for j in c.get("cut_joints", [])]}
         forces = {}
         for f in data.get("forces", []):
             on = f.get("on", {})

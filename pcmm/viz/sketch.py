@@ -250,8 +250,8 @@ def plate_text(ev: dict, count: int = 1, first: dict | None = None) -> str:
         return "pin: impact, point pinned" + (f", {freed} lifts off" if freed else "")
     if count > 1:
         tail = ", merge" if ev.get("merge") else ""
-        return f"macro-impact ×{count}, {ev.get('kind', 'impact')}, e = {e:g}{tail}" if e is not None else \
-            f"macro-impact ×{count}{tail}"
+        return f"macro-impact ({count} impacts), {ev.get('kind', 'impact')}, e = {e:g}{tail}" if e is not None else \
+            f"macro-impact ({count} impacts){tail}"
     if kind == "merge":
         return f"stop: impact + merge ({ev.get('kind', '')})".replace(" ()", "")
     if kind == "impact":
