@@ -234,10 +234,9 @@ def four_bar_run(tmp_path_factory):
 
 
 @pytest.fixture(scope="module")
-def example_runs():
-    return {"three_bar": pcmm.simulate(pcmm.load_scene(EXAMPLES / "three_bar.toml"), pcmm.RunOptions(t_end=0.2)),
-            "double_folded": pcmm.simulate(pcmm.load_scene(EXAMPLES / "double_folded.toml"),
-                                           pcmm.RunOptions(t_end=3.2))}
+def example_runs(shipped_run):
+    return {"three_bar": shipped_run("three_bar.toml", t_end=0.2)[1],
+            "double_folded": shipped_run("double_folded.toml", t_end=3.2)[1]}
 
 
 def test_impulse_momentum_balance_at_every_event(example_runs, four_bar_run):

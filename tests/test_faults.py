@@ -103,6 +103,7 @@ def test_a_file_size_limit_is_an_error_naming_the_file_not_a_kill(tmp_path):
 
 
 # ---- 2. signals ---------------------------------------------------------------------------------
+@pytest.mark.slow  # two subprocess runs, each signalled after 5 s of CPU
 def test_sigterm_and_sighup_keep_the_partial_like_ctrl_c(tmp_path):
     """Two long bouncing-ball runs, stopped after 5 s of CPU by SIGTERM (a batch scheduler, ``timeout``)
     and SIGHUP (a closed terminal): each writes its partial trajectory and summary, marked

@@ -685,6 +685,7 @@ def test_fs_full_folder_by_file_size_limits(tmp_path):
         _complete_or_absent(d, ["t.npz", "s.json", "t.csv"])
 
 
+@pytest.mark.slow  # three concurrent subprocess runs
 def test_fs_concurrent_runs_on_one_output(tmp_path):
     """Three runs started together on one --out and one --summary: no result is lost or
     replaced: one file per run under the name or a numbered one next to it, each whole."""
@@ -721,6 +722,7 @@ def _catches(proc: subprocess.Popen, sig: int, timeout: float = 120.0) -> float:
     pytest.fail(f"pid {proc.pid} installed no handler for signal {sig} in {timeout} s")
 
 
+@pytest.mark.slow  # eight subprocess runs signalled up to 9 s in
 @pytest.mark.skipif(not Path("/proc/self/status").exists(), reason="reads the signal masks in /proc")
 def test_fs_signals_at_random_moments(tmp_path):
     """SIGTERM or SIGINT at eight moments (0.2 .. 9 s: during start-up, the run, the saving) to runs

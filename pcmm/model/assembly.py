@@ -104,6 +104,9 @@ def assemble(scene: Scene, cfg: Configuration):
     if not getattr(coords, "constrained", False) or not coords.closure.size:
         q, v = coords.project(0.0, q0, v0, prefer)
         return q, v, _velocity_notes(scene, cfg, v0, v)
+    if coords.closure.anchored:  # a point pinned where it is at the start (point_a = "entry")
+        cfg.kinematics(q0)
+        coords.closure.set_anchors(cfg.data)
     try:
         options = _candidates(cfg, q0, v0, prefer) if scene.branch is not None else \
             [coords.project(0.0, q0, v0, prefer)]

@@ -554,7 +554,7 @@ def _record_samples(traj: Trajectory, cfg: Configuration, seg, offsets, q_start,
         def work():
             out = _derived_series(cfg, t, y, offsets)
             if held:
-                out["constraint_forces"] = np.hstack((out["constraint_forces"], _holding_forces(cfg, holds, t, y)))
+                out["constraint_forces"] = np.hstack((out["constraint_forces"], _holding_forces(cfg, holds, t, out)))
             return out
         return in_segment_state(work)
 
@@ -570,8 +570,7 @@ def _record_samples(traj: Trajectory, cfg: Configuration, seg, offsets, q_start,
             coords.seed(q_start)
             out = _derived_series(cfg, times, states, offsets)
             if held:
-                out["constraint_forces"] = np.hstack((out["constraint_forces"],
-                                                      _holding_forces(cfg, holds, times, states)))
+                out["constraint_forces"] = np.hstack((out["constraint_forces"], _holding_forces(cfg, holds, times, out)))
             return out
         return in_segment_state(work)
     coord_names = []
@@ -585,12 +584,15 @@ def _record_samples(traj: Trajectory, cfg: Configuration, seg, offsets, q_start,
     traj.stats["record_s"] += time.perf_counter() - t0
 
 
-def _holding_forces(cfg: Configuration, holds: Holds, t, y) -> np.ndarray:
-    """(n, holds) holding force or moment of every lock in force at the states ``y`` (columns)."""
+def _holding_forces(cfg: Configuration, holds: Holds, t, series: dict) -> np.ndarray:
+    """(n, holds) holding force or moment of every lock in force, at the segment's own solved
+    coordinates ``series["q"], series["v"]`` (those every other series was derived from).  Never
+    solved again from the integrator's state: a loop's Newton solve warm-started from wherever
+    the coordinates were left (the segment's end, or a later segment's) can land on the other
+    assembly, and the series would then depend on what the run did after the segment."""
     out = np.empty((len(t), len(holds.items)))
     for i in range(len(t)):
-        q, v = cfg.coords.unpack(t[i], y[:, i])
-        out[i] = list(holds.forces(cfg, t[i], q, v).values())
+        out[i] = list(holds.forces(cfg, t[i], series["q"][i], series["v"][i]).values())
     return out
 
 
