@@ -96,7 +96,7 @@ def test_check_warns_of_a_guard_angle_beyond_a_turn(tmp_path, capsys, qs, warned
         assert err == (f"pcmm: warning: {path}: transitions[0] (stop).guard.value: = {qs:g}: an angle (joint J1) of "
                        f"{qs:g} rad, {qs / (2 * math.pi):.3g} turns, outside [-2 pi, 2 pi]; guard values are in "
                        f"radians: if {qs:g} degrees is meant, write value = \"{qs:g} deg\" (= "
-                       f"{qs * math.pi / 180:.6g} rad)\n")
+                       f"{qs * math.pi / 180:.6g} rad); a guard meant after more than a turn is right as it is\n")
     else:
         assert "outside [-2 pi, 2 pi]" not in err
 
