@@ -112,7 +112,8 @@ def angle_in_degrees(cfg: Configuration, tr: TransitionSpec) -> str | None:
         return None
     return (f"= {value:.12g}: an angle ({tr.guard.measure}) of {value:.6g} rad, {value / (2 * math.pi):.3g} "
             f"turns, outside [-2 pi, 2 pi]; guard values are in radians: if {value:g} degrees is meant, write "
-            f"value = \"{value:g} deg\" (= {math.radians(value):.6g} rad)")
+            f"value = \"{value:g} deg\" (= {math.radians(value):.6g} rad); a guard meant after more than a turn "
+            "is right as it is")
 
 
 # ---- the whole scene ------------------------------------------------------------------------
