@@ -239,6 +239,7 @@ def scene_mutations(draw):
 
 @settings(max_examples=420, **FUZZ)
 @given(case=scene_mutations())
+@pytest.mark.slow  # hundreds of mutated scenes
 def test_fuzz_scene_values(workdir, case):
     example, doc, what, hot = case
     with stage(workdir, example, scene_text=builders.dump_toml(doc)) as path:
@@ -347,6 +348,7 @@ def urdf_mutations(draw):
 
 @settings(max_examples=260, **FUZZ)
 @given(case=urdf_mutations())
+@pytest.mark.slow  # hundreds of mutated URDFs
 def test_fuzz_urdf_elements(workdir, case):
     example, texts, what, hot = case
     with stage(workdir, example, urdf_texts=texts) as path:
