@@ -687,6 +687,8 @@ def cmd_sweep(args) -> int:
     from .studies.sweep import make_plan, parse_set, read_plan_file, sweep
     if args.resume and args.force:
         raise UsageError("--resume and --force: give one (complete the table, or start it over)")
+    if args.retry_failed and not args.resume:
+        raise UsageError("--retry-failed runs a table's crashed and timed-out runs again: give it with --resume")
     plan_file = read_plan_file(args.plan) if args.plan else {"axes": [], "collect": []}
     axes = plan_file["axes"] + [parse_set(s) for s in args.sets]
     sample = args.sample or plan_file.get("sample") or "grid"
