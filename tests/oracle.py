@@ -33,7 +33,7 @@ import csv
 import dataclasses
 import math
 import xml.etree.ElementTree as ET
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -188,8 +188,8 @@ def _poly(coefficients, t, order=0):
 
 def _kind(what: str) -> str:
     """The kind of a comparison, without the configuration, joint or link it names."""
-    for kind in ("constraint force", "kinetic energy rises beyond the drives' work", "kinetic energy rises",
-                 "momentum not conserved", "normal velocity after", "kinetic_energy_after", "kinetic_energy_before",
+    for kind in ("without impulse", "impulse P", "v_after", "constraint force",
+                 "kinetic energy rises beyond the drives' work", "kinetic energy rises", "momentum not conserved", "normal velocity after", "kinetic_energy_after", "kinetic_energy_before",
                  "without impact", "residual rate", "residual", "force element", "potential energy",
                  "kinetic energy", "omega of", "theta of", "x,y of", "jumps", "segments meet"):
         if kind in what:
@@ -205,9 +205,8 @@ class Oracle:
         self.tol = tol or Tolerances()
         self.findings: list[Finding] = []
         self._models: dict[str, Model] = {}
-        self.texts = {}  # configuration -> (URDF text of its free joints, locks it derives)
-        for name, spec in scene.configurations.items():
-            self.texts[name] = urdf_text(spec.urdf)  # a derived configuration's root URDF
+        # configuration -> its URDF's text (a derived configuration's: its root URDF, its locks as rows)
+        self.texts = {name: urdf_text(spec.urdf) for name, spec in scene.configurations.items()}
         self.counts: dict[str, int] = {}  # how many comparisons of each kind were made
 
     def model(self, text: str) -> Model:
@@ -307,7 +306,7 @@ class Oracle:
         # the force elements acting: the configuration's own, plus a held joint's own elements as the
         # configuration with that joint free has them (the lock carries them)
         forces = list(self.scene.forces_in(seg.configuration))
-        for lab, joints in held.items():
+        for joints in held.values():
             for name in self.scene.configurations:
                 if not joints <= self._free(name):
                     continue
@@ -386,7 +385,7 @@ class Oracle:
         pa, Ja = F.jacobian(cj.a, cj.point_a)
         pb, Jb = F.jacobian(cj.b, cj.point_b)
         acc_a, wa = F.acceleration_bias(cj.a, cj.point_a)
-        acc_b, wb = F.acceleration_bias(cj.b, cj.point_b)
+        acc_b, _ = F.acceleration_bias(cj.b, cj.point_b)
         ta, tb = F.pose(cj.a)[1], F.pose(cj.b)[1]
         rel = tb - ta
         phi, rows, bias = [], [], []
@@ -416,8 +415,8 @@ class Oracle:
             row = np.zeros(F.nv)
             row[F.vslice[contact.joint].start] = -contact.stop_sign
             return row, 0.0
-        pa, Ja = F.jacobian(contact.a, contact.point_a)
-        pb, Jb = F.jacobian(contact.b, contact.point_b)
+        _, Ja = F.jacobian(contact.a, contact.point_a)
+        _, Jb = F.jacobian(contact.b, contact.point_b)
         acc_a, wa = F.acceleration_bias(contact.a, contact.point_a)
         acc_b, _ = F.acceleration_bias(contact.b, contact.point_b)
         ta = F.pose(contact.a)[1]
@@ -559,7 +558,8 @@ class Oracle:
         M = np.triu(M) + np.triu(M, 1).T
         ke_a = 0.5 * va @ M @ va
         Fb, qb, vb = self.state(b, cb, 0)
-        ke_b = 0.5 * vb @ (lambda m: np.triu(m) + np.triu(m, 1).T)(pin.crba(Fb.model, Fb.data, qb)) @ vb
+        Mb = pin.crba(Fb.model, Fb.data, qb)
+        ke_b = 0.5 * vb @ (np.triu(Mb) + np.triu(Mb, 1).T) @ vb
         Fb.kinematics(qb, vb)
         for l in links:  # positions never jump
             (xa, tha), (xb, thb) = pos_a[l], Fb.pose(l)
@@ -576,14 +576,43 @@ class Oracle:
             if "kinetic_energy_after" in e and e is here[-1]:
                 self.report(t, f"event '{e['name']}': kinetic_energy_after vs the next segment's first state",
                             e["kinetic_energy_after"], ke_b, abs(e["kinetic_energy_after"] - ke_b), tol.event * max(1, scale))
-            if "kinetic_energy_before" in e and e is here[0]:
+            if isinstance(e.get("v_after"), dict) and e is here[-1]:  # the velocity the run goes on with
+                _, rates = _coordinate_values(b, 0)
+                for j, x in e["v_after"].items():
+                    if j in rates:
+                        d = float(np.max(np.abs(np.atleast_1d(rates[j]) - np.atleast_1d(x))))
+                        self.report(t, f"event '{e['name']}': v_after of {j} vs the next segment's first state",
+                                    x, rates[j], d, tol.event * max(1.0, float(np.max(np.abs(np.atleast_1d(x))))))
+            if "kinetic_energy_before" in e and e is here[0] and "duration" not in e:
                 self.report(t, f"event '{e['name']}': kinetic_energy_before vs the last state before it",
                             e["kinetic_energy_before"], ke_a, abs(e["kinetic_energy_before"] - ke_a), tol.event * max(1, scale))
+        if any("duration" in e for e in here):
+            # a collision resolved by a continuous contact law ends here: its energy after is checked
+            # above; over its duration the forces and gravity act, so no impulse balance applies
+            return
         drives = bool(ca["drives"]) or bool(cb["drives"])
         if not drives:
             self.report(t, f"{a.configuration} -> {b.configuration}: kinetic energy rises at the switch", ke_a, ke_b,
                         ke_b - ke_a, tol.event * scale)
-        if not impact:  # a release, an unmerge, a switch without impulse: velocities continuous
+        dropped = {j: x for e in here for j, x in (e.get("dropped_velocities") or {}).items()}
+        if not impact and dropped:  # a switch without impulse (impact = False): the velocities it drops are named
+            _, ra = _coordinate_values(a, len(a.t) - 1)
+            _, rb = _coordinate_values(b, 0)
+            for j, x in ra.items():
+                what = f"{a.configuration} -> {b.configuration} without impulse: velocity of {j}"
+                if j in dropped:
+                    d = float(np.max(np.abs(np.atleast_1d(dropped[j]) - np.atleast_1d(x))))
+                    self.report(t, what + " dropped (the event's dropped_velocities)", dropped[j], x, d,
+                                tol.event * max(1.0, float(np.max(np.abs(np.atleast_1d(x))))))
+                elif j in rb:
+                    d = float(np.max(np.abs(np.atleast_1d(rb[j]) - np.atleast_1d(x))))
+                    self.report(t, what + " kept", x, rb[j], d,
+                                tol.event * max(1.0, float(np.max(np.abs(np.atleast_1d(x))))))
+                else:
+                    self.report(t, what + " dropped but not named in the event's dropped_velocities", 0.0, x,
+                                math.inf, 0.0)
+            return
+        if not impact:  # a release, an unmerge, a repartition: velocities continuous
             for l in links:
                 wa, wb = ja[l][2] @ va, Fb.jacobian(l)[1][2] @ vb
                 self.report(t, f"{a.configuration} -> {b.configuration} without impact: omega of {l} jumps",
@@ -593,18 +622,20 @@ class Oracle:
         # switch locks, the loops' and drives' rows), all in the source's coordinates at the same posture
         Fa.kinematics(qa, va)
         vplus = np.zeros(Fa.nv)
-        bvals, brates = _coordinate_values(b, 0)
+        _, brates = _coordinate_values(b, 0)
         for name, sl in Fa.vslice.items():
             if name in brates:
                 vplus[sl] = np.atleast_1d(brates[name])
         # velocities the target does not have as coordinates: zero (locked)
         rows = []
+        contact_events = 0
         for e in here:
             tr = next((x for x in self.scene.transitions if x.name == e["name"]), None)
             if tr is None or tr.contact is None:
                 continue
             Jn, _ = self.contact_row(tr.contact, Fa, qa, va)
             rows.append(Jn)
+            contact_events += 1
             vn_m, vn_p = float(Jn @ va), float(Jn @ vplus)
             restitution = e.get("restitution", 0.0) if e["to"] == e["from"] else 0.0
             if e.get("law", "impulse") == "impulse" and e is here[-1] and len(here) == 1:
@@ -634,6 +665,13 @@ class Oracle:
         p = float(np.linalg.norm(M @ va))
         self.report(t, f"{a.configuration} -> {b.configuration}: momentum not conserved outside the impulse's rows",
                     0.0, float(np.linalg.norm(r)), float(np.linalg.norm(r)), tol.event * max(1.0, p))
+        if impulses is not None and contact_events == 1 and len(here) == 1:
+            # the contact's impulse is the first row's, unique where the rows are independent (Eqs. 21-43)
+            imp = here[0].get("impulse") or {}
+            P = imp.get("moment", imp.get("normal"))
+            if P is not None:
+                self.report(t, f"event '{here[0]['name']}': impulse P", P, float(impulses[0]),
+                            abs(P - impulses[0]), tol.event * max(1.0, abs(impulses[0]), p))
         if drives and impulses is not None:
             # the drive's impulse P works P f'(t) (its coordinate's rate is prescribed, the same on both
             # sides); every other row's impulse works P (v- + v+) / 2 <= 0 (restitution <= 1, locks)
@@ -697,10 +735,27 @@ def compare_csv(short, long, rel: float = 1e-7) -> list[str]:
     return problems
 
 
+_SERIES = ("q", "v", "theta", "omega", "xy", "kinetic", "potential", "forces", "constraint_forces")
+
+
+def _differ(kind, k, config, times, pairs, rel) -> list[str]:
+    out = []
+    for A, B, name in pairs:
+        scale = max(1.0, float(np.max(np.abs(B), initial=0.0)))
+        err = float(np.max(np.abs(A - B), initial=0.0))
+        if not err <= rel * scale:
+            j = int(np.argmax(np.max(np.abs(A - B).reshape(len(times), -1), axis=1)))
+            out.append(f"{kind}: segment {k} ({config}) {name} differs by {err:.3g} at t = {times[j]:.9g} s "
+                       f"(scale {scale:.3g}), the longer run's dense output")
+    return out
+
+
 def check_prefix(scene_path, t_short: float, t_long: float, dt: float, folder: Path, rel: float = 1e-7,
-                 **options) -> list[str]:
+                 rel_dense: float = 1e-6, **options) -> list[str]:
     """The run to ``t_short`` must be the first part of the run to ``t_long``: same events,
-    the same series at every common sample time, the same ``dt`` resampling and CSV rows."""
+    the same series at every common sample time (``rel``), the same ``dt`` resampling and CSV rows;
+    where the sample times differ (the integrators' steps depend on the distance to t_end), the
+    shorter run's samples agree with the longer run's dense output at their times (``rel_dense``)."""
     _, short = run(scene_path, t_short, **options)
     _, long = run(scene_path, t_long, **options)
     problems = []
@@ -717,9 +772,20 @@ def check_prefix(scene_path, t_short: float, t_long: float, dt: float, folder: P
             l = tl.segments[k]
             common, i_s, i_l = np.intersect1d(s.t, l.t, return_indices=True)
             last = k == len(ts.segments) - 1
-            if not last and len(common) != len(s.t):
-                problems.append(f"{kind}: segment {k} ({s.configuration}) has other sample times")
-            for name in ("q", "v", "theta", "omega", "xy", "kinetic", "potential", "forces", "constraint_forces"):
+            if len(common) != len(s.t):
+                # the steps differ (an integrator's first and largest step depend on the distance to
+                # t_end; an event located to event_tol): the shorter run's samples against the longer
+                # run's dense output at the same times, to the integration's accuracy
+                raw = long.segments[k]
+                inside = s.t[(s.t >= raw.t[0]) & (s.t <= raw.t[-1])]
+                if not last and len(inside) < len(s.t) and s.t[-1] - raw.t[-1] > 1e-9:
+                    problems.append(f"{kind}: segment {k} ({s.configuration}) ends at {s.t[-1]:.9g} s, "
+                                    f"in the longer run at {raw.t[-1]:.9g} s")
+                dense = raw.resampled(inside)
+                j_s = np.searchsorted(s.t, inside)
+                pairs = [(getattr(s, name)[j_s], getattr(dense, name), name) for name in _SERIES]
+                problems += _differ(kind, k, s.configuration, inside, pairs, rel_dense)
+            for name in _SERIES:
                 A, B = getattr(s, name)[i_s], getattr(l, name)[i_l]
                 scale = max(1.0, float(np.max(np.abs(B), initial=0.0)))
                 err = float(np.max(np.abs(A - B), initial=0.0))
@@ -756,4 +822,54 @@ def check_resampled_states(scene_path, t_end: float, dt: float, rel: float = 1e-
                 j = int(np.argmax(np.max(np.abs(A - B).reshape(len(common), -1), axis=1)))
                 problems.append(f"segment {k} ({sa.configuration}) resampled {name} off by {err:.3g} at "
                                 f"t = {common[j]:.9g} s")
+    return problems
+
+
+def check_records(traj, folder: Path, stats: bool = True) -> list[str]:
+    """The run's other records against its series: the CSV (one column per link quantity,
+    coordinate, force element, constraint row and energy; empty where a segment lacks the name) and
+    ``stats["holding"]`` (each hold's extremes over the recorded samples, and their times; not for a
+    resampled trajectory, which keeps the run's stats)."""
+    problems = []
+    header, rows = _csv_rows(traj.to_csv(folder / "records.csv"))
+    table = [r for t in sorted(rows) for r in rows[t]]
+    if len(table) != len(traj.t):
+        return [f"CSV has {len(table)} rows, the run {len(traj.t)} samples"]
+    order = np.argsort(traj.t, kind="stable")
+    expected = {"t": traj.t}
+    for link in traj.links:
+        xy = traj.series("xy", link)
+        expected.update({f"theta_{link}": traj.series("theta", link), f"omega_{link}": traj.series("omega", link),
+                         f"x_{link}": xy[:, 0], f"y_{link}": xy[:, 1]})
+    for c in dict.fromkeys(c for s in traj.segments for c in s.coordinates):
+        expected.update({f"q_{c}": traj.series("q", c), f"v_{c}": traj.series("v", c)})
+    for n in dict.fromkeys(n for s in traj.segments for n in s.force_names):
+        expected[f"force_{n}"] = traj.series("forces", n)
+    for n in dict.fromkeys(n for s in traj.segments for n in s.constraint_labels):
+        expected[f"constraint_{n}"] = traj.series("constraint_forces", n)
+    expected.update({"kinetic_energy": traj.series("kinetic"), "potential_energy": traj.series("potential")})
+    names = {h.rsplit(" [", 1)[0]: c for c, h in enumerate(header)}
+    missing = sorted(set(expected) - set(names))
+    if missing:
+        problems.append(f"CSV lacks columns {missing}")
+    for name, series in expected.items():
+        if name not in names:
+            continue
+        col = np.array([float(r[names[name]]) if r[names[name]] != "" else np.nan for r in table])
+        want = np.asarray(series, float)[order]
+        same = (np.isnan(col) & np.isnan(want)) | (col == want)
+        if not np.all(same):
+            i = int(np.flatnonzero(~same)[0])
+            problems.append(f"CSV column {name} at t = {traj.t[order][i]:.9g} s: "
+                            f"{col[i]!r}, the series {want[i]!r}")
+    config = [r[1] for r in table]
+    if config != [traj.configuration_at()[i] for i in order]:
+        problems.append("CSV configuration column differs from the segments'")
+    for label, ext in ((traj.stats.get("holding") or {}) if stats else {}).items():
+        series = traj.series("constraint_forces", label)
+        i_lo, i_hi = int(np.nanargmin(series)), int(np.nanargmax(series))
+        got = (ext["min"], ext["t_min"], ext["max"], ext["t_max"])
+        want = (series[i_lo], traj.t[i_lo], series[i_hi], traj.t[i_hi])
+        if not np.allclose(got, want, rtol=0, atol=0):
+            problems.append(f"stats holding {label}: {got}, the series' extremes {want}")
     return problems

@@ -11,16 +11,15 @@ from __future__ import annotations
 
 import math
 
+import builders
 import numpy as np
+import oracle
 import pinocchio as pin
 import pytest
+from builders import EXAMPLES
 
 import pcmm
 from pcmm.errors import SimulationError
-
-import builders
-import oracle
-from builders import EXAMPLES
 
 #: every shipped example: (t_end, dt of the resampled check), short where the run is long
 EXAMPLE_RUNS = {
@@ -36,7 +35,8 @@ EXAMPLE_RUNS = {
 
 
 def _findings(path, t_end=None, dt=None, **options):
-    """The oracle's findings on the run (a run that stops keeps its partial trajectory)."""
+    """The oracle's findings on the run (a run that stops keeps its partial trajectory); the
+    comparisons it made are checked to cover what the run has (a check that never ran cannot fail)."""
     scene = pcmm.load_scene(path)
     try:
         traj = pcmm.simulate(scene, pcmm.RunOptions(t_end=t_end, **options) if t_end else pcmm.RunOptions(**options))
@@ -44,10 +44,29 @@ def _findings(path, t_end=None, dt=None, **options):
         if exc.partial is None or not exc.partial.segments:
             raise
         traj = exc.partial
-    found = oracle.check_run(path, traj=traj)
+    o = oracle.Oracle(scene)
+    found = o.check(traj, samples=4)
+    _covered(traj, o.counts)
     if dt is not None:
-        found += oracle.check_run(path, traj=traj.resampled(dt))
+        found += oracle.Oracle(scene).check(traj.resampled(dt), samples=4)
     return traj, found
+
+
+def _covered(traj, counts):
+    need = {"x,y of", "theta of", "omega of", "kinetic energy", "potential energy"}
+    if any(s.force_names for s in traj.segments):
+        need.add("force element")
+    labels = {lab for s in traj.segments for lab in s.constraint_labels}
+    if labels:
+        need.add("constraint force")
+    if any(not lab.endswith(".hold") for lab in labels):  # a cut joint's or a drive's rows
+        need |= {"residual", "residual rate"}
+    if len(traj.segments) > 1:
+        need |= {"segments meet", "jumps"}
+    if any(e.get("impact") and e.get("law", "impulse") == "impulse" for e in traj.events):
+        need |= {"momentum not conserved", "kinetic_energy_after", "kinetic_energy_before"}
+    missing = need - set(counts)
+    assert not missing, f"the oracle made no comparison of: {sorted(missing)}"
 
 
 def _show(found) -> str:
@@ -72,6 +91,8 @@ def test_every_example_agrees_with_the_oracle(name):
 #: the scenes tests/builders.py builds, with numbers that make their events happen within t_end
 BUILT = {
     "ball": lambda d: builders.ball(d, 0.5, h=0.3, t_end=0.8),
+    "ball_hunt_crossley": lambda d: builders.ball(d, 0.8, h=0.3, t_end=0.6, merge=False, law="hunt_crossley",
+                                                  stiffness=1e7, exponent=1.5),
     "pendulum": lambda d: builders.pendulum(d, 0.5, q0=0.3, t_end=1.2),
     "spring_pendulum": lambda d: builders.spring_pendulum(d, 3.0, 0.1, t_end=0.5),
     "two_link": lambda d: builders.two_link(d, 0.6, 1.0, 0.7, t_end=0.4),
@@ -88,7 +109,7 @@ BUILT = {
 
 @pytest.mark.parametrize("name", sorted(BUILT))
 def test_every_built_scene_agrees_with_the_oracle(name, tmp_path):
-    traj, found = _findings(BUILT[name](tmp_path), dt=0.01)
+    _, found = _findings(BUILT[name](tmp_path), dt=0.01)
     assert not found, _show(found)
 
 
@@ -106,14 +127,30 @@ PREFIX = [
     ("three_bar.toml", 0.2, 0.35, 0.01),
     ("three_bar_stop.toml", 0.2, 0.4, 0.01),
     ("double_folded.toml", 3.05, 3.2, 0.05),
-    ("andrews.toml", 0.01, 0.02, 0.001),
-    ("three_bar_cycle.toml", 0.3, 0.7, 0.05),
+    pytest.param("andrews.toml", 0.01, 0.02, 0.001, marks=pytest.mark.xfail(
+        strict=True, raises=SimulationError, reason=(
+            "the steps to t_end = 0.01 s differ from those to 0.02 s, so the shorter run's samples are "
+            "compared with the longer run's dense output at their times, and resampling the squeezer's "
+            "loop there fails at t = 0.00994615 s (residual 0.0568), as in "
+            "test_a_fast_loop_resampled_at_a_coarse_dt. For h-model / h-run."))),
+    ("three_bar_cycle.toml", 0.2, 0.35, 0.05),
 ]
 
 
 @pytest.mark.parametrize("name, t_short, t_long, dt", PREFIX)
 def test_a_shorter_run_is_the_first_part_of_a_longer_one(name, t_short, t_long, dt, tmp_path):
     problems = oracle.check_prefix(EXAMPLES / name, t_short, t_long, dt, tmp_path)
+    assert not problems, "\n".join(problems[:20])
+
+
+#: built scenes whose shorter run ends inside a bounce sequence, a contact-law phase, a locked
+#: stretch without a free coordinate (its samples spaced by the time left to t_end)
+PREFIX_BUILT = [("flat_bar", 0.25, 0.35), ("ball_hunt_crossley", 0.249, 0.6), ("four_bar_latch", 0.9, 1.2)]
+
+
+@pytest.mark.parametrize("name, t_short, t_long", PREFIX_BUILT)
+def test_a_shorter_run_of_a_built_scene_is_the_first_part_of_a_longer_one(name, t_short, t_long, tmp_path):
+    problems = oracle.check_prefix(BUILT[name](tmp_path / "scene"), t_short, t_long, 0.01, tmp_path)
     assert not problems, "\n".join(problems[:20])
 
 
@@ -148,6 +185,48 @@ def test_the_command_lines_csv_of_a_shorter_run_is_the_first_part_of_a_longer_on
     assert not problems, "\n".join(problems[:20])
 
 
+@pytest.mark.parametrize("name, t_end", [("three_bar.toml", 0.3), ("andrews.toml", 0.01)])
+def test_a_saved_run_loads_back_as_the_oracle_checked_it(name, t_end, tmp_path):
+    """pcmm run --out: the NPZ file holds the series the oracle agrees with, bit for bit."""
+    traj = pcmm.simulate(pcmm.load_scene(EXAMPLES / name), pcmm.RunOptions(t_end=t_end))
+    back = pcmm.Trajectory.load(traj.save(tmp_path / "run.npz"))
+    assert [e["t"] for e in back.events] == [e["t"] for e in traj.events]
+    for s, b in zip(traj.segments, back.segments, strict=True):
+        for a in ("t", "q", "v", "theta", "omega", "xy", "kinetic", "potential", "forces", "constraint_forces"):
+            np.testing.assert_array_equal(getattr(b, a), getattr(s, a), err_msg=a)
+    found = oracle.check_run(EXAMPLES / name, traj=back)
+    assert not found, _show(found)
+
+
+@pytest.mark.parametrize("name, t_end", [
+    ("three_bar.toml", 0.3),
+    ("three_bar_cycle.toml", 1.25),
+    pytest.param("double_folded.toml", 3.05, marks=pytest.mark.xfail(strict=True, raises=AssertionError, reason=(
+        "pcmm/events/transitions.py, the switch without impulse (--no-impact) into a loop: merging the "
+        "slider at 3.0036 s drops E's velocity (named in dropped_velocities) and changes B's from -0.7064 "
+        "to -0.8601 rad/s and D's from +0.0011 to -0.6532 rad/s to close the driven loop, naming neither "
+        "(v_after has them, dropped_velocities only E): a change the record does not report as one. For "
+        "h-run."))),
+])
+def test_a_switch_without_impulse_names_every_velocity_it_changes(name, t_end):
+    """The paper's comparison runs (impact = False): every velocity a switch changes is in the event's
+    dropped_velocities; every other one goes on unchanged."""
+    traj, found = _findings(EXAMPLES / name, t_end, impact=False)
+    assert traj.events and not any(e["impact"] for e in traj.events)
+    assert not found, _show(found)
+
+
+@pytest.mark.parametrize("name, t_end", [("three_bar.toml", 0.3), ("three_bar_cycle.toml", 0.4),
+                                          ("three_bar_stop.toml", 0.5)])
+def test_the_csv_and_the_holding_stats_are_the_series(name, t_end, tmp_path):
+    """Every CSV column is its series, sample for sample (empty where a segment lacks the name), in
+    the run's steps and resampled at dt; stats["holding"] are the extremes of the hold series."""
+    traj = pcmm.simulate(pcmm.load_scene(EXAMPLES / name), pcmm.RunOptions(t_end=t_end))
+    problems = oracle.check_records(traj, tmp_path)
+    problems += oracle.check_records(traj.resampled(0.01), tmp_path, stats=False)
+    assert not problems, "\n".join(problems[:20])
+
+
 def test_the_oracle_sees_a_wrong_number(tmp_path):
     """The oracle can fail: one recorded holding moment, energy and pose changed by a little
     are each reported at their instant."""
@@ -163,6 +242,8 @@ def test_the_oracle_sees_a_wrong_number(tmp_path):
     assert "config2: constraint force O3.hold" in whats
     assert "config2: kinetic energy" in whats
     assert "config2: x,y of link2" in whats
+    traj.stats["holding"]["O3.hold"]["max"] += 1e-9
+    assert any(p.startswith("stats holding O3.hold") for p in oracle.check_records(traj, tmp_path))
     # the kinetic energy after the latch is the event record's too
     assert any(f.what.startswith("event 'O3 latches': kinetic_energy_after") for f in found)
     assert all(math.isclose(f.t, seg.t[3]) or math.isclose(f.t, seg.t[0]) or math.isclose(f.t, seg.t[-1])
@@ -278,7 +359,7 @@ def test_a_lock_held_from_the_start_without_a_spring_agrees(tmp_path):
 COARSE = {
     "andrews": lambda d: (EXAMPLES / "andrews.toml", 0.03),
     # a Grashof crank-rocker (no singular posture on its way) turned fast by a constant torque
-    "crank_rocker": lambda d: (builders.four_bar_rocker_stop(d, 0.5, -5.0, torque=3.0, t_end=1.0, g=0.0), 1.0),
+    "crank_rocker": lambda d: (builders.four_bar_rocker_stop(d, 0.5, -5.0, torque=3.0, t_end=0.65, g=0.0), 0.65),
 }
 
 
@@ -356,4 +437,42 @@ def test_a_planar_bar_pinned_off_its_frames_origin_swings(tmp_path):
 
 def test_the_merged_stretch_of_example2s_cycle_holds_what_the_kkt_solve_gives():
     _, found = _findings(EXAMPLES / "double_folded_cycle.toml", 6.3)
+    assert not found, _show(found)
+
+
+@pytest.mark.xfail(strict=True, raises=AssertionError, reason=(
+    "the potential energy series drops a held joint's spring: examples/three_bar_cycle.toml at the "
+    "O2 lock (open -> O2_locked, t = 0.18534 s) records 2.8364 J before and 2.4663 J after, with the "
+    "posture and the kinetic energy continuous: 'spring O2' (0.5 k x^2 = 0.370 J) is listed only "
+    "where O2 is free (the loader refuses a force on a locked joint), and pcmm/model/configuration.py "
+    "potential_energy counts only the configuration's own elements, so the total energy jumps at every "
+    "lock and release. A held joint's springs should count at their constant locked value. For the "
+    "model's owner (h-model) or the integrator to decide."))
+def test_the_potential_energy_is_continuous_where_the_posture_is():
+    traj = pcmm.simulate(pcmm.load_scene(EXAMPLES / "three_bar_cycle.toml"), pcmm.RunOptions(t_end=0.2))
+    switches = [(a, b) for a, b in zip(traj.segments, traj.segments[1:]) if a.configuration != b.configuration]
+    assert switches
+    for a, b in switches:
+        np.testing.assert_allclose(a.xy[-1], b.xy[0], atol=1e-9)  # the posture does not move
+        assert b.potential[0] == pytest.approx(a.potential[-1], abs=1e-9), (a.configuration, b.configuration)
+
+
+def block_on_cut_joint(folder, kind, incline=math.pi / 6, t_end=0.5):
+    """A block on a URDF planar joint (x, y, theta) with a bar hung on it by the revolute R, held to
+    the frame by a ``kind`` cut joint S at the block's origin: prismatic along an incline (the block
+    slides, the bar swings: two degrees of freedom) or weld (the bar swings alone)."""
+    urdf = builders.robot_xml("blk", builders.link_xml("frame"), builders.joint_xml("P", "planar", "frame", "blk"),
+                              builders.solid_xml("blk", 2.0, 0.01), builders.joint_xml("R", "revolute", "blk", "arm"),
+                              builders.bar_xml("arm", 0.3, 0.5))
+    extra = {"axis": [math.cos(incline), math.sin(incline)], "angle": 0.0} if kind == "prismatic" else {"angle": 0.0}
+    cut = [{"name": "S", "type": kind, "a": "frame", "point_a": [0.0, 0.0], "b": "blk", "point_b": [0.0, 0.0], **extra}]
+    doc = builders.base_doc("block", "c", {"c": {"urdf": "b.urdf", "cut_joints": cut}}, {"P": [0.0, 0.0, 0.0], "R": -1.0},
+                            {"P": [0.0, 0.0, 0.0], "R": 0.0}, t_end=t_end)
+    return builders.write_scene(folder, doc, {"b.urdf": urdf})
+
+
+@pytest.mark.parametrize("kind", ["prismatic", "weld"])
+def test_prismatic_and_weld_cut_joints_agree_with_the_oracle(kind, tmp_path):
+    traj, found = _findings(block_on_cut_joint(tmp_path, kind), dt=0.05)
+    assert traj.segments[0].constraint_labels == (["S.fn", "S.mz"] if kind == "prismatic" else ["S.fx", "S.fy", "S.mz"])
     assert not found, _show(found)

@@ -15,7 +15,7 @@ from dataclasses import replace
 import numpy as np
 
 from .approach import closest_approach
-from .stability import blow_up, fixed_step_instability, largest_velocity, unphysical_speed
+from .stability import diagnose, fixed_step_instability, largest_velocity, unphysical_speed
 from ..model.assembly import assemble
 from ..model.configuration import Configuration
 from ..events.contact import contact_point, contact_row, contact_state
@@ -268,7 +268,7 @@ def simulate(scene: Scene | str | os.PathLike, options: RunOptions = RunOptions(
         traj.status, traj.message = "partial", exc.text()
         raise SimulationError(exc.problems, partial=traj) from None
     except SimulationError as exc:
-        blown = blow_up(cfg, exc, t, q, v, stepping[1], opts.step) if stepping else None
+        blown = diagnose(cfg, exc, t, q, v, stepping[1], opts.step) if stepping else None
         if blown:  # a blown-up state: the integration is the cause, not what failed in it
             exc.problems = [blown]
         where = str(scene.path)
