@@ -99,6 +99,14 @@ def configurations(views: dict, graph: list[Edge]) -> list[str]:
     return names
 
 
+def _rim(centre, angle: float, r: float) -> tuple[float, float]:
+    """The point of a node's ellipse (half-axes 1.2 r, 0.65 r) in direction ``angle``."""
+    a, b = 1.2 * r, 0.65 * r
+    c, s = math.cos(angle), math.sin(angle)
+    t = 1.0 / math.hypot(c / a, s / b)
+    return centre[0] + t * c, centre[1] + t * s
+
+
 @dataclass
 class GraphFigure:
     figure: object
@@ -145,20 +153,21 @@ def graph_figure(views: dict, events: list[dict] | None = None, title: str = "",
             x, y = nodes[e.source]
             ang = math.atan2(y, x) if (x, y) != (0.0, 0.0) else math.pi / 2
             ang += 1.1 * k * (1 if x >= 0 else -1)
-            cx, cy = x + (r + 0.18) * math.cos(ang), y + (r + 0.18) * math.sin(ang)
-            art = patches.FancyArrowPatch((x + 0.8 * r * math.cos(ang - 0.5), y + 0.5 * r * math.sin(ang - 0.5)),
-                                          (x + 0.8 * r * math.cos(ang + 0.5), y + 0.5 * r * math.sin(ang + 0.5)),
-                                          connectionstyle="arc3,rad=-1.6", arrowstyle="-|>", mutation_scale=12,
-                                          gid=f"edge:{i}", **style)
-            lx, ly = x + (r + 0.75) * math.cos(ang), y + (r + 0.55) * math.sin(ang)
+            art = patches.FancyArrowPatch(_rim((x, y), ang - 0.45, r), _rim((x, y), ang + 0.45, r),
+                                          connectionstyle="arc3,rad=2.0", arrowstyle="-|>", mutation_scale=12,
+                                          shrinkA=0, shrinkB=0, gid=f"edge:{i}", **style)
+            lx, ly = x + (1.2 * r + 0.75) * math.cos(ang), y + (0.65 * r + 0.55) * math.sin(ang)
         else:
             key = tuple(sorted((e.source, e.target)))
             k = pair_count.get(key, 0)
             pair_count[key] = k + 1
             rad = 0.15 + 0.2 * k
             (x0, y0), (x1, y1) = nodes[e.source], nodes[e.target]
-            art = patches.FancyArrowPatch((x0, y0), (x1, y1), connectionstyle=f"arc3,rad={rad}", arrowstyle="-|>",
-                                          mutation_scale=14, shrinkA=30, shrinkB=30, gid=f"edge:{i}", **style)
+            out_ang = math.atan2(y1 - y0, x1 - x0)
+            start = _rim((x0, y0), out_ang + 0.9 * rad * -1, r)  # leave and arrive on the rims, as the arc bends
+            end = _rim((x1, y1), out_ang + math.pi + 0.9 * rad, r)
+            art = patches.FancyArrowPatch(start, end, connectionstyle=f"arc3,rad={rad}", arrowstyle="-|>",
+                                          mutation_scale=14, shrinkA=1, shrinkB=1, gid=f"edge:{i}", **style)
             # the label on the curve (matplotlib's arc3 Bezier), a third of the way from the source,
             # so the two directions of a pair and crossing edges keep their labels apart
             cx, cy = 0.5 * (x0 + x1) + rad * (y1 - y0), 0.5 * (y0 + y1) - rad * (x1 - x0)
