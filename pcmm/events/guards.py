@@ -70,8 +70,28 @@ def _time(cfg: Configuration, tr: TransitionSpec, ctx=None):
     return value, (lambda t, y, f: 1.0)
 
 
+def _cut_joint_force(cfg: Configuration, tr: TransitionSpec):
+    """The normal force of a cut joint held by compression only (``of`` names it): n . F, with F its
+    multipliers (the force on b, world axes) and n its contact normal, > 0 while it pushes."""
+    spec = next(s for s in cfg.spec.cut_joints if s.name == tr.guard.of)
+    labels = cfg.coords.labels
+    ix, iy = labels.index(f"{spec.name}.fx"), labels.index(f"{spec.name}.fy")
+    unpack = cfg.coords.unpack
+    frame_a = cfg.link_frame[spec.a]
+
+    def value(t, y):
+        q, v = unpack(t, y)
+        _, lam = cfg.coords.accelerations(t, q, v)
+        n = cfg.data.oMf[frame_a].rotation[:2, :2] @ np.asarray(spec.normal, float)
+        return float(n @ lam[[ix, iy]]) / float(np.linalg.norm(n)) - tr.guard.value
+    return value, None
+
+
 def _reaction(cfg: Configuration, tr: TransitionSpec, ctx=None):
-    """The holding force/moment of ``tr.guard.of`` (``ctx``: the run's :class:`pcmm.holding.Holds`)."""
+    """The holding force/moment of ``tr.guard.of`` (``ctx``: the run's :class:`pcmm.holding.Holds`),
+    or the normal force of the configuration's own cut joint of that name (a pinned foot's lift-off)."""
+    if any(s.name == tr.guard.of for s in cfg.spec.cut_joints):
+        return _cut_joint_force(cfg, tr)
     if ctx is None or not ctx.holds(tr.guard.of, cfg):
         raise _NotHeld(tr.guard.of)
     label = ctx.label(tr.guard.of)
@@ -97,6 +117,35 @@ def _describe(tr: TransitionSpec) -> str:
             "time": lambda: f"t = {g.at:.9g} s" if g.at is not None else f"t = {g.start:.9g} + k {g.every:.9g} s",
             "reaction": lambda: f"holding force of {g.of} = {g.value:.9g}"}[g.type]()
     return f"transition '{tr.name}': {what}"
+
+
+def armed(cfg: Configuration, tr: TransitionSpec, raw, raw_rate):
+    """A guard armed by a region (``when``): with u = -direction * value (> 0 on the unfired side)
+    and d the signed distance into the region (``measure - above``, or ``below - measure``), the
+    guard reads -direction * max(u, -d).  Outside the region it stays on its unfired side, inside
+    and near its crossing it is the plain guard, so the crossing is located exactly.  (Also a
+    crossing where the measure enters the region while the plain value is already past its fired
+    side: Drake's compass-gait witness max(2 gamma - theta_s - theta_w, theta_w - theta_s) does
+    the same.)"""
+    measure, side, bound = tr.guard.when
+    row, offset = cfg.measure_row(measure)
+    direction = tr.guard.direction
+    unpack = cfg.coords.unpack
+
+    def inside(t, y):
+        q, _ = unpack(t, y)
+        return side * (row @ q + offset - bound)
+
+    def value(t, y):
+        u, d = -direction * raw(t, y), inside(t, y)
+        return -direction * (u if u >= -d else -d)
+
+    def rate(t, y, f):
+        if -direction * raw(t, y) >= -inside(t, y):
+            return raw_rate(t, y, f) if raw_rate is not None else None
+        q, v = unpack(t, y)
+        return direction * side * float(row @ cfg.qdot(q, v))
+    return value, (rate if raw_rate is not None else None)
 
 
 def make_guard(cfg: Configuration, tr: TransitionSpec, rearm: bool = False, context=None) -> Guard | None:
@@ -126,6 +175,8 @@ def make_guard(cfg: Configuration, tr: TransitionSpec, rearm: bool = False, cont
     except _NotHeld:
         return None
     direction = tr.guard.direction
+    if tr.guard.when is not None:
+        raw, raw_rate = armed(cfg, tr, raw, raw_rate)
     value, rate = raw, raw_rate
     if rearm:
         def value(t, y):

@@ -40,6 +40,7 @@ from .contact_faults import POSE_TOL, contact_findings
 from .records import by_link, event_record
 from .guards import guard_value
 from .impulse import no_impulse, solve_impulse
+from .pins import pin_strike
 from ..scene.spec import LatchSpec, StopSpec, TransitionSpec
 
 RESTING_FACTOR = 100.0  # a guard crossing at a separating speed below 100 x the accumulation speed is rest
@@ -75,21 +76,106 @@ class Outcome:
 
 # ---- state mapping -----------------------------------------------------------------------
 def switch(src: Configuration, dst: Configuration, t: float, q: np.ndarray, v: np.ndarray,
-           known: dict | None = None):
-    """Map (q, v) of ``src`` onto ``dst`` by joint name and check the common links' poses.
+           known: dict | None = None, what: str = "switch", reset: bool = False):
+    """Map (q, v) of ``src`` onto ``dst`` (:func:`enter`).  Returns (q, v, dropped velocities
+    {joint: v}, angle offsets {link: 2 pi k})."""
+    entry = enter(src, dst, t, q, v, known=known, what=what, reset=reset)
+    return entry.q, entry.v, entry.dropped, entry.offsets
 
-    Joints ``dst`` has and ``src`` lacks take their value from ``known`` (at rest),
-    else from the links' poses.  Returns (q, v, dropped velocities {joint: v},
-    angle offsets {link: 2 pi k}).
+
+@dataclass
+class Entry:
+    """The state a switch enters its target configuration with."""
+
+    q: np.ndarray
+    v: np.ndarray
+    dropped: dict[str, float]  # joints the target lacks: their velocity before the switch
+    offsets: dict[str, float]  # link -> 2 pi k
+    velocity_residual: float  # largest |Phi_q v + Phi_t| of the target's rows at the mapped velocity
+
+
+#: a constraint holds at a velocity "to round-off" below this x max(1, |v|) x max(1, |Phi_q|)
+VELOCITY_ROUNDOFF = 1e-9
+
+
+def enter(src: Configuration, dst: Configuration, t: float, q: np.ndarray, v: np.ndarray,
+          known: dict | None = None, what: str = "switch", reset: bool = False) -> Entry:
+    """The one way a run enters a configuration after a switch (every transition kind ends here).
+
+    (q, v) of ``src`` (after the impulse, if any) are mapped onto ``dst`` by joint name; joints
+    ``dst`` has and ``src`` lacks take their value from ``known`` (at rest), else from the links'
+    poses.  Then every constraint of ``dst`` is checked at the mapped state:
+
+    * the links both share sit where they were (``POSE_TOL``);
+    * the joints ``dst`` locks (a latch, a merged stop: a weld in ``dst``'s URDF) are at rest
+      relative to each other: their velocity is dropped, so it must be zero to round-off;
+    * every row of ``dst``'s loops (cut joints) and drives holds at the mapped velocity,
+      ``Phi_q v + Phi_t = 0`` to round-off (the impulse solved with ``src``'s rows and the contact
+      normal alone cannot satisfy a row ``dst`` adds that they do not span).
+
+    Only then is the state assembled onto ``dst`` (its Newton solve moves it by round-off).  A
+    violated constraint stops the run with its name, the velocity it leaves and the time: a
+    switch never silently replaces the velocity the impulse gave.  ``reset=True`` is the one
+    exception the scene asks for (a run without impact, the paper's comparison): the locked
+    joints' velocities are dropped and the rest assembled, as its event reports.
     """
-    q_new, v_new, dropped = map_state(src, dst, q, v, known)
-    q_new, v_new = dst.coords.project(t, q_new, v_new)
+    q_map, v_map, dropped = map_state(src, dst, q, v, known)
+    scale = max(1.0, float(np.max(np.abs(v)))) if len(v) else 1.0
+    if not reset:
+        moving = {n: w for n, w in dropped.items() if abs(w) > VELOCITY_ROUNDOFF * scale}
+        if moving:
+            raise SimulationError(
+                f"t = {t:.9g} s, {what} '{src.name}' -> '{dst.name}': '{dst.name}' locks "
+                + ", ".join(f"joint '{n}'" for n in moving) + " but after the switch it still moves ("
+                + ", ".join(f"{n}' = {w:.6g}" for n, w in moving.items()) + "); locking it would drop that "
+                "velocity silently. The impulse must stop the joint: give the transition a contact acting along "
+                "its motion and list it in cut")
+    q_new, v_new = dst.coords.project(t, q_map, v_map)
     offsets, problems = pose_mismatches(src, dst, q, q_new)
     if problems:
         raise SimulationError([f"t = {t:.9g} s, switching '{src.name}' -> '{dst.name}': {p}" for p in problems]
                               + ["the two URDFs must place every shared link identically at the switch "
                                  "(check the fixed joint's origin in the merged configuration)"])
-    return q_new, v_new, dropped, offsets
+    residual = 0.0
+    if len(dst.coords.labels) and not reset:
+        Jq, _ = dst.coords.rows(t, q_new, v_new)
+        # v_new satisfies every row (the projection solved them), so Phi_q v_map + Phi_t = Phi_q (v_map - v_new)
+        rows = Jq @ (v_map - v_new)
+        tol = VELOCITY_ROUNDOFF * scale * max(1.0, float(np.max(np.abs(Jq))))
+        residual = float(np.max(np.abs(rows)))
+        if residual > tol:
+            raise SimulationError(_violated(src, dst, t, what, rows, tol, v_map, v_new))
+    return Entry(q_new, v_new, dropped, offsets, residual)
+
+
+def _violated(src, dst, t, what, rows, tol, v_map, v_new) -> list[str]:
+    """The message of a switch whose velocity violates constraints of the target."""
+    bad = [(lab, float(r)) for lab, r in zip(dst.coords.labels, rows) if abs(r) > tol]
+    unit = {True: "rad/s", False: "m/s"}
+    named = ", ".join(f"'{lab}' ({_constraint_kind(lab)}) by {r:.6g} {unit[lab.endswith('.drive') or lab.endswith('.m')]}"
+                      for lab, r in bad)
+    change = {}
+    for n in dst.joint_names:
+        sl = dst.joint_slice[n]
+        names = [n] if sl.stop - sl.start == 1 else [f"{n}.x", f"{n}.y", f"{n}.theta"]
+        for k, name in zip(range(sl.start, sl.stop), names):
+            if abs(v_map[k] - v_new[k]) > tol:
+                change[name] = (float(v_map[k]), float(v_new[k]))
+    return [f"t = {t:.9g} s, {what} '{src.name}' -> '{dst.name}': the velocity after the switch violates the "
+            f"constraints of '{dst.name}': {named}",
+            "it leaves the joint velocities " + ", ".join(f"{n}' = {a:.6g}" for n, (a, _) in change.items())
+            + (" where the constraints need " + ", ".join(f"{n}' = {b:.6g}" for n, (_, b) in change.items())
+               + " (keeping the independent ones)" if change else ""),
+            "the impulse acts only along the transition's contact normal and the rows of "
+            f"'{src.name}', which do not span these; pcmm does not replace the velocity silently. Give the "
+            f"transition a contact (or cut joints) whose impulse can make every constraint of '{dst.name}' hold, "
+            f"or enter a configuration without them"]
+
+
+def _constraint_kind(label: str) -> str:
+    if label.endswith(".drive"):
+        return f"the drive of joint {label[:-6]}"
+    return f"cut joint {label.rsplit('.', 1)[0]}"
 
 
 def map_state(src: Configuration, dst: Configuration, q, v, known: dict | None = None):
@@ -211,7 +297,7 @@ def _merge(ctx: Context, cfg: Configuration, tr: TransitionSpec, target: str, t,
     dst = ctx.mechanism.enter(target, cfg, q)  # a derived configuration locks the values at this instant
     locked = [n for n in cfg.joint_names if n not in dst.joint_slice]
     if ctx.impact:
-        imp = solve_impulse(cfg, t, q, v, tr.contact, 0.0, tr.cut)
+        imp = solve_impulse(cfg, t, q, v, tr.contact, 0.0, tr.cut, name=tr.name)
         v_after = imp.v_after
     else:  # the paper's comparison: surviving joints keep their velocities, locked ones drop theirs
         v_after = v.copy()
@@ -237,7 +323,8 @@ def _merge(ctx: Context, cfg: Configuration, tr: TransitionSpec, target: str, t,
                 f"t = {t:.9g} s, transition '{tr.name}': the event was located {residual:.3g} away from "
                 f"the guard's value, more than the {POSE_TOL:g} the switch to '{target}' allows: lower "
                 "solver.event_tol (--event-tol) or rtol")
-    q_new, v_new, dropped, offsets = switch(cfg, dst, t, q, v if not imp.impact else v_after)
+    q_new, v_new, dropped, offsets = switch(cfg, dst, t, q, v if not imp.impact else v_after,
+                                            what=f"{transition_type} '{tr.name}'", reset=not imp.impact)
     if not imp.impact:  # the record shows the velocities the run goes on with (projected onto the target)
         for n in dst.joint_names:
             if n in cfg.joint_slice:
@@ -268,7 +355,7 @@ def handle_stop(ctx: Context, cfg: Configuration, tr: StopSpec, t, q, v) -> Outc
             raise SimulationError(_separating_with_faults(cfg, tr, t, q, v, vn))
         accumulated, rest_speed = True, vn
     else:
-        imp = solve_impulse(cfg, t, q, v, tr.contact, tr.restitution, tr.cut)
+        imp = solve_impulse(cfg, t, q, v, tr.contact, tr.restitution, tr.cut, name=tr.name)
         last = ctx.last_impact.get(tr.name)
         rest_speed = imp.vn_after
         # impacts at the same instant are a sequential resolution of simultaneous contacts, not an
@@ -283,7 +370,7 @@ def handle_stop(ctx: Context, cfg: Configuration, tr: StopSpec, t, q, v) -> Outc
                 "merge_to configuration so the run can continue with the bodies merged")
         return _merge(ctx, cfg, tr, tr.merge_to, t, q, v, "stop")
     record = event_record(cfg, tr, t, cfg.name, False, imp, q=q)
-    q_new, v_new = cfg.coords.project(t, q, imp.v_after)
+    q_new, v_new, _, _ = switch(cfg, cfg, t, q, imp.v_after, what=f"bounce at '{tr.name}'")
     return Outcome(cfg.name, q_new, v_new, record, {})
 
 
@@ -346,7 +433,7 @@ def release(ctx: Context, cfg: Configuration, tr: TransitionSpec, target: str, t
     pose and velocity is checked continuous and the kinetic energy unchanged."""
     dst = ctx.mechanism.enter(target, cfg, q)  # a derived target locks the values it has now
     freed = [n for n in dst.joint_names if n not in cfg.joint_slice]
-    q_new, v_new, _, offsets = switch(cfg, dst, t, q, v, known=known)
+    q_new, v_new, _, offsets = switch(cfg, dst, t, q, v, known=known, what=f"{cause} release '{tr.name}'")
     continuity = _check_continuity(cfg, dst, t, q, v, q_new, v_new, "release")
     record = _release_event(cfg, dst, tr, t, q, v, q_new, v_new, freed, continuity, cause)
     return Outcome(target, q_new, v_new, record, offsets)
@@ -363,4 +450,9 @@ def unmerge(ctx: Context, cfg: Configuration, hold, target: str, t, q, v) -> Out
     return release(ctx, cfg, hold.transition, target, t, q, v, known=hold.joints, cause="tensile holding force")
 
 
-TRANSITIONS = {"latch": handle_latch, "stop": handle_stop, "release": handle_release}
+def handle_pin(ctx: Context, cfg: Configuration, tr: TransitionSpec, t, q, v) -> Outcome:
+    """A struck point pinned where it lands (:mod:`pcmm.events.pins`)."""
+    return Outcome(*pin_strike(ctx, cfg, tr, t, q, v), angle_offsets={})
+
+
+TRANSITIONS = {"latch": handle_latch, "stop": handle_stop, "release": handle_release, "pin": handle_pin}

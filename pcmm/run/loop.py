@@ -16,6 +16,7 @@ from dataclasses import replace
 import numpy as np
 
 from .approach import closest_approach
+from .stability import diagnose, fixed_step_instability, largest_velocity, unphysical_speed
 from ..model.assembly import assemble
 from ..model.configuration import Configuration
 from ..events.contact import contact_point, contact_row, contact_state
@@ -127,6 +128,7 @@ def simulate(scene: Scene | str | os.PathLike, options: RunOptions = RunOptions(
     phase: ContactPhase | None = None  # a collision resolved by a continuous contact law
     bounced = None  # the stop that just bounced: its guard is re-armed (see guards.make_guard)
     audit = FlightAudit()
+    stepping = None  # (rhs, method, options) of the segment being integrated
     stats["macro_impacts"] = audit.macro_impacts
     stats = traj.stats = RunStats(stats, holding=lambda: holding_extremes(traj))  # "holding": computed when read
     try:
@@ -155,6 +157,9 @@ def simulate(scene: Scene | str | os.PathLike, options: RunOptions = RunOptions(
                 if pending is not None:  # a contact already closed at this instant (simultaneous impacts)
                     seg = Segment(np.array([t]), y0[:, None], pending, 0, 0, 1, "simultaneous")
                 elif y0.size:
+                    unstable = method.fixed_step and fixed_step_instability(cfg, stepping[0], t, y0, opts.step, method.name)
+                    if unstable:  # the step alone would make the motion grow: say so, before any symptom
+                        raise SimulationError(unstable)
                     seg = method.integrate(fun, t, y0, opts.t_end, guards, opts)
                 else:  # no free coordinate: the motion is a known function of time, not integrated
                     seg = _known_motion(cfg, t, y0, guards, opts)
@@ -260,6 +265,9 @@ def simulate(scene: Scene | str | os.PathLike, options: RunOptions = RunOptions(
         traj.status, traj.message = "partial", exc.text()
         raise SimulationError(exc.problems, partial=traj) from None
     except SimulationError as exc:
+        blown = diagnose(cfg, exc, t, q, v, stepping[1], opts.step) if stepping else None
+        if blown:  # a blown-up state: the integration is the cause, not what failed in it
+            exc.problems = [blown]
         where = str(scene.path)
         exc.problems = [p if p.startswith(where) else f"{where}: {p}" for p in exc.problems]
         exc.args = (exc.text(),)
@@ -281,6 +289,11 @@ def check_start(scene: Scene, cfg: Configuration, t, q, v) -> None:
     velocity overflows them), and no body already inside a stop - a guard on its fired side
     while its contact approaches (or, for a gap guard, penetrates) would never change sign, and
     the body would fall through with no event."""
+    fast = unphysical_speed(cfg, q, v)
+    if fast:
+        raise SimulationError(f"{scene.path}: initial.v: {fast} at t = {t:g} s: the initial velocities are not "
+                              f"physical (the largest: {largest_velocity(cfg, v)}); check initial.v and its units "
+                              "(rad/s for a revolute joint, m/s for a slider)")
     ke, pe = cfg.kinetic_energy(q, v), cfg.potential_energy(q)
     if not (math.isfinite(ke) and math.isfinite(pe)):
         raise SimulationError(f"{scene.path}: the initial state's kinetic energy ({ke:.3g} J) or potential "
@@ -541,7 +554,7 @@ def _record_samples(traj: Trajectory, cfg: Configuration, seg, offsets, q_start,
         def work():
             out = _derived_series(cfg, t, y, offsets)
             if held:
-                out["constraint_forces"] = np.hstack((out["constraint_forces"], _holding_forces(cfg, holds, t, y)))
+                out["constraint_forces"] = np.hstack((out["constraint_forces"], _holding_forces(cfg, holds, t, out)))
             return out
         return in_segment_state(work)
 
@@ -557,8 +570,7 @@ def _record_samples(traj: Trajectory, cfg: Configuration, seg, offsets, q_start,
             coords.seed(q_start)
             out = _derived_series(cfg, times, states, offsets)
             if held:
-                out["constraint_forces"] = np.hstack((out["constraint_forces"],
-                                                      _holding_forces(cfg, holds, times, states)))
+                out["constraint_forces"] = np.hstack((out["constraint_forces"], _holding_forces(cfg, holds, times, out)))
             return out
         return in_segment_state(work)
     coord_names = []
@@ -572,12 +584,15 @@ def _record_samples(traj: Trajectory, cfg: Configuration, seg, offsets, q_start,
     traj.stats["record_s"] += time.perf_counter() - t0
 
 
-def _holding_forces(cfg: Configuration, holds: Holds, t, y) -> np.ndarray:
-    """(n, holds) holding force or moment of every lock in force at the states ``y`` (columns)."""
+def _holding_forces(cfg: Configuration, holds: Holds, t, series: dict) -> np.ndarray:
+    """(n, holds) holding force or moment of every lock in force, at the segment's own solved
+    coordinates ``series["q"], series["v"]`` (those every other series was derived from).  Never
+    solved again from the integrator's state: a loop's Newton solve warm-started from wherever
+    the coordinates were left (the segment's end, or a later segment's) can land on the other
+    assembly, and the series would then depend on what the run did after the segment."""
     out = np.empty((len(t), len(holds.items)))
     for i in range(len(t)):
-        q, v = cfg.coords.unpack(t[i], y[:, i])
-        out[i] = list(holds.forces(cfg, t[i], q, v).values())
+        out[i] = list(holds.forces(cfg, t[i], series["q"][i], series["v"][i]).values())
     return out
 
 
