@@ -16,6 +16,8 @@ from dataclasses import replace
 import numpy as np
 
 from .approach import closest_approach
+from .audit import FlightAudit
+from .dense import dense_states
 from ..model.assembly import assemble
 from ..model.configuration import Configuration
 from ..events.contact import contact_point, contact_row, contact_state
@@ -129,22 +131,24 @@ def simulate(scene: Scene | str | os.PathLike, options: RunOptions = RunOptions(
     audit = FlightAudit()
     stats["macro_impacts"] = audit.macro_impacts
     stats = traj.stats = RunStats(stats, holding=lambda: holding_extremes(traj))  # "holding": computed when read
+    completed = False
     try:
         while True:
             # integrate the configuration's dynamics (Eq. 1) until a guard fires (Fig. 3)
             y0 = cfg.coords.pack(t, q, v)
             guards = _guards(scene, cfg, holds, t, phase, bounced, fired)
-            # a flight between two impacts at the same contact: its energy is audited
-            flight = bounced is not None and phase is None and y0.size > 0
+            # a flight between two impacts at the same contact: its energy is audited (pcmm.run.audit)
+            flight = audit.in_flight and phase is None and y0.size > 0
             bounced = None
             pending = None if phase is not None else _pending(cfg, guards, t, y0)
             fun = cfg.coords.rhs
             if phase is not None:
                 guards = [phase.end_guard()] + [g.on_state(y0.size) for g in guards]
                 y0, fun = np.append(y0, 0.0), phase.rhs()
-            elif flight:  # the work of forces and drives integrated with the state (Eq. 1's tau_a + tau_c)
+            elif flight:  # integrated with its work appended, as it always was: that component takes part
+                # in the step-size control, and the accumulation's series were measured with it (the
+                # audit itself measures the work by its own quadrature, pcmm.run.audit)
                 guards = [g.on_state(y0.size) for g in guards]
-                energy_before = _mechanical_energy(cfg, q, v)
                 y0, fun = np.append(y0, 0.0), cfg.coords.rhs_with_power
             stepping = (fun, method_for(opts.method, cfg.coords.constrained), opts)  # for dense resampling
             if progress is not None:
@@ -184,10 +188,8 @@ def simulate(scene: Scene | str | os.PathLike, options: RunOptions = RunOptions(
                 impulse_integral = float(seg.y[-1, -1])
                 seg.y = seg.y[:-1]
             elif flight:
-                work = float(seg.y[-1, -1])
+                audit.flight(cfg, seg.t, seg.y, stepping, q, *cfg.coords.unpack(float(seg.t[-1]), seg.y[:-1, -1]))
                 seg.y = seg.y[:-1]
-                audit.flight(energy_before, _mechanical_energy(cfg, *cfg.coords.unpack(float(seg.t[-1]), seg.y[:, -1])),
-                             work, cfg.kinetic_energy(q, v))
             if progress:
                 progress(float(seg.t[-1]))
             if seg.event is None:
@@ -241,7 +243,7 @@ def simulate(scene: Scene | str | os.PathLike, options: RunOptions = RunOptions(
                 offsets = {k: offsets.get(k, 0.0) + d for k, d in out.angle_offsets.items()}
             else:
                 bounced = tr
-            audit.event(tr.name, out.event, bounced is not None, residual)
+            audit.event(cfg, q, out.event, bounced is not None, residual)
             nxt = mech[out.configuration]
             nxt.continue_angles(offsets)  # measures (springs, guards) continue the series' angles
             if out.locks is not None:
@@ -251,6 +253,7 @@ def simulate(scene: Scene | str | os.PathLike, options: RunOptions = RunOptions(
             q, v = out.q, out.v
             if t >= opts.t_end:
                 break
+        completed = True
     except KeyboardInterrupt as exc:
         traj.status, traj.message = "partial", f"{scene.path}: {describe(exc)} at t = {_t_last(traj):.6g} s"
         err = SimulationError(traj.message, partial=traj)
@@ -271,6 +274,11 @@ def simulate(scene: Scene | str | os.PathLike, options: RunOptions = RunOptions(
         stats["derived_configurations"] = mech.derived
         # which evaluations each configuration ran: "compiled", or "python" and why (pcmm.compiled)
         stats["evaluations"] = {name: mech[name].coords.evaluations for name in mech.built}
+        try:  # the flights' energy balances, measured now that the run needs its state no more
+            audit.finish()
+        except (SimulationError, Repartition):
+            if completed:  # a partial run keeps what it has; its own error is the one to report
+                raise
     # the guards that did not fire: computed when read (it reads the final segments' coordinates)
     stats.defer("closest_approach", lambda cfg=cfg: closest_approach(scene, cfg, traj))
     return traj
@@ -301,72 +309,6 @@ def check_start(scene: Scene, cfg: Configuration, t, q, v) -> None:
                 f"value {tr.guard.value:g} in its direction) while the contact "
                 f"{'penetrates' if tr.guard.type == 'gap' else 'approaches'}: the bodies start inside the "
                 "stop, and the guard would never fire; start the bodies apart (initial.q)")
-
-
-def _mechanical_energy(cfg: Configuration, q, v) -> float:
-    """Kinetic plus gravity energy (J): what changes in flight by the work of the force
-    elements and drives alone."""
-    return cfg.kinetic_energy(q, v) + cfg.gravity_energy(q)
-
-
-RESOLVED_KINETIC = 1e-6  # flights with less rebound energy than this x the first are round-off dominated
-
-
-class FlightAudit:
-    """The energy balance of every flight between two impacts at the same contact.
-
-    A flight starts at a bounce and ends at the next event.  Over it the kinetic plus
-    gravity energy may change only by the work of the force elements and drives, which is
-    integrated with the state (``rhs_with_power``); ``residual = dE - W`` must stay at the
-    integrator's accuracy.  Consecutive bounces at one stop form a macro-impact; each is
-    reported in ``stats["macro_impacts"]`` with its impacts, the times of its first and last
-    event, whether it ended in a merge, the largest distance of an impact from its guard's
-    value (``guard_residual_max``, m or rad: a rigid stop is struck where the contact
-    closes, so this is round-off; a guard that let the bodies sink into the stop shows here,
-    and the loads then do work through that depth), its largest flight residual (J) and its largest
-    residual relative to the flight's kinetic energy at the rebound (the energy the flight
-    must give back: an approach speed off by a relative d is a relative 2 d here).
-
-    The relative figure counts the flights whose rebound energy is above RESOLVED_KINETIC
-    times the first flight's (``flights_resolved`` of ``flights``).  Below that the flight
-    is so short that double-precision positions decide it: a contact point known to one ulp
-    (5.6e-17 m at 0.3 m) under a normal acceleration a shifts the approach speed by
-    ``a ulp / v``, which is 1e-6 relative at v = 3e-5 m/s and of order one at 1e-8 m/s."""
-
-    def __init__(self):
-        self.macro_impacts: list[dict] = []
-        self._open: dict | None = None
-        self._kinetic_first = 0.0
-
-    def event(self, name: str, event: dict, bounced: bool, guard_residual: float | None) -> None:
-        if not event.get("impact"):
-            self._open = None
-            return
-        m = self._open
-        if m is None or m["transition"] != name:
-            m = {"transition": name, "t_first": event["t"], "t_last": event["t"], "impacts": 0, "flights": 0,
-                 "merged": False, "guard_residual_max": 0.0, "flight_energy_residual_max": 0.0,
-                 "flight_energy_relative_max": 0.0, "flights_resolved": 0}
-            self.macro_impacts.append(m)
-        m["impacts"] += 1
-        if guard_residual is not None:
-            m["guard_residual_max"] = max(m["guard_residual_max"], abs(guard_residual))
-        m["t_last"] = event["t"]
-        m["merged"] = bool(event.get("merge"))
-        self._open = m if bounced else None
-
-    def flight(self, e0: float, e1: float, work: float, kinetic0: float) -> None:
-        m = self._open
-        if m is None:
-            return
-        m["flights"] += 1
-        residual = abs(e1 - e0 - work)
-        m["flight_energy_residual_max"] = max(m["flight_energy_residual_max"], residual)
-        if m["flights"] == 1:
-            self._kinetic_first = kinetic0
-        if kinetic0 > RESOLVED_KINETIC * self._kinetic_first:
-            m["flight_energy_relative_max"] = max(m["flight_energy_relative_max"], residual / kinetic0)
-            m["flights_resolved"] += 1
 
 
 KNOWN_MOTION_SAMPLES = 200  # samples of a locked or fully driven stay (at most, and at least 1 / step)
@@ -550,7 +492,7 @@ def _record_samples(traj: Trajectory, cfg: Configuration, seg, offsets, q_start,
             fun, method, opts = stepping
             if not coords.constrained and fun is coords.rhs:
                 fun = coords.fresh_rhs()
-            states = _dense_states(t, y_full, times, (fun, method, opts))[:n_state]
+            states = dense_states(t, y_full, times, (fun, method, opts))[:n_state]
             # the dense steps left the loop's warm starts at the segment's end: the series are
             # solved from its start onwards, as the recorded ones are (from the end, a loop's
             # Newton solve at the start could land on another assembly)
@@ -580,34 +522,6 @@ def _holding_forces(cfg: Configuration, holds: Holds, t, series: dict) -> np.nda
     out = np.empty((len(t), len(holds.items)))
     for i in range(len(t)):
         out[i] = list(holds.forces(cfg, t[i], series["q"][i], series["v"][i]).values())
-    return out
-
-
-def _dense_states(t, y, times, stepping) -> np.ndarray:
-    """The states at ``times`` (within [t[0], t[-1]]) on the dense output of the recorded steps:
-    each step that holds a requested time is taken again from its recorded start with its
-    recorded size (DOP853's 7th-order dense output; a fixed-step method's cubic Hermite from the
-    derivatives at both ends, its own dense output).  A state without components (a locked or
-    fully driven stay) is a known function of time: nothing to interpolate."""
-    from ..ode.integrators import _dop853_dense, _hermite
-    fun, method, opts = stepping
-    out = np.empty((y.shape[0], len(times)))
-    if y.shape[0] == 0:
-        return out
-    k_of = np.clip(np.searchsorted(t, times, side="right") - 1, 0, max(len(t) - 2, 0))
-    for k in np.unique(k_of):
-        cols = np.flatnonzero(k_of == k)
-        exact = {j for j in cols if times[j] == t[k] or times[j] == t[min(k + 1, len(t) - 1)]}
-        for j in exact:
-            out[:, j] = y[:, k] if times[j] == t[k] else y[:, k + 1]
-        rest = [j for j in cols if j not in exact]
-        if not rest:
-            continue
-        if method.fixed_step:
-            sol = _hermite(t[k], y[:, k], fun(t[k], y[:, k]), t[k + 1], y[:, k + 1], fun(t[k + 1], y[:, k + 1]))
-        else:
-            sol = _dop853_dense(fun, t[k], y[:, k], t[k + 1], opts)
-        out[:, rest] = np.asarray(sol(times[rest]), float).reshape(y.shape[0], len(rest))
     return out
 
 
