@@ -135,11 +135,6 @@ class FlightAudit:
             ke = event["kinetic_energy_after"]
             self._start = (ke + cfg.gravity_energy(q), ke)
 
-    @property
-    def in_flight(self) -> bool:
-        """Is the segment about to start a flight whose energy is audited?"""
-        return self._open is not None and self._start is not None
-
     def flight(self, cfg: Configuration, seg_t, seg_y, stepping, q_start, q_end, v_end) -> None:
         """The flight just integrated (the recorded steps ``seg_t, seg_y``) ended at ``(q_end, v_end)``;
         it is measured by :meth:`finish`."""
