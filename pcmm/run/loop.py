@@ -1,9 +1,13 @@
 """The configuration-complete simulation (paper Fig. 3).
 
-Integrate the current configuration's dynamics (Eq. 1) until a guard fires;
-solve the transformation (impulse, velocity jump, configuration switch); go
-on in the next configuration until ``t_end``.  With ``impact=False`` the
-transformations switch without impulse (the paper's comparison runs).
+Integrate the current configuration's dynamics (Eq. 1) until a guard fires
+(:func:`integrate_segment`); do what that guard's kind does (one entry of
+:data:`pcmm.run.actions.GUARD_ACTIONS`: solve the transformation - impulse, velocity jump,
+configuration switch - or start or end a contact phase, or repartition a loop); go on in the
+next configuration until ``t_end``.  The run's state is a :class:`~pcmm.run.state.RunState`;
+segments are recorded by :mod:`pcmm.run.recording` and flights audited by
+:mod:`pcmm.run.audit`.  With ``impact=False`` the transformations switch without impulse
+(the paper's comparison runs).
 """
 from __future__ import annotations
 
