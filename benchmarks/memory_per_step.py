@@ -1,4 +1,4 @@
-"""Memory a run holds per accepted step (README "Errors and limits", "Memory per step").
+"""Memory a run holds per accepted step (docs/limits.md, "Memory per step").
 
     python benchmarks/memory_per_step.py examples/three_bar_stop.toml 3.0
     python benchmarks/memory_per_step.py examples/double_folded.toml 7.0

@@ -1,4 +1,4 @@
-"""URDF reading and validation cost against the number of links (README "Errors and limits").
+"""URDF reading and validation cost against the number of links (docs/limits.md).
 
     python benchmarks/urdf_validation.py
 

@@ -101,7 +101,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--dt", type=_positive("dt"), help="write the CSV and the figures at times 0, dt, 2 dt, ... "
                    "(and at every event) on the integrator's dense output, s (default: at its steps)")
     r.add_argument("--force", action="store_true", help="overwrite existing output files")
-    r.add_argument("--quiet", action="store_true", help="no progress bar, no event table (warnings still print)")
+    r.add_argument("--quiet", action="store_true", help="no progress bar, no event table (warnings still print, a guard that never fired among them)")
     sw = sub.add_parser("sweep", help="run a design study: variations of a scene, one results row per run")
     sw.add_argument("scene", type=Path)
     sw.add_argument("--set", dest="sets", action="append", default=[], metavar="PATH=VALUES",
@@ -121,16 +121,56 @@ def build_parser() -> argparse.ArgumentParser:
     sw.add_argument("--scheduler", metavar="ADDRESS", help="a Dask distributed scheduler (tcp://host:8786), or "
                     "'local' to start a LocalCluster of --workers processes")
     sw.add_argument("--resume", action="store_true", help="run only the runs missing from --out")
+    sw.add_argument("--run-timeout", type=_non_negative("run-timeout"), default=600.0, metavar="SECONDS",
+                    help="stop a run that takes longer than this and record it as 'timeout' (default: 600 s; "
+                         "0: no limit; not with --workers 1, which runs in this process)")
+    sw.add_argument("--retry-failed", action="store_true", help="with --resume: run again the runs whose row "
+                    "says crashed or timeout")
     sw.add_argument("--force", action="store_true", help="start over, replacing --out")
     sw.add_argument("--plots", type=Path, help="write each quantity against each swept value (PNG) into this folder")
     sw.add_argument("--plot", dest="plot_quantities", action="append", metavar="QUANTITY",
                     help="with --plots: only this quantity (or collected path); repeatable")
     sw.add_argument("--quiet", action="store_true", help="no progress bar")
+    op = sub.add_parser("optimize", help="minimise an output of the runs over boxes of scene values "
+                        "(every run a row of a sweep table)")
+    op.add_argument("scene", type=Path)
+    op.add_argument("--vary", action="append", default=[], metavar="PATH=LOW:HIGH", required=True,
+                    help="a value path and the box the optimiser searches; repeatable")
+    op.add_argument("--minimize", required=True, metavar="OUTPUT",
+                    help="the output to minimise: a table quantity (peak_impulse, first_impact_t, ...) or a "
+                         "summary path (events[0].impulse.normal)")
+    op.add_argument("--subject-to", action="append", default=[], metavar="OUTPUT<=VALUE",
+                    help="a bound on another output (<= or >=); repeatable")
+    op.add_argument("--method", choices=("cobyqa", "powell", "de"), help="cobyqa (default where scipy has it, "
+                    "else powell): derivative-free, bounded, one run at a time; de: differential evolution, "
+                    "each generation a batch of runs in parallel")
+    op.add_argument("--max-evals", type=_count, default=100, help="the most runs to ask for (default 100)")
+    op.add_argument("--tol", type=_positive("tol"), default=1e-6, help="the optimiser's tolerance in the box "
+                    "scaled to [0, 1] (de: relative spread of the population) (default 1e-6)")
+    op.add_argument("--popsize", type=_count, default=8, help="de: population per varied value (default 8)")
+    op.add_argument("--seed", type=int, default=0, help="de: the seed of its population (default 0)")
+    op.add_argument("--out", type=Path, required=True, help="the results table (.csv), one row per run")
+    op.add_argument("--t-end", type=_positive("t-end"), help="end time of every run in s (default: the scene's)")
+    op.add_argument("--workers", type=_count, help="processes (default: 1 for cobyqa and powell, the usable "
+                    "cores for de)")
+    op.add_argument("--scheduler", metavar="ADDRESS", help="a Dask distributed scheduler, or 'local'")
+    op.add_argument("--run-timeout", type=_non_negative("run-timeout"), default=600.0, metavar="SECONDS",
+                    help="stop a run that takes longer (default: 600 s; 0: no limit; on the pool and Dask)")
+    op.add_argument("--resume", action="store_true", help="replay the table's runs and go on from there")
+    op.add_argument("--force", action="store_true", help="start over, replacing --out")
     rp = sub.add_parser("replay", help="replay saved trajectories in meshcat (several: overlaid, one colour each)")
     rp.add_argument("trajectory", type=Path, nargs="+")
     rp.add_argument("--html", type=Path, help="write a self-contained offline page instead of serving")
     rp.add_argument("--fps", type=_fps, default=60.0,
                     help=f"frames per second (default 60, at most {MAX_FPS:g})")
+    rp.add_argument("--video", type=Path, help="write a video (.mp4 through ffmpeg, or .gif) of the 2D drawing instead "
+                    "of serving")
+    rp.add_argument("--speed", type=_positive("speed"), default=1.0,
+                    help="video: simulated seconds per second of video (default 1)")
+    rp.add_argument("--slow", type=_positive("slow"), default=0.1,
+                    help="video: the speed's factor within --slow-window of every event (default 0.1)")
+    rp.add_argument("--slow-window", type=_non_negative("slow-window"), default=0.02,
+                    help="video: slow motion this long before and after each event, s (default 0.02)")
     rp.add_argument("--force", action="store_true")
     pl = sub.add_parser("plot", help="write the paper's figures for a saved trajectory")
     pl.add_argument("trajectory", type=Path)
@@ -139,6 +179,11 @@ def build_parser() -> argparse.ArgumentParser:
     pl.add_argument("--force", action="store_true", help="overwrite existing figures")
     pl.add_argument("--impulse-sign", choices=["body_b", "paper"], default="body_b",
                     help="impulse sign: on body b along the contact normal (default) or the paper's (Fig. 12)")
+    gr = sub.add_parser("graph", help="draw a scene's configurations and transitions (the paper's Fig. 3)")
+    gr.add_argument("scene", type=Path)
+    gr.add_argument("--run", type=Path, help="a saved run of the scene: each edge says how many times and when it fired")
+    gr.add_argument("--out", type=Path, help="the figure (.png, .svg or .pdf; default: <scene>_graph.png)")
+    gr.add_argument("--force", action="store_true", help="overwrite an existing figure")
     ck = sub.add_parser("check", help="validate a scene and its URDFs without simulating")
     ck.add_argument("scene", type=Path)
     dv = sub.add_parser("derive", help="write every configuration derived by locking joints as a URDF file")
@@ -164,8 +209,8 @@ def main(argv=None) -> int:
     try:
         with as_interrupts():
             args = build_parser().parse_args(argv)
-            return {"run": cmd_run, "sweep": cmd_sweep, "replay": cmd_replay, "plot": cmd_plot, "check": cmd_check,
-                    "derive": cmd_derive, "new": cmd_new}[args.command](args)
+            return {"run": cmd_run, "sweep": cmd_sweep, "optimize": cmd_optimize, "replay": cmd_replay, "plot": cmd_plot,
+                    "check": cmd_check, "derive": cmd_derive, "new": cmd_new, "graph": cmd_graph}[args.command](args)
     except PcmmError as exc:
         _error(exc.text())
         return exc.exit_code
@@ -407,9 +452,8 @@ def cmd_run(args) -> int:
             f"{traj.stats['steps']} steps, {traj.stats['rhs_evals']} rhs evaluations, "
             f"{traj.stats['wall_s']:.3f} s solve")
         say(event_table(traj))
-        if traj.stats.get("closest_approach"):
-            from .run.approach import describe as describe_approach
-            say(describe_approach(traj.stats["closest_approach"]))
+    if failure is None and traj.stats.get("closest_approach"):
+        _say_approach(traj.stats["closest_approach"], args.quiet)
     for w in (w for e in traj.events for w in e.get("warnings", ())):  # check printed the assembly's
         _error(w, prefix="pcmm: warning: ")
     if failure is not None:
@@ -431,6 +475,18 @@ def cmd_run(args) -> int:
         _check_frames(traj, 60.0, "--replay")
         serve(traj)
     return 0
+
+
+def _say_approach(records: list[dict], quiet: bool) -> None:
+    """Each guard of the final configuration that did not fire: one that never fired in the run
+    (or crossed its value against its direction) is a warning on stderr, which --quiet does not
+    hide; one that fired before and not again by t_end is information (stdout, not with --quiet)."""
+    from .run.approach import describe as describe_approach
+    for r in records:
+        if r.get("last_fired") is None or r.get("crossed_against") is not None:
+            _error(describe_approach([r]), prefix="pcmm: warning: ")
+        elif not quiet:
+            say(describe_approach([r]))
 
 
 def _write_results(args, scene, opts, traj, partial: bool):
@@ -571,7 +627,6 @@ def cmd_new(args) -> int:
 
 
 def cmd_sweep(args) -> int:
-    import signal
     from .scene.load import load_scene
     from .run.loop import RunOptions
     from .studies.sweep import make_plan, parse_set, read_plan_file, sweep
@@ -593,37 +648,83 @@ def cmd_sweep(args) -> int:
             raise UsageError(f"--plot {q!r}: not a quantity of the table; quantities: {', '.join(QUANTITIES)}, "
                              "or a --collect path")
     scene = load_scene(args.scene)
-    previous = signal.signal(signal.SIGTERM, _terminate)  # a killed sweep stops like Ctrl-C: rows kept
-    try:
+    try:  # SIGTERM and SIGHUP are interrupts already (main: signals.as_interrupts): rows kept, exit 128 + N
         res = sweep(scene, plan, args.out, RunOptions(t_end=t_end), collect, workers=args.workers,
-                    scheduler=args.scheduler, resume=args.resume, force=args.force, progress=not args.quiet)
-    except KeyboardInterrupt:
-        print(f"pcmm: sweep interrupted; the finished runs are in {args.out}: complete it with --resume",
-              file=sys.stderr)
-        return 130
-    finally:
-        signal.signal(signal.SIGTERM, previous)
-    counts = ", ".join(f"{n} {s}" for s, n in sorted(res.status.items()))
-    print(f"{scene.name}: {res.planned} runs planned, {res.skipped} already in {res.out}, {res.ran} run; "
-          f"table: {counts}")
-    print(f"results: {res.out}" + (f" and {res.parquet}" if res.parquet else " (Parquet: install pyarrow)"))
-    for c in res.uncollected:
-        print(f"pcmm: warning: --collect {c!r}: no run's summary has a value there", file=sys.stderr)
+                    scheduler=args.scheduler, resume=args.resume, force=args.force, progress=not args.quiet,
+                    retry_failed=args.retry_failed, run_timeout=args.run_timeout or None)
+    except KeyboardInterrupt as exc:
+        from .signals import describe, exit_status
+        _error(f"sweep {describe(exc)}; the finished runs are in {args.out}: complete it with --resume",
+               prefix="pcmm: ")
+        return exit_status(exc)
+    _report_study(scene, res, args)
     if args.plots is not None:
         from .studies.plots import plot_sweep
-        args.plots.mkdir(exist_ok=True)
-        files = plot_sweep(args.out, plan.paths, args.plots, quantities=args.plot_quantities)
-        print(f"figures: {len(files)} files in {args.plots}")
+        try:
+            args.plots.mkdir(exist_ok=True)
+            files = plot_sweep(args.out, plan.paths, args.plots, quantities=args.plot_quantities)
+        except OSError as exc:
+            raise OutputError(args.plots, exc) from None
+        say(f"figures: {len(files)} files in {args.plots}")
     return 0
 
 
-def _terminate(signum, frame):
-    raise KeyboardInterrupt
+def cmd_optimize(args) -> int:
+    from .scene.load import load_scene
+    from .run.loop import RunOptions
+    from .studies.optimize import optimize, parse_constraint, parse_vary
+    if args.resume and args.force:
+        raise UsageError("--resume and --force: give one (go on with the table, or start it over)")
+    axes = [parse_vary(v) for v in args.vary]
+    constraints = [parse_constraint(c) for c in args.subject_to]
+    scene = load_scene(args.scene)
+    try:
+        res = optimize(scene, axes, args.minimize, args.out, RunOptions(t_end=args.t_end), constraints,
+                       method=args.method, max_evals=args.max_evals, workers=args.workers, scheduler=args.scheduler,
+                       resume=args.resume, force=args.force, run_timeout=args.run_timeout, seed=args.seed,
+                       tol=args.tol, popsize=args.popsize)
+    except KeyboardInterrupt as exc:
+        from .signals import describe, exit_status
+        _error(f"optimize {describe(exc)}; its runs are in {args.out}: go on with --resume", prefix="pcmm: ")
+        return exit_status(exc)
+    for why in res.dropped:
+        _error(f"{args.out}: {why}", prefix="pcmm: warning: ")
+    counts = ", ".join(f"{n} {s}" for s, n in sorted(res.status.items()))
+    say(f"{scene.name}: {res.method}: {res.evaluations} runs asked for, {res.replayed} read from {res.out}, "
+        f"{res.ran} run; table: {counts}")
+    say(f"optimiser: {res.message}")
+    if res.value is None:
+        say(f"no run met every --subject-to bound with a value of {args.minimize}")
+        return 0
+    values = ", ".join(f"{p} = {v!r}" for p, v in res.x.items())
+    say(f"best: {args.minimize} = {res.value!r} at {values} (run {res.run})")
+    return 0
+
+
+def _report_study(scene, res, args) -> None:
+    """What a sweep or an optimisation did to its table (names shown without control characters)."""
+    for why in res.dropped:
+        _error(f"{args.out}: {why}", prefix="pcmm: warning: ")
+    counts = ", ".join(f"{n} {s}" for s, n in sorted(res.status.items()))
+    retried = f" ({res.retried} crashed or timed-out runs again)" if res.retried else ""
+    say(f"{scene.name}: {res.planned} runs planned, {res.skipped} already in {res.out}, {res.ran} run{retried}; "
+        f"table: {counts}")
+    say(f"results: {res.out}" + (f" and {res.parquet}" if res.parquet else " (Parquet: install pyarrow)"))
+    for c in res.uncollected:
+        _error(f"--collect {c!r}: no run's summary has a value there", prefix="pcmm: warning: ")
 
 
 def cmd_replay(args) -> int:
     from .results.trajectory import Trajectory
     traj, *others = [Trajectory.load(p) for p in args.trajectory]
+    if args.video:
+        _check_outputs([("--video", args.video)], args.force)
+        from .viz.video import write_video
+        fps = args.fps if args.fps != 60.0 else 30.0  # the page's 60 fps default; a video's is 30
+        info = write_video(traj, args.video, others=others, fps=fps, speed=args.speed, slow=args.slow,
+                           window=args.slow_window)
+        say(f"video: {args.video} ({info['frames']} frames at {fps:g} fps, {info['clock'].duration:.3g} s)")
+        return 0
     _check_frames(traj, args.fps, "replay")
     if args.html:
         _check_outputs([("--html", args.html)], args.force)
@@ -645,6 +746,31 @@ def cmd_plot(args) -> int:
     files = _figures_into(args.out, args.force,
                           lambda d: write_figures(traj, d, compare=other, impulse_sign=args.impulse_sign))
     say(f"figures: {', '.join(str(f) for f in files)}")
+    return 0
+
+
+def cmd_graph(args) -> int:
+    from .results.trajectory import Trajectory, record_views
+    from .scene.load import load_scene
+    from .viz.graph import graph_figure
+    out = args.out or Path(f"{args.scene.stem}_graph.png")
+    if out.suffix.lower() not in (".png", ".svg", ".pdf"):
+        raise UsageError(f"--out {out}: the graph is written as .png, .svg or .pdf, not '{out.suffix}'")
+    _check_outputs([("--out", out)], args.force)
+    scene = load_scene(args.scene)
+    events = None
+    if args.run:
+        run = Trajectory.load(args.run)
+        if run.scene_name != scene.name:
+            raise UsageError(f"--run {args.run}: a run of scene '{run.scene_name}', not of {args.scene} "
+                             f"('{scene.name}')")
+        events = run.events
+    g = graph_figure(record_views(scene), events, title=scene.name, initial=scene.initial_configuration)
+    fmt = out.suffix.lower().lstrip(".")
+    from .files import atomic_write
+    atomic_write(out, lambda f: g.figure.savefig(f, format=fmt), force=args.force, binary=True)
+    fired = f", {sum(len(e.times) for e in g.edges)} firings of {len(events)} events" if events is not None else ""
+    say(f"graph: {out} ({len(g.nodes)} configurations, {len(g.edges)} transitions{fired})")
     return 0
 
 

@@ -34,3 +34,22 @@ def configuration(make_scene):
         scene = pcmm.load_scene(make_scene(urdfs, **kw))
         return scene, Mechanism(scene)[name]
     return build
+
+
+@pytest.fixture(scope="session")
+def shipped_run():
+    """``shipped_run("three_bar.toml", t_end=0.2) -> (scene, Trajectory)``: a shipped example run
+    once per test session (per xdist worker) for every test that reads the same run.  The
+    trajectory is shared: read it, never change it."""
+    import pcmm
+    from builders import EXAMPLES
+
+    runs: dict = {}
+
+    def run(name: str, **options):
+        key = (name, tuple(sorted(options.items())))
+        if key not in runs:
+            scene = pcmm.load_scene(EXAMPLES / name)
+            runs[key] = (scene, pcmm.simulate(scene, pcmm.RunOptions(**options)))
+        return runs[key]
+    return run

@@ -29,6 +29,8 @@ from scipy.optimize import brentq
 
 import pcmm
 
+pytestmark = pytest.mark.slow  # runs the 7.5 s working cycle (531 events)
+
 ROOT = Path(__file__).resolve().parents[1]
 SCENE = ROOT / "examples" / "three_bar_cycle.toml"
 URDF = ROOT / "urdf" / "three_bar_config1.urdf"

@@ -131,8 +131,8 @@ def test_derived_urdf_equals_the_hand_written_one(tmp_path):
 
 # ---- runs ------------------------------------------------------------------------------------------
 @pytest.fixture(scope="module")
-def example1_hand():
-    return simulate(pcmm.load_scene(EXAMPLES / "three_bar.toml"))
+def example1_hand(shipped_run):
+    return shipped_run("three_bar.toml")[1]
 
 
 def test_example1_derived_config2_gives_the_shipped_run(tmp_path, example1_hand):

@@ -73,9 +73,8 @@ def kinetic_energy(theta, omega):
 
 # ---- the runs (once per module) ----------------------------------------------------------------------
 @pytest.fixture(scope="module")
-def latch_run():
-    scene = pcmm.load_scene(EXAMPLES / "three_bar.toml")
-    return scene, pcmm.simulate(scene)
+def latch_run(shipped_run):
+    return shipped_run("three_bar.toml")
 
 
 @pytest.fixture(scope="module")

@@ -20,8 +20,8 @@ X_STOP = 0.3195
 
 
 @pytest.fixture(scope="module")
-def run():
-    return pcmm.simulate(pcmm.load_scene(SCENE))
+def run(shipped_run):
+    return shipped_run(SCENE.name)[1]
 
 
 @pytest.fixture(scope="module")

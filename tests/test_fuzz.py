@@ -685,6 +685,7 @@ def test_fs_full_folder_by_file_size_limits(tmp_path):
         _complete_or_absent(d, ["t.npz", "s.json", "t.csv"])
 
 
+@pytest.mark.slow  # three concurrent subprocess runs
 def test_fs_concurrent_runs_on_one_output(tmp_path):
     """Three runs started together on one --out and one --summary: no result is lost or
     replaced: one file per run under the name or a numbered one next to it, each whole."""
@@ -703,6 +704,7 @@ def test_fs_concurrent_runs_on_one_output(tmp_path):
     assert len(set(heights)) == len(heights)  # each from a different run: none replaced another
 
 
+@pytest.mark.slow  # eight subprocess runs signalled up to 9 s in
 def test_fs_signals_at_random_moments(tmp_path):
     """SIGTERM or SIGINT at eight moments (0.2 .. 9 s: during start-up, the run, the saving) to runs
     that write a trajectory and a summary: never a traceback or a hang; the exit status says what

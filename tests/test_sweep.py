@@ -200,7 +200,7 @@ def test_killed_sweep_resumes_to_the_complete_table(tmp_path, sig, workers):
     _wait_rows(out, 2, proc)
     proc.send_signal(sig)
     _, err = proc.communicate(timeout=60)
-    assert proc.returncode == 130 and "--resume" in err
+    assert proc.returncode == 128 + sig and "--resume" in err  # 143 for SIGTERM, 130 for Ctrl-C
     first = read(out)
     assert 2 <= len(first) < 16
     assert all(r["status"] == "complete" for r in first)  # a run cut short by the signal is not a row
@@ -287,7 +287,7 @@ def test_quantities_by_hand():
     ev = lambda t, P, k0, k1, impact=True, **kw: {"t": t, "impact": impact, "impulse": {"normal": P},  # noqa: E731
                                                   "kinetic_energy_before": k0, "kinetic_energy_after": k1, **kw}
     summ = {"events": [ev(0.5, 0.0, 1.0, 1.0, impact=False), ev(1.0, -0.3, 2.0, 1.5, energy_dissipated=0.6),
-                       ev(1.1, 0.2, 1.5, 1.4, energy_dissipated=0.1, holding_force=[3.0, -7.5])],
+                       ev(1.1, 0.2, 1.5, 1.4, energy_dissipated=0.1, holding_force=[3.0, -7.5], merge=True)],
             "configuration_final": "c2", "final": {"t": 2.0},
             "stats": {"wall_s": 0.25, "holding": {"O3.hold": {"min": -7.5, "t_min": 9.0, "max": 3.0, "t_max": 1.0},
                                                   "stop": {"min": math.inf, "t_min": None, "max": 2.0, "t_max": 8.0}}}}
@@ -298,6 +298,7 @@ def test_quantities_by_hand():
     assert q["kinetic_energy_lost"] == pytest.approx(0.6, abs=1e-15)
     assert q["energy_dissipated"] == pytest.approx(0.7, abs=1e-15)
     assert q["max_holding_force"] == 7.5  # the largest magnitude, never a time (t_min = 9)
+    assert q["last_merge_t"] == 1.1 and quantities({"events": [], "stats": {}})["last_merge_t"] is None
     assert (q["configuration_final"], q["t_final"], q["solve_s"]) == ("c2", 2.0, 0.25)
     assert quantities({"events": [], "stats": {}})["max_holding_force"] is None
     assert collect_value(summ, "events[-1].impulse.normal") == 0.2

@@ -316,6 +316,7 @@ def test_elbow_merge_released_when_its_moment_turns_tensile_after_the_wrist_latc
 
 
 # ---- Example 2 past its merge -------------------------------------------------------------------------
+@pytest.mark.slow  # a 17 s run of the double-folded cycle
 def test_example2_cycle_repeats_every_crank_turn():
     """examples/double_folded_cycle.toml: impact, macro-impact, merge, release when the stop would
     pull, and again one crank turn (10 s) later, to 1e-7 s: the cycle closes (i = i - c)."""

@@ -99,6 +99,35 @@ def _describe(tr: TransitionSpec) -> str:
     return f"transition '{tr.name}': {what}"
 
 
+def armed(cfg: Configuration, tr: TransitionSpec, raw, raw_rate):
+    """A guard armed by a region (``when``): with u = -direction * value (> 0 on the unfired side)
+    and d the signed distance into the region (``measure - above``, or ``below - measure``), the
+    guard reads -direction * max(u, -d).  Outside the region it stays on its unfired side, inside
+    and near its crossing it is the plain guard, so the crossing is located exactly.  (Also a
+    crossing where the measure enters the region while the plain value is already past its fired
+    side: Drake's compass-gait witness max(2 gamma - theta_s - theta_w, theta_w - theta_s) does
+    the same.)"""
+    measure, side, bound = tr.guard.when
+    row, offset = cfg.measure_row(measure)
+    direction = tr.guard.direction
+    unpack = cfg.coords.unpack
+
+    def inside(t, y):
+        q, _ = unpack(t, y)
+        return side * (row @ q + offset - bound)
+
+    def value(t, y):
+        u, d = -direction * raw(t, y), inside(t, y)
+        return -direction * (u if u >= -d else -d)
+
+    def rate(t, y, f):
+        if -direction * raw(t, y) >= -inside(t, y):
+            return raw_rate(t, y, f) if raw_rate is not None else None
+        q, v = unpack(t, y)
+        return direction * side * float(row @ cfg.qdot(q, v))
+    return value, (rate if raw_rate is not None else None)
+
+
 def make_guard(cfg: Configuration, tr: TransitionSpec, rearm: bool = False, context=None) -> Guard | None:
     """The guard of ``tr`` in ``cfg`` (None for a reaction guard whose joint or stop is not held
     in ``cfg``); ``rearm=True`` for the guard right after a bounce at this contact;
@@ -126,6 +155,8 @@ def make_guard(cfg: Configuration, tr: TransitionSpec, rearm: bool = False, cont
     except _NotHeld:
         return None
     direction = tr.guard.direction
+    if tr.guard.when is not None:
+        raw, raw_rate = armed(cfg, tr, raw, raw_rate)
     value, rate = raw, raw_rate
     if rearm:
         def value(t, y):

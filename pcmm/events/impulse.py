@@ -15,6 +15,10 @@ impulse ``P = -(1 + e) (J_n W_eff J_n^T)^-1 J_n v_f^-`` (Eqs. 29, 42), the
 velocity jump ``dv_f = W_eff J_n^T P`` (Eqs. 24, 30, 35, 38, 43) and the
 cut joints' impulsive reactions ``-(G W G^T)^-1 G W J_n^T P``.
 
+A point contact with friction (``ContactSpec.friction``) adds its tangential row J_t: the
+impulse (P_t, P_n) is then Routh's process on the 2 x 2 Delassus matrix
+``[J_t; J_n] W_eff [J_t; J_n]^T`` (:mod:`pcmm.events.friction`), and ``dv_f = W_eff [J_t; J_n]^T P``.
+
 The impulse carried by every joint of the tree comes from a second route:
 RNEA on a gravity-free copy of the tree with zero velocity, the velocity jump
 as acceleration and the contact impulse as an external force.
@@ -30,6 +34,7 @@ import scipy.linalg as sla
 from ..model.configuration import Configuration
 from .contact import contact_point, contact_state, impact_kind, joint_stop_row
 from .cutting import cut
+from .friction import AmbiguousImpact, FrictionalImpulse, routh
 from ..errors import SimulationError
 from ..model.pinocchio_helpers import cholesky, frame_jacobian, mass_matrix
 from ..scene.spec import ContactSpec
@@ -61,10 +66,13 @@ class Impulse:
     contact_impulses: list = field(default_factory=list)  # (link, world point, F, mz): on b, then on a
     joint_impulses: dict[str, list[float]] = field(default_factory=dict)  # every joint, world [fx, fy, mz]
     rnea_residual: np.ndarray | None = None  # generalized impulse the joints' actuators carry
+    tangent: np.ndarray | None = None  # frictional contacts: world unit tangent t = (n_y, -n_x)
+    P_t: float = 0.0  # frictional contacts: tangential impulse on b along t (N s)
+    friction: FrictionalImpulse | None = None  # Routh's process: phases, slip, the works
 
     @property
     def vector(self) -> np.ndarray:
-        return self.P * self.normal
+        return self.P * self.normal + (0.0 if self.tangent is None else self.P_t * self.tangent)
 
     @property
     def energy_dissipated(self) -> float:
@@ -72,9 +80,17 @@ class Impulse:
         return self.ke_before + self.drive_work - self.ke_after
 
 
+def tangent_of(n: np.ndarray) -> np.ndarray:
+    """The contact tangent: the normal turned by -90 degrees, t = (n_y, -n_x)."""
+    return np.array([n[1], -n[0]])
+
+
 def solve_impulse(cfg: Configuration, t: float, q: np.ndarray, v: np.ndarray, contact: ContactSpec,
-                  restitution: float, cut_joints: tuple[str, ...]) -> Impulse:
-    """Solve the stable or mobile impulse at (t, q, v) by cutting ``cut_joints``."""
+                  restitution: float, cut_joints: tuple[str, ...], name: str | None = None) -> Impulse:
+    """Solve the stable or mobile impulse at (t, q, v) by cutting ``cut_joints``; a point contact
+    with ``friction`` takes a two-dimensional impulse (Routh's process).  ``name`` (the
+    transition) goes into the messages."""
+    where = f"t = {t:.9g} s, " + (f"transition '{name}'" if name else f"contact {contact.a}/{contact.b}")
     n, _, vn, _ = contact_state(cfg, q, v, contact)
     point = contact_point(cfg, contact)  # where the event reports the contact
     if contact.joint is None:
@@ -83,12 +99,15 @@ def solve_impulse(cfg: Configuration, t: float, q: np.ndarray, v: np.ndarray, co
         pos_a, pos_b = cfg.point_position(pa), cfg.point_position(pb)
     else:
         pos_a = pos_b = cfg.data.oMf[cfg.link_frame[contact.b]].translation[:2].copy()
+    frictional = contact.joint is None and contact.friction is not None
+    tangent = tangent_of(n) if frictional else None
     cs = cut(cfg, q, cut_joints)
     v_f = cs.T @ v
     M_f = mass_matrix(cs.model, cs.data, cs.q)
     if contact.joint is None:
-        J_n = (n @ (frame_jacobian(cs.model, cs.data, pb.frame_id)[:2]
-                    - frame_jacobian(cs.model, cs.data, pa.frame_id)[:2]))[None, :]
+        J_rel = (frame_jacobian(cs.model, cs.data, pb.frame_id)[:2]
+                 - frame_jacobian(cs.model, cs.data, pa.frame_id)[:2])
+        J_n = (n @ J_rel)[None, :]
     else:
         J_n = joint_stop_row(cfg, cs.model, cs.data, contact)[1][None, :]
     G = np.vstack([cs.J_cut, cfg.coords.equality(t, cs.model, cs.data)])
@@ -105,19 +124,29 @@ def solve_impulse(cfg: Configuration, t: float, q: np.ndarray, v: np.ndarray, co
         raise SimulationError(
             f"t = {t:.9g} s: the contact {contact.a}/{contact.b} cannot take an impulse along its normal "
             "(the normal is orthogonal to every allowed motion); check the contact normal and cut joints")
-    P = -(1.0 + restitution) * np.linalg.solve(denom, J_n @ v_f)  # Eqs. 29, 42
-    dv_f = W_eff @ J_n.T @ P  # Eqs. 24, 38 (and 35 with its sign)
+    fr = None
+    if frictional:
+        J = np.vstack([tangent @ J_rel, J_n])  # rows (t, n)
+        D = J @ W_eff @ J.T  # the contact's Delassus matrix
+        vc = J @ v_f
+        fr = frictional_impulse(D, vc, contact, restitution, where)
+        P = fr.P
+    else:
+        J = J_n
+        P = -(1.0 + restitution) * np.linalg.solve(denom, J_n @ v_f)  # Eqs. 29, 42
+    dv_f = W_eff @ J.T @ P  # Eqs. 24, 38 (and 35 with its sign)
     v_f_after = v_f + dv_f  # Eqs. 30, 43
-    mult = -np.linalg.solve(S, G @ W @ J_n.T @ P) if G.shape[0] else np.zeros(0)
+    mult = -np.linalg.solve(S, G @ W @ J.T @ P) if G.shape[0] else np.zeros(0)
     v_after, res, *_ = np.linalg.lstsq(cs.T, v_f_after, rcond=None)
     if np.linalg.norm(cs.T @ v_after - v_f_after) > 1e-8 * max(1.0, np.linalg.norm(v_f_after)):
         raise SimulationError(f"t = {t:.9g} s: the cut system's post-impact velocity does not reassemble "
                               "the tree (internal error in joint cutting)")
     M = cfg.mass_matrix(q)
     out = Impulse(
-        kind=impact_kind(cfg, contact), restitution=restitution, normal=n, P=float(P[0]),
+        kind=impact_kind(cfg, contact), restitution=restitution, normal=n, P=float(P[-1]),
         vn_before=vn, vn_after=float((J_n @ v_f_after)[0]), v_before=v.copy(), v_after=v_after,
-        ke_before=float(0.5 * v @ M @ v), ke_after=float(0.5 * v_after @ M @ v_after), point=point)
+        ke_before=float(0.5 * v @ M @ v), ke_after=float(0.5 * v_after @ M @ v_after), point=point,
+        tangent=tangent, P_t=float(P[0]) if frictional else 0.0, friction=fr)
     k = 0
     for name in cut_joints:
         F = np.zeros(3)
@@ -144,7 +173,41 @@ def solve_impulse(cfg: Configuration, t: float, q: np.ndarray, v: np.ndarray, co
     point_impulses += loop
     out.constraint_impulses = constraint_impulses(cfg, out.constraint_rows, loop)
     out.joint_impulses, out.rnea_residual = joint_impulses(cfg, q, v_after - v, point_impulses)
+    if fr is not None:
+        check_frictional_energy(fr, out, where)
     return out
+
+
+def frictional_impulse(D: np.ndarray, vc: np.ndarray, contact: ContactSpec, e: float, where: str) -> FrictionalImpulse:
+    """Routh's process at a frictional point contact (Delassus matrix ``D``, contact velocity ``vc``
+    in (t, n)); refuses a Painleve case and an impact that ends sliding in contact."""
+    try:
+        fr = routh(D, float(vc[0]), float(vc[1]), contact.friction, e, contact.restitution_law)
+    except AmbiguousImpact as exc:
+        raise SimulationError(f"{where}, contact {contact.a}/{contact.b}: {exc}") from None
+    scale = max(abs(fr.vn_before), abs(fr.slip_before))
+    if abs(fr.vn_after) <= 1e-12 * scale and abs(fr.slip_after) > 1e-9 * scale:
+        need = np.abs(np.linalg.solve(D, -np.asarray(vc, float)))  # the sticking plastic impulse
+        raise SimulationError(
+            f"{where}, contact {contact.a}/{contact.b}: the plastic impact ends with the point sliding in contact "
+            f"(slip {fr.slip_after:.6g} m/s, phases {fr.phase_text}); pcmm models no sliding contact: a no-slip "
+            f"outcome needs friction >= {need[0] / need[1]:.6g} (|P_t| / P_n of the sticking impulse), or give "
+            "restitution > 0 so that the point leaves the surface")
+    return fr
+
+
+def check_frictional_energy(fr: FrictionalImpulse, imp: Impulse, where: str) -> None:
+    """Newton's kinematic law with friction may create energy when the slip stops or reverses during
+    the impact (Kane and Levinson; Stronge 1991): refused with the cause, not a silent gain."""
+    gain = imp.ke_after - imp.ke_before - imp.drive_work
+    if gain > 1e-9 * max(imp.ke_before, 1e-300):
+        cause = (f"Newton's kinematic restitution with friction creates energy here (slip {fr.phase_text} during "
+                 "the impact)" if fr.law == "newton" and fr.slip_changed else
+                 f"the frictional impact ({fr.law} law, phases {fr.phase_text}) creates energy")
+        raise SimulationError(
+            f"{where}: {cause}: kinetic energy {imp.ke_before:.9g} -> {imp.ke_after:.9g} J "
+            f"(normal work {fr.work_normal:.6g} J, friction work {fr.work_tangential:.6g} J); use "
+            "restitution_law = \"energetic\" (Stronge) or a smaller restitution")
 
 
 def no_impulse(cfg: Configuration, q: np.ndarray, v_before: np.ndarray, v_after: np.ndarray,

@@ -26,6 +26,7 @@ class ImpulseValues(TypedDict, total=False):
     joint: str  # joint stops: the joint
     moment: float  # revolute joint stops: N m s on the child
     arm: float  # revolute joint stops: the lever, m
+    tangential: float  # frictional point contacts: N s, on b along the tangent t = (n_y, -n_x)
 
 
 class BeforeAfter(TypedDict):
@@ -77,6 +78,20 @@ class EventRecord(_EventCore, total=False):
     cause: str  # releases: what fired the release ("guard", ...)
     freed: dict  # releases: {freed joint: its value}
     velocity_jump_max: float  # releases: the largest change of a shared body's velocity (round-off)
+    tangent: list  # frictional point contacts: world unit tangent t = (n_y, -n_x)
+    friction: dict  # frictional point contacts: mu, law, phases, slip, impulse and energy lost to each part
+
+
+def friction_record(imp: Impulse) -> dict:
+    """The frictional part of an impact (:mod:`pcmm.events.friction`): Coulomb's mu ("stick" for no
+    slip), the restitution law, Routh's phases, the slip (m/s along t) before and after, the normal
+    and tangential impulses, and the energy lost to each (J, >= 0 for friction; the two sum to
+    KE- - KE+)."""
+    fr = imp.friction
+    return {"mu": "stick" if math.isinf(fr.mu) else fr.mu, "law": fr.law, "phases": fr.phase_text,
+            "impulse": {"normal": fr.P_n, "tangential": fr.P_t},
+            "slip": {"before": fr.slip_before, "after": fr.slip_after},
+            "energy_lost": {"normal": -fr.work_normal, "tangential": -fr.work_tangential}}
 
 
 def by_link(cfg: Configuration, v):
@@ -90,6 +105,10 @@ def event_dict(cfg: Configuration, tr: TransitionSpec, t, *, transition, to, res
     (before, after) pairs, velocities in ``cfg``'s coordinates; ``extra`` adds keys."""
     v_before, v_after = v
     impulse = {"normal": float(P), "vector": [float(P * c) + 0.0 for c in normal[:2]]}
+    if "friction" in extra:  # a frictional point contact: P_n n + P_t t
+        Pt, tangent = extra["friction"]["impulse"]["tangential"], extra["tangent"]
+        impulse = {"normal": float(P), "tangential": float(Pt),
+                   "vector": [float(P * c + Pt * s) + 0.0 for c, s in zip(normal[:2], tangent)]}
     if tr.contact is not None and tr.contact.joint is not None:
         impulse = joint_stop_impulse(cfg, tr.contact, P, normal)
     return {
@@ -140,6 +159,9 @@ def event_record(cfg: Configuration, tr: TransitionSpec, t, target: str, merge: 
         return record
     check_energy(tr, t, (imp.ke_before, imp.ke_after), imp.drive_work)
     extra = {} if q is None else {"external_impulses": external_impulses(cfg, tr, imp, q)}
+    if imp.friction is not None:
+        extra["tangent"] = [float(imp.tangent[0]), float(imp.tangent[1])]
+        extra["friction"] = friction_record(imp)
     return event_dict(cfg, tr, t, **common, joint_impulses=imp.joint_impulses, cut_impulses=imp.cut_impulses,
                       constraint_impulses=imp.constraint_impulses, drive_work=imp.drive_work,
                       energy_dissipated=imp.energy_dissipated, **extra)

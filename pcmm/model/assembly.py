@@ -104,6 +104,9 @@ def assemble(scene: Scene, cfg: Configuration):
     if not getattr(coords, "constrained", False) or not coords.closure.size:
         q, v = coords.project(0.0, q0, v0, prefer)
         return q, v, _velocity_notes(scene, cfg, v0, v)
+    if coords.closure.anchored:  # a point pinned where it is at the start (point_a = "entry")
+        cfg.kinematics(q0)
+        coords.closure.set_anchors(cfg.data)
     try:
         options = _candidates(cfg, q0, v0, prefer) if scene.branch is not None else \
             [coords.project(0.0, q0, v0, prefer)]
@@ -145,8 +148,9 @@ def assemble(scene: Scene, cfg: Configuration):
             others = []
         best = min(others, key=lambda o: float(np.max(_distance(cfg, o[0], q0))), default=None)
         if best is not None and np.max(_distance(cfg, best[0], q0)) < np.max(diff) - 1e-9:
+            shown = _near(cfg, best[0], q0)  # Newton's starts may land whole turns away: the guess's turn
             notes.append("another assembly of the loop (the other branch) lies nearer the given values: "
-                         + ", ".join(f"{n} = {best[0][cfg.joint_slice[n].start]:.6g}" for n in cfg.joint_names)
+                         + ", ".join(f"{n} = {shown[cfg.joint_slice[n].start]:.6g}" for n in cfg.joint_names)
                          + "; choose it with [initial] branch")
     return q, v, notes + _velocity_notes(scene, cfg, v0, v)
 

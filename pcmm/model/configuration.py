@@ -18,6 +18,7 @@ once per process for each URDF text, set of points and gravity (later runs reuse
 """
 from __future__ import annotations
 
+import math
 import threading
 from dataclasses import dataclass
 from pathlib import Path
@@ -95,6 +96,35 @@ def _written_angles(info, links, turned) -> np.ndarray:
     return out
 
 
+def check_point_masses(model, data, spec: ConfigurationSpec, planar, link_frame) -> None:
+    """A link may be a point mass (an all-zero ``<inertia>``) where the mass matrix stays positive
+    definite: probed at the neutral posture and at five seeded ones (smallest eigenvalue above
+    1e-12 times the largest).  Otherwise the configuration is refused, naming the link."""
+    points = [link for link, f in link_frame.items() if model.frames[f].parentJoint > 0
+              and model.inertias[model.frames[f].parentJoint].mass > 0
+              and model.inertias[model.frames[f].parentJoint].inertia[2, 2] <= 0.0]
+    if not points or model.nv == 0:
+        return
+    rng = np.random.default_rng(0)
+    for k in range(6):
+        q = pin.neutral(model) if k == 0 else pin.randomConfiguration(
+            model, -np.pi * np.ones(model.nq), np.pi * np.ones(model.nq))
+        if k and planar:  # a planar joint's (cos, sin) must stay a unit vector
+            for iq, _ in planar:
+                a = rng.uniform(-np.pi, np.pi)
+                q[iq + 2:iq + 4] = (np.cos(a), np.sin(a))
+        M = pin.crba(model, data, q)
+        eig = np.linalg.eigvalsh(np.triu(M) + np.triu(M, 1).T)
+        if eig[0] <= 1e-12 * eig[-1]:
+            free = [link for link in points if model.joints[model.frames[link_frame[link]].parentJoint].nq == 4]
+            why = (f"link(s) {free} are point masses on a free (planar) joint: their rotation is determined only "
+                   "by cut joints, and the tree's mass matrix is singular; give them a rotational inertia"
+                   if free else f"with the point mass(es) {points} the mass matrix is singular (smallest "
+                   f"eigenvalue {eig[0]:.3g}, largest {eig[-1]:.3g}): a point mass on the axis of its own joint "
+                   "has nothing to turn; give it a rotational inertia or move it off the axis")
+            raise ModelError(f"{spec.source}: configuration '{spec.name}': {why}")
+
+
 class Configuration:
     """One configuration's model and bookkeeping.
 
@@ -155,6 +185,7 @@ class Configuration:
         for link, xy in key[1]:
             self.point(link, xy)
         self.data = model.createData()
+        check_point_masses(model, self.data, spec, self._planar, self.link_frame)
         self._angle_map()
         self._cut_models = {}  # cut systems by cut joints (pcmm.cutting), built on first impact
         self._impulse_models = {}  # the zero-gravity copy for joint impulses (pcmm.impulse)
@@ -242,6 +273,48 @@ class Configuration:
         for _, iv in self._planar:
             c, s = np.cos(q[iv + 2]), np.sin(q[iv + 2])
             out[iv], out[iv + 1] = c * v[iv] - s * v[iv + 1], s * v[iv] + c * v[iv + 1]
+        return out
+
+    def velocity(self, q: np.ndarray, rates: np.ndarray) -> np.ndarray:
+        """The velocity ``v`` whose coordinate rates (:meth:`qdot`) are ``rates``: the inverse of
+        :meth:`qdot` (``rates`` itself when there is no planar joint)."""
+        if not self._planar:
+            return rates
+        out = rates.copy()
+        for _, iv in self._planar:
+            c, s = math.cos(q[iv + 2]), math.sin(q[iv + 2])
+            out[iv], out[iv + 1] = c * rates[iv] + s * rates[iv + 1], -s * rates[iv] + c * rates[iv + 1]
+        return out
+
+    def qddot(self, q: np.ndarray, v: np.ndarray, a: np.ndarray) -> np.ndarray:
+        """Second time derivative of pcmm coordinates from the accelerations ``a = v'``: the
+        derivative of :meth:`qdot`, ``R a + theta' R' v`` for a planar joint's (x, y) (``a`` itself
+        when there is no planar joint)."""
+        if not self._planar:
+            return a
+        out = a.copy()
+        for _, iv in self._planar:
+            c, s, w = math.cos(q[iv + 2]), math.sin(q[iv + 2]), v[iv + 2]
+            vx, vy = v[iv], v[iv + 1]
+            out[iv] = c * a[iv] - s * a[iv + 1] - w * (s * vx + c * vy)
+            out[iv + 1] = s * a[iv] + c * a[iv + 1] + w * (c * vx - s * vy)
+        return out
+
+    def position_jacobian(self, q: np.ndarray, J: np.ndarray) -> np.ndarray:
+        """``d f / d q`` from the velocity Jacobian ``J`` of a function ``f`` of the posture
+        (``f' = J v``): with ``q' = T(q) v`` (:meth:`qdot`) it is ``J T(q)^-1``.  A planar joint's
+        velocity is local, ``(x', y') = R(theta) (v_x, v_y)``, so its two columns become
+        ``J[:, xy] R(theta)^T``; every other column is unchanged (``J`` itself when there is no
+        planar joint).  A Newton solve of ``f(q) = 0`` in pcmm's coordinates needs this matrix,
+        not ``J``: with ``J`` it is off by the body's rotation and diverges once that passes 90
+        degrees."""
+        if not self._planar:
+            return J
+        out = J.copy()
+        for _, iv in self._planar:
+            c, s = math.cos(q[iv + 2]), math.sin(q[iv + 2])
+            jx, jy = J[:, iv], J[:, iv + 1]
+            out[:, iv], out[:, iv + 1] = c * jx - s * jy, s * jx + c * jy
         return out
 
     def vector(self, values: dict[str, float | tuple]) -> np.ndarray:

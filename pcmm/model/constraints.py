@@ -22,7 +22,7 @@ from __future__ import annotations
 import contextlib
 import functools
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import pinocchio as pin
@@ -53,6 +53,34 @@ class ClosureRows:
     frames_b: tuple[int, ...]
     links_a: tuple[int, ...]
     links_b: tuple[int, ...]
+    #: {index of a cut joint anchored at entry: its anchor A (world)}: the rows are p_b - p_a - A, set
+    #: when the run enters the configuration (:meth:`set_anchors`); a property of the instance, not of
+    #: the model (no frame is registered for A)
+    anchors: dict = field(default_factory=dict, compare=False)
+
+    @property
+    def anchored(self) -> tuple[int, ...]:
+        return tuple(k for k, s in enumerate(self.specs) if s.anchor_at_entry)
+
+    def set_anchors(self, data, keep: dict | None = None) -> dict[str, np.ndarray]:
+        """Anchor every cut joint anchored at entry where b's point is now (frame placements must be
+        computed on ``data``), except those in ``keep`` ({name: A}, e.g. still held from the source).
+        Returns {name: A}."""
+        keep = keep or {}
+        out = {}
+        for k in self.anchored:
+            s = self.specs[k]
+            A = np.asarray(keep[s.name], float).copy() if s.name in keep else \
+                data.oMf[self.frames_b[k]].translation[:2] - data.oMf[self.frames_a[k]].translation[:2]
+            self.anchors[k] = A
+            out[s.name] = A
+        return out
+
+    def anchor_of(self, name: str) -> np.ndarray | None:
+        for k, s in enumerate(self.specs):
+            if s.name == name and k in self.anchors:
+                return self.anchors[k]
+        return None
 
     @property
     def size(self) -> int:
@@ -71,6 +99,8 @@ class ClosureRows:
         rows = np.empty((2 * len(self.specs), nv))
         for k, (fa, fb) in enumerate(zip(self.frames_a, self.frames_b)):
             phi[2 * k:2 * k + 2] = oMf[fb].translation[:2] - oMf[fa].translation[:2]
+            if k in self.anchors:
+                phi[2 * k:2 * k + 2] -= self.anchors[k]
             Jb, Ja = get(model, data, fb, LWA_), get(model, data, fa, LWA_)
             if nv == 1:  # eigenpy returns a 1-D array for one column
                 Jb, Ja = Jb.reshape(6, 1), Ja.reshape(6, 1)
@@ -99,8 +129,10 @@ class ClosureRows:
         """(Phi, Phi_q, bias) with ``Phi_q a + bias = d2Phi/dt2``; kinematics (and,
         for the bias, accelerations at a = 0) must be computed on ``data``."""
         phi, rows, bias = [], [], []
-        for s, fa, fb, la, lb in zip(self.specs, self.frames_a, self.frames_b, self.links_a, self.links_b):
+        for k, (s, fa, fb, la, lb) in enumerate(zip(self.specs, self.frames_a, self.frames_b, self.links_a, self.links_b)):
             pa, pb = data.oMf[fa].translation[:2], data.oMf[fb].translation[:2]
+            if k in self.anchors:
+                pa = pa + self.anchors[k]
             Ja = frame_jacobian(model, data, fa)
             Jb = frame_jacobian(model, data, fb)
             Jrel = Jb[:2] - Ja[:2]
@@ -273,15 +305,26 @@ class _Replayable:
     accepted segment (its partition) kept, and restored around a later re-reading of it."""
 
     def frozen_state(self) -> dict:
-        """The partition a segment is integrated in (restored by :meth:`restored`)."""
-        return {"I": getattr(self, "I", None), "D": getattr(self, "D", None), "ny": getattr(self, "ny", None)}
+        """The partition a segment is integrated in, and the anchors of its cut joints anchored at
+        entry (a configuration entered again later holds its point elsewhere), restored by
+        :meth:`restored`."""
+        out = {"I": getattr(self, "I", None), "D": getattr(self, "D", None), "ny": getattr(self, "ny", None)}
+        closure = getattr(self, "closure", None)
+        if closure is not None and closure.anchors:
+            out["anchors"] = {k: np.array(a, float) for k, a in closure.anchors.items()}
+        return out
 
     @contextlib.contextmanager
     def restored(self, frozen: dict, q_start):
-        """Re-read an accepted segment: its partition, its warm start, no conditioning checks;
-        everything as it was afterwards."""
+        """Re-read an accepted segment: its partition, its anchors, its warm start, no conditioning
+        checks; everything as it was afterwards."""
         saved = dict(self.__dict__)
-        self.__dict__.update(frozen)
+        anchors = frozen.get("anchors")
+        saved_anchors = dict(self.closure.anchors) if anchors is not None else None
+        self.__dict__.update({k: x for k, x in frozen.items() if k != "anchors"})
+        if anchors is not None:
+            self.closure.anchors.clear()
+            self.closure.anchors.update(anchors)
         self.seed(q_start)
         self.checking = False
         try:
@@ -289,6 +332,9 @@ class _Replayable:
         finally:
             self.__dict__.clear()
             self.__dict__.update(saved)
+            if saved_anchors is not None:
+                self.closure.anchors.clear()
+                self.closure.anchors.update(saved_anchors)
 
     def fresh_rhs(self):
         """A right-hand side bound to the configuration's current data (the tree's closure holds
@@ -414,8 +460,10 @@ class TreeCoordinates(_Replayable):
 
 
 class PartitionedCoordinates(_Replayable):
-    """Loops and/or drives: independent coordinates ``y = [q_I, v_I]`` (satisfies
-    :class:`~pcmm.coordinates.Coordinates`)."""
+    """Loops and/or drives: independent coordinates and their rates ``y = [q_I, q'_I]``
+    (satisfies :class:`~pcmm.coordinates.Coordinates`).  ``q'`` is ``v`` but for a planar joint's
+    (x', y'), which are world-frame where its ``v`` is body-frame (:meth:`Configuration.qdot`): the
+    dependent positions and rates then solve one block, ``dPhi/dq`` at the posture."""
 
     constrained = True
     position_noise = 4 * np.finfo(float).eps  # dependent coordinates: Newton plus one polishing step
@@ -442,8 +490,9 @@ class PartitionedCoordinates(_Replayable):
         # revolute cut joints' rows in one compiled call where that is the same function (pcmm.compiled)
         if not closure.specs:
             fast, why = None, "not compiled: drives only"
-        elif cfg.has_planar or not closure.revolute_only:
-            fast, why = None, "not compiled: " + ("a planar joint" if cfg.has_planar else "prismatic or weld cut joints")
+        elif cfg.has_planar or not closure.revolute_only or closure.anchored:
+            fast, why = None, "not compiled: " + ("a planar joint" if cfg.has_planar else "a cut joint anchored at entry"
+                                                  if closure.anchored else "prismatic or weld cut joints")
         else:
             fast = compiled.closure_kinematics(cfg.model, closure.frames_a, closure.frames_b,
                                                self._python_point_rows, self._python_point_rows_and_bias)
@@ -525,6 +574,12 @@ class PartitionedCoordinates(_Replayable):
             Jq = np.vstack([Jq, Jd])
         return Jq
 
+    def _position_rows(self, t, q):
+        """``dPhi/dq`` at ``q``: the derivative in pcmm's coordinates that a Newton solve of the
+        positions, the partition and its conditioning need (not the velocity Jacobian, whose
+        planar-joint columns are in the body frame: :meth:`Configuration.position_jacobian`)."""
+        return self.cfg.position_jacobian(q, self._phi(t, q)[1])
+
     def residual(self, t, q) -> float:
         phi, _, _ = self._phi(t, q)
         return float(np.max(np.abs(phi))) if phi.size else 0.0
@@ -534,7 +589,7 @@ class PartitionedCoordinates(_Replayable):
         """Choose dependent coordinates: driven joints, then the best-conditioned
         columns of the loop rows (QR with column pivoting).  Coordinates in
         ``prefer_independent`` are kept independent when the rest allows it."""
-        _, Jq, _ = self._phi(t, q)
+        Jq = self._position_rows(t, q)
         self.D = self._best_dependent(Jq, keep=prefer_independent)
         self.I = np.array([i for i in range(self.nv) if i not in self.D], dtype=int)
         self.ny = 2 * len(self.I)
@@ -547,7 +602,10 @@ class PartitionedCoordinates(_Replayable):
                 "(e.g. a slider-crank at dead centre) or the cut joints are redundant")
 
     def _solve_dependent(self, t, qI, guess):
-        """Dependent coordinates closing the loop at ``qI`` (Newton from ``guess``).
+        """Dependent coordinates closing the loop at ``qI`` (Newton from ``guess``) and the
+        constraint Jacobians there: ``(q, Phi_q per unit velocity, dPhi/dq)``.  Newton steps with
+        ``dPhi/dq`` (the two differ in a planar joint's columns, which are body-frame in the
+        first).
 
         Once the residual is below NEWTON_TOL one more correction is taken with the Jacobian
         already at hand: Newton converges quadratically, so that step leaves an error of
@@ -557,27 +615,29 @@ class PartitionedCoordinates(_Replayable):
         rises only 5e-14 m, so that noise decided whether a tiny flight was seen at all."""
         q = guess.copy()
         q[self.I] = qI
+        position = self.cfg.position_jacobian
         for _ in range(30):
             phi, Jq, _ = self._phi(t, q)
+            Jp = position(q, Jq)
             res = _max_abs(phi)
             if res < NEWTON_TOL:
                 self.max_residual = max(self.max_residual, res)
-                self._check_conditioning(t, Jq)
+                self._check_conditioning(t, Jp)
                 if phi.size:  # one more correction with this Jacobian: exact to round-off, whatever the start
                     try:
-                        q[self.D] -= solve(Jq[:, self.D], phi)
+                        q[self.D] -= solve(Jp[:, self.D], phi)
                     except np.linalg.LinAlgError:
                         pass  # the posture check above has already judged the block
-                return q, Jq
-            JD = Jq[:, self.D]
+                return q, Jq, Jp
             try:
-                q[self.D] -= solve(JD, phi)
+                q[self.D] -= solve(Jp[:, self.D], phi)
             except np.linalg.LinAlgError:
                 break
         phi, Jq, _ = self._phi(t, q)
+        Jp = position(q, Jq)
         if np.max(np.abs(phi)) < 1e-9:
             self.max_residual = max(self.max_residual, float(np.max(np.abs(phi))))
-            return q, Jq
+            return q, Jq, Jp
         if len(self.I) == 0 and self.drives.size:
             raise SimulationError(
                 f"configuration '{self.cfg.name}': the loop cannot be closed at t = {t:.6g} s "
@@ -660,13 +720,13 @@ class PartitionedCoordinates(_Replayable):
         at the start of every segment, so it follows the posture."""
         self.partition(t, q)
         self.seed(q)
-        return np.concatenate([q[self.I], v[self.I]])
+        return np.concatenate([q[self.I], self.cfg.qdot(q, v)[self.I]])
 
     def at_degenerate_partition(self, t, q):
         """Where the singularity guard fired: if the whole constraint Jacobian keeps its rank a
         new partition goes on (the next segment picks it); if it loses rank the loop itself is
         at a singular posture (a dead centre, a change point) and the run stops."""
-        _, Jq, _ = self._phi(t, q)
+        Jq = self._position_rows(t, q)
         s = np.linalg.svd(Jq, compute_uv=False)
         if s[-1] <= 1e-6 * s[0] or np.array_equal(self._best_dependent(Jq), self.D):
             # rank lost, or no partition does better than the one that degenerated
@@ -713,7 +773,7 @@ class PartitionedCoordinates(_Replayable):
         changes sign where the current partition degenerates, which a step can jump over."""
         def g(t, y):
             self.unpack(t, y)
-            return self._scaled_det(self._last_Jq)
+            return self._scaled_det(self._last_Jp)
 
         def rate(t, y, f):
             """Its time derivative from the state alone: a central difference along q' (two
@@ -721,7 +781,7 @@ class PartitionedCoordinates(_Replayable):
             q, v = self.unpack(t, y)
             qd = self.cfg.qdot(q, v)
             eps = 1e-7 / max(1.0, float(np.max(np.abs(qd))))
-            ahead, behind = (self._scaled_det(self._phi(t, q + s * eps * qd)[1]) for s in (1.0, -1.0))
+            ahead, behind = (self._scaled_det(self._position_rows(t, q + s * eps * qd)) for s in (1.0, -1.0))
             return (ahead - behind) / (2 * eps)
         return Guard(f"configuration '{self.cfg.name}': the loop's partition of its coordinates degenerates",
                      g, 0, "repartition", rate=rate, rate_from_state=True)
@@ -735,14 +795,18 @@ class PartitionedCoordinates(_Replayable):
 
     def _unpack(self, t, y):
         k = len(self.I)
-        q, Jq = self._solve_dependent(t, y[:k], self._guess(t))
+        q, Jq, Jp = self._solve_dependent(t, y[:k], self._guess(t))
         self._qD = q
-        self._last_Jq = Jq
-        v = np.empty(self.nv)
-        v[self.I] = y[k:]
-        rhs = -(Jq[:, self.I] @ y[k:] + self._phi_t(t))
-        v[self.D] = solve(Jq[:, self.D], rhs)
-        self._recent.append((t, q, self.cfg.qdot(q, v)))
+        self._last_Jp = Jp
+        # the state's second half is the independent coordinates' rates q'_I (a planar joint's
+        # world-frame x', y', not its body-frame velocity): the dependent rates then solve the
+        # same block as the positions, dPhi/dq q' = -Phi_t, and v follows from q'
+        rates = np.empty(self.nv)
+        rates[self.I] = y[k:]
+        rhs = -(Jp[:, self.I] @ y[k:] + self._phi_t(t))
+        rates[self.D] = solve(Jp[:, self.D], rhs)
+        v = self.cfg.velocity(q, rates)
+        self._recent.append((t, q, rates))
         if len(self._recent) > 8:
             del self._recent[0]
         return q, v
@@ -752,7 +816,7 @@ class PartitionedCoordinates(_Replayable):
         (a new partition is chosen at q, preferring ``prefer_independent``)."""
         self.partition(t, q, prefer_independent)
         self.seed(q)
-        return self.unpack(t, np.concatenate([q[self.I], v[self.I]]))
+        return self.unpack(t, np.concatenate([q[self.I], self.cfg.qdot(q, v)[self.I]]))
 
     def rows(self, t, q, v):
         """(Phi_q, bias) of every constraint at (q, v): ``Phi_q a + bias = 0``."""
@@ -767,7 +831,7 @@ class PartitionedCoordinates(_Replayable):
     def derivative(self, t, q, v, extra):
         """State derivative at an assembled (q, v) with an extra generalized force (contact laws)."""
         a, _ = self.accelerations(t, q, v, extra)
-        return np.concatenate([self.cfg.qdot(q, v)[self.I], a[self.I]])
+        return np.concatenate([self.cfg.qdot(q, v)[self.I], self.cfg.qddot(q, v, a)[self.I]])
 
     def _solved_accelerations(self, t, q, v):
         """(a, lam) at an assembled (q, v): with revolute cut joints the rows and bias come from
@@ -780,7 +844,7 @@ class PartitionedCoordinates(_Replayable):
         q, v = self.unpack(t, y)
         a, _ = self._solved_accelerations(t, q, v)
         qd = self.cfg.qdot(q, v)
-        return np.concatenate((qd[self.I], a[self.I]))
+        return np.concatenate((qd[self.I], self.cfg.qddot(q, v, a)[self.I]))
 
     def rhs_with_power(self, t, y):
         """``y`` is the state with the work so far appended; the state derivative with one more component: the power of the force elements and
@@ -791,7 +855,7 @@ class PartitionedCoordinates(_Replayable):
         a, lam = self._solved_accelerations(t, q, v)
         power = float(self.cfg.forces.generalized(q, v) @ v - lam @ self._phi_t(t))
         qd = self.cfg.qdot(q, v)
-        return np.concatenate([qd[self.I], a[self.I], [power]])
+        return np.concatenate([qd[self.I], self.cfg.qddot(q, v, a)[self.I], [power]])
 
 
 def coordinates_for(cfg: Configuration) -> TreeCoordinates | PartitionedCoordinates:

@@ -78,20 +78,20 @@ def _too_many_steps(max_steps, t, t0=None, t_bound=None) -> str:
     the message gives the mean step and the budget the whole segment needs at that pace."""
     if t0 is None or t_bound is None or not t > t0:
         return (f"more than {max_steps} steps by t = {t:.9g} s; raise solver.max_steps (--max-steps), "
-                "or see README 'Choosing a method' if the steps are far shorter than the motion's time scale")
+                "or see docs/performance.md, 'Choosing the method' if the steps are far shorter than the motion's time scale")
     h = (t - t0) / max_steps
     need = math.ceil(max_steps * (t_bound - t0) / (t - t0))
     return (f"more than {max_steps} steps by t = {t:.9g} s (mean step {h:.3g} s since t = {t0:.9g} s); at this "
             f"pace the segment to t = {t_bound:.9g} s needs about {need} steps: raise solver.max_steps "
             f"(--max-steps {need}).  If that step is far shorter than the motion's time scale, a stiff "
-            "force element holds it back: see README 'Choosing a method'")
+            "force element holds it back: see docs/performance.md, 'Choosing the method'")
 
 
 def _step_collapsed(h, t) -> str:
     size = "round-off" if h is None else f"{h:.3g} s"
     return (f"the step size collapsed to {size} at t = {t:.9g} s: the problem is stiff or singular here; "
             "check forces and stiffness values (an implicit method, Radau or LSODA, pays only for a "
-            "strongly damped fast mode: README 'Choosing a method')")
+            "strongly damped fast mode: docs/performance.md, 'Choosing the method')")
 
 
 def _needs_derivative(events) -> bool:

@@ -390,7 +390,7 @@ class Trajectory:
         """
         visited = self.visited()
         views = {"configurations": {c: v for c, v in self.views.get("configurations", {}).items() if c in visited},
-                 "forces": self.views.get("forces", {})}
+                 "forces": self.views.get("forces", {}), "transitions": self.views.get("transitions", [])}
         header = {"format": FORMAT, "scene": self.scene, "scene_name": self.scene_name,
                   "impact": self.impact, "events": self.events, "stats": self.stats,
                   "status": self.status, "message": self.message, "views": views,
@@ -582,13 +582,54 @@ def _view(urdf_path) -> dict:
     return {"urdf": text, "joints": urdf_joints(text)}
 
 
+def _configuration_view(c) -> dict:
+    """A configuration's view: its URDF text and joints, the cut joints that close its loops, and
+    the joints a derived configuration locks (its recorded URDF is the root one, where they move)."""
+    view = _view(c.urdf)
+    view["cut_joints"] = [{"name": j.name, "type": j.type, "a": j.a, "point_a": list(j.point_a), "b": j.b,
+                           "point_b": list(j.point_b), "axis": list(j.axis) if j.axis else None}
+                          for j in getattr(c, "cut_joints", ())]
+    derivation = getattr(c, "derivation", None)
+    view["locked"] = list(derivation.lock) if derivation is not None else []
+    return view
+
+
+def guard_text(g) -> str:
+    """A transition's guard as the graph writes it on its edge (``O3 ↑ 3.1416``)."""
+    arrow = "↑" if g.direction > 0 else "↓"
+    if g.type == "time":
+        return f"t = {g.at:g} s" if g.at is not None else f"t = {g.start:g} + k·{g.every:g} s"
+    if g.type == "reaction":
+        return f"reaction of {g.of} {arrow} {g.value:g}"
+    what = {"joint": lambda n: n[0], "link": lambda n: f"θ({n[0]})",
+            "between": lambda n: f"θ({n[1]}) − θ({n[0]})"}.get(g.measure.kind, lambda n: ",".join(n))(
+                g.measure.names) if g.measure is not None else g.type
+    return f"{what if g.type != 'gap' else 'gap'} {arrow} {g.value:.5g}"
+
+
+def _transition_view(tr, unmerge_default: bool) -> dict:
+    """A transition as the views draw it: the graph's edges and the sketch's stops."""
+    c = tr.contact
+    merge_to = getattr(tr, "merge_to", None)
+    unmerge = getattr(tr, "unmerge", None)
+    return {"name": tr.name, "type": tr.type, "from": tr.source, "to": getattr(tr, "target", None),
+            "merge_to": merge_to, "unmerge": bool(unmerge_default if unmerge is None else unmerge) and merge_to is not None,
+            "restitution": getattr(tr, "restitution", None), "cut": list(tr.cut), "guard": guard_text(tr.guard),
+            "contact": None if c is None else {
+                "a": c.a, "b": c.b, "point_a": list(c.point_a) if c.point_a else None,
+                "point_b": list(c.point_b) if c.point_b else None, "normal": list(c.normal) if c.normal else None,
+                "joint": c.joint, "stop_value": c.stop_value, "stop_sign": c.stop_sign}}
+
+
 def record_views(scene) -> dict:
     """The views of a scene (its data model, duck-typed: ``configurations[name].urdf``,
-    ``forces[i].name`` / ``.on.kind`` / ``.on.name``), recorded when a run starts."""
-    return {"configurations": {name: _view(c.urdf) for name, c in scene.configurations.items()},
+    ``forces[i].name`` / ``.on.kind`` / ``.on.name``, ``transitions``), recorded when a run starts."""
+    unmerge = bool(getattr(getattr(scene, "solver", None), "unmerge", True))
+    return {"configurations": {name: _configuration_view(c) for name, c in scene.configurations.items()},
             "forces": {f.name: ({"on": {"kind": f.on.kind, "name": f.on.name}} if f.on is not None else
                                 {"on": None, "points": [f.points.a, f.points.b]})
-                       for f in scene.forces}}
+                       for f in scene.forces},
+            "transitions": [_transition_view(tr, unmerge) for tr in getattr(scene, "transitions", ())]}
 
 
 def legacy_views(scene_path: str) -> dict:

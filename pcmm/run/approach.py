@@ -63,7 +63,9 @@ def closest_approach(scene: Scene, cfg: Configuration, traj: Trajectory) -> list
     q = np.concatenate([s.q for s in segs])
     owner = np.concatenate([np.full(s.t.size, k) for k, s in enumerate(segs)])
     for tr in watched:
-        fired = [e["t"] for e in traj.events if e.get("name") == tr.name]
+        # a collision resolved by a contact law lasts from its first contact to the separation
+        # (t_end), where the gap crosses back through its value: that crossing is not a miss
+        fired = [e.get("t_end") or e["t"] for e in traj.events if e.get("name") == tr.name]
         after = t > max(fired) if fired else np.ones(t.size, bool)  # since it last fired
         if not after.any():
             continue

@@ -13,7 +13,10 @@ here at once, each problem naming the file and the field:
   point: for a revolute pair, perpendicular to the lever from the joint axis to the contact point
   (how far it is off, in degrees); it points from a towards b, so the guard's direction approaches;
 * **reach**: each guard value lies in the range its coordinate can reach (the URDF's joint limits;
-  a loop that cannot close there), else a warning.
+  a loop that cannot close there), else a warning;
+* **units**: a guard on an angle (a revolute joint, a link's angle, the angle between two links)
+  whose value lies outside [-2 pi, 2 pi] was most likely written in degrees: a warning that
+  gives the value in radians (``"-50 deg"``).
 
 A message blames the normal only when the normal is at fault: rounded contact points that do not
 meet are reported as points (:func:`pcmm.contact_faults.contact_findings`, also used by the run's
@@ -31,7 +34,7 @@ from ..model.mechanism import Mechanism
 from ..errors import PcmmError
 from ..scene.spec import Scene, TransitionSpec
 from ..events.contact_faults import contact_findings
-from ..events.transitions import map_state, pose_mismatches
+from ..events.entry import map_state, pose_mismatches
 
 NEWTON_TOL = 1e-13
 
@@ -85,6 +88,29 @@ def guard_posture(cfg: Configuration, tr: TransitionSpec, q_start) -> tuple[np.n
     return q, worst
 
 
+# ---- units -------------------------------------------------------------------------------------
+def is_angle(cfg: Configuration, tr: TransitionSpec) -> bool:
+    """Does the guard measure an angle (rad): a revolute joint's coordinate, a link's angle, the
+    angle between two links?"""
+    m = tr.guard.measure
+    if tr.guard.type != "coordinate" or m is None:
+        return False
+    if m.kind != "joint":
+        return True
+    joint = cfg.spec.info.joints.get(m.names[0])
+    return joint is not None and joint.type in ("revolute", "continuous")
+
+
+def angle_in_degrees(cfg: Configuration, tr: TransitionSpec) -> str | None:
+    """The warning for a guard angle outside [-2 pi, 2 pi], which was likely meant in degrees."""
+    value = tr.guard.value
+    if not is_angle(cfg, tr) or abs(value) <= 2 * math.pi:
+        return None
+    return (f"= {value:.12g}: an angle ({tr.guard.measure}) of {value:.6g} rad, {value / (2 * math.pi):.3g} "
+            f"turns, outside [-2 pi, 2 pi]; guard values are in radians: if {value:g} degrees is meant, write "
+            f"value = \"{value:g} deg\" (= {math.radians(value):.6g} rad)")
+
+
 # ---- the whole scene ------------------------------------------------------------------------
 def _limits(cfg: Configuration, q) -> list[str]:
     out = []
@@ -124,6 +150,9 @@ def check_scene(scene: Scene, mechanism: Mechanism | None = None) -> CheckReport
                 continue
             i = scene.transitions.index(tr)
             here = f"{where}: transitions[{i}] ({tr.name})"
+            degrees = angle_in_degrees(cfg, tr)
+            if degrees is not None:
+                report.warnings.append(f"{here}.guard.value: {degrees}")
             q, residual = guard_posture(cfg, tr, starts[name])
             if residual > 1e-9:
                 what = "the loop cannot close" if cfg.coords.constrained else "no posture reaches it"

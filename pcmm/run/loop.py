@@ -36,6 +36,7 @@ from .actions import GUARD_ACTIONS, action_of
 from .approach import closest_approach
 from .audit import FlightAudit
 from .recording import record as _record
+from .stability import blow_up, fixed_step_instability, largest_velocity, unphysical_speed
 from .state import RunState
 
 
@@ -179,7 +180,7 @@ def integrate_segment(run: RunState, progress):
         # itself measures the work by its own quadrature, pcmm.run.audit)
         guards = [g.on_state(y0.size) for g in guards]
         y0, fun = np.append(y0, 0.0), cfg.coords.rhs_with_power
-    stepping = (fun, method_for(run.opts.method, cfg.coords.constrained), run.opts)  # for dense resampling
+    stepping = run.stepping = (fun, method_for(run.opts.method, cfg.coords.constrained), run.opts)  # for dense resampling
     seg = _integrate(run, _reporting(fun, progress) if progress is not None else fun, stepping, y0, guards, pending)
     if seg is None:
         return None, guards
@@ -206,6 +207,9 @@ def _integrate(run: RunState, fun, stepping, y0, guards, pending) -> Segment | N
         if pending is not None:  # a contact already closed at this instant (simultaneous impacts)
             seg = Segment(np.array([t]), y0[:, None], pending, 0, 0, 1, "simultaneous")
         elif y0.size:
+            unstable = method.fixed_step and fixed_step_instability(cfg, stepping[0], t, y0, opts.step, method.name)
+            if unstable:  # the step alone would make the motion grow: say so, before any symptom
+                raise SimulationError(unstable)
             seg = method.integrate(fun, t, y0, opts.t_end, guards, opts)
         else:  # no free coordinate: the motion is a known function of time, not integrated
             seg = _known_motion(cfg, t, y0, guards, opts)
@@ -242,7 +246,11 @@ def _interrupted(run: RunState, exc: KeyboardInterrupt) -> SimulationError:
 
 
 def _stopped(run: RunState, exc: SimulationError) -> SimulationError:
-    """A run that cannot go on: its messages name the scene file, and it carries the partial run."""
+    """A run that cannot go on: its messages name the scene file, and it carries the partial run.
+    A blown-up state is blamed on the integration, not on what failed in it."""
+    blown = blow_up(run.cfg, exc, run.t, run.q, run.v, run.stepping[1], run.opts.step) if run.stepping else None
+    if blown:
+        exc.problems = [blown]
     where = str(run.scene.path)
     exc.problems = [p if p.startswith(where) else f"{where}: {p}" for p in exc.problems]
     exc.args = (exc.text(),)
@@ -271,6 +279,11 @@ def check_start(scene: Scene, cfg: Configuration, t, q, v) -> None:
     velocity overflows them), and no body already inside a stop - a guard on its fired side
     while its contact approaches (or, for a gap guard, penetrates) would never change sign, and
     the body would fall through with no event."""
+    fast = unphysical_speed(cfg, q, v)
+    if fast:
+        raise SimulationError(f"{scene.path}: initial.v: {fast} at t = {t:g} s: the initial velocities are not "
+                              f"physical (the largest: {largest_velocity(cfg, v)}); check initial.v and its units "
+                              "(rad/s for a revolute joint, m/s for a slider)")
     ke, pe = cfg.kinetic_energy(q, v), cfg.potential_energy(q)
     if not (math.isfinite(ke) and math.isfinite(pe)):
         raise SimulationError(f"{scene.path}: the initial state's kinetic energy ({ke:.3g} J) or potential "

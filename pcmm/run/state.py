@@ -38,6 +38,7 @@ class RunState:
     phase: ContactPhase | None = None  # a collision resolved by a continuous contact law, under way
     bounced: TransitionSpec | None = None  # the stop that just bounced: its guard is re-armed
     y: np.ndarray | None = None  # the integrator's state where the last segment ended
+    stepping: tuple | None = None  # (rhs, method, options) of the segment being integrated
     impulse_integral: float = 0.0  # the contact phase's impulse so far (N s), at the segment's end
 
     @property

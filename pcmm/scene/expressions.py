@@ -19,7 +19,11 @@ Python code::
     FUNC    := sqrt | sin | cos | tan | atan2
 
 An error names the position (1-based character) in the expression and what
-was expected there; the scene loader adds the file and the field.
+was expected there; the scene loader adds the file and the field.  Every value
+met on the way (a number, a function's argument, a partial result) must be a
+finite double, and nesting (parentheses, signs, powers, calls) is at most
+:data:`MAX_NESTING` deep: beyond either, an error at the position at fault, never
+a Python traceback.  Tokenizing and parsing take time linear in the length.
 """
 from __future__ import annotations
 
@@ -31,8 +35,27 @@ CONSTANTS = {"pi": math.pi, "e": math.e}
 FUNCTIONS = {"sqrt": (math.sqrt, 1), "sin": (math.sin, 1), "cos": (math.cos, 1), "tan": (math.tan, 1),
              "atan2": (math.atan2, 2)}
 DEG = math.pi / 180.0
-_TOKEN = re.compile(r"\s*(?:(?P<num>(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?)|(?P<name>[A-Za-z_]\w*)"
+_SPACE = re.compile(r"\s*")
+_TOKEN = re.compile(r"(?:(?P<num>(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?)|(?P<name>[A-Za-z_]\w*)"
                     r"|(?P<op>\*\*|[-+*/(),]))")
+
+
+#: Deepest nesting of parentheses, signs, powers and calls (each level is a few Python frames
+#: of the recursive-descent parser; far below the interpreter's recursion limit).
+MAX_NESTING = 64
+#: Longest stretch of an expression quoted in a message (a long one is shown around the fault).
+QUOTE = 60
+MAX_DOUBLE = 1.7976931348623157e308
+
+
+def excerpt(text: str, position: int = 1) -> str:
+    """``text`` quoted, or for a long one the stretch around ``position`` (1-based) with its
+    length, so a message about a 1 MB expression stays one line."""
+    if len(text) <= QUOTE:
+        return repr(text)
+    lo = max(0, min(position - 1 - QUOTE // 2, len(text) - QUOTE))
+    part = ("..." if lo > 0 else "") + text[lo:lo + QUOTE] + ("..." if lo + QUOTE < len(text) else "")
+    return f"{part!r} ({len(text)} characters)"
 
 
 class ExpressionError(ValueError):
@@ -40,23 +63,25 @@ class ExpressionError(ValueError):
 
     def __init__(self, text: str, position: int, reason: str):
         self.text, self.position, self.reason = text, position, reason
-        super().__init__(f"{reason} at position {position} of {text!r}")
+        super().__init__(f"{reason} at position {position} of {excerpt(text, position)}")
 
 
 def _tokens(text: str) -> list[tuple[str, str, int]]:
-    out, i = [], 0
-    while i < len(text):
-        if text[i:].strip() == "":
+    """(kind, text, 1-based position) of every token, then ("end", "", len + 1); each character
+    is looked at a bounded number of times (linear time)."""
+    out, i, n = [], 0, len(text)
+    while True:
+        i = _SPACE.match(text, i).end()
+        if i >= n:
             break
         m = _TOKEN.match(text, i)
         if m is None:
-            j = len(text) - len(text[i:].lstrip())
-            raise ExpressionError(text, j + 1, f"unexpected character {text[j]!r} (allowed: numbers, "
+            raise ExpressionError(text, i + 1, f"unexpected character {text[i]!r} (allowed: numbers, "
                                   "+ - * / ** ( ), pi, e, deg, sqrt, sin, cos, tan, atan2)")
         kind = m.lastgroup
-        out.append((kind, m.group(kind), m.start(kind) + 1))
+        out.append((kind, m.group(kind), i + 1))
         i = m.end()
-    out.append(("end", "", len(text) + 1))
+    out.append(("end", "", n + 1))
     return out
 
 
@@ -65,6 +90,7 @@ class _Parser:
         self.text = text
         self.toks = _tokens(text)
         self.i = 0
+        self.depth = 0
 
     @property
     def tok(self):
@@ -79,10 +105,19 @@ class _Parser:
             return True
         return False
 
+    def _finite(self, val, tok, what):
+        """``val``, or an error at ``tok`` when ``what`` is not a finite double."""
+        if not math.isfinite(val):
+            self._fail(f"{what} is not finite ({val}; the largest double is about {MAX_DOUBLE:.3g})", tok)
+        return val
+
     def parse(self) -> float:
         if self.tok[0] == "end":
             self._fail("empty expression")
-        val = self.expr()
+        try:
+            val = self.expr()
+        except RecursionError:  # a deep caller's stack: the same message as MAX_NESTING's
+            self._fail(self._too_deep())
         if self.tok[0] != "end":
             self._fail(f"unexpected {self.tok[1]!r} (an operator + - * / ** is missing?)")
         return val
@@ -90,10 +125,10 @@ class _Parser:
     def expr(self):
         val = self.term()
         while self.tok[1] in ("+", "-") and self.tok[0] == "op":
-            op = self.tok[1]
+            op, at = self.tok[1], self.tok
             self.i += 1
             rhs = self.term()
-            val = val + rhs if op == "+" else val - rhs
+            val = self._finite(val + rhs if op == "+" else val - rhs, at, f"the result of {op!r}")
         return val
 
     def term(self):
@@ -104,15 +139,27 @@ class _Parser:
             rhs = self.unary()
             if op == "/" and rhs == 0:
                 self._fail("division by zero", at)
-            val = val * rhs if op == "*" else val / rhs
+            val = self._finite(val * rhs if op == "*" else val / rhs, at, f"the result of {op!r}")
         return val
 
+    def _too_deep(self) -> str:
+        return (f"nested more than {MAX_NESTING} levels deep (parentheses, signs, powers, calls); "
+                "write it with fewer levels")
+
     def unary(self):
-        if self.tok[0] == "op" and self.tok[1] in ("+", "-"):
-            sign = -1.0 if self.tok[1] == "-" else 1.0
-            self.i += 1
-            return sign * self.unary()
-        return self.power()
+        """Every level of nesting passes here (a '(' or a call through expr, a sign, a power's
+        exponent), so the depth is counted here."""
+        self.depth += 1
+        if self.depth > MAX_NESTING:
+            self._fail(self._too_deep())
+        try:
+            if self.tok[0] == "op" and self.tok[1] in ("+", "-"):
+                sign = -1.0 if self.tok[1] == "-" else 1.0
+                self.i += 1
+                return sign * self.unary()
+            return self.power()
+        finally:
+            self.depth -= 1
 
     def power(self):
         base = self.postfix()
@@ -125,21 +172,22 @@ class _Parser:
                 self._fail(f"power out of range ({exc})", at)
             if isinstance(val, complex):
                 self._fail("a negative number to a fractional power", at)
-            return val
+            return self._finite(val, at, "the result of '**'")
         return base
 
     def postfix(self):
         val = self.atom()
         while self.tok == ("name", "deg", self.tok[2]):
             self.i += 1
-            val *= DEG
+            val = self._finite(val * DEG, self.toks[self.i - 1], "the angle in radians")
         return val
 
     def atom(self):
         kind, text, pos = self.tok
         if kind == "num":
             self.i += 1
-            return float(text)
+            short = text if len(text) <= 24 else f"{text[:12]}...{text[-8:]}"
+            return self._finite(float(text), self.toks[self.i - 1], f"the number {short!r}")
         if kind == "op" and text == "(":
             self.i += 1
             val = self.expr()
@@ -166,8 +214,8 @@ class _Parser:
         fn, arity = FUNCTIONS[name]
         if not self._take("("):
             self._fail(f"{name} needs its argument in parentheses, as in '{name}(...)'")
-        args = [self.expr()]
-        while self._take(","):
+        args = []
+        while not args or self._take(","):
             args.append(self.expr())
         if not self._take(")"):
             self._fail("expected ')' or ','")
@@ -176,7 +224,10 @@ class _Parser:
                                   f"not {len(args)}")
         if name == "sqrt" and args[0] < 0:
             raise ExpressionError(self.text, pos, f"sqrt of a negative number ({args[0]:g})")
-        return fn(*args)
+        try:  # the arguments are finite; a function whose result overflows says so
+            return self._finite(fn(*args), ("name", name, pos), f"{name}(...)")
+        except (ValueError, OverflowError) as exc:
+            raise ExpressionError(self.text, pos, f"{name} is not defined there ({exc})") from None
 
 
 def evaluate(text: str) -> float:
@@ -191,4 +242,4 @@ def describe(exc: ExpressionError) -> str:
     """The problem text a scene error shows (the loader prefixes the file and the field)."""
     allowed = "" if "allowed" in exc.reason else \
         " (an expression may use numbers, + - * / ** ( ), pi, e, deg, sqrt, sin, cos, tan, atan2)"
-    return f"= {exc.text!r}: at position {exc.position}: {exc.reason}{allowed}"
+    return f"= {excerpt(exc.text, exc.position)}: at position {exc.position}: {exc.reason}{allowed}"

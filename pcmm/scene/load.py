@@ -5,11 +5,14 @@ scene resolve relative to the scene file.  :func:`load_scene` validates the
 whole file and every URDF it names before anything is simulated, and reports
 every problem at once (:class:`~pcmm.errors.SceneError`).
 
-The format is documented in the README ("Scene format").
+The format is documented in docs/scene_format.md, whose key tables are generated from the
+``*_KEYS`` tables below.
 """
 from __future__ import annotations
 
 import math
+import re
+import sys
 import tomllib
 from pathlib import Path
 
@@ -17,7 +20,7 @@ from . import schema as S
 from . import settings
 from ..errors import ModelError, SceneError
 from .spec import (ConfigurationSpec, ContactSpec, CutJointSpec, Derivation, DriveSpec, ForceSpec, GuardSpec,
-                   BranchSpec, LatchSpec, Measure, PointPair, ReleaseSpec, Scene, StopSpec, Target)
+                   BranchSpec, LatchSpec, Measure, PinSpec, PointPair, ReleaseSpec, Scene, StopSpec, Target)
 from .urdf import MOVABLE, read_urdf
 from .variations import read_urdf_cached, set_values
 
@@ -34,7 +37,7 @@ FORCE_TYPES = {
     # between two points: x is their distance, f acts along their line (> 0 pushes them apart)
     "point_spring": ({"k", "rest"}, {"value", "k", "rest", "c"}),
 }
-TRANSITION_TYPES = ("latch", "stop", "release")
+TRANSITION_TYPES = ("latch", "stop", "release", "pin")
 GUARD_TYPES = ("coordinate", "gap", "time", "reaction")
 CUT_JOINT_TYPES = {"revolute": 2, "prismatic": 2, "weld": 3}
 
@@ -58,13 +61,21 @@ CUT_JOINT_KEYS = [
     S.Key("name", "str"),
     S.Key("type", "str", check=S.one_of(*CUT_JOINT_TYPES)),
     S.Key("a", "str", doc="link on one side of the cut"),
-    S.Key("point_a", "list", check=S.vector(2), doc="[x, y] in link a's frame"),
+    S.Key("point_a", "list|str", check=S.point_or_entry,
+          doc="[x, y] in link a's frame, or \"entry\": where b's point is when the configuration is entered"),
     S.Key("b", "str", doc="link on the other side of the cut"),
     S.Key("point_b", "list", check=S.vector(2), doc="[x, y] in link b's frame"),
     S.Key("axis", "list", required=False, check=S.nonzero_vector(2),
           doc="prismatic only: sliding direction [x, y] in link a's frame"),
     S.Key("angle", "number", required=False,
           doc="prismatic and weld: the fixed relative angle theta_b - theta_a in rad"),
+    S.Key("contact", "table", required=False,
+          doc="revolute: { normal = [x, y] in a's frame, friction = mu | \"stick\" }: held by compression only"),
+]
+PIN_CONTACT_KEYS = [
+    S.Key("normal", "list", check=S.nonzero_vector(2), doc="[nx, ny] in link a's frame, from a towards b"),
+    S.Key("friction", "number|str", required=False, check=S.friction_coefficient,
+          doc="Coulomb's mu >= 0 the pin's impulse and force must respect, or \"stick\""),
 ]
 INITIAL_KEYS = [
     S.Key("q", "table", doc="{joint = value, ...} for every movable joint"),
@@ -97,8 +108,14 @@ FORCE_KEYS = [
           doc="damping >= 0 (a negative damper feeds energy in)"),
     S.Key("configurations", "list", required=False, check=S.names_list),
 ]
+WHEN_KEYS = [
+    S.Key("measure", "table", doc="{joint = NAME}, {link = NAME} or {between = [A, B]}"),
+    S.Key("above", "number", required=False), S.Key("below", "number", required=False),
+]
 GUARD_KEYS = [
     S.Key("type", "str", check=S.one_of(*GUARD_TYPES)),
+    S.Key("when", "table", required=False,
+          doc="coordinate and gap guards: { measure, above | below }: a crossing counts only on that side"),
     S.Key("measure", "table", required=False),
     S.Key("value", "number", required=False,
           doc="the guard fires when the measure, gap or holding force crosses this value"),
@@ -117,6 +134,10 @@ CONTACT_KEYS = [
     S.Key("joint", "str", required=False, doc="a joint stop: the joint whose coordinate strikes the stop"),
     S.Key("arm", "number", required=False, check=S.positive,
           doc="joint stop: the lever (m) at which the impulse moment is also reported as a force"),
+    S.Key("friction", "number|str", required=False, check=S.friction_coefficient,
+          doc="point contacts: Coulomb's mu >= 0 along the tangent, or \"stick\" (no slip); absent: frictionless"),
+    S.Key("restitution_law", "str", required=False, default="newton", check=S.one_of("newton", "poisson", "energetic"),
+          doc="with friction: how the impact ends (Newton's kinematic law, Poisson's, Stronge's energetic)"),
 ]
 POINT_CONTACT = ("a", "point_a", "b", "point_b", "normal")
 TRANSITION_KEYS = [
@@ -212,10 +233,45 @@ def load_scene(path: str | Path) -> Scene:
         raise SceneError(f"{path}: not valid TOML: {exc}") from None
     except RecursionError:
         raise SceneError(f"{path}: not valid TOML for a scene: arrays or tables nested too deeply") from None
-    except ValueError as exc:  # an integer of more than 4300 digits
-        raise SceneError(f"{path}: not valid TOML for a scene: {exc}") from None
+    except ValueError as exc:  # an integer of more than 4300 digits: Python's int limit
+        raise SceneError(f"{path}: {_huge_integer(text) or f'not valid TOML for a scene: {exc}'}") from None
     S.check_plain(raw, str(path))
     return load_scene_data(raw, path)
+
+
+_LONG_DIGITS = re.compile(r"(?<![\w.])[+-]?\d[\d_]{300,}")
+_HEADER = re.compile(r"^\s*(\[\[?)\s*([^\]]+?)\s*\]\]?\s*(?:#.*)?$")
+_KEY = re.compile(r"([A-Za-z0-9_\-]+|\"[^\"]*\"|'[^']*')\s*=")
+
+
+def _huge_integer(text: str) -> str | None:
+    """Where a scene holds an integer literal longer than Python's int conversion takes (tomllib
+    refuses it with advice about ``sys.set_int_max_str_digits``, which is no help): 'line N:
+    table.key: = an integer of 5000 digits: ...', the table and key found in the text."""
+    limit = getattr(sys, "get_int_max_str_digits", lambda: 4300)() or math.inf
+    m = next((m for m in _LONG_DIGITS.finditer(text) if len(m.group().lstrip("+-").replace("_", "")) > limit),
+             None)
+    if m is None:
+        return None
+    lines = text[:m.start()].split("\n")
+    key, table, counts = None, "", {}
+    for line in lines:
+        h = _HEADER.match(line)
+        if h:
+            name = h.group(2).replace(" ", "")
+            if h.group(1) == "[[":
+                counts[name] = counts.get(name, -1) + 1
+                table, key = f"{name}[{counts[name]}]", None
+            else:
+                table, key = name, None
+            continue
+        keys = _KEY.findall(line.split("#")[0])
+        if keys:
+            key = keys[-1].strip("\"'")  # the literal's own line: the key just before it
+    field = ".".join(x for x in (table, key) if x) or "a value"
+    digits = m.group().lstrip("+-").replace("_", "")
+    return (f"line {len(lines)}: {field}: = an integer of {len(digits)} digits: beyond the range of a "
+            "floating-point number (about 1.8e308)")  # the words of the schema's check of shorter ones
 
 
 def with_values(scene: Scene, values) -> Scene:
@@ -356,6 +412,10 @@ class _Builder:
                 continue
             out[name] = ConfigurationSpec(name=name, urdf=urdf, info=info,
                                           cut_joints=self._cut_joints(c["cut_joints"], where))
+            for k, cj in enumerate(out[name].cut_joints):
+                if cj.anchor_at_entry and cj.a != info.root:
+                    self.p.add(f"{where}.cut_joints[{k}].point_a", f"= 'entry': the anchor is fixed in the world, so "
+                               f"link a must be the frame ('{info.root}', the URDF's root), not '{cj.a}'")
         if derived:
             from .derive import derive_configurations
             out.update(derive_configurations(derived, out, self.p, self._cut_joints, declared=list(table)))
@@ -370,9 +430,21 @@ class _Builder:
                 self.p.add(f"{cw}.axis", "missing; a prismatic cut joint needs its sliding axis [x, y]")
             if cj["type"] in ("prismatic", "weld") and cj["angle"] is None:
                 self.p.add(f"{cw}.angle", f"missing; a {cj['type']} cut joint needs the relative angle it holds")
-            cuts.append(CutJointSpec(cj["name"], cj["type"], cj["a"], tuple(cj["point_a"]),
+            entry = cj["point_a"] == "entry"
+            if entry and cj["type"] != "revolute":
+                self.p.add(f"{cw}.point_a", f"= 'entry': only a revolute cut joint is anchored where it is entered "
+                           f"(this one is {cj['type']!r})")
+            normal = mu = None
+            if cj["contact"] is not None:
+                c = S.check_table(cj["contact"], PIN_CONTACT_KEYS, f"{cw}.contact", self.p)
+                if cj["type"] != "revolute":
+                    self.p.add(f"{cw}.contact", "only a revolute cut joint (a pinned point) is held by compression only")
+                normal = tuple(c["normal"]) if c["normal"] is not None else None
+                mu = None if c["friction"] is None else math.inf if c["friction"] == "stick" else float(c["friction"])
+            cuts.append(CutJointSpec(cj["name"], cj["type"], cj["a"], (0.0, 0.0) if entry else tuple(cj["point_a"]),
                                      cj["b"], tuple(cj["point_b"]),
-                                     tuple(cj["axis"]) if cj["axis"] else None, cj["angle"]))
+                                     tuple(cj["axis"]) if cj["axis"] else None, cj["angle"],
+                                     anchor_at_entry=entry, normal=normal, friction=mu))
         return tuple(cuts)
 
     def _forces(self, items) -> list[ForceSpec]:
@@ -465,6 +537,21 @@ class _Builder:
                                "name the merged configuration with merge_to")
                 if "restitution" not in raw:
                     self.p.add(f"{where}.restitution", "missing; a stop needs Newton's coefficient e in [0, 1]")
+            elif kind == "pin":
+                if t["to"] is None:
+                    self.p.add(f"{where}.to", "missing; a pin names the configuration whose cut joint holds the "
+                               "struck point (point_a = \"entry\")")
+                if t["contact"] is None:
+                    self.p.add(f"{where}.contact", "missing; a pin needs the point contact that strikes: "
+                               "{ a, point_a, b, point_b, normal }")
+                for k in ("restitution", "merge_to", "unmerge", "law", "stiffness", "exponent",
+                          "accumulation_speed", "accumulation_interval"):
+                    if k in raw:
+                        self.p.add(f"{where}.{k}", "not used by a pin (the strike is plastic and the point stays)")
+                if t["cut"]:
+                    self.p.add(f"{where}.cut", "a pin's impulse is solved with every constraint of its target "
+                               "configuration at once; it cuts no joint (give [] or leave it out)")
+                e = 0.0
             elif kind == "release":
                 if t["to"] is None:
                     self.p.add(f"{where}.to", "missing; a release names the configuration with more freedom it goes to")
@@ -494,6 +581,16 @@ class _Builder:
                 contact = self._contact(t["contact"], f"{where}.contact", guard, configs.get(t["from"]))
                 if contact is None:
                     continue
+            if contact is not None and contact.friction is not None and (t["law"] or "impulse") != "impulse":
+                self.p.add(f"{where}.contact.friction", f"a continuous contact law ({t['law']!r}) acts along the "
+                           "normal only; friction needs the impulse law (law = 'impulse')")
+            if kind == "pin" and contact is not None and contact.joint is not None:
+                self.p.add(f"{where}.contact.joint", "a pin needs a point contact (a, point_a, b, point_b, normal)")
+                continue
+            if kind == "pin" and contact is not None and guard is not None and t["to"] is not None:
+                out.append(PinSpec(name=t["name"], source=t["from"], cut=(), guard=guard, contact=contact,
+                                   target=t["to"]))
+                continue
             if guard is None or e is None or (kind != "release" and (contact is None or t["cut"] is None)):
                 continue
             common = dict(name=t["name"], source=t["from"], cut=tuple(t["cut"] or ()), guard=guard, contact=contact)
@@ -539,11 +636,26 @@ class _Builder:
             g["measure"] is not None else None
         if g["type"] == "coordinate" and measure is None:
             ok = False
+        when = None
+        if g["when"] is not None:
+            w = S.check_table(g["when"], WHEN_KEYS, f"{where}.when", self.p)
+            if g["type"] not in ("coordinate", "gap"):
+                self.p.add(f"{where}.when", f"only a coordinate or gap guard is armed by a region (this one is {g['type']!r})")
+                ok = False
+            elif (w["above"] is None) == (w["below"] is None):
+                self.p.add(f"{where}.when", "give exactly one of above = VALUE or below = VALUE")
+                ok = False
+            else:
+                wm = self._measure(w["measure"], f"{where}.when.measure") if w["measure"] is not None else None
+                if wm is None:
+                    ok = False
+                else:
+                    when = (wm, +1, float(w["above"])) if w["above"] is not None else (wm, -1, float(w["below"]))
         if not ok:
             return None
         return GuardSpec(g["type"], measure, float(g["value"] or 0.0),
                          _DIRECTIONS[g["direction"]] if g["direction"] else +1,
-                         at=g["at"], every=g["every"], start=float(g["start"] or 0.0), of=g["of"])
+                         at=g["at"], every=g["every"], start=float(g["start"] or 0.0), of=g["of"], when=when)
 
     def _contact(self, table, where, guard: GuardSpec | None, source: ConfigurationSpec | None) -> ContactSpec | None:
         c = S.check_table(table, CONTACT_KEYS, where, self.p)
@@ -557,7 +669,13 @@ class _Builder:
                 self.p.add(f"{where}.arm", "only used by a joint stop ({ joint = NAME, arm = ... })")
             if len(points) < len(POINT_CONTACT):
                 return None
-            return ContactSpec(c["a"], tuple(c["point_a"]), c["b"], tuple(c["point_b"]), tuple(c["normal"]))
+            mu = c["friction"]
+            return ContactSpec(c["a"], tuple(c["point_a"]), c["b"], tuple(c["point_b"]), tuple(c["normal"]),
+                               friction=None if mu is None else math.inf if mu == "stick" else float(mu),
+                               restitution_law=c["restitution_law"] or "newton")
+        for k in ("friction", "restitution_law"):
+            if isinstance(table, dict) and k in table:
+                self.p.add(f"{where}.{k}", "only used by a point contact (a joint stop has no tangent)")
         for k in points:
             self.p.add(f"{where}.{k}", "not used by a joint stop (the joint's links and axis give the contact)")
         if guard is None or source is None:
@@ -719,6 +837,8 @@ class _Builder:
                 self._check_joint(f"{where}.cut", j, cfg)
             if t.guard.measure is not None:
                 self._check_measure(f"{where}.guard.measure", t.guard.measure, cfg)
+            if t.guard.when is not None:
+                self._check_measure(f"{where}.guard.when.measure", t.guard.when[0], cfg)
             if t.guard.type == "reaction":
                 stops = {s.name for s in scene.transitions if s.type == "stop"}
                 joints = set().union(*(c.info.joints for c in names.values()))
@@ -737,6 +857,16 @@ class _Builder:
                 if not gained:
                     self.p.add(f"{where}.to", f"= {t.target!r}: a release goes to a configuration with more "
                                f"freedom, but '{t.target}' has no movable joint that '{t.source}' lacks")
+            if t.type == "pin" and t.target in names:
+                held = [cj for cj in names[t.target].cut_joints if cj.anchor_at_entry and cj.b == t.contact.b
+                        and tuple(cj.point_b) == tuple(t.contact.point_b)]
+                if not held:
+                    self.p.add(f"{where}.to", f"= {t.target!r}: a pin's target holds the struck point by a revolute "
+                               f"cut joint with a = the frame, point_a = \"entry\", b = {t.contact.b!r} and point_b = "
+                               f"{list(t.contact.point_b)} (the contact's point_b); '{t.target}' has none")
+                if t.contact.a != cfg.info.root:
+                    self.p.add(f"{where}.contact.a", f"= {t.contact.a!r}: a pin anchors b's point on the frame "
+                               f"('{cfg.info.root}'); a point pinned to a moving link is not modelled yet")
             if t.contact is None:
                 continue
             self._check_link(f"{where}.contact.a", t.contact.a, cfg)

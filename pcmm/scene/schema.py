@@ -25,7 +25,7 @@ class Key:
 
     ``kind`` is one of ``"str" "number" "int" "bool" "table" "list"``;
     ``check`` returns a problem text (without location) or ``None``.
-    ``default`` is used only when ``required`` is false; the README documents it.
+    ``default`` is used only when ``required`` is false; docs/scene_format.md documents it (generated).
     """
 
     name: str
@@ -185,6 +185,13 @@ def unit_interval(v):
     return None if 0.0 <= v <= 1.0 else "must be in [0, 1]"
 
 
+def friction_coefficient(v):
+    """Coulomb's coefficient: a number >= 0, or "stick" (no slip, mu = infinity)."""
+    if isinstance(v, str):
+        return None if v == "stick" else 'must be a number >= 0 or "stick" (no slip)'
+    return None if v >= 0 else 'must be >= 0 (or "stick": no slip)'
+
+
 def one_of(*choices):
     def check(v):
         return None if v in choices else f"must be one of {', '.join(map(repr, choices))}"
@@ -211,6 +218,16 @@ def nonzero_vector(n: int):
     def check(v):
         return base(v) or (None if any(x != 0 for x in v) else "must not be the zero vector")
     return _numeric_check(check)
+
+
+def point_or_entry(v):
+    """A cut joint's point_a: [x, y], or "entry" (where b's point is when the configuration is entered)."""
+    if isinstance(v, str):
+        return None if v == "entry" else 'must be [x, y] or "entry" (anchored where b\'s point is at entry)'
+    return vector(2)(v)
+
+
+point_or_entry.numeric = True
 
 
 @_numeric_check

@@ -83,6 +83,10 @@ class GuardSpec:
     every: float | None = None  # time guard: the period (fires at start + k every)
     start: float = 0.0
     of: str | None = None  # reaction guard: the locked joint or the stop transition it watches
+    #: coordinate and gap guards armed by a region: (measure, +1 above / -1 below, bound); the guard
+    #: reads max(its value, -(distance into the region)) on its unfired side (Drake's witness for a
+    #: walker's heel strike): a crossing counts only inside the region
+    when: tuple | None = None
 
 
 @dataclass(frozen=True)
@@ -94,7 +98,11 @@ class ContactSpec:
     (``stop_value``, ``stop_sign``: +1 when the joint moves towards the stop with its
     coordinate increasing); a and b are then the joint's parent and child links, the impulse
     is a moment (revolute) or a force along the axis (prismatic), and ``arm`` (m, optional)
-    is the lever at which the moment is also reported as a force."""
+    is the lever at which the moment is also reported as a force.
+
+    A point contact may carry Coulomb friction along its tangent t = (n_y, -n_x): ``friction``
+    is mu (``math.inf`` for "stick", no slip; None: frictionless, the normal impulse alone), and
+    ``restitution_law`` says how a frictional impact ends (:mod:`pcmm.events.friction`)."""
 
     a: str
     point_a: tuple[float, float] | None
@@ -105,6 +113,8 @@ class ContactSpec:
     arm: float | None = None
     stop_value: float | None = None
     stop_sign: int = 1
+    friction: float | None = None
+    restitution_law: str = "newton"
 
 
 @dataclass(frozen=True)
@@ -156,6 +166,18 @@ class StopSpec(TransitionSpec):
 
 
 @dataclass(frozen=True)
+class PinSpec(TransitionSpec):
+    """A point of b strikes a and is pinned where it lands (issue 24): the run continues in
+    ``target``, whose cut joint anchored at entry holds b's point; the impulse is solved with every
+    constraint of ``target`` at once and the closed unilateral contacts of the source
+    (:mod:`pcmm.events.pins`).  Plastic (e = 0) and without slip, or within the contact's friction."""
+
+    type: ClassVar[str] = "pin"
+    restitution: ClassVar[float] = 0.0
+    target: str
+
+
+@dataclass(frozen=True)
 class CutJointSpec:
     """A joint that closes a loop; the URDF holds the spanning tree."""
 
@@ -167,6 +189,14 @@ class CutJointSpec:
     point_b: tuple[float, float]
     axis: tuple[float, float] | None  # prismatic: sliding direction in a's frame
     angle: float | None  # prismatic, weld: the fixed relative angle theta_b - theta_a
+    #: ``point_a = "entry"`` (a revolute cut joint to the frame): a's point is where b's point is when
+    #: the run enters the configuration (a struck point pinned where it lands); point_a is then (0, 0)
+    #: and the anchor a per-instance offset (:class:`pcmm.model.constraints.ClosureRows`)
+    anchor_at_entry: bool = False
+    #: a contact held by compression only: the normal (in a's frame, from a towards b) along which
+    #: the cut joint may only push, and Coulomb's mu it must respect ("stick": math.inf; None: any)
+    normal: tuple[float, float] | None = None
+    friction: float | None = None
 
 
 @dataclass(frozen=True)

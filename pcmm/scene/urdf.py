@@ -233,6 +233,8 @@ def _check_inertial(el, name, where, required, problems) -> None:
                   [vals["ixy"], vals["iyy"], vals["iyz"]],
                   [vals["ixz"], vals["iyz"], vals["izz"]]])
     eig = np.linalg.eigvalsh(m)
+    if not m.any():
+        return  # a point mass: accepted where the configuration's mass matrix stays positive definite
     if eig.min() <= 0:
         problems.append(f"{loc}: inertia tensor is not positive definite (eigenvalues {np.round(eig, 15).tolist()})")
     elif not (eig[0] + eig[1] >= eig[2] * (1 - 1e-9)):

@@ -4,54 +4,25 @@ yields the rows as runs finish; stopping early stops the runs in flight."""
 from __future__ import annotations
 
 import itertools
-from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+import time
 from typing import Iterable, Iterator
 
-from ..errors import SimulationError, UsageError
-from .job import Job, run_one
-
-
-def _ignore_sigint() -> None:
-    """Pool workers leave Ctrl-C to the sweep, which stops them: a run cut short by the
-    user is not a result."""
-    import signal
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
+from ..errors import UsageError
+from .job import Job, failed_row, run_one
+from .pool import DEFAULT_RUN_TIMEOUT, run_isolated
 
 
 def run_serial(jobs: Iterable[Job]) -> Iterator[dict]:
+    """The runs in this process, one after the other (no isolation, no time limit)."""
     for job in jobs:
         yield run_one(job)
 
 
-def run_pool(jobs: Iterable[Job], workers: int) -> Iterator[dict]:
-    """A local process pool (spawned workers); a bounded window of runs in flight."""
-    import multiprocessing
-    from concurrent.futures.process import BrokenProcessPool
-    ex = ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"),
-                             initializer=_ignore_sigint)
-    jobs = iter(jobs)
-    pending: dict = {}
-    try:
-        while True:
-            for job in itertools.islice(jobs, max(0, 4 * workers - len(pending))):
-                pending[ex.submit(run_one, job)] = job
-            if not pending:
-                return
-            done, _ = wait(pending, return_when=FIRST_COMPLETED)
-            for fut in done:
-                job = pending.pop(fut)
-                try:
-                    yield fut.result()
-                except BrokenProcessPool:
-                    raise SimulationError(f"a worker process died (killed, or crashed in native code) while "
-                                          f"runs were in flight, e.g. run {job.index} ({job.values}); the runs "
-                                          "that finished are kept, --resume runs the rest") from None
-    finally:
-        procs = list((getattr(ex, "_processes", None) or {}).values())
-        ex.shutdown(wait=False, cancel_futures=True)
-        for proc in procs:  # runs still in flight when the sweep stops early are stopped now
-            if proc.is_alive():
-                proc.terminate()
+def run_pool(jobs: Iterable[Job], workers: int, run_timeout: float | None = DEFAULT_RUN_TIMEOUT,
+             init: str | None = None) -> Iterator[dict]:
+    """A local pool of worker processes (:mod:`pcmm.studies.pool`): a run that crashes its worker
+    or outlives ``run_timeout`` is a row (``crashed``, ``timeout``) and the study goes on."""
+    return run_isolated(run_one, jobs, workers, run_timeout, failed_row, init)
 
 
 def _distributed():
@@ -90,30 +61,82 @@ class DaskCluster:
             self.cluster.close()
 
 
-def run_dask(jobs: Iterable[Job], dask: DaskCluster) -> Iterator[dict]:
-    """The runs on a Dask cluster, a bounded window of them in flight."""
+def run_dask(jobs: Iterable[Job], dask: DaskCluster, run_timeout: float | None = DEFAULT_RUN_TIMEOUT) -> Iterator[dict]:
+    """The runs on a Dask cluster, about one per worker thread in flight (so that a run's time
+    limit counts from about when it starts).  A run the cluster loses (its worker died, and
+    died again on the retries Dask allows) is a ``crashed`` row; a run past ``run_timeout`` a
+    ``timeout`` row, and its worker is restarted."""
     import distributed
     client = dask.client
     jobs = iter(jobs)
-    pending: dict = {}
-    queue = distributed.as_completed()
+    pending: dict = {}  # future -> (job, submitted at)
     try:
-        def fill():
-            for job in itertools.islice(jobs, max(0, 4 * dask.slots - len(pending))):
-                fut = client.submit(run_one, job, pure=False)
-                pending[fut] = job
-                queue.add(fut)
-        fill()
-        for fut in queue:
-            job = pending.pop(fut)
+        while True:
+            for job in itertools.islice(jobs, max(0, dask.slots + 1 - len(pending))):
+                pending[client.submit(run_one, job, pure=False)] = (job, time.monotonic())
+            if not pending:
+                return
+            wait_for = None
+            if run_timeout is not None:
+                wait_for = max(0.05, min(t0 for _, t0 in pending.values()) + run_timeout - time.monotonic())
             try:
-                row = fut.result()
-            except Exception as exc:  # the cluster lost the run (a worker died): stop, keep what finished
-                raise SimulationError(f"run {job.index} ({job.values}) was lost by the Dask cluster "
-                                      f"({type(exc).__name__}: {exc}); the runs that finished are kept, "
-                                      "--resume runs the rest") from None
-            yield row
-            fill()
+                done = distributed.wait(list(pending), timeout=wait_for, return_when="FIRST_COMPLETED").done
+            except (distributed.TimeoutError, TimeoutError):
+                done = set()
+            for fut in [f for f in pending if f in done]:
+                job, t0 = pending.pop(fut)
+                try:
+                    row = fut.result()
+                except Exception as exc:  # the cluster lost the run: its worker died (on every retry)
+                    row = failed_row(job, "crashed", f"the Dask cluster lost the run ({type(exc).__name__}: "
+                                     f"{exc}): its worker process died while running it", time.monotonic() - t0)
+                yield row
+            if run_timeout is not None:
+                now = time.monotonic()
+                for fut in [f for f, (_, t0) in pending.items() if now - t0 >= run_timeout]:
+                    job, t0 = pending.pop(fut)
+                    _stop_on_cluster(client, fut)
+                    yield failed_row(job, "timeout", f"still running after the time limit of {run_timeout:g} s "
+                                     "(--run-timeout); stopped (its Dask worker restarted)", now - t0)
     finally:
         for fut in pending:
             fut.cancel()
+
+
+def _stop_on_cluster(client, fut) -> None:
+    """Cancel a run and restart the worker running it (a thread cannot be stopped otherwise)."""
+    try:
+        busy = [w for w, keys in client.processing().items() if fut.key in keys]
+        fut.cancel()
+        if busy:
+            client.restart_workers(busy)
+    except Exception:  # the cluster cannot do it (an old scheduler): the run is reported all the same
+        pass
+
+
+class Runner:
+    """Where a study's runs go, kept open across batches: this process (``workers`` = 1), a
+    :class:`~pcmm.studies.pool.WorkerPool`, or a Dask cluster (``scheduler``)."""
+
+    def __init__(self, workers: int, scheduler: str | None = None, run_timeout: float | None = DEFAULT_RUN_TIMEOUT,
+                 init: str | None = None):
+        from .pool import WorkerPool
+        self.run_timeout = run_timeout
+        self.dask = DaskCluster(scheduler, workers) if scheduler else None
+        self.pool = None
+        if self.dask is None and workers > 1:
+            self.pool = WorkerPool(workers, run_timeout, failed_row, init)
+        self.slots = self.dask.slots if self.dask else workers
+
+    def rows(self, jobs: Iterable[Job]) -> Iterator[dict]:
+        if self.dask is not None:
+            return run_dask(jobs, self.dask, self.run_timeout)
+        if self.pool is not None:
+            return self.pool.imap(run_one, jobs)
+        return run_serial(jobs)
+
+    def close(self) -> None:
+        if self.pool is not None:
+            self.pool.close()
+        if self.dask is not None:
+            self.dask.close()

@@ -24,6 +24,8 @@ QUANTITIES = {
     "energy_dissipated": "sum over impacts of KE before + drive work - KE after, J",
     "max_holding_force": "largest |holding force or moment| of any lock (stats.holding), N or N m; "
                          "empty when nothing was locked",
+    "last_merge_t": "time of the run's last merge (a latch, or a stop's bounces accumulated into a lock), s; "
+                    "empty when none",
     "configuration_final": "the configuration the run ends in",
     "t_final": "the time the run ends at, s",
     "solve_s": "the solve's own wall time (integration and impacts), s",
@@ -78,7 +80,7 @@ def run_one(job: Job) -> dict:
             row.update(status="complete", error="")
         except SimulationError as exc:
             if isinstance(exc.__context__, KeyboardInterrupt):
-                raise KeyboardInterrupt from None  # the sweep is stopping: not a result of this run
+                raise exc.__context__ from None  # the sweep is stopping (Ctrl-C, SIGTERM): not a result of this run
             traj = exc.partial
             row.update(status="partial", error=exc.text())
         if traj is not None:
@@ -97,11 +99,18 @@ def run_one(job: Job) -> dict:
     return row
 
 
+def failed_row(job: Job, status: str, message: str, seconds: float) -> dict:
+    """The row of a run that gave no row itself: its worker crashed (``crashed``) or it was
+    stopped at the time limit (``timeout``)."""
+    return {"run": job.index, **job.values, "status": status, "error": message, "wall_s": seconds}
+
+
 def quantities(summ: dict) -> dict:
     """The per-run quantities of :data:`QUANTITIES` from a run summary."""
     events = summ["events"]
     impacts = [e for e in events if e.get("impact")]
     impulses = [abs(e["impulse"]["normal"]) for e in impacts]
+    merges = [e for e in events if e.get("merge")]
     dissipated = [e["energy_dissipated"] for e in impacts if e.get("energy_dissipated") is not None]
     holding = [abs(v) for h in ((summ.get("stats") or {}).get("holding") or {}).values()
                for v in (h.get("min"), h.get("max")) if isinstance(v, (int, float)) and math.isfinite(v)]
@@ -114,6 +123,7 @@ def quantities(summ: dict) -> dict:
         "kinetic_energy_lost": math.fsum(e["kinetic_energy_before"] - e["kinetic_energy_after"] for e in impacts),
         "energy_dissipated": math.fsum(dissipated),
         "max_holding_force": max(holding) if holding else None,
+        "last_merge_t": merges[-1]["t"] if merges else None,
         "configuration_final": summ.get("configuration_final"),
         "t_final": (summ.get("final") or {}).get("t"),
         "solve_s": (summ.get("stats") or {}).get("wall_s"),

@@ -29,6 +29,13 @@ def _slug(text: str) -> str:
     return re.sub(r"[^A-Za-z0-9_.-]+", "_", text).strip("_")
 
 
+def plain_text(text: str) -> str:
+    """``text`` as matplotlib shows it literally: ``$`` escaped (no mathtext: a scene's name
+    or a value path is never parsed as TeX), control characters shown escaped."""
+    from ..files import terminal_text
+    return terminal_text(str(text)).replace("$", r"\$")
+
+
 def read_rows(table: str | Path) -> list[dict]:
     """The rows of a results table that have quantities (complete and partial runs)."""
     with open(table, newline="", encoding="utf-8") as f:
@@ -66,7 +73,7 @@ def plot_sweep(table: str | Path, paths, out_dir: str | Path, quantities=None) -
                              if _number(r[x]) is not None and _number(r[q]) is not None)
                 if not pts:
                     continue
-                label = ", ".join(f"{p} = {v}" for p, v in zip(others, key)) or None
+                label = plain_text(", ".join(f"{p} = {v}" for p, v in zip(others, key))) or None
                 xs, ys = [p[0] for p in pts], [p[1] for p in pts]
                 if as_lines:
                     line, = ax.plot(xs, ys, "-", lw=1.2, label=label if len(groups) > 1 else None)
@@ -79,9 +86,9 @@ def plot_sweep(table: str | Path, paths, out_dir: str | Path, quantities=None) -
                     ax.plot(*zip(*full), "o", ms=4, color=color)
                 if part:
                     ax.plot(*zip(*part), "o", ms=5, mfc="none", color=color)
-            ax.set_xlabel(x)
-            ax.set_ylabel(q)
-            ax.set_title(QUANTITIES.get(q, q).split(";")[0], fontsize=9)
+            ax.set_xlabel(plain_text(x))
+            ax.set_ylabel(plain_text(q))
+            ax.set_title(plain_text(QUANTITIES.get(q, q).split(";")[0]), fontsize=9)
             ax.grid(True, alpha=0.3)
             if as_lines and len(groups) > 1:
                 ax.legend(fontsize=7)

@@ -26,10 +26,11 @@ from typing import Iterable
 
 from ..errors import SceneError, UsageError
 from .backends import DaskCluster, _distributed, run_dask, run_pool, run_serial
+from .pool import DEFAULT_RUN_TIMEOUT
 from .plan import SAMPLES, Axis, Plan, axis_from_spec, make_plan, parse_set, read_plan_file  # noqa: F401
 from .job import QUANTITIES, Job, _token, check_collect, collect_value, quantities, run_one  # noqa: F401
 from .table import ResultsTable, columns, write_parquet
-from ..results.trajectory import atomic_write
+from ..files import atomic_write
 from ..scene.variations import value_text
 
 
@@ -42,6 +43,8 @@ class SweepResult:
     status: dict = field(default_factory=dict)  # status -> count, over the whole table
     parquet: Path | None = None
     uncollected: list = field(default_factory=list)  # --collect paths no run's summary had
+    dropped: list = field(default_factory=list)  # rows of the table dropped on resume, and why
+    retried: int = 0  # crashed or timed-out rows run again (retry_failed)
 
 
 def validate_plan(scene, plan: Plan) -> None:
@@ -67,13 +70,18 @@ def validate_plan(scene, plan: Plan) -> None:
 
 def sweep(scene, plan: Plan, out: str | Path, options=None, collect: Iterable[str] = (), workers: int | None = None,
           scheduler: str | None = None, resume: bool = False, force: bool = False,
-          progress: bool = False) -> SweepResult:
+          progress: bool = False, retry_failed: bool = False, run_timeout: float | None = DEFAULT_RUN_TIMEOUT,
+          worker_init: str | None = None) -> SweepResult:
     """Run every run of ``plan`` on variations of ``scene`` and write the results table ``out``.
 
-    ``workers`` = 1 runs in this process; more (default: the machine's cores) use a local
-    process pool, or the Dask cluster at ``scheduler`` (``"local"``: a LocalCluster).
-    Rows are appended and flushed as runs finish, so an interrupted sweep keeps every
-    finished run; ``resume`` runs only what the table lacks.
+    ``workers`` = 1 runs in this process; otherwise (default: the cores this process may use)
+    a local pool of worker processes, or the Dask cluster at ``scheduler`` (``"local"``: a
+    LocalCluster).  On the pool and on Dask a run that crashes its worker or runs longer than
+    ``run_timeout`` seconds is a ``crashed`` or ``timeout`` row and the sweep goes on.
+    Rows are written whole as runs finish, so an interrupted sweep keeps every finished run;
+    ``resume`` runs only what the table lacks (and the crashed or timed-out runs with
+    ``retry_failed``).  ``worker_init`` (``"module:function"``) is called in each pool worker
+    as it starts.
     """
     from ..run.loop import RunOptions
     options = options or RunOptions()
@@ -83,24 +91,26 @@ def sweep(scene, plan: Plan, out: str | Path, options=None, collect: Iterable[st
         _distributed()
     validate_plan(scene, plan)
     out = Path(out)
+    in_process = workers == 1
     workers = workers or usable_cores()
     meta = _meta(out, scene, plan, options, collect, resume)
     dask = DaskCluster(scheduler, workers) if scheduler else None
     try:
-        table = ResultsTable(out, columns(plan.paths, collect), len(plan.paths), resume, force)
+        table = ResultsTable(out, columns(plan.paths, collect), len(plan.paths), resume, force, retry_failed)
         try:
             atomic_write(out.with_name(out.name + ".sweep.json"), lambda f: f.write(meta), force=True)
-            todo = [i for i in range(len(plan.runs)) if plan.key(i) not in table.done]
-            result = SweepResult(out, len(plan.runs), len(plan.runs) - len(todo), 0)
+            todo = [i for i in range(len(plan.runs)) if table.key_of(plan.runs[i]) not in table.done]
+            result = SweepResult(out, len(plan.runs), len(plan.runs) - len(todo), 0, dropped=table.dropped,
+                                 retried=table.retried)
             raw, path = scene.source, str(scene.path)
             token = _token(raw)
             jobs = (Job(i, path, raw, token, plan.values(i), options, collect) for i in todo)
             if dask is not None:
-                stream = run_dask(jobs, dask)
-            elif workers == 1 or len(todo) <= 1:
+                stream = run_dask(jobs, dask, run_timeout)
+            elif in_process or not todo:
                 stream = run_serial(jobs)
             else:
-                stream = run_pool(jobs, min(workers, len(todo)))
+                stream = run_pool(jobs, min(workers, len(todo)), run_timeout, worker_init)
             _consume(stream, table, result, collect, _bar(progress, len(todo)))
         finally:
             table.close()
@@ -149,13 +159,15 @@ def _bar(show: bool, total: int):
     return tqdm(total=total, unit="run", file=sys.stderr, smoothing=0.1)
 
 
-def _meta(out: Path, scene, plan: Plan, options, collect, resume: bool) -> str:
+def _meta(out: Path, scene, plan: Plan, options, collect, resume: bool, study: dict | None = None) -> str:
     """The sweep's identity, kept beside its table: resuming with another scene or other run
     options would mix results that do not belong together, and is refused."""
     meta_path = out.with_name(out.name + ".sweep.json")
     meta = {"scene": str(Path(scene.path).resolve()), "scene_data": _token(scene.source),
             "paths": list(plan.paths), "collect": list(collect),
             "options": {k: v for k, v in asdict(options).items() if v is not None}}
+    if study is not None:  # an optimisation: its method and settings decide which runs it asks for
+        meta["optimize"] = study
     text = json.dumps(meta, indent=2, default=str)
     if resume and out.exists() and meta_path.exists():
         try:

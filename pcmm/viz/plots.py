@@ -531,6 +531,9 @@ def figures(traj: RecordedRun, compare: RecordedRun | None = None, impulse_sign:
                    f"({letters[i % 26]}) Holding {kind} of {what}{note}", marks, duration)
         f.legend()
         files["holding_forces"] = f.fig
+    if traj.views.get("transitions"):  # the working cycle as a graph, with this run's firings
+        from .graph import graph_figure
+        files["graph"] = graph_figure(traj.views, traj.events, title=name).figure
     return files
 
 

@@ -1,0 +1,186 @@
+"""A struck point pinned where it lands (issue 24, items 2 and 3): the ``pin`` transition.
+
+A point of link b strikes the frame (the transition's point contact) and stays there: the run
+continues in the target configuration, whose revolute cut joint ``point_a = "entry"`` holds b's
+point at the place of the strike (its anchor, set now: :meth:`ClosureRows.set_anchors`).  The
+strike is plastic and does not slip.
+
+**The impulse is solved with every constraint of the target at once** (the paper's Eqs. 29/42 with
+the target's constraint Jacobian, not one normal followed by a projection): with M the tree's mass
+matrix (the target has the same tree), A the target's rows (its cut joints, the new anchored one
+among them, and its drives) and the rows of the unilateral contacts kept closed,
+
+    M (v+ - v-) = A^T lam,   A v+ = b   (b = 0 for a cut joint, f'(t) for a drive),
+
+so ``lam = (A M^-1 A^T)^-1 (b - A v-)`` and ``v+ = v- + M^-1 A^T lam``; ``lam`` of a revolute cut
+joint is its impulse on b (world x, y).
+
+**Simultaneous contacts.**  Every cut joint of the source held by compression only (a ``contact``
+with a normal) and absent from the target is a closed unilateral contact at the strike.  Each is
+either kept (its normal impulse P_n >= 0, its normal velocity after 0) or released (no impulse,
+normal velocity after >= 0): a complementarity problem, solved exactly by enumerating the 2^k
+active sets (k is small) and keeping those that satisfy every inequality.  Exactly one must; none
+or several stop the run with a message.  The old foot of a rimless wheel leaves *because* the new
+foot's impulse separates it: holding it too would need a tensile impulse (design_24.md section 2.3).
+A kept contact must be in the target (else the scene's ``to`` is wrong, and the message says so).
+
+The new pin's impulse (P_t, P_n) along the contact's tangent t = (n_y, -n_x) and normal must lie in
+its friction cone when a finite ``friction`` is given, else the strike would slip (the message gives
+the friction it needs, |P_t| / P_n).
+"""
+from __future__ import annotations
+
+import itertools
+import math
+
+import numpy as np
+import scipy.linalg as sla
+
+from ..errors import SimulationError
+from ..model.configuration import Configuration
+from ..model.pinocchio_helpers import cholesky, frame_jacobian
+from ..scene.spec import PinSpec
+from .contact import contact_state
+from .entry import enter
+from .records import event_record
+from .impulse import Impulse, constraint_impulses, joint_impulses, loop_point_impulses, tangent_of
+
+SIGN_TOL = 1e-10  # relative: an impulse or a normal speed this small (x the scale) counts as zero
+
+
+def _rows_of(cfg: Configuration, spec, k: int):
+    """(world normal n, J_rel (2 x nv)) of the source's cut joint ``spec`` (index k) at the current
+    kinematics: b's point relative to a's."""
+    cl = cfg.coords.closure
+    Jb = frame_jacobian(cfg.model, cfg.data, cl.frames_b[k])[:2]
+    Ja = frame_jacobian(cfg.model, cfg.data, cl.frames_a[k])[:2]
+    n = cfg.data.oMf[cl.links_a[k]].rotation[:2, :2] @ np.asarray(spec.normal, float)
+    return n / np.linalg.norm(n), Jb - Ja
+
+
+def closed_unilateral(cfg: Configuration, dst: Configuration):
+    """The source's cut joints held by compression only that the target does not have:
+    [(spec, world normal, normal row)] at the current kinematics of ``cfg``."""
+    if not getattr(cfg.coords, "constrained", False):
+        return []
+    kept = {s.name for s in (dst.spec.cut_joints if dst is not None else ())}
+    out = []
+    for k, s in enumerate(cfg.coords.closure.specs):
+        if s.normal is not None and s.name not in kept:
+            n, J = _rows_of(cfg, s, k)
+            out.append((s, n, n @ J))
+    return out
+
+
+def impact_with_rows(M: np.ndarray, name: str, v: np.ndarray, A: np.ndarray, b: np.ndarray):
+    """(v+, lam) of ``M (v+ - v-) = A^T lam``, ``A v+ = b`` (the Schur complement; a redundant set
+    of rows gets the minimum-norm multipliers, the velocity is unique either way)."""
+    W = sla.cho_solve(cholesky(M, name), np.eye(M.shape[0]))
+    if A.shape[0] == 0:
+        return v.copy(), np.zeros(0)
+    S = A @ W @ A.T
+    lam = np.linalg.lstsq(S, b - A @ v, rcond=1e-13)[0]
+    return v + W @ A.T @ lam, lam
+
+
+def pin_strike(ctx, cfg: Configuration, tr: PinSpec, t, q, v):
+    """Pin b's point where it strikes, with every constraint of the target at once (module text):
+    (target, q, v, event) of the run's outcome."""
+    where = f"t = {t:.9g} s, transition '{tr.name}'"
+    dst = ctx.mechanism.enter(tr.target, cfg, q)
+    if list(dst.joint_names) != list(cfg.joint_names):
+        raise SimulationError(f"{where}: a pin keeps the tree and adds a cut joint, but '{tr.target}' has the "
+                              f"joints {list(dst.joint_names)} and '{cfg.name}' {list(cfg.joint_names)}: give both "
+                              "configurations the same URDF")
+    n, _, vn, Jn = contact_state(cfg, q, v, tr.contact)
+    scale = max(1.0, float(np.max(np.abs(v)))) if v.size else 1.0
+    if vn >= 0:
+        raise SimulationError(f"{where}: the guard fired but b's point does not approach the surface "
+                              f"(normal velocity {vn:.3g} m/s): the normal must point from link a towards link b")
+    pb = cfg.point_position(cfg.point(tr.contact.b, tr.contact.point_b))
+    tang = tangent_of(n)
+    unilateral = closed_unilateral(cfg, dst)
+    # the target's anchors: the struck cut joint at b's point now; those the source also holds stay put
+    struck = [s for s in dst.spec.cut_joints if s.anchor_at_entry and s.b == tr.contact.b
+              and tuple(s.point_b) == tuple(tr.contact.point_b)][0]
+    keep = {}
+    if getattr(cfg.coords, "constrained", False):
+        for k, s in enumerate(cfg.coords.closure.specs):
+            if k in cfg.coords.closure.anchors and s.name != struck.name:
+                keep[s.name] = cfg.coords.closure.anchors[k]
+    dst.kinematics(q, v)
+    anchors = dst.coords.closure.set_anchors(dst.data, keep) if getattr(dst.coords, "constrained", False) else {}
+    A_dst = dst.coords.equality(t, dst.model, dst.data)
+    b_dst = np.zeros(A_dst.shape[0])
+    if dst.coords.drives.size:
+        b_dst[dst.coords.closure.size:] = dst.coords.drives.values(t)[1]
+    M = cfg.mass_matrix(q)
+    labels = dst.coords.labels
+    i_struck = labels.index(f"{struck.name}.fx")
+    solutions, tried = [], []
+    for held in itertools.product((False, True), repeat=len(unilateral)):
+        rows = [u[2] for u, h in zip(unilateral, held) if h]
+        A = np.vstack([A_dst] + [r[None, :] for r in rows]) if rows else A_dst
+        b = np.concatenate([b_dst, np.zeros(len(rows))])
+        v_plus, lam = impact_with_rows(M, cfg.name, v, A, b)
+        lam_u = iter(lam[A_dst.shape[0]:])
+        text, ok = [], True
+        for (s, _, row), h in zip(unilateral, held):
+            if h:
+                P = float(next(lam_u))
+                ok &= P >= -SIGN_TOL * scale
+                text.append(f"{s.name} kept (normal impulse {P:.6g} N s)")
+            else:
+                vn_after = float(row @ v_plus)
+                ok &= vn_after >= -SIGN_TOL * scale
+                text.append(f"{s.name} released (normal velocity after {vn_after:.6g} m/s)")
+        F = lam[i_struck:i_struck + 2]
+        ok &= float(n @ F) >= -SIGN_TOL * scale
+        tried.append("; ".join(text + [f"the new pin's normal impulse {float(n @ F):.6g} N s"]))
+        if ok:
+            solutions.append((held, v_plus, lam))
+    if len(solutions) != 1:
+        raise SimulationError(
+            [f"{where}: the strike with the closed contacts {[u[0].name for u in unilateral]} has "
+             f"{'no' if not solutions else len(solutions)} consistent outcome(s) (a rigid-body impact that is "
+             f"{'inconsistent' if not solutions else 'ambiguous'} here); the active sets tried:"] + tried)
+    held, v_plus, lam = solutions[0]
+    stays = [u[0].name for u, h in zip(unilateral, held) if h]
+    if stays:
+        raise SimulationError(f"{where}: the contact(s) {stays} stay closed through the strike (their impulse is "
+                              f"compressive), but '{tr.target}' does not hold them: name a target configuration "
+                              "that keeps them")
+    F = lam[i_struck:i_struck + 2]
+    P_n, P_t = float(n @ F), float(tang @ F)
+    mu = tr.contact.friction if tr.contact.friction is not None else struck.friction
+    if mu is not None and not math.isinf(mu) and abs(P_t) > mu * P_n * (1 + 1e-12):
+        raise SimulationError(f"{where}: the pinned point would slip: its impulse needs friction >= "
+                              f"{abs(P_t) / P_n:.6g} (|P_t| / P_n, P_t = {P_t:.6g}, P_n = {P_n:.6g} N s) and the "
+                              f"contact has mu = {mu:g}; pcmm models no sliding contact")
+    # entered like every switch: the target's constraints checked at the post-impact state (entry.enter)
+    entry = enter(cfg, dst, t, q, v_plus, what=f"pin '{tr.name}'")
+    q_new, v_new = entry.q, entry.v
+    by_label = {lab: float(x) for lab, x in zip(labels, lam[:len(labels)])}
+    ke0, ke1 = float(0.5 * v @ M @ v), float(0.5 * v_plus @ M @ v_plus)
+    imp = Impulse(kind="stable", restitution=0.0, normal=n, P=P_n, vn_before=vn, vn_after=float(Jn @ v_plus),
+                  v_before=v.copy(), v_after=v_plus, ke_before=ke0, ke_after=ke1, point=pb, tangent=tang, P_t=P_t)
+    dst.kinematics(q)
+    loop = loop_point_impulses(dst, by_label)
+    imp.constraint_rows = by_label
+    imp.constraint_impulses = constraint_impulses(dst, by_label, loop)
+    for s, _, _ in unilateral:  # released: no impulse
+        imp.constraint_impulses[s.name] = [0.0, 0.0, 0.0]
+    imp.contact_impulses = [(tr.contact.b, pb, F.copy(), 0.0), (tr.contact.a, pb, -F.copy(), 0.0)]
+    imp.drive_work = sum(mu_ * float(v[cfg.joint_slice[lab[:-6]]][0])
+                         for lab, mu_ in by_label.items() if lab.endswith(".drive"))
+    imp.joint_impulses, imp.rnea_residual = joint_impulses(cfg, q, v_plus - v, loop)
+    record = event_record(cfg, tr, t, tr.target, True, imp, "pin", q=q)
+    record["tangent"] = [float(tang[0]), float(tang[1])]
+    record["impulse"]["tangential"] = P_t
+    record["impulse"]["vector"] = [float(F[0]), float(F[1])]
+    record["anchor"] = {name: [float(x) for x in A] for name, A in anchors.items()}
+    released = {}
+    for (s, nu, row) in unilateral:
+        released[s.name] = {"normal_velocity_after": float(row @ v_plus), "impulse": 0.0}
+    record["released"] = released
+    return tr.target, q_new, v_new, record

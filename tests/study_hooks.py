@@ -1,0 +1,31 @@
+"""Hooks run in a study's worker processes as they start (``sweep(..., worker_init="study_hooks:NAME")``):
+faults a run can suffer there, and a count of the Pinocchio models a worker builds."""
+import os
+import time
+
+
+def faulty():
+    """tau1 = 3.0: the run aborts its worker (a native crash); tau1 = 4.0: the run hangs."""
+    import pcmm.run.loop as loop
+    real = loop.simulate
+
+    def simulate(scene, options=None, progress=None):
+        if scene.forces[0].value == 3.0:
+            os.abort()
+        if scene.forces[0].value == 4.0:
+            time.sleep(3600)
+        return real(scene, options, progress)
+    loop.simulate = simulate
+
+
+def count_builds():
+    """Append this worker's pid to $PCMM_TEST_BUILDS at each Pinocchio model build."""
+    import pinocchio
+    real = pinocchio.buildModelFromXML
+    log = os.environ["PCMM_TEST_BUILDS"]
+
+    def build(*args, **kw):
+        with open(log, "a") as f:
+            f.write(f"{os.getpid()}\n")
+        return real(*args, **kw)
+    pinocchio.buildModelFromXML = build

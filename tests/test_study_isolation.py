@@ -1,0 +1,110 @@
+"""Per-run isolation of a study (issue 25, item 2): a run that crashes its worker or hangs is a
+row and the sweep goes on; --resume retries such rows only with --retry-failed; workers die with
+the sweep (kill -9 leaves no orphan); each worker builds a model once for all its runs."""
+from __future__ import annotations
+
+import csv
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+import pcmm
+from pcmm.studies.sweep import Axis, make_plan, sweep
+
+from builders import EXAMPLES
+
+ROOT = Path(__file__).resolve().parents[1]
+TESTS = Path(__file__).resolve().parent
+THREE_BAR = EXAMPLES / "three_bar.toml"
+
+
+def read(path):
+    with open(path, newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def test_a_crashing_and_a_hanging_run_are_rows_and_the_sweep_goes_on(tmp_path):
+    plan = make_plan([Axis("forces.tau1.value", (1.955, 3.0, 4.0, 2.1))])
+    out = tmp_path / "r.csv"
+    t0 = time.monotonic()
+    res = sweep(pcmm.load_scene(THREE_BAR), plan, out, pcmm.RunOptions(t_end=0.2), workers=2, run_timeout=8.0,
+                worker_init="study_hooks:faulty")
+    took = time.monotonic() - t0
+    rows = {r["forces.tau1.value"]: r for r in read(out)}
+    assert res.status == {"complete": 2, "crashed": 1, "timeout": 1}
+    assert rows["3.0"]["status"] == "crashed"
+    assert "died of SIGABRT (aborted: a crash in native code)" in rows["3.0"]["error"]
+    assert rows["4.0"]["status"] == "timeout" and "time limit of 8 s" in rows["4.0"]["error"]
+    assert 8.0 <= float(rows["4.0"]["wall_s"]) < 30 and took < 60  # stopped at its limit, not for ever
+    assert rows["1.955"]["status"] == rows["2.1"]["status"] == "complete"
+    # the paper's latch time (Table 1) from a worker that replaced a crashed one
+    assert float(rows["1.955"]["first_impact_t"]) == pytest.approx(0.1672851, abs=1e-7)
+
+    # --resume keeps the failed rows; --retry-failed runs them again (here: without the fault)
+    res = sweep(pcmm.load_scene(THREE_BAR), plan, out, pcmm.RunOptions(t_end=0.2), workers=2, resume=True)
+    assert (res.skipped, res.ran) == (4, 0)
+    res = sweep(pcmm.load_scene(THREE_BAR), plan, out, pcmm.RunOptions(t_end=0.2), workers=2, resume=True,
+                retry_failed=True)
+    assert (res.skipped, res.ran, res.retried) == (2, 2, 2) and res.status == {"complete": 4}
+    rows = read(out)
+    assert len(rows) == 4 and sorted(r["forces.tau1.value"] for r in rows) == ["1.955", "2.1", "3.0", "4.0"]
+
+
+def test_each_worker_builds_each_model_once(tmp_path, monkeypatch):
+    # Example 1 has two configurations; 12 runs that all latch (both models used) on 2 workers
+    log = tmp_path / "builds.txt"
+    monkeypatch.setenv("PCMM_TEST_BUILDS", str(log))
+    plan = make_plan([Axis("forces.tau3.value", tuple(0.23 + 0.005 * i for i in range(12)))])
+    res = sweep(pcmm.load_scene(THREE_BAR), plan, tmp_path / "r.csv", pcmm.RunOptions(t_end=0.2), workers=2,
+                worker_init="study_hooks:count_builds")
+    assert res.status == {"complete": 12}
+    assert all(int(r["events"]) == 1 for r in read(tmp_path / "r.csv"))  # config2 reached in every run
+    builds = log.read_text().split()
+    per_worker = {pid: builds.count(pid) for pid in set(builds)}
+    assert set(per_worker.values()) == {2} and len(per_worker) <= 2  # 2 models per worker, not 2 per run
+
+
+def _alive(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().split(") ")[-1].split()[0] != "Z"
+    except FileNotFoundError:
+        return False
+
+
+def _descendants(pid: int) -> list[int]:
+    out, todo = [], [pid]
+    while todo:
+        p = todo.pop()
+        try:
+            kids = Path(f"/proc/{p}/task/{p}/children").read_text().split()
+        except FileNotFoundError:
+            continue
+        out += [int(k) for k in kids]
+        todo += [int(k) for k in kids]
+    return out
+
+
+@pytest.mark.skipif(not Path("/proc/self/task").exists(), reason="needs Linux's /proc")
+def test_kill_9_of_the_sweep_leaves_no_worker_behind(tmp_path):
+    env = {**os.environ, "PYTHONPATH": f"{ROOT}{os.pathsep}{TESTS}"}
+    proc = subprocess.Popen([sys.executable, "-m", "pcmm.cli", "sweep", str(THREE_BAR), "--set",
+                             "forces.tau1.value=1.9:2.1:40", "--t-end", "3.0", "--out", "r.csv", "--workers", "2",
+                             "--quiet"], cwd=tmp_path, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    out = tmp_path / "r.csv"
+    t0 = time.time()
+    while time.time() - t0 < 120 and (not out.exists() or len(out.read_text().splitlines()) < 3):
+        time.sleep(0.05)
+    kids = _descendants(proc.pid)
+    assert len(kids) >= 2  # the two workers (and nothing of multiprocessing's)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait(timeout=30)
+    t0 = time.time()
+    while time.time() - t0 < 10 and any(_alive(k) for k in kids):
+        time.sleep(0.05)
+    assert [k for k in kids if _alive(k)] == []
