@@ -36,7 +36,7 @@ from .actions import GUARD_ACTIONS, action_of
 from .approach import closest_approach
 from .audit import FlightAudit
 from .recording import record as _record
-from .stability import blow_up, fixed_step_instability, largest_velocity, unphysical_speed
+from .stability import diagnose, fixed_step_instability, largest_velocity, unphysical_speed
 from .state import RunState
 
 
@@ -248,7 +248,7 @@ def _interrupted(run: RunState, exc: KeyboardInterrupt) -> SimulationError:
 def _stopped(run: RunState, exc: SimulationError) -> SimulationError:
     """A run that cannot go on: its messages name the scene file, and it carries the partial run.
     A blown-up state is blamed on the integration, not on what failed in it."""
-    blown = blow_up(run.cfg, exc, run.t, run.q, run.v, run.stepping[1], run.opts.step) if run.stepping else None
+    blown = diagnose(run.cfg, exc, run.t, run.q, run.v, run.stepping[1], run.opts.step) if run.stepping else None
     if blown:
         exc.problems = [blown]
     where = str(run.scene.path)
