@@ -338,12 +338,6 @@ def test_a_latched_loop_resampled_holds_at_the_kkt_moment(tmp_path):
     assert r.constraint_forces[1, 2] == pytest.approx(need[F.vslice["J3"].start], rel=1e-5)
 
 
-@pytest.mark.xfail(strict=True, raises=AssertionError, reason=(
-    "pcmm/events/holding.py Holds.adopt: a lock held from the start gets the release transition, "
-    "whose source is the locked configuration, so _forces_on looks for the held joint's own "
-    "elements in forces_in('locked'), where the scene does not list them (they act where E is free): "
-    "E.hold misses the elbow spring's moment (recorded -0.352 N m at t = 0, KKT with the spring "
-    "carried 0.148 N m; a lock locked by a latch carries it). For h-run (Hold.carries)."))
 def test_a_lock_held_from_the_start_carries_its_joints_spring(tmp_path):
     _, found = _findings(held_elbow_arm(tmp_path))
     assert not found, _show(found)
