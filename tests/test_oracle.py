@@ -201,12 +201,7 @@ def test_a_saved_run_loads_back_as_the_oracle_checked_it(name, t_end, tmp_path):
 @pytest.mark.parametrize("name, t_end", [
     ("three_bar.toml", 0.3),
     ("three_bar_cycle.toml", 1.25),
-    pytest.param("double_folded.toml", 3.05, marks=pytest.mark.xfail(strict=True, raises=AssertionError, reason=(
-        "pcmm/events/transitions.py, the switch without impulse (--no-impact) into a loop: merging the "
-        "slider at 3.0036 s drops E's velocity (named in dropped_velocities) and changes B's from -0.7064 "
-        "to -0.8601 rad/s and D's from +0.0011 to -0.6532 rad/s to close the driven loop, naming neither "
-        "(v_after has them, dropped_velocities only E): a change the record does not report as one. For "
-        "h-run."))),
+    ("double_folded.toml", 3.05),
 ])
 def test_a_switch_without_impulse_names_every_velocity_it_changes(name, t_end):
     """The paper's comparison runs (impact = False): every velocity a switch changes is in the event's

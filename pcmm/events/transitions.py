@@ -43,7 +43,7 @@ from .contact import contact_point, contact_state
 from .contact_faults import POSE_TOL, contact_findings
 from .records import by_link, event_record
 from .guards import guard_value
-from .entry import Entry, enter, joints_from_poses, map_state, pose_mismatches  # noqa: F401 - re-exported
+from .entry import VELOCITY_ROUNDOFF, Entry, enter, joints_from_poses, map_state, pose_mismatches  # noqa: F401 - re-exported
 from .impulse import no_impulse, solve_impulse
 from .pins import pin_strike
 from ..scene.spec import LatchSpec, StopSpec, TransitionSpec
@@ -160,9 +160,15 @@ def _merge(ctx: Context, cfg: Configuration, tr: TransitionSpec, target: str, t,
     q_new, v_new, dropped, offsets = switch(cfg, dst, t, q, v if not imp.impact else v_after,
                                             what=f"{transition_type} '{tr.name}'", reset=not imp.impact)
     if not imp.impact:  # the record shows the velocities the run goes on with (projected onto the target)
+        scale = max(1.0, float(np.max(np.abs(v)))) if len(v) else 1.0
         for n in dst.joint_names:
             if n in cfg.joint_slice:
                 v_after[cfg.joint_slice[n]] = v_new[dst.joint_slice[n]]
+                before = v[cfg.joint_slice[n]]
+                if np.max(np.abs(v_new[dst.joint_slice[n]] - before)) > VELOCITY_ROUNDOFF * scale:
+                    # a kept joint whose velocity the reset changed (closing a loop without impulse):
+                    # named with the velocity it had, like the locked ones
+                    dropped[n] = float(before[0]) if before.size == 1 else [float(x) for x in before]
         imp = no_impulse(cfg, q, v, v_after, tr.contact)
     record = event_record(cfg, tr, t, target, True, imp, transition_type, q=q)
     record["dropped_velocities"] = dropped
