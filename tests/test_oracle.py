@@ -201,12 +201,7 @@ def test_a_saved_run_loads_back_as_the_oracle_checked_it(name, t_end, tmp_path):
 @pytest.mark.parametrize("name, t_end", [
     ("three_bar.toml", 0.3),
     ("three_bar_cycle.toml", 1.25),
-    pytest.param("double_folded.toml", 3.05, marks=pytest.mark.xfail(strict=True, raises=AssertionError, reason=(
-        "pcmm/events/transitions.py, the switch without impulse (--no-impact) into a loop: merging the "
-        "slider at 3.0036 s drops E's velocity (named in dropped_velocities) and changes B's from -0.7064 "
-        "to -0.8601 rad/s and D's from +0.0011 to -0.6532 rad/s to close the driven loop, naming neither "
-        "(v_after has them, dropped_velocities only E): a change the record does not report as one. For "
-        "h-run."))),
+    ("double_folded.toml", 3.05),
 ])
 def test_a_switch_without_impulse_names_every_velocity_it_changes(name, t_end):
     """The paper's comparison runs (impact = False): every velocity a switch changes is in the event's
@@ -338,12 +333,6 @@ def test_a_latched_loop_resampled_holds_at_the_kkt_moment(tmp_path):
     assert r.constraint_forces[1, 2] == pytest.approx(need[F.vslice["J3"].start], rel=1e-5)
 
 
-@pytest.mark.xfail(strict=True, raises=AssertionError, reason=(
-    "pcmm/events/holding.py Holds.adopt: a lock held from the start gets the release transition, "
-    "whose source is the locked configuration, so _forces_on looks for the held joint's own "
-    "elements in forces_in('locked'), where the scene does not list them (they act where E is free): "
-    "E.hold misses the elbow spring's moment (recorded -0.352 N m at t = 0, KKT with the spring "
-    "carried 0.148 N m; a lock locked by a latch carries it). For h-run (Hold.carries)."))
 def test_a_lock_held_from_the_start_carries_its_joints_spring(tmp_path):
     _, found = _findings(held_elbow_arm(tmp_path))
     assert not found, _show(found)

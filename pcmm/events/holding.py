@@ -27,7 +27,7 @@ from ..model.forces import compile_forces
 from .contact import contact_row
 from ..model.mechanism import Mechanism
 from ..scene.spec import TransitionSpec
-from .transitions import joints_from_poses
+from .entry import joints_from_poses
 from ..ode.witness import Guard
 
 
@@ -40,6 +40,13 @@ class Hold:
     joints: dict[str, np.ndarray]  # locked joint -> its value when it locked
     merge: bool  # a stop-merge: held by the stop's contact force
     unilateral: bool  # undone when the contact force would turn tensile
+    carries: str = ""  # the configuration whose force elements on the held joints the lock carries
+    # (where those joints are free: the one the lock was made from, or for a lock the run starts
+    # with, the one that frees it); "" is the transition's source
+
+    @property
+    def free_in(self) -> str:
+        return self.carries or self.transition.source
 
 
 class Holds:
@@ -78,7 +85,9 @@ class Holds:
             src = self.mechanism[source]
             q_s, v_s = joints_from_poses(cfg, src, q, v, src.neutral(), np.zeros(src.nv), [of])
             tr = next(t for t in self.scene.transitions if t.guard.type == "reaction" and t.guard.of == of)
-            self.items.append(Hold(of, tr, {of: q_s[src.joint_slice[of]].copy()}, False, False))
+            # the lock carries the elements acting on the joint where it is free (source), not those
+            # of the release's source (the locked configuration, where the scene does not list them)
+            self.items.append(Hold(of, tr, {of: q_s[src.joint_slice[of]].copy()}, False, False, carries=source))
 
     def snapshot(self) -> "Holds":
         """The locks in force now, kept as they are (a recorded segment computes its holding
@@ -139,7 +148,7 @@ class Holds:
         if key not in self._maps:
             mine = list(self.scene.forces_in(cfg.name))
             for h in self.items:
-                for f in self.scene.forces_in(h.transition.source):
+                for f in self.scene.forces_in(h.free_in):
                     on_joint = f.on is not None and f.on.kind == "joint" and f.on.name in h.joints
                     measures = f.measure is not None and f.measure.kind == "joint" and f.measure.names[0] in h.joints
                     if (on_joint or measures) and f not in mine:

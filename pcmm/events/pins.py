@@ -41,6 +41,7 @@ from ..model.configuration import Configuration
 from ..model.pinocchio_helpers import cholesky, frame_jacobian
 from ..scene.spec import PinSpec
 from .contact import contact_state
+from .entry import enter
 from .records import event_record
 from .impulse import Impulse, constraint_impulses, joint_impulses, loop_point_impulses, tangent_of
 
@@ -173,11 +174,9 @@ def pin_strike(ctx, cfg: Configuration, tr: PinSpec, t, q, v):
         raise SimulationError(f"{where}: the pinned point would slip: its impulse needs friction >= "
                               f"{abs(P_t) / P_n:.6g} (|P_t| / P_n, P_t = {P_t:.6g}, P_n = {P_n:.6g} N s) and the "
                               f"contact has mu = {mu:g}; pcmm models no sliding contact")
-    q_new, v_new = dst.coords.project(t, q, v_plus) if getattr(dst.coords, "constrained", False) else (q, v_plus)
-    if np.max(np.abs(v_new - v_plus)) > 1e-9 * scale or np.max(np.abs(q_new - q)) > 1e-9:
-        raise SimulationError(f"{where}: the state after the strike does not fit '{tr.target}' (velocity off by "
-                              f"{np.max(np.abs(v_new - v_plus)):.3g}, posture by {np.max(np.abs(q_new - q)):.3g}): "
-                              "its other constraints are not those of the source")
+    # entered like every switch: the target's constraints checked at the post-impact state (entry.enter)
+    entry = enter(cfg, dst, t, q, v_plus, what=f"pin '{tr.name}'")
+    q_new, v_new = entry.q, entry.v
     # the stance that begins now: each point held by compression only must push, inside its cone
     # (the guards of the stance watch it from here on: PartitionedCoordinates.contact_guards)
     for name, (Fn, Ft) in dst.coords.contact_forces(t, q_new, v_new).items():

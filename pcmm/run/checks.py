@@ -34,8 +34,8 @@ from ..model.mechanism import Mechanism
 from ..errors import PcmmError
 from ..scene.spec import Scene, TransitionSpec
 from ..events.contact_faults import contact_findings
+from ..events.entry import map_state, pose_mismatches
 from ..events.pins import anchor_where_entered
-from ..events.transitions import map_state, pose_mismatches
 
 NEWTON_TOL = 1e-13
 
