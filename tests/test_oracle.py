@@ -127,12 +127,7 @@ PREFIX = [
     ("three_bar.toml", 0.2, 0.35, 0.01),
     ("three_bar_stop.toml", 0.2, 0.4, 0.01),
     ("double_folded.toml", 3.05, 3.2, 0.05),
-    pytest.param("andrews.toml", 0.01, 0.02, 0.001, marks=pytest.mark.xfail(
-        strict=True, raises=SimulationError, reason=(
-            "the steps to t_end = 0.01 s differ from those to 0.02 s, so the shorter run's samples are "
-            "compared with the longer run's dense output at their times, and resampling the squeezer's "
-            "loop there fails at t = 0.00994615 s (residual 0.0568), as in "
-            "test_a_fast_loop_resampled_at_a_coarse_dt. For h-model / h-run."))),
+    ("andrews.toml", 0.01, 0.02, 0.001),
     ("three_bar_cycle.toml", 0.2, 0.35, 0.05),
 ]
 
@@ -353,14 +348,6 @@ COARSE = {
 
 
 @pytest.mark.parametrize("name", sorted(COARSE))
-@pytest.mark.xfail(strict=True, raises=SimulationError, reason=(
-    "resampling a fast loop at dt = 0.01 s (pcmm run --dt 0.01) fails in pcmm/run/loop.py "
-    "_record_samples.resample (its loop solves, pcmm/model/constraints.py): Andrews 'the loop cannot "
-    "be closed at t = 0.00994615 s (residual 0.0568)', the crank-rocker at t = 0.629929 s (residual "
-    "0.424), a step time whose recorded state the segment's own series derive without trouble; the "
-    "same segments resample at dt = 0.001 s, and adding every step time to the dt = 0.01 grid does not "
-    "help, so it is not only the distance between warm starts (the dense re-stepping before the "
-    "solves is the suspect). For h-model / h-run (issue 22 item 3)."))
 def test_a_fast_loop_resampled_at_a_coarse_dt(name, tmp_path):
     path, t_end = COARSE[name](tmp_path)
     _, found = _findings(path, t_end, 0.01)
