@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-KINDS = {"impact": "#d62728", "merge": "#7b3fb5", "latch": "#7b3fb5", "release": "#1a9a3a"}
+KINDS = {"impact": "#d62728", "merge": "#7b3fb5", "latch": "#7b3fb5", "pin": "#1f5fa8", "release": "#1a9a3a"}
 
 
 @dataclass
@@ -25,14 +25,14 @@ class Edge:
     source: str
     target: str
     name: str  # the transition's name
-    kind: str  # "impact" | "merge" | "latch" | "release"
+    kind: str  # "impact" | "merge" | "latch" | "pin" | "release"
     guard: str
     times: list = field(default_factory=list)  # when it fired (after a run)
 
     @property
     def label(self) -> str:
         what = {"latch": "latch (impact + merge)", "merge": "merge", "impact": "impact",
-                "release": "release"}.get(self.kind, self.kind)
+                "pin": "pin (impact, point pinned where it lands)", "release": "release"}.get(self.kind, self.kind)
         guard = "hold tensile" if self.kind == "release" and self.guard.startswith("(") else self.guard
         text = f"{self.name}\n{what}: {guard}"
         if self.times:
@@ -46,8 +46,8 @@ def edges(views: dict) -> list[Edge]:
     """The transitions of a recorded run (or of ``record_views(scene)``) as the graph's edges."""
     out = []
     for tr in views.get("transitions", []) or []:
-        if tr["type"] == "latch":
-            out.append(Edge(tr["from"], tr["to"], tr["name"], "latch", tr["guard"]))
+        if tr["type"] in ("latch", "pin"):
+            out.append(Edge(tr["from"], tr["to"], tr["name"], tr["type"], tr["guard"]))
         elif tr["type"] == "release":
             out.append(Edge(tr["from"], tr["to"], tr["name"], "release", tr["guard"]))
         elif tr["type"] == "stop":
@@ -68,8 +68,8 @@ def edge_of(ev: dict) -> tuple[str, str]:
     tr = ev.get("transition")
     if tr == "release":
         return ev.get("name", ""), "release"
-    if tr == "latch":
-        return ev.get("name", ""), "latch"
+    if tr in ("latch", "pin"):
+        return ev.get("name", ""), tr
     return ev.get("name", ""), ("merge" if ev.get("merge") else "impact")
 
 
