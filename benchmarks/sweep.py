@@ -1,8 +1,8 @@
 """Design-study throughput: runs/s for Examples 1 and 2, serially and on the local process pool.
 
-For each example, the same plan is swept twice through ``pcmm.studies.sweep.sweep``: in this process
+For each example, the same plan is swept through ``pcmm.studies.sweep.sweep`` in this process
 (``workers=1``) and on the process pool over the machine's cores (worker start-up included, as
-a user sees it).  Speed-up = pool runs/s / serial runs/s; parallel efficiency = speed-up / workers.
+a user sees it), alternately, best of ``--reps`` each.  Speed-up = pool runs/s / serial runs/s; parallel efficiency = speed-up / workers.
 Each run's overhead beyond its solve is measured two ways: from the table (``wall_s`` - ``solve_s``
 in the worker, which holds the scene rebuild from the varied TOML, the Pinocchio model builds and
 the summary) and by timing those pieces alone in this process (medians).  ``--dask`` adds the
