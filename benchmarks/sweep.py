@@ -188,6 +188,10 @@ def main():
         "the rows that landed after the first wave (one row per worker) over the time since that wave landed, "
         "the rate a long sweep approaches (counting from the first row credits the rest of the first wave, "
         "run before it, to the time after it: 4 runs on 2 workers then read 1.5x too fast).",
+        "* The pool's workers are processes of their own (pcmm.studies.pool), each importing pcmm's run path "
+        "before its first run, and a worker takes runs as soon as it is ready: Example 1's 16 runs of about 40 ms "
+        "are over in about the time a worker takes to start, so its pool rates mostly measure the start-up, and "
+        "its steady state counts from a first wave the later worker may not have joined yet.",
         "* The machine's 2 cores are shared with other users: when the load average exceeds the core count, the "
         "pool's workers compete with them for the cores and its speed-up is a floor, not a property of pcmm.", "",
         f"Benchmark wall time: {time.perf_counter() - t_start:.0f} s.",
