@@ -16,6 +16,7 @@ joints free again, found among the scene's configurations by its set of movable 
 """
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass
 
 import numpy as np
@@ -60,6 +61,7 @@ class Holds:
         self.items: list[Hold] = []
         self._maps: dict = {}  # (reference, configuration, holds) -> the forces acting while it holds
         self._refs: dict = {}  # (configuration, holds) -> its reference configuration
+        self._sets: dict | None = None  # {configuration: its URDF's movable joints}, read on first use
 
     # -- book-keeping
     def lock(self, src: Configuration, dst: Configuration, tr: TransitionSpec, q: np.ndarray, merge: bool) -> None:
@@ -92,8 +94,8 @@ class Holds:
     def snapshot(self) -> "Holds":
         """The locks in force now, kept as they are (a recorded segment computes its holding
         forces later, when they are read, while the run's own locks change)."""
-        out = Holds.__new__(Holds)
-        out.__dict__.update(self.__dict__, items=list(self.items))
+        out = copy.copy(self)
+        out.items = list(self.items)
         return out
 
     def follow(self, cfg: Configuration) -> None:
@@ -114,7 +116,7 @@ class Holds:
 
     # -- the reference configuration and the state mapped onto it
     def _joint_sets(self):
-        sets = self.__dict__.get("_sets")
+        sets = self._sets
         if sets is None:  # the scene's configurations do not change: read their URDF joints once
             sets = self._sets = {name: set(spec.info.movable_joints) for name, spec in self.scene.configurations.items()}
         return sets
@@ -178,8 +180,20 @@ class Holds:
             f"(a URDF, or a configuration derived by locking joints) or set unmerge = false on "
             f"'{hold.label}'")
 
-    def forces(self, cfg: Configuration, t: float, q: np.ndarray, v: np.ndarray) -> dict[str, float]:
-        """{label: holding force or moment} of every hold at (t, q, v) of ``cfg``."""
+    def applied(self, cfg: Configuration) -> tuple | None:
+        """The force elements the holding forces of ``cfg`` are solved with now, as values: (the
+        reference configuration's own, those acting while ``cfg`` holds or None: :meth:`_forces_on`).
+        A recorded segment keeps them (the run may compile the reference's again at other angle
+        offsets before the segment's holding forces are read).  None without holds or reference."""
+        ref_name = self.reference(cfg) if self.items else None
+        if ref_name is None:
+            return None
+        ref = self.mechanism[ref_name]
+        return ref.forces, self._forces_on(ref, cfg)
+
+    def forces(self, cfg: Configuration, t: float, q: np.ndarray, v: np.ndarray, applied: tuple | None = None) -> dict[str, float]:
+        """{label: holding force or moment} of every hold at (t, q, v) of ``cfg``, with the force
+        elements ``applied`` (:meth:`applied`, a recorded segment's), by default those of now."""
         if not self.items:
             return {}
         ref_name = self.reference(cfg)
@@ -212,9 +226,9 @@ class Holds:
                 rows.append(e[None, :])
                 bias.append([0.0])
                 owners.append(h.label)
-        own = self._forces_on(ref, cfg)
-        extra = None if own is None else own.generalized(qs, vs) - ref.forces.generalized(qs, vs)
-        _, lam = constrained_accelerations(ref, qs, vs, np.vstack(rows), np.concatenate(bias), extra)
+        ref_forces, own = applied if applied is not None else (ref.forces, self._forces_on(ref, cfg))
+        extra = None if own is None else own.generalized(qs, vs) - ref_forces.generalized(qs, vs)
+        _, lam = constrained_accelerations(ref, qs, vs, np.vstack(rows), np.concatenate(bias), extra, forces=ref_forces)
         return {label: float(x) for label, x in zip(owners, lam[Jc.shape[0]:])}
 
     # -- guards

@@ -446,9 +446,10 @@ class Configuration:
         welded = -fixed.mass * float(self.model.gravity.linear @ fixed.lever)
         return float(pin.computePotentialEnergy(self.model, self.data, self.to_pin(q))) + welded
 
-    def potential_energy(self, q: np.ndarray) -> float:
-        """Gravity plus spring energy (J)."""
-        return self.gravity_energy(q) + self.forces.potential_energy(q)
+    def potential_energy(self, q: np.ndarray, forces: ForceField | None = None) -> float:
+        """Gravity plus spring energy (J) of ``forces`` (a recorded segment's own, compiled at its
+        angle offsets), by default the configuration's current ones."""
+        return self.gravity_energy(q) + (self.forces if forces is None else forces).potential_energy(q)
 
     def link_velocities(self, q: np.ndarray, v: np.ndarray) -> np.ndarray:
         """(nlinks, 3): vx, vy of every link frame's origin and its angular velocity (world)."""
