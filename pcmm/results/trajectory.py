@@ -86,6 +86,14 @@ class SegmentRecord:
         rec.__dict__.update(resample(times))
         return rec
 
+    def replaced(self, **arrays) -> "SegmentRecord":
+        """A copy of this segment with ``arrays`` (``t`` and series at other times, as a plot's
+        interpolation gives them) in place of its own; every other series is read now.  A plain
+        record: neither derived later nor resampled."""
+        rec = object.__new__(type(self))
+        rec.__dict__.update(self.__getstate__(), **arrays)
+        return rec
+
     def __getattr__(self, name):  # only called for attributes not yet set: the deferred arrays
         derive = self.__dict__.get("_derive")
         if name not in _DERIVED or derive is None:
