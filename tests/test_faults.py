@@ -160,9 +160,9 @@ def test_partial_stats_count_the_interrupted_segment(tmp_path):
 def test_a_second_ctrl_c_while_the_partial_is_recorded_loses_nothing(tmp_path, monkeypatch):
     """Ctrl-C mid-segment, then a second Ctrl-C while that segment's samples are recorded: the
     second waits, and the partial ends where the first stopped the run."""
-    sim = sys.modules["pcmm.run.loop"]
+    sim = sys.modules["pcmm.run.recording"]
     scene = pcmm.load_scene(builders.spring_pendulum(tmp_path / "s", 10.0, 0.1, t_end=50.0))  # one long segment
-    real = sim._record_samples
+    real = sim.record_samples
     state = {"interrupted": False, "sent": 0}
 
     def record(*args):
@@ -176,7 +176,7 @@ def test_a_second_ctrl_c_while_the_partial_is_recorded_loses_nothing(tmp_path, m
         if t > 1.5 and not state["interrupted"]:
             state["interrupted"] = t
             raise KeyboardInterrupt
-    monkeypatch.setattr(sim, "_record_samples", record)
+    monkeypatch.setattr(sim, "record_samples", record)
     with pytest.raises(pcmm.SimulationError) as info:
         pcmm.simulate(scene, progress=progress)
     assert state["sent"] == 1

@@ -207,3 +207,79 @@ def test_a_latch_in_a_loop_enters_with_its_constraints_at_round_off(tmp_path):
     np.testing.assert_allclose(data.oMf[tip].translation[:2], [0.2, 0.0], atol=1e-9)
     J = pin.getFrameJacobian(model, data, tip, pin.LOCAL_WORLD_ALIGNED)[:2]
     assert np.max(np.abs(J @ v_full)) < 1e-12 * scale
+
+
+# ---- issue 22.5: the flight-energy audit measures what the integrator did not ---------------------
+BALL = dict(e=0.8, h=0.5, m=1.5)
+
+
+def _bouncing_ball(tmp_path, monkeypatch=None, plant=None):
+    """A ball dropped from h on a floor with restitution e (builders.ball); ``plant(out)``
+    alters the state the run re-enters after each bounce (a planted defect)."""
+    from pcmm.events import transitions
+    if plant is not None:
+        handle = transitions.TRANSITIONS["stop"]
+
+        def planted(ctx, cfg, tr, t, q, v):
+            out = handle(ctx, cfg, tr, t, q, v)
+            if out.configuration == cfg.name:  # a bounce: a flight follows
+                plant(out)
+            return out
+        monkeypatch.setitem(transitions.TRANSITIONS, "stop", planted)
+    path = builders.ball(tmp_path, BALL["e"], h=BALL["h"], mass=BALL["m"], t_end=3.0)
+    traj = pcmm.simulate(pcmm.load_scene(path), pcmm.RunOptions(accumulation_speed=1e-3))
+    (macro,) = traj.stats["macro_impacts"]
+    assert macro["flights"] >= 5
+    return traj, macro
+
+
+def test_flight_audit_is_at_round_off_on_an_honest_run(tmp_path):
+    _, macro = _bouncing_ball(tmp_path)
+    assert macro["flight_energy_relative_max"] < 1e-10
+    assert macro["flight_energy_residual_max"] < 1e-12
+
+
+def test_flight_audit_catches_a_wrong_re_entry_velocity(tmp_path, monkeypatch):
+    """Re-entering each flight at (1 + 1e-6) x the impulse's velocity puts a relative
+    (1 + 1e-6)^2 - 1 = 2e-6 of the rebound energy into every flight, which the audit must
+    report (the integrator's own energy balance, started from the re-entered state, sees none)."""
+    eps = 1e-6
+
+    def plant(out):
+        out.v = out.v * (1 + eps)
+    traj, macro = _bouncing_ball(tmp_path, monkeypatch, plant)
+    assert macro["flight_energy_relative_max"] == pytest.approx((1 + eps) ** 2 - 1, rel=1e-3)
+
+
+def test_flight_audit_catches_a_restart_shifted_off_the_impact(tmp_path, monkeypatch):
+    """Re-entering each flight 1e-9 m above the impact posture (the old re-arm shift, made
+    large enough to stand above round-off) gives every flight m g d of gravity energy that no
+    force supplied: the audit's residual is that, J for J."""
+    d = 1e-9
+
+    def plant(out):
+        out.q = out.q + d
+    _, macro = _bouncing_ball(tmp_path, monkeypatch, plant)
+    assert macro["flight_energy_residual_max"] == pytest.approx(BALL["m"] * G * d, rel=1e-4)
+
+
+def test_every_switch_enters_its_configuration_through_the_checked_entry(tmp_path, monkeypatch):
+    """Issue 22.2: the constraint check lives in transitions.enter, and every transition kind
+    reaches the next configuration through it: a latch and a timed release of the four-bar,
+    and a ball's bounces and its merge, one checked entry per event."""
+    from pcmm.events import transitions
+    calls = []
+    real = transitions.enter
+
+    def counting(src, dst, t, *args, **kw):
+        entry = real(src, dst, t, *args, **kw)
+        calls.append((t, src.name, dst.name, entry.velocity_residual))
+        return entry
+    monkeypatch.setattr(transitions, "enter", counting)
+    latch = pcmm.simulate(pcmm.load_scene(builders.four_bar_latch(tmp_path / "fb", t_end=1.0)))
+    ball = pcmm.simulate(pcmm.load_scene(builders.ball(tmp_path / "ball", 0.5, h=0.3, t_end=2.0)),
+                         pcmm.RunOptions(accumulation_speed=1e-2))
+    events = latch.events + ball.events
+    assert {e["transition"] for e in events} >= {"latch", "release", "stop"}
+    assert [(e["t"], e["from"], e["to"]) for e in events] == [c[:3] for c in calls]
+    assert max(c[3] for c in calls) < 1e-12

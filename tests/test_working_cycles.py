@@ -408,7 +408,7 @@ def test_switches_that_take_no_time_are_named_not_counted_to_the_event_budget():
     the cycle (it used to say "more than 10000 events ... raise solver.max_events", advice that
     cannot help).  Bounces at one instant (same configuration) and switches at different times
     are not such a cycle."""
-    from pcmm.run.loop import ZERO_TIME_CYCLE, _zero_time_cycle
+    from pcmm.run.actions import ZERO_TIME_CYCLE, zero_time_cycle as _zero_time_cycle
     back_and_forth = [{"t": 0.9, "name": "let go", "from": "locked", "to": "coast"},
                       {"t": 0.9, "name": "stop again", "from": "coast", "to": "locked"}] * (ZERO_TIME_CYCLE // 2)
     assert _zero_time_cycle(back_and_forth) == "'let go' (locked -> coast), 'stop again' (coast -> locked)"

@@ -23,6 +23,10 @@ event record for the summary.
 Without impact (the paper's comparison runs) a transformation switches
 configuration with no impulse: surviving joints keep their velocities, locked
 ones drop theirs.
+
+Every handler enters its target through :func:`enter` (via :func:`switch`), which checks the
+target's constraints at the post-impact state and stops the run where they do not hold: a new
+transition kind is one entry of ``TRANSITIONS`` whose handler does the same.
 """
 from __future__ import annotations
 

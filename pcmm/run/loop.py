@@ -1,38 +1,43 @@
 """The configuration-complete simulation (paper Fig. 3).
 
-Integrate the current configuration's dynamics (Eq. 1) until a guard fires;
-solve the transformation (impulse, velocity jump, configuration switch); go
-on in the next configuration until ``t_end``.  With ``impact=False`` the
-transformations switch without impulse (the paper's comparison runs).
+Integrate the current configuration's dynamics (Eq. 1) until a guard fires
+(:func:`integrate_segment`); do what that guard's kind does (one entry of
+:data:`pcmm.run.actions.GUARD_ACTIONS`: solve the transformation - impulse, velocity jump,
+configuration switch - or start or end a contact phase, or repartition a loop); go on in the
+next configuration until ``t_end``.  The run's state is a :class:`~pcmm.run.state.RunState`;
+segments are recorded by :mod:`pcmm.run.recording` and flights audited by
+:mod:`pcmm.run.audit`.  With ``impact=False`` the transformations switch without impulse
+(the paper's comparison runs).
 """
 from __future__ import annotations
 
 import math
 import os
-import threading
 import time
 from dataclasses import replace
 
 import numpy as np
 
-from .approach import closest_approach
-from .stability import blow_up, fixed_step_instability, largest_velocity, unphysical_speed
-from ..model.assembly import assemble
-from ..model.configuration import Configuration
-from ..events.contact import contact_point, contact_row, contact_state
-from ..events.contact_laws import ContactPhase
 from ..errors import ModelError, Repartition, SimulationError, UsageError
+from ..events.contact import contact_row, contact_state
 from ..events.guards import guard_residual, make_guard
 from ..events.holding import Holds
+from ..events.transitions import POSE_TOL, Context
+from ..model.assembly import assemble
+from ..model.configuration import Configuration
 from ..model.mechanism import Mechanism
-from ..ode.integrators import EPS, INTEGRATORS, METHODS, Segment, method_for
-from ..scene.settings import RunOptions, resolve
-from ..signals import deferred, describe, exit_status
+from ..ode.integrators import EPS, INTEGRATORS, METHODS, Segment, method_for  # noqa: F401 - INTEGRATORS, METHODS: re-exported
+from ..results.trajectory import RunStats, Trajectory, holding_extremes, record_views
 from ..scene.load import load_scene
+from ..scene.settings import RunOptions, resolve
 from ..scene.spec import Scene
-from ..results.trajectory import RunStats, SegmentRecord, Trajectory, holding_extremes, record_views
-from ..events.records import EventRecord, event_dict
-from ..events.transitions import POSE_TOL, TRANSITIONS, Context, unmerge
+from ..signals import describe, exit_status
+from .actions import GUARD_ACTIONS, action_of
+from .approach import closest_approach
+from .stability import blow_up, fixed_step_instability, largest_velocity, unphysical_speed
+from .audit import FlightAudit
+from .recording import record as _record
+from .state import RunState
 
 
 def initial_state(scene: Scene, cfg: Configuration):
@@ -44,20 +49,6 @@ def initial_state(scene: Scene, cfg: Configuration):
             f"{scene.path}: initial.independent = {list(scene.independent)}: keeping these joints makes the "
             "loop's dependent coordinates ill-conditioned at the initial posture; name other joints "
             "(or none, and pcmm picks the best-conditioned ones)") from None
-
-
-#: this many configuration switches at one instant are a cycle that time does not pass in
-ZERO_TIME_CYCLE = 64
-
-
-def _zero_time_cycle(events: list[dict]) -> str:
-    """The transitions of a cycle of switches at one instant ('' if the last ``ZERO_TIME_CYCLE``
-    events are not one): with no time passing no impulse can end it, as a macro-impact's
-    accumulation ends a bounce sequence, and only the event budget would stop the run."""
-    tail = events[-ZERO_TIME_CYCLE:]
-    if len(tail) < ZERO_TIME_CYCLE or tail[0]["t"] != tail[-1]["t"] or any(e["from"] == e["to"] for e in tail):
-        return ""
-    return ", ".join(dict.fromkeys(f"'{e['name']}' ({e['from']} -> {e['to']})" for e in tail))
 
 
 def simulate(scene: Scene | str | os.PathLike, options: RunOptions = RunOptions(), progress=None) -> Trajectory:
@@ -101,6 +92,41 @@ def simulate(scene: Scene | str | os.PathLike, options: RunOptions = RunOptions(
     >>> ev["kinetic_energy_after"] < ev["kinetic_energy_before"]
     True
     """
+    run = start(_scene_of(scene, options), options)
+    completed = False
+    try:
+        while True:
+            # integrate the configuration's dynamics (Eq. 1) until a guard fires (Fig. 3)
+            seg, guards = integrate_segment(run, progress)
+            if seg is None:  # the partition degenerated mid-step: go on in a better one
+                continue
+            if seg.event is None:
+                break
+            run.t, run.y = float(seg.t[-1]), seg.y[:, -1]
+            run.q, run.v = run.cfg.coords.unpack(run.t, run.y)
+            guard = guards[seg.event]
+            # what the guard fires (the paper's Fig. 3 boxes): one entry per kind
+            switched = GUARD_ACTIONS[action_of(run, guard)](run, guard)
+            if switched and run.t >= run.opts.t_end:
+                break
+        completed = True
+    except KeyboardInterrupt as exc:
+        raise _interrupted(run, exc) from None
+    except (ModelError, UsageError) as exc:  # a configuration's model first built mid-run: keep what ran
+        run.traj.status, run.traj.message = "partial", exc.text()
+        raise SimulationError(exc.problems, partial=run.traj) from None
+    except SimulationError as exc:
+        raise _stopped(run, exc)
+    finally:  # a partial run keeps them too (pcmm derive writes what it reached)
+        _finish(run, completed)
+    # the guards that did not fire: computed when read (it reads the final segments' coordinates)
+    run.stats.defer("closest_approach", lambda scene=run.scene, cfg=run.cfg, traj=run.traj:
+                    closest_approach(scene, cfg, traj))
+    return run.traj
+
+
+def _scene_of(scene, options) -> Scene:
+    """The scene to run (loaded when given as a path); the options checked for their type."""
     if isinstance(scene, (str, os.PathLike)):
         scene = load_scene(scene)
     elif not isinstance(scene, Scene):
@@ -108,6 +134,12 @@ def simulate(scene: Scene | str | os.PathLike, options: RunOptions = RunOptions(
                          f"not {type(scene).__name__}")
     if not isinstance(options, RunOptions):
         raise UsageError(f"pcmm.simulate's options are a pcmm.RunOptions(...), not {type(options).__name__}")
+    return scene
+
+
+def start(scene: Scene, options: RunOptions) -> RunState:
+    """The run's state at t = 0: the initial configuration assembled and checked, the locks it
+    starts with, an empty record."""
     opts = resolve(scene, options)
     mech = Mechanism(scene)
     traj = Trajectory(scene=str(scene.path.resolve()), scene_name=scene.name, impact=opts.impact,
@@ -118,170 +150,128 @@ def simulate(scene: Scene | str | os.PathLike, options: RunOptions = RunOptions(
              "constraint_drift_max": 0.0, "method": opts.method, "rtol": opts.rtol, "atol": opts.atol}
     traj.stats = stats
     cfg = mech[scene.initial_configuration]
-    t = 0.0
     q, v, stats["warnings"] = initial_state(scene, cfg)
-    check_start(scene, cfg, t, q, v)
-    offsets: dict[str, float] = {}
-    fired: set[str] = set()  # the names of the events so far (a time guard at = T fires once in a run)
-    holds = Holds(mech, opts.unmerge)  # joints locked by latches and stop-merges, watched while they hold
+    check_start(scene, cfg, 0.0, q, v)
+    holds = Holds(mech, opts.unmerge)
     holds.adopt(cfg, q, v)
-    phase: ContactPhase | None = None  # a collision resolved by a continuous contact law
-    bounced = None  # the stop that just bounced: its guard is re-armed (see guards.make_guard)
     audit = FlightAudit()
-    stepping = None  # (rhs, method, options) of the segment being integrated
     stats["macro_impacts"] = audit.macro_impacts
-    stats = traj.stats = RunStats(stats, holding=lambda: holding_extremes(traj))  # "holding": computed when read
+    traj.stats = RunStats(stats, holding=lambda: holding_extremes(traj))  # "holding": computed when read
+    return RunState(scene, opts, mech, ctx, traj, holds, audit, cfg, 0.0, q, v)
+
+
+def integrate_segment(run: RunState, progress):
+    """Integrate ``run.cfg``'s dynamics from ``run.t`` until a guard fires (or ``t_end``) and
+    record the segment.  Returns (segment, the guards it watched), or (None, guards) when the
+    loop's partition degenerated mid-step (recorded up to there; ``run`` moved on to it)."""
+    cfg, t = run.cfg, run.t
+    y0 = cfg.coords.pack(t, run.q, run.v)
+    guards = _guards(run.scene, cfg, run.holds, t, run.phase, run.bounced, run.fired)
+    # a flight between two impacts at the same contact: its energy is audited (pcmm.run.audit)
+    flight = run.bounced is not None and run.phase is None and y0.size > 0
+    run.bounced = None
+    pending = None if run.phase is not None else _pending(cfg, guards, t, y0)
+    fun = cfg.coords.rhs
+    if run.phase is not None:  # the collision's impulse integrated with the state
+        guards = [run.phase.end_guard()] + [g.on_state(y0.size) for g in guards]
+        y0, fun = np.append(y0, 0.0), run.phase.rhs()
+    elif flight:  # integrated with its work appended, as it always was: that component takes part in
+        # the step-size control, and the accumulation's series were measured with it (the audit
+        # itself measures the work by its own quadrature, pcmm.run.audit)
+        guards = [g.on_state(y0.size) for g in guards]
+        y0, fun = np.append(y0, 0.0), cfg.coords.rhs_with_power
+    stepping = run.stepping = (fun, method_for(run.opts.method, cfg.coords.constrained), run.opts)  # for dense resampling
+    seg = _integrate(run, _reporting(fun, progress) if progress is not None else fun, stepping, y0, guards, pending)
+    if seg is None:
+        return None, guards
+    _record(run.traj, cfg, seg, run.offsets, run.q, run.holds, stepping)
+    run.impulse_integral = 0.0
+    if run.phase is not None:
+        run.impulse_integral = float(seg.y[-1, -1])
+        seg.y = seg.y[:-1]
+    elif flight:
+        run.audit.flight(cfg, seg.t, seg.y, stepping, run.q, *cfg.coords.unpack(float(seg.t[-1]), seg.y[:-1, -1]))
+        seg.y = seg.y[:-1]
+    if progress:
+        progress(float(seg.t[-1]))
+    return seg, guards
+
+
+def _integrate(run: RunState, fun, stepping, y0, guards, pending) -> Segment | None:
+    """One segment from ``run.t``: simultaneous (a contact already closed), integrated, or a known
+    motion (no free coordinate).  Its steps and time count in the stats, also when it fails."""
+    cfg, t, opts, stats = run.cfg, run.t, run.opts, run.stats
+    method = stepping[1]
+    t0 = time.perf_counter()
     try:
-        while True:
-            # integrate the configuration's dynamics (Eq. 1) until a guard fires (Fig. 3)
-            y0 = cfg.coords.pack(t, q, v)
-            guards = _guards(scene, cfg, holds, t, phase, bounced, fired)
-            # a flight between two impacts at the same contact: its energy is audited
-            flight = bounced is not None and phase is None and y0.size > 0
-            bounced = None
-            pending = None if phase is not None else _pending(cfg, guards, t, y0)
-            fun = cfg.coords.rhs
-            if phase is not None:
-                guards = [phase.end_guard()] + [g.on_state(y0.size) for g in guards]
-                y0, fun = np.append(y0, 0.0), phase.rhs()
-            elif flight:  # the work of forces and drives integrated with the state (Eq. 1's tau_a + tau_c)
-                guards = [g.on_state(y0.size) for g in guards]
-                energy_before = _mechanical_energy(cfg, q, v)
-                y0, fun = np.append(y0, 0.0), cfg.coords.rhs_with_power
-            stepping = (fun, method_for(opts.method, cfg.coords.constrained), opts)  # for dense resampling
-            if progress is not None:
-                fun = _reporting(fun, progress)
-            t0 = time.perf_counter()
-            try:
-                method = stepping[1]
-                if pending is not None:  # a contact already closed at this instant (simultaneous impacts)
-                    seg = Segment(np.array([t]), y0[:, None], pending, 0, 0, 1, "simultaneous")
-                elif y0.size:
-                    unstable = method.fixed_step and fixed_step_instability(cfg, stepping[0], t, y0, opts.step, method.name)
-                    if unstable:  # the step alone would make the motion grow: say so, before any symptom
-                        raise SimulationError(unstable)
-                    seg = method.integrate(fun, t, y0, opts.t_end, guards, opts)
-                else:  # no free coordinate: the motion is a known function of time, not integrated
-                    seg = _known_motion(cfg, t, y0, guards, opts)
-            except Repartition as exc:  # a loop's dependent block degenerated: new partition, go on
-                seg = exc.segment
-                _record(traj, cfg, seg, offsets, q, holds, stepping)
-                t = float(seg.t[-1])
-                q, v = cfg.coords.unpack(t, seg.y[:, -1])
-                continue
-            except (SimulationError, KeyboardInterrupt) as exc:
-                if getattr(exc, "segment", None) is not None:  # the steps the failing segment took count
-                    stats["steps"] += exc.segment.nsteps
-                    stats["rhs_evals"] += exc.segment.nfev
-                    if exc.segment.t.size > 1:
-                        _record(traj, cfg, exc.segment, offsets, q, holds, stepping)
-                raise
-            finally:
-                stats["wall_s"] += time.perf_counter() - t0
-            stats["steps"] += seg.nsteps
-            stats["rhs_evals"] += seg.nfev
-            if seg.status < 0:
-                raise SimulationError(f"the integrator ({method.name if y0.size else 'RK4'}) failed at t = {seg.t[-1]:.9g} s in "
-                                      f"configuration '{cfg.name}': {seg.message}")
-            impulse_integral = 0.0
-            _record(traj, cfg, seg, offsets, q, holds, stepping)
-            if phase is not None:
-                impulse_integral = float(seg.y[-1, -1])
-                seg.y = seg.y[:-1]
-            elif flight:
-                work = float(seg.y[-1, -1])
-                seg.y = seg.y[:-1]
-                audit.flight(energy_before, _mechanical_energy(cfg, *cfg.coords.unpack(float(seg.t[-1]), seg.y[:, -1])),
-                             work, cfg.kinetic_energy(q, v))
-            if progress:
-                progress(float(seg.t[-1]))
-            if seg.event is None:
-                break
-            t = float(seg.t[-1])
-            q, v = cfg.coords.unpack(t, seg.y[:, -1])
-            guard = guards[seg.event]
-            # what the guard fires (the paper's Fig. 3 boxes)
-            if guard.action == "repartition":
-                # the coordinates' own guard: the partition degenerates here, go on with a better
-                # one, or stop at a singular posture of the loop itself
-                cfg.coords.at_guard(guard, t, q)
-                continue
-            tr = guard.transition
-            if guard.action == "separation":
-                traj.events.append(_contact_event(phase, t, q, v, impulse_integral))
-                fired.add(traj.events[-1]["name"])
-                stats["impacts"] += 1
-                phase = None
-                continue
-            if ctx.impact and tr.type == "stop" and tr.law != "impulse":
-                _, _, vn, _ = contact_state(cfg, q, v, tr.contact)
-                phase = ContactPhase(cfg, tr, max(-vn, 1e-12), t, q.copy(), v.copy())
-                continue
-            phase = None
-            t0 = time.perf_counter()
-            residual = None
-            if guard.action == "unmerge":
-                out = unmerge(ctx, cfg, guard.payload, holds.release_target(guard.payload, cfg), t, q, v)
-            else:
-                if tr.guard.type in ("coordinate", "gap"):
-                    residual = guard_residual(cfg, tr, t, seg.y[:, -1])
-                out = TRANSITIONS[tr.type](ctx, cfg, tr, t, q, v)
-            stats["wall_s"] += time.perf_counter() - t0
-            stats["impacts"] += int(out.event.get("impact", False))
-            traj.events.append(out.event)
-            fired.add(out.event["name"])
-            cycle = _zero_time_cycle(traj.events)
-            if cycle:
-                raise SimulationError(
-                    f"at t = {t:.9g} s the run switched configuration {ZERO_TIME_CYCLE} times without time "
-                    f"passing: {cycle} keep firing, each one's guard already past its value when the run "
-                    "enters its configuration (a release into a configuration whose forces push it straight "
-                    "back into the stop that merged it, say); change a guard, or the forces acting right "
-                    "after a switch")
-            if len(traj.events) > opts.max_events:
-                raise SimulationError(f"more than {opts.max_events} events by t = {t:.9g} s (last: "
-                                      f"'{tr.name}'); raise solver.max_events or the accumulation "
-                                      "tolerances if the impacts are meant to go on")
-            if out.configuration != cfg.name:
-                offsets = {k: offsets.get(k, 0.0) + d for k, d in out.angle_offsets.items()}
-            else:
-                bounced = tr
-            audit.event(tr.name, out.event, bounced is not None, residual)
-            nxt = mech[out.configuration]
-            nxt.continue_angles(offsets)  # measures (springs, guards) continue the series' angles
-            if out.locks is not None:
-                holds.lock(cfg, nxt, tr, q, merge=out.locks == "merge")
-            holds.follow(nxt)
-            cfg = nxt
-            q, v = out.q, out.v
-            if t >= opts.t_end:
-                break
-    except KeyboardInterrupt as exc:
-        traj.status, traj.message = "partial", f"{scene.path}: {describe(exc)} at t = {_t_last(traj):.6g} s"
-        err = SimulationError(traj.message, partial=traj)
-        err.exit_code = exit_status(exc)  # 130 for Ctrl-C, 143 for SIGTERM: the shell's convention
-        raise err from None
-    except (ModelError, UsageError) as exc:  # a configuration's model first built mid-run: keep what ran
-        traj.status, traj.message = "partial", exc.text()
-        raise SimulationError(exc.problems, partial=traj) from None
-    except SimulationError as exc:
-        blown = blow_up(cfg, exc, t, q, v, stepping[1], opts.step) if stepping else None
+        if pending is not None:  # a contact already closed at this instant (simultaneous impacts)
+            seg = Segment(np.array([t]), y0[:, None], pending, 0, 0, 1, "simultaneous")
+        elif y0.size:
+            unstable = method.fixed_step and fixed_step_instability(cfg, stepping[0], t, y0, opts.step, method.name)
+            if unstable:  # the step alone would make the motion grow: say so, before any symptom
+                raise SimulationError(unstable)
+            seg = method.integrate(fun, t, y0, opts.t_end, guards, opts)
+        else:  # no free coordinate: the motion is a known function of time, not integrated
+            seg = _known_motion(cfg, t, y0, guards, opts)
+    except Repartition as exc:  # a loop's dependent block degenerated: new partition, go on
+        seg = exc.segment
+        _record(run.traj, cfg, seg, run.offsets, run.q, run.holds, stepping)
+        run.t = float(seg.t[-1])
+        run.q, run.v = cfg.coords.unpack(run.t, seg.y[:, -1])
+        return None
+    except (SimulationError, KeyboardInterrupt) as exc:
+        if getattr(exc, "segment", None) is not None:  # the steps the failing segment took count
+            stats["steps"] += exc.segment.nsteps
+            stats["rhs_evals"] += exc.segment.nfev
+            if exc.segment.t.size > 1:
+                _record(run.traj, cfg, exc.segment, run.offsets, run.q, run.holds, stepping)
+        raise
+    finally:
+        stats["wall_s"] += time.perf_counter() - t0
+    stats["steps"] += seg.nsteps
+    stats["rhs_evals"] += seg.nfev
+    if seg.status < 0:
+        raise SimulationError(f"the integrator ({method.name if y0.size else 'RK4'}) failed at t = {seg.t[-1]:.9g} s in "
+                              f"configuration '{cfg.name}': {seg.message}")
+    return seg
+
+
+def _interrupted(run: RunState, exc: KeyboardInterrupt) -> SimulationError:
+    """Ctrl-C or SIGTERM: the partial run, with the shell's exit status (130, 143)."""
+    traj = run.traj
+    traj.status, traj.message = "partial", f"{run.scene.path}: {describe(exc)} at t = {_t_last(traj):.6g} s"
+    err = SimulationError(traj.message, partial=traj)
+    err.exit_code = exit_status(exc)
+    return err
+
+
+def _stopped(run: RunState, exc: SimulationError) -> SimulationError:
+    """A run that cannot go on: its messages name the scene file, and it carries the partial run."""
+    if run.stepping is not None:
+        blown = blow_up(run.cfg, exc, run.t, run.q, run.v, run.stepping[1], run.opts.step)
         if blown:  # a blown-up state: the integration is the cause, not what failed in it
             exc.problems = [blown]
-        where = str(scene.path)
-        exc.problems = [p if p.startswith(where) else f"{where}: {p}" for p in exc.problems]
-        exc.args = (exc.text(),)
-        traj.status, traj.message = "partial", exc.text()
-        exc.partial = traj
-        raise
-    finally:  # a partial run keeps them too (pcmm derive writes what it reached)
-        stats["configurations_built"] = list(mech.built)
-        stats["derived_configurations"] = mech.derived
-        # which evaluations each configuration ran: "compiled", or "python" and why (pcmm.compiled)
-        stats["evaluations"] = {name: mech[name].coords.evaluations for name in mech.built}
-    # the guards that did not fire: computed when read (it reads the final segments' coordinates)
-    stats.defer("closest_approach", lambda cfg=cfg: closest_approach(scene, cfg, traj))
-    return traj
+    where = str(run.scene.path)
+    exc.problems = [p if p.startswith(where) else f"{where}: {p}" for p in exc.problems]
+    exc.args = (exc.text(),)
+    run.traj.status, run.traj.message = "partial", exc.text()
+    exc.partial = run.traj
+    return exc
+
+
+def _finish(run: RunState, completed: bool) -> None:
+    """What every run keeps, a partial one too: the configurations built and their evaluations,
+    and the flights' energy balances (measured now that the run needs its state no more)."""
+    stats, mech = run.stats, run.mech
+    stats["configurations_built"] = list(mech.built)
+    stats["derived_configurations"] = mech.derived
+    # which evaluations each configuration ran: "compiled", or "python" and why (pcmm.compiled)
+    stats["evaluations"] = {name: mech[name].coords.evaluations for name in mech.built}
+    try:
+        run.audit.finish()
+    except (SimulationError, Repartition):
+        if completed:  # a partial run keeps what it has; its own error is the one to report
+            raise
 
 
 def check_start(scene: Scene, cfg: Configuration, t, q, v) -> None:
@@ -314,72 +304,6 @@ def check_start(scene: Scene, cfg: Configuration, t, q, v) -> None:
                 f"value {tr.guard.value:g} in its direction) while the contact "
                 f"{'penetrates' if tr.guard.type == 'gap' else 'approaches'}: the bodies start inside the "
                 "stop, and the guard would never fire; start the bodies apart (initial.q)")
-
-
-def _mechanical_energy(cfg: Configuration, q, v) -> float:
-    """Kinetic plus gravity energy (J): what changes in flight by the work of the force
-    elements and drives alone."""
-    return cfg.kinetic_energy(q, v) + cfg.gravity_energy(q)
-
-
-RESOLVED_KINETIC = 1e-6  # flights with less rebound energy than this x the first are round-off dominated
-
-
-class FlightAudit:
-    """The energy balance of every flight between two impacts at the same contact.
-
-    A flight starts at a bounce and ends at the next event.  Over it the kinetic plus
-    gravity energy may change only by the work of the force elements and drives, which is
-    integrated with the state (``rhs_with_power``); ``residual = dE - W`` must stay at the
-    integrator's accuracy.  Consecutive bounces at one stop form a macro-impact; each is
-    reported in ``stats["macro_impacts"]`` with its impacts, the times of its first and last
-    event, whether it ended in a merge, the largest distance of an impact from its guard's
-    value (``guard_residual_max``, m or rad: a rigid stop is struck where the contact
-    closes, so this is round-off; a guard that let the bodies sink into the stop shows here,
-    and the loads then do work through that depth), its largest flight residual (J) and its largest
-    residual relative to the flight's kinetic energy at the rebound (the energy the flight
-    must give back: an approach speed off by a relative d is a relative 2 d here).
-
-    The relative figure counts the flights whose rebound energy is above RESOLVED_KINETIC
-    times the first flight's (``flights_resolved`` of ``flights``).  Below that the flight
-    is so short that double-precision positions decide it: a contact point known to one ulp
-    (5.6e-17 m at 0.3 m) under a normal acceleration a shifts the approach speed by
-    ``a ulp / v``, which is 1e-6 relative at v = 3e-5 m/s and of order one at 1e-8 m/s."""
-
-    def __init__(self):
-        self.macro_impacts: list[dict] = []
-        self._open: dict | None = None
-        self._kinetic_first = 0.0
-
-    def event(self, name: str, event: dict, bounced: bool, guard_residual: float | None) -> None:
-        if not event.get("impact"):
-            self._open = None
-            return
-        m = self._open
-        if m is None or m["transition"] != name:
-            m = {"transition": name, "t_first": event["t"], "t_last": event["t"], "impacts": 0, "flights": 0,
-                 "merged": False, "guard_residual_max": 0.0, "flight_energy_residual_max": 0.0,
-                 "flight_energy_relative_max": 0.0, "flights_resolved": 0}
-            self.macro_impacts.append(m)
-        m["impacts"] += 1
-        if guard_residual is not None:
-            m["guard_residual_max"] = max(m["guard_residual_max"], abs(guard_residual))
-        m["t_last"] = event["t"]
-        m["merged"] = bool(event.get("merge"))
-        self._open = m if bounced else None
-
-    def flight(self, e0: float, e1: float, work: float, kinetic0: float) -> None:
-        m = self._open
-        if m is None:
-            return
-        m["flights"] += 1
-        residual = abs(e1 - e0 - work)
-        m["flight_energy_residual_max"] = max(m["flight_energy_residual_max"], residual)
-        if m["flights"] == 1:
-            self._kinetic_first = kinetic0
-        if kinetic0 > RESOLVED_KINETIC * self._kinetic_first:
-            m["flight_energy_relative_max"] = max(m["flight_energy_relative_max"], residual / kinetic0)
-            m["flights_resolved"] += 1
 
 
 KNOWN_MOTION_SAMPLES = 200  # samples of a locked or fully driven stay (at most, and at least 1 / step)
@@ -492,158 +416,5 @@ def _reporting(fun, progress, every: int = 256):
     return f
 
 
-def _contact_event(phase: ContactPhase, t, q, v, impulse_integral) -> EventRecord:
-    """The event of a collision resolved by a continuous law (from first contact to separation)."""
-    cfg, tr = phase.cfg, phase.tr
-    n, _, vn, _ = contact_state(cfg, q, v, tr.contact)
-    M0, M1 = cfg.mass_matrix(phase.q_start), cfg.mass_matrix(q)
-    return event_dict(
-        cfg, tr, phase.t_start, transition="stop", to=cfg.name, restitution=tr.restitution, merge=False,
-        impact=True, P=impulse_integral, normal=n,
-        point=contact_point(cfg, tr.contact),
-        vn=(-phase.v_impact, vn), v=(phase.v_start, v),
-        ke=(0.5 * phase.v_start @ M0 @ phase.v_start, 0.5 * v @ M1 @ v),
-        t_end=float(t), duration=float(t - phase.t_start), law=tr.law)
-
-
 def _t_last(traj: Trajectory) -> float:
     return float(traj.segments[-1].t[-1]) if traj.segments else 0.0
-
-
-def _record(traj: Trajectory, cfg: Configuration, seg, offsets, q_start, holds: Holds, stepping) -> None:
-    """Record an accepted segment (:func:`_record_samples`); a Ctrl-C or SIGTERM meanwhile waits
-    until it is kept, so an interrupted run never loses the segment it was recording."""
-    with deferred() as held:
-        _record_samples(traj, cfg, seg, offsets, q_start, holds, stepping)
-    held.reraise()
-
-
-def _record_samples(traj: Trajectory, cfg: Configuration, seg, offsets, q_start, holds: Holds, stepping) -> None:
-    """Keep the segment's times and the integrator's states; everything derived from them is
-    computed when first asked for (:meth:`SegmentRecord.deferred`), in the partition and from
-    the warm start the segment was integrated with.  ``stepping = (fun, method, opts)`` lets
-    the segment be resampled at other times on the dense output of its steps.  The holding
-    forces of the locks in force at the time are among the constraint forces (labels
-    ``<lock>.hold``); their extremes are ``stats["holding"]``."""
-    t0 = time.perf_counter()
-    coords, forces = cfg.coords, cfg.forces
-    frozen = coords.frozen_state()
-    y_full, offsets, q_start = np.array(seg.y, float), dict(offsets), np.array(q_start, float)
-    t = np.asarray(seg.t, float).copy()
-    n_state = coords.ny  # the partition's state size (the tree's: 2 nv)
-    y = y_full[:n_state]  # a contact phase or a flight integrates one more component
-    held, holds = holds.labels(), holds.snapshot()
-    owner = threading.get_ident()
-
-    def in_segment_state(work):
-        """Run ``work`` with the coordinates as they were for this segment.  Pinocchio's data are
-        scratch space shared by the runs of one thread (models are built once per process and
-        thread): asked from another thread, the series are computed on data of their own."""
-        data, now = cfg.data, cfg.forces
-        if threading.get_ident() != owner:
-            cfg.data = cfg.__dict__.setdefault("_foreign_data", {}).setdefault(
-                threading.get_ident(), cfg.model.createData())
-        cfg.forces = forces  # as they were (a later entry may have compiled them at other angle offsets)
-        try:
-            with coords.restored(frozen, q_start):  # the segment was accepted: nothing here stops anything
-                return work()
-        finally:
-            cfg.data, cfg.forces = data, now
-
-    def derive():
-        def work():
-            out = _derived_series(cfg, t, y, offsets)
-            if held:
-                out["constraint_forces"] = np.hstack((out["constraint_forces"], _holding_forces(cfg, holds, t, out)))
-            return out
-        return in_segment_state(work)
-
-    def resample(times):
-        def work():
-            fun, method, opts = stepping
-            if not coords.constrained and fun is coords.rhs:
-                fun = coords.fresh_rhs()
-            states = _dense_states(t, y_full, times, (fun, method, opts))[:n_state]
-            # the dense steps left the loop's warm starts at the segment's end: the series are
-            # solved from its start onwards, as the recorded ones are (from the end, a loop's
-            # Newton solve at the start could land on another assembly)
-            coords.seed(q_start)
-            out = _derived_series(cfg, times, states, offsets)
-            if held:
-                out["constraint_forces"] = np.hstack((out["constraint_forces"], _holding_forces(cfg, holds, times, out)))
-            return out
-        return in_segment_state(work)
-    coord_names = []
-    for name in cfg.joint_names:
-        sl = cfg.joint_slice[name]
-        coord_names += [name] if sl.stop - sl.start == 1 else [f"{name}.x", f"{name}.y", f"{name}.theta"]
-    traj.segments.append(SegmentRecord.deferred(
-        derive, t, resample=resample, configuration=cfg.name, coordinates=coord_names, links=list(cfg.links),
-        force_names=list(cfg.forces.names), constraint_labels=list(coords.labels) + held))
-    traj.stats["constraint_drift_max"] = max(traj.stats["constraint_drift_max"], getattr(coords, "max_residual", 0.0))
-    traj.stats["record_s"] += time.perf_counter() - t0
-
-
-def _holding_forces(cfg: Configuration, holds: Holds, t, series: dict) -> np.ndarray:
-    """(n, holds) holding force or moment of every lock in force, at the segment's own solved
-    coordinates ``series["q"], series["v"]`` (those every other series was derived from).  Never
-    solved again from the integrator's state: a loop's Newton solve warm-started from wherever
-    the coordinates were left (the segment's end, or a later segment's) can land on the other
-    assembly, and the series would then depend on what the run did after the segment."""
-    out = np.empty((len(t), len(holds.items)))
-    for i in range(len(t)):
-        out[i] = list(holds.forces(cfg, t[i], series["q"][i], series["v"][i]).values())
-    return out
-
-
-def _dense_states(t, y, times, stepping) -> np.ndarray:
-    """The states at ``times`` (within [t[0], t[-1]]) on the dense output of the recorded steps:
-    each step that holds a requested time is taken again from its recorded start with its
-    recorded size (DOP853's 7th-order dense output; a fixed-step method's cubic Hermite from the
-    derivatives at both ends, its own dense output).  A state without components (a locked or
-    fully driven stay) is a known function of time: nothing to interpolate."""
-    from ..ode.integrators import _dop853_dense, _hermite
-    fun, method, opts = stepping
-    out = np.empty((y.shape[0], len(times)))
-    if y.shape[0] == 0:
-        return out
-    k_of = np.clip(np.searchsorted(t, times, side="right") - 1, 0, max(len(t) - 2, 0))
-    for k in np.unique(k_of):
-        cols = np.flatnonzero(k_of == k)
-        exact = {j for j in cols if times[j] == t[k] or times[j] == t[min(k + 1, len(t) - 1)]}
-        for j in exact:
-            out[:, j] = y[:, k] if times[j] == t[k] else y[:, k + 1]
-        rest = [j for j in cols if j not in exact]
-        if not rest:
-            continue
-        if method.fixed_step:
-            sol = _hermite(t[k], y[:, k], fun(t[k], y[:, k]), t[k + 1], y[:, k + 1], fun(t[k + 1], y[:, k + 1]))
-        else:
-            sol = _dop853_dense(fun, t[k], y[:, k], t[k + 1], opts)
-        out[:, rest] = np.asarray(sol(times[rest]), float).reshape(y.shape[0], len(rest))
-    return out
-
-
-def _derived_series(cfg: Configuration, t, y, offsets) -> dict:
-    """Coordinates, angles, positions, energies, force elements and constraint forces at the
-    recorded states of one segment."""
-    n = len(t)
-    nv, nl = cfg.nv, len(cfg.links)
-    Q, V = np.empty((n, nv)), np.empty((n, nv))
-    xy = np.empty((n, nl, 2))
-    ke, pe = np.empty(n), np.empty(n)
-    ff = np.empty((n, len(cfg.forces.names)))
-    m = len(cfg.coords.labels)
-    lam = np.empty((n, m))
-    for i in range(n):
-        q, v = cfg.coords.unpack(t[i], y[:, i])
-        Q[i], V[i] = q, v
-        xy[i] = cfg.link_poses(q)[:, :2]
-        ke[i] = cfg.kinetic_energy(q, v)
-        pe[i] = cfg.potential_energy(q)
-        ff[i] = cfg.forces.element_values(q, v)
-        if m:
-            lam[i] = cfg.coords.accelerations(t[i], q, v)[1]
-    off = np.array([offsets.get(link, 0.0) for link in cfg.links])
-    return dict(q=Q, v=V, theta=Q @ cfg.A.T + cfg.b + off, omega=V @ cfg.A.T, xy=xy, kinetic=ke, potential=pe,
-                forces=ff, constraint_forces=lam)

@@ -1,0 +1,151 @@
+"""What a fired guard does: the boxes of the paper's Fig. 3 after "guard fires", one entry per kind.
+
+``GUARD_ACTIONS`` maps a guard's action to its handler; every handler takes the run's state
+(:class:`~pcmm.run.state.RunState`, already at the guard's instant) and the guard, does what the
+kind does, and says whether the run switched (a transformation: the run may end there at
+``t_end``).  A transition kind (latch, stop, release, ...) is one entry of
+:data:`pcmm.events.transitions.TRANSITIONS`; every one of them goes through :func:`transform`,
+which keeps the event, the locks and the audit, and enters the next configuration (the
+constraint checks of :func:`pcmm.events.transitions.enter` have run inside the handler).
+"""
+from __future__ import annotations
+
+import time
+
+from ..errors import SimulationError
+from ..events.contact import contact_point, contact_state
+from ..events.contact_laws import ContactPhase
+from ..events.guards import guard_residual
+from ..events.records import EventRecord, event_dict
+from ..events.transitions import TRANSITIONS, Outcome, unmerge
+from .state import RunState
+
+#: this many configuration switches at one instant are a cycle that time does not pass in
+ZERO_TIME_CYCLE = 64
+
+
+def repartition(run: RunState, guard) -> bool:
+    """The coordinates' own guard: the loop's partition degenerates here; go on with a better
+    one, or stop at a singular posture of the loop itself."""
+    run.cfg.coords.at_guard(guard, run.t, run.q)
+    return False
+
+
+def start_contact(run: RunState, guard) -> bool:
+    """A stop resolved by a continuous contact law: the collision is integrated (its phase)."""
+    tr = guard.transition
+    _, _, vn, _ = contact_state(run.cfg, run.q, run.v, tr.contact)
+    run.phase = ContactPhase(run.cfg, tr, max(-vn, 1e-12), run.t, run.q.copy(), run.v.copy())
+    return False
+
+
+def separate(run: RunState, guard) -> bool:
+    """The contact phase ends: the bodies separate; its event spans the whole collision."""
+    event = contact_event(run.phase, run.t, run.q, run.v, run.impulse_integral)
+    run.traj.events.append(event)
+    run.fired.add(event["name"])
+    run.stats["impacts"] += 1
+    run.phase = None
+    return False
+
+
+def transition(run: RunState, guard) -> bool:
+    """A transition of the scene: its kind's handler (:data:`TRANSITIONS`) solves the
+    transformation (impulse, velocity jump, configuration switch)."""
+    tr = guard.transition
+    run.phase = None
+    t0 = time.perf_counter()
+    residual = guard_residual(run.cfg, tr, run.t, run.y) if tr.guard.type in ("coordinate", "gap") else None
+    out = TRANSITIONS[tr.type](run.ctx, run.cfg, tr, run.t, run.q, run.v)
+    run.stats["wall_s"] += time.perf_counter() - t0
+    return transform(run, tr, out, residual)
+
+
+def release_merge(run: RunState, guard) -> bool:
+    """A stop-merge held by compression only whose holding force turns tensile is undone."""
+    run.phase = None
+    t0 = time.perf_counter()
+    hold = guard.payload
+    out = unmerge(run.ctx, run.cfg, hold, run.holds.release_target(hold, run.cfg), run.t, run.q, run.v)
+    run.stats["wall_s"] += time.perf_counter() - t0
+    return transform(run, guard.transition, out, None)
+
+
+GUARD_ACTIONS = {
+    "repartition": repartition,
+    "contact": start_contact,
+    "separation": separate,
+    "transition": transition,
+    "unmerge": release_merge,
+}
+
+
+def action_of(run: RunState, guard) -> str:
+    """The entry of :data:`GUARD_ACTIONS` a fired guard takes: its own action, except that a
+    transition whose contact has a continuous law (in a run with impact) starts a contact phase."""
+    tr = guard.transition
+    if guard.action == "transition" and run.ctx.impact and tr.type == "stop" and tr.law != "impulse":
+        return "contact"
+    return guard.action
+
+
+def transform(run: RunState, tr, out: Outcome, guard_residual: float | None) -> bool:
+    """Keep the transformation's event and go on in its configuration with its state."""
+    run.stats["impacts"] += int(out.event.get("impact", False))
+    run.traj.events.append(out.event)
+    run.fired.add(out.event["name"])
+    check_progress(run, tr)
+    if out.configuration != run.cfg.name:
+        run.offsets = {k: run.offsets.get(k, 0.0) + d for k, d in out.angle_offsets.items()}
+    else:
+        run.bounced = tr
+    run.audit.event(run.cfg, run.q, out.event, run.bounced is not None, guard_residual)
+    nxt = run.mech[out.configuration]
+    nxt.continue_angles(run.offsets)  # measures (springs, guards) continue the series' angles
+    if out.locks is not None:
+        run.holds.lock(run.cfg, nxt, tr, run.q, merge=out.locks == "merge")
+    run.holds.follow(nxt)
+    run.cfg, run.q, run.v = nxt, out.q, out.v
+    return True
+
+
+def check_progress(run: RunState, tr) -> None:
+    """Stop a run whose events no longer let time pass (a cycle of switches at one instant) or
+    exceed the event budget."""
+    t = run.t
+    cycle = zero_time_cycle(run.traj.events)
+    if cycle:
+        raise SimulationError(
+            f"at t = {t:.9g} s the run switched configuration {ZERO_TIME_CYCLE} times without time "
+            f"passing: {cycle} keep firing, each one's guard already past its value when the run "
+            "enters its configuration (a release into a configuration whose forces push it straight "
+            "back into the stop that merged it, say); change a guard, or the forces acting right "
+            "after a switch")
+    if len(run.traj.events) > run.opts.max_events:
+        raise SimulationError(f"more than {run.opts.max_events} events by t = {t:.9g} s (last: "
+                              f"'{tr.name}'); raise solver.max_events or the accumulation "
+                              "tolerances if the impacts are meant to go on")
+
+
+def zero_time_cycle(events: list[dict]) -> str:
+    """The transitions of a cycle of switches at one instant ('' if the last ``ZERO_TIME_CYCLE``
+    events are not one): with no time passing no impulse can end it, as a macro-impact's
+    accumulation ends a bounce sequence, and only the event budget would stop the run."""
+    tail = events[-ZERO_TIME_CYCLE:]
+    if len(tail) < ZERO_TIME_CYCLE or tail[0]["t"] != tail[-1]["t"] or any(e["from"] == e["to"] for e in tail):
+        return ""
+    return ", ".join(dict.fromkeys(f"'{e['name']}' ({e['from']} -> {e['to']})" for e in tail))
+
+
+def contact_event(phase: ContactPhase, t, q, v, impulse_integral) -> EventRecord:
+    """The event of a collision resolved by a continuous law (from first contact to separation)."""
+    cfg, tr = phase.cfg, phase.tr
+    n, _, vn, _ = contact_state(cfg, q, v, tr.contact)
+    M0, M1 = cfg.mass_matrix(phase.q_start), cfg.mass_matrix(q)
+    return event_dict(
+        cfg, tr, phase.t_start, transition="stop", to=cfg.name, restitution=tr.restitution, merge=False,
+        impact=True, P=impulse_integral, normal=n,
+        point=contact_point(cfg, tr.contact),
+        vn=(-phase.v_impact, vn), v=(phase.v_start, v),
+        ke=(0.5 * phase.v_start @ M0 @ phase.v_start, 0.5 * v @ M1 @ v),
+        t_end=float(t), duration=float(t - phase.t_start), law=tr.law)

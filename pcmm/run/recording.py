@@ -1,0 +1,132 @@
+"""Recording a run: each accepted segment's times and integrator states, and everything derived
+from them (coordinates, angles, link positions, energies, force elements, constraint and holding
+forces), computed when first read.
+
+The series of a segment are computed from that segment alone: in the partition it was integrated
+in, from its own start (a loop's Newton solves warm-started there), with the force elements and
+the locks (holds) it had.  What the run does afterwards never changes them (issue 22: the holding
+moment of a locked stretch depended on how far the run went on).
+"""
+from __future__ import annotations
+
+import threading
+import time
+
+import numpy as np
+
+from ..events.holding import Holds
+from ..model.configuration import Configuration
+from ..results.trajectory import SegmentRecord, Trajectory
+from ..signals import deferred
+from .dense import dense_states
+
+
+def record(traj: Trajectory, cfg: Configuration, seg, offsets, q_start, holds: Holds, stepping) -> None:
+    """Record an accepted segment (:func:`record_samples`); a Ctrl-C or SIGTERM meanwhile waits
+    until it is kept, so an interrupted run never loses the segment it was recording."""
+    with deferred() as held:
+        record_samples(traj, cfg, seg, offsets, q_start, holds, stepping)
+    held.reraise()
+
+
+def record_samples(traj: Trajectory, cfg: Configuration, seg, offsets, q_start, holds: Holds, stepping) -> None:
+    """Keep the segment's times and the integrator's states; everything derived from them is
+    computed when first asked for (:meth:`SegmentRecord.deferred`), in the partition and from
+    the warm start the segment was integrated with.  ``stepping = (fun, method, opts)`` lets
+    the segment be resampled at other times on the dense output of its steps.  The holding
+    forces of the locks in force at the time are among the constraint forces (labels
+    ``<lock>.hold``); their extremes are ``stats["holding"]``."""
+    t0 = time.perf_counter()
+    coords, forces = cfg.coords, cfg.forces
+    frozen = coords.frozen_state()
+    y_full, offsets, q_start = np.array(seg.y, float), dict(offsets), np.array(q_start, float)
+    t = np.asarray(seg.t, float).copy()
+    n_state = coords.ny  # the partition's state size (the tree's: 2 nv)
+    y = y_full[:n_state]  # a contact phase or a flight integrates one more component (its impulse, its work)
+    held, holds = holds.labels(), holds.snapshot()
+    owner = threading.get_ident()
+
+    def in_segment_state(work):
+        """Run ``work`` with the coordinates as they were for this segment.  Pinocchio's data are
+        scratch space shared by the runs of one thread (models are built once per process and
+        thread): asked from another thread, the series are computed on data of their own."""
+        data, now = cfg.data, cfg.forces
+        if threading.get_ident() != owner:
+            cfg.data = cfg.__dict__.setdefault("_foreign_data", {}).setdefault(
+                threading.get_ident(), cfg.model.createData())
+        cfg.forces = forces  # as they were (a later entry may have compiled them at other angle offsets)
+        try:
+            with coords.restored(frozen, q_start):  # the segment was accepted: nothing here stops anything
+                return work()
+        finally:
+            cfg.data, cfg.forces = data, now
+
+    def derive():
+        def work():
+            out = derived_series(cfg, t, y, offsets)
+            if held:
+                out["constraint_forces"] = np.hstack((out["constraint_forces"], holding_forces(cfg, holds, t, out)))
+            return out
+        return in_segment_state(work)
+
+    def resample(times):
+        def work():
+            fun, method, opts = stepping
+            if not coords.constrained and fun is coords.rhs:
+                fun = coords.fresh_rhs()
+            states = dense_states(t, y_full, times, (fun, method, opts))[:n_state]
+            # the dense steps left the loop's warm starts at the segment's end: the series are
+            # solved from its start onwards, as the recorded ones are (from the end, a loop's
+            # Newton solve at the start could land on another assembly)
+            coords.seed(q_start)
+            out = derived_series(cfg, times, states, offsets)
+            if held:
+                out["constraint_forces"] = np.hstack((out["constraint_forces"], holding_forces(cfg, holds, times, out)))
+            return out
+        return in_segment_state(work)
+    coord_names = []
+    for name in cfg.joint_names:
+        sl = cfg.joint_slice[name]
+        coord_names += [name] if sl.stop - sl.start == 1 else [f"{name}.x", f"{name}.y", f"{name}.theta"]
+    traj.segments.append(SegmentRecord.deferred(
+        derive, t, resample=resample, configuration=cfg.name, coordinates=coord_names, links=list(cfg.links),
+        force_names=list(cfg.forces.names), constraint_labels=list(coords.labels) + held))
+    traj.stats["constraint_drift_max"] = max(traj.stats["constraint_drift_max"], getattr(coords, "max_residual", 0.0))
+    traj.stats["record_s"] += time.perf_counter() - t0
+
+
+def holding_forces(cfg: Configuration, holds: Holds, t, series: dict) -> np.ndarray:
+    """(n, holds) holding force or moment of every lock in force, at the segment's own solved
+    coordinates ``series["q"], series["v"]`` (those every other series was derived from).  Never
+    solved again from the integrator's state: a loop's Newton solve warm-started from wherever
+    the coordinates were left (the segment's end, or a later segment's) can land on the other
+    assembly, and the series would then depend on what the run did after the segment."""
+    out = np.empty((len(t), len(holds.items)))
+    for i in range(len(t)):
+        out[i] = list(holds.forces(cfg, t[i], series["q"][i], series["v"][i]).values())
+    return out
+
+
+def derived_series(cfg: Configuration, t, y, offsets) -> dict:
+    """Coordinates, angles, positions, energies, force elements and constraint forces at the
+    recorded states of one segment."""
+    n = len(t)
+    nv, nl = cfg.nv, len(cfg.links)
+    Q, V = np.empty((n, nv)), np.empty((n, nv))
+    xy = np.empty((n, nl, 2))
+    ke, pe = np.empty(n), np.empty(n)
+    ff = np.empty((n, len(cfg.forces.names)))
+    m = len(cfg.coords.labels)
+    lam = np.empty((n, m))
+    for i in range(n):
+        q, v = cfg.coords.unpack(t[i], y[:, i])
+        Q[i], V[i] = q, v
+        xy[i] = cfg.link_poses(q)[:, :2]
+        ke[i] = cfg.kinetic_energy(q, v)
+        pe[i] = cfg.potential_energy(q)
+        ff[i] = cfg.forces.element_values(q, v)
+        if m:
+            lam[i] = cfg.coords.accelerations(t[i], q, v)[1]
+    off = np.array([offsets.get(link, 0.0) for link in cfg.links])
+    return dict(q=Q, v=V, theta=Q @ cfg.A.T + cfg.b + off, omega=V @ cfg.A.T, xy=xy, kinetic=ke, potential=pe,
+                forces=ff, constraint_forces=lam)
