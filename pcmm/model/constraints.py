@@ -315,9 +315,11 @@ class _Replayable:
         return out
 
     @contextlib.contextmanager
-    def restored(self, frozen: dict, q_start):
+    def restored(self, frozen: dict, q_start, steps=None):
         """Re-read an accepted segment: its partition, its anchors, its warm start, no conditioning
-        checks; everything as it was afterwards."""
+        checks; everything as it was afterwards.  ``steps = (t, y)`` are the segment's accepted
+        steps: a loop's Newton solves then start from the step at or before the instant asked for
+        (:meth:`PartitionedCoordinates._follow`), however far it lies from the last one solved."""
         saved = dict(self.__dict__)
         anchors = frozen.get("anchors")
         saved_anchors = dict(self.closure.anchors) if anchors is not None else None
@@ -326,6 +328,9 @@ class _Replayable:
             self.closure.anchors.clear()
             self.closure.anchors.update(anchors)
         self.seed(q_start)
+        if steps is not None and hasattr(self, "_trail"):
+            self._trail = (np.asarray(steps[0], float), np.asarray(steps[1], float)[:self.ny])
+            self._reached = {0: None}  # the start: seed's q_start
         self.checking = False
         try:
             yield self
@@ -480,6 +485,10 @@ class PartitionedCoordinates(_Replayable):
         self.ny = 0  # 2 len(I), set with the partition (pack, project)
         self._qD = None
         self._recent: list[tuple[float, np.ndarray]] = []
+        # a re-read segment's accepted steps (t, y) and the solutions reached along them, by step
+        # (restored, _follow); None while integrating
+        self._trail = None
+        self._reached: dict[int, tuple | None] = {}
         self._zeros = np.zeros(self.nv)
         self.checking = True  # conditioning checks (off while recording an accepted segment)
         self._cache = None  # the last unpack: guards and the right-hand side ask for the same point
@@ -639,16 +648,31 @@ class PartitionedCoordinates(_Replayable):
             self.max_residual = max(self.max_residual, float(np.max(np.abs(phi))))
             return q, Jq, Jp
         if len(self.I) == 0 and self.drives.size:
-            raise SimulationError(
-                f"configuration '{self.cfg.name}': the loop cannot be closed at t = {t:.6g} s "
+            err = SimulationError(
+                f"configuration '{self.cfg.name}': the loop cannot be closed at t = {t:.9g} s "
                 f"(residual {np.max(np.abs(phi)):.3g}): it has no free coordinate, and its drives "
                 f"({', '.join(self.drives.joints)}) prescribe a motion its locked joints cannot follow "
                 "(the lock jams the driven loop). A lock that must give way is a release: a stop-merge "
                 "with unmerge = true, or a transition of type 'release' before this instant")
-        raise SimulationError(
-            f"configuration '{self.cfg.name}': the loop cannot be closed at t = {t:.6g} s "
-            f"(residual {np.max(np.abs(phi)):.3g}): the mechanism is at or beyond a singular "
-            "posture, or the initial state is far from an assembled one")
+        else:
+            start = position(guess, self._phi(t, guess)[1])  # near the last posture solved
+            cond = self._cond(start)
+            err = SimulationError(
+                f"configuration '{self.cfg.name}': the loop cannot be closed at t = {t:.9g} s "
+                f"(residual {np.max(np.abs(phi)):.3g} after 30 Newton steps; the constraint Jacobian's "
+                f"condition number is {cond:.3g} at the warm start, {self._cond(Jp):.3g} at the last "
+                "iterate): " + (
+                    "the mechanism is at or beyond a singular posture, or the initial state is far from "
+                    "an assembled one" if not math.isfinite(cond) or cond > SINGULAR_COND else
+                    "the constraints are well conditioned where the solve started, so it started too far "
+                    "from the assembly (a pcmm defect: please report it with the scene)"))
+        err.at = t  # the instant of the failing solve (a trial instant of a step, for the run loop)
+        raise err
+
+    @staticmethod
+    def _cond(J) -> float:
+        """The condition number of a constraint Jacobian (1 without rows)."""
+        return float(np.linalg.cond(J)) if J.size else 1.0
 
     def _best_dependent(self, Jq, keep=()):
         """Dependent columns for ``Jq``: driven joints, then the best-conditioned columns of the
@@ -707,6 +731,12 @@ class PartitionedCoordinates(_Replayable):
         because an event search goes back and forth within a step; starting from the step's far
         end near a branch point could land on the mirrored assembly and make a guard's value
         depend on the order of the calls."""
+        if self._trail is not None:
+            near = self._follow(t)
+            if near is not None and (not self._recent or abs(near[0] - t) < min(abs(r[0] - t) for r in self._recent)):
+                tr, q, qd = near
+                step = (t - tr) * qd
+                return q + step if _max_abs(step) <= PREDICT_MAX else q
         if not self._recent:
             return self._qD
         tr, q, qd = min(self._recent, key=lambda r: abs(r[0] - t))
@@ -714,6 +744,29 @@ class PartitionedCoordinates(_Replayable):
         # a long extrapolation is no better a start than the solution itself (and could carry the
         # start past a branch point): beyond PREDICT_MAX the nearest solution is the start
         return q + step if _max_abs(step) <= PREDICT_MAX else q
+
+    def _follow(self, t):
+        """While a segment is re-read (:meth:`restored` with its steps): the solution at the
+        accepted step at or before ``t`` (``(t_k, q, q')``), the steps before it solved one after
+        the other from the last one reached.  A dense-output instant, a resampled time or a
+        saved series may ask for any instant of the segment; a Newton solve started from the
+        last instant solved, which may lie several turns of a crank back, lands on another
+        assembly or on none (a four-bar's crank 30 rad on: residual 0.45), where one started
+        from the neighbouring step converges as it did in the run.  None at the segment's first
+        step (its start is the seed) or when ``t`` is the step being solved."""
+        ts, ys = self._trail
+        k = int(np.searchsorted(ts, t, side="right")) - 1
+        if k < len(ts) and k >= 0 and ts[k] == t:
+            k -= 1  # that step is the one being solved: start from the one before
+        k = min(k, len(ts) - 1)
+        if k <= 0:
+            return None
+        if k not in self._reached:
+            start = max(j for j in self._reached if j < k)
+            for j in range(start + 1, k + 1):
+                if j not in self._reached:
+                    self.unpack(ts[j], ys[:, j])  # registers step j (unpack)
+        return self._reached.get(k)
 
     def pack(self, t, q, v):
         """State vector at an assembled (q, v); the partition is re-chosen here,
@@ -791,6 +844,11 @@ class PartitionedCoordinates(_Replayable):
             return self._cache[2]
         out = self._unpack(t, y)
         self._cache = (t, y.copy(), out)
+        if self._trail is not None:  # a re-read segment: keep the solutions at its accepted steps
+            ts, ys = self._trail
+            k = int(np.searchsorted(ts, t, side="left"))
+            if k < len(ts) and ts[k] == t and k not in self._reached and np.array_equal(ys[:, k], y):
+                self._reached[k] = self._recent[-1]
         return out
 
     def _unpack(self, t, y):

@@ -54,7 +54,7 @@ class SegmentRecord:
     constraint_labels: list[str]
     t: np.ndarray
     q: np.ndarray  # (n, nv)
-    v: np.ndarray  # (n, nv)
+    v: np.ndarray  # (n, nv) rates of q: a planar joint's x', y' in world axes
     theta: np.ndarray  # (n, nlinks) absolute angles, continuous across switches
     omega: np.ndarray  # (n, nlinks)
     xy: np.ndarray  # (n, nlinks, 2) link frame origins
@@ -448,7 +448,9 @@ class Trajectory:
 
     def to_csv(self, path: str | Path, force: bool = True) -> Path:
         """Write one CSV row per sample: ``t``, ``configuration``, then every named quantity,
-        units in the header; atomically.
+        units in the header; atomically.  ``v_<joint>`` is the rate of ``q_<joint>``: for a URDF
+        ``planar`` joint ``P`` the columns ``v_P.x``, ``v_P.y`` are its origin's velocity in world
+        axes (``[m/s in world axes]``), not Pinocchio's body-frame velocity.
 
         Examples
         --------
@@ -471,9 +473,14 @@ class Trajectory:
         types = {j: d["type"] for view in self.views.get("configurations", {}).values()  # where it moves
                  for j, d in (view.get("joints") or {}).items()
                  if isinstance(d, dict) and d.get("type") in ("revolute", "prismatic")}
+        planar = {j for view in self.views.get("configurations", {}).values()
+                  for j, d in (view.get("joints") or {}).items() if isinstance(d, dict) and d.get("type") == "planar"}
         for c in coords:  # a revolute joint's coordinate is an angle, a prismatic one's a length
             q_unit, v_unit = {"revolute": ("rad", "rad/s"), "prismatic": ("m", "m/s")}.get(
                 types.get(c), ("rad|m", "rad/s|m/s"))
+            joint, _, part = c.rpartition(".")
+            if joint in planar and part in ("x", "y", "theta"):  # a planar joint's rates are world-frame
+                q_unit, v_unit = ("rad", "rad/s") if part == "theta" else ("m", "m/s in world axes")
             cols.append((f"q_{c} [{q_unit}]", self.series("q", c)))
             cols.append((f"v_{c} [{v_unit}]", self.series("v", c)))
         forces = self.views.get("forces", {})

@@ -154,7 +154,7 @@ class FlightAudit:
             now = cfg.forces
             cfg.forces = f.forces
             try:
-                with cfg.coords.restored(f.frozen, f.q_start):
+                with cfg.coords.restored(f.frozen, f.q_start, (f.t, f.y)):
                     work = flight_work(cfg, f.t, f.y, f.stepping, f.q_start)
             finally:
                 cfg.forces = now

@@ -56,7 +56,7 @@ def record_samples(traj: Trajectory, cfg: Configuration, seg, offsets, q_start, 
                 threading.get_ident(), cfg.model.createData())
         cfg.forces = forces  # as they were (a later entry may have compiled them at other angle offsets)
         try:
-            with coords.restored(frozen, q_start):  # the segment was accepted: nothing here stops anything
+            with coords.restored(frozen, q_start, (t, y)):  # accepted: nothing here stops anything
                 return work()
         finally:
             cfg.data, cfg.forces = data, now
