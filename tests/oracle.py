@@ -372,7 +372,7 @@ class Oracle:
 
     def potential(self, ctx, F, q, v, theta, seg):
         pe = pin.computePotentialEnergy(F.model, F.data, q)
-        for f in self.scene.forces_in(seg.configuration):  # a held joint's spring: constant while held
+        for f in ctx["forces"]:  # the configuration's own and a held joint's (at its locked value: constant)
             if f.points is not None:
                 pa, pb = F.jacobian(f.points.a, f.points.point_a)[0], F.jacobian(f.points.b, f.points.point_b)[0]
                 pe += 0.5 * f.k * (float(np.hypot(*(pb - pa))) - f.rest) ** 2

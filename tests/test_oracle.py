@@ -20,6 +20,7 @@ from builders import EXAMPLES
 
 import pcmm
 from pcmm.errors import SimulationError
+from pcmm.model.mechanism import Mechanism
 
 #: every shipped example: (t_end, dt of the resampled check), short where the run is long
 EXAMPLE_RUNS = {
@@ -440,14 +441,6 @@ def test_the_merged_stretch_of_example2s_cycle_holds_what_the_kkt_solve_gives():
     assert not found, _show(found)
 
 
-@pytest.mark.xfail(strict=True, raises=AssertionError, reason=(
-    "the potential energy series drops a held joint's spring: examples/three_bar_cycle.toml at the "
-    "O2 lock (open -> O2_locked, t = 0.18534 s) records 2.8364 J before and 2.4663 J after, with the "
-    "posture and the kinetic energy continuous: 'spring O2' (0.5 k x^2 = 0.370 J) is listed only "
-    "where O2 is free (the loader refuses a force on a locked joint), and pcmm/model/configuration.py "
-    "potential_energy counts only the configuration's own elements, so the total energy jumps at every "
-    "lock and release. A held joint's springs should count at their constant locked value. For the "
-    "model's owner (h-model) or the integrator to decide."))
 def test_the_potential_energy_is_continuous_where_the_posture_is():
     traj = pcmm.simulate(pcmm.load_scene(EXAMPLES / "three_bar_cycle.toml"), pcmm.RunOptions(t_end=0.2))
     switches = [(a, b) for a, b in zip(traj.segments, traj.segments[1:]) if a.configuration != b.configuration]
@@ -455,6 +448,15 @@ def test_the_potential_energy_is_continuous_where_the_posture_is():
     for a, b in switches:
         np.testing.assert_allclose(a.xy[-1], b.xy[0], atol=1e-9)  # the posture does not move
         assert b.potential[0] == pytest.approx(a.potential[-1], abs=1e-9), (a.configuration, b.configuration)
+    # the O2 lock keeps 'spring O2' (f = value - k x, k = 0.3 N m/rad, rest 0) at the value O2 locked at:
+    # 0.3 x^2 / 2 = 0.370 J over what the locked configuration's own elements (gravity, 'spring O3') store
+    a, b = next((a, b) for a, b in switches if b.configuration == "O2_locked")
+    x = a.q[-1, a.coordinates.index("O2")]
+    mech = Mechanism(pcmm.load_scene(EXAMPLES / "three_bar_cycle.toml"))
+    locked = mech.enter("O2_locked", mech["open"], a.q[-1])
+    for i in (0, len(b.t) // 2, -1):
+        assert b.potential[i] - locked.potential_energy(b.q[i]) == pytest.approx(0.5 * 0.3 * x * x, rel=1e-12)
+    assert 0.5 * 0.3 * x * x == pytest.approx(0.370, abs=1e-3)
 
 
 def block_on_cut_joint(folder, kind, incline=math.pi / 6, t_end=0.5):

@@ -137,13 +137,7 @@ class Holds:
         # ref's measures as they are now (its angle offsets: pcmm.configuration.Configuration.continue_angles)
         key = (ref.name, cfg.name, tuple(h.label for h in self.items), ref.angle_offsets)
         if key not in self._maps:
-            mine = list(self.scene.forces_in(cfg.name))
-            for h in self.items:
-                for f in self.scene.forces_in(h.transition.source):
-                    on_joint = f.on is not None and f.on.kind == "joint" and f.on.name in h.joints
-                    measures = f.measure is not None and f.measure.kind == "joint" and f.measure.names[0] in h.joints
-                    if (on_joint or measures) and f not in mine:
-                        mine.append(f)
+            mine = list(self.scene.forces_in(cfg.name)) + self._carried(cfg)
             theirs = self.scene.forces_in(ref.name)
             if len(mine) == len(theirs) and all(f in theirs for f in mine):
                 self._maps[key] = None
@@ -157,6 +151,19 @@ class Holds:
                 self._maps[key] = compile_forces(tuple(mine), ref.measure_row, ref.target_column, ref.nv)
         return self._maps[key]
 
+    def _carried(self, cfg: Configuration) -> list:
+        """The held joints' own force elements (a spring or motor on a held joint, or measuring
+        it), as the configuration each hold was locked from has them, that ``cfg`` lacks."""
+        own = self.scene.forces_in(cfg.name)
+        out = []
+        for h in self.items:
+            for f in self.scene.forces_in(h.transition.source):
+                on_joint = f.on is not None and f.on.kind == "joint" and f.on.name in h.joints
+                measures = f.measure is not None and f.measure.kind == "joint" and f.measure.names[0] in h.joints
+                if (on_joint or measures) and f not in own and f not in out:
+                    out.append(f)
+        return out
+
     def release_target(self, hold: Hold, cfg: Configuration) -> str:
         need = set(cfg.joint_names) | set(hold.joints)
         for name, js in self._joint_sets().items():
@@ -169,10 +176,9 @@ class Holds:
             f"(a URDF, or a configuration derived by locking joints) or set unmerge = false on "
             f"'{hold.label}'")
 
-    def forces(self, cfg: Configuration, t: float, q: np.ndarray, v: np.ndarray) -> dict[str, float]:
-        """{label: holding force or moment} of every hold at (t, q, v) of ``cfg``."""
-        if not self.items:
-            return {}
+    def _on_reference(self, cfg: Configuration, q: np.ndarray, v: np.ndarray):
+        """(ref, qs, vs): the state of ``cfg`` mapped onto its reference configuration, the
+        held joints at their locked values and at rest."""
         ref_name = self.reference(cfg)
         if ref_name is None:
             raise SimulationError(
@@ -188,6 +194,27 @@ class Holds:
         for h in self.items:
             for name, val in h.joints.items():
                 qs[ref.joint_slice[name]] = val
+        return ref, qs, vs
+
+    def held_energy(self, cfg: Configuration, q: np.ndarray) -> float:
+        """The energy stored in the held joints' own springs (J) at ``q`` of ``cfg``: constant
+        while the lock holds them (0 without a hold or a spring).  The configuration's own
+        potential energy leaves them out (``cfg`` has no such joint); the recorded potential
+        energy adds it, so it does not jump where a joint locks or is released."""
+        carried = self._carried(cfg) if self.items else []
+        if not any(f.k for f in carried):
+            return 0.0
+        ref, qs, _ = self._on_reference(cfg, q, np.zeros(cfg.nv))
+        key = ("energy", ref.name, cfg.name, tuple(h.label for h in self.items), ref.angle_offsets)
+        if key not in self._maps:
+            self._maps[key] = compile_forces(tuple(carried), ref.measure_row, ref.target_column, ref.nv)
+        return self._maps[key].potential_energy(qs)
+
+    def forces(self, cfg: Configuration, t: float, q: np.ndarray, v: np.ndarray) -> dict[str, float]:
+        """{label: holding force or moment} of every hold at (t, q, v) of ``cfg``."""
+        if not self.items:
+            return {}
+        ref, qs, vs = self._on_reference(cfg, q, v)
         Jc, bc = ref.coords.rows(t, qs, vs)
         rows, bias, owners = [Jc], [bc], []
         for h in self.items:
