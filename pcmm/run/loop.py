@@ -26,7 +26,7 @@ from ..events.transitions import POSE_TOL, Context
 from ..model.assembly import assemble
 from ..model.configuration import Configuration
 from ..model.mechanism import Mechanism
-from ..ode.integrators import EPS, INTEGRATORS, METHODS, Segment, method_for  # noqa: F401 - INTEGRATORS, METHODS: re-exported
+from ..ode.integrators import EPS, INTEGRATORS, Segment, method_for
 from ..results.trajectory import RunStats, Trajectory, holding_extremes, record_views
 from ..scene.load import load_scene
 from ..scene.settings import RunOptions, resolve
