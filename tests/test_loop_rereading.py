@@ -82,12 +82,12 @@ def test_a_loop_that_cannot_be_closed_names_the_stop_time_and_the_conditioning(t
     """A Newton solve sent from a warm start far from the assembly (here on purpose, past
     t = 0.3 s; the first that does not converge) fails at a trial instant of a step: the message gives that instant, the run's true
     stop (its last accepted step, the partial result's end) and the Jacobian's condition number."""
-    from pcmm.model import constraints
-    solve = constraints.PartitionedCoordinates._solve_dependent
+    from pcmm.model import partitioned
+    solve = partitioned.PartitionedCoordinates._solve_dependent
 
     def far_start(self, t, qI, guess):
         return solve(self, t, qI, guess + 2.0 if t > 0.3 and self.checking else guess)
-    monkeypatch.setattr(constraints.PartitionedCoordinates, "_solve_dependent", far_start)
+    monkeypatch.setattr(partitioned.PartitionedCoordinates, "_solve_dependent", far_start)
     with pytest.raises(pcmm.SimulationError) as info:
         pcmm.simulate(pcmm.load_scene(crank_rocker(tmp_path, 1.0, 1.0, gravity=(0.0, -9.81))))
     partial = info.value.partial
@@ -98,3 +98,41 @@ def test_a_loop_that_cannot_be_closed_names_the_stop_time_and_the_conditioning(t
     trial = float(message.split("cannot be closed at t = ")[1].split(" s")[0])
     assert trial > max(stop, 0.3) and f"(t = {trial:.9g} s was a trial instant" in message
     assert "condition number is" in message and "well conditioned" in message
+
+
+def test_lazy_series_read_from_a_second_thread_while_the_first_runs(tmp_path):
+    """A trajectory's series are computed when first read; reading them in another thread while
+    the first one integrates a run of the same configuration (its Pinocchio data, its loop's
+    partition and warm starts busy) gives exactly the series read alone, and leaves the run's
+    result exactly what it is alone: each thread evaluates on its own Data
+    (``Configuration.workspace``) and the reader of a segment is a copy of the coordinates."""
+    import threading
+
+    path = crank_rocker(tmp_path, 8.0, 0.5)
+    alone = pcmm.simulate(pcmm.load_scene(path))
+    expected = {(k, n): alone.series(k, n) for k, n in (("q", "D"), ("theta", "rocker"), ("constraint_forces", "C.fx"))}
+    baseline = pcmm.simulate(pcmm.load_scene(path))  # to be read while the next run goes on
+    read, errors = {}, []
+    started = threading.Event()
+
+    def reader():
+        started.wait()
+        try:
+            for k, n in expected:
+                read[(k, n)] = baseline.series(k, n)
+            read["fine"] = baseline.resampled(0.01).series("q", "D")
+        except Exception as exc:  # noqa: BLE001 - reported by the main thread
+            errors.append(exc)
+
+    def progress(t):
+        started.set()
+
+    th = threading.Thread(target=reader)
+    th.start()
+    during = pcmm.simulate(pcmm.load_scene(path), progress=progress)
+    th.join()
+    assert not errors, errors
+    for (k, n), values in expected.items():
+        np.testing.assert_array_equal(read[(k, n)], values)
+        np.testing.assert_array_equal(during.series(k, n), values)
+    np.testing.assert_array_equal(read["fine"], alone.resampled(0.01).series("q", "D"))

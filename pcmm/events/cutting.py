@@ -52,7 +52,7 @@ def _complement(S_planar: np.ndarray) -> np.ndarray:
 def _structure(cfg: Configuration, joints: tuple[str, ...]):
     """The cut model's topology, built once per configuration and cut set; the pose-dependent
     placements (the planar joints' and the parent-side copies') are set at each impact."""
-    cache = cfg.__dict__.setdefault("_cut_models", {})
+    cache = cfg.cut_models
     if joints in cache:
         return cache[joints]
     model = cfg.model

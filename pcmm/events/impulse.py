@@ -271,7 +271,7 @@ def joint_impulses(cfg: Configuration, q, dv, point_impulses):
     impulse the actuators (drives) supply and is zero on passive joints.
     """
     model = cfg.model
-    cache = cfg.__dict__.setdefault("_impulse_models", {})  # built once per model (createData is costly)
+    cache = cfg.impulse_models  # built once per model (createData is costly)
     if "zero_gravity" not in cache:
         m0 = model.copy()
         m0.gravity.linear[:] = 0.0

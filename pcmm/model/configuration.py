@@ -44,6 +44,7 @@ class Point:
 
 
 _BUILT = threading.local()  # per thread: Pinocchio's Data is scratch space, never shared between threads
+_WORKSPACE_LOCK = threading.Lock()  # guards the creation of a thread's Data (Configuration.workspace)
 _BUILT_MAX = 16  # models kept per thread (a large chain's Data holds nv^3-sized tensors)
 
 
@@ -139,6 +140,8 @@ class Configuration:
         self.spec = spec
         self.name = spec.name
         self._coordinates = coordinates
+        self._owner = threading.get_ident()  # the thread whose Data (``_data``) this model was built with
+        self._workspaces: dict[int, object] = {}  # {thread id: Data} of the other threads (workspace)
         self._angle_offsets: dict[str, float] = {}  # {link: 2 pi k} of the run's series (continue_angles)
         # The Pinocchio model and data are built once per process (and thread) for each URDF text, set
         # of points and gravity, and reused by every later run: Pinocchio 4.1's createData allocates
@@ -184,17 +187,38 @@ class Configuration:
         self._points: dict[tuple[str, tuple[float, float]], Point] = {}
         for link, xy in key[1]:
             self.point(link, xy)
-        self.data = model.createData()
+        self._data = model.createData()
         check_point_masses(model, self.data, spec, self._planar, self.link_frame)
         self._angle_map()
-        self._cut_models = {}  # cut systems by cut joints (pcmm.cutting), built on first impact
-        self._impulse_models = {}  # the zero-gravity copy for joint impulses (pcmm.impulse)
+        self.cut_models: dict = {}  # cut systems by cut joints (pcmm.events.cutting), built on first impact
+        self.impulse_models: dict = {}  # the zero-gravity copy for joint impulses (pcmm.events.impulse)
         if len(cache) >= _BUILT_MAX:
             cache.pop(next(iter(cache)))
         cache[key] = {k: self.__dict__[k] for k in (
             "model", "nv", "joint_names", "joint_slice", "joint_id", "_planar", "links", "link_frame", "root",
-            "_points", "data", "A", "b", "link_index", "_cut_models", "_impulse_models")}
+            "_points", "_data", "A", "b", "link_index", "cut_models", "impulse_models")}
         self._after_model()
+
+    @property
+    def data(self):
+        """The calling thread's Pinocchio ``Data`` for this model (:meth:`workspace`)."""
+        if threading.get_ident() == self._owner:
+            return self._data
+        return self.workspace()
+
+    def workspace(self):
+        """The calling thread's Pinocchio ``Data``: scratch space that every evaluation writes, so
+        never shared between threads.  The thread that built the configuration has the one it was
+        built with; any other (a trajectory's lazy series read elsewhere) gets one of its own,
+        created on first use and kept."""
+        ident = threading.get_ident()
+        if ident == self._owner:
+            return self._data
+        with _WORKSPACE_LOCK:
+            data = self._workspaces.get(ident)
+            if data is None:
+                data = self._workspaces[ident] = self.model.createData()
+        return data
 
     def _after_model(self) -> None:
         """What depends on the scene beyond the model: force elements and coordinates."""
@@ -234,7 +258,7 @@ class Configuration:
         key = (link, (float(local[0]), float(local[1])))
         if key in self._points:
             return self._points[key]
-        if hasattr(self, "data"):
+        if hasattr(self, "_data"):
             raise RuntimeError("points must be registered before the model's data are created")
         parent = self.model.frames[self.link_frame[link]]
         placement = parent.placement * pin.SE3(np.eye(3), np.array([key[1][0], key[1][1], 0.0]))

@@ -4,9 +4,9 @@ A configuration integrates its dynamics (paper Eq. 1) in a state ``y`` that its
 coordinate strategy chooses; the run loop (:func:`pcmm.simulate.simulate`),
 the guards, the impulse solver and the contact laws see that strategy only
 through :class:`Coordinates`.  Two strategies satisfy it
-(:mod:`pcmm.constraints`): :class:`~pcmm.constraints.TreeCoordinates` (a tree,
-``y = [q, v]``, one ``aba``) and :class:`~pcmm.constraints.PartitionedCoordinates`
-(loops and drives, ``y = [q_I, v_I]``, the dependent coordinates solved by
+(:mod:`pcmm.model.constraints`): :class:`~pcmm.model.tree.TreeCoordinates` (a tree,
+``y = [q, v]``, one ``aba``) and :class:`~pcmm.model.partitioned.PartitionedCoordinates`
+(loops and drives, ``y = [q_I, q'_I]``, the dependent coordinates solved by
 Newton at every evaluation).
 """
 from __future__ import annotations
@@ -56,9 +56,12 @@ class Coordinates(Protocol):
         (the loop itself is at a singular posture).  Along a segment ``unpack`` may raise
         :class:`~pcmm.errors.Repartition` to restart it with a better partition.
     Recording
-        ``frozen_state()`` keeps the partition an accepted segment was integrated in and
-        ``restored(frozen, q_start)`` re-reads it later in that partition and warm start (a
-        trajectory's series are computed lazily); ``fresh_rhs()`` is a right-hand side bound to
+        ``frozen_state()`` gives, as values, what an accepted segment was integrated in (a loop's
+        partition and anchors) and ``restored(frozen, q_start, steps)`` is a context manager that
+        yields a reader of that segment: coordinates in that state, warm-started at ``q_start`` and
+        along the segment's accepted ``steps = (t, y)``, leaving these coordinates alone (a
+        trajectory's series are computed lazily, possibly in another thread while a run goes on);
+        ``fresh_rhs()`` is a right-hand side bound to
         the current data; ``forces_changed()`` rebuilds what holds the configuration's force
         elements after they were compiled again (``cfg.forces``, at an angle offset).  ``recording()`` is a context manager under which an accepted segment is re-read
         for the trajectory (``unpack``, ``accelerations`` and ``residual`` at its steps)

@@ -9,7 +9,6 @@ moment of a locked stretch depended on how far the run went on).
 """
 from __future__ import annotations
 
-import threading
 import time
 
 import numpy as np
@@ -44,39 +43,38 @@ def record_samples(traj: Trajectory, cfg: Configuration, seg, offsets, q_start, 
     n_state = coords.ny  # the partition's state size (the tree's: 2 nv)
     y = y_full[:n_state]  # a contact phase or a flight integrates one more component (its impulse, its work)
     held, holds = holds.labels(), holds.snapshot()
-    owner = threading.get_ident()
 
     def in_segment_state(work):
-        """Run ``work`` with the coordinates as they were for this segment.  Pinocchio's data are
-        scratch space shared by the runs of one thread (models are built once per process and
-        thread): asked from another thread, the series are computed on data of their own."""
-        data, now = cfg.data, cfg.forces
-        if threading.get_ident() != owner:
-            cfg.data = cfg.__dict__.setdefault("_foreign_data", {}).setdefault(
-                threading.get_ident(), cfg.model.createData())
+        """Run ``work(reader)`` on a reader of this segment's coordinates (its partition, anchors
+        and steps, as values: :meth:`Coordinates.restored`); every evaluation reads the calling
+        thread's Pinocchio data (:meth:`Configuration.workspace`), so the series may be read from
+        another thread while the run goes on."""
+        now = cfg.forces
         cfg.forces = forces  # as they were (a later entry may have compiled them at other angle offsets)
         try:
-            with coords.restored(frozen, q_start, (t, y)):  # accepted: nothing here stops anything
-                return work()
+            with coords.restored(frozen, q_start, (t, y)) as reader:  # accepted: nothing here stops anything
+                return work(reader)
         finally:
-            cfg.data, cfg.forces = data, now
+            cfg.forces = now
 
     def derive():
-        def work():
-            return with_holds(cfg, holds, t, derived_series(cfg, t, y, offsets))
+        def work(reader):
+            return with_holds(cfg, holds, t, derived_series(cfg, reader, t, y, offsets))
         return in_segment_state(work)
 
     def resample(times):
-        def work():
+        def work(reader):
             fun, method, opts = stepping
-            if not coords.constrained and fun is coords.rhs:
-                fun = coords.fresh_rhs()
+            if getattr(fun, "__self__", None) is coords:  # rhs or rhs_with_power: the reader's own
+                fun = getattr(reader, fun.__name__)
+            elif not coords.constrained and fun is coords.rhs:
+                fun = reader.fresh_rhs()
             states = dense_states(t, y_full, times, (fun, method, opts))[:n_state]
             # the dense steps left the loop's warm starts at the segment's end: the series are
             # solved from its start onwards, as the recorded ones are (from the end, a loop's
             # Newton solve at the start could land on another assembly)
-            coords.seed(q_start)
-            return with_holds(cfg, holds, times, derived_series(cfg, times, states, offsets))
+            reader.seed(q_start)
+            return with_holds(cfg, holds, times, derived_series(cfg, reader, times, states, offsets))
         return in_segment_state(work)
     coord_names = []
     for name in cfg.joint_names:
@@ -111,26 +109,26 @@ def holding_forces(cfg: Configuration, holds: Holds, t, series: dict) -> np.ndar
     return out
 
 
-def derived_series(cfg: Configuration, t, y, offsets) -> dict:
+def derived_series(cfg: Configuration, coords, t, y, offsets) -> dict:
     """Coordinates, angles, positions, energies, force elements and constraint forces at the
-    recorded states of one segment."""
+    recorded states of one segment, read by ``coords`` (a reader of the segment: :meth:`Coordinates.restored`)."""
     n = len(t)
     nv, nl = cfg.nv, len(cfg.links)
     Q, V = np.empty((n, nv)), np.empty((n, nv))
     xy = np.empty((n, nl, 2))
     ke, pe = np.empty(n), np.empty(n)
     ff = np.empty((n, len(cfg.forces.names)))
-    m = len(cfg.coords.labels)
+    m = len(coords.labels)
     lam = np.empty((n, m))
     for i in range(n):
-        q, v = cfg.coords.unpack(t[i], y[:, i])
-        Q[i], V[i] = q, v
+        q, v = coords.unpack(t[i], y[:, i])
+        Q[i], V[i] = q, cfg.qdot(q, v)  # the coordinates' rates: a planar joint's x', y' in world axes
         xy[i] = cfg.link_poses(q)[:, :2]
         ke[i] = cfg.kinetic_energy(q, v)
         pe[i] = cfg.potential_energy(q)
         ff[i] = cfg.forces.element_values(q, v)
         if m:
-            lam[i] = cfg.coords.accelerations(t[i], q, v)[1]
+            lam[i] = coords.accelerations(t[i], q, v)[1]
     off = np.array([offsets.get(link, 0.0) for link in cfg.links])
     return dict(q=Q, v=V, theta=Q @ cfg.A.T + cfg.b + off, omega=V @ cfg.A.T, xy=xy, kinetic=ke, potential=pe,
                 forces=ff, constraint_forces=lam)

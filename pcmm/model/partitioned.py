@@ -1,0 +1,517 @@
+"""Loops and drives by generalized coordinate partitioning.
+
+The state is the independent coordinates and their rates ``y = [q_I, q'_I]``; the dependent ones
+are solved from the constraints (:mod:`pcmm.model.rows`) at every evaluation (Newton, warm-started),
+so loops stay closed to the Newton tolerance instead of drifting.  The partition is chosen by QR
+with column pivoting at the start of every segment, and a guard on its dependent block's
+determinant asks for a new one where it degenerates.  Satisfies
+:class:`~pcmm.model.coordinates.Coordinates`.
+"""
+from __future__ import annotations
+
+import contextlib
+import copy
+import dataclasses
+import math
+
+import numpy as np
+import pinocchio as pin
+import scipy.linalg as sla
+
+from . import compiled
+from .configuration import Configuration
+from .rows import ClosureRows, Drives, _det, _max_abs, constrained_accelerations, solve
+from ..errors import Repartition, SimulationError
+from ..ode.witness import Guard
+
+NEWTON_TOL = 1e-13
+SINGULAR_COND = 1e9
+#: the largest change (rad or m) the warm start of a loop's Newton solve is extrapolated by
+PREDICT_MAX = 0.05
+
+
+class PartitionedCoordinates:
+    """Loops and/or drives: independent coordinates and their rates ``y = [q_I, q'_I]``
+    (satisfies :class:`~pcmm.coordinates.Coordinates`).  ``q'`` is ``v`` but for a planar joint's
+    (x', y'), which are world-frame where its ``v`` is body-frame (:meth:`Configuration.qdot`): the
+    dependent positions and rates then solve one block, ``dPhi/dq`` at the posture."""
+
+    constrained = True
+    position_noise = 4 * np.finfo(float).eps  # dependent coordinates: Newton plus one polishing step
+
+    def __init__(self, cfg: Configuration, closure: ClosureRows, drives: Drives):
+        self.cfg = cfg
+        self.closure = closure
+        self.drives = drives
+        self.nv = cfg.nv
+        self.m = closure.size + drives.size
+        self.labels = closure.labels() + [f"{j}.drive" for j in drives.joints]
+        self.I = None
+        self.D = None
+        self.ny = 0  # 2 len(I), set with the partition (pack, project)
+        self._qD = None
+        self._recent: list[tuple[float, np.ndarray]] = []
+        # a re-read segment's accepted steps (t, y) and the solutions reached along them, by step
+        # (restored, _follow); None while integrating
+        self._trail = None
+        self._reached: dict[int, tuple | None] = {}
+        self._zeros = np.zeros(self.nv)
+        self.checking = True  # conditioning checks (off while recording an accepted segment)
+        self._cache = None  # the last unpack: guards and the right-hand side ask for the same point
+        self.max_residual = 0.0  # largest loop residual a Newton solve accepted (the recorded drift's bound)
+        self._driven = np.array(drives.index, dtype=int)
+        self._drive_rows = np.zeros((drives.size, self.nv))
+        self._drive_rows[np.arange(drives.size), self._driven] = 1.0
+        # revolute cut joints' rows in one compiled call where that is the same function (pcmm.compiled)
+        if not closure.specs:
+            fast, why = None, "not compiled: drives only"
+        elif cfg.has_planar or not closure.revolute_only or closure.anchored:
+            fast, why = None, "not compiled: " + ("a planar joint" if cfg.has_planar else "a cut joint anchored at entry"
+                                                  if closure.anchored else "prismatic or weld cut joints")
+        else:
+            fast = compiled.closure_kinematics(cfg.model, closure.frames_a, closure.frames_b,
+                                               self._python_point_rows, self._python_point_rows_and_bias)
+            why = compiled.why_not() or "not compiled"
+        self._point_rows = fast.point_rows if fast else self._python_point_rows
+        self._point_rows_and_bias_at = fast.point_rows_and_bias if fast else self._python_point_rows_and_bias
+        self.evaluations = "compiled" if fast else f"python: {why}"
+
+    def forces_changed(self):
+        """Nothing to rebuild: every evaluation reads ``cfg.forces``."""
+
+    # -- re-reading an accepted segment (a trajectory's lazy series)
+    def frozen_state(self) -> dict:
+        """The partition a segment is integrated in and the anchors of its cut joints anchored at
+        entry (a configuration entered again later holds its point elsewhere): values, which
+        :meth:`restored` reads."""
+        out = {"I": self.I, "D": self.D, "ny": self.ny}
+        if self.closure.anchors:
+            out["anchors"] = {k: np.array(a, float) for k, a in self.closure.anchors.items()}
+        return out
+
+    @contextlib.contextmanager
+    def restored(self, frozen: dict, q_start, steps=None):
+        """A reader of an accepted segment: a copy of these coordinates in the segment's partition
+        and anchors (``frozen``), warm-started at its start ``q_start``, without conditioning checks
+        (the segment was accepted).  This object, which a run may be integrating meanwhile (in
+        another thread), is left alone.  ``steps = (t, y)`` are the segment's accepted steps: the
+        reader's Newton solves start from the step at or before the instant asked for
+        (:meth:`_follow`), however far it lies from the last one solved."""
+        reader = copy.copy(self)
+        reader.I, reader.D, reader.ny = frozen["I"], frozen["D"], frozen["ny"]
+        reader.closure = dataclasses.replace(self.closure, anchors=dict(frozen.get("anchors", {})))
+        if getattr(self._point_rows, "__self__", None) is self:  # the Python rows read the closure
+            reader._point_rows = reader._python_point_rows
+            reader._point_rows_and_bias_at = reader._python_point_rows_and_bias
+        reader.checking = False
+        reader.seed(q_start)
+        if steps is not None:
+            reader._trail = (np.asarray(steps[0], float), np.asarray(steps[1], float)[:reader.ny])
+            reader._reached = {0: None}  # the start: seed's q_start
+        yield reader
+
+    def fresh_rhs(self):
+        """The right-hand side (a method: it reads the calling thread's data at every call)."""
+        return self.rhs
+
+    # -- constraint evaluation on the tree
+    def _kinematics(self, qp, v=None) -> None:
+        """One kinematics pass on the configuration's data through the Python binding: frame
+        placements and joint Jacobians at ``qp``, and with ``v`` also the velocities and the
+        accelerations at a = 0 (what the bias terms read), the Jacobians taken from them."""
+        cfg = self.cfg
+        if v is None:
+            pin.computeJointJacobians(cfg.model, cfg.data, qp)  # computes the placements itself
+        else:
+            pin.forwardKinematics(cfg.model, cfg.data, qp, v, self._zeros)
+            pin.computeJointJacobians(cfg.model, cfg.data)
+        pin.updateFramePlacements(cfg.model, cfg.data)
+
+    def _python_point_rows(self, qp):
+        """(Phi, Phi_q) of revolute cut joints at Pinocchio's ``qp``, through the Python binding."""
+        self._kinematics(qp)
+        return self.closure.point_rows(self.cfg.model, self.cfg.data)
+
+    def _python_point_rows_and_bias(self, qp, v):
+        """(Phi_q, bias) of revolute cut joints at (``qp``, v) in one kinematics pass."""
+        self._kinematics(qp, v)
+        cfg = self.cfg
+        _, Jq = self.closure.point_rows(cfg.model, cfg.data)
+        return Jq, self.closure.point_bias(cfg.model, cfg.data)
+
+    def _phi(self, t, q, need_bias=False, v=None):
+        cfg = self.cfg
+        qp = cfg.to_pin(q)
+        if self.closure.revolute_only and not need_bias:
+            phi, Jq = self._point_rows(qp)
+            bias = None
+        else:
+            self._kinematics(qp, v if need_bias else None)
+            phi, Jq, bias = self.closure.evaluate(cfg.model, cfg.data, need_bias)
+        if self.drives.size:  # the rheonomic rows q_j - f_j(t): their Jacobian rows are constant
+            f, _, f2 = self.drives.values(t)
+            phi = np.concatenate((phi, q[self._driven] - f))
+            Jq = np.concatenate((Jq, self._drive_rows))
+            if need_bias:
+                bias = np.concatenate((bias, -f2))
+        return phi, Jq, bias
+
+    def _point_rows_and_bias(self, t, q, v):
+        """(Phi_q, bias) of revolute cut joints and drives at an assembled (q, v) in one kinematics
+        pass (placements, velocities and accelerations at a = 0, then the Jacobians from them).
+        The rows are taken at the returned q itself, not reused from the Newton solve's last
+        iterate: near a change point the last correction is large enough to matter."""
+        Jq, bias = self._point_rows_and_bias_at(self.cfg.to_pin(q), v)
+        if self.drives.size:
+            Jq = np.concatenate((Jq, self._drive_rows))
+            bias = np.concatenate((bias, -self.drives.values(t)[2]))
+        return Jq, bias
+
+    def _phi_t(self, t):
+        """``dPhi/dt``: zero for the loops, minus each drive's rate."""
+        out = np.zeros(self.m)
+        out[self.closure.size:] = self.drives.values(t)[1]
+        return np.negative(out, out=out)
+
+    def equality(self, t, model, data):
+        """Velocity rows of all constraints on ``model`` (the tree or its cut system);
+        kinematics must be computed on ``data``."""
+        _, Jq, _ = self.closure.evaluate(model, data, False)
+        if self.drives.size:
+            Jd = np.zeros((self.drives.size, model.nv))
+            for i, name in enumerate(self.drives.joints):
+                Jd[i, model.joints[model.getJointId(name)].idx_v] = 1.0
+            Jq = np.vstack([Jq, Jd])
+        return Jq
+
+    def _position_rows(self, t, q):
+        """``dPhi/dq`` at ``q``: the derivative in pcmm's coordinates that a Newton solve of the
+        positions, the partition and its conditioning need (not the velocity Jacobian, whose
+        planar-joint columns are in the body frame: :meth:`Configuration.position_jacobian`)."""
+        return self.cfg.position_jacobian(q, self._phi(t, q)[1])
+
+    def residual(self, t, q) -> float:
+        phi, _, _ = self._phi(t, q)
+        return float(np.max(np.abs(phi))) if phi.size else 0.0
+
+    # -- partition
+    def partition(self, t, q, prefer_independent=()):
+        """Choose dependent coordinates: driven joints, then the best-conditioned
+        columns of the loop rows (QR with column pivoting).  Coordinates in
+        ``prefer_independent`` are kept independent when the rest allows it."""
+        Jq = self._position_rows(t, q)
+        self.D = self._best_dependent(Jq, keep=prefer_independent)
+        self.I = np.array([i for i in range(self.nv) if i not in self.D], dtype=int)
+        self.ny = 2 * len(self.I)
+        JD = Jq[:, self.D]
+        cond = np.linalg.cond(JD) if JD.size else 1.0
+        if not np.isfinite(cond) or cond > SINGULAR_COND:
+            raise SimulationError(
+                f"configuration '{self.cfg.name}': the constraints are singular at t = {t:.6g} s "
+                f"(condition number {cond:.3g}): the loop is at or near a singular posture "
+                "(e.g. a slider-crank at dead centre) or the cut joints are redundant")
+
+    def _solve_dependent(self, t, qI, guess):
+        """Dependent coordinates closing the loop at ``qI`` (Newton from ``guess``) and the
+        constraint Jacobians there: ``(q, Phi_q per unit velocity, dPhi/dq)``.  Newton steps with
+        ``dPhi/dq`` (the two differ in a planar joint's columns, which are body-frame in the
+        first).
+
+        Once the residual is below NEWTON_TOL one more correction is taken with the Jacobian
+        already at hand: Newton converges quadratically, so that step leaves an error of
+        order NEWTON_TOL squared, i.e. round-off.  Without it the dependent coordinates carry
+        up to 1e-13 of solver noise that depends on the warm start, so the same state gives
+        guard values that differ by 1e-13 m from one call to the next; a bounce of 1e-6 m/s
+        rises only 5e-14 m, so that noise decided whether a tiny flight was seen at all."""
+        q = guess.copy()
+        q[self.I] = qI
+        position = self.cfg.position_jacobian
+        for _ in range(30):
+            phi, Jq, _ = self._phi(t, q)
+            Jp = position(q, Jq)
+            res = _max_abs(phi)
+            if res < NEWTON_TOL:
+                self.max_residual = max(self.max_residual, res)
+                self._check_conditioning(t, Jp)
+                if phi.size:  # one more correction with this Jacobian: exact to round-off, whatever the start
+                    try:
+                        q[self.D] -= solve(Jp[:, self.D], phi)
+                    except np.linalg.LinAlgError:
+                        pass  # the posture check above has already judged the block
+                return q, Jq, Jp
+            try:
+                q[self.D] -= solve(Jp[:, self.D], phi)
+            except np.linalg.LinAlgError:
+                break
+        phi, Jq, _ = self._phi(t, q)
+        Jp = position(q, Jq)
+        if np.max(np.abs(phi)) < 1e-9:
+            self.max_residual = max(self.max_residual, float(np.max(np.abs(phi))))
+            return q, Jq, Jp
+        if len(self.I) == 0 and self.drives.size:
+            err = SimulationError(
+                f"configuration '{self.cfg.name}': the loop cannot be closed at t = {t:.9g} s "
+                f"(residual {np.max(np.abs(phi)):.3g}): it has no free coordinate, and its drives "
+                f"({', '.join(self.drives.joints)}) prescribe a motion its locked joints cannot follow "
+                "(the lock jams the driven loop). A lock that must give way is a release: a stop-merge "
+                "with unmerge = true, or a transition of type 'release' before this instant")
+        else:
+            start = position(guess, self._phi(t, guess)[1])  # near the last posture solved
+            cond = self._cond(start)
+            err = SimulationError(
+                f"configuration '{self.cfg.name}': the loop cannot be closed at t = {t:.9g} s "
+                f"(residual {np.max(np.abs(phi)):.3g} after 30 Newton steps; the constraint Jacobian's "
+                f"condition number is {cond:.3g} at the warm start, {self._cond(Jp):.3g} at the last "
+                "iterate): " + (
+                    "the mechanism is at or beyond a singular posture, or the initial state is far from "
+                    "an assembled one" if not math.isfinite(cond) or cond > SINGULAR_COND else
+                    "the constraints are well conditioned where the solve started, so it started too far "
+                    "from the assembly (a pcmm defect: please report it with the scene)"))
+        err.at = t  # the instant of the failing solve (a trial instant of a step, for the run loop)
+        raise err
+
+    @staticmethod
+    def _cond(J) -> float:
+        """The condition number of a constraint Jacobian (1 without rows)."""
+        return float(np.linalg.cond(J)) if J.size else 1.0
+
+    def _best_dependent(self, Jq, keep=()):
+        """Dependent columns for ``Jq``: driven joints, then the best-conditioned columns of the
+        loop rows (QR with column pivoting), never one of ``keep``."""
+        driven = list(self.drives.index)
+        rest = [i for i in range(self.nv) if i not in driven and i not in keep]
+        dep = list(driven)
+        if self.closure.size:
+            _, _, piv = sla.qr(Jq[:self.closure.size][:, rest], pivoting=True)
+            dep += [rest[i] for i in piv[:self.closure.size]]
+        return np.array(sorted(dep), dtype=int)
+
+    def _scaled_det(self, Jq):
+        """det(J_D) / (||J||_F / sqrt(m))^m: signed, continuous, at most 1 in magnitude for any
+        number m of rows (Hadamard's bound and the mean of the squared row norms), and small when
+        the dependent block degenerates or when the whole Jacobian loses rank (a row scaled by
+        its own norm would hide a row that vanishes, as at a change point).  Without the sqrt(m)
+        the measure fell as m^(-m/2) with the number of loops: three well-conditioned loops
+        already read as singular at t = 0."""
+        JD = Jq[:, self.D]
+        m = JD.shape[0]
+        if JD.shape[0] != JD.shape[1]:
+            raise SimulationError(
+                f"configuration '{self.cfg.name}': its {m} constraint rows cannot be solved for "
+                f"{JD.shape[1]} dependent coordinates: the cut joints are redundant (a cut joint given "
+                "twice, or more loops than the tree has joints to close them)")
+        flat = Jq.ravel()
+        return float(_det(JD) / max((math.sqrt(flat @ flat) / math.sqrt(max(m, 1))) ** m, 1e-300))
+
+    def _check_conditioning(self, t, Jq):
+        """A dependent block drifting towards singularity asks for a new partition; when the
+        current one is already the best, the loop itself is at a singular posture."""
+        if not self.checking:
+            return
+        ratio = abs(self._scaled_det(Jq))
+        if ratio > 1e-4:
+            return
+        if not np.array_equal(self._best_dependent(Jq), self.D):
+            raise Repartition(t)
+        raise SimulationError(
+            f"configuration '{self.cfg.name}': the loop reaches a singular posture at t = {t:.9g} s "
+            f"(its best constraint block has a scaled determinant of {ratio:.2g}): at a dead centre or "
+            "change point the motion is not determined by the constraints and drives; pcmm stops "
+            "rather than pick a branch")
+
+    def seed(self, q):
+        """Start the Newton solve of the dependent coordinates from ``q``."""
+        self._qD = q.copy()
+        self._recent = []
+        self._cache = None
+
+    def _guess(self, t):
+        """The warm start for a solve at ``t``: the recent solution nearest in time, carried to
+        ``t`` along its own velocity (a first-order prediction: the start is off by O(dt^2)
+        rather than O(dt), which saves a Newton iteration in most solves).  Nearest in time
+        because an event search goes back and forth within a step; starting from the step's far
+        end near a branch point could land on the mirrored assembly and make a guard's value
+        depend on the order of the calls."""
+        if self._trail is not None:
+            near = self._follow(t)
+            if near is not None and (not self._recent or abs(near[0] - t) < min(abs(r[0] - t) for r in self._recent)):
+                tr, q, qd = near
+                step = (t - tr) * qd
+                return q + step if _max_abs(step) <= PREDICT_MAX else q
+        if not self._recent:
+            return self._qD
+        tr, q, qd = min(self._recent, key=lambda r: abs(r[0] - t))
+        step = (t - tr) * qd
+        # a long extrapolation is no better a start than the solution itself (and could carry the
+        # start past a branch point): beyond PREDICT_MAX the nearest solution is the start
+        return q + step if _max_abs(step) <= PREDICT_MAX else q
+
+    def _follow(self, t):
+        """While a segment is re-read (:meth:`restored` with its steps): the solution at the
+        accepted step at or before ``t`` (``(t_k, q, q')``), the steps before it solved one after
+        the other from the last one reached.  A dense-output instant, a resampled time or a
+        saved series may ask for any instant of the segment; a Newton solve started from the
+        last instant solved, which may lie several turns of a crank back, lands on another
+        assembly or on none (a four-bar's crank 30 rad on: residual 0.45), where one started
+        from the neighbouring step converges as it did in the run.  None at the segment's first
+        step (its start is the seed) or when ``t`` is the step being solved."""
+        ts, ys = self._trail
+        k = int(np.searchsorted(ts, t, side="right")) - 1
+        if k < len(ts) and k >= 0 and ts[k] == t:
+            k -= 1  # that step is the one being solved: start from the one before
+        k = min(k, len(ts) - 1)
+        if k <= 0:
+            return None
+        if k not in self._reached:
+            start = max(j for j in self._reached if j < k)
+            for j in range(start + 1, k + 1):
+                if j not in self._reached:
+                    self.unpack(ts[j], ys[:, j])  # registers step j (unpack)
+        return self._reached.get(k)
+
+    def pack(self, t, q, v):
+        """State vector at an assembled (q, v); the partition is re-chosen here,
+        at the start of every segment, so it follows the posture."""
+        self.partition(t, q)
+        self.seed(q)
+        return np.concatenate([q[self.I], self.cfg.qdot(q, v)[self.I]])
+
+    def at_degenerate_partition(self, t, q):
+        """Where the singularity guard fired: if the whole constraint Jacobian keeps its rank a
+        new partition goes on (the next segment picks it); if it loses rank the loop itself is
+        at a singular posture (a dead centre, a change point) and the run stops."""
+        Jq = self._position_rows(t, q)
+        s = np.linalg.svd(Jq, compute_uv=False)
+        if s[-1] <= 1e-6 * s[0] or np.array_equal(self._best_dependent(Jq), self.D):
+            # rank lost, or no partition does better than the one that degenerated
+            raise SimulationError(
+                f"configuration '{self.cfg.name}': the loop reaches a singular posture at t = {t:.9g} s "
+                f"(constraint Jacobian singular values {s[0]:.3g} ... {s[-1]:.3g}): at a dead centre or "
+                "change point the motion is not determined by the constraints and drives; pcmm stops "
+                "rather than pick a branch")
+
+    def guards(self) -> list:
+        """The singularity guard when there are loops (drives alone never degenerate)."""
+        return [self.singularity_guard()] if self.closure.size else []
+
+    def at_guard(self, guard, t, q):
+        """The singularity guard fired: a new partition goes on, or the loop is singular (raises)."""
+        self.at_degenerate_partition(t, q)
+
+    @contextlib.contextmanager
+    def recording(self):
+        """No conditioning checks while an accepted segment is re-read for the trajectory."""
+        self.checking = False
+        try:
+            yield
+        finally:
+            self.checking = True
+
+    def cut_joint_frames(self) -> tuple:
+        """(spec, frame of point a, frame of point b) of every loop cut joint."""
+        return tuple(zip(self.closure.specs, self.closure.frames_a, self.closure.frames_b))
+
+    def loop_rows(self, q) -> tuple[np.ndarray, np.ndarray]:
+        """``(Phi, Phi_q)`` of the loop-closure rows alone at the posture ``q`` (drives are
+        functions of time, not of the posture)."""
+        cfg = self.cfg
+        if not self.closure.size:
+            return np.zeros(0), np.zeros((0, cfg.nv))
+        pin.computeJointJacobians(cfg.model, cfg.data, cfg.to_pin(q))
+        pin.updateFramePlacements(cfg.model, cfg.data)
+        phi, Jq, _ = self.closure.evaluate(cfg.model, cfg.data, False)
+        return phi, Jq
+
+    def singularity_guard(self):
+        """A guard on the determinant of the dependent block (scaled by its rows' norms): it
+        changes sign where the current partition degenerates, which a step can jump over."""
+        def g(t, y):
+            self.unpack(t, y)
+            return self._scaled_det(self._last_Jp)
+
+        def rate(t, y, f):
+            """Its time derivative from the state alone: a central difference along q' (two
+            Jacobians, no Newton solve and no right-hand side)."""
+            q, v = self.unpack(t, y)
+            qd = self.cfg.qdot(q, v)
+            eps = 1e-7 / max(1.0, float(np.max(np.abs(qd))))
+            ahead, behind = (self._scaled_det(self._position_rows(t, q + s * eps * qd)) for s in (1.0, -1.0))
+            return (ahead - behind) / (2 * eps)
+        return Guard(f"configuration '{self.cfg.name}': the loop's partition of its coordinates degenerates",
+                     g, 0, "repartition", rate=rate, rate_from_state=True)
+
+    def unpack(self, t, y):
+        if self._cache is not None and self._cache[0] == t and np.array_equal(self._cache[1], y):
+            return self._cache[2]
+        out = self._unpack(t, y)
+        self._cache = (t, y.copy(), out)
+        if self._trail is not None:  # a re-read segment: keep the solutions at its accepted steps
+            ts, ys = self._trail
+            k = int(np.searchsorted(ts, t, side="left"))
+            if k < len(ts) and ts[k] == t and k not in self._reached and np.array_equal(ys[:, k], y):
+                self._reached[k] = self._recent[-1]
+        return out
+
+    def _unpack(self, t, y):
+        k = len(self.I)
+        q, Jq, Jp = self._solve_dependent(t, y[:k], self._guess(t))
+        self._qD = q
+        self._last_Jp = Jp
+        # the state's second half is the independent coordinates' rates q'_I (a planar joint's
+        # world-frame x', y', not its body-frame velocity): the dependent rates then solve the
+        # same block as the positions, dPhi/dq q' = -Phi_t, and v follows from q'
+        rates = np.empty(self.nv)
+        rates[self.I] = y[k:]
+        rhs = -(Jp[:, self.I] @ y[k:] + self._phi_t(t))
+        rates[self.D] = solve(Jp[:, self.D], rhs)
+        v = self.cfg.velocity(q, rates)
+        self._recent.append((t, q, rates))
+        if len(self._recent) > 8:
+            del self._recent[0]
+        return q, v
+
+    def project(self, t, q, v, prefer_independent=()):
+        """Assemble (q, v) onto the constraints keeping the independent coordinates
+        (a new partition is chosen at q, preferring ``prefer_independent``)."""
+        self.partition(t, q, prefer_independent)
+        self.seed(q)
+        return self.unpack(t, np.concatenate([q[self.I], self.cfg.qdot(q, v)[self.I]]))
+
+    def rows(self, t, q, v):
+        """(Phi_q, bias) of every constraint at (q, v): ``Phi_q a + bias = 0``."""
+        _, Jq, bias = self._phi(t, q, need_bias=True, v=v)
+        return Jq, bias
+
+    def accelerations(self, t, q, v, extra=None):
+        """(a, lam): ``M a + h = Q + extra + Phi_q^T lam`` with ``Phi_q a + bias = 0``."""
+        Jq, bias = self.rows(t, q, v)
+        return constrained_accelerations(self.cfg, q, v, Jq, bias, extra)
+
+    def derivative(self, t, q, v, extra):
+        """State derivative at an assembled (q, v) with an extra generalized force (contact laws)."""
+        a, _ = self.accelerations(t, q, v, extra)
+        return np.concatenate([self.cfg.qdot(q, v)[self.I], self.cfg.qddot(q, v, a)[self.I]])
+
+    def _solved_accelerations(self, t, q, v):
+        """(a, lam) at an assembled (q, v): with revolute cut joints the rows and bias come from
+        one kinematics pass (:meth:`_point_rows_and_bias`); otherwise :meth:`accelerations`."""
+        if self.closure.revolute_only:
+            return constrained_accelerations(self.cfg, q, v, *self._point_rows_and_bias(t, q, v))
+        return self.accelerations(t, q, v)
+
+    def rhs(self, t, y):
+        q, v = self.unpack(t, y)
+        a, _ = self._solved_accelerations(t, q, v)
+        qd = self.cfg.qdot(q, v)
+        return np.concatenate((qd[self.I], self.cfg.qddot(q, v, a)[self.I]))
+
+    def rhs_with_power(self, t, y):
+        """``y`` is the state with the work so far appended; the state derivative with one more component: the power of the force elements and
+        of the drives.  A constraint's generalized force ``Phi_q^T lam`` has the power
+        ``lam . Phi_q v = -lam . Phi_t``: zero for the loops (scleronomic), the motor's
+        ``mu f'(t)`` for a drive."""
+        q, v = self.unpack(t, y[:-1])
+        a, lam = self._solved_accelerations(t, q, v)
+        power = float(self.cfg.forces.generalized(q, v) @ v - lam @ self._phi_t(t))
+        qd = self.cfg.qdot(q, v)
+        return np.concatenate([qd[self.I], self.cfg.qddot(q, v, a)[self.I], [power]])
