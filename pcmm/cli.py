@@ -7,6 +7,13 @@ error or Ctrl-C saves what it computed, marked partial.
 """
 from __future__ import annotations
 
+from . import signals as _signals
+
+# a signal while this module's imports run (argparse, pathlib, ... take a good part of a second
+# on a loaded machine) is held and answered by main() like one that comes later; the handlers are
+# put back at the end of the module, so importing pcmm.cli as a library changes none
+_AT_IMPORT = _signals.hold()
+
 import argparse
 import contextlib
 import dataclasses
@@ -163,6 +170,11 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("--html", type=Path, help="write a self-contained offline page instead of serving")
     rp.add_argument("--fps", type=_fps, default=60.0,
                     help=f"frames per second (default 60, at most {MAX_FPS:g})")
+    rp.add_argument("--layout", choices=("overlay", "side"), default="overlay",
+                    help="several runs: overlaid, the second a faint ghost (default), or side by side")
+    rp.add_argument("--view", choices=("run", "follow", "configuration"), default="run",
+                    help="the page's view: fitted to the whole run (default), to each configuration's stay, or "
+                         "following the mechanism, with the swept envelope traced faintly")
     rp.add_argument("--video", type=Path, help="write a video (.mp4 through ffmpeg, or .gif) of the 2D drawing instead "
                     "of serving")
     rp.add_argument("--speed", type=_positive("speed"), default=1.0,
@@ -203,13 +215,18 @@ def main(argv=None) -> int:
     """Run one command.  SIGTERM and SIGHUP stop it like Ctrl-C (a partial run is saved, the
     meshcat server is shut down); a closed standard output (``pcmm run ... | head``) only
     silences what is printed; a write beyond a file-size limit is an error, not a kill."""
-    from .signals import as_interrupts, exit_status
+    from .signals import as_interrupts, deferred, exit_status
     with contextlib.suppress(AttributeError, ValueError, OSError):
         signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # a file-size limit: EFBIG, reported, not a kill
     try:
         with as_interrupts():
-            args = build_parser().parse_args(argv)
-            return {"run": cmd_run, "sweep": cmd_sweep, "optimize": cmd_optimize, "replay": cmd_replay, "plot": cmd_plot,
+            with deferred() as held:  # a signal while the arguments are read waits until the command
+                held.received[:0], _AT_IMPORT.received = _AT_IMPORT.received, []  # (or while pcmm.cli loaded)
+                args = build_parser().parse_args(argv)  # knows its outputs (a run then keeps a partial)
+            if args.command == "run":
+                return cmd_run(args, held)
+            held.reraise()
+            return {"sweep": cmd_sweep, "optimize": cmd_optimize, "replay": cmd_replay, "plot": cmd_plot,
                     "check": cmd_check, "derive": cmd_derive, "new": cmd_new, "graph": cmd_graph}[args.command](args)
     except PcmmError as exc:
         _error(exc.text())
@@ -422,25 +439,56 @@ def _progress(quiet: bool, t_end: float):
     return update, close
 
 
-def cmd_run(args) -> int:
-    from .scene.load import load_scene
-    from .scene.settings import options_from_arguments
-    from .run.loop import simulate
-    from .results.summary import event_table
-    _check_outputs([("--out", args.out), ("--summary", args.summary), ("--csv", args.csv),
-                    ("--html", args.html)], args.force, folders=[("--plots", args.plots)])
-    scene = load_scene(args.scene)
-    _check_geometry(scene)
-    opts = options_from_arguments(args, t_end=args.t_end, impact=not args.no_impact)
-    update, close = _progress(args.quiet, args.t_end or scene.t_end)
-    failure = None
-    try:
-        traj = simulate(scene, opts, progress=update)
-    except SimulationError as exc:
-        failure, traj = exc, exc.partial
-    finally:
-        close()
-    if failure is not None and (traj is None or not traj.segments):
+def _interrupted_at_start(args, exc: BaseException) -> SimulationError:
+    """A signal before the run's first step (while the scene, the models or Pinocchio load): the
+    failure whose partial trajectory is empty, marked partial, so a run asked for --out or
+    --summary leaves a result that says it was stopped, and when, rather than none."""
+    from .results.trajectory import Trajectory
+    from .signals import describe, exit_status
+    traj = Trajectory(scene=str(_resolved(args.scene)), scene_name=Path(args.scene).stem, impact=not args.no_impact)
+    traj.status = "partial"
+    traj.message = f"{args.scene}: {describe(exc)} while starting, before the run's first step (t = 0): nothing computed"
+    failure = SimulationError(traj.message, partial=traj)
+    failure.exit_code = exit_status(exc)  # 130 Ctrl-C, 143 SIGTERM, as for a run stopped later
+    failure.interrupted = True
+    return failure
+
+
+def cmd_run(args, held=None) -> int:
+    scene = None
+    try:  # from here on a signal leaves a partial result (an empty one before the first step)
+        if held is not None:
+            held.reraise()  # a signal that arrived while the arguments were read
+        from .scene.load import load_scene
+        from .scene.settings import options_from_arguments
+        from .run.loop import simulate
+        from .results.summary import event_table
+        _check_outputs([("--out", args.out), ("--summary", args.summary), ("--csv", args.csv),
+                        ("--html", args.html)], args.force, folders=[("--plots", args.plots)])
+        scene = load_scene(args.scene)
+        _check_geometry(scene)
+        opts = options_from_arguments(args, t_end=args.t_end, impact=not args.no_impact)
+        update, close = _progress(args.quiet, args.t_end or scene.t_end)
+    except (KeyboardInterrupt, ImportError) as exc:
+        interrupt = _interrupt_in(exc)  # (Pinocchio or scipy interrupted while loading: an ImportError)
+        if interrupt is None:
+            raise
+        failure, traj, opts = _interrupted_at_start(args, interrupt), None, None
+    else:
+        failure = None
+        try:
+            traj = simulate(scene, opts, progress=update)
+        except SimulationError as exc:
+            failure, traj = exc, exc.partial
+        except KeyboardInterrupt as exc:  # before simulate's own loop began (models, assembly)
+            failure, traj = _interrupted_at_start(args, exc), None
+        finally:
+            close()
+    if failure is not None and getattr(failure, "interrupted", False):
+        traj = failure.partial
+        if not traj.segments and not (args.out or args.summary):
+            raise failure  # nothing computed and no output asked for: no file to litter the folder
+    elif failure is not None and (traj is None or not traj.segments):
         raise failure
     from .signals import deferred
     with deferred() as held:  # a second Ctrl-C (or SIGTERM) waits until the results are kept
@@ -458,7 +506,7 @@ def cmd_run(args) -> int:
         _error(w, prefix="pcmm: warning: ")
     if failure is not None:
         kept = "; ".join(f"{what} {path}" for what, path in written) or "nothing could be saved"
-        _error(f"the run stopped at t = {float(traj.t[-1]):.6g} s; {kept}", prefix="pcmm: ")
+        _error(f"the run stopped at t = {float(traj.t[-1]) if traj.t.size else 0.0:.6g} s; {kept}", prefix="pcmm: ")
     for what, path in written if failure is None else ():
         say(f"{what}: {path}")
     for w in warnings:
@@ -501,7 +549,8 @@ def _write_results(args, scene, opts, traj, partial: bool):
     written, warnings, problems = [], [], []
 
     def write_summary(path, force):
-        text = dumps_json_finite(summary(traj, scene.initial_configuration), f"summary {args.summary}")
+        initial = scene.initial_configuration if scene is not None else None  # None: stopped while loading it
+        text = dumps_json_finite(summary(traj, initial), f"summary {args.summary}")
         return atomic_write_text(path, text, force)
 
     comparison = []
@@ -525,10 +574,16 @@ def _write_results(args, scene, opts, traj, partial: bool):
     def shown(run):  # --dt: CSV and figures resampled on the dense output
         return run.resampled(args.dt) if (run is not None and getattr(args, "dt", None)) else run
 
+    def plotted(run):  # the figures: --dt, else the plot resolution, on the integrator's dense output
+        if run is None or getattr(args, "dt", None):
+            return shown(run)
+        from .viz.dense import plot_times
+        return dataclasses.replace(run, segments=[s.resampled(plot_times(run, s)) for s in run.segments])
+
     def write_plots(folder, force):
         from .viz.plots import write_figures
         other = compare_run()
-        return _figures_into(folder, force, lambda d: write_figures(shown(traj), d, compare=shown(other)))
+        return _figures_into(folder, force, lambda d: write_figures(plotted(traj), d, compare=plotted(other)))
 
     def write_html(path, force):
         from .viz.replay import html_page
@@ -632,6 +687,8 @@ def cmd_sweep(args) -> int:
     from .studies.sweep import make_plan, parse_set, read_plan_file, sweep
     if args.resume and args.force:
         raise UsageError("--resume and --force: give one (complete the table, or start it over)")
+    if args.retry_failed and not args.resume:
+        raise UsageError("--retry-failed runs a table's crashed and timed-out runs again: give it with --resume")
     plan_file = read_plan_file(args.plan) if args.plan else {"axes": [], "collect": []}
     axes = plan_file["axes"] + [parse_set(s) for s in args.sets]
     sample = args.sample or plan_file.get("sample") or "grid"
@@ -729,11 +786,12 @@ def cmd_replay(args) -> int:
     if args.html:
         _check_outputs([("--html", args.html)], args.force)
         from .viz.replay import html_page
-        atomic_write_text(args.html, html_page(traj, fps=args.fps, others=others), args.force)
+        atomic_write_text(args.html, html_page(traj, fps=args.fps, others=others, layout=args.layout,
+                                               view=args.view), args.force)
         say(f"replay page: {args.html}")
         return 0
     from .viz.replay import serve
-    serve(traj, fps=args.fps, others=others)
+    serve(traj, fps=args.fps, others=others, layout=args.layout, view=args.view)
     return 0
 
 
@@ -741,8 +799,9 @@ def cmd_plot(args) -> int:
     from .viz.plots import write_figures
     from .results.trajectory import Trajectory
     _check_outputs([], args.force, folders=[("--out", args.out)])
-    traj = Trajectory.load(args.trajectory)
-    other = Trajectory.load(args.compare) if args.compare else None
+    from .viz.dense import hermite  # a saved run: its steps, drawn C1 through their recorded rates
+    traj = hermite(Trajectory.load(args.trajectory))
+    other = hermite(Trajectory.load(args.compare)) if args.compare else None
     files = _figures_into(args.out, args.force,
                           lambda d: write_figures(traj, d, compare=other, impulse_sign=args.impulse_sign))
     say(f"figures: {', '.join(str(f) for f in files)}")
@@ -773,6 +832,8 @@ def cmd_graph(args) -> int:
     say(f"graph: {out} ({len(g.nodes)} configurations, {len(g.edges)} transitions{fired})")
     return 0
 
+
+_signals.release(_AT_IMPORT)
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -7,6 +7,9 @@ Ctrl-C does, and no interrupt cuts a result in half while it is being kept.
 * :func:`deferred` holds SIGINT, SIGTERM and SIGHUP back while a block runs (recording the
   interrupted segment, writing the partial files): a second Ctrl-C then waits until the
   block is done instead of dropping what it was saving.
+* :func:`hold` and :func:`release` do the same over a stretch that is no block: the command
+  line's own imports, so a signal while ``pcmm`` starts is answered by ``main`` (a message,
+  a partial result), not by Python's traceback.
 
 Handlers can only be installed in the main thread; elsewhere both are no-ops.
 """
@@ -65,6 +68,7 @@ def as_interrupts():
 class _Held:
     def __init__(self):
         self.received: list[int] = []
+        self.old: dict = {}
 
     def __call__(self, signum, frame):
         self.received.append(signum)
@@ -74,6 +78,25 @@ class _Held:
         if self.received:
             sig = self.received[0]
             raise KeyboardInterrupt() if sig == signal.SIGINT else Terminated(sig)
+
+
+def hold() -> _Held:
+    """Start holding SIGINT, SIGTERM and SIGHUP back now, until :func:`release` (for a stretch
+    that is no block, such as a module's imports); a no-op outside the main thread."""
+    held = _Held()
+    if _main_thread():
+        for sig in _signals(_NAMES):
+            with contextlib.suppress(ValueError, OSError):
+                held.old[sig] = signal.signal(sig, held)
+    return held
+
+
+def release(held: _Held) -> None:
+    """Put back the handlers :func:`hold` replaced (the signals it held stay in ``received``)."""
+    for sig, handler in held.old.items():
+        with contextlib.suppress(ValueError, OSError, TypeError):
+            signal.signal(sig, handler)
+    held.old = {}
 
 
 @contextlib.contextmanager
@@ -93,4 +116,4 @@ def deferred():
             signal.signal(sig, handler)
 
 
-__all__ = ["Terminated", "as_interrupts", "deferred", "describe", "exit_status"]
+__all__ = ["Terminated", "as_interrupts", "deferred", "describe", "exit_status", "hold", "release"]

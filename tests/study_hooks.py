@@ -29,3 +29,10 @@ def count_builds():
             f.write(f"{os.getpid()}\n")
         return real(*args, **kw)
     pinocchio.buildModelFromXML = build
+
+
+class FaultyPlugin:
+    """A Dask worker plugin applying :func:`faulty` in every worker, restarted ones included."""
+
+    def setup(self, worker):
+        faulty()

@@ -129,3 +129,31 @@ def test_energy_lost_at_a_strike_is_the_steps_descent(run):
         lost = ev["kinetic_energy_before"] - ev["kinetic_energy_after"]
         assert ev["energy_dissipated"] >= 0
         assert lost == pytest.approx((2 * M + MH) * C.g * step * math.sin(C.gamma), rel=1e-8)
+
+
+def pcmm_step_map(scene, x):
+    """pcmm's step map on the post-strike section x = (theta_s, theta_s', theta_w') (Drake's
+    convention, leg a in stance): one run from the section to its first heel strike, the state
+    just after it read back from the event record and the posture."""
+    s = cg.slope_frame_state(C, C.section(x))
+    th = float(s["psi_stance"])
+    vb = rot(th).T @ s["hip_velocity"]
+    traj = pcmm.simulate(scene.with_values({
+        "initial.q.base": [float(s["hip"][0]), float(s["hip"][1]), th], "initial.q.hip": float(s["hip_joint"]),
+        "initial.v.base": [float(vb[0]), float(vb[1]), float(s["psi_stance_rate"])],
+        "initial.v.hip": float(s["hip_joint_rate"]), "scene.t_end": 1.0}))
+    ev = traj.events[0]
+    q, va = posture_at(traj, ev), ev["v_after"]
+    return np.array([C.gamma - (q[2] + q[3]), -(va["base"][2] + va["hip"]), -va["base"][2]])
+
+
+def test_periodic_gait_by_a_fixed_point_search_on_pcmms_step_map():
+    """fsolve on pcmm's own step map (one run per evaluation) finds the reference's period-one gait,
+    which reproduces Goswami et al.'s published one (design_24.md section 1)."""
+    from scipy.optimize import fsolve
+    scene = pcmm.load_scene(EXAMPLE)
+    guess = np.array([-0.2187, 1.0918, 0.3772])  # the published gait, rounded, in Drake's convention
+    x = fsolve(lambda x: pcmm_step_map(scene, x) - x, guess, xtol=1e-12)
+    ref, _, _, eig = C.fixed_point()
+    np.testing.assert_allclose(x, ref, atol=1e-9)
+    assert max(abs(eig)) < 1  # a stable gait (|lambda| = 0.580)

@@ -96,7 +96,7 @@ def test_check_warns_of_a_guard_angle_beyond_a_turn(tmp_path, capsys, qs, warned
         assert err == (f"pcmm: warning: {path}: transitions[0] (stop).guard.value: = {qs:g}: an angle (joint J1) of "
                        f"{qs:g} rad, {qs / (2 * math.pi):.3g} turns, outside [-2 pi, 2 pi]; guard values are in "
                        f"radians: if {qs:g} degrees is meant, write value = \"{qs:g} deg\" (= "
-                       f"{qs * math.pi / 180:.6g} rad)\n")
+                       f"{qs * math.pi / 180:.6g} rad); a guard meant after more than a turn is right as it is\n")
     else:
         assert "outside [-2 pi, 2 pi]" not in err
 
@@ -240,3 +240,45 @@ def test_contact_law_bounce_is_no_wrong_direction_warning(tmp_path, capsys):
     (event,) = json.loads(S.read_text())["events"]
     assert event["t"] == pytest.approx(math.sqrt(2 * 0.5 / builders.G), abs=1e-9)
     assert f"since it last fired at t = {event['t_end']:.9g} s" in out
+
+
+# ---- (b) a failure at a trial step reports where the run stopped --------------------------------------
+def test_failure_at_a_trial_step_reports_the_true_stop_time(tmp_path, monkeypatch):
+    """A loop's Newton solve that fails at a trial step of the integrator (a long smooth step can
+    reach as far as t_end) named that trial time and blamed a singular posture: the run stopped at
+    2.013 s, the message said t = 3 s.  Here a four-bar under a constant crank torque fails, by a
+    stand-in of that solve, at its first right-hand side call past 0.5 s.  The message must give
+    the last accepted step (where the partial run ends) as the time the run stopped, the trial
+    time as where the failure came, and the condition number of the loop's constraint Jacobian
+    there, which the test computes from the bars' geometry (crank 0.1, coupler 0.3, rocker 0.25,
+    ground 0.3)."""
+    import re
+    import numpy as np
+    import pcmm
+    from pcmm.errors import SimulationError
+    from pcmm.model.constraints import PartitionedCoordinates
+    real = PartitionedCoordinates.rhs
+
+    def failing(self, t, y):
+        if t > 0.5:
+            raise SimulationError(f"configuration '{self.cfg.name}': the loop cannot be closed at t = {t:.6g} s "
+                                  "(residual 0.464): the mechanism is at or beyond a singular posture")
+        return real(self, t, y)
+    monkeypatch.setattr(PartitionedCoordinates, "rhs", failing)
+    path = builders.four_bar_rocker_stop(tmp_path, 0.5, rocker_stop=0.2, g=0.0, t_end=3.0)
+    with pytest.raises(SimulationError) as info:
+        pcmm.simulate(pcmm.load_scene(path))
+    traj = info.value.partial
+    t_stop = float(traj.t[-1])
+    text = info.value.problems[0]
+    assert t_stop < 0.5 and text.startswith(
+        f"{path}: t = {t_stop:.9g} s, configuration 'free': the run stopped here, at its last accepted step; "
+        "there the loop's constraint Jacobian has condition number "), text
+    said = float(re.search(r"The failure came at t = (\S+) s", text).group(1))
+    assert said > 0.5 and f"the loop cannot be closed at t = {said:.6g} s" in text
+    A, B, D = (float(traj.series("q", j)[-1]) for j in "ABD")
+    a, b, c = 0.1, 0.3, 0.25
+    J = np.array([[-a * math.sin(A) - b * math.sin(A + B), -b * math.sin(A + B), c * math.sin(D)],
+                  [a * math.cos(A) + b * math.cos(A + B), b * math.cos(A + B), -c * math.cos(D)]])
+    cond = float(re.search(r"condition number (\S+), a regular posture", text).group(1))
+    assert cond == pytest.approx(np.linalg.cond(J), rel=5e-3)

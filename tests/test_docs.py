@@ -82,11 +82,13 @@ def runnable() -> list[Block]:
 
 
 def _workspace(tmp_path: Path) -> dict:
-    """A fresh folder that sees the repository's examples and URDFs where a reader's clone
-    has them, and an environment whose ``pcmm`` and ``python`` are this checkout's."""
-    for name in ("examples", "urdf"):
+    """A fresh folder that sees the repository's examples, URDFs, tests and benchmarks where a
+    reader's clone has them, and an environment whose ``pcmm`` and ``python`` are this
+    checkout's, with tests/ importable as in the suite (its builders and references)."""
+    for name in ("examples", "urdf", "tests", "benchmarks"):
         (tmp_path / name).symlink_to(ROOT / name)
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]),
+    path = [str(ROOT), str(ROOT / "tests"), os.environ.get("PYTHONPATH", "")]
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(p for p in path if p),
                MPLBACKEND="Agg")
     env.pop("DISPLAY", None)
     return env

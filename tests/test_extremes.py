@@ -565,6 +565,7 @@ def test_explicit_fixed_step_on_a_stiff_spring_is_an_error_not_nan(tmp_path):
 # ======================================================================================
 # 7. a long conservative run and a Zeno accumulation
 # ======================================================================================
+@pytest.mark.slow  # more than 1000 impacts
 def test_long_elastic_run_more_than_1000_impacts(tmp_path):
     """Ball, e = 1, no damping, dropped from 1 mm: 1001 impacts in 28.6 s.  Every impact
     is elastic, the impact times stay on t1 + k (2 t1), and the energy does not drift."""

@@ -26,6 +26,7 @@ import numpy as np
 import pytest
 
 import pcmm
+import reference_rimless_wheel as rw
 import reference_rod_friction as rf
 from builders import free_bar_urdf, rot
 from pcmm.errors import SceneError, SimulationError
@@ -264,6 +265,15 @@ def test_pin_impulse_is_the_projection_onto_the_pinned_motion(make_scene):
     assert ev["impulse"]["tangential"] == pytest.approx(P[0], abs=1e-11)
     np.testing.assert_allclose(ev["anchor"]["tip"], [chain_tip(q)[0], floor], atol=1e-9)
     assert ev["kinetic_energy_after"] < ev["kinetic_energy_before"]
+    # the split of the loss: P_i (v_i- + v_i+) / 2 per part, with the tip's velocity by hand (J v)
+    vt0, vn0 = J @ vm
+    fr = ev["friction"]
+    assert fr["slip"]["before"] == pytest.approx(vt0, abs=1e-12) and abs(vt0) > 0.1
+    assert fr["slip"]["after"] == pytest.approx(0.0, abs=1e-12)
+    assert fr["energy_lost"]["tangential"] == pytest.approx(-0.5 * P[0] * vt0, abs=1e-11)
+    assert fr["energy_lost"]["normal"] == pytest.approx(-0.5 * P[1] * vn0, abs=1e-11)
+    assert fr["energy_lost"]["normal"] + fr["energy_lost"]["tangential"] == pytest.approx(
+        ev["kinetic_energy_before"] - ev["kinetic_energy_after"], abs=1e-12)
     # the run goes on pinned: the tip stays at the anchor
     last = traj.segments[-1]
     assert last.configuration == "pinned" and len(last.t) > 3
@@ -271,19 +281,21 @@ def test_pin_impulse_is_the_projection_onto_the_pinned_motion(make_scene):
         np.testing.assert_allclose(chain_tip(qk), ev["anchor"]["tip"], atol=1e-9)
 
 
-def knee_strike(make_scene, bar3: Bar, v1: float):
+def knee_strike(make_scene, bar3: Bar, v1: float, floor: float = 0.0):
     """The chain's tip already pinned on the floor (held by compression only: its cut joint has a
-    contact normal); its knee (link 3's origin) strikes the line y = 0 and is pinned there; the
-    target holds the knee only."""
-    def joint(name, point_b):
-        return {"name": name, "type": "revolute", "a": "frame", "point_a": "entry", "b": "link3",
-                "point_b": point_b, "contact": {"normal": [0.0, 1.0]}}
+    contact normal); its knee (link 3's origin) strikes the line y = floor and is pinned there
+    (bilaterally); the target holds the knee only."""
+    def joint(name, point_b, unilateral=True):
+        out = {"name": name, "type": "revolute", "a": "frame", "point_a": "entry", "b": "link3", "point_b": point_b}
+        if unilateral:
+            out["contact"] = {"normal": [0.0, 1.0]}
+        return out
     tr = {"name": "knee strike", "type": "pin", "from": "A", "to": "B",
           "guard": {"type": "gap", "value": 0.0, "direction": "decreasing"},
-          "contact": {"a": "frame", "point_a": [0.0, 0.0], "b": "link3", "point_b": [0.0, 0.0], "normal": [0.0, 1.0]}}
+          "contact": {"a": "frame", "point_a": [0.0, floor], "b": "link3", "point_b": [0.0, 0.0], "normal": [0.0, 1.0]}}
     urdf = chain_urdf([Bar(LB, 0.2), Bar(LB, 0.2), bar3])
     return make_scene({"c.urdf": urdf}, configurations={"A": {"urdf": "c.urdf", "cut_joints": [joint("tip", [LB, 0.0])]},
-                                                        "B": {"urdf": "c.urdf", "cut_joints": [joint("knee", [0.0, 0.0])]}},
+                                                        "B": {"urdf": "c.urdf", "cut_joints": [joint("knee", [0.0, 0.0], False)]}},
                       q0={"J1": -0.3, "J2": 1.2, "J3": -1.8}, v0={"J1": v1, "J2": 0.0, "J3": 0.0}, independent=["J1"],
                       t_end=0.6, transitions=[tr], solver={"rtol": 1e-11, "atol": 1e-12}), urdf
 
@@ -307,12 +319,15 @@ def two_active_sets(urdf, q, vm):
     return v_rel, float(J_tip[1] @ v_rel), float(lam[2])
 
 
-@pytest.mark.parametrize("v1", [-1.5, 0.0, 3.0])
+KNEE_Y0 = 0.24390335148307188  # the knee's height at the start; it strikes the line 0.03 m below
+
+
+@pytest.mark.parametrize("v1", [-3.0, -1.5, 1.5])
 def test_old_contact_released_because_the_new_pin_separates_it(make_scene, v1):
     """Link 3's mass outside the segment between its two ends (centroid 0.1 m behind the knee):
     the knee's pin makes the tip rise, and holding the tip would need a tensile impulse, so the
     complementarity problem's only solution releases it, with no impulse (design_24.md 2.3)."""
-    path, urdf = knee_strike(make_scene, Bar(LB, 5.0, com=(-0.1, 0.0), izz=0.01), v1)
+    path, urdf = knee_strike(make_scene, Bar(LB, 5.0, com=(-0.1, 0.0), izz=0.01), v1, floor=KNEE_Y0 - 0.03)
     traj = pcmm.simulate(pcmm.load_scene(path))
     ev = traj.events[0]
     q = np.asarray(traj.segments[0].q[-1])
@@ -330,7 +345,7 @@ def test_old_contact_that_stays_closed_needs_a_target_holding_it(make_scene):
     """A uniform link 3: pinned at its knee it would turn the other way (its angular momentum about
     the knee, -omega m L^2 / 6 before, changes sign), pushing the tip into the floor: the tip stays,
     by hand its held impulse is compressive, and the scene's target (knee only) is refused by name."""
-    path, urdf = knee_strike(make_scene, Bar(LB, 5.0), 0.0)
+    path, urdf = knee_strike(make_scene, Bar(LB, 5.0), -1.5, floor=KNEE_Y0 - 0.03)
     with pytest.raises(SimulationError, match=r"\['tip'\] stay closed through the strike.*'B' does not hold them"):
         pcmm.simulate(pcmm.load_scene(path))
 
@@ -392,3 +407,113 @@ def test_point_mass_on_a_free_joint_is_refused(make_scene):
     path = make_scene({"f.urdf": urdf}, q0={"P": [0.0, 0.0, 0.0]}, v0={"P": [0.0, 0.0, 0.0]})
     with pytest.raises(pcmm.errors.ModelError, match=r"\['bar'\] are point masses on a free \(planar\) joint"):
         pcmm.simulate(pcmm.load_scene(path))
+
+
+def test_pinned_foot_lifts_off_when_its_normal_force_turns_tensile(tmp_path):
+    """A rimless wheel rolling too fast (2.9 rad/s after a strike): during the stance the ground's
+    normal force at the pinned foot, by hand F = m a - m g (the reference's stance_forces along its
+    stance ODE), reaches zero at phi_lift; a `release` whose reaction guard watches the foot's cut
+    joint frees it there into a configuration without it ("flight"): no impulse, the state
+    continuous (a cut joint is a joint)."""
+    from scipy.integrate import solve_ivp
+    W = rw.ISSUE
+    w0 = 2.9
+
+    def lift(t, y):
+        return W.stance_forces(y[0], y[1])[1]
+    lift.terminal, lift.direction = True, -1
+    sol = solve_ivp(W.rhs, (0, 2.0), [-W.alpha, w0], method="DOP853", rtol=1e-13, atol=1e-14, events=lift)
+    t_lift = float(sol.t_events[0][0])
+    phi_lift = float(sol.y_events[0][0][0])
+    assert -W.alpha < phi_lift < W.alpha
+
+    def edit(s):
+        s = s.replace('v = { hub = ["1.5*', f'v = {{ hub = ["{w0}*').replace('", "1.5*(', f'", "{w0}*(')
+        s = s.replace(", -1.5] }", f", -{w0}] }}").replace("t_end = 15.0", "t_end = 0.8")
+        s = s.replace("[initial]", '[configurations.flight]\nurdf = "rimless_wheel.urdf"\n\n[initial]')
+        return s + ('\n[[transitions]]\nname = "lift-off"\ntype = "release"\nfrom = "spoke0"\nto = "flight"\n'
+                    'guard = { type = "reaction", of = "foot0", value = 0.0, direction = "decreasing" }\n')
+    path = wheel_scene(tmp_path, edit)
+    traj = pcmm.simulate(pcmm.load_scene(path))
+    ev = traj.events[0]
+    assert ev["name"] == "lift-off" and ev["transition"] == "release" and ev["to"] == "flight"
+    assert ev["t"] == pytest.approx(t_lift, abs=1e-8)
+    assert ev["kinetic_energy_after"] == pytest.approx(ev["kinetic_energy_before"], rel=1e-12)
+    assert ev["omega_after"]["wheel"] == pytest.approx(-float(sol.y_events[0][0][1]), abs=1e-8)
+    assert traj.segments[-1].configuration == "flight"
+
+
+def test_cut_accepts_a_loops_cut_joint(make_scene):
+    """`cut` may name a loop's cut joint (the chain's tip pinned on the floor): it is already a set
+    of rows of the cut system, so the impact is the same as without it, and the event reports its
+    impulse among the cut impulses (the same as its constraint impulse)."""
+    pin_joint = {"name": "tip", "type": "revolute", "a": "frame", "point_a": "entry", "b": "link3", "point_b": [LB, 0.0]}
+    results = {}
+    for c in ([], ["tip"]):
+        tr = {"name": "stop", "type": "stop", "from": "pinned", "restitution": 1.0, "cut": c,
+              "guard": {"type": "coordinate", "measure": {"joint": "J1"}, "value": Q3[0] - 0.05, "direction": "decreasing"},
+              "contact": {"joint": "J1"}}
+        path = make_scene({"chain.urdf": chain_urdf([Bar(LB, 1.0)] * 3)},
+                          configurations={"pinned": {"urdf": "chain.urdf", "cut_joints": [pin_joint]}},
+                          q0={"J1": Q3[0], "J2": Q3[1], "J3": Q3[2]}, v0={"J1": 0.0, "J2": 0.0, "J3": 0.0},
+                          independent=["J1"], t_end=0.3, transitions=[tr], solver={"rtol": 1e-11, "atol": 1e-12})
+        results[tuple(c)] = pcmm.simulate(pcmm.load_scene(path)).events[0]
+    plain, cut_tip = results[()], results[("tip",)]
+    assert plain["name"] == "stop" and plain["normal_velocity"]["before"] < 0
+    np.testing.assert_allclose(cut_tip["v_after"]["J1"], plain["v_after"]["J1"], atol=1e-13)
+    assert "tip" not in plain["cut_impulses"]
+    np.testing.assert_allclose(cut_tip["cut_impulses"]["tip"], plain["constraint_impulses"]["tip"], atol=1e-12)
+    assert np.linalg.norm(cut_tip["cut_impulses"]["tip"][:2]) > 0.01
+
+
+def test_stance_outside_the_cone_or_tensile_stops_the_run(tmp_path):
+    """The wheel's stance needs mu >= 0.5525 at its start (the reference's stance forces, F = m a
+    - m g), more than the strike's 0.5413: with mu = 0.545 on the cut joints the first strike
+    passes and the stance that begins is refused.  Rolling at 2.9 rad/s without a release in the
+    scene, the foot's normal force turns tensile mid-stance: the run stops there, saying so, at
+    the reference's lift-off time."""
+    from scipy.integrate import solve_ivp
+    W = rw.ISSUE
+    Ft, Fn = W.stance_forces(-W.alpha, W.strikes(1.5, 1)[0][2])
+    assert 0.545 < abs(Ft) / Fn  # by hand at strike 1's omega+: the stance starts outside mu = 0.545
+    path = wheel_scene(tmp_path, lambda s: s.replace('contact = { normal = [0.0, 1.0], friction = "stick" } }',
+                                                     'contact = { normal = [0.0, 1.0], friction = 0.545 } }'))
+    with pytest.raises(SimulationError, match=r"strike 1'.*right after the strike the point held by 'foot1' would "
+                                              r"slip.*friction >= 0.55"):
+        pcmm.simulate(pcmm.load_scene(path))
+    w0 = 2.9
+
+    def lift(t, y):
+        return W.stance_forces(y[0], y[1])[1]
+    lift.terminal, lift.direction = True, -1
+    sol = solve_ivp(W.rhs, (0, 2.0), [-W.alpha, w0], method="DOP853", rtol=1e-13, atol=1e-14, events=lift)
+    t_lift = float(sol.t_events[0][0])
+
+    def fast(s):
+        s = s.replace('v = { hub = ["1.5*', f'v = {{ hub = ["{w0}*').replace('", "1.5*(', f'", "{w0}*(')
+        return s.replace(", -1.5] }", f", -{w0}] }}")
+    with pytest.raises(SimulationError, match=r"foot0' would lift off.*add a release") as err:
+        pcmm.simulate(pcmm.load_scene(wheel_scene(tmp_path, fast)))
+    import re
+    assert float(re.search(r"t = ([0-9.]+) s", str(err.value)).group(1)) == pytest.approx(t_lift, abs=1e-8)
+
+
+def test_redundant_rows_give_the_unique_velocity_and_say_so():
+    """A free planar body (m = 2, I = 0.3; v = (vx, vy, w) of its centre) pinned at two points:
+    four rows of rank 3, so v+ = 0 exactly and the split is flagged; one pin: two rows, by hand
+    v+ keeps the angular momentum about the pin, I_pin w+ = I w + m (r x v), r = centre - pin."""
+    from pcmm.events.pins import impact_with_rows
+    m, I = 2.0, 0.3
+    M = np.diag([m, m, I])
+    v = np.array([0.4, -1.1, 2.5])
+
+    def rows(p):  # the velocity of the body point at p (from the centre): (vx - w p_y, vy + w p_x)
+        return np.array([[1.0, 0.0, -p[1]], [0.0, 1.0, p[0]]])
+    v2, lam2, red2 = impact_with_rows(M, "body", v, np.vstack([rows((0.5, 0.0)), rows((-0.3, 0.2))]), np.zeros(4))
+    assert red2 and np.allclose(v2, 0.0, atol=1e-14)
+    p = np.array([0.5, 0.0])
+    v1, lam1, red1 = impact_with_rows(M, "body", v, rows(p), np.zeros(2))
+    r = -p
+    H = I * v[2] + m * (r[0] * v[1] - r[1] * v[0])
+    assert not red1 and v1[2] == pytest.approx(H / (I + m * r @ r), abs=1e-14)
+    np.testing.assert_allclose(rows(p) @ v1, 0.0, atol=1e-14)

@@ -22,6 +22,7 @@ import pytest
 
 import pcmm
 from pcmm.viz import replay
+from pcmm.viz import sketch as sk
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENE = ROOT / "examples" / "three_bar.toml"
@@ -396,10 +397,16 @@ def test_merge_and_release_are_shown(runs, tmp_path):
     kinds = [m[0] for m in _MARKER.findall(html)]
     assert kinds == ["merge", "release"]
     clips = clips_of(decode_commands(html))
-    for i, t in enumerate((traj.events[0]["t"], 0.3)):
-        vis = clips[f"/meshcat/pcmm/events/{i}"]["visible"]
+    for i, t in enumerate((traj.events[0]["t"], 0.3)):  # each event's plate, from its own frame on
+        vis = clips[f"/meshcat/pcmm/plates/{i}/fade0"]["visible"]
         key = t * FPS
         assert value_at(vis, key) is True and value_at(vis, key - 1e-6) is False
+        n = len(replay._FADE)  # it fades in n steps over PLATE_S: step j shows in the j-th n-th of it
+        for j in range(n):
+            mid = t + (j + 0.5) * sk.PLATE_S / n
+            if mid < T_END:
+                steps = [value_at(clips[f"/meshcat/pcmm/plates/{i}/fade{k}"]["visible"], mid * FPS) for k in range(n)]
+                assert steps == [k == j for k in range(n)], (i, j, steps)
     assert "/meshcat/pcmm/arrows/1" not in clips, "a release carries no impulse arrow"
 
 
@@ -615,41 +622,43 @@ def test_serve_error_stops_the_server(runs, monkeypatch):
 
 
 # ---- real browser --------------------------------------------------------------------------
-def _chromium(url: str, profile: Path, out: Path | None = None) -> subprocess.Popen:
+def _chromium(url: str, profile: Path, out: Path | None = None, size: str = "800,600") -> subprocess.Popen:
     """Headless Chromium: a screenshot into ``out``, or the DOM after the scripts ran on stdout."""
     profile.mkdir()
     action = [f"--screenshot={out}"] if out is not None else ["--dump-dom"]
     return subprocess.Popen(
         [str(CHROMIUM), "--headless", "--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
          "--disable-background-networking", "--no-first-run", "--disable-gpu-sandbox",
-         f"--user-data-dir={profile}", "--window-size=800,600", "--hide-scrollbars",
+         f"--user-data-dir={profile}", f"--window-size={size}", "--hide-scrollbars",
          "--virtual-time-budget=3000", *action, url],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True)
 
 
 def _finish(proc) -> str:
     try:
-        out, err = proc.communicate(timeout=60)
+        out, err = proc.communicate(timeout=150)
     except subprocess.TimeoutExpired:
-        proc.kill()
+        import signal
+        os.killpg(proc.pid, signal.SIGKILL)  # chromium's own children too
         proc.communicate()
-        pytest.fail("chromium did not finish in 60 s")
+        pytest.fail("chromium did not finish in 150 s")
     return out.decode(errors="replace") + err.decode(errors="replace")[-2000:]
 
 
-def _screenshots(page: Path, times, tmp_path, dom_at=None):
+def _screenshots(page: Path, times, tmp_path, dom_at=None, size="800,600"):
     """Images (H, W, 3) of the page opened at each time; plus the DOM at ``dom_at``."""
     from PIL import Image
-    procs = []
-    for i, t in enumerate(times):
-        shot = tmp_path / f"t{i}.png"
-        procs.append((shot, _chromium(f"{page.as_uri()}#t={t!r}", tmp_path / f"profile{i}", shot)))
-    dom = _chromium(f"{page.as_uri()}#t={dom_at!r}", tmp_path / "profile_dom") if dom_at is not None else None
     images = []
-    for shot, proc in procs:
-        log = _finish(proc)
-        assert shot.exists(), log
-        images.append(np.asarray(Image.open(shot).convert("RGB")).astype(int))
+    for batch in range(0, len(times), 2):  # two at a time: the machine is shared
+        procs = []
+        for i, t in enumerate(times[batch:batch + 2], start=batch):
+            shot = tmp_path / f"t{i}.png"
+            procs.append((shot, _chromium(f"{page.as_uri()}#t={t!r}", tmp_path / f"profile{i}", shot, size)))
+        for shot, proc in procs:
+            log = _finish(proc)
+            assert shot.exists(), log
+            images.append(np.asarray(Image.open(shot).convert("RGB")).astype(int))
+    dom = _chromium(f"{page.as_uri()}#t={dom_at!r}", tmp_path / "profile_dom") if dom_at is not None else None
     return images, (_finish(dom) if dom is not None else None)
 
 
@@ -738,7 +747,8 @@ def test_browser_shows_the_impulse_arrow_and_the_time_at_the_impact(runs, page, 
     # the time readout: the DOM says the instant, and the readout's pixels differ from 30 ms before
     m = re.search(r'<span id="pcmm-time">([^<]*)</span>', dom)
     assert m and m.group(1) == f"t = {t:.6f} s", (m and m.group(1), dom[-500:])
-    assert f"last event: {replay.event_kind(ev)} &#x27;" in dom or f"last event: {replay.event_kind(ev)} '" in dom
+    said = f"last event: {sk.plate_text(ev)}: "  # what it was, in words ("latch: impact + merge")
+    assert said + "&#x27;" in dom or said + "'" in dom, said
     # the link angles the readout gives are the run's own at the event (the segment that starts there)
     angles = re.search(r'<div id="pcmm-angles">([^<]*)</div>', dom).group(1)
     seg = next(s for s in traj.segments if s.t[0] == t)
@@ -749,3 +759,108 @@ def test_browser_shows_the_impulse_arrow_and_the_time_at_the_impact(runs, page, 
     readout_at, readout_before = at[bar, :160], before[bar, :160]
     assert int((readout_at.sum(axis=2) < 200).sum()) > 100, "no dark text in the time readout"
     assert int(np.any(np.abs(readout_at - readout_before) > 60, axis=2).sum()) > 20, "the readout does not change"
+
+
+# ---- the engineer's drawing, in the browser --------------------------------------------------
+CYCLE = ROOT / "examples" / "three_bar_cycle.toml"
+CYCLE_FPS = 30
+
+
+@pytest.fixture(scope="module")
+def cycle_page(tmp_path_factory):
+    """Example 4 to 2.3 s: O3's and O2's pins struck, O2 locked, folded, O2's release at 1.199 s."""
+    traj = pcmm.simulate(pcmm.load_scene(CYCLE), pcmm.RunOptions(t_end=2.3))
+    path = tmp_path_factory.mktemp("cycle") / "cycle.html"
+    replay.write_html(traj, path, fps=CYCLE_FPS)
+    return traj, path
+
+
+def _dark(img):
+    return img.sum(axis=2) < 180
+
+
+@pytest.mark.browser
+@needs_chromium
+def test_browser_draws_pivots_locks_arcs_and_plates_where_and_when_they_are(cycle_page, tmp_path):
+    traj, page = cycle_page
+    first = next(e for e in traj.events if e.get("impact"))
+    lock = next(e for e in traj.events if e.get("merge") and e["to"] == "O2_locked")  # O2 locks
+    release = next(e for e in traj.events if e["transition"] == "release")
+    t_open, t_locked = 0.5 * first["t"], lock["t"] + 0.5 / CYCLE_FPS
+    times = (t_open, t_locked, first["t"], first["t"] - 0.004, release["t"] + 0.1, release["t"] + 1.0)
+    images, _ = _screenshots(page, times, tmp_path, size="1200,600")  # wide: the readout keeps to one line
+    h, w, _ = images[0].shape
+    view = replay.view_box(traj, replay.run_visuals(traj), fps=CYCLE_FPS)
+    pixel = _pixel_map(view, w, h - replay.BAR_PX)
+    s_px = pixel(sk.scale(traj), 0.0)[0] - pixel(0.0, 0.0)[0]  # the symbols' size in pixels
+    assert s_px >= 8
+
+    def ring(img, centre, radius, test):
+        cx, cy = pixel(*centre)
+        pts = [(int(round(cx + radius * s_px * math.cos(a))), int(round(cy - radius * s_px * math.sin(a))))
+               for a in np.radians(np.arange(70, 290, 10))]
+        return sum(bool(test(img[y - 1:y + 2, x - 1:x + 2]).any()) for x, y in pts) / len(pts)
+
+    def at(img, xy, r=1):
+        x, y = pixel(*xy)
+        return img[y - r:y + r + 1, x - r:x + r + 1]
+
+    # the fixed pivot O1 at its world position (0, 0) at every instant: its pin ring is drawn there
+    for img in images:
+        assert ring(img, (0.0, 0.0), 0.35, _dark) >= 0.8
+    # O2 (link2's origin): an open circle (white centre) before the lock, a filled disk while it holds
+    o2_open = sk.pose_at(traj, "link2", t_open)[:2]
+    o2_locked = sk.pose_at(traj, "link2", t_locked)[:2]
+    assert not _dark(at(images[0], o2_open)).any(), "a free joint must be an open circle"
+    assert ring(images[0], o2_open, 0.35, _dark) >= 0.6
+    assert _dark(at(images[1], o2_locked)).all(), "the locked O2 must be a filled disk"
+    # the moment arc about O3 at the first impact (a joint stop at O3), none 4 ms before
+    o3 = sk.pose_at(traj, "link3", first["t"])[:2]
+    red = lambda p: (p[..., 0] > 140) & (p[..., 1] < 80) & (p[..., 2] < 80)  # noqa: E731
+    assert ring(images[2], o3, 1.3, red) >= 0.6, "no moment arc at the joint-stop impact"
+    assert ring(images[3], sk.pose_at(traj, "link3", first["t"] - 0.004)[:2], 1.3, red) <= 0.1
+    # the release's plate (green) 0.1 s after it, and no plate at all 1 s after it
+    # (the plate's ink, replay.PLATE_COLOURS["release"] = (20, 120, 40); link 3's green has more red)
+    green = lambda img: (img[..., 0] < 70) & (img[..., 1] > 85) & (img[..., 2] < 85)  # noqa: E731
+    plate = next(m for m in sk.event_marks(traj) if m.kind == "plate" and m.text == "release (tensile hold)")
+    s_m, lh = sk.scale(traj), replay.PLATE_H * view.label_h
+
+    def plate_region(img, t):  # where the plate hangs at t: right of and above its point on the body
+        x, y = sk.to_world(sk.pose_at(traj, plate.link, t), plate.xy)  # it rides on its body
+        (c0, r0), (c1, r1) = pixel(x + 0.5 * s_m, y + 0.8 * s_m + 1.3 * lh), pixel(x + 0.8 * s_m + 12 * lh, y + 0.5 * s_m)
+        return img[max(r0, 0):r1, max(c0, 0):c1]
+    assert plate.window[0] == release["t"]
+    assert int(green(plate_region(images[4], release["t"] + 0.1)).sum()) > 15, "no release plate 0.1 s after it"
+    assert int(green(plate_region(images[5], release["t"] + 1.0)).sum()) == 0, "a plate 1 s after its event"
+    assert int(green(images[5][:h - replay.BAR_PX - 40]).sum()) == 0, "a plate anywhere 1 s after its event"
+
+
+@pytest.mark.browser
+@needs_chromium
+def test_browser_shows_the_second_runs_readout_in_full(runs, tmp_path):
+    """Two runs in a narrow window: each run has its own row, the rows wrap instead of being cut,
+    and the view shrinks to leave the bar its height."""
+    path = tmp_path / "two.html"
+    replay.write_html(runs[0], path, fps=FPS, others=[runs[1]])
+    profile = tmp_path / "p"
+    shot = tmp_path / "two.png"
+    proc = _chromium(f"{path.as_uri()}#t=0.3", profile, shot, size="520,600")
+    _finish(proc)
+    dom_proc = _chromium(f"{path.as_uri()}#t=0.3", tmp_path / "pd", size="520,600")
+    dom = _finish(dom_proc)
+    from PIL import Image
+    img = np.asarray(Image.open(shot).convert("RGB")).astype(int)
+    h, w, _ = img.shape
+    ev = runs[1].events[0]
+    m = re.search(r'<div class="pcmm-run-row" id="pcmm-run-1">(.*?)</div>', dom, re.S)
+    text = re.sub(r"<[^>]+>", "", m.group(1)).replace("&#x27;", "'").replace("&gt;", ">")
+    assert text.startswith("three_bar (without impact): config2")
+    assert text.endswith(f"'{ev['name']}' at t = {ev['t']:.7g} s, config1 → config2"), text
+    # the bar (light grey, #f6f6f6) starts higher than one run's bar: it grew to hold the rows
+    column = img[:, 3]
+    grey = np.all(np.abs(column - 246) <= 3, axis=1)
+    top = int(np.argmax(grey))
+    assert grey[top:].mean() > 0.6 and h - top > replay.BAR_PX + 15, (h - top)
+    # text reaches down into the bar's lower rows, and nothing is cut at the right edge
+    rows_with_text = [y for y in range(top, h) if _dark(img[y:y + 1, 10:w - 10]).any()]
+    assert rows_with_text and rows_with_text[-1] < h - 3

@@ -86,6 +86,7 @@ def test_loaded_trajectory_cannot_be_resampled(tmp_path):
         pcmm.Trajectory.load(tmp_path / "r.npz").resampled(0.01)
 
 
+@pytest.mark.slow  # a closed loop run twice, once at a fine tolerance
 def test_closed_loop_with_impacts_and_a_driven_stay_resamples_like_a_finer_run():
     """Example 2 to 3.3 s: the loop integrated in partitioned coordinates, 36 impacts, the merge,
     then the fully driven configuration (a known function of time).  Resampled at 5 ms from the

@@ -96,7 +96,76 @@ def test_angular_momentum_about_the_new_foot_and_the_old_foot_leaving(run):
         assert np.max(np.abs(dL)) < 1e-12 and abs(dH) < 1e-12
 
 
-def test_energy_never_rises(run):
+def test_energy_never_rises_and_its_split(run):
+    """The energy lost to the strike's normal and tangential parts (each P_i (v_i- + v_i+) / 2, the
+    relative velocity linear along the impulse) sums to KE- - KE+.  By hand, the striking tip does not
+    slip before the strike either: the wheel turns about the old foot, and the new tip lies along the
+    slope from it, so its velocity omega z x (2 l sin alpha, 0) is normal to the slope; the whole
+    loss is the normal part's, KE- (1 - r^2)."""
     _, strikes = run
     for ev in strikes:
         assert ev["energy_dissipated"] >= 0.0
+        fr = ev["friction"]
+        assert fr["energy_lost"]["normal"] + fr["energy_lost"]["tangential"] == pytest.approx(
+            ev["kinetic_energy_before"] - ev["kinetic_energy_after"], abs=1e-12)
+        assert fr["slip"]["after"] == pytest.approx(0.0, abs=1e-12)
+        assert fr["slip"]["before"] == pytest.approx(0.0, abs=1e-12)
+        assert fr["energy_lost"]["tangential"] == pytest.approx(0.0, abs=1e-12)
+        r = 0.55 / 1.05
+        assert fr["energy_lost"]["normal"] == pytest.approx(ev["kinetic_energy_before"] * (1 - r * r), rel=1e-9)
+
+
+def test_first_strike_against_pinocchios_impulse_dynamics(run):
+    """The first strike against Pinocchio 4.1's ``impulseDynamics`` in its Jacobian form (e = 0,
+    no damping) with the new foot's two world rows: what design_24.md section 6 found to agree with
+    a KKT solve to round-off for bilateral plastic pins on a positive-definite M."""
+    import pinocchio as pin
+    traj, strikes = run
+    ev = strikes[0]
+    q = posture_at(traj, ev)
+    model = pin.buildModelFromXML((EXAMPLE.parents[1] / "urdf" / "rimless_wheel.urdf").read_text())
+    jid = model.getJointId("hub")
+    tip = rw.spoke_tip(W, 1)
+    fid = model.addFrame(pin.Frame("tip1", jid, 0, pin.SE3(np.eye(3), np.array([tip[0], tip[1], 0.0])),
+                                   pin.FrameType.OP_FRAME))
+    data = model.createData()
+    qp = np.array([q[0], q[1], math.cos(q[2]), math.sin(q[2])])
+    pin.computeJointJacobians(model, data, qp)
+    pin.updateFramePlacements(model, data)
+    J = pin.getFrameJacobian(model, data, fid, pin.ReferenceFrame.LOCAL_WORLD_ALIGNED)[:2]
+    v_before = np.asarray(ev["v_before"]["hub"])  # pcmm's planar velocity is Pinocchio's (body frame)
+    v_after = pin.impulseDynamics(model, data, qp, v_before, J, 0.0, 0.0)
+    np.testing.assert_allclose(ev["v_after"]["hub"], v_after, atol=1e-13)
+
+
+def test_check_walks_every_strike_without_warnings():
+    """`pcmm check` enters each spoke's configuration at the previous strike's posture (its foot
+    anchored where it strikes) and finds the next strike's posture there: six guard postures, each
+    with the next tip on the slope and the wheel turned by pi/3 per strike (before the fix, the
+    posture solve took the planar joint's body-frame velocity columns for dPhi/dq and diverged,
+    and the anchors of a checked configuration were never set: a warning on 'strike 2')."""
+    from pcmm.run.checks import check_scene
+    report = check_scene(pcmm.load_scene(EXAMPLE))
+    assert not report.problems and not report.warnings
+    assert len(report.postures) == 6
+    for k in range(1, 7):
+        q = report.postures[f"strike {k}"]
+        tip = q[:2] + rot(q[2]) @ rw.spoke_tip(W, k % 6)
+        assert tip[1] == pytest.approx(0.0, abs=1e-12)
+        assert q[2] == pytest.approx(math.pi / 6 - k * math.pi / 3, abs=1e-9)
+
+
+def test_the_drawing_shows_each_pinned_foot_where_it_struck(run):
+    """The 2D drawing (pcmm replay --video, pcmm.viz.sketch) draws a cut joint anchored at entry as
+    a grounded pin at the anchor of each stay, shown during that stay only: at the middle of every
+    stance exactly one pin, at the event's recorded anchor (the start's: spoke 0's tip, the origin)."""
+    from pcmm.viz import sketch as sk
+    traj, strikes = run
+    syms = sk.symbols(traj)
+    starts = [0.0] + [e["t"] for e in strikes] + [float(traj.t[-1])]
+    anchors = [[0.0, 0.0]] + [next(iter(e["anchor"].values())) for e in strikes]
+    for (a, b), anchor in zip(zip(starts, starts[1:]), anchors):
+        shown = [p for p in sk.world(traj, syms, 0.5 * (a + b)) if p.symbol.kind == "cut"]
+        assert len(shown) == 1
+        np.testing.assert_allclose(shown[0].xy, anchor, atol=1e-9)
+    assert sk.plate_text(strikes[0]) == "pin: impact, point pinned, foot0 lifts off"

@@ -264,18 +264,19 @@ def test_flight_audit_catches_a_restart_shifted_off_the_impact(tmp_path, monkeyp
 
 
 def test_every_switch_enters_its_configuration_through_the_checked_entry(tmp_path, monkeypatch):
-    """Issue 22.2: the constraint check lives in transitions.enter, and every transition kind
+    """Issue 22.2: the constraint check lives in entry.enter, and every transition kind
     reaches the next configuration through it: a latch and a timed release of the four-bar,
     and a ball's bounces and its merge, one checked entry per event."""
-    from pcmm.events import transitions
+    from pcmm.events import entry, pins, transitions
     calls = []
-    real = transitions.enter
+    real = entry.enter
 
     def counting(src, dst, t, *args, **kw):
         entry = real(src, dst, t, *args, **kw)
         calls.append((t, src.name, dst.name, entry.velocity_residual))
         return entry
-    monkeypatch.setattr(transitions, "enter", counting)
+    for module in (entry, transitions, pins):  # every module that enters a configuration
+        monkeypatch.setattr(module, "enter", counting)
     latch = pcmm.simulate(pcmm.load_scene(builders.four_bar_latch(tmp_path / "fb", t_end=1.0)))
     ball = pcmm.simulate(pcmm.load_scene(builders.ball(tmp_path / "ball", 0.5, h=0.3, t_end=2.0)),
                          pcmm.RunOptions(accumulation_speed=1e-2))

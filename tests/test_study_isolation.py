@@ -108,3 +108,26 @@ def test_kill_9_of_the_sweep_leaves_no_worker_behind(tmp_path):
     while time.time() - t0 < 10 and any(_alive(k) for k in kids):
         time.sleep(0.05)
     assert [k for k in kids if _alive(k)] == []
+
+
+def test_on_dask_a_crashing_and_a_hanging_run_are_rows_too(tmp_path):
+    distributed = pytest.importorskip("distributed")
+    import dask
+    from distributed.diagnostics.plugin import WorkerPlugin
+    import study_hooks
+
+    class Faulty(study_hooks.FaultyPlugin, WorkerPlugin):  # its setup first
+        pass
+    plan = make_plan([Axis("forces.tau1.value", (1.955, 3.0, 4.0))])
+    with dask.config.set({"distributed.scheduler.allowed-failures": 0}):
+        with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                                      dashboard_address=None) as cluster:
+            with distributed.Client(cluster) as client:
+                client.register_plugin(Faulty())
+            res = sweep(pcmm.load_scene(THREE_BAR), plan, tmp_path / "r.csv", pcmm.RunOptions(t_end=0.2),
+                        scheduler=cluster.scheduler_address, run_timeout=20.0)
+    rows = {r["forces.tau1.value"]: r for r in read(tmp_path / "r.csv")}
+    assert res.status == {"complete": 1, "crashed": 1, "timeout": 1}
+    assert rows["3.0"]["status"] == "crashed" and "the Dask cluster lost the run" in rows["3.0"]["error"]
+    assert rows["4.0"]["status"] == "timeout" and "time limit of 20 s" in rows["4.0"]["error"]
+    assert float(rows["1.955"]["first_impact_t"]) == pytest.approx(0.1672851, abs=1e-7)

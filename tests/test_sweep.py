@@ -115,6 +115,7 @@ def test_serial_gives_the_one_by_one_numbers(tmp_path, reference):
     assert_rows_match(read(out), reference)
 
 
+@pytest.mark.slow  # starts a Dask LocalCluster
 def test_dask_local_cluster_gives_the_one_by_one_numbers(tmp_path, reference):
     distributed = pytest.importorskip("distributed")
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
@@ -190,6 +191,7 @@ def _wait_rows(path, n, proc, timeout=120.0):
 
 
 @pytest.mark.parametrize("sig, workers", [(signal.SIGTERM, "1"), (signal.SIGINT, "2")])
+@pytest.mark.slow  # two 16-run sweeps in subprocesses, one signalled
 def test_killed_sweep_resumes_to_the_complete_table(tmp_path, sig, workers):
     # 16 runs of about 0.1 s each on a quiet core (3 s of Example 1 since its right-hand side is
     # compiled): the signal lands with most of them still to run

@@ -111,7 +111,7 @@ def test_plates_say_what_happened_and_are_gone_a_second_later(cycle, double_fold
     macro = next(p for p in plates if p.text.startswith("macro-impact") and p.text.endswith(", merge"))
     group = [cycle.events[i] for i in macro.extra["events"]]
     assert len({e["name"] for e in group}) == 1 and group[-1]["merge"] and not any(e["merge"] for e in group[:-1])
-    assert macro.text.startswith(f"macro-impact ×{len(group)}, ")
+    assert macro.text.startswith(f"macro-impact ({len(group)} impacts), ")
     # every event is in exactly one plate
     assert sorted(i for p in plates for i in p.extra["events"]) == list(range(len(cycle.events)))
     for p in plates:

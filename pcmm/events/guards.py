@@ -70,8 +70,28 @@ def _time(cfg: Configuration, tr: TransitionSpec, ctx=None):
     return value, (lambda t, y, f: 1.0)
 
 
+def _cut_joint_force(cfg: Configuration, tr: TransitionSpec):
+    """The normal force of a cut joint held by compression only (``of`` names it): n . F, with F its
+    multipliers (the force on b, world axes) and n its contact normal, > 0 while it pushes."""
+    spec = next(s for s in cfg.spec.cut_joints if s.name == tr.guard.of)
+    labels = cfg.coords.labels
+    ix, iy = labels.index(f"{spec.name}.fx"), labels.index(f"{spec.name}.fy")
+    unpack = cfg.coords.unpack
+    frame_a = cfg.link_frame[spec.a]
+
+    def value(t, y):
+        q, v = unpack(t, y)
+        _, lam = cfg.coords.accelerations(t, q, v)
+        n = cfg.data.oMf[frame_a].rotation[:2, :2] @ np.asarray(spec.normal, float)
+        return float(n @ lam[[ix, iy]]) / float(np.linalg.norm(n)) - tr.guard.value
+    return value, None
+
+
 def _reaction(cfg: Configuration, tr: TransitionSpec, ctx=None):
-    """The holding force/moment of ``tr.guard.of`` (``ctx``: the run's :class:`pcmm.holding.Holds`)."""
+    """The holding force/moment of ``tr.guard.of`` (``ctx``: the run's :class:`pcmm.holding.Holds`),
+    or the normal force of the configuration's own cut joint of that name (a pinned foot's lift-off)."""
+    if any(s.name == tr.guard.of for s in cfg.spec.cut_joints):
+        return _cut_joint_force(cfg, tr)
     if ctx is None or not ctx.holds(tr.guard.of, cfg):
         raise _NotHeld(tr.guard.of)
     label = ctx.label(tr.guard.of)

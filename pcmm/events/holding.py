@@ -27,7 +27,7 @@ from ..model.forces import compile_forces
 from .contact import contact_row
 from ..model.mechanism import Mechanism
 from ..scene.spec import TransitionSpec
-from .transitions import joints_from_poses
+from .entry import joints_from_poses
 from ..ode.witness import Guard
 
 

@@ -101,6 +101,10 @@ def solve_impulse(cfg: Configuration, t: float, q: np.ndarray, v: np.ndarray, co
         pos_a = pos_b = cfg.data.oMf[cfg.link_frame[contact.b]].translation[:2].copy()
     frictional = contact.joint is None and contact.friction is not None
     tangent = tangent_of(n) if frictional else None
+    # a loop's cut joint is already cut (its rows are in G): its impulse is its rows' multipliers
+    loop_cuts = {s.name for s in cfg.spec.cut_joints}
+    cut_loops = tuple(j for j in cut_joints if j in loop_cuts)
+    cut_joints = tuple(j for j in cut_joints if j not in loop_cuts)
     cs = cut(cfg, q, cut_joints)
     v_f = cs.T @ v
     M_f = mass_matrix(cs.model, cs.data, cs.q)
@@ -172,6 +176,8 @@ def solve_impulse(cfg: Configuration, t: float, q: np.ndarray, v: np.ndarray, co
     loop = loop_point_impulses(cfg, out.constraint_rows)
     point_impulses += loop
     out.constraint_impulses = constraint_impulses(cfg, out.constraint_rows, loop)
+    for name in cut_loops:  # on b from a, world axes, like a tree joint's cut impulse
+        out.cut_impulses[name] = list(out.constraint_impulses[name])
     out.joint_impulses, out.rnea_residual = joint_impulses(cfg, q, v_after - v, point_impulses)
     if fr is not None:
         check_frictional_energy(fr, out, where)

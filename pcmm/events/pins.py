@@ -41,6 +41,7 @@ from ..model.configuration import Configuration
 from ..model.pinocchio_helpers import cholesky, frame_jacobian
 from ..scene.spec import PinSpec
 from .contact import contact_state
+from .entry import enter
 from .records import event_record
 from .impulse import Impulse, constraint_impulses, joint_impulses, loop_point_impulses, tangent_of
 
@@ -57,6 +58,13 @@ def _rows_of(cfg: Configuration, spec, k: int):
     return n / np.linalg.norm(n), Jb - Ja
 
 
+def _point_rows(cfg: Configuration, q, contact) -> np.ndarray:
+    """J_b - J_a (2 x nv, world x, y) of the contact's two points at ``q``."""
+    cfg.kinematics(q)
+    pa, pb = cfg.point(contact.a, contact.point_a), cfg.point(contact.b, contact.point_b)
+    return cfg.point_jacobian(pb) - cfg.point_jacobian(pa)
+
+
 def closed_unilateral(cfg: Configuration, dst: Configuration):
     """The source's cut joints held by compression only that the target does not have:
     [(spec, world normal, normal row)] at the current kinematics of ``cfg``."""
@@ -71,15 +79,25 @@ def closed_unilateral(cfg: Configuration, dst: Configuration):
     return out
 
 
+def anchor_where_entered(dst: Configuration, q: np.ndarray) -> dict[str, np.ndarray]:
+    """Anchor every cut joint of ``dst`` anchored at entry where b's point is at ``q`` (what a pin
+    into ``dst`` does; for checks that enter ``dst`` at a guard's posture)."""
+    if not getattr(dst.coords, "constrained", False) or not dst.coords.closure.anchored:
+        return {}
+    dst.kinematics(q)
+    return dst.coords.closure.set_anchors(dst.data)
+
+
 def impact_with_rows(M: np.ndarray, name: str, v: np.ndarray, A: np.ndarray, b: np.ndarray):
-    """(v+, lam) of ``M (v+ - v-) = A^T lam``, ``A v+ = b`` (the Schur complement; a redundant set
-    of rows gets the minimum-norm multipliers, the velocity is unique either way)."""
+    """(v+, lam, redundant) of ``M (v+ - v-) = A^T lam``, ``A v+ = b`` (the Schur complement; a
+    redundant set of rows gets the minimum-norm multipliers, the velocity is unique either way, and
+    ``redundant`` says the split of the impulse among the rows is not)."""
     W = sla.cho_solve(cholesky(M, name), np.eye(M.shape[0]))
     if A.shape[0] == 0:
         return v.copy(), np.zeros(0)
     S = A @ W @ A.T
-    lam = np.linalg.lstsq(S, b - A @ v, rcond=1e-13)[0]
-    return v + W @ A.T @ lam, lam
+    lam, _, rank, _ = np.linalg.lstsq(S, b - A @ v, rcond=1e-13)
+    return v + W @ A.T @ lam, lam, rank < A.shape[0]
 
 
 def pin_strike(ctx, cfg: Configuration, tr: PinSpec, t, q, v):
@@ -121,7 +139,7 @@ def pin_strike(ctx, cfg: Configuration, tr: PinSpec, t, q, v):
         rows = [u[2] for u, h in zip(unilateral, held) if h]
         A = np.vstack([A_dst] + [r[None, :] for r in rows]) if rows else A_dst
         b = np.concatenate([b_dst, np.zeros(len(rows))])
-        v_plus, lam = impact_with_rows(M, cfg.name, v, A, b)
+        v_plus, lam, redundant = impact_with_rows(M, cfg.name, v, A, b)
         lam_u = iter(lam[A_dst.shape[0]:])
         text, ok = [], True
         for (s, _, row), h in zip(unilateral, held):
@@ -137,13 +155,13 @@ def pin_strike(ctx, cfg: Configuration, tr: PinSpec, t, q, v):
         ok &= float(n @ F) >= -SIGN_TOL * scale
         tried.append("; ".join(text + [f"the new pin's normal impulse {float(n @ F):.6g} N s"]))
         if ok:
-            solutions.append((held, v_plus, lam))
+            solutions.append((held, v_plus, lam, redundant))
     if len(solutions) != 1:
         raise SimulationError(
             [f"{where}: the strike with the closed contacts {[u[0].name for u in unilateral]} has "
              f"{'no' if not solutions else len(solutions)} consistent outcome(s) (a rigid-body impact that is "
              f"{'inconsistent' if not solutions else 'ambiguous'} here); the active sets tried:"] + tried)
-    held, v_plus, lam = solutions[0]
+    held, v_plus, lam, redundant = solutions[0]
     stays = [u[0].name for u, h in zip(unilateral, held) if h]
     if stays:
         raise SimulationError(f"{where}: the contact(s) {stays} stay closed through the strike (their impulse is "
@@ -156,11 +174,22 @@ def pin_strike(ctx, cfg: Configuration, tr: PinSpec, t, q, v):
         raise SimulationError(f"{where}: the pinned point would slip: its impulse needs friction >= "
                               f"{abs(P_t) / P_n:.6g} (|P_t| / P_n, P_t = {P_t:.6g}, P_n = {P_n:.6g} N s) and the "
                               f"contact has mu = {mu:g}; pcmm models no sliding contact")
-    q_new, v_new = dst.coords.project(t, q, v_plus) if getattr(dst.coords, "constrained", False) else (q, v_plus)
-    if np.max(np.abs(v_new - v_plus)) > 1e-9 * scale or np.max(np.abs(q_new - q)) > 1e-9:
-        raise SimulationError(f"{where}: the state after the strike does not fit '{tr.target}' (velocity off by "
-                              f"{np.max(np.abs(v_new - v_plus)):.3g}, posture by {np.max(np.abs(q_new - q)):.3g}): "
-                              "its other constraints are not those of the source")
+    # entered like every switch: the target's constraints checked at the post-impact state (entry.enter)
+    entry = enter(cfg, dst, t, q, v_plus, what=f"pin '{tr.name}'")
+    q_new, v_new = entry.q, entry.v
+    # the stance that begins now: each point held by compression only must push, inside its cone
+    # (the guards of the stance watch it from here on: PartitionedCoordinates.contact_guards)
+    for name, (Fn, Ft) in dst.coords.contact_forces(t, q_new, v_new).items():
+        spec = next(s for s in dst.spec.cut_joints if s.name == name)
+        scale_F = max(abs(Fn), abs(Ft), 1e-300)
+        if Fn < -1e-12 * scale_F:
+            raise SimulationError(f"{where}: right after the strike the point held by '{name}' would be pulled "
+                                  f"(normal force {Fn:.6g} N): it lifts off at once, which '{tr.target}' cannot hold")
+        if spec.friction is not None and math.isfinite(spec.friction) and abs(Ft) > spec.friction * Fn * (1 + 1e-12):
+            raise SimulationError(f"{where}: right after the strike the point held by '{name}' would slip: its "
+                                  f"force needs friction >= {abs(Ft) / Fn:.6g} (|F_t| / F_n, F_t = {Ft:.6g}, "
+                                  f"F_n = {Fn:.6g} N) and the cut joint has mu = {spec.friction:g}; pcmm models no "
+                                  "sliding contact")
     by_label = {lab: float(x) for lab, x in zip(labels, lam[:len(labels)])}
     ke0, ke1 = float(0.5 * v @ M @ v), float(0.5 * v_plus @ M @ v_plus)
     imp = Impulse(kind="stable", restitution=0.0, normal=n, P=P_n, vn_before=vn, vn_after=float(Jn @ v_plus),
@@ -180,8 +209,23 @@ def pin_strike(ctx, cfg: Configuration, tr: PinSpec, t, q, v):
     record["impulse"]["tangential"] = P_t
     record["impulse"]["vector"] = [float(F[0]), float(F[1])]
     record["anchor"] = {name: [float(x) for x in A] for name, A in anchors.items()}
+    # the strike's two parts, as for a frictional impact (pcmm.events.records.friction_record): the
+    # relative velocity of b's point is linear along the proportional path from 0 to the impulse, so
+    # each part's work is P_i (v_i- + v_i+) / 2, exactly
+    J_rel = np.vstack([tang @ _point_rows(cfg, q, tr.contact), Jn])
+    (vt0, vn0), (vt1, vn1) = J_rel @ v, J_rel @ v_plus
+    record["friction"] = {"mu": "stick" if mu is None or math.isinf(mu) else mu, "law": "pin", "phases": "stick",
+                          "impulse": {"normal": P_n, "tangential": P_t},
+                          "slip": {"before": float(vt0), "after": float(vt1)},
+                          "energy_lost": {"normal": -0.5 * P_n * float(vn0 + vn1),
+                                          "tangential": -0.5 * P_t * float(vt0 + vt1)}}
     released = {}
     for (s, nu, row) in unilateral:
         released[s.name] = {"normal_velocity_after": float(row @ v_plus), "impulse": 0.0}
     record["released"] = released
+    if redundant:
+        record.setdefault("warnings", []).append(
+            f"{where}: the constraints of '{tr.target}' at the strike are redundant (two points pinned on one "
+            "rigid body, say): the velocity after is unique, but how the impulse splits among the cut joints is "
+            "not; the minimum-norm split is reported")
     return tr.target, q_new, v_new, record

@@ -391,12 +391,62 @@ class PartitionedCoordinates:
                 "rather than pick a branch")
 
     def guards(self) -> list:
-        """The singularity guard when there are loops (drives alone never degenerate)."""
-        return [self.singularity_guard()] if self.closure.size else []
+        """The singularity guard when there are loops (drives alone never degenerate), and the
+        guards of the cut joints held by compression only (:meth:`contact_guards`)."""
+        return ([self.singularity_guard()] + self.contact_guards()) if self.closure.size else []
 
     def at_guard(self, guard, t, q):
-        """The singularity guard fired: a new partition goes on, or the loop is singular (raises)."""
+        """The singularity guard fired: a new partition goes on, or the loop is singular (raises);
+        a contact guard fired: the pinned point would lift off or slip (raises, with the cause)."""
+        if guard.payload is not None:
+            raise SimulationError(f"t = {t:.9g} s, configuration '{self.cfg.name}': {guard.payload}")
         self.at_degenerate_partition(t, q)
+
+    def contact_forces(self, t, q, v) -> dict[str, tuple[float, float]]:
+        """{cut joint held by compression only: (F_n, F_t)}: its force on b along its contact
+        normal n (> 0 pushing) and along the tangent t = (n_y, -n_x), from its multipliers."""
+        specs = [(k, s) for k, s in enumerate(self.closure.specs) if s.normal is not None]
+        if not specs:
+            return {}
+        _, lam = self.accelerations(t, q, v)
+        out = {}
+        for k, s in specs:
+            i = self.labels.index(f"{s.name}.fx")
+            n = self.cfg.data.oMf[self.closure.links_a[k]].rotation[:2, :2] @ np.asarray(s.normal, float)
+            n = n / np.linalg.norm(n)
+            F = lam[i:i + 2]
+            out[s.name] = (float(n @ F), float(n[1] * F[0] - n[0] * F[1]))
+        return out
+
+    def contact_guards(self) -> list:
+        """For each cut joint held by compression only (a ``contact`` normal): a guard where its
+        normal force turns tensile, unless a transition of the scene watches it (a release with a
+        reaction guard: the lift-off), and with a finite ``friction`` a guard where its force
+        leaves the friction cone (mu F_n - |F_t| = 0).  Either stops the run with its cause: a
+        pinned point that lifts off or slips with nothing in the scene to take it is not modelled."""
+        cfg = self.cfg
+        watched = {tr.guard.of for tr in cfg.scene.transitions_from(cfg.name) if tr.guard.type == "reaction"}
+        out = []
+        for s in self.closure.specs:
+            if s.normal is None:
+                continue
+            if s.name not in watched:
+                def tensile(t, y, name=s.name):
+                    return self.contact_forces(t, *self.unpack(t, y))[name][0]
+                out.append(Guard(f"cut joint '{s.name}': its normal force turns tensile", tensile, -1, "repartition",
+                                 payload=f"the point held by cut joint '{s.name}' would lift off (its normal force "
+                                 "turns tensile) and the scene gives it nowhere to go: add a release from this "
+                                 f"configuration with guard = {{ type = \"reaction\", of = \"{s.name}\", value = 0.0, "
+                                 "direction = \"decreasing\" } to a configuration without it"))
+            if s.friction is not None and math.isfinite(s.friction):
+                def cone(t, y, name=s.name, mu=s.friction):
+                    Fn, Ft = self.contact_forces(t, *self.unpack(t, y))[name]
+                    return mu * Fn - abs(Ft)
+                out.append(Guard(f"cut joint '{s.name}': its force leaves the friction cone", cone, -1, "repartition",
+                                 payload=f"the point held by cut joint '{s.name}' would slip: its force leaves the "
+                                 f"friction cone (|F_t| = mu F_n, mu = {s.friction:g}); pcmm models no sliding "
+                                 "contact: give a larger friction or \"stick\""))
+        return out
 
     @contextlib.contextmanager
     def recording(self):

@@ -597,7 +597,8 @@ def _configuration_view(c) -> dict:
     the joints a derived configuration locks (its recorded URDF is the root one, where they move)."""
     view = _view(c.urdf)
     view["cut_joints"] = [{"name": j.name, "type": j.type, "a": j.a, "point_a": list(j.point_a), "b": j.b,
-                           "point_b": list(j.point_b), "axis": list(j.axis) if j.axis else None}
+                           "point_b": list(j.point_b), "axis": list(j.axis) if j.axis else None,
+                           "anchor_at_entry": bool(getattr(j, "anchor_at_entry", False))}
                           for j in getattr(c, "cut_joints", ())]
     derivation = getattr(c, "derivation", None)
     view["locked"] = list(derivation.lock) if derivation is not None else []
@@ -652,7 +653,11 @@ def legacy_views(scene_path: str) -> dict:
         for name, c in data.get("configurations", {}).items():
             with_path = (path.parent / c["urdf"])
             if with_path.is_file():
-                confs[name] = _view(with_path)
+                confs[name] = {**_view(with_path), "locked": [],
+                               "cut_joints": [{"name": j.get("name"), "type": j.get("type"), "a": j.get("a"),
+                                               "point_a": list(j.get("point_a", ())), "b": j.get("b"),
+                                               "point_b": list(j.get("point_b", ())), "axis": j.get("axis")}
+                                              for j in c.get("cut_joints", [])]}
         forces = {}
         for f in data.get("forces", []):
             on = f.get("on", {})

@@ -34,7 +34,8 @@ from ..model.mechanism import Mechanism
 from ..errors import PcmmError
 from ..scene.spec import Scene, TransitionSpec
 from ..events.contact_faults import contact_findings
-from ..events.transitions import map_state, pose_mismatches
+from ..events.entry import map_state, pose_mismatches
+from ..events.pins import anchor_where_entered
 
 NEWTON_TOL = 1e-13
 
@@ -48,8 +49,11 @@ class CheckReport:
 
 # ---- the posture at a guard ---------------------------------------------------------------
 def _closure(cfg: Configuration, q):
-    """(phi, Phi_q) of the loop-closure rows only (drives are functions of time, not posture)."""
-    return cfg.coords.loop_rows(q)
+    """(phi, dPhi/dq) of the loop-closure rows only (drives are functions of time, not posture); the
+    derivative in pcmm's coordinates, which for a planar joint is not the velocity Jacobian (its x, y
+    columns are body-frame: :meth:`Configuration.position_jacobian`)."""
+    phi, Jq = cfg.coords.loop_rows(q)
+    return phi, cfg.position_jacobian(q, Jq)
 
 
 def _guard_row(cfg: Configuration, tr: TransitionSpec, q):
@@ -108,7 +112,8 @@ def angle_in_degrees(cfg: Configuration, tr: TransitionSpec) -> str | None:
         return None
     return (f"= {value:.12g}: an angle ({tr.guard.measure}) of {value:.6g} rad, {value / (2 * math.pi):.3g} "
             f"turns, outside [-2 pi, 2 pi]; guard values are in radians: if {value:g} degrees is meant, write "
-            f"value = \"{value:g} deg\" (= {math.radians(value):.6g} rad)")
+            f"value = \"{value:g} deg\" (= {math.radians(value):.6g} rad); a guard meant after more than a turn "
+            "is right as it is")
 
 
 # ---- the whole scene ------------------------------------------------------------------------
@@ -171,6 +176,7 @@ def check_scene(scene: Scene, mechanism: Mechanism | None = None) -> CheckReport
                 dst = mech.enter(target, cfg, q)  # a derived target locks the values the guard gives
                 entered.setdefault(target, dst)
                 q_dst, _, _ = map_state(cfg, dst, q, np.zeros(cfg.nv))
+                anchor_where_entered(dst, q_dst)  # a pinned point is anchored where it strikes
                 _, mismatches = pose_mismatches(cfg, dst, q, q_dst)
             except PcmmError as exc:
                 report.problems += [f"{here}.{key}: {p}" for p in exc.problems]

@@ -34,9 +34,9 @@ from ..scene.spec import Scene
 from ..signals import describe, exit_status
 from .actions import GUARD_ACTIONS, action_of
 from .approach import closest_approach
-from .stability import blow_up, fixed_step_instability, largest_velocity, unphysical_speed
 from .audit import FlightAudit
 from .recording import record as _record
+from .stability import diagnose, fixed_step_instability, largest_velocity, unphysical_speed
 from .state import RunState
 
 
@@ -225,10 +225,6 @@ def _integrate(run: RunState, fun, stepping, y0, guards, pending) -> Segment | N
             stats["rhs_evals"] += exc.segment.nfev
             if exc.segment.t.size > 1:
                 _record(run.traj, cfg, exc.segment, run.offsets, run.q, run.holds, stepping)
-            at, stop = getattr(exc, "at", None), float(exc.segment.t[-1])
-            if isinstance(exc, SimulationError) and at is not None and at != stop:
-                exc.problems[-1] += (f"; the run stopped at t = {stop:.9g} s, its last accepted step "
-                                     f"(t = {at:.9g} s was a trial instant of the next one)")
         raise
     finally:
         stats["wall_s"] += time.perf_counter() - t0
@@ -250,11 +246,11 @@ def _interrupted(run: RunState, exc: KeyboardInterrupt) -> SimulationError:
 
 
 def _stopped(run: RunState, exc: SimulationError) -> SimulationError:
-    """A run that cannot go on: its messages name the scene file, and it carries the partial run."""
-    if run.stepping is not None:
-        blown = blow_up(run.cfg, exc, run.t, run.q, run.v, run.stepping[1], run.opts.step)
-        if blown:  # a blown-up state: the integration is the cause, not what failed in it
-            exc.problems = [blown]
+    """A run that cannot go on: its messages name the scene file, and it carries the partial run.
+    A blown-up state is blamed on the integration, not on what failed in it."""
+    blown = diagnose(run.cfg, exc, run.t, run.q, run.v, run.stepping[1], run.opts.step) if run.stepping else None
+    if blown:
+        exc.problems = [blown]
     where = str(run.scene.path)
     exc.problems = [p if p.startswith(where) else f"{where}: {p}" for p in exc.problems]
     exc.args = (exc.text(),)

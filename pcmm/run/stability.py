@@ -18,6 +18,7 @@ Both return the message (naming the time, the cause and the setting or field to 
 from __future__ import annotations
 
 import math
+import re
 
 import numpy as np
 import pinocchio as pin
@@ -159,3 +160,47 @@ def blow_up(cfg: Configuration, exc, t: float, q, v, method, step: float) -> str
     first = str(exc.problems[0]) if getattr(exc, "problems", None) else str(exc)
     return (f"t = {t:.9g} s, configuration '{cfg.name}': the integration blew up: {fast}; {cause}.  What "
             f"was reported there is a symptom of it, not the cause: {first[:160]}{'...' if len(first) > 160 else ''}")
+
+
+_AT_T = re.compile(r"at t = ([-+0-9.eE]+) s")
+#: a constraint Jacobian with a larger condition number is near a singular posture
+SINGULAR_COND = 1e8
+
+
+def trial_time(cfg: Configuration, exc, t: float) -> str | None:
+    """When a failure inside a segment names a time other than the segment's last accepted step
+    (a Newton solve of a loop at a trial step of the integrator, possibly as far as t_end), the
+    run stopped at that last step: say so, and what the constraint Jacobian's condition number
+    there says (a regular posture or a singular one); None otherwise."""
+    seg = getattr(exc, "segment", None)
+    problems = getattr(exc, "problems", None)
+    if seg is None or not seg.t.size or not problems:
+        return None
+    t_stop, text = float(seg.t[-1]), str(problems[0])
+    m = _AT_T.search(text)
+    try:
+        t_said = float(m.group(1)) if m else None
+    except ValueError:
+        return None
+    if t_said is None or abs(t_said - t_stop) <= 1e-6 * max(1.0, abs(t_stop)) + 1e-12:
+        return None
+    posture = ""
+    try:
+        q, _ = cfg.coords.unpack(t_stop, np.asarray(seg.y[:cfg.coords.ny, -1], float))
+        _, Jq = cfg.coords.loop_rows(q)
+        if Jq.size:
+            cond = float(np.linalg.cond(Jq))
+            posture = (f"; there the loop's constraint Jacobian has condition number {cond:.3g}, " +
+                       ("a regular posture: the integrator's trial step was too long for the loop's "
+                        "Newton solve, not a singular posture (a smaller solver.max_step helps)"
+                        if cond < SINGULAR_COND else "near a singular posture"))
+    except Exception:  # noqa: BLE001 - a diagnosis; never let it mask the error itself
+        pass
+    return (f"t = {t_stop:.9g} s, configuration '{cfg.name}': the run stopped here, at its last accepted "
+            f"step{posture}.  The failure came at t = {t_said:.9g} s, where the integrator tried a step to: {text}")
+
+
+def diagnose(cfg: Configuration, exc, t: float, q, v, method, step: float) -> str | None:
+    """The message that names the true time and cause of a failed run (:func:`blow_up`, then
+    :func:`trial_time`), or None to keep the failure's own."""
+    return blow_up(cfg, exc, t, q, v, method, step) or trial_time(cfg, exc, t)

@@ -834,6 +834,8 @@ class _Builder:
                 continue
             cfg = names[t.source]
             for j in t.cut:
+                if any(c.name == j for c in cfg.cut_joints):
+                    continue  # a loop's cut joint is already cut: its rows' impulse is what it carries
                 self._check_joint(f"{where}.cut", j, cfg)
             if t.guard.measure is not None:
                 self._check_measure(f"{where}.guard.measure", t.guard.measure, cfg)
@@ -842,7 +844,12 @@ class _Builder:
             if t.guard.type == "reaction":
                 stops = {s.name for s in scene.transitions if s.type == "stop"}
                 joints = set().union(*(c.info.joints for c in names.values()))
-                if t.guard.of not in stops and t.guard.of not in joints:
+                own_cuts = {c.name: c for c in cfg.cut_joints}
+                if t.guard.of in own_cuts:  # a cut joint's holding force: along its contact normal
+                    if own_cuts[t.guard.of].normal is None:
+                        self.p.add(f"{where}.guard.of", f"= {t.guard.of!r}: a reaction guard on a cut joint watches "
+                                   "its normal force, so the cut joint needs contact = { normal = [x, y] }")
+                elif t.guard.of not in stops and t.guard.of not in joints:
                     self.p.add(f"{where}.guard.of", f"= {t.guard.of!r}: names neither a joint of the scene's URDFs "
                                f"nor a stop transition ({', '.join(sorted(stops)) or 'none'})")
                 elif t.guard.of in cfg.info.movable_joints:
@@ -854,9 +861,12 @@ class _Builder:
                                f"({', '.join(locked) or 'it locks none'}) or a stop that merged into it")
             if t.type == "release" and t.target in names:
                 gained = set(names[t.target].info.movable_joints) - set(cfg.info.movable_joints)
-                if not gained:
+                cuts_src, cuts_dst = {c.name for c in cfg.cut_joints}, {c.name for c in names[t.target].cut_joints}
+                freed_cuts = cuts_src - cuts_dst  # a cut joint is a joint: releasing it frees its rows
+                if not gained and not (freed_cuts and cuts_dst <= cuts_src):
                     self.p.add(f"{where}.to", f"= {t.target!r}: a release goes to a configuration with more "
-                               f"freedom, but '{t.target}' has no movable joint that '{t.source}' lacks")
+                               f"freedom, but '{t.target}' has no movable joint that '{t.source}' lacks and "
+                               f"drops none of its cut joints")
             if t.type == "pin" and t.target in names:
                 held = [cj for cj in names[t.target].cut_joints if cj.anchor_at_entry and cj.b == t.contact.b
                         and tuple(cj.point_b) == tuple(t.contact.point_b)]

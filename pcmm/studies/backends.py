@@ -34,6 +34,20 @@ def _distributed():
     return distributed
 
 
+def _warm_worker():
+    """A Dask worker plugin: the run's imports (Pinocchio, scipy) when the worker starts, so that
+    they are not counted in its first run's time limit."""
+    from distributed.diagnostics.plugin import WorkerPlugin
+
+    class WarmWorker(WorkerPlugin):
+        idempotent = True
+
+        def setup(self, worker):
+            import importlib
+            importlib.import_module("pcmm.run.loop")
+    return WarmWorker()
+
+
 class DaskCluster:
     """A connection to a Dask distributed cluster: ``scheduler`` is its address, or ``local``
     to start a :class:`distributed.LocalCluster` of ``workers`` single-threaded processes.
@@ -54,6 +68,8 @@ class DaskCluster:
                 self.cluster.close()
             raise UsageError(f"--scheduler {scheduler}: cannot reach a Dask scheduler there ({exc})") from None
         self.slots = max(1, sum(self.client.nthreads().values()))
+        register = getattr(self.client, "register_plugin", None) or self.client.register_worker_plugin
+        register(_warm_worker(), name="pcmm-warm")  # every worker, restarted ones too, imports pcmm's run first
 
     def close(self) -> None:
         self.client.close()

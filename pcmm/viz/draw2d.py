@@ -276,7 +276,7 @@ def draw_frame(fig, sketches: list[Sketch], t: float, box, title: str = "", name
 def sketch_figure(run: RecordedRun, t: float, path: str | Path | None = None, others=(), size=(8.0, 5.0), dpi=110):
     """The sketch of ``run`` (and ``others``, dashed ghosts) at ``t``: a matplotlib Figure,
     written to ``path`` when given."""
-    from .plots import _matplotlib
+    from .canvas import _matplotlib
     Figure = _matplotlib()
     fig = Figure(figsize=size, dpi=dpi)
     sketches = [Sketch(run)] + [Sketch(o, colour="#888888", ghost=True) for o in others]

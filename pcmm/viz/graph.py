@@ -110,7 +110,7 @@ def graph_figure(views: dict, events: list[dict] | None = None, title: str = "",
                  path: str | Path | None = None) -> GraphFigure:
     """Draw the configurations and transitions (with the run's firings when ``events`` is given)."""
     from matplotlib import patches
-    from .plots import _matplotlib
+    from .canvas import _matplotlib
     Figure = _matplotlib()
     graph = edges(views)
     if events is not None:

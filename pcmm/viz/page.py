@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from .marks import RecordedRun, event_kind
+from .sketch import macro_groups, plate_text
 
 #: One colour per overlaid run (``pcmm replay a.npz b.npz``).
 RUN_COLOURS = ((0.85, 0.33, 0.10), (0.12, 0.40, 0.85), (0.17, 0.63, 0.17), (0.58, 0.40, 0.74))
@@ -44,8 +45,8 @@ def drawn_impacts(traj: RecordedRun) -> list[dict]:
 
 
 def describe_event(ev: dict) -> str:
-    kind = event_kind(ev)
-    text = f"{kind} '{ev.get('name', '')}' at t = {float(ev['t']):.7g} s"
+    """What the readout says of an event: what it was (its plate's words), its transition, when."""
+    text = f"{plate_text(ev)}: '{ev.get('name', '')}' at t = {float(ev['t']):.7g} s"
     if ev.get("from") != ev.get("to"):
         text += f", {ev.get('from')} → {ev.get('to')}"
     if ev.get("impact") and ev.get("impulse"):
@@ -61,7 +62,12 @@ body { margin: 0; font: 13px/1.35 system-ui, sans-serif; color: #111; background
 #meshcat-pane { width: 100vw; height: calc(100vh - %(bar)dpx); overflow: hidden; }
 #pcmm-bar { position: fixed; left: 0; right: 0; bottom: 0; height: %(bar)dpx; box-sizing: border-box;
   padding: 4px 14px; background: #f6f6f6; border-top: 1px solid #bbb; }
-#pcmm-readout { white-space: nowrap; overflow: hidden; text-overflow: ellipsis; }
+#pcmm-bar { min-height: %(bar)dpx; height: auto !important; }
+#pcmm-readout { white-space: normal; overflow-wrap: anywhere; }
+.pcmm-run-row { white-space: normal; overflow-wrap: anywhere; }
+.pcmm-band { position: absolute; top: 0; height: 16px; background: rgba(214, 39, 40, 0.18);
+  border: 1px solid rgba(214, 39, 40, 0.6); box-sizing: border-box; font-size: 10px; line-height: 14px;
+  color: #8b0000; text-align: center; pointer-events: none; overflow: visible; white-space: nowrap; }
 #pcmm-time { font: bold 16px/1.3 ui-monospace, monospace; margin-right: 1.2em; }
 .pcmm-config { font-weight: bold; margin-right: 0.6em; }
 .pcmm-last { color: #333; margin-right: 1.2em; }
@@ -80,7 +86,7 @@ body { margin: 0; font: 13px/1.35 system-ui, sans-serif; color: #111; background
 _JS = r"""
 (function () {
   var D = JSON.parse(document.getElementById("pcmm-data").textContent);
-  var A = viewer.animator, TOL = 2e-6;
+  var A = viewer.animator, TOL = 2e-6, lastBox = null;
   var timeEl = document.getElementById("pcmm-time");
   var head = document.getElementById("pcmm-playhead");
   var anglesEl = document.getElementById("pcmm-angles");
@@ -120,6 +126,7 @@ _JS = r"""
     head.style.left = (100 * (t - D.t0) / Math.max(D.t1 - D.t0, 1e-300)) + "%";
     var f = D.frames, lo = 0, hi = f.length - 1;  // the frame at or before t
     while (hi > lo) { var m = (lo + hi + 1) >> 1; if (f[m] <= t + TOL) { lo = m; } else { hi = m - 1; } }
+    if (D.boxes && lo !== lastBox) { lastBox = lo; viewer.set_3d_pane_size(); }
     anglesEl.textContent = Object.keys(D.angles).length ? "θ (rad): " + Object.keys(D.angles).map(function (k) {
       return k + " " + D.angles[k][lo].toFixed(4); }).join("   ") : "";
   }
@@ -128,7 +135,9 @@ _JS = r"""
     if (h === undefined) { h = this.dom_element.offsetHeight; }
     var c = this.camera;
     if (c.type == "OrthographicCamera") {
-      var f = D.view, bw = f.right - f.left, bh = f.top - f.bottom;
+      var f = D.view;
+      if (D.boxes && lastBox !== null) { var b = D.boxes[lastBox]; f = {left: b[0], right: b[1], bottom: b[2], top: b[3]}; }
+      var bw = f.right - f.left, bh = f.top - f.bottom;
       var cx = 0.5 * (f.left + f.right), cy = 0.5 * (f.top + f.bottom);
       if (bw / bh < w / h) { bw = bh * w / h; } else { bh = bw * h / w; }
       c.left = cx - bw / 2; c.right = cx + bw / 2; c.top = cy + bh / 2; c.bottom = cy - bh / 2;
@@ -136,6 +145,12 @@ _JS = r"""
     c.updateProjectionMatrix(); this.renderer.setSize(w, h); this.set_dirty();
   }
   viewer.set_3d_pane_size = fit;
+  var barEl = document.getElementById("pcmm-bar"), paneEl = document.getElementById("meshcat-pane");
+  function sizePane() {  // the bar grows with the runs' rows (they wrap, never cut): the view gets the rest
+    var h = Math.max(100, window.innerHeight - barEl.offsetHeight);
+    if (paneEl.offsetHeight !== h) { paneEl.style.height = h + "px"; viewer.set_3d_pane_size(); }
+  }
+  sizePane();
   viewer.set_3d_pane_size();
   document.querySelectorAll(".pcmm-marker").forEach(function (m) {
     m.addEventListener("click", function (ev) { ev.stopPropagation(); seek(parseFloat(m.dataset.t)); });
@@ -144,7 +159,7 @@ _JS = r"""
     var box = this.getBoundingClientRect();
     seek(D.t0 + (ev.clientX - box.left) / box.width * (D.t1 - D.t0));
   });
-  (function loop() { update(); requestAnimationFrame(loop); })();
+  (function loop() { sizePane(); update(); requestAnimationFrame(loop); })();
   var m = (location.hash + "&" + location.search).match(/[#?&]t=([-+0-9.eE]+)/);
   if (m) { seek(parseFloat(m[1])); }
   window.pcmm = { seek: seek, data: D };
@@ -158,12 +173,15 @@ def page_data(runs, info) -> dict:
     return {
         "t0": info["t0"], "t1": info["t1"], "fps": info["fps"],
         "view": {"left": view.left, "right": view.right, "top": view.top, "bottom": view.bottom},
+        "boxes": info.get("boxes"),  # the view per frame (--view follow | configuration), else null
+        "layout": info.get("layout", "overlay"),
         "arrow_scale": view.arrow_scale, "bar_length": view.bar_length,
         "frames": [float(t) for t in info["times"]],  # the frame times, s
         "angles": {link: [round(float(a), 6) for a in th] for link, th in info.get("angles", {}).items()},
         "runs": [{"name": run_name(r), "impact": r.impact,
                   "colour": _hex(RUN_COLOURS[i % len(RUN_COLOURS)]) if several else None,
                   "segments": [[float(s.t[0]), s.configuration] for s in r.segments],
+                  "groups": macro_groups(r),
                   "events": [{"t": float(e["t"]), "kind": event_kind(e), "text": describe_event(e),
                               **({"impulse": float(e["impulse"]["normal"]), "label": impulse_label(e)}
                                  if e in drawn_impacts(r) else {})}
@@ -180,12 +198,27 @@ def _bar_html(data) -> str:
     esc = _html.escape
     t0, t1 = data["t0"], data["t1"]
     readout = [f'<span id="pcmm-time">t = {t0:.6f} s</span>']
+    several = len(data["runs"]) > 1
     rows = []
     for r, run in enumerate(data["runs"]):
-        name = (run["name"] + ": ") if len(data["runs"]) > 1 else ""
-        readout.append(f'<span class="pcmm-config" id="pcmm-config-{r}">{esc(name + run["segments"][0][1])}</span>'
-                       f'<span class="pcmm-last" id="pcmm-last-{r}">no event yet</span>')
+        name = (run["name"] + ": ") if several else ""
+        state = (f'<span class="pcmm-config" id="pcmm-config-{r}">{esc(name + run["segments"][0][1])}</span>'
+                 f'<span class="pcmm-last" id="pcmm-last-{r}">no event yet</span>')
+        if several:  # one row per run, each in full (it wraps, never cut)
+            swatch = f'<span class="pcmm-swatch" style="background:{run["colour"]};margin-left:0"></span>'
+            readout.append(f'</div><div class="pcmm-run-row" id="pcmm-run-{r}">{swatch}{state}')
+        else:
+            readout.append(state)
         marks = []
+        for group in run.get("groups", []):  # a macro-impact: one band with its count
+            if len(group) < 2:
+                continue
+            a, b = run["events"][group[0]]["t"], run["events"][group[-1]]["t"]
+            left = 100.0 * (a - t0) / max(t1 - t0, 1e-300)
+            width = max(100.0 * (b - a) / max(t1 - t0, 1e-300), 0.3)
+            marks.append(f'<div class="pcmm-band" data-run="{r}" data-count="{len(group)}" data-t0="{a!r}" '
+                         f'data-t1="{b!r}" style="left:{left:.5f}%;width:{width:.5f}%" '
+                         f'title="macro-impact: {len(group)} impacts">{len(group)}×</div>')
         for i, e in enumerate(run["events"]):
             pct = 100.0 * (e["t"] - t0) / max(t1 - t0, 1e-300)
             marks.append(f'<div class="pcmm-marker pcmm-{e["kind"]}" data-run="{r}" data-event="{i}" '

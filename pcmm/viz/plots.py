@@ -60,27 +60,13 @@ import numpy as np
 from ..errors import UsageError
 from ..files import atomic_write
 from .marks import RecordedRun, event_kind
+from .canvas import _matplotlib
 
 WITH_IMPACT = "Considering impact motion"
 WITHOUT_IMPACT = "Without considering impact motion"
 _STYLE = {True: dict(color="C3", lw=1.4, ls="-", zorder=3), False: dict(color="C0", lw=1.4, ls="--", zorder=2)}
 _GREEK = {"alpha", "beta", "gamma", "delta", "theta", "phi", "psi", "omega", "tau", "lambda", "mu", "sigma"}
 _DPI = 130
-
-
-def _matplotlib():
-    try:
-        import matplotlib
-    except ImportError:
-        raise UsageError("figures need matplotlib, an optional extra: pip install 'pcmm[plots]'") from None
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    def make(**kw):  # the Agg canvas, without pyplot's global state
-        fig = Figure(**kw)
-        FigureCanvasAgg(fig)
-        return fig
-    return make
 
 
 # ---- what the runs hold ------------------------------------------------------------------------

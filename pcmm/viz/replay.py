@@ -69,6 +69,8 @@ from .page import BAR_PX, EVENT_COLOURS, RUN_COLOURS, drawn_impacts, impulse_lab
 from ..signals import as_interrupts
 from ..files import atomic_write
 from .marks import RecordedRun, event_kind
+from . import sketch as sk
+from .sprites import HALF, sprite
 
 #: Set to 1 to make :func:`serve` return once the replay is loaded (tests, scripts).
 NO_WAIT_ENV = "PCMM_REPLAY_NO_WAIT"
@@ -382,18 +384,36 @@ def _nice(x: float) -> float:
     return max(m * 10.0 ** k for m in (1, 2, 5) if m * 10.0 ** k <= x * (1 + 1e-12))
 
 
-def fitted_view(runs, visuals: list, times: np.ndarray) -> View:
-    pts = np.concatenate([swept_points(r, v, times) for r, v in zip(runs, visuals)])
+def side_offsets(runs, visuals: list, times: np.ndarray, layout: str) -> list[float]:
+    """Each run's shift along x: none overlaid; side by side, each run right of the one before
+    with a gap of 15 % of the widest run."""
+    if layout == "overlay" or len(runs) == 1:
+        return [0.0] * len(runs)
+    if layout != "side":
+        raise UsageError(f"--layout {layout!r}: must be 'overlay' or 'side'")
+    boxes = [(p.min(axis=0), p.max(axis=0)) for p in (swept_points(r, v, times) for r, v in zip(runs, visuals))]
+    gap = 0.15 * max(float(hi[0] - lo[0]) for lo, hi in boxes)
+    out, right = [0.0], float(boxes[0][1][0])
+    for lo, hi in boxes[1:]:
+        dx = right + gap - float(lo[0])
+        out.append(dx)
+        right = float(hi[0]) + dx
+    return out
+
+
+def fitted_view(runs, visuals: list, times: np.ndarray, offsets=None) -> View:
+    offsets = offsets or [0.0] * len(runs)
+    pts = np.concatenate([swept_points(r, v, times) + [dx, 0.0] for r, v, dx in zip(runs, visuals, offsets)])
     lo, hi = pts.min(axis=0), pts.max(axis=0)
     span = max(float(np.max(hi - lo)), 1e-3)
-    impacts = [e for r in runs for e in drawn_impacts(r)]
-    p_max = max([abs(float(e["impulse"]["normal"])) for e in impacts] + [0.0])
+    impacts = [(e, dx) for r, dx in zip(runs, offsets) for e in drawn_impacts(r)]
+    p_max = max([abs(float(e["impulse"]["normal"])) for e, _ in impacts] + [0.0])
     arrow_scale = 0.3 * span / p_max if p_max > 0 else 0.0
-    for e in impacts:  # the arrows are in view too
-        tip = np.asarray(e["contact_point"][:2]) + arrow_scale * np.asarray(e["impulse"]["vector"][:2])
+    for e, dx in impacts:  # the arrows are in view too
+        tip = np.asarray(e["contact_point"][:2]) + arrow_scale * np.asarray(e["impulse"]["vector"][:2]) + [dx, 0.0]
         lo, hi = np.minimum(lo, tip), np.maximum(hi, tip)
     span = max(float(np.max(hi - lo)), 1e-3)
-    margin = 0.06 * span
+    margin = max(0.06 * span, HALF * 1.1 * max(sk.scale(r) for r in runs))  # the symbols' sprites too
     label_h = 0.06 * span
     left, right = float(lo[0] - margin), float(hi[0] + margin)
     top = float(hi[1] + margin + 1.5 * label_h)
@@ -412,7 +432,8 @@ def view_box(traj: RecordedRun, visuals: dict[str, dict[str, list[Visual]]], fps
     return fitted_view([traj], [visuals], frame_times(traj, fps))
 
 
-def _label_png(text: str, fill=(255, 244, 204), ink=(20, 20, 20), outline=(120, 100, 40)) -> tuple[bytes, float]:
+def _label_png(text: str, fill=(255, 244, 204), ink=(20, 20, 20), outline=(120, 100, 40),
+               border: int = 3) -> tuple[bytes, float]:
     """A PNG plate with ``text``; returns (bytes, width / height)."""
     from PIL import Image, ImageDraw, ImageFont
     try:
@@ -426,7 +447,7 @@ def _label_png(text: str, fill=(255, 244, 204), ink=(20, 20, 20), outline=(120, 
     img = Image.new("RGB", (w, h), fill)
     draw = ImageDraw.Draw(img)
     if outline is not None:
-        draw.rectangle([0, 0, w - 1, h - 1], outline=outline, width=3)
+        draw.rectangle([0, 0, w - 1, h - 1], outline=outline, width=border)
     draw.text((pad - x0, pad - y0), text, fill=ink, font=font)
     buf = io.BytesIO()
     img.save(buf, format="PNG")
@@ -533,14 +554,16 @@ def _translation(x, y, z=0.0, angle=0.0) -> np.ndarray:
     return T
 
 
-def _plate(node, text: str, height: float, anchor_xy, z: float, align: str = "left", **colours) -> float:
+def _plate(node, text: str, height: float, anchor_xy, z: float, align: str = "left", opacity: float = 1.0,
+           **colours) -> float:
     """A text plate of ``height`` (world units) with its left edge, centre or right edge
     (``align``) at ``anchor_xy[0]`` and its top at ``anchor_xy[1]``; returns its width."""
     g = _import_meshcat().geometry
     png, aspect = _label_png(text, **colours)
     width = height * aspect
     node.set_object(g.Box([width, height, 1e-4]),
-                    g.MeshBasicMaterial(map=g.ImageTexture(image=g.PngImage(png)), color=0xFFFFFF))
+                    g.MeshBasicMaterial(map=g.ImageTexture(image=g.PngImage(png)), color=0xFFFFFF,
+                                        opacity=float(opacity), transparent=bool(opacity < 1)))
     x = anchor_xy[0] + {"left": 0.5, "centre": 0.0, "right": -0.5}[align] * width
     node.set_transform(_translation(x, anchor_xy[1] - 0.5 * height, z))
     return width
@@ -592,7 +615,137 @@ class _TopCamera:
         return TopCamera(view.left, view.right, view.top, view.bottom, 0.01, 10 * CAMERA_Z)
 
 
-def _send_scene(vis, runs: list[RecordedRun], fps: float) -> dict:
+
+#: The symbols' heights above the links (z, m): later ones drawn over earlier ones.
+_SYMBOL_Z = {"ground": 0.40, "guide": 0.40, "stop": 0.41, "pivot": 0.42, "slider": 0.43, "revolute": 0.44,
+             "cut": 0.45, "locked": 0.46}
+#: An event plate's height, in configuration plates' heights.
+PLATE_H = 0.75
+#: A plate fades out in this many steps of opacity over its time (sketch.PLATE_S).
+_FADE = (1.0, 0.6, 0.3)
+PLATE_COLOURS = {"impact": (160, 0, 0), "merge": (100, 40, 150), "release": (20, 120, 40), "switch": (60, 60, 60)}
+
+
+def _sprite_material(png: bytes, opacity: float = 1.0):
+    g = _import_meshcat().geometry
+    return g.MeshBasicMaterial(map=g.ImageTexture(image=g.PngImage(png)), color=0xFFFFFF, transparent=True,
+                               opacity=float(opacity))
+
+
+def _send_sketch(base, traj: RecordedRun, poses, frame_config, times, keys, view, clip, bool_track,
+                 ghost: bool = False) -> None:
+    """The engineer's symbols of :mod:`pcmm.viz.sketch` on the links' nodes (shown exactly in the
+    configurations they belong to), and the events' plates (riding on their bodies, fading out)
+    and joint-stop moment arcs (``links/<link>/sym/<i>``, ``plates/<i>``, ``links/<link>/arcs/<i>``)."""
+    g = _import_meshcat().geometry
+    s = sk.scale(traj)
+    box = g.Box([2 * HALF * s, 2 * HALF * s, 1e-4])
+    for i, sym in enumerate(sk.symbols(traj)):
+        if sym.link not in poses:
+            continue
+        node = base[f"links/{sym.link}/sym/{i}"]
+        if sym.kind == "guide":  # two lines along the axis
+            for side, off in (("l", -0.6 * s), ("r", 0.6 * s)):
+                node[side].set_object(g.Box([13 * s, 0.12 * s, 1e-4]), g.MeshBasicMaterial(color=0x000000))
+                node[side].set_transform(_translation(5.4 * s, off, 0.0))
+        else:
+            node.set_object(box, _sprite_material(sprite(sym.kind, sym.shape), 0.5 if ghost else 1.0))
+        node.set_transform(_translation(sym.xy[0], sym.xy[1], _SYMBOL_Z[sym.kind], sym.angle))
+        if sym.configurations is not None:
+            bool_track(clip(node), [c in sym.configurations for c in frame_config])
+    if ghost:
+        return
+    h = PLATE_H * view.label_h
+    for i, mark in enumerate(m for m in sk.event_marks(traj) if m.kind == "plate"):
+        a, b = _windows(times, *mark.window)
+        b = min(b, len(times))
+        node = base[f"plates/{i}"]
+        placed = [sk.world(traj, [mark], float(t)) for t in times[a:b]]
+        pts = [p[0].xy if p else (0.0, 0.0) for p in placed]
+        c = clip(node)
+        from_meshcat = _import_meshcat().animation
+        c.tracks["position"] = from_meshcat.AnimationTrack(
+            "position", "vector3", [keys[k] for k in range(a, b)], [[float(x), float(y), 0.55] for x, y in pts])
+        ink = PLATE_COLOURS.get(mark.extra.get("kind"), PLATE_COLOURS["switch"])
+        t0, t1 = mark.window
+        for j, opacity in enumerate(_FADE):
+            lo, hi = t0 + j * (t1 - t0) / len(_FADE), t0 + (j + 1) * (t1 - t0) / len(_FADE)
+            step = node[f"fade{j}"]
+            _plate(step, mark.text, h, (0.8 * s, 0.8 * s + h), 0.0, opacity=opacity, fill=(255, 255, 255),
+                   ink=ink, outline=ink, border=7)
+            on = np.zeros(len(times), dtype=bool)
+            fa, fb = _windows(times, lo, hi)
+            on[fa:min(fb, len(times))] = True
+            if j == 0:
+                on[a] = True  # the event's own frame shows the plate
+            bool_track(clip(step), on)
+    for i, mark in enumerate(m for m in sk.event_marks(traj) if m.kind == "arc"):
+        a, b = _windows(times, *mark.window)
+        on = np.zeros(len(times), dtype=bool)
+        on[a:min(b, len(times))] = True
+        node = base[f"links/{mark.link}/arcs/{i}"]
+        node.set_object(box, _sprite_material(sprite("arc", mark.shape)))
+        node.set_transform(_translation(mark.xy[0], mark.xy[1], 0.58))
+        bool_track(clip(node), on)
+        label = base[f"arcs/{i}"]
+        x, y = sk.world(traj, [mark], float(mark.window[0]))[0].xy
+        _plate(label, mark.text, h, (x + 1.4 * s, y - 1.0 * s), 0.59, **ARROW_LABEL)
+        bool_track(clip(label), on)
+
+def frame_boxes(runs, visuals: list, times: np.ndarray, offsets, mode: str, hold_s: float = 0.25) -> list | None:
+    """The view per frame: ``None`` for the whole run's box (``run``); else ``[left, right,
+    bottom, top]`` per frame, around what the runs cover at that frame (``follow``: the union
+    over ``hold_s`` either side, so the view does not shake), or over the stay in the first run's
+    configuration at that frame (``configuration``), with a 10 % margin."""
+    if mode == "run":
+        return None
+    if mode not in ("follow", "configuration"):
+        raise UsageError(f"--view {mode!r}: must be 'follow', 'configuration' or 'run'")
+    lo = np.full((len(times), 2), np.inf)
+    hi = np.full((len(times), 2), -np.inf)
+    for r, v, dx in zip(runs, visuals, offsets):
+        poses, _ = resample(r, times)
+        for link, p in poses.items():
+            local = np.concatenate([np.zeros((1, 2))] + [vi.outline() for per in v.values() for vi in per.get(link, [])])
+            c, s = np.cos(p[:, 2])[:, None], np.sin(p[:, 2])[:, None]
+            x = p[:, :1] + c * local[:, 0] - s * local[:, 1] + dx  # (frames, points)
+            y = p[:, 1:2] + s * local[:, 0] + c * local[:, 1]
+            lo = np.minimum(lo, np.column_stack([x.min(axis=1), y.min(axis=1)]))
+            hi = np.maximum(hi, np.column_stack([x.max(axis=1), y.max(axis=1)]))
+    if mode == "follow":
+        dt = float(np.median(np.diff(times))) if len(times) > 1 else 1.0
+        w = max(1, int(round(hold_s / max(dt, 1e-12))))
+        lo = np.array([lo[max(0, k - w):k + w + 1].min(axis=0) for k in range(len(times))])
+        hi = np.array([hi[max(0, k - w):k + w + 1].max(axis=0) for k in range(len(times))])
+    else:
+        seg = segment_at(runs[0], times)
+        for i in np.unique(seg):
+            rows = seg == i
+            lo[rows], hi[rows] = lo[rows].min(axis=0), hi[rows].max(axis=0)
+    span = np.maximum((hi - lo).max(axis=1, keepdims=True), 1e-3)
+    lo, hi = lo - 0.1 * span, hi + 0.1 * span
+    return [[round(float(a), 6) for a in (l[0], h[0], l[1], h[1])] for l, h in zip(lo, hi)]
+
+
+def envelope(traj: RecordedRun, visuals, times: np.ndarray) -> dict[str, np.ndarray]:
+    """``{link: (n, 2)}``: the path of each moving link's farthest visual point (its tip) over
+    the frames, the swept envelope the page traces faintly."""
+    poses, _ = resample(traj, times)
+    out = {}
+    for link, p in poses.items():
+        if np.ptp(p[:, :2], axis=0).max() < 1e-12 and np.ptp(p[:, 2]) < 1e-12:
+            continue  # the frame does not move
+        local = [v.outline() for per in visuals.values() for v in per.get(link, [])]
+        if not local:
+            continue
+        local = np.concatenate(local)
+        tip = local[np.argmax(np.hypot(local[:, 0], local[:, 1]))]
+        c, s = np.cos(p[:, 2]), np.sin(p[:, 2])
+        out[link] = np.column_stack([p[:, 0] + c * tip[0] - s * tip[1], p[:, 1] + s * tip[0] + c * tip[1]])
+    return out
+
+
+def _send_scene(vis, runs: list[RecordedRun], fps: float, layout: str = "overlay", view_mode: str = "run") -> dict:
     """Send every visited configuration's geometry, the plates, markers, arrows, scale bar and
     camera, and the whole of each run as one animation; return what the page needs."""
     mc = _import_meshcat()
@@ -603,7 +756,9 @@ def _send_scene(vis, runs: list[RecordedRun], fps: float) -> dict:
     t0, t1 = _span(runs)
     times = frame_times(list(runs), fps)
     keys = [float(k) for k in (times - t0) * fps]  # animation keys, in frames
-    view = fitted_view(runs, visuals, times)
+    offsets = side_offsets(runs, visuals, times, layout)
+    view = fitted_view(runs, visuals, times, offsets)
+    boxes = frame_boxes(runs, visuals, times, offsets, view_mode)
 
     vis["/Cameras/default"].set_transform(np.eye(4))
     vis["/Cameras/default/rotated"].set_transform(np.eye(4))
@@ -642,10 +797,17 @@ def _send_scene(vis, runs: list[RecordedRun], fps: float) -> dict:
            (bx + 0.5 * view.bar_length, by - 0.25 * view.label_h), 0.5, align="centre", **SCALE_LABEL)
 
     info = {"frames": len(times), "fps": fps, "view": view, "impact_markers": 0, "arrows": 0,
-            "times": times, "t0": t0, "t1": t1}
+            "times": times, "t0": t0, "t1": t1, "boxes": boxes, "offsets": offsets, "layout": layout}
     several = len(runs) > 1
     for r, (traj, per_config) in enumerate(zip(runs, visuals)):
         base = vis[ROOT] if r == 0 else vis[ROOT][f"run{r + 1}"]
+        if r:
+            base.set_transform(_translation(offsets[r] - offsets[0], 0.0))
+        if view_mode != "run":  # the swept envelope, a faint trace under everything
+            line = mc.geometry.LineBasicMaterial(color=0xC8C8C8)
+            for link, path in envelope(traj, per_config, times).items():
+                pts = np.vstack([path.T, np.full(len(path), -0.05)])
+                base[f"envelope/{link}"].set_object(mc.geometry.Line(mc.geometry.PointsGeometry(pts), line))
         poses, seg_idx = resample(traj, times)
         frame_config = [traj.segments[i].configuration for i in seg_idx]
         if r == 0:  # the readout's link angles: the links that turn
@@ -658,10 +820,11 @@ def _send_scene(vis, runs: list[RecordedRun], fps: float) -> dict:
                                         "the trajectory; its visuals stay at the origin"), file=sys.stderr)
                 for i, v in enumerate(vs):
                     if several:
-                        if own[link] == _GREY and r:  # one frame is enough
+                        if own[link] == _GREY and r and layout == "overlay":  # one frame is enough
                             continue
+                        ghost = r > 0 and layout == "overlay"  # the second run overlaid: a ghost
                         rgba = own[link] if own[link] == _GREY else tuple(RUN_COLOURS[r % len(RUN_COLOURS)]) + (
-                            1.0 if r == 0 else 0.65,)
+                            0.4 if ghost else 1.0,)
                     else:
                         rgba = v.rgba if v.coloured else own[link]
                     geom, T = _geometry(v)
@@ -711,50 +874,43 @@ def _send_scene(vis, runs: list[RecordedRun], fps: float) -> dict:
             on = np.zeros(len(times), dtype=bool)
             on[a:b + 1] = True
             bool_track(clip(node), on)
-        # merges and releases
-        for i, ev in enumerate(e for e in traj.events if event_kind(e) in ("merge", "release")):
-            node = base[f"events/{i}"]
-            p = ev.get("contact_point") or [view.label_xy[0], view.label_xy[1] - 1.5 * view.label_h]
-            colour = EVENT_COLOURS[event_kind(ev)]
-            ink = tuple(int(colour[k:k + 2], 16) for k in (1, 3, 5))
-            _plate(node, event_kind(ev), 0.7 * view.label_h, (p[0] - 0.5 * view.label_h, p[1] - 0.6 * view.label_h),
-                   0.55, fill=(255, 255, 255), ink=ink, outline=ink)
-            a, b = _windows(times, float(ev["t"]), float(ev["t"]) + 3 * FLASH_S)
-            on = np.zeros(len(times), dtype=bool)
-            on[a:min(b, len(times))] = True
-            bool_track(clip(node), on)
+        _send_sketch(base, traj, poses, frame_config, times, keys, view, clip, bool_track,
+                     ghost=r > 0 and layout == "overlay")
         info["impact_markers"] += len(slots)
         info["arrows"] += len(arrows)
     vis.set_animation(anim, play=True, repetitions=1)
     return info
 
 
-def _build(runs, fps: float, live=None) -> tuple[str, dict]:
+def _build(runs, fps: float, live=None, layout: str = "overlay", view: str = "run") -> tuple[str, dict]:
     mc = _import_meshcat()
     rec = _Recorder(live)
-    info = _send_scene(mc.Visualizer(window=rec), runs, fps)
+    info = _send_scene(mc.Visualizer(window=rec), runs, fps, layout, view)
     return page(runs, info, rec.commands), info
 
 
-def html_page(traj: RecordedRun, fps: float = 60, others=()) -> str:
-    """The self-contained replay page (text); ``others`` are overlaid, each in its own colour."""
-    return _build([traj, *others], fps)[0]
+def html_page(traj: RecordedRun, fps: float = 60, others=(), layout: str = "overlay", view: str = "run") -> str:
+    """The self-contained replay page (text); ``others`` overlaid (the second a ghost) or side by
+    side (``layout``), the view fitted to the whole ``run``, each ``configuration`` or ``follow``-ing."""
+    return _build([traj, *others], fps, layout=layout, view=view)[0]
 
 
-def write_html(traj: RecordedRun, path: str | Path, fps: float = 60, others=()) -> Path:
+def write_html(traj: RecordedRun, path: str | Path, fps: float = 60, others=(), layout: str = "overlay",
+               view: str = "run") -> Path:
     """Write ONE offline HTML page replaying ``traj`` (atomically; overwrites ``path``).
 
     The page embeds meshcat's viewer and the commands; it needs no server and
     no network."""
-    html = html_page(traj, fps, others)
+    html = html_page(traj, fps, others, layout, view)
     return atomic_write(path, lambda f: f.write(html), force=True)
 
 
 class Inline:
     """The replay page for a Jupyter cell: an ``<iframe srcdoc>`` (no server, no network)."""
 
-    def __init__(self, traj: RecordedRun, *others: RecordedRun, fps: float = 60, height: int = 520):
-        self.html = html_page(traj, fps, others)
+    def __init__(self, traj: RecordedRun, *others: RecordedRun, fps: float = 60, height: int = 520,
+                 layout: str = "overlay", view: str = "run"):
+        self.html = html_page(traj, fps, others, layout, view)
         self.height = int(height)
 
     def _repr_html_(self) -> str:
@@ -797,14 +953,14 @@ def _page_server(page: str):
         thread.join(timeout=5)
 
 
-def serve(traj: RecordedRun, fps: float = 60, others=()) -> None:
+def serve(traj: RecordedRun, fps: float = 60, others=(), layout: str = "overlay", view: str = "run") -> None:
     """Replay ``traj`` live: the scene goes to a meshcat server (its own viewer URL), and the
     replay page (readout, timeline, the same scene) is served on 127.0.0.1.  Print both URLs,
     block until Ctrl-C (or return at once when ``PCMM_REPLAY_NO_WAIT=1``).  Both servers are
     always shut down."""
     runs = [traj, *others]
     with as_interrupts(), _meshcat() as vis:  # SIGTERM / SIGHUP shut the servers down like Ctrl-C
-        page, info = _build(runs, fps, live=vis.window)
+        page, info = _build(runs, fps, live=vis.window, layout=layout, view=view)
         with _page_server(page) as url:
             print(f"pcmm replay: {terminal_text(' vs '.join(run_name(r) for r in runs))}: {info['frames']} frames at "
                   f"{fps:g} fps; open {url} in a browser (time readout, event timeline; "

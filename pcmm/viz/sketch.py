@@ -156,6 +156,8 @@ def symbols(run: RecordedRun) -> list[Symbol]:
             key = cj["name"]
             cuts.setdefault(key, (cj, set()))[1].add(c)
     for name, (cj, where) in cuts.items():
+        if cj.get("anchor_at_entry"):
+            continue  # drawn where each stay pinned it (pinned_symbols)
         out.append(Symbol("cut", cj["a"], tuple(cj["point_a"]), 0.0, name, frozenset(where)))
         if cj["a"] in roots:
             out.append(Symbol("ground", cj["a"], tuple(cj["point_a"]), 0.0, name))
@@ -173,13 +175,44 @@ def symbols(run: RecordedRun) -> list[Symbol]:
             nrm = ct.get("normal") or (1.0, 0.0)
             out.append(Symbol("stop", ct["a"], tuple(ct["point_a"]), math.atan2(nrm[1], nrm[0]), tr["name"],
                               shape="contact"))
-    return _dedupe(out)
+    return _dedupe(out + pinned_symbols(run))
+
+
+def pinned_symbols(run: RecordedRun) -> list[Symbol]:
+    """A cut joint anchored at entry (a struck point pinned where it lands) as a grounded pin where
+    b's point was when the run entered the configuration (its segment's first sample), shown for
+    that stay only: ``cut`` and ``ground`` on the frame, with a window per stay."""
+    views = run.views.get("configurations", {})
+    roots = sorted(root_links(run))
+    if not roots:
+        return []
+    out: list[Symbol] = []
+    segs = run.segments
+    for i, seg in enumerate(segs):
+        t0 = float(seg.t[0])
+        t1 = float(segs[i + 1].t[0]) if i + 1 < len(segs) else math.inf
+        for cj in (views.get(seg.configuration, {}).get("cut_joints") or []):
+            if not cj.get("anchor_at_entry"):
+                continue
+            pose = pose_at(run, cj["b"], t0)
+            if pose is None:
+                continue
+            anchor = to_world(pose, cj["point_b"])
+            last = out[-1] if out and out[-1].name == cj["name"] and out[-1].kind == "ground" else None
+            if last is not None and last.window[1] == t0 and math.dist(last.xy, anchor) < 1e-9:
+                # the same stay, split by a new partition of its coordinates: one symbol
+                out[-2:] = [Symbol(k.kind, k.link, k.xy, 0.0, k.name, window=(k.window[0], t1)) for k in out[-2:]]
+                continue
+            out += [Symbol("cut", roots[0], anchor, 0.0, cj["name"], window=(t0, t1)),
+                    Symbol("ground", roots[0], anchor, 0.0, cj["name"], window=(t0, t1))]
+    return out
 
 
 def _dedupe(syms: list[Symbol]) -> list[Symbol]:
     out, keys = [], set()
     for s in syms:
-        key = (s.kind, s.link, round(s.xy[0], 9), round(s.xy[1], 9), round(s.angle, 9), s.configurations, s.shape)
+        key = (s.kind, s.link, round(s.xy[0], 9), round(s.xy[1], 9), round(s.angle, 9), s.configurations, s.shape,
+               s.window)
         if key not in keys:
             keys.add(key)
             out.append(s)
@@ -212,10 +245,13 @@ def plate_text(ev: dict, count: int = 1, first: dict | None = None) -> str:
         return f"release ({why})"
     if ev.get("transition") == "latch":
         return "latch: impact + merge"
+    if ev.get("transition") == "pin":  # a struck point pinned where it lands (and what it released)
+        freed = ", ".join(ev.get("released") or {})
+        return "pin: impact, point pinned" + (f", {freed} lifts off" if freed else "")
     if count > 1:
         tail = ", merge" if ev.get("merge") else ""
-        return f"macro-impact ×{count}, {ev.get('kind', 'impact')}, e = {e:g}{tail}" if e is not None else \
-            f"macro-impact ×{count}{tail}"
+        return f"macro-impact ({count} impacts), {ev.get('kind', 'impact')}, e = {e:g}{tail}" if e is not None else \
+            f"macro-impact ({count} impacts){tail}"
     if kind == "merge":
         return f"stop: impact + merge ({ev.get('kind', '')})".replace(" ()", "")
     if kind == "impact":

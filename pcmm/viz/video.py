@@ -102,7 +102,7 @@ def write_video(run: RecordedRun, path: str | Path, others=(), fps: float = 30.0
     if not run.segments:
         raise UsageError(f"{run.source or 'the trajectory'}: the trajectory is empty: no video")
     from matplotlib import animation
-    from .plots import _matplotlib
+    from .canvas import _matplotlib
     Figure = _matplotlib()
     runs = [run, *others]
     t0 = min(float(r.segments[0].t[0]) for r in runs)
