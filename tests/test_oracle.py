@@ -339,15 +339,22 @@ def test_a_latched_loop_resampled_holds_at_the_kkt_moment(tmp_path):
     assert r.constraint_forces[1, 2] == pytest.approx(need[F.vslice["J3"].start], rel=1e-5)
 
 
-@pytest.mark.xfail(strict=True, raises=AssertionError, reason=(
-    "pcmm/events/holding.py Holds.adopt: a lock held from the start gets the release transition, "
-    "whose source is the locked configuration, so _forces_on looks for the held joint's own "
-    "elements in forces_in('locked'), where the scene does not list them (they act where E is free): "
-    "E.hold misses the elbow spring's moment (recorded -0.352 N m at t = 0, KKT with the spring "
-    "carried 0.148 N m; a lock locked by a latch carries it). For h-run (Hold.carries)."))
 def test_a_lock_held_from_the_start_carries_its_joints_spring(tmp_path):
-    _, found = _findings(held_elbow_arm(tmp_path))
+    """The elbow lock adopted at the start carries the elbow spring (f = 0.3 - 2 phi = -0.5 N m on
+    link 2), though the scene lists it only where E is free (Holds.adopt's lock is the release's,
+    whose source is 'locked'). By hand at t = 0 (at rest, S = 0, phi0 = 0.4): the welded arm turns
+    about S with alpha = M_g / I_S; link 2's moments about E give the lock's moment
+    lam = I_E alpha + m2 (L2/2) L1 alpha cos(phi0) - f + m2 g (L2/2) cos(phi0) = 0.14799 N m
+    (-0.352 N m without the spring's moment)."""
+    traj, found = _findings(held_elbow_arm(tmp_path))
     assert not found, _show(found)
+    L1, L2, m1, m2, g, phi = 0.4, 0.3, 1.0, 0.8, builders.G, 0.4
+    f = 0.3 - 2.0 * phi
+    c2 = (L1 + L2 / 2 * math.cos(phi), L2 / 2 * math.sin(phi))
+    alpha = -(m1 * g * L1 / 2 + m2 * g * c2[0]) / (m1 * L1 ** 2 / 3 + m2 * L2 ** 2 / 12 + m2 * (c2[0] ** 2 + c2[1] ** 2))
+    lam = m2 * L2 ** 2 / 3 * alpha + m2 * L2 / 2 * L1 * alpha * math.cos(phi) - f + m2 * g * L2 / 2 * math.cos(phi)
+    seg = traj.segments[0]
+    assert seg.constraint_forces[0, seg.constraint_labels.index("E.hold")] == pytest.approx(lam, rel=1e-9)
 
 
 def test_a_lock_held_from_the_start_without_a_spring_agrees(tmp_path):

@@ -40,6 +40,7 @@ class Hold:
     joints: dict[str, np.ndarray]  # locked joint -> its value when it locked
     merge: bool  # a stop-merge: held by the stop's contact force
     unilateral: bool  # undone when the contact force would turn tensile
+    carries: str  # the configuration with the joints free whose elements on them the lock carries
 
 
 class Holds:
@@ -62,9 +63,9 @@ class Holds:
             return
         if merge:
             unilateral = self.unmerge if tr.unmerge is None else tr.unmerge
-            self.items.append(Hold(tr.name, tr, locked, True, bool(unilateral)))
+            self.items.append(Hold(tr.name, tr, locked, True, bool(unilateral), src.name))
         else:
-            self.items += [Hold(n, tr, {n: val}, False, False) for n, val in locked.items()]
+            self.items += [Hold(n, tr, {n: val}, False, False, src.name) for n, val in locked.items()]
 
     def adopt(self, cfg: Configuration, q: np.ndarray, v: np.ndarray) -> None:
         """Locks the run starts with: a joint that a reaction guard watches and the initial
@@ -78,7 +79,9 @@ class Holds:
             src = self.mechanism[source]
             q_s, v_s = joints_from_poses(cfg, src, q, v, src.neutral(), np.zeros(src.nv), [of])
             tr = next(t for t in self.scene.transitions if t.guard.type == "reaction" and t.guard.of == of)
-            self.items.append(Hold(of, tr, {of: q_s[src.joint_slice[of]].copy()}, False, False))
+            # the release's source is the locked configuration: the joint's own elements (its
+            # spring) are those of ``source``, where it is free
+            self.items.append(Hold(of, tr, {of: q_s[src.joint_slice[of]].copy()}, False, False, source))
 
     def snapshot(self) -> "Holds":
         """The locks in force now, kept as they are (a recorded segment computes its holding
@@ -119,7 +122,7 @@ class Holds:
         if key not in self._refs:
             need = set(cfg.joint_names).union(*(h.joints for h in self.items))
             drives = {(d.joint, d.coefficients) for d in self.scene.drives_in(cfg.name)}
-            sources = {h.transition.source for h in self.items}
+            sources = {h.carries for h in self.items}
             fits = [(len(js), name not in sources, name) for name, js in self._joint_sets().items()
                     if need <= js and {(d.joint, d.coefficients) for d in self.scene.drives_in(name)} == drives]
             self._refs[key] = min(fits)[2] if fits else None
@@ -157,7 +160,7 @@ class Holds:
         own = self.scene.forces_in(cfg.name)
         out = []
         for h in self.items:
-            for f in self.scene.forces_in(h.transition.source):
+            for f in self.scene.forces_in(h.carries):
                 on_joint = f.on is not None and f.on.kind == "joint" and f.on.name in h.joints
                 measures = f.measure is not None and f.measure.kind == "joint" and f.measure.names[0] in h.joints
                 if (on_joint or measures) and f not in own and f not in out:
