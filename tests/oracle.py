@@ -595,6 +595,7 @@ class Oracle:
             self.report(t, f"{a.configuration} -> {b.configuration}: kinetic energy rises at the switch", ke_a, ke_b,
                         ke_b - ke_a, tol.event * scale)
         dropped = {j: x for e in here for j, x in (e.get("dropped_velocities") or {}).items()}
+        changed = {j: x for e in here for j, x in (e.get("changed_velocities") or {}).items()}
         if not impact and dropped:  # a switch without impulse (impact = False): the velocities it drops are named
             _, ra = _coordinate_values(a, len(a.t) - 1)
             _, rb = _coordinate_values(b, 0)
@@ -604,9 +605,14 @@ class Oracle:
                     d = float(np.max(np.abs(np.atleast_1d(dropped[j]) - np.atleast_1d(x))))
                     self.report(t, what + " dropped (the event's dropped_velocities)", dropped[j], x, d,
                                 tol.event * max(1.0, float(np.max(np.abs(np.atleast_1d(x))))))
+                elif j in changed and j in rb:  # changed to fit the target's constraints: named, before and after
+                    for k, (told, real) in enumerate(((changed[j][0], x), (changed[j][1], rb[j]))):
+                        d = float(np.max(np.abs(np.atleast_1d(told) - np.atleast_1d(real))))
+                        self.report(t, what + (" before", " after")[k] + " (the event's changed_velocities)", told,
+                                    real, d, tol.event * max(1.0, float(np.max(np.abs(np.atleast_1d(real))))))
                 elif j in rb:
                     d = float(np.max(np.abs(np.atleast_1d(rb[j]) - np.atleast_1d(x))))
-                    self.report(t, what + " kept", x, rb[j], d,
+                    self.report(t, what + " kept (or named in the event's changed_velocities)", x, rb[j], d,
                                 tol.event * max(1.0, float(np.max(np.abs(np.atleast_1d(x))))))
                 else:
                     self.report(t, what + " dropped but not named in the event's dropped_velocities", 0.0, x,
