@@ -376,18 +376,21 @@ COARSE = {
 
 
 @pytest.mark.parametrize("name", sorted(COARSE))
-@pytest.mark.xfail(strict=True, raises=SimulationError, reason=(
-    "resampling a fast loop at dt = 0.01 s (pcmm run --dt 0.01) fails in pcmm/run/loop.py "
-    "_record_samples.resample (its loop solves, pcmm/model/constraints.py): Andrews 'the loop cannot "
-    "be closed at t = 0.00994615 s (residual 0.0568)', the crank-rocker at t = 0.629929 s (residual "
-    "0.424), a step time whose recorded state the segment's own series derive without trouble; the "
-    "same segments resample at dt = 0.001 s, and adding every step time to the dt = 0.01 grid does not "
-    "help, so it is not only the distance between warm starts (the dense re-stepping before the "
-    "solves is the suspect). For h-model / h-run (issue 22 item 3)."))
 def test_a_fast_loop_resampled_at_a_coarse_dt(name, tmp_path):
+    """Resampling re-steps the dense output of the step holding each instant, solving the loop at
+    that step's start first: warm-started from the segment's start (Andrews' crank beta turns 2.18 rad
+    in 0.01 s) the Newton solve failed ('the loop cannot be closed at t = 0.00994615 s', a step
+    time) even with every step time in the grid.  Each solve now starts from the accepted step
+    before it (PartitionedCoordinates._follow).  The oracle checks the resampled series; resampled
+    at its own step times, the segment gives back the series the run derived, sample for sample."""
     path, t_end = COARSE[name](tmp_path)
-    _, found = _findings(path, t_end, 0.01)
+    traj, found = _findings(path, t_end, 0.01)
     assert not found, _show(found)
+    seg = traj.segments[0]
+    again = seg.resampled(np.union1d(np.arange(0.0, seg.t[-1], 0.01), seg.t))
+    at_steps = np.searchsorted(again.t, seg.t)
+    np.testing.assert_allclose(again.q[at_steps], seg.q, atol=1e-9)
+    np.testing.assert_allclose(again.constraint_forces[at_steps], seg.constraint_forces, rtol=1e-7, atol=1e-9)
 
 
 def planted_foot(folder, vx=1.0, h=0.2, L=0.6, m=1.0, t_end=0.4):
