@@ -168,6 +168,9 @@ class Model:
 
 # ---- one recorded segment seen by the oracle ------------------------------------------------------------
 def _coordinate_values(seg, i) -> tuple[dict, dict]:
+    """({joint: value}, {joint: velocity}) at sample ``i``; a planar joint's velocity as Pinocchio
+    and the event records have it, (vx, vy) in the body's axes: the series record the rates of its
+    coordinates, (x', y') in world axes (docs/planar_joints.md), so they are turned by R(theta)^T."""
     values, rates = {}, {}
     for k, name in enumerate(seg.coordinates):
         joint, _, part = name.partition(".")
@@ -176,6 +179,10 @@ def _coordinate_values(seg, i) -> tuple[dict, dict]:
             rates.setdefault(joint, []).append(seg.v[i, k])
         else:
             values[joint], rates[joint] = seg.q[i, k], seg.v[i, k]
+    for joint, r in rates.items():
+        if isinstance(r, list) and len(r) == 3:  # planar: x, y, theta
+            c, s = math.cos(values[joint][2]), math.sin(values[joint][2])
+            rates[joint] = [c * r[0] + s * r[1], -s * r[0] + c * r[1], r[2]]
     return values, rates
 
 
