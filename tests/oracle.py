@@ -608,15 +608,17 @@ class Oracle:
             _, rb = _coordinate_values(b, 0)
             for j, x in ra.items():
                 what = f"{a.configuration} -> {b.configuration} without impulse: velocity of {j}"
-                if j in dropped:
-                    d = float(np.max(np.abs(np.atleast_1d(dropped[j]) - np.atleast_1d(x))))
-                    self.report(t, what + " dropped (the event's dropped_velocities)", dropped[j], x, d,
-                                tol.event * max(1.0, float(np.max(np.abs(np.atleast_1d(x))))))
-                elif j in changed and j in rb:  # changed to fit the target's constraints: named, before and after
+                if j in changed and j in rb:  # changed to fit the target's constraints: named, before and after
                     for k, (told, real) in enumerate(((changed[j][0], x), (changed[j][1], rb[j]))):
                         d = float(np.max(np.abs(np.atleast_1d(told) - np.atleast_1d(real))))
                         self.report(t, what + (" before", " after")[k] + " (the event's changed_velocities)", told,
                                     real, d, tol.event * max(1.0, float(np.max(np.abs(np.atleast_1d(real))))))
+                if j in dropped:
+                    d = float(np.max(np.abs(np.atleast_1d(dropped[j]) - np.atleast_1d(x))))
+                    self.report(t, what + " dropped (the event's dropped_velocities)", dropped[j], x, d,
+                                tol.event * max(1.0, float(np.max(np.abs(np.atleast_1d(x))))))
+                elif j in changed and j in rb:
+                    pass  # named with both rates above
                 elif j in rb:
                     d = float(np.max(np.abs(np.atleast_1d(rb[j]) - np.atleast_1d(x))))
                     self.report(t, what + " kept (or named in the event's changed_velocities)", x, rb[j], d,

@@ -40,7 +40,13 @@ class Hold:
     joints: dict[str, np.ndarray]  # locked joint -> its value when it locked
     merge: bool  # a stop-merge: held by the stop's contact force
     unilateral: bool  # undone when the contact force would turn tensile
-    carries: str  # the configuration with the joints free whose elements on them the lock carries
+    carries: str = ""  # the configuration whose force elements on the held joints the lock carries
+    # (where those joints are free: the one the lock was made from, or for a lock the run starts
+    # with, the one that frees it); "" is the transition's source
+
+    @property
+    def free_in(self) -> str:
+        return self.carries or self.transition.source
 
 
 class Holds:
@@ -63,9 +69,9 @@ class Holds:
             return
         if merge:
             unilateral = self.unmerge if tr.unmerge is None else tr.unmerge
-            self.items.append(Hold(tr.name, tr, locked, True, bool(unilateral), src.name))
+            self.items.append(Hold(tr.name, tr, locked, True, bool(unilateral)))
         else:
-            self.items += [Hold(n, tr, {n: val}, False, False, src.name) for n, val in locked.items()]
+            self.items += [Hold(n, tr, {n: val}, False, False) for n, val in locked.items()]
 
     def adopt(self, cfg: Configuration, q: np.ndarray, v: np.ndarray) -> None:
         """Locks the run starts with: a joint that a reaction guard watches and the initial
@@ -79,9 +85,9 @@ class Holds:
             src = self.mechanism[source]
             q_s, v_s = joints_from_poses(cfg, src, q, v, src.neutral(), np.zeros(src.nv), [of])
             tr = next(t for t in self.scene.transitions if t.guard.type == "reaction" and t.guard.of == of)
-            # the release's source is the locked configuration: the joint's own elements (its
-            # spring) are those of ``source``, where it is free
-            self.items.append(Hold(of, tr, {of: q_s[src.joint_slice[of]].copy()}, False, False, source))
+            # the lock carries the elements acting on the joint where it is free (source), not those
+            # of the release's source (the locked configuration, where the scene does not list them)
+            self.items.append(Hold(of, tr, {of: q_s[src.joint_slice[of]].copy()}, False, False, carries=source))
 
     def snapshot(self) -> "Holds":
         """The locks in force now, kept as they are (a recorded segment computes its holding
@@ -122,7 +128,7 @@ class Holds:
         if key not in self._refs:
             need = set(cfg.joint_names).union(*(h.joints for h in self.items))
             drives = {(d.joint, d.coefficients) for d in self.scene.drives_in(cfg.name)}
-            sources = {h.carries for h in self.items}
+            sources = {h.free_in for h in self.items}
             fits = [(len(js), name not in sources, name) for name, js in self._joint_sets().items()
                     if need <= js and {(d.joint, d.coefficients) for d in self.scene.drives_in(name)} == drives]
             self._refs[key] = min(fits)[2] if fits else None
@@ -160,7 +166,7 @@ class Holds:
         own = self.scene.forces_in(cfg.name)
         out = []
         for h in self.items:
-            for f in self.scene.forces_in(h.carries):
+            for f in self.scene.forces_in(h.free_in):
                 on_joint = f.on is not None and f.on.kind == "joint" and f.on.name in h.joints
                 measures = f.measure is not None and f.measure.kind == "joint" and f.measure.names[0] in h.joints
                 if (on_joint or measures) and f not in own and f not in out:

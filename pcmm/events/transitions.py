@@ -160,9 +160,15 @@ def _merge(ctx: Context, cfg: Configuration, tr: TransitionSpec, target: str, t,
     q_new, v_new, dropped, offsets = switch(cfg, dst, t, q, v if not imp.impact else v_after,
                                             what=f"{transition_type} '{tr.name}'", reset=not imp.impact)
     if not imp.impact:  # the record shows the velocities the run goes on with (projected onto the target)
+        scale = max(1.0, float(np.max(np.abs(v)))) if len(v) else 1.0
         for n in dst.joint_names:
             if n in cfg.joint_slice:
                 v_after[cfg.joint_slice[n]] = v_new[dst.joint_slice[n]]
+                before = v[cfg.joint_slice[n]]
+                if np.max(np.abs(v_new[dst.joint_slice[n]] - before)) > VELOCITY_ROUNDOFF * scale:
+                    # a kept joint whose velocity the reset changed (closing a loop without impulse):
+                    # named with the velocity it had, like the locked ones
+                    dropped[n] = float(before[0]) if before.size == 1 else [float(x) for x in before]
         imp = no_impulse(cfg, q, v, v_after, tr.contact)
     record = event_record(cfg, tr, t, target, True, imp, transition_type, q=q)
     record["dropped_velocities"] = dropped
@@ -175,10 +181,10 @@ def _report_reset(record, src: Configuration, dst: Configuration, t, tr: Transit
                   imp) -> None:
     """A switch without impulse keeps the velocities of the joints its target keeps, unless the
     target's constraints (a loop the merge closes, a drive) do not admit them: they are then
-    projected onto those constraints (:func:`pcmm.events.entry.enter`).  Every velocity so changed
-    is named in ``changed_velocities`` ({joint: [rate before, rate after]}, the coordinates' rates
-    as the series record them) and in a warning with the kinetic energy the switch changes; the
-    dropped ones are ``dropped_velocities``."""
+    projected onto those constraints (:func:`pcmm.events.entry.enter`).  Besides their value
+    before in ``dropped_velocities`` (with the locked joints'), every velocity so changed is in
+    ``changed_velocities`` ({joint: [rate before, rate after]}, the coordinates' rates as the
+    series record them) and in a warning with the kinetic energy before and after."""
     before, after = src.qdot(q, v), dst.qdot(q_new, v_new)
     scale = max(1.0, float(np.max(np.abs(before)))) if len(before) else 1.0
     changed = {}
@@ -195,8 +201,9 @@ def _report_reset(record, src: Configuration, dst: Configuration, t, tr: Transit
                        for n, (b, a) in changed.items())
     record.setdefault("warnings", []).append(
         f"t = {t:.9g} s, transition '{tr.name}' without impact: '{dst.name}' does not admit the velocities kept "
-        f"from '{src.name}', so the switch changes {listed} (projected onto its constraints; dropped: "
-        f"{', '.join(record.get('dropped_velocities') or {}) or 'none'}); the kinetic energy goes from "
+        f"from '{src.name}', so the switch changes {listed} (projected onto its constraints; locked: "
+        f"{', '.join(n for n in record.get('dropped_velocities') or {} if n not in changed) or 'none'}); "
+        "the kinetic energy goes from "
         f"{imp.ke_before:.6g} to {imp.ke_after:.6g} J ({imp.ke_after - imp.ke_before:+.3g} J)")
 
 
