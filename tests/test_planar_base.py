@@ -122,3 +122,37 @@ def test_planar_joint_velocities_are_reported_in_world_axes(tmp_path):
     assert final["v"]["P.x"] == pytest.approx(1.0, abs=1e-12)
     assert final["v"]["P.y"] == pytest.approx(0.0, abs=1e-12)
     assert final["q"]["P.x"] == pytest.approx(0.5, abs=1e-12)
+
+
+
+def test_a_segment_is_reread_without_touching_the_running_coordinates(tmp_path):
+    """The pinned bar with L = 1.7 m changes its loop's partition as it swings.  Re-reading its
+    first segment (``restored``, what a trajectory's lazy series do, possibly in another thread)
+    gives a reader in that segment's partition, while the coordinates the run integrates keep the
+    partition of the segment it is in: unpacking the run's state inside and outside the reading
+    gives the same posture, bit for bit."""
+    from pcmm.model.mechanism import Mechanism
+
+    path = pinned_bar(tmp_path, -math.pi / 2 + 1.0, 0.0, t_end=2.0, L=1.7)
+    scene = pcmm.load_scene(path)
+    traj = pcmm.simulate(scene)
+    first, later = traj.segments[0], traj.segments[1]
+    cfg = Mechanism(scene)["c"]
+    rates = lambda q, v: cfg.qdot(q, v)  # noqa: E731 - the recorded v are the rates (world axes)
+    to_v = lambda q, qd: cfg.velocity(q, qd)  # noqa: E731
+    coords = cfg.coords
+    coords.pack(0.0, first.q[0], to_v(first.q[0], first.v[0]))
+    frozen, D_first = coords.frozen_state(), coords.D.copy()
+    t2, q2 = float(later.t[1]), later.q[1]
+    y2 = coords.pack(float(later.t[0]), later.q[0], to_v(later.q[0], later.v[0]))
+    assert not np.array_equal(coords.D, D_first)  # the run is in another partition now
+    y2 = np.concatenate([q2[coords.I], rates(q2, to_v(q2, later.v[1]))[coords.I]])
+    outside = coords.unpack(t2, y2)[0].copy()
+    with coords.restored(frozen, first.q[0]) as reader:
+        assert np.array_equal(reader.D, D_first)
+        y1 = np.concatenate([first.q[3][reader.I], first.v[3][reader.I]])
+        np.testing.assert_allclose(reader.unpack(float(first.t[3]), y1)[0], first.q[3], rtol=0, atol=1e-12)
+        inside = coords.unpack(t2 + 1e-9, y2)[0]  # the run goes on meanwhile (another instant: no cache)
+        assert not np.array_equal(coords.D, D_first)
+    np.testing.assert_allclose(inside, outside, rtol=0, atol=1e-6)
+    np.testing.assert_allclose(outside, q2, rtol=0, atol=1e-12)
