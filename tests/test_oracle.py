@@ -452,9 +452,11 @@ def test_the_merged_stretch_of_example2s_cycle_holds_what_the_kkt_solve_gives():
 
 
 def test_the_potential_energy_is_continuous_where_the_posture_is():
-    traj = pcmm.simulate(pcmm.load_scene(EXAMPLES / "three_bar_cycle.toml"), pcmm.RunOptions(t_end=0.2))
+    # the O2 lock (0.185 s), the O3 merge into folded (1.022 s) and the O2 release (1.199 s)
+    traj = pcmm.simulate(pcmm.load_scene(EXAMPLES / "three_bar_cycle.toml"), pcmm.RunOptions(t_end=1.25))
     switches = [(a, b) for a, b in zip(traj.segments, traj.segments[1:]) if a.configuration != b.configuration]
-    assert switches
+    assert [(a.configuration, b.configuration) for a, b in switches] == [
+        ("open", "O2_locked"), ("O2_locked", "folded"), ("folded", "O3_locked")]
     for a, b in switches:
         np.testing.assert_allclose(a.xy[-1], b.xy[0], atol=1e-9)  # the posture does not move
         assert b.potential[0] == pytest.approx(a.potential[-1], abs=1e-9), (a.configuration, b.configuration)
