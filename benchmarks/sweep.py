@@ -101,7 +101,7 @@ def worker_start_s() -> float:
     """What a spawned worker pays before its first run: a fresh Python importing pcmm's run path."""
     import subprocess
     t0 = time.perf_counter()
-    subprocess.run([sys.executable, "-c", "import pcmm.studies.job, pcmm.simulate, pcmm.model.configuration"],
+    subprocess.run([sys.executable, "-c", "import pcmm.studies.job, pcmm.run.loop, pcmm.model.configuration"],
                    check=True, env={**os.environ, "PYTHONPATH": str(ROOT)})
     return time.perf_counter() - t0
 

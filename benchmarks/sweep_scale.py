@@ -62,10 +62,10 @@ def _rss(pid: int) -> int:
     return 0
 
 
-def run_sweep(args: list[str], cwd: Path, extra_pids=(), kill_after: float | None = None):
+def run_sweep(args: list[str], cwd: Path, extra_pids=(), kill_at_rows: int | None = None):
     """Run ``pcmm sweep`` (a subprocess); its wall time, the peak summed RSS of it, its
-    descendants and ``extra_pids``; with ``kill_after`` it is SIGKILLed then (returns the pids
-    of its tree at that moment too)."""
+    descendants and ``extra_pids``; with ``kill_at_rows`` it is SIGKILLed once its table has that
+    many rows (returns the pids of its tree at that moment too)."""
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     t0 = time.perf_counter()
     proc = subprocess.Popen([sys.executable, "-m", "pcmm.cli", "sweep", *args], cwd=cwd, env=env,
@@ -74,13 +74,21 @@ def run_sweep(args: list[str], cwd: Path, extra_pids=(), kill_after: float | Non
     while proc.poll() is None:
         tree = _tree(proc.pid)
         peak = max(peak, sum(_rss(p) for p in [*tree, *extra_pids]))
-        if kill_after is not None and time.perf_counter() - t0 >= kill_after:
+        if kill_at_rows is not None and _lines(cwd / args[args.index("--out") + 1]) - 1 >= kill_at_rows:
             proc.send_signal(signal.SIGKILL)
             proc.wait()
             break
-        time.sleep(0.2)
+        time.sleep(0.05 if kill_at_rows is not None else 0.2)
     out, err = proc.communicate()
     return time.perf_counter() - t0, peak, proc.returncode, out, err, tree
+
+
+def _lines(path: Path) -> int:
+    try:
+        with open(path, "rb") as f:
+            return sum(1 for _ in f)
+    except FileNotFoundError:
+        return 0
 
 
 def rows_of(path: Path) -> list[dict]:
@@ -94,10 +102,30 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
+def kill_and_resume(base, d: Path, n: int) -> None:
+    """Only the kill -9 and --resume measurement (a plan of n distinct runs: lost = n - distinct rows)."""
+    at = int(random.Random().uniform(0.2, 0.8) * n)
+    t0 = time.perf_counter()
+    _, _, code, _, _, tree = run_sweep([*base, "--out", "killed.csv"], d, kill_at_rows=at)
+    killed_after = time.perf_counter() - t0
+    time.sleep(2)
+    orphans = [p for p in tree[1:] if Path(f"/proc/{p}").exists()
+               and Path(f"/proc/{p}/stat").read_text().split(") ")[-1][0] != "Z"]
+    kept = len(rows_of(d / "killed.csv"))
+    wall, _, code2, out, err, _ = run_sweep([*base, "--out", "killed.csv", "--resume"], d)
+    assert code2 == 0, err
+    keys = [tuple(r[k] for k in KEY) for r in rows_of(d / "killed.csv")]
+    print(f"kill -9 once {at} rows were in, after {killed_after:.0f} s (exit {code}): {kept} rows kept, "
+          f"{len(tree) - 1} workers, {len(orphans)} alive 2 s later; --resume {wall:.0f} s: "
+          f"{out.splitlines()[0]}; lost {n - len(set(keys))}, duplicated {len(keys) - len(set(keys))}, "
+          f"dropped by the checksum {err.count('cut short or altered')}", flush=True)
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--runs", type=int, default=10_000)
     ap.add_argument("--no-dask", action="store_true")
+    ap.add_argument("--kill-only", action="store_true", help="only the SIGKILL-and-resume measurement")
     args = ap.parse_args()
     info = _common.machine()
     workers = info["usable_cores"] or 1
@@ -108,6 +136,8 @@ def main():
         d = Path(d)
         base = [str(SCENE), *SETS, "--runs", str(n), "--workers", str(workers), "--quiet"]
 
+        if args.kill_only:
+            return kill_and_resume(base, d, n)
         # 1. the local pool
         wall, peak, code, out, err, _ = run_sweep([*base, "--out", "pool.csv"], d)
         assert code == 0, err
@@ -148,9 +178,9 @@ def main():
                     except subprocess.TimeoutExpired:
                         p.kill()
 
-        # 3. SIGKILL at a random moment, then --resume
-        at = random.Random().uniform(0.2, 0.8) * results["local pool"]["wall"]
-        _, _, code, _, _, tree = run_sweep([*base, "--out", "killed.csv"], d, kill_after=at)
+        # 3. SIGKILL at a random moment (when a random 20-80 % of the rows are in), then --resume
+        at = int(random.Random().uniform(0.2, 0.8) * n)
+        _, _, code, _, _, tree = run_sweep([*base, "--out", "killed.csv"], d, kill_at_rows=at)
         time.sleep(2)
         orphans = [p for p in tree[1:] if Path(f"/proc/{p}").exists()
                    and Path(f"/proc/{p}/stat").read_text().split(") ")[-1][0] != "Z"]
@@ -184,7 +214,7 @@ def main():
         "(Dask) the scheduler and worker processes, sampled every 0.2 s.", "",
         _common.md_table(["backend", "rows", "wall, s", "runs/s", "peak memory, MiB", "table, MiB",
                           "bytes per row", "same rows as the pool"], table), "",
-        f"Killed with SIGKILL at {k['at']:.1f} s (exit {k['code']}), with {k['kept']:,} rows in the table and "
+        f"Killed with SIGKILL once {k['at']:,} rows were in (exit {k['code']}), with {k['kept']:,} rows in the table and "
         f"{k['workers']} worker processes; {k['orphans']} of them alive 2 s later. `--resume` ran the rest in "
         f"{k['resume_wall']:.0f} s: rows lost {k['lost']}, rows duplicated {k['duplicated']}, rows dropped on "
         f"resume for a failed checksum {k['dropped']}.", "",

@@ -9,6 +9,7 @@ fault suite and the structural mutations are in ``test_fuzz.py``.
 from __future__ import annotations
 
 import csv
+import importlib
 import json
 import math
 import os
@@ -160,7 +161,7 @@ def test_partial_stats_count_the_interrupted_segment(tmp_path):
 def test_a_second_ctrl_c_while_the_partial_is_recorded_loses_nothing(tmp_path, monkeypatch):
     """Ctrl-C mid-segment, then a second Ctrl-C while that segment's samples are recorded: the
     second waits, and the partial ends where the first stopped the run."""
-    sim = sys.modules["pcmm.run.recording"]
+    sim = importlib.import_module("pcmm.run.recording")  # (imported here: run alone, no test before loaded it)
     scene = pcmm.load_scene(builders.spring_pendulum(tmp_path / "s", 10.0, 0.1, t_end=50.0))  # one long segment
     real = sim.record_samples
     state = {"interrupted": False, "sent": 0}
@@ -197,7 +198,7 @@ def test_the_same_path_for_two_outputs_is_refused(tmp_path, capsys):
 
 def _appearing_during_the_run(monkeypatch, path: Path, content: bytes, fail: bool = False):
     """Make ``path`` appear while the run computes (a concurrent run finishing first)."""
-    sim = sys.modules["pcmm.run.loop"]
+    sim = importlib.import_module("pcmm.run.loop")  # (imported here: run alone, no test before loaded it)
     real = sim.simulate
 
     def simulate(scene, options=sim.RunOptions(), progress=None):
@@ -563,7 +564,7 @@ def test_a_latch_with_a_reversed_normal_is_an_error_naming_the_normal(tmp_path):
 
 
 def test_non_finite_numbers_never_reach_the_summary(tmp_path, capsys, monkeypatch):
-    sim = sys.modules["pcmm.run.loop"]
+    sim = importlib.import_module("pcmm.run.loop")  # (imported here: run alone, no test before loaded it)
     real = sim.simulate
 
     def overflowing(scene, options=sim.RunOptions(), progress=None):

@@ -22,8 +22,8 @@ def _expected_edges(raw: dict, unmerge_default: bool = True) -> Counter:
     out = Counter()
     for tr in raw.get("transitions", []):
         kind = tr["type"]
-        if kind == "latch":
-            out[(tr["name"], "latch", tr["from"], tr["to"])] += 1
+        if kind in ("latch", "pin"):
+            out[(tr["name"], kind, tr["from"], tr["to"])] += 1
         elif kind == "release":
             out[(tr["name"], "release", tr["from"], tr["to"])] += 1
         elif kind == "stop":

@@ -128,7 +128,7 @@ PREFIX = [
     ("three_bar.toml", 0.2, 0.35, 0.01),
     ("three_bar_stop.toml", 0.2, 0.4, 0.01),
     ("double_folded.toml", 3.05, 3.2, 0.05),
-    ("andrews.toml", 0.01, 0.02, 0.001),  # the squeezer's loop resampled: the coarse-dt case's cause
+    ("andrews.toml", 0.01, 0.02, 0.001),
     ("three_bar_cycle.toml", 0.2, 0.35, 0.05),
 ]
 

@@ -43,7 +43,7 @@ def assert_png(path: Path):
 def test_three_bar_with_and_without_impact(runs, tmp_path):
     out = tmp_path / "figs"  # created by write_figures
     files = plots.write_figures(runs[0], out, compare=runs[1])
-    assert {f.name for f in files} == BASE | {"impulses.png", "holding_forces.png"}
+    assert {f.name for f in files} == BASE | {"impulses.png", "holding_forces.png", "angle_differences.png"}
     assert sorted(p.name for p in out.iterdir()) == sorted(f.name for f in files), "no stray files"
     for f in files:
         assert f.parent == out
@@ -60,7 +60,7 @@ def test_no_impact_run_alone_has_no_impulse_figure(runs, tmp_path):
 def test_compare_order_does_not_matter(runs, tmp_path):
     """``pcmm run --no-impact --plots`` passes the run with impact as ``compare``."""
     files = plots.write_figures(runs[1], tmp_path, compare=runs[0])
-    assert {f.name for f in files} == BASE | {"impulses.png", "holding_forces.png"}
+    assert {f.name for f in files} == BASE | {"impulses.png", "holding_forces.png", "angle_differences.png"}
     labels = [r.label for r in plots._runs(runs[1], runs[0])]
     assert labels == [plots.WITHOUT_IMPACT, plots.WITH_IMPACT]
 
@@ -110,7 +110,7 @@ def test_slider_drive_and_impulse_figures_follow_the_data(tmp_path):
     names = {f.name for f in files}
     # one rotating link: no relative angle; a translating link: the slider figure
     assert names == {"link_angles.png", "angular_velocities.png", "force_elements.png", "energy.png",
-                     "impulses.png", "slider.png", "driving_moment.png"}
+                     "impulses.png", "slider.png", "driving_moment.png", "angle_differences.png"}
     for f in files:
         assert_png(f)
 
@@ -261,3 +261,21 @@ def test_the_first_impulse_label_stays_inside_the_axes(t_end):
     box, frame = label.get_window_extent(), ax.get_window_extent()
     assert box.x0 >= frame.x0 and box.x1 <= frame.x1, (t_end, box, frame)
     assert label.get_ha() == ("left" if 0.167 < t_end / 3 else "right")
+
+
+def test_the_difference_of_the_two_runs_is_plotted_zero_until_the_first_event(runs):
+    """The run without impact hides under the one with impact where they agree: the difference
+    figure shows theta_with - theta_without, read back from its own curve."""
+    with_impact, without = runs
+    fig = plots.figures(with_impact, compare=without)["angle_differences"]
+    t_event = with_impact.events[0]["t"]
+    panels = [ax for ax in fig.axes if ax.get_visible()]
+    assert [ax.get_title().split("Difference of ")[1].split("'")[0] for ax in panels] == ["link1", "link2", "link3"]
+    for ax, link in zip(panels, ["link1", "link2", "link3"]):
+        (curve,) = [ln for ln in ax.get_lines() if ln.get_color() == "C4"]
+        t, d = curve.get_xdata(), curve.get_ydata()
+        expect = with_impact.series("theta", link) - np.interp(with_impact.t, without.t, without.series("theta", link))
+        assert np.array_equal(t, with_impact.t) and np.allclose(d, expect, atol=1e-15)
+        assert np.abs(d[t < t_event - 1e-9]).max() < 1e-9  # the same run until the latch
+        assert np.abs(d[t > t_event + 0.05]).max() > 1e-3  # and apart after it
+        assert any(abs(x - t_event) < 1e-12 for ln in ax.get_lines() for x in np.atleast_1d(ln.get_xdata())[:1])

@@ -864,3 +864,42 @@ def test_browser_shows_the_second_runs_readout_in_full(runs, tmp_path):
     # text reaches down into the bar's lower rows, and nothing is cut at the right edge
     rows_with_text = [y for y in range(top, h) if _dark(img[y:y + 1, 10:w - 10]).any()]
     assert rows_with_text and rows_with_text[-1] < h - 3
+
+
+# ---- layouts and views ------------------------------------------------------------------------
+def test_side_by_side_runs_do_not_overlap_and_the_view_holds_both(runs):
+    a, b = runs
+    times = replay.frame_times(list(runs), FPS)
+    visuals = [replay.run_visuals(r) for r in runs]
+    offsets = replay.side_offsets(list(runs), visuals, times, "side")
+    pa, pb = (replay.swept_points(r, v, times) + [dx, 0.0] for r, v, dx in zip(runs, visuals, offsets))
+    width_a = np.ptp(pa[:, 0])
+    assert offsets[0] == 0.0
+    assert pb[:, 0].min() - pa[:, 0].max() == pytest.approx(0.15 * max(width_a, np.ptp(pb[:, 0])), rel=1e-9)
+    html = replay.html_page(a, fps=FPS, others=[b], layout="side")
+    commands = decode_commands(html)
+    moved = [c for c in commands if c["type"] == "set_transform" and c["path"] == "/meshcat/pcmm/run2"]
+    assert moved and moved[-1]["matrix"][12] == pytest.approx(offsets[1])  # three.js: column-major
+    view = page_data(html)["view"]
+    assert view["left"] <= pa[:, 0].min() and view["right"] >= pb[:, 0].max()
+    assert page_data(html)["layout"] == "side"
+    with pytest.raises(pcmm.UsageError, match="--layout 'diagonal'"):
+        replay.side_offsets(list(runs), visuals, times, "diagonal")
+
+
+def test_the_follow_view_holds_the_mechanism_at_every_frame_and_is_tighter_than_the_run(runs):
+    traj = runs[0]
+    html = replay.html_page(traj, fps=FPS, view="follow")
+    data = page_data(html)
+    boxes, frames = data["boxes"], data["frames"]
+    assert len(boxes) == len(frames)
+    poses, _ = replay.resample(traj, np.array(frames))
+    for k, (l, r, b, t) in enumerate(boxes):
+        for link, p in poses.items():  # every link's frame origin is inside its frame's box
+            assert l <= p[k, 0] <= r and b <= p[k, 1] <= t, (k, link)
+    run_area = (data["view"]["right"] - data["view"]["left"]) * (data["view"]["top"] - data["view"]["bottom"])
+    assert min((r - l) * (t - b) for l, r, b, t in boxes) < 0.9 * run_area
+    # the swept envelope: one faint line per moving link
+    lines = [c for c in decode_commands(html) if c["type"] == "set_object" and c["path"].startswith("/meshcat/pcmm/envelope/")]
+    assert sorted(c["path"].rsplit("/", 1)[1] for c in lines) == ["link1", "link2", "link3"]
+    assert page_data(replay.html_page(traj, fps=FPS))["boxes"] is None  # --view run: one box

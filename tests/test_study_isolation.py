@@ -28,6 +28,7 @@ def read(path):
         return list(csv.DictReader(f))
 
 
+@pytest.mark.slow  # waits out a hanging run
 def test_a_crashing_and_a_hanging_run_are_rows_and_the_sweep_goes_on(tmp_path):
     plan = make_plan([Axis("forces.tau1.value", (1.955, 3.0, 4.0, 2.1))])
     out = tmp_path / "r.csv"
@@ -91,6 +92,7 @@ def _descendants(pid: int) -> list[int]:
 
 
 @pytest.mark.skipif(not Path("/proc/self/task").exists(), reason="needs Linux's /proc")
+@pytest.mark.slow  # a sweep killed in a subprocess
 def test_kill_9_of_the_sweep_leaves_no_worker_behind(tmp_path):
     env = {**os.environ, "PYTHONPATH": f"{ROOT}{os.pathsep}{TESTS}"}
     proc = subprocess.Popen([sys.executable, "-m", "pcmm.cli", "sweep", str(THREE_BAR), "--set",

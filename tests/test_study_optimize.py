@@ -61,6 +61,7 @@ def test_cobyqa_finds_the_least_impulse_that_strikes_in_time(scene, tmp_path):
     assert rows[res.run][BOX.path] == repr(tau)
 
 
+@pytest.mark.slow  # generations on the pool and on a Dask cluster
 def test_differential_evolution_on_the_pool_and_on_dask(scene, tmp_path):
     res = optimize(pcmm.load_scene(scene), [BOX], "peak_impulse", tmp_path / "pool.csv", subject_to=[LIMIT],
                    method="de", max_evals=100, tol=1e-3, workers=2, seed=3)
@@ -83,6 +84,7 @@ def _optimize_cli(args, cwd):
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 
+@pytest.mark.slow  # an optimisation killed and resumed in subprocesses
 def test_resume_after_kill_9_replays_the_table(scene, tmp_path):
     args = [str(scene), "--vary", f"{BOX.path}={BOX.low}:{BOX.high}", "--minimize", "peak_impulse",
             "--subject-to", f"first_impact_t<={T_MAX}", "--out", "o.csv", "--max-evals", "40", "--tol", "1e-9"]

@@ -96,6 +96,7 @@ def _sweep_cli(args, cwd, **kw):
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, **kw)
 
 
+@pytest.mark.slow  # two concurrent sweeps in subprocesses
 def test_two_resumes_at_once_give_each_run_once(tmp_path):
     # the probe: two --resume on one table gave 33 rows for 18 runs
     args = [str(STOP), "--set", f"{PATH}=0.1:0.9:17", "--t-end", "2.0", "--out", "r.csv", "--workers", "1",

@@ -38,7 +38,7 @@ _EventCore = TypedDict("_EventCore", {
     "t": float,  # s
     "name": str,  # the transition's name
     "kind": str,  # "stable" (with the frame), "mobile" (between components) or "release"
-    "transition": str,  # "latch", "stop" or "release"
+    "transition": str,  # "latch", "stop", "pin" or "release"
     "from": str,  # configuration before
     "to": str,  # configuration after
     "restitution": "float | None",  # None: no impact

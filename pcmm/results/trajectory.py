@@ -358,12 +358,14 @@ class Trajectory:
         return {c: views[c] for c in self.visited()}
 
     # ---- notebook views -------------------------------------------------------------------
-    def show(self, *others: "Trajectory", fps: float = 60, height: int = 520):
+    def show(self, *others: "Trajectory", fps: float = 60, height: int = 520, layout: str = "overlay",
+             view: str = "run"):
         """The offline replay page, inline in Jupyter (an ``<iframe srcdoc>``, no server).
 
-        ``others`` are overlaid, each in its own colour (e.g. the run without impact)."""
+        ``others`` are overlaid (the second a faint ghost) or ``layout="side"`` by side, each in its
+        own colour (e.g. the run without impact); ``view`` is ``run``, ``configuration`` or ``follow``."""
         from ..viz.replay import Inline  # the views read a run's record alone: they sit below it
-        return Inline(self, *others, fps=fps, height=height)
+        return Inline(self, *others, fps=fps, height=height, layout=layout, view=view)
 
     def plot(self, compare: "Trajectory | None" = None, impulse_sign: str = "body_b") -> dict:
         """The paper's figure set as matplotlib figures, ``{file stem: Figure}``."""

@@ -225,6 +225,10 @@ def _integrate(run: RunState, fun, stepping, y0, guards, pending) -> Segment | N
             stats["rhs_evals"] += exc.segment.nfev
             if exc.segment.t.size > 1:
                 _record(run.traj, cfg, exc.segment, run.offsets, run.q, run.holds, stepping)
+            at, stop = getattr(exc, "at", None), float(exc.segment.t[-1])
+            if isinstance(exc, SimulationError) and at is not None and at != stop:
+                exc.problems[-1] += (f"; the run stopped at t = {stop:.9g} s, its last accepted step "
+                                     f"(t = {at:.9g} s was a trial instant of the next one)")
         raise
     finally:
         stats["wall_s"] += time.perf_counter() - t0

@@ -105,7 +105,8 @@ def holding_forces(cfg: Configuration, holds: Holds, t, series: dict) -> np.ndar
     assembly, and the series would then depend on what the run did after the segment."""
     out = np.empty((len(t), len(holds.items)))
     for i in range(len(t)):
-        out[i] = list(holds.forces(cfg, t[i], series["q"][i], series["v"][i]).values())
+        q = series["q"][i]  # the series' rates are world-axes for a planar joint: back to Pinocchio's v
+        out[i] = list(holds.forces(cfg, t[i], q, cfg.velocity(q, series["v"][i])).values())
     return out
 
 

@@ -44,7 +44,7 @@ def read_rows(table: str | Path) -> list[dict]:
 
 def numeric_columns(rows: list[dict], paths) -> list[str]:
     """The quantities and collected columns with a number in some row."""
-    extra = [c for c in (rows[0] if rows else {}) if c not in ("run", "status", "error", *paths, *QUANTITIES)]
+    extra = [c for c in (rows[0] if rows else {}) if c not in ("run", "status", "error", "check", *paths, *QUANTITIES)]
     return [q for q in (*QUANTITIES, *extra) if any(_number(r.get(q)) is not None for r in rows)]
 
 

@@ -225,7 +225,9 @@ def write_parquet(csv_path: Path) -> Path | None:
     except ImportError:
         return None
     from ..files import atomic_write
-    table = pacsv.read_csv(csv_path)
+    import pyarrow as pa
+    # the checksum is text (an all-digit one would otherwise be read as a number, leading zeros lost)
+    table = pacsv.read_csv(csv_path, convert_options=pacsv.ConvertOptions(column_types={CHECK: pa.string()}))
     out = Path(csv_path).with_suffix(".parquet")
     atomic_write(out, lambda f: pq.write_table(table, f), force=True, binary=True)
     return out

@@ -282,7 +282,8 @@ def sketch_figure(run: RecordedRun, t: float, path: str | Path | None = None, ot
     sketches = [Sketch(run)] + [Sketch(o, colour="#888888", ghost=True) for o in others]
     times = np.linspace(float(run.segments[0].t[0]), float(run.segments[-1].t[-1]), 40)
     box = _union([s.extent(times) for s in sketches])
-    draw_frame(fig, sketches, t, box, title=f"{run.scene_name} at t = {t:.4g} s")
+    names = [r.scene_name + ("" if r.impact else " (without impact, dashed)") for r in [run, *others]]
+    draw_frame(fig, sketches, t, box, title=f"{run.scene_name} at t = {t:.4g} s", names=names)
     if path is not None:
         fig.savefig(path)
     return fig

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-KINDS = {"impact": "#d62728", "merge": "#7b3fb5", "latch": "#7b3fb5", "release": "#1a9a3a"}
+KINDS = {"impact": "#d62728", "merge": "#7b3fb5", "latch": "#7b3fb5", "pin": "#1f5fa8", "release": "#1a9a3a"}
 
 
 @dataclass
@@ -25,14 +25,14 @@ class Edge:
     source: str
     target: str
     name: str  # the transition's name
-    kind: str  # "impact" | "merge" | "latch" | "release"
+    kind: str  # "impact" | "merge" | "latch" | "pin" | "release"
     guard: str
     times: list = field(default_factory=list)  # when it fired (after a run)
 
     @property
     def label(self) -> str:
         what = {"latch": "latch (impact + merge)", "merge": "merge", "impact": "impact",
-                "release": "release"}.get(self.kind, self.kind)
+                "pin": "pin (impact, point pinned where it lands)", "release": "release"}.get(self.kind, self.kind)
         guard = "hold tensile" if self.kind == "release" and self.guard.startswith("(") else self.guard
         text = f"{self.name}\n{what}: {guard}"
         if self.times:
@@ -46,8 +46,8 @@ def edges(views: dict) -> list[Edge]:
     """The transitions of a recorded run (or of ``record_views(scene)``) as the graph's edges."""
     out = []
     for tr in views.get("transitions", []) or []:
-        if tr["type"] == "latch":
-            out.append(Edge(tr["from"], tr["to"], tr["name"], "latch", tr["guard"]))
+        if tr["type"] in ("latch", "pin"):
+            out.append(Edge(tr["from"], tr["to"], tr["name"], tr["type"], tr["guard"]))
         elif tr["type"] == "release":
             out.append(Edge(tr["from"], tr["to"], tr["name"], "release", tr["guard"]))
         elif tr["type"] == "stop":
@@ -68,8 +68,8 @@ def edge_of(ev: dict) -> tuple[str, str]:
     tr = ev.get("transition")
     if tr == "release":
         return ev.get("name", ""), "release"
-    if tr == "latch":
-        return ev.get("name", ""), "latch"
+    if tr in ("latch", "pin"):
+        return ev.get("name", ""), tr
     return ev.get("name", ""), ("merge" if ev.get("merge") else "impact")
 
 
@@ -97,6 +97,14 @@ def configurations(views: dict, graph: list[Edge]) -> list[str]:
             if n not in names:
                 names.append(n)
     return names
+
+
+def _rim(centre, angle: float, r: float) -> tuple[float, float]:
+    """The point of a node's ellipse (half-axes 1.2 r, 0.65 r) in direction ``angle``."""
+    a, b = 1.2 * r, 0.65 * r
+    c, s = math.cos(angle), math.sin(angle)
+    t = 1.0 / math.hypot(c / a, s / b)
+    return centre[0] + t * c, centre[1] + t * s
 
 
 @dataclass
@@ -145,20 +153,21 @@ def graph_figure(views: dict, events: list[dict] | None = None, title: str = "",
             x, y = nodes[e.source]
             ang = math.atan2(y, x) if (x, y) != (0.0, 0.0) else math.pi / 2
             ang += 1.1 * k * (1 if x >= 0 else -1)
-            cx, cy = x + (r + 0.18) * math.cos(ang), y + (r + 0.18) * math.sin(ang)
-            art = patches.FancyArrowPatch((x + 0.8 * r * math.cos(ang - 0.5), y + 0.5 * r * math.sin(ang - 0.5)),
-                                          (x + 0.8 * r * math.cos(ang + 0.5), y + 0.5 * r * math.sin(ang + 0.5)),
-                                          connectionstyle="arc3,rad=-1.6", arrowstyle="-|>", mutation_scale=12,
-                                          gid=f"edge:{i}", **style)
-            lx, ly = x + (r + 0.75) * math.cos(ang), y + (r + 0.55) * math.sin(ang)
+            art = patches.FancyArrowPatch(_rim((x, y), ang - 0.45, r), _rim((x, y), ang + 0.45, r),
+                                          connectionstyle="arc3,rad=2.0", arrowstyle="-|>", mutation_scale=12,
+                                          shrinkA=0, shrinkB=0, gid=f"edge:{i}", **style)
+            lx, ly = x + (1.2 * r + 0.75) * math.cos(ang), y + (0.65 * r + 0.55) * math.sin(ang)
         else:
             key = tuple(sorted((e.source, e.target)))
             k = pair_count.get(key, 0)
             pair_count[key] = k + 1
             rad = 0.15 + 0.2 * k
             (x0, y0), (x1, y1) = nodes[e.source], nodes[e.target]
-            art = patches.FancyArrowPatch((x0, y0), (x1, y1), connectionstyle=f"arc3,rad={rad}", arrowstyle="-|>",
-                                          mutation_scale=14, shrinkA=30, shrinkB=30, gid=f"edge:{i}", **style)
+            out_ang = math.atan2(y1 - y0, x1 - x0)
+            start = _rim((x0, y0), out_ang + 0.9 * rad * -1, r)  # leave and arrive on the rims, as the arc bends
+            end = _rim((x1, y1), out_ang + math.pi + 0.9 * rad, r)
+            art = patches.FancyArrowPatch(start, end, connectionstyle=f"arc3,rad={rad}", arrowstyle="-|>",
+                                          mutation_scale=14, shrinkA=1, shrinkB=1, gid=f"edge:{i}", **style)
             # the label on the curve (matplotlib's arc3 Bezier), a third of the way from the source,
             # so the two directions of a pair and crossing edges keep their labels apart
             cx, cy = 0.5 * (x0 + x1) + rad * (y1 - y0), 0.5 * (y0 + y1) - rad * (x1 - x0)

@@ -95,6 +95,22 @@ def _runs(traj: RecordedRun, compare: RecordedRun | None) -> list[_Run]:
     return sorted(out, key=lambda r: (bool(r.traj.impact), r is not out[0]))
 
 
+def angle_differences(a: RecordedRun, b: RecordedRun) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """``{link: (t, theta_a(t) - theta_b(t))}`` at ``a``'s samples (``b`` linear between its
+    own), for the links that turn in either run."""
+    out = {}
+    tb = b.t
+    for link in a.links:
+        if link not in b.links or (link not in _rotating_links(a) and link not in _rotating_links(b)):
+            continue
+        ya, yb = a.series("theta", link), b.series("theta", link)
+        ok = np.isfinite(yb)
+        if not ok.any():
+            continue
+        out[link] = (a.t, ya - np.interp(a.t, tb[ok], yb[ok]))
+    return out
+
+
 def _range(a: np.ndarray) -> float:
     a = a[np.isfinite(a)]
     return float(np.ptp(a)) if a.size else 0.0
@@ -396,6 +412,21 @@ def figures(traj: RecordedRun, compare: RecordedRun | None = None, impulse_sign:
                    f"({letters[i % 26]}) Angle of {b} relative to {a}", marks, duration)
         f.legend()
         files["relative_angles"] = f.fig
+    # with a comparison run: the difference of the link angles, visible where the curves lie on each other
+    if compare is not None and len(runs) == 2:
+        diffs = angle_differences(runs[-1].traj, runs[0].traj)
+        if diffs:
+            f = _Figure(Figure, len(diffs), f"{name}: link angles, {runs[-1].label} − {runs[0].label}")
+            for i, (ax, (link, (t, d))) in enumerate(zip(f.axes, diffs.items())):
+                ax.plot(t, d, color="C4", lw=1.3, label=f"{runs[-1].label} − {runs[0].label}")
+                _mark(ax, marks)
+                ax.set_xlabel("t (s)")
+                ax.set_ylabel("Δθ (rad)")
+                ax.set_title(_plain(f"({letters[i % 26]}) Difference of {link}'s angle"), fontsize=10)
+                ax.set_xlim(0.0, duration)
+                ax.grid(True, alpha=0.3)
+            f.legend()
+            files["angle_differences"] = f.fig
     # Fig. 8: force element outputs
     forces = _names(traj, "force_names")
     if forces:
