@@ -225,7 +225,7 @@ def _mark(ax, pl: sk.Placed, s: float) -> list:
     x, y = pl.xy
     if sym.kind == "plate":
         colour = {"impact": "#d62728", "merge": "#7b3fb5", "release": "#1a9a3a"}.get(sym.extra.get("kind"), "#333333")
-        t = ax.text(x + 0.8 * s, y + 0.8 * s, sym.text, fontsize=8, color=colour, alpha=pl.alpha, zorder=10,
+        t = ax.text(x + 0.8 * s, y + 0.8 * s, sym.text, fontsize=8, color=colour, parse_math=False, alpha=pl.alpha, zorder=10,
                     gid=f"plate:{sym.name}",
                     bbox=dict(boxstyle="round,pad=0.25", facecolor="white", edgecolor=colour, alpha=pl.alpha))
         return [t]
@@ -243,7 +243,7 @@ def _mark(ax, pl: sk.Placed, s: float) -> list:
                                   width=0.05 * s, head_width=0.6 * s, head_length=0.5 * s, color="#c00000", zorder=9,
                                   gid=f"arc:{sym.name}:head")
         ax.add_patch(head)
-        lab = ax.text(x + 1.1 * r, y - 1.1 * r, sym.text, fontsize=7, color="#c00000", zorder=10,
+        lab = ax.text(x + 1.1 * r, y - 1.1 * r, sym.text, fontsize=7, color="#c00000", parse_math=False, zorder=10,
                       gid=f"arc-label:{sym.name}")
         return [arc, head, lab]
     return []
@@ -261,15 +261,15 @@ def draw_frame(fig, sketches: list[Sketch], t: float, box, title: str = "", name
     artists = []
     for sk_ in sketches[::-1]:
         artists += sk_.draw(ax, t)
-    fig.text(0.02, 0.03, f"t = {t:.4f} s", fontsize=11, family="monospace", gid="readout")
+    fig.text(0.02, 0.03, f"t = {t:.4f} s", fontsize=11, family="monospace", gid="readout", parse_math=False)
     for i, sk_ in enumerate(sketches):
         conf = sk.configuration_at(sk_.run, t)
         name = names[i] if i < len(names) else sk_.run.scene_name
-        fig.text(0.78, 0.92 - 0.05 * i, f"{name}: {conf}", fontsize=8, gid=f"readout:{i}")
+        fig.text(0.78, 0.92 - 0.05 * i, f"{name}: {conf}", fontsize=8, gid=f"readout:{i}", parse_math=False)
     handles = sketches[0].legend_handles()
     fig.legend(handles=handles, loc="lower right", fontsize=8, title="links", frameon=True)
     if title:
-        ax.set_title(title, fontsize=10)
+        ax.set_title(title, fontsize=10, parse_math=False)
     return {"ax": ax, "artists": artists}
 
 

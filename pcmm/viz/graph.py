@@ -140,7 +140,7 @@ def graph_figure(views: dict, events: list[dict] | None = None, title: str = "",
     for c, (x, y) in nodes.items():
         ax.add_patch(patches.Ellipse((x, y), 2.4 * r, 1.3 * r, facecolor="#fff4cc" if c == initial else "white",
                                      edgecolor="k", lw=1.4, zorder=3, gid=f"config:{c}"))
-        ax.text(x, y, c, ha="center", va="center", fontsize=9, zorder=4, gid=f"config-label:{c}")
+        ax.text(x, y, c, ha="center", va="center", fontsize=9, zorder=4, gid=f"config-label:{c}", parse_math=False)
     pair_count: dict = {}
     loops: dict = {}
     for i, e in enumerate(graph):
@@ -175,7 +175,7 @@ def graph_figure(views: dict, events: list[dict] | None = None, title: str = "",
             lx = (1 - u) ** 2 * x0 + 2 * (1 - u) * u * cx + u ** 2 * x1
             ly = (1 - u) ** 2 * y0 + 2 * (1 - u) * u * cy + u ** 2 * y1
         ax.add_patch(art)
-        ax.text(lx, ly, e.label, ha="center", va="center", fontsize=7, color=colour, zorder=5, gid=f"edge-label:{i}",
+        ax.text(lx, ly, e.label, ha="center", va="center", fontsize=7, color=colour, zorder=5, gid=f"edge-label:{i}", parse_math=False,
                 bbox=dict(boxstyle="round,pad=0.2", facecolor="white", edgecolor=colour, lw=0.6, alpha=0.9))
     pts = np.array(list(nodes.values()))
     ax.set_xlim(pts[:, 0].min() - 1.9, pts[:, 0].max() + 1.9)
@@ -183,7 +183,7 @@ def graph_figure(views: dict, events: list[dict] | None = None, title: str = "",
     head = title or "configurations and transitions"
     if events is not None:
         head += f" — {len(events)} events"
-    fig.suptitle(head, fontsize=11)
+    fig.suptitle(head, fontsize=11, parse_math=False)
     from matplotlib.lines import Line2D
     fig.legend(handles=[Line2D([], [], color=c, lw=2, label=k) for k, c in KINDS.items() if k != "latch"]
                + [Line2D([], [], color="k", lw=2, ls=":", label="never fired")] * (events is not None),
