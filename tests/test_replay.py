@@ -994,3 +994,25 @@ def test_browser_draws_the_pinned_foot_while_it_holds_and_not_after(wheel_page, 
     assert ring(images[0], foot1) == 0.0, "a pin at spoke 1's anchor before it strikes"
     assert ring(images[1], foot1) >= 0.6, "no pin at spoke 1's anchor during its stay"
     assert ring(images[1], foot0) == 0.0, "spoke 0's pin is still drawn after the next strike"
+
+
+def test_the_compass_gaits_page_pins_each_new_stance_foot_where_its_heel_struck(tmp_path):
+    """Each heel strike pins the swing foot at the strike's contact point (the event record's, a route
+    independent of the drawing's pose lookup); the page shows that pin from the strike's frame until
+    the next strike's, the initial stance foot at the origin until the first."""
+    traj = pcmm.simulate(pcmm.load_scene(ROOT / "examples" / "compass_gait.toml"), pcmm.RunOptions(t_end=1.6))
+    html = replay.html_page(traj, fps=WHEEL_FPS)
+    commands = decode_commands(html)
+    clips = clips_of(commands)
+    strikes = [e for e in traj.events if e["transition"] == "pin"]
+    assert len(strikes) == 2
+    anchors = [(0.0, 0.0)] + [tuple(e["contact_point"]) for e in strikes]
+    starts = [traj.segments[0].t[0]] + [e["t"] for e in strikes] + [math.inf]
+    pins = sorted(_pins(commands, clips).items(), key=lambda kv: kv[1][0])
+    assert len(pins) == 3
+    frames = np.array(page_data(html)["frames"])
+    for k, (path, xy) in enumerate(pins):
+        assert xy == pytest.approx(anchors[k], abs=1e-9)
+        fps = clips[path]["_fps"]
+        shown = np.array([value_at(clips[path]["visible"], fps * (t - frames[0])) for t in frames])
+        assert (shown == ((frames >= starts[k]) & (frames < starts[k + 1]))).all(), k
