@@ -284,7 +284,7 @@ class Trajectory:
         unnamed = ("kinetic", "potential")
         if quantity not in names_of and quantity not in unnamed:
             raise UsageError(f"series: no quantity {quantity!r}; the quantities are "
-                             f"{', '.join([*names_of, *unnamed])}")
+                             f"{', '.join([*names_of, *unnamed])}; the sample times are the attribute .t")
         if quantity in unnamed and name is not None:
             raise UsageError(f"series: {quantity!r} is the whole mechanism's: give no name (got {name!r})")
         if quantity in names_of:
