@@ -59,7 +59,10 @@ class SegmentRecord:
     omega: np.ndarray  # (n, nlinks)
     xy: np.ndarray  # (n, nlinks, 2) link frame origins
     kinetic: np.ndarray  # (n,)
-    potential: np.ndarray  # (n,) gravity + springs
+    # (n,) gravity (welded bodies included) + every spring's k x^2 / 2: the configuration's own and,
+    # while a joint is held (a latch, a merged stop, a lock held from the start), its own springs at
+    # the locked value (constant there, so the series does not jump at a lock or a release)
+    potential: np.ndarray
     forces: np.ndarray  # (n, nforces) each force element's output (N or N m)
     constraint_forces: np.ndarray  # (n, m) cut-joint reactions and driving moments
 
@@ -289,7 +292,7 @@ class Trajectory:
         unnamed = ("kinetic", "potential")
         if quantity not in names_of and quantity not in unnamed:
             raise UsageError(f"series: no quantity {quantity!r}; the quantities are "
-                             f"{', '.join([*names_of, *unnamed])}")
+                             f"{', '.join([*names_of, *unnamed])}; the sample times are the attribute .t")
         if quantity in unnamed and name is not None:
             raise UsageError(f"series: {quantity!r} is the whole mechanism's: give no name (got {name!r})")
         if quantity in names_of:

@@ -38,12 +38,11 @@ def mechanical_energy(cfg: Configuration, q, v) -> float:
     return cfg.kinetic_energy(q, v) + cfg.gravity_energy(q)
 
 
-def power(cfg: Configuration, t: float, q, v, coords=None) -> float:
+def power(cfg: Configuration, coords, t: float, q, v) -> float:
     """The power (W) of every applied force but gravity: the force elements' ``Q(q, v) . v`` and
     the constraint rows' ``lam . Phi_q v`` (zero for a loop's rows, the motor's for a drive's).
-    ``coords`` (by default ``cfg.coords``) evaluates, with its force elements (``coords.forces``:
-    a recorded segment's reader applies the segment's own)."""
-    coords = cfg.coords if coords is None else coords
+    ``coords`` evaluates, with its force elements (``coords.forces``: a recorded segment's reader
+    applies the segment's own)."""
     p = float(coords.forces.generalized(q, v) @ v)
     if len(coords.labels):
         Jq, _ = coords.rows(t, q, v)
@@ -52,25 +51,23 @@ def power(cfg: Configuration, t: float, q, v, coords=None) -> float:
     return p
 
 
-def flight_work(cfg: Configuration, t, y, stepping, q_start, coords=None) -> float:
+def flight_work(cfg: Configuration, coords, t, y, stepping, q_start) -> float:
     """The work (J) of :func:`power` over a recorded segment ``(t, y)`` (states as columns), by
     Gauss-Legendre quadrature on each step's dense output (``y`` may carry more components
     than the state, as the integrator had them).  The nodes are solved from the segment's
-    start ``q_start`` by ``coords`` (a reader of the segment: :meth:`Coordinates.restored`;
-    by default ``cfg.coords``)."""
+    start ``q_start`` by ``coords``, a reader of the segment (:meth:`Coordinates.restored`)."""
     t = np.asarray(t, float)
     if len(t) < 2:
         return 0.0
     h = np.diff(t) / 2
     times = (t[:-1, None] + h[:, None] * (GAUSS_NODES[None, :] + 1)).ravel()
     weights = (h[:, None] * GAUSS_WEIGHTS[None, :]).ravel()
-    coords = cfg.coords if coords is None else coords
     fun, method, opts = stepping
-    if coords is not cfg.coords and getattr(fun, "__self__", None) is cfg.coords:  # rhs_with_power: the reader's own
-        stepping = (getattr(coords, fun.__name__), method, opts)
-    states = dense_states(t, y, times, stepping)[:coords.ny]
+    if getattr(fun, "__self__", None) is cfg.coords:  # rhs or rhs_with_power: the reader's own
+        fun = getattr(coords, fun.__name__)
+    states = dense_states(t, y, times, (fun, method, opts))[:coords.ny]
     coords.seed(q_start)
-    values = [power(cfg, ti, *coords.unpack(ti, states[:, i]), coords) for i, ti in enumerate(times)]
+    values = [power(cfg, coords, ti, *coords.unpack(ti, states[:, i])) for i, ti in enumerate(times)]
     return float(weights @ np.array(values))
 
 
@@ -157,8 +154,8 @@ class FlightAudit:
         flights, self._flights = self._flights, []
         for f in flights:
             cfg, m = f.cfg, f.macro
-            with cfg.coords.restored(f.frozen, f.q_start, forces=f.forces) as reader:  # the flight's, as values
-                work = flight_work(cfg, f.t, f.y, f.stepping, f.q_start, reader)
+            with cfg.coords.restored(f.frozen, f.q_start, (f.t, f.y), f.forces) as reader:  # the flight's, as values
+                work = flight_work(cfg, reader, f.t, f.y, f.stepping, f.q_start)
             residual = abs(f.energy_end - f.energy_start - work)
             m["flights"] += 1
             m["flight_energy_residual_max"] = max(m["flight_energy_residual_max"], residual)

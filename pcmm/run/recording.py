@@ -57,11 +57,7 @@ def record_samples(traj: Trajectory, cfg: Configuration, seg, offsets, q_start, 
 
     def derive():
         def work(reader):
-            out = derived_series(cfg, reader, t, y, offsets, forces)
-            if held:
-                out["constraint_forces"] = np.hstack((out["constraint_forces"],
-                                                      holding_forces(cfg, holds, t, out, applied)))
-            return out
+            return with_holds(cfg, holds, t, derived_series(cfg, reader, t, y, offsets, forces), applied)
         return in_segment_state(work)
 
     def resample(times):
@@ -76,11 +72,7 @@ def record_samples(traj: Trajectory, cfg: Configuration, seg, offsets, q_start, 
             # solved from its start onwards, as the recorded ones are (from the end, a loop's
             # Newton solve at the start could land on another assembly)
             reader.seed(q_start)
-            out = derived_series(cfg, reader, times, states, offsets, forces)
-            if held:
-                out["constraint_forces"] = np.hstack((out["constraint_forces"],
-                                                      holding_forces(cfg, holds, times, out, applied)))
-            return out
+            return with_holds(cfg, holds, times, derived_series(cfg, reader, times, states, offsets, forces), applied)
         return in_segment_state(work)
     coord_names = []
     for name in cfg.joint_names:
@@ -91,6 +83,17 @@ def record_samples(traj: Trajectory, cfg: Configuration, seg, offsets, q_start, 
         force_names=list(forces.names), constraint_labels=list(coords.labels) + held))
     traj.stats["constraint_drift_max"] = max(traj.stats["constraint_drift_max"], getattr(coords, "max_residual", 0.0))
     traj.stats["record_s"] += time.perf_counter() - t0
+
+
+def with_holds(cfg: Configuration, holds: Holds, t, series: dict, applied=None) -> dict:
+    """The series of a segment with locks in force: their holding forces appended to the
+    constraint forces, and the energy of the held joints' springs (constant while they are
+    held, :meth:`Holds.held_energy`) added to the potential energy.  ``applied`` are the force
+    elements the segment held with (:meth:`Holds.applied`)."""
+    if holds.items:
+        series["constraint_forces"] = np.hstack((series["constraint_forces"], holding_forces(cfg, holds, t, series, applied)))
+        series["potential"] = series["potential"] + np.array([holds.held_energy(cfg, q, applied) for q in series["q"]])
+    return series
 
 
 def holding_forces(cfg: Configuration, holds: Holds, t, series: dict, applied=None) -> np.ndarray:
