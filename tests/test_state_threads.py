@@ -58,8 +58,12 @@ def _times(rec) -> np.ndarray:
 
 
 def _check_hand(rec) -> None:
-    """The element values and the held pin's force, from the series' own angle (by hand)."""
+    """The element values, the potential energy and the held pin's force, from the series' own
+    angle (by hand)."""
     theta = rec.theta[:, 1]
+    # no gravity: the potential energy is the spring's, k theta^2 / 2, also while held (the lock
+    # carries the turning configuration's spring on J1: Holds.held_energy)
+    np.testing.assert_allclose(rec.potential, K * theta ** 2 / 2, rtol=1e-12, atol=1e-9)
     if rec.configuration == "turning":
         np.testing.assert_allclose(rec.forces[:, rec.force_names.index("spring")], -K * theta, rtol=0, atol=1e-9)
     else:
