@@ -25,3 +25,14 @@ def test_fortran_dop853_segments_leave_no_integrator_holding_their_steps(tmp_pat
     gc.collect()
     assert len(traj.events) == 11
     assert _live_dop853_with_callbacks() - before == 0
+
+
+def test_segments_of_one_configuration_share_their_name_lists(tmp_path):
+    """A bouncing ball has one segment per impact, all in 'free' (joint Y, links frame and ball,
+    no force element, no constraint row): one copy of each name list per run, not per segment."""
+    traj = pcmm.simulate(pcmm.load_scene(builders.ball(tmp_path, 1.0, t_end=3.0)))
+    first, *rest = traj.segments
+    assert len(rest) == 3  # impacts at 0.452, 1.355, 2.258 s
+    assert (first.coordinates, first.links, first.force_names, first.constraint_labels) == (["Y"], ["frame", "ball"], [], [])
+    for seg in rest:
+        assert seg.coordinates is first.coordinates and seg.constraint_labels is first.constraint_labels
