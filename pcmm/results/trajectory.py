@@ -226,6 +226,10 @@ class Trajectory:
     #: ``{"configurations": {name: {"urdf": text, "joints": {joint: {"type", "parent", "child"}}}},
     #: "forces": {name: {"on": {"kind", "name"}}}}``.
     views: dict = field(default_factory=dict)
+    #: The segments' name lists (coordinates, links, force elements, constraint labels), one copy per
+    #: configuration and set of locks, shared by its segments while the run records them (memory:
+    #: a bouncing run has one segment per impact). Not saved: the segments carry the lists.
+    shared_names: dict = field(default_factory=dict, repr=False, compare=False)
     #: The file this trajectory was loaded from (not saved), for messages.
     source: str | None = field(default=None, compare=False)
 

@@ -78,9 +78,12 @@ def record_samples(traj: Trajectory, cfg: Configuration, seg, offsets, q_start, 
     for name in cfg.joint_names:
         sl = cfg.joint_slice[name]
         coord_names += [name] if sl.stop - sl.start == 1 else [f"{name}.x", f"{name}.y", f"{name}.theta"]
-    traj.segments.append(SegmentRecord.deferred(
-        derive, t, resample=resample, configuration=cfg.name, coordinates=coord_names, links=list(cfg.links),
-        force_names=list(forces.names), constraint_labels=list(coords.labels) + held))
+    names = dict(coordinates=coord_names, links=list(cfg.links), force_names=list(forces.names),
+                 constraint_labels=list(coords.labels) + held)
+    # the name lists are the same for every segment of a configuration (and its locks): one copy
+    # per run, not one per segment (a bouncing run has one segment per impact)
+    names = traj.shared_names.setdefault((cfg.name, *(tuple(v) for v in names.values())), names)
+    traj.segments.append(SegmentRecord.deferred(derive, t, resample=resample, configuration=cfg.name, **names))
     traj.stats["constraint_drift_max"] = max(traj.stats["constraint_drift_max"], getattr(coords, "max_residual", 0.0))
     traj.stats["record_s"] += time.perf_counter() - t0
 
