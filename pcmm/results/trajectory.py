@@ -325,14 +325,8 @@ class Trajectory:
         steps follow the solution, not a polygon."""
         if not (dt > 0 and np.isfinite(dt)):
             raise UsageError(f"dt = {dt!r}: must be a number > 0")
-        segs = []
-        for s in self.segments:
-            a, b = float(s.t[0]), float(s.t[-1])
-            k = np.arange(np.ceil(a / dt), np.floor(b / dt) + 1)
-            inner = k * dt
-            inner = inner[(inner > a) & (inner < b)]
-            times = np.concatenate(([a], inner, [b])) if b > a else np.array([a])
-            segs.append(s.resampled(times))
+        from ..viz.dense import segment_times  # the views' grid: one rule for --dt and the figures
+        segs = [s.resampled(segment_times(float(s.t[0]), float(s.t[-1]), dt)) for s in self.segments]
         return Trajectory(scene=self.scene, scene_name=self.scene_name, impact=self.impact, segments=segs,
                           events=self.events, stats=self.stats, status=self.status, message=self.message,
                           views=self.views)
