@@ -160,3 +160,14 @@ def test_without_a_configuration_to_lift_into_the_run_stops_at_the_same_instant(
         pcmm.simulate(pcmm.load_scene(rod_scene(make_scene, flight=False)))
     import re
     assert float(re.search(r"t = ([0-9.]+) s", str(err.value)).group(1)) == pytest.approx(t_star, abs=1e-8)
+
+
+def test_a_point_pinned_with_a_tensile_force_from_the_start_lifts_off_at_once(make_scene):
+    """Started past the lift-off (phi0 = 0.3, w0 = 4.5: N < 0 by hand), the pin never holds: the
+    point is released at t = 0, before any step, and the rod flies (its foot leaving, by hand)."""
+    N, _, _, a_n = by_hand(0.3, 0.3, 4.5, BETA)
+    assert N < 0 and a_n > 0
+    traj = pcmm.simulate(pcmm.load_scene(rod_scene(make_scene, phi0=0.3, w0=4.5, t_end=0.05)))
+    assert [(e["name"], e["t"]) for e in traj.events] == [("lift-off foot", 0.0)]
+    assert traj.events[0]["lifted"]["foot"]["normal_force"] == pytest.approx(N, rel=1e-9)
+    assert traj.segments[-1].configuration == "flight"
