@@ -25,10 +25,11 @@ ambiguous here and the run stops, listing them); the impulse may not be (two poi
 one body share their tangential impulse in any proportion): the least-norm one is reported and
 the event says so.  None: the law has no solution here (a Painleve case), and the run stops.
 
-Pinocchio 4.1's contact solvers (``PGSConstraintSolver``, ``ADMMConstraintSolver``) solve the same
-problem for a plastic impact iteratively, to a tolerance, on three-dimensional cones; the
-enumeration here is exact to round-off, takes Newton's restitution per contact and returns every
-solution, so pcmm uses it and checks it against PGS in its tests.
+Pinocchio 4.1's contact solvers (``PGSConstraintSolver``, ``ADMMConstraintSolver``) solve the
+plastic version of this problem iteratively, to a tolerance, on three-dimensional cones built from
+its constraint models; the enumeration here is exact to round-off, takes Newton's restitution per
+contact and returns every solution (so it can tell an ambiguous impact), so pcmm uses it.  (The
+tests check it against the modes enumerated by hand, not against those solvers.)
 """
 from __future__ import annotations
 
