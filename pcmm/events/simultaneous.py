@@ -137,20 +137,21 @@ def closed_with(cfg, tr, q) -> list:
     """The other ``stop`` transitions of ``cfg`` whose point contact is closed at ``q`` (gap within
     the pose tolerance) and that an impulse resolves without a cut: they take part in the impact
     of ``tr`` (itself such a stop).  Empty when ``tr`` is not one."""
-    from .contact import contact_state
     from .contact_faults import POSE_TOL
 
     def eligible(s):
         return s.type == "stop" and s.contact is not None and s.contact.joint is None and not s.cut \
             and getattr(s, "law", "impulse") == "impulse"
-    if not eligible(tr):
+    others = [s for s in cfg.scene.transitions_from(cfg.name) if s is not tr and eligible(s)] if eligible(tr) else []
+    if not others:
         return []
+    cfg.kinematics(q)  # once: the gaps n . (p_b - p_a) read the placements
     out = []
-    for other in cfg.scene.transitions_from(cfg.name):
-        if other is tr or not eligible(other):
-            continue
-        _, gap, _, _ = contact_state(cfg, q, np.zeros(cfg.nv), other.contact)
-        if abs(gap) <= POSE_TOL:
+    for other in others:
+        c = other.contact
+        n = cfg.rotation(c.a) @ np.asarray(c.normal, float)
+        gap = float(n @ (cfg.point_position(cfg.point(c.b, c.point_b)) - cfg.point_position(cfg.point(c.a, c.point_a))))
+        if abs(gap) <= POSE_TOL * float(np.linalg.norm(n)):
             out.append(other)
     return out
 
