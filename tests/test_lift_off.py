@@ -35,7 +35,7 @@ from scipy.integrate import quad
 from scipy.optimize import brentq
 
 import pcmm
-from builders import free_bar_urdf
+from builders import free_bar_urdf, rot
 from pcmm.errors import SimulationError
 
 M, L, G_ = 1.0, 1.0, 9.81
@@ -184,3 +184,49 @@ def test_the_graph_draws_the_lift_off_before_and_after_the_run(make_scene):
     traj = pcmm.simulate(scene)
     (edge,) = fired(edges(views), traj.events)
     assert edge.times == [traj.events[0]["t"]]
+
+
+def test_a_strike_whose_pin_would_pull_lifts_off_at_once(make_scene):
+    """A spinning rod without gravity strikes the leaning surface with its foot A (a `pin`,
+    flight -> pinned).  By hand: the impulse acts at A, so the angular momentum about A is kept,
+    I_A w+ = I_G w- + m (d x v_G-), d = G - A = (L/2)(sin phi, cos phi); pinned, nothing turns the rod
+    about A, so G circles A and the surface pulls on it, F = -m w+^2 d: N = -m w+^2 (L/2) cos(phi - beta)
+    < 0 and F_t = -m w+^2 (L/2) sin(phi - beta).  The pin holds no instant: the point lifts off at
+    the strike's instant, with no impulse, and freed leaves the surface at n . (w+^2 d) > 0."""
+    phi, w_minus, V, t_hit = 0.2, -6.0, 1.0, 0.01
+    I_G, I_A = M * L * L / 12, M * L * L / 3
+    d = 0.5 * L * np.array([math.sin(phi), math.cos(phi)])
+    vG = np.array([0.0, -V])
+    w_plus = (I_G * w_minus + M * (d[0] * vG[1] - d[1] * vG[0])) / I_A
+    N = -M * w_plus ** 2 * 0.5 * L * math.cos(phi - BETA)
+    Ft = -M * w_plus ** 2 * 0.5 * L * math.sin(phi - BETA)
+    a_n = w_plus ** 2 * 0.5 * L * math.cos(phi - BETA)
+    # the rod's state t_hit before the strike (no gravity: G moves straight, the rod turns at w-)
+    theta_hit = math.pi / 2 - phi
+    th0 = theta_hit - w_minus * t_hit
+    G0 = d - vG * t_hit
+    n = np.array([math.sin(BETA), math.cos(BETA)])
+    foot0 = G0 - 0.5 * L * np.array([math.cos(th0), math.sin(th0)])
+    assert n @ foot0 > 0  # A above the surface before
+    foot = {"name": "foot", "type": "revolute", "a": "frame", "point_a": "entry", "b": "bar", "point_b": [-L / 2, 0.0],
+            "contact": {"normal": list(n), "friction": "stick"}}
+    strike = {"name": "strike", "type": "pin", "from": "flight", "to": "pinned",
+              "guard": {"type": "gap", "value": 0.0, "direction": "decreasing"},
+              "contact": {"a": "frame", "point_a": [0.0, 0.0], "b": "bar", "point_b": [-L / 2, 0.0], "normal": list(n),
+                          "friction": "stick"}}
+    path = make_scene({"rod.urdf": free_bar_urdf(M, L)},
+                      configurations={"flight": {"urdf": "rod.urdf"}, "pinned": {"urdf": "rod.urdf", "cut_joints": [foot]}},
+                      q0={"P": [G0[0], G0[1], th0]}, v0={"P": [*(rot(th0).T @ vG), w_minus]}, gravity=(0.0, 0.0),
+                      t_end=2 * t_hit, transitions=[strike], solver={"rtol": 1e-12, "atol": 1e-13})
+    traj = pcmm.simulate(pcmm.load_scene(path))
+    assert [e["name"] for e in traj.events] == ["strike", "lift-off foot"]
+    pin_ev, lift = traj.events
+    assert pin_ev["t"] == pytest.approx(t_hit, abs=1e-11) and lift["t"] == pin_ev["t"]
+    assert pin_ev["omega_after"]["bar"] == pytest.approx(w_plus, abs=1e-10)
+    assert lift["omega_after"]["bar"] == pin_ev["omega_after"]["bar"]
+    np.testing.assert_allclose(lift["v_after"]["P"], pin_ev["v_after"]["P"], atol=1e-14)
+    lifted = lift["lifted"]["foot"]
+    assert lifted["normal_force"] == pytest.approx(N, rel=1e-9) and N < 0
+    assert lifted["tangential_force"] == pytest.approx(Ft, rel=1e-9)
+    assert lifted["normal_acceleration_after"] == pytest.approx(a_n, rel=1e-9)
+    assert traj.segments[-1].configuration == "flight"
