@@ -14,9 +14,11 @@ Byte-code caches are written and used (``PYTHONDONTWRITEBYTECODE`` is removed fr
 environment, and one warm-up run of each command comes first), as for an installed package;
 without them every pcmm module is compiled at every start.
 
-    python benchmarks/startup.py [--reps 15] [--scene examples/three_bar.toml]
+    python benchmarks/startup.py [--reps 15] [--scene examples/three_bar.toml] [--before DIR]
 
-The sources first on ``PYTHONPATH`` are timed (else the installed pcmm), with this interpreter.
+This checkout's sources are timed, with this interpreter.  ``--before DIR`` times another
+checkout of pcmm (e.g. ``git archive`` of an earlier commit, its compiled extension copied in)
+in the same alternation, for the saving of a change.
 """
 from __future__ import annotations
 
@@ -50,22 +52,24 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--reps", type=int, default=15, help="pairs of runs (default 15)")
     ap.add_argument("--scene", type=Path, default=ROOT / "examples" / "three_bar.toml")
+    ap.add_argument("--before", type=Path, metavar="DIR", help="another pcmm checkout, timed alike")
     args = ap.parse_args(argv)
-    env = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
-    env["PYTHONPATH"] = os.pathsep.join(p for p in (os.environ.get("PYTHONPATH"), str(ROOT)) if p)
+    base = {k: v for k, v in os.environ.items() if k not in ("PYTHONDONTWRITEBYTECODE", "PYTHONPATH")}
+    envs = {"pinocchio": base, "pcmm run": dict(base, PYTHONPATH=str(ROOT))}
     with tempfile.TemporaryDirectory() as tmp:
-        commands = {
-            "pinocchio": [sys.executable, "-c", "import pinocchio"],
-            "pcmm run": [sys.executable, "-m", "pcmm.cli", "run", str(args.scene.resolve()),
-                         "--out", str(Path(tmp) / "run"), "--force", "--quiet"],
-        }
-        for cmd in commands.values():  # warm-up: byte-code caches written, files in the page cache
-            timed(cmd, env, tmp)
+        run = [sys.executable, "-m", "pcmm.cli", "run", str(args.scene.resolve()), "--out", str(Path(tmp) / "run"),
+               "--force", "--quiet"]
+        commands = {"pinocchio": [sys.executable, "-c", "import pinocchio"], "pcmm run": run}
+        if args.before:
+            commands["before"] = run
+            envs["before"] = dict(base, PYTHONPATH=str(args.before.resolve()))
+        for name, cmd in commands.items():  # warm-up: byte-code caches written, files in the page cache
+            timed(cmd, envs[name], tmp)
         cpu = {name: [] for name in commands}
         wall = {name: [] for name in commands}
         for _ in range(args.reps):
             for name, cmd in commands.items():
-                c, w = timed(cmd, env, tmp)
+                c, w = timed(cmd, envs[name], tmp)
                 cpu[name].append(c)
                 wall[name].append(w)
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
@@ -77,6 +81,10 @@ def main(argv=None) -> int:
     ratio_cpu = statistics.median(cpu["pcmm run"]) / statistics.median(cpu["pinocchio"])
     ratio_wall = statistics.median(wall["pcmm run"]) / statistics.median(wall["pinocchio"])
     print(f"ratio pcmm run / import pinocchio: CPU {ratio_cpu:.2f}x, wall {ratio_wall:.2f}x (target: <= 2x)")
+    if args.before:
+        saved = statistics.median(cpu["before"]) - statistics.median(cpu["pcmm run"])
+        print(f"before ({args.before}) / import pinocchio: CPU "
+              f"{statistics.median(cpu['before']) / statistics.median(cpu['pinocchio']):.2f}x; saved {saved:.3f} s CPU")
     return 0
 
 
