@@ -432,9 +432,10 @@ class PartitionedCoordinates:
     def contact_guards(self) -> list:
         """For each cut joint held by compression only (a ``contact`` normal): a guard where its
         normal force turns tensile, unless a transition of the scene watches it (a release with a
-        reaction guard: the lift-off), and with a finite ``friction`` a guard where its force
-        leaves the friction cone (mu F_n - |F_t| = 0).  Either stops the run with its cause: a
-        pinned point that lifts off or slips with nothing in the scene to take it is not modelled."""
+        reaction guard): it lifts off by itself into the scene's configuration without it
+        (:meth:`pcmm.scene.spec.Scene.lift_off_target`), or where there is none the run stops.
+        With a finite ``friction``, a guard where its force leaves the friction cone
+        (mu F_n - |F_t| = 0): the run stops, a pinned point that slips is not modelled."""
         cfg = self.cfg
         watched = {tr.guard.of for tr in cfg.scene.transitions_from(cfg.name) if tr.guard.type == "reaction"}
         out = []
@@ -444,11 +445,18 @@ class PartitionedCoordinates:
             if s.name not in watched:
                 def tensile(t, y, name=s.name):
                     return self.contact_forces(t, *self.unpack(t, y))[name][0]
-                out.append(Guard(f"cut joint '{s.name}': its normal force turns tensile", tensile, -1, "repartition",
-                                 payload=f"the point held by cut joint '{s.name}' would lift off (its normal force "
-                                 "turns tensile) and the scene gives it nowhere to go: add a release from this "
-                                 f"configuration with guard = {{ type = \"reaction\", of = \"{s.name}\", value = 0.0, "
-                                 "direction = \"decreasing\" } to a configuration without it"))
+                target = cfg.scene.lift_off_target(cfg.name, s.name)
+                if target is not None:  # it lifts off by itself (pcmm.run.actions.lift_off)
+                    out.append(Guard(f"cut joint '{s.name}': its normal force turns tensile (lift-off into "
+                                     f"'{target}')", tensile, -1, "lift-off", payload=(s.name, target)))
+                else:
+                    out.append(Guard(f"cut joint '{s.name}': its normal force turns tensile", tensile, -1, "repartition",
+                                     payload=f"the point held by cut joint '{s.name}' would lift off (its normal force "
+                                     "turns tensile) and the scene gives it nowhere to go: add a configuration with "
+                                     f"the same URDF and drives and the cut joints of '{cfg.name}' but '{s.name}' "
+                                     "(pcmm releases the point into it by itself), or a release from this "
+                                     f"configuration with guard = {{ type = \"reaction\", of = \"{s.name}\", "
+                                     "value = 0.0, direction = \"decreasing\" } to a configuration without it"))
             if s.friction is not None and math.isfinite(s.friction):
                 def cone(t, y, name=s.name, mu=s.friction):
                     Fn, Ft = self.contact_forces(t, *self.unpack(t, y))[name]

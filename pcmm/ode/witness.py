@@ -8,6 +8,9 @@ from the state, and the ``action`` the loop takes when it fires:
 * ``"transition"``: the scene transition ``transition`` (a latch, a stop, a release) fires;
 * ``"unmerge"``: a stop-merge held by compression only would have to pull (``payload`` is
   the merge); the bodies separate with no impulse;
+* ``"lift-off"``: a point held by compression only (a cut joint with a contact normal) would
+  have to pull (``payload`` is (the cut joint, the configuration without it)); it is freed with
+  no impulse;
 * ``"separation"``: a collision resolved by a continuous contact law ends (the gap reopens);
 * ``"repartition"``: a loop's partition of its coordinates degenerates (a new one is chosen,
   or the loop is at a singular posture).
@@ -22,7 +25,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-ACTIONS = ("transition", "unmerge", "separation", "repartition")
+ACTIONS = ("transition", "unmerge", "lift-off", "separation", "repartition")
 
 
 @dataclass(eq=False)
@@ -34,7 +37,7 @@ class Guard:
     transition: Any = None  # the scene's TransitionSpec it fires ("transition", "unmerge")
     rate: Callable[[float, np.ndarray, np.ndarray | None], float] | None = None
     rate_from_state: bool = False  # the rate needs no state derivative (the graze test is cheap)
-    payload: Any = None  # what the action needs ("unmerge": the merge it watches)
+    payload: Any = None  # what the action needs ("unmerge": the merge it watches; "lift-off": (cut joint, target))
     terminal: bool = True
 
     def __post_init__(self):

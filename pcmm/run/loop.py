@@ -372,12 +372,12 @@ def _guards(scene: Scene, cfg: Configuration, holds: Holds, t: float, phase, bou
 def _pending(cfg: Configuration, guards, t, y0):
     """Index of a guard that is already at or past its crossing at the start of a segment
     while its contact still approaches: a contact that closed at the same instant as the
-    impact just resolved; or a merge whose holding force is already tensile (it never held).  It is resolved now, before any integration (sequential impacts
+    impact just resolved; or a merge (or a pinned point) whose holding force is already tensile (it never held).  It is resolved now, before any integration (sequential impacts
     in scene order); a step would never see it change sign."""
     q, v = cfg.coords.unpack(t, y0)
     for i, g in enumerate(guards):
-        if g.action == "unmerge" and g(t, y0) < 0:
-            return i  # the merge would have to pull from its first instant: the bodies separate now
+        if g.action in ("unmerge", "lift-off") and g(t, y0) < 0:
+            return i  # the merge or pin would have to pull from its first instant: the bodies separate now
         tr = g.transition
         if g.action != "transition" or tr.contact is None or tr.guard.type not in ("coordinate", "gap"):
             continue
