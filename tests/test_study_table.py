@@ -98,8 +98,10 @@ def _sweep_cli(args, cwd, **kw):
 
 @pytest.mark.slow  # two concurrent sweeps in subprocesses
 def test_two_resumes_at_once_give_each_run_once(tmp_path):
-    # the probe: two --resume on one table gave 33 rows for 18 runs
-    args = [str(STOP), "--set", f"{PATH}=0.1:0.9:17", "--t-end", "2.0", "--out", "r.csv", "--workers", "1",
+    # the probe: two --resume on one table gave 33 rows for 18 runs.  Each run goes to
+    # 1.0 s (past the stop's impact at 0.167 s): the 17 runs still keep the first sweep writing
+    # for several seconds after its first row, while the second starts (about 1 s to import)
+    args = [str(STOP), "--set", f"{PATH}=0.1:0.9:17", "--t-end", "1.0", "--out", "r.csv", "--workers", "1",
             "--quiet"]
     first = _sweep_cli(args, tmp_path)
     out = tmp_path / "r.csv"
