@@ -561,7 +561,7 @@ def _write_results(args, scene, opts, traj, partial: bool):
         if not comparison:
             from .run.loop import simulate
             try:
-                other = simulate(scene, type(opts)(**{**opts.__dict__, "impact": not opts.impact}))
+                other = simulate(scene, dataclasses.replace(opts, impact=not opts.impact))
                 comparison.append(other)
                 warnings.extend(f"{'without' if opts.impact else 'with'} impact (figures' comparison run): {w}"
                                 for e in other.events for w in e.get("warnings", ()))

@@ -376,7 +376,7 @@ class Oracle:
 
     def potential(self, ctx, F, q, v, theta, seg):
         pe = pin.computePotentialEnergy(F.model, F.data, q)
-        for f in self.scene.forces_in(seg.configuration):  # a held joint's spring: constant while held
+        for f in ctx["forces"]:  # the configuration's own and a held joint's (at its locked value: constant)
             if f.points is not None:
                 pa, pb = F.jacobian(f.points.a, f.points.point_a)[0], F.jacobian(f.points.b, f.points.point_b)[0]
                 pe += 0.5 * f.k * (float(np.hypot(*(pb - pa))) - f.rest) ** 2
@@ -605,15 +605,23 @@ class Oracle:
             self.report(t, f"{a.configuration} -> {b.configuration}: kinetic energy rises at the switch", ke_a, ke_b,
                         ke_b - ke_a, tol.event * scale)
         dropped = {j: x for e in here for j, x in (e.get("dropped_velocities") or {}).items()}
+        changed = {j: x for e in here for j, x in (e.get("changed_velocities") or {}).items()}
         if not impact and dropped:  # a switch without impulse (impact = False): the velocities it drops are named
             _, ra = _coordinate_values(a, len(a.t) - 1)
             _, rb = _coordinate_values(b, 0)
             for j, x in ra.items():
                 what = f"{a.configuration} -> {b.configuration} without impulse: velocity of {j}"
+                if j in changed and j in rb:  # changed to fit the target's constraints: named, before and after
+                    for k, (told, real) in enumerate(((changed[j][0], x), (changed[j][1], rb[j]))):
+                        d = float(np.max(np.abs(np.atleast_1d(told) - np.atleast_1d(real))))
+                        self.report(t, what + (" before", " after")[k] + " (the event's changed_velocities)", told,
+                                    real, d, tol.event * max(1.0, float(np.max(np.abs(np.atleast_1d(real))))))
                 if j in dropped:
                     d = float(np.max(np.abs(np.atleast_1d(dropped[j]) - np.atleast_1d(x))))
                     self.report(t, what + " dropped (the event's dropped_velocities)", dropped[j], x, d,
                                 tol.event * max(1.0, float(np.max(np.abs(np.atleast_1d(x))))))
+                elif j in changed and j in rb:
+                    pass  # named with both rates above
                 elif j in rb:
                     d = float(np.max(np.abs(np.atleast_1d(rb[j]) - np.atleast_1d(x))))
                     self.report(t, what + " kept", x, rb[j], d,

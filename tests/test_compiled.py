@@ -150,7 +150,7 @@ def test_whole_runs_are_the_python_runs(tmp_path, monkeypatch, scene):
     """Example 1 (a mobile impact) and its stop variant (a stable impact): the same events at
     the same times, and the same states, with the compiled right-hand side and without it."""
     path = copy_example(tmp_path, scene, example_text(scene))
-    compiled._CACHE.__dict__.clear()
+    compiled.forget_trees()
     fast = pcmm.simulate(pcmm.load_scene(path))
     assert compiled.trees_built() == len(set(fast.visited())), "a configuration ran the Python right-hand side"
     assert set(fast.stats["evaluations"].values()) == {"compiled"}  # what the run tells its user
@@ -207,7 +207,7 @@ def test_closure_rows_are_the_derivatives_of_the_closure():
 def test_example_2_runs_as_without_it(monkeypatch):
     """47 impacts, then the merge: the same events at the same times with the compiled closure
     rows as with Pinocchio's Python binding."""
-    compiled._CACHE.__dict__.clear()
+    compiled.forget_trees()
     fast = pcmm.simulate(pcmm.load_scene(EXAMPLES / "double_folded.toml"))
     assert compiled.trees_built() >= 1
     assert fast.stats["evaluations"] == {"config1": "compiled", "config2": "compiled"}

@@ -903,3 +903,116 @@ def test_the_follow_view_holds_the_mechanism_at_every_frame_and_is_tighter_than_
     lines = [c for c in decode_commands(html) if c["type"] == "set_object" and c["path"].startswith("/meshcat/pcmm/envelope/")]
     assert sorted(c["path"].rsplit("/", 1)[1] for c in lines) == ["link1", "link2", "link3"]
     assert page_data(replay.html_page(traj, fps=FPS))["boxes"] is None  # --view run: one box
+
+
+# ---- a struck point pinned where it lands (issue 24): the rimless wheel's feet ------------------
+WHEEL = ROOT / "examples" / "rimless_wheel.toml"
+WHEEL_FPS = 30
+
+
+@pytest.fixture(scope="module")
+def wheel_page(tmp_path_factory):
+    """The rimless wheel to 4 s: spoke 0 pinned at the start, four strikes (the first at about 0.73 s)."""
+    traj = pcmm.simulate(pcmm.load_scene(WHEEL), pcmm.RunOptions(t_end=4.0))
+    path = tmp_path_factory.mktemp("wheel") / "wheel.html"
+    replay.write_html(traj, path, fps=WHEEL_FPS)
+    return traj, path
+
+
+def _pins(commands, clips):
+    """``{node: (x, y)}`` of the page's symbol nodes drawn with the cut-joint sprite, with their
+    positions on the frame's node (the translation of their transform)."""
+    cut_png = replay.sprite("cut")
+    objs, tfs = _objects(commands), _transforms(commands)
+    out = {}
+    for path, obj in objs.items():
+        if "/sym/" in path and _texture_png(obj) == cut_png:
+            out[path] = (float(tfs[path][0, 3]), float(tfs[path][1, 3]))
+    return out
+
+
+def test_the_page_draws_each_pinned_foot_at_its_strike_for_exactly_its_stay(wheel_page):
+    """Strike k pins spoke k's tip where it lands: on the slope at x = 2 l sin(pi/N) k = k m (the spokes
+    are 1 m, N = 6; the hub rolls one chord a strike), so the page has one pin per stay at (k, 0) on the
+    frame, visible from its strike's frame up to (not at) the next strike's frame, and no other."""
+    traj, page = wheel_page
+    html = page.read_text(encoding="utf-8")
+    commands = decode_commands(html)
+    clips = clips_of(commands)
+    strikes = [e["t"] for e in traj.events if e["transition"] == "pin"]
+    assert len(strikes) == 4
+    starts = [traj.segments[0].t[0], *strikes]
+    pins = _pins(commands, clips)
+    assert len(pins) == 5, sorted(pins)
+    assert all(p.startswith("/meshcat/pcmm/links/frame/sym/") for p in pins)
+    frames = np.array(page_data(html)["frames"])
+    fps = clips[next(iter(pins))]["_fps"]
+    for k, (path, xy) in enumerate(sorted(pins.items(), key=lambda kv: kv[1][0])):
+        assert xy[0] == pytest.approx(2 * math.sin(math.pi / 6) * k, abs=1e-9)
+        assert xy[1] == pytest.approx(0.0, abs=1e-9)
+        t0, t1 = starts[k], (starts[k + 1] if k + 1 < len(starts) else math.inf)
+        shown = np.array([value_at(clips[path]["visible"], fps * (t - frames[0])) for t in frames])
+        expected = (frames >= t0) & (frames < t1)
+        assert expected.any() and (shown == expected).all(), (k, np.flatnonzero(shown != expected))
+    # at each strike's own frame exactly one pin is shown: the new foot's, one chord further on
+    for k, t in enumerate(strikes, start=1):
+        on = [pins[p] for p in pins if value_at(clips[p]["visible"], fps * (t - frames[0]))]
+        assert len(on) == 1 and on[0][0] == pytest.approx(k, abs=1e-9), (t, on)
+
+
+def _cut_ink(img):
+    """The cut joint's purple (sprites.CUT = (123, 63, 181)), also blended into white at its thin
+    edges; not the wheel's spokes (77, 77, 153: as much red as green) nor black or grey."""
+    r, g, b = img[..., 0], img[..., 1], img[..., 2]
+    return (r - g > 25) & (b - g > 50) & (b > r)
+
+
+@pytest.mark.browser
+@needs_chromium
+def test_browser_draws_the_pinned_foot_while_it_holds_and_not_after(wheel_page, tmp_path):
+    """Screenshots during spoke 0's stay and during spoke 1's: the cut joint's ring (purple) around the
+    struck anchor's screen position while that stay lasts, and none at the old anchor after the
+    next strike."""
+    traj, page = wheel_page
+    strike = next(e["t"] for e in traj.events if e["transition"] == "pin")
+    times = (0.5 * strike, strike + 0.3)
+    images, _ = _screenshots(page, times, tmp_path, size="1600,700")
+    h, w, _ = images[0].shape
+    view = replay.view_box(traj, replay.run_visuals(traj), fps=WHEEL_FPS)
+    pixel = _pixel_map(view, w, h - replay.BAR_PX)
+    s_px = pixel(sk.scale(traj), 0.0)[0] - pixel(0.0, 0.0)[0]
+    assert s_px >= 6
+
+    def ring(img, centre):  # the cut ring's radius is 0.4 s
+        cx, cy = pixel(*centre)
+        pts = [(int(round(cx + 0.4 * s_px * math.cos(a))), int(round(cy - 0.4 * s_px * math.sin(a))))
+               for a in np.radians(np.arange(0, 360, 15))]
+        return sum(bool(_cut_ink(img[y - 1:y + 2, x - 1:x + 2]).any()) for x, y in pts) / len(pts)
+
+    foot0, foot1 = (0.0, 0.0), (1.0, 0.0)
+    assert ring(images[0], foot0) >= 0.6, "no pin at spoke 0's anchor during its stay"
+    assert ring(images[0], foot1) == 0.0, "a pin at spoke 1's anchor before it strikes"
+    assert ring(images[1], foot1) >= 0.6, "no pin at spoke 1's anchor during its stay"
+    assert ring(images[1], foot0) == 0.0, "spoke 0's pin is still drawn after the next strike"
+
+
+def test_the_compass_gaits_page_pins_each_new_stance_foot_where_its_heel_struck(tmp_path):
+    """Each heel strike pins the swing foot at the strike's contact point (the event record's, a route
+    independent of the drawing's pose lookup); the page shows that pin from the strike's frame until
+    the next strike's, the initial stance foot at the origin until the first."""
+    traj = pcmm.simulate(pcmm.load_scene(ROOT / "examples" / "compass_gait.toml"), pcmm.RunOptions(t_end=1.6))
+    html = replay.html_page(traj, fps=WHEEL_FPS)
+    commands = decode_commands(html)
+    clips = clips_of(commands)
+    strikes = [e for e in traj.events if e["transition"] == "pin"]
+    assert len(strikes) == 2
+    anchors = [(0.0, 0.0)] + [tuple(e["contact_point"]) for e in strikes]
+    starts = [traj.segments[0].t[0]] + [e["t"] for e in strikes] + [math.inf]
+    pins = sorted(_pins(commands, clips).items(), key=lambda kv: kv[1][0])
+    assert len(pins) == 3
+    frames = np.array(page_data(html)["frames"])
+    for k, (path, xy) in enumerate(pins):
+        assert xy == pytest.approx(anchors[k], abs=1e-9)
+        fps = clips[path]["_fps"]
+        shown = np.array([value_at(clips[path]["visible"], fps * (t - frames[0])) for t in frames])
+        assert (shown == ((frames >= starts[k]) & (frames < starts[k + 1]))).all(), k

@@ -166,6 +166,20 @@ def test_scene_file_not_found(tmp_path):
     assert "absent.toml" in info.value.text() and "not found" in info.value.text()
 
 
+
+def test_an_inline_table_broken_over_lines_says_so(tmp_path):
+    """tomllib's "Invalid initial character for a key part" did not say that TOML 1.0 keeps an
+    inline table on one line (a newcomer copied a wrapped cut_joints entry from a page)."""
+    path = tmp_path / "wrapped.toml"
+    path.write_text('x = [ { a = 1,\n      b = 2 } ]\n')
+    with pytest.raises(pcmm.SceneError) as info:
+        pcmm.load_scene(path)
+    assert "inline table { ... } runs past the end of its line" in info.value.text()
+    path.write_text('x = { a = 1 }\ny = "{" = 2\n')  # a brace in a string, a closed table: no hint
+    with pytest.raises(pcmm.SceneError) as info:
+        pcmm.load_scene(path)
+    assert "inline table" not in info.value.text()
+
 # ---- the command line: one message, non-zero status, no traceback ----------------------------------
 CLI_ROWS = [
     pytest.param(SCENE, "scene", "rtol = 1e-10", "rtoll = 1e-10", "solver.rtoll", id="unknown-key"),

@@ -74,8 +74,27 @@ def _structure(cfg: Configuration, joints: tuple[str, ...]):
     copies = {name: new.addFrame(pin.Frame(f"pcmm:cut:{name}:parent", jmap[model.parents[cfg.joint_id[name]]], 0,
                                            pin.SE3.Identity(), pin.FrameType.OP_FRAME), False)
               for name in joints}
-    cache[joints] = (new, new.createData(), jmap, copies, cut_ids)
+    cache[joints] = (new, new.createData(), jmap, copies, cut_ids, {})  # {}: the cut joints' complements
     return cache[joints]
+
+
+#: joints whose motion subspace S (in the joint's frame) does not depend on q: revolute (RX, RY,
+#: RZ, unaligned, unbounded), prismatic (PX, ..., unaligned) and planar
+_CONSTANT_S = ("JointModelR", "JointModelP")
+
+
+def _forbidden(model, jid: int, q_joint: np.ndarray, known: dict) -> np.ndarray:
+    """The planar motions joint ``jid`` forbids (:func:`_complement` of its S), computed once per
+    configuration and cut set when S does not depend on the pose (``known`` keeps it)."""
+    if jid in known:
+        return known[jid]
+    jm = model.joints[jid]
+    jd = jm.createData()
+    jm.calc(jd, q_joint)
+    N = _complement(np.asarray(jd.S)[_PLANAR_ROWS])
+    if jm.shortname().startswith(_CONSTANT_S):
+        known[jid] = N
+    return N
 
 
 def cut(cfg: Configuration, q: np.ndarray, joints: tuple[str, ...]) -> CutSystem:
@@ -84,7 +103,7 @@ def cut(cfg: Configuration, q: np.ndarray, joints: tuple[str, ...]) -> CutSystem
     joints = tuple(joints)
     qp = cfg.to_pin(q)
     pin.computeJointJacobians(model, data, qp)  # placements (oMi, liMi) and the tree's Jacobians in one pass
-    new, new_data, jmap, copies, cut_ids = _structure(cfg, joints)
+    new, new_data, jmap, copies, cut_ids, known = _structure(cfg, joints)
     q_parts = []
     for jid in range(1, model.njoints):
         if jid in cut_ids:
@@ -116,9 +135,7 @@ def cut(cfg: Configuration, q: np.ndarray, joints: tuple[str, ...]) -> CutSystem
         child = joint_jacobian(new, new_data, jmap[jid], LOCAL)[_PLANAR_ROWS]
         parent = frame_jacobian(new, new_data, copies[name], LOCAL)[_PLANAR_ROWS]
         jm = model.joints[jid]
-        jd = jm.createData()
-        jm.calc(jd, qp[jm.idx_q:jm.idx_q + jm.nq])
-        N = _complement(np.asarray(jd.S)[_PLANAR_ROWS])
+        N = _forbidden(model, jid, qp[jm.idx_q:jm.idx_q + jm.nq], known)
         for k in range(N.shape[1]):
             rows.append(N[:, k] @ (child - parent))
             owner.append(name)

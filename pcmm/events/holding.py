@@ -16,6 +16,7 @@ joints free again, found among the scene's configurations by its set of movable 
 """
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass
 
 import numpy as np
@@ -60,6 +61,7 @@ class Holds:
         self.items: list[Hold] = []
         self._maps: dict = {}  # (reference, configuration, holds) -> the forces acting while it holds
         self._refs: dict = {}  # (configuration, holds) -> its reference configuration
+        self._sets: dict | None = None  # {configuration: its URDF's movable joints}, read on first use
 
     # -- book-keeping
     def lock(self, src: Configuration, dst: Configuration, tr: TransitionSpec, q: np.ndarray, merge: bool) -> None:
@@ -92,8 +94,8 @@ class Holds:
     def snapshot(self) -> "Holds":
         """The locks in force now, kept as they are (a recorded segment computes its holding
         forces later, when they are read, while the run's own locks change)."""
-        out = Holds.__new__(Holds)
-        out.__dict__.update(self.__dict__, items=list(self.items))
+        out = copy.copy(self)
+        out.items = list(self.items)
         return out
 
     def follow(self, cfg: Configuration) -> None:
@@ -114,7 +116,7 @@ class Holds:
 
     # -- the reference configuration and the state mapped onto it
     def _joint_sets(self):
-        sets = self.__dict__.get("_sets")
+        sets = self._sets
         if sets is None:  # the scene's configurations do not change: read their URDF joints once
             sets = self._sets = {name: set(spec.info.movable_joints) for name, spec in self.scene.configurations.items()}
         return sets
@@ -128,7 +130,7 @@ class Holds:
         if key not in self._refs:
             need = set(cfg.joint_names).union(*(h.joints for h in self.items))
             drives = {(d.joint, d.coefficients) for d in self.scene.drives_in(cfg.name)}
-            sources = {h.transition.source for h in self.items}
+            sources = {h.free_in for h in self.items}
             fits = [(len(js), name not in sources, name) for name, js in self._joint_sets().items()
                     if need <= js and {(d.joint, d.coefficients) for d in self.scene.drives_in(name)} == drives]
             self._refs[key] = min(fits)[2] if fits else None
@@ -146,13 +148,7 @@ class Holds:
         # ref's measures as they are now (its angle offsets: pcmm.configuration.Configuration.continue_angles)
         key = (ref.name, cfg.name, tuple(h.label for h in self.items), ref.angle_offsets)
         if key not in self._maps:
-            mine = list(self.scene.forces_in(cfg.name))
-            for h in self.items:
-                for f in self.scene.forces_in(h.free_in):
-                    on_joint = f.on is not None and f.on.kind == "joint" and f.on.name in h.joints
-                    measures = f.measure is not None and f.measure.kind == "joint" and f.measure.names[0] in h.joints
-                    if (on_joint or measures) and f not in mine:
-                        mine.append(f)
+            mine = list(self.scene.forces_in(cfg.name)) + self._carried(cfg)
             theirs = self.scene.forces_in(ref.name)
             if len(mine) == len(theirs) and all(f in theirs for f in mine):
                 self._maps[key] = None
@@ -166,6 +162,19 @@ class Holds:
                 self._maps[key] = compile_forces(tuple(mine), ref.measure_row, ref.target_column, ref.nv)
         return self._maps[key]
 
+    def _carried(self, cfg: Configuration) -> list:
+        """The held joints' own force elements (a spring or motor on a held joint, or measuring
+        it), as the configuration each hold was locked from has them, that ``cfg`` lacks."""
+        own = self.scene.forces_in(cfg.name)
+        out = []
+        for h in self.items:
+            for f in self.scene.forces_in(h.free_in):
+                on_joint = f.on is not None and f.on.kind == "joint" and f.on.name in h.joints
+                measures = f.measure is not None and f.measure.kind == "joint" and f.measure.names[0] in h.joints
+                if (on_joint or measures) and f not in own and f not in out:
+                    out.append(f)
+        return out
+
     def release_target(self, hold: Hold, cfg: Configuration) -> str:
         need = set(cfg.joint_names) | set(hold.joints)
         for name, js in self._joint_sets().items():
@@ -178,10 +187,21 @@ class Holds:
             f"(a URDF, or a configuration derived by locking joints) or set unmerge = false on "
             f"'{hold.label}'")
 
-    def forces(self, cfg: Configuration, t: float, q: np.ndarray, v: np.ndarray) -> dict[str, float]:
-        """{label: holding force or moment} of every hold at (t, q, v) of ``cfg``."""
-        if not self.items:
-            return {}
+    def applied(self, cfg: Configuration) -> tuple | None:
+        """The force elements the holding forces of ``cfg`` are solved with now, as values: (the
+        reference configuration's own, those acting while ``cfg`` holds or None: :meth:`_forces_on`,
+        the held joints' springs or None: :meth:`_held_springs`).  A recorded segment keeps them
+        (the run may compile the reference's again at other angle offsets before the segment's
+        holding forces are read).  None without holds or reference."""
+        ref_name = self.reference(cfg) if self.items else None
+        if ref_name is None:
+            return None
+        ref = self.mechanism[ref_name]
+        return ref.forces, self._forces_on(ref, cfg), self._held_springs(ref, cfg)
+
+    def _on_reference(self, cfg: Configuration, q: np.ndarray, v: np.ndarray):
+        """(ref, qs, vs): the state of ``cfg`` mapped onto its reference configuration, the
+        held joints at their locked values and at rest."""
         ref_name = self.reference(cfg)
         if ref_name is None:
             raise SimulationError(
@@ -197,6 +217,39 @@ class Holds:
         for h in self.items:
             for name, val in h.joints.items():
                 qs[ref.joint_slice[name]] = val
+        return ref, qs, vs
+
+    def held_energy(self, cfg: Configuration, q: np.ndarray, applied: tuple | None = None) -> float:
+        """The energy stored in the held joints' own springs (J) at ``q`` of ``cfg``: constant
+        while the lock holds them (0 without a hold or a spring).  The configuration's own
+        potential energy leaves them out (``cfg`` has no such joint); the recorded potential
+        energy adds it, so it does not jump where a joint locks or is released.  ``applied``: as
+        for :meth:`forces`."""
+        if not self.items:
+            return 0.0
+        if (applied[2] is None) if applied is not None else not any(f.k for f in self._carried(cfg)):
+            return 0.0
+        ref, qs, _ = self._on_reference(cfg, q, np.zeros(cfg.nv))
+        springs = applied[2] if applied is not None else self._held_springs(ref, cfg)
+        return springs.potential_energy(qs)
+
+    def _held_springs(self, ref: Configuration, cfg: Configuration):
+        """The held joints' own elements (:meth:`_carried`) on ``ref``'s coordinates, at its angle
+        offsets of now; None when none of them is a spring."""
+        carried = self._carried(cfg)
+        if not any(f.k for f in carried):
+            return None
+        key = ("energy", ref.name, cfg.name, tuple(h.label for h in self.items), ref.angle_offsets)
+        if key not in self._maps:
+            self._maps[key] = compile_forces(tuple(carried), ref.measure_row, ref.target_column, ref.nv)
+        return self._maps[key]
+
+    def forces(self, cfg: Configuration, t: float, q: np.ndarray, v: np.ndarray, applied: tuple | None = None) -> dict[str, float]:
+        """{label: holding force or moment} of every hold at (t, q, v) of ``cfg``, with the force
+        elements ``applied`` (:meth:`applied`, a recorded segment's), by default those of now."""
+        if not self.items:
+            return {}
+        ref, qs, vs = self._on_reference(cfg, q, v)
         Jc, bc = ref.coords.rows(t, qs, vs)
         rows, bias, owners = [Jc], [bc], []
         for h in self.items:
@@ -212,9 +265,9 @@ class Holds:
                 rows.append(e[None, :])
                 bias.append([0.0])
                 owners.append(h.label)
-        own = self._forces_on(ref, cfg)
-        extra = None if own is None else own.generalized(qs, vs) - ref.forces.generalized(qs, vs)
-        _, lam = constrained_accelerations(ref, qs, vs, np.vstack(rows), np.concatenate(bias), extra)
+        ref_forces, own = applied[:2] if applied is not None else (ref.forces, self._forces_on(ref, cfg))
+        extra = None if own is None else own.generalized(qs, vs) - ref_forces.generalized(qs, vs)
+        _, lam = constrained_accelerations(ref, qs, vs, np.vstack(rows), np.concatenate(bias), extra, forces=ref_forces)
         return {label: float(x) for label, x in zip(owners, lam[Jc.shape[0]:])}
 
     # -- guards

@@ -30,6 +30,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pinocchio as pin
 import scipy.linalg as sla
+from scipy.linalg.lapack import dpotrf as _potrf, dpotrs as _potrs
 
 from ..model.configuration import Configuration
 from .contact import contact_point, contact_state, impact_kind, joint_stop_row
@@ -80,6 +81,21 @@ class Impulse:
         return self.ke_before + self.drive_work - self.ke_after
 
 
+def _inverse_mass(M: np.ndarray, configuration: str) -> np.ndarray:
+    """``M^-1`` by its Cholesky factor: LAPACK's potrf and potrs called directly, the very calls
+    ``scipy.linalg.cho_factor`` / ``cho_solve`` make (same bits) without their checks' overhead,
+    which dominates for the few coordinates of a mechanism."""
+    if M.shape[0] == 0:
+        return np.zeros((0, 0))
+    c, info = _potrf(M, lower=False, overwrite_a=False, clean=False)
+    if info != 0 or not np.isfinite(c).all():
+        return sla.cho_solve(cholesky(M, configuration), np.eye(M.shape[0]))  # its clear error
+    W, info = _potrs(c, np.eye(M.shape[0]), lower=False, overwrite_b=True)
+    if info != 0:
+        return sla.cho_solve(cholesky(M, configuration), np.eye(M.shape[0]))
+    return W
+
+
 def tangent_of(n: np.ndarray) -> np.ndarray:
     """The contact tangent: the normal turned by -90 degrees, t = (n_y, -n_x)."""
     return np.array([n[1], -n[0]])
@@ -115,8 +131,7 @@ def solve_impulse(cfg: Configuration, t: float, q: np.ndarray, v: np.ndarray, co
     else:
         J_n = joint_stop_row(cfg, cs.model, cs.data, contact)[1][None, :]
     G = np.vstack([cs.J_cut, cfg.coords.equality(t, cs.model, cs.data)])
-    chol = cholesky(M_f, cfg.name)
-    W = sla.cho_solve(chol, np.eye(M_f.shape[0]))
+    W = _inverse_mass(M_f, cfg.name)
     if G.shape[0]:
         WGt = W @ G.T
         S = G @ WGt
@@ -292,9 +307,11 @@ def joint_impulses(cfg: Configuration, q, dv, point_impulses):
         jid = model.frames[cfg.link_frame[link]].parentJoint
         if jid == 0:
             continue
-        F3 = np.array([F[0], F[1], 0.0])
-        p3 = np.array([p[0], p[1], 0.0])
-        f_world = pin.Force(F3, np.cross(p3, F3) + np.array([0.0, 0.0, mz]))
+        fx, fy, px, py = float(F[0]), float(F[1]), float(p[0]), float(p[1])
+        # the moment about the world origin, p x F + mz, term by term as numpy's cross and sum
+        # form it (the same floating-point operations, so the same bits, signed zeros included)
+        moment = np.array([py * 0.0 - 0.0 * fy + 0.0, 0.0 * fx - px * 0.0 + 0.0, px * fy - py * fx + mz])
+        f_world = pin.Force(np.array([fx, fy, 0.0]), moment)
         fext[jid] = fext[jid] + d0.oMi[jid].actInv(f_world)
     tau = pin.rnea(m0, d0, qp, np.zeros(model.nv), dv, fext)
     out = {}

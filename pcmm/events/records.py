@@ -72,6 +72,7 @@ class EventRecord(_EventCore, total=False):
     drive_work: float  # J, the drives' impulsive work
     energy_dissipated: float  # J, KE- + drive_work - KE+ >= 0
     dropped_velocities: dict  # {locked joint: velocity before the merge}
+    changed_velocities: dict  # without impact: {kept joint: [rate before, rate after]} the target's constraints changed
     t_end: float  # contact laws: the instant the bodies separate
     duration: float
     law: str

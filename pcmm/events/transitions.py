@@ -172,7 +172,39 @@ def _merge(ctx: Context, cfg: Configuration, tr: TransitionSpec, target: str, t,
         imp = no_impulse(cfg, q, v, v_after, tr.contact)
     record = event_record(cfg, tr, t, target, True, imp, transition_type, q=q)
     record["dropped_velocities"] = dropped
+    if not imp.impact:
+        _report_reset(record, cfg, dst, t, tr, q, v, q_new, v_new, imp)
     return Outcome(target, q_new, v_new, record, offsets, "merge" if transition_type == "stop" else "latch")
+
+
+def _report_reset(record, src: Configuration, dst: Configuration, t, tr: TransitionSpec, q, v, q_new, v_new,
+                  imp) -> None:
+    """A switch without impulse keeps the velocities of the joints its target keeps, unless the
+    target's constraints (a loop the merge closes, a drive) do not admit them: they are then
+    projected onto those constraints (:func:`pcmm.events.entry.enter`).  Besides their value
+    before in ``dropped_velocities`` (with the locked joints'), every velocity so changed is in
+    ``changed_velocities`` ({joint: [rate before, rate after]}, the coordinates' rates as the
+    series record them) and in a warning with the kinetic energy before and after."""
+    before, after = src.qdot(q, v), dst.qdot(q_new, v_new)
+    scale = max(1.0, float(np.max(np.abs(before)))) if len(before) else 1.0
+    changed = {}
+    for n in dst.joint_names:
+        if n not in src.joint_slice:
+            continue
+        b, a = before[src.joint_slice[n]], after[dst.joint_slice[n]]
+        if float(np.max(np.abs(a - b))) > VELOCITY_ROUNDOFF * scale:
+            changed[n] = [float(b[0]), float(a[0])] if len(b) == 1 else [b.tolist(), a.tolist()]
+    record["changed_velocities"] = changed
+    if not changed:
+        return
+    listed = ", ".join(f"{n}' {b:.6g} -> {a:.6g}" if not isinstance(b, list) else f"{n}' {b} -> {a}"
+                       for n, (b, a) in changed.items())
+    record.setdefault("warnings", []).append(
+        f"t = {t:.9g} s, transition '{tr.name}' without impact: '{dst.name}' does not admit the velocities kept "
+        f"from '{src.name}', so the switch changes {listed} (projected onto its constraints; locked: "
+        f"{', '.join(n for n in record.get('dropped_velocities') or {} if n not in changed) or 'none'}); "
+        "the kinetic energy goes from "
+        f"{imp.ke_before:.6g} to {imp.ke_after:.6g} J ({imp.ke_after - imp.ke_before:+.3g} J)")
 
 
 def handle_latch(ctx: Context, cfg: Configuration, tr: LatchSpec, t, q, v) -> Outcome:

@@ -66,7 +66,14 @@ MAX_NV = 32
 # Built trees per thread (each holds its own Pinocchio Data: scratch space, never shared between
 # threads), by model and force elements: a run of a scene seen before reuses its trees (Pinocchio
 # 4.1's Data constructor allocates nv^3-sized tensors: 29 ms at nv = 100).
-_CACHE = threading.local()
+class _Trees(threading.local):
+    """This thread's compiled trees: ``trees = {id(model): (model, {key: (tree, names checked)})}``."""
+
+    def __init__(self):
+        self.trees: dict = {}
+
+
+_CACHE = _Trees()
 _CACHE_MAX = 32
 
 _last_reason: list[str] = []
@@ -88,7 +95,12 @@ def why_not() -> str | None:
 
 def trees_built() -> int:
     """How many compiled objects this thread holds (a run that built none ran Python's)."""
-    return sum(1 for _, built in _CACHE.__dict__.get("trees", {}).values() for _, checked in built.values() if checked)
+    return sum(1 for _, built in _CACHE.trees.values() for _, checked in built.values() if checked)
+
+
+def forget_trees() -> None:
+    """Drop this thread's compiled trees (the next run builds its own: what :func:`trees_built` counts)."""
+    _CACHE.trees.clear()
 
 
 def _refuse(reason: str) -> None:
@@ -147,7 +159,7 @@ def _tree(model: pin.Model, key: tuple, finalize: Callable):
     once per thread (the model's joints and bodies, then ``finalize(tree)``), or None (why_not says)."""
     if not enabled():
         return None
-    cache = _CACHE.__dict__.setdefault("trees", {})
+    cache = _CACHE.trees
     # the model is held by identity (pcmm never edits a built model's bodies or joints); its
     # gravity and armature, plain arrays a caller may set, are part of the key
     key = (*key, model.gravity.linear.tobytes(), np.asarray(model.armature).tobytes())

@@ -43,7 +43,15 @@ class Point:
     frame_id: int
 
 
-_BUILT = threading.local()  # per thread: Pinocchio's Data is scratch space, never shared between threads
+class _Built(threading.local):
+    """This thread's built models (Pinocchio's Data is scratch space, never shared between threads):
+    ``models = {(URDF text, points, gravity): the model's fields Configuration.__init__ reuses}``."""
+
+    def __init__(self):
+        self.models: dict = {}
+
+
+_BUILT = _Built()
 _WORKSPACE_LOCK = threading.Lock()  # guards the creation of a thread's Data (Configuration.workspace)
 _BUILT_MAX = 16  # models kept per thread (a large chain's Data holds nv^3-sized tensors)
 
@@ -151,7 +159,7 @@ class Configuration:
         except OSError as exc:
             raise ModelError(f"{spec.urdf}: cannot read the URDF: {exc.strerror or exc}") from None
         key = (text, _point_keys(scene, spec), tuple(scene.gravity))
-        cache = _BUILT.__dict__.setdefault("models", {})
+        cache = _BUILT.models
         built = cache.get(key)
         if built is not None:
             self.__dict__.update(built)
@@ -446,9 +454,10 @@ class Configuration:
         welded = -fixed.mass * float(self.model.gravity.linear @ fixed.lever)
         return float(pin.computePotentialEnergy(self.model, self.data, self.to_pin(q))) + welded
 
-    def potential_energy(self, q: np.ndarray) -> float:
-        """Gravity plus spring energy (J)."""
-        return self.gravity_energy(q) + self.forces.potential_energy(q)
+    def potential_energy(self, q: np.ndarray, forces: ForceField | None = None) -> float:
+        """Gravity plus spring energy (J) of ``forces`` (a recorded segment's own, compiled at its
+        angle offsets), by default the configuration's current ones."""
+        return self.gravity_energy(q) + (self.forces if forces is None else forces).potential_energy(q)
 
     def link_velocities(self, q: np.ndarray, v: np.ndarray) -> np.ndarray:
         """(nlinks, 3): vx, vy of every link frame's origin and its angular velocity (world)."""

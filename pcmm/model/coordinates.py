@@ -57,9 +57,10 @@ class Coordinates(Protocol):
         :class:`~pcmm.errors.Repartition` to restart it with a better partition.
     Recording
         ``frozen_state()`` gives, as values, what an accepted segment was integrated in (a loop's
-        partition and anchors) and ``restored(frozen, q_start, steps)`` is a context manager that
-        yields a reader of that segment: coordinates in that state, warm-started at ``q_start`` and
-        along the segment's accepted ``steps = (t, y)``, leaving these coordinates alone (a
+        partition and anchors) and ``restored(frozen, q_start, steps, forces)`` is a context manager
+        that yields a reader of that segment: coordinates in that state, warm-started at ``q_start``,
+        along the segment's accepted ``steps = (t, y)`` and applying its force elements ``forces``
+        (a value; ``forces`` is what every evaluation applies), leaving these coordinates alone (a
         trajectory's series are computed lazily, possibly in another thread while a run goes on);
         ``fresh_rhs()`` is a right-hand side bound to
         the current data; ``forces_changed()`` rebuilds what holds the configuration's force
@@ -77,6 +78,7 @@ class Coordinates(Protocol):
     nv: int
     ny: int
     labels: list[str]
+    forces: object  # the ForceField every evaluation applies (a segment reader's own, else cfg.forces)
     position_noise: float
     constrained: bool  # constraint rows exist (loops or drives): q' is not simply the state's second half
     evaluations: str  # "compiled" (pcmm.compiled in use) or "python: <why not>"
@@ -89,7 +91,7 @@ class Coordinates(Protocol):
 
     def frozen_state(self) -> dict: ...
 
-    def restored(self, frozen: dict, q_start: np.ndarray, steps: tuple | None = None): ...
+    def restored(self, frozen: dict, q_start: np.ndarray, steps: tuple | None = None, forces=None): ...
 
     def fresh_rhs(self): ...
 

@@ -59,6 +59,7 @@ class PartitionedCoordinates:
         self.checking = True  # conditioning checks (off while recording an accepted segment)
         self._cache = None  # the last unpack: guards and the right-hand side ask for the same point
         self.max_residual = 0.0  # largest loop residual a Newton solve accepted (the recorded drift's bound)
+        self._segment_forces = None  # a reader's own force elements (restored); None: the configuration's
         self._driven = np.array(drives.index, dtype=int)
         self._drive_rows = np.zeros((drives.size, self.nv))
         self._drive_rows[np.arange(drives.size), self._driven] = 1.0
@@ -77,7 +78,13 @@ class PartitionedCoordinates:
         self.evaluations = "compiled" if fast else f"python: {why}"
 
     def forces_changed(self):
-        """Nothing to rebuild: every evaluation reads ``cfg.forces``."""
+        """Nothing to rebuild: every evaluation reads :attr:`forces`."""
+
+    @property
+    def forces(self):
+        """The force elements every evaluation applies: a segment reader's own (:meth:`restored`,
+        a value: the run may compile the configuration's again meanwhile), else ``cfg.forces``."""
+        return self.cfg.forces if self._segment_forces is None else self._segment_forces
 
     # -- re-reading an accepted segment (a trajectory's lazy series)
     def frozen_state(self) -> dict:
@@ -90,14 +97,18 @@ class PartitionedCoordinates:
         return out
 
     @contextlib.contextmanager
-    def restored(self, frozen: dict, q_start, steps=None):
+    def restored(self, frozen: dict, q_start, steps=None, forces=None):
         """A reader of an accepted segment: a copy of these coordinates in the segment's partition
         and anchors (``frozen``), warm-started at its start ``q_start``, without conditioning checks
         (the segment was accepted).  This object, which a run may be integrating meanwhile (in
         another thread), is left alone.  ``steps = (t, y)`` are the segment's accepted steps: the
         reader's Newton solves start from the step at or before the instant asked for
-        (:meth:`_follow`), however far it lies from the last one solved."""
+        (:meth:`_follow`), however far it lies from the last one solved.  ``forces`` are the
+        segment's force elements (a value, compiled at its angle offsets), which the reader's
+        evaluations apply instead of the configuration's current ones."""
         reader = copy.copy(self)
+        if forces is not None:
+            reader._segment_forces = forces
         reader.I, reader.D, reader.ny = frozen["I"], frozen["D"], frozen["ny"]
         reader.closure = dataclasses.replace(self.closure, anchors=dict(frozen.get("anchors", {})))
         if getattr(self._point_rows, "__self__", None) is self:  # the Python rows read the closure
@@ -535,7 +546,7 @@ class PartitionedCoordinates:
     def accelerations(self, t, q, v, extra=None):
         """(a, lam): ``M a + h = Q + extra + Phi_q^T lam`` with ``Phi_q a + bias = 0``."""
         Jq, bias = self.rows(t, q, v)
-        return constrained_accelerations(self.cfg, q, v, Jq, bias, extra)
+        return constrained_accelerations(self.cfg, q, v, Jq, bias, extra, forces=self.forces)
 
     def derivative(self, t, q, v, extra):
         """State derivative at an assembled (q, v) with an extra generalized force (contact laws)."""
@@ -546,7 +557,7 @@ class PartitionedCoordinates:
         """(a, lam) at an assembled (q, v): with revolute cut joints the rows and bias come from
         one kinematics pass (:meth:`_point_rows_and_bias`); otherwise :meth:`accelerations`."""
         if self.closure.revolute_only:
-            return constrained_accelerations(self.cfg, q, v, *self._point_rows_and_bias(t, q, v))
+            return constrained_accelerations(self.cfg, q, v, *self._point_rows_and_bias(t, q, v), forces=self.forces)
         return self.accelerations(t, q, v)
 
     def rhs(self, t, y):
@@ -562,6 +573,6 @@ class PartitionedCoordinates:
         ``mu f'(t)`` for a drive."""
         q, v = self.unpack(t, y[:-1])
         a, lam = self._solved_accelerations(t, q, v)
-        power = float(self.cfg.forces.generalized(q, v) @ v - lam @ self._phi_t(t))
+        power = float(self.forces.generalized(q, v) @ v - lam @ self._phi_t(t))
         qd = self.cfg.qdot(q, v)
         return np.concatenate([qd[self.I], self.cfg.qddot(q, v, a)[self.I], [power]])

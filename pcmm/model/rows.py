@@ -249,7 +249,7 @@ def _strictly_lower(n: int) -> np.ndarray:
     return np.tril(np.ones((n, n), dtype=bool), -1)
 
 
-def constrained_accelerations(cfg: Configuration, q, v, J, bias, extra=None):
+def constrained_accelerations(cfg: Configuration, q, v, J, bias, extra=None, forces=None):
     """Solve ``M a + h = Q + J^T lam``, ``J a + bias = 0`` (the multipliers are the
     constraint forces: cut-joint reactions on b, driving moments, contact forces).
 
@@ -265,7 +265,7 @@ def constrained_accelerations(cfg: Configuration, q, v, J, bias, extra=None):
     if cfg.nv == 0:
         return np.zeros(0), np.zeros(J.shape[0])
     qp = cfg.to_pin(q)
-    tau = cfg.forces.generalized(q, v)
+    tau = (cfg.forces if forces is None else forces).generalized(q, v)  # a segment's own when given
     if extra is not None:
         tau = tau + extra
     if J.shape[0] == 0:

@@ -4,6 +4,7 @@ call (or the compiled right-hand side, :mod:`pcmm.model.compiled`); satisfies
 from __future__ import annotations
 
 import contextlib
+import copy
 
 import numpy as np
 import pinocchio as pin
@@ -24,7 +25,14 @@ class TreeCoordinates:
         self.nv = cfg.nv
         self.ny = 2 * cfg.nv
         self.labels: list[str] = []
+        self._segment_forces = None  # a reader's own force elements (restored); None: the configuration's
         self.rhs = self._make_rhs()
+
+    @property
+    def forces(self):
+        """The force elements every evaluation applies: a segment reader's own (:meth:`restored`,
+        a value: the run may compile the configuration's again meanwhile), else ``cfg.forces``."""
+        return self.cfg.forces if self._segment_forces is None else self._segment_forces
 
     def _make_rhs(self):
         """The right-hand side as a closure over prebound names: per call one
@@ -32,17 +40,17 @@ class TreeCoordinates:
         owns: ``aba`` reads it and returns a new array), one ``aba`` and one new
         array out (integrators keep the arrays they are given); no Python
         attribute look-ups or planar conversions unless needed."""
-        cfg, nv = self.cfg, self.nv
+        cfg, nv, forces = self.cfg, self.nv, self.forces
         self.evaluations = "python: not compiled: " + (
-            "nothing to integrate" if nv == 0 else "point springs" if cfg.forces.points is not None else "a planar joint")
+            "nothing to integrate" if nv == 0 else "point springs" if forces.points is not None else "a planar joint")
         if nv == 0:
             return lambda t, y: y
         model, data, aba = cfg.model, cfg.data, pin.aba
-        Q0, KD = cfg.forces.Q0, cfg.forces.KD
+        Q0, KD = forces.Q0, forces.KD
         tau = np.empty(nv)
         dot, subtract, concatenate = np.dot, np.subtract, np.concatenate
-        if cfg.forces.points is not None:  # point springs: their Jacobians at every evaluation
-            to_pin, qdot, points = cfg.to_pin, cfg.qdot, cfg.forces.points
+        if forces.points is not None:  # point springs: their Jacobians at every evaluation
+            to_pin, qdot, points = cfg.to_pin, cfg.qdot, forces.points
 
             def rhs_points(t, y):
                 q, v = y[:nv], y[nv:]
@@ -74,9 +82,15 @@ class TreeCoordinates:
         return {}
 
     @contextlib.contextmanager
-    def restored(self, frozen: dict, q_start, steps=None):
-        """A tree reads every state alone: itself, unchanged."""
-        yield self
+    def restored(self, frozen: dict, q_start, steps=None, forces=None):
+        """A tree reads every state alone: itself, unchanged; with ``forces`` (the segment's own
+        force elements, as a value) a copy that applies those."""
+        if forces is None:
+            yield self
+            return
+        reader = copy.copy(self)
+        reader._segment_forces = forces
+        yield reader
 
     def fresh_rhs(self):
         """A right-hand side on the calling thread's data (the closure holds the data of the
@@ -92,13 +106,13 @@ class TreeCoordinates:
     def derivative(self, t, q, v, extra):
         """State derivative at a full (q, v) with an extra generalized force (contact laws)."""
         cfg = self.cfg
-        tau = cfg.forces.generalized(q, v) + extra
+        tau = self.forces.generalized(q, v) + extra
         return np.concatenate([cfg.qdot(q, v), pin.aba(cfg.model, cfg.data, cfg.to_pin(q), v, tau)])
 
     def accelerations(self, t, q, v):
         if self.nv == 0:
             return np.zeros(0), np.zeros(0)
-        tau = self.cfg.forces.generalized(q, v)
+        tau = self.forces.generalized(q, v)
         return pin.aba(self.cfg.model, self.cfg.data, self.cfg.to_pin(q), v, tau), np.zeros(0)
 
     def rhs_with_power(self, t, y):
@@ -107,7 +121,7 @@ class TreeCoordinates:
         q, v = self.unpack(t, y[:-1])
         if self.nv == 0:
             return np.zeros(1)
-        tau = self.cfg.forces.generalized(q, v)
+        tau = self.forces.generalized(q, v)
         a = pin.aba(self.cfg.model, self.cfg.data, self.cfg.to_pin(q), v, tau)
         return np.concatenate([self.cfg.qdot(q, v), a, [tau @ v]])
 

@@ -45,7 +45,8 @@ def event_table(traj: Trajectory) -> str:
             note = (f"  joint stop {imp['joint']}: vn in rad/s, P at its {imp['arm']:g} m arm" if imp.get("arm")
                     else f"  joint stop {imp['joint']}: vn in rad/s, P in N m s (no arm)")
         elif imp.get("joint"):  # a prismatic joint stop: its rate and axial impulse, the header's units
-            note = f"  joint stop {imp['joint']} (prismatic): vn and P along its axis"
+            note = (f"  joint stop {imp['joint']} (prismatic): vn and P along its axis,"
+                    " signed along the stop's normal (vn- < 0 closing, P > 0 pushing apart)")
         rows.append(
             f"{e['t']:13.9f}  {e['name'][:wn]:<{wn}} {e['kind']:<7} {e['transition']:<{wt}} "
             f"{(e['from'] + ' -> ' + e['to'])[:wc]:<{wc}} {num(e['normal_velocity']['before'])} "

@@ -59,7 +59,10 @@ class SegmentRecord:
     omega: np.ndarray  # (n, nlinks)
     xy: np.ndarray  # (n, nlinks, 2) link frame origins
     kinetic: np.ndarray  # (n,)
-    potential: np.ndarray  # (n,) gravity + springs
+    # (n,) gravity (welded bodies included) + every spring's k x^2 / 2: the configuration's own and,
+    # while a joint is held (a latch, a merged stop, a lock held from the start), its own springs at
+    # the locked value (constant there, so the series does not jump at a lock or a release)
+    potential: np.ndarray
     forces: np.ndarray  # (n, nforces) each force element's output (N or N m)
     constraint_forces: np.ndarray  # (n, m) cut-joint reactions and driving moments
 
@@ -84,6 +87,14 @@ class SegmentRecord:
         rec.__dict__.update({k: self.__dict__[k] for k in ("configuration", "coordinates", "links", "force_names",
                                                            "constraint_labels")}, t=times)
         rec.__dict__.update(resample(times))
+        return rec
+
+    def replaced(self, **arrays) -> "SegmentRecord":
+        """A copy of this segment with ``arrays`` (``t`` and series at other times, as a plot's
+        interpolation gives them) in place of its own; every other series is read now.  A plain
+        record: neither derived later nor resampled."""
+        rec = object.__new__(type(self))
+        rec.__dict__.update(self.__getstate__(), **arrays)
         return rec
 
     def __getattr__(self, name):  # only called for attributes not yet set: the deferred arrays
@@ -215,6 +226,10 @@ class Trajectory:
     #: ``{"configurations": {name: {"urdf": text, "joints": {joint: {"type", "parent", "child"}}}},
     #: "forces": {name: {"on": {"kind", "name"}}}}``.
     views: dict = field(default_factory=dict)
+    #: The segments' name lists (coordinates, links, force elements, constraint labels), one copy per
+    #: configuration and set of locks, shared by its segments while the run records them (memory:
+    #: a bouncing run has one segment per impact). Not saved: the segments carry the lists.
+    shared_names: dict = field(default_factory=dict, repr=False, compare=False)
     #: The file this trajectory was loaded from (not saved), for messages.
     source: str | None = field(default=None, compare=False)
 
@@ -281,7 +296,7 @@ class Trajectory:
         unnamed = ("kinetic", "potential")
         if quantity not in names_of and quantity not in unnamed:
             raise UsageError(f"series: no quantity {quantity!r}; the quantities are "
-                             f"{', '.join([*names_of, *unnamed])}")
+                             f"{', '.join([*names_of, *unnamed])}; the sample times are the attribute .t")
         if quantity in unnamed and name is not None:
             raise UsageError(f"series: {quantity!r} is the whole mechanism's: give no name (got {name!r})")
         if quantity in names_of:
@@ -310,14 +325,8 @@ class Trajectory:
         steps follow the solution, not a polygon."""
         if not (dt > 0 and np.isfinite(dt)):
             raise UsageError(f"dt = {dt!r}: must be a number > 0")
-        segs = []
-        for s in self.segments:
-            a, b = float(s.t[0]), float(s.t[-1])
-            k = np.arange(np.ceil(a / dt), np.floor(b / dt) + 1)
-            inner = k * dt
-            inner = inner[(inner > a) & (inner < b)]
-            times = np.concatenate(([a], inner, [b])) if b > a else np.array([a])
-            segs.append(s.resampled(times))
+        from ..viz.dense import segment_times  # the views' grid: one rule for --dt and the figures
+        segs = [s.resampled(segment_times(float(s.t[0]), float(s.t[-1]), dt)) for s in self.segments]
         return Trajectory(scene=self.scene, scene_name=self.scene_name, impact=self.impact, segments=segs,
                           events=self.events, stats=self.stats, status=self.status, message=self.message,
                           views=self.views)

@@ -38,33 +38,36 @@ def mechanical_energy(cfg: Configuration, q, v) -> float:
     return cfg.kinetic_energy(q, v) + cfg.gravity_energy(q)
 
 
-def power(cfg: Configuration, t: float, q, v) -> float:
+def power(cfg: Configuration, coords, t: float, q, v) -> float:
     """The power (W) of every applied force but gravity: the force elements' ``Q(q, v) . v`` and
-    the constraint rows' ``lam . Phi_q v`` (zero for a loop's rows, the motor's for a drive's)."""
-    p = float(cfg.forces.generalized(q, v) @ v)
-    if len(cfg.coords.labels):
-        Jq, _ = cfg.coords.rows(t, q, v)
-        _, lam = cfg.coords.accelerations(t, q, v)
+    the constraint rows' ``lam . Phi_q v`` (zero for a loop's rows, the motor's for a drive's).
+    ``coords`` evaluates, with its force elements (``coords.forces``: a recorded segment's reader
+    applies the segment's own)."""
+    p = float(coords.forces.generalized(q, v) @ v)
+    if len(coords.labels):
+        Jq, _ = coords.rows(t, q, v)
+        _, lam = coords.accelerations(t, q, v)
         p += float(lam @ (Jq @ v))
     return p
 
 
-def flight_work(cfg: Configuration, t, y, stepping, q_start) -> float:
+def flight_work(cfg: Configuration, coords, t, y, stepping, q_start) -> float:
     """The work (J) of :func:`power` over a recorded segment ``(t, y)`` (states as columns), by
     Gauss-Legendre quadrature on each step's dense output (``y`` may carry more components
     than the state, as the integrator had them).  The nodes are solved from the segment's
-    start ``q_start`` in the coordinates' current partition (the caller restores the
-    segment's)."""
+    start ``q_start`` by ``coords``, a reader of the segment (:meth:`Coordinates.restored`)."""
     t = np.asarray(t, float)
     if len(t) < 2:
         return 0.0
     h = np.diff(t) / 2
     times = (t[:-1, None] + h[:, None] * (GAUSS_NODES[None, :] + 1)).ravel()
     weights = (h[:, None] * GAUSS_WEIGHTS[None, :]).ravel()
-    coords = cfg.coords
-    states = dense_states(t, y, times, stepping)[:coords.ny]
+    fun, method, opts = stepping
+    if getattr(fun, "__self__", None) is cfg.coords:  # rhs or rhs_with_power: the reader's own
+        fun = getattr(coords, fun.__name__)
+    states = dense_states(t, y, times, (fun, method, opts))[:coords.ny]
     coords.seed(q_start)
-    values = [power(cfg, ti, *coords.unpack(ti, states[:, i])) for i, ti in enumerate(times)]
+    values = [power(cfg, coords, ti, *coords.unpack(ti, states[:, i])) for i, ti in enumerate(times)]
     return float(weights @ np.array(values))
 
 
@@ -151,13 +154,8 @@ class FlightAudit:
         flights, self._flights = self._flights, []
         for f in flights:
             cfg, m = f.cfg, f.macro
-            now = cfg.forces
-            cfg.forces = f.forces
-            try:
-                with cfg.coords.restored(f.frozen, f.q_start):
-                    work = flight_work(cfg, f.t, f.y, f.stepping, f.q_start)
-            finally:
-                cfg.forces = now
+            with cfg.coords.restored(f.frozen, f.q_start, (f.t, f.y), f.forces) as reader:  # the flight's, as values
+                work = flight_work(cfg, reader, f.t, f.y, f.stepping, f.q_start)
             residual = abs(f.energy_end - f.energy_start - work)
             m["flights"] += 1
             m["flight_energy_residual_max"] = max(m["flight_energy_residual_max"], residual)

@@ -187,6 +187,22 @@ def _too_large_angle(val) -> str:
             "give the angle modulo 2 pi")
 
 
+def _inline_table_hint(text: str, exc: Exception) -> str:
+    """A hint when the error comes inside an inline table `{ ...` left open at the end of a line:
+    TOML 1.0 (what tomllib reads) keeps an inline table on one line, and its message does not say so."""
+    import re
+    m = re.search(r"at line (\d+)", str(exc))
+    if not m:
+        return ""
+    lines = text.splitlines()
+    depth = 0
+    for line in lines[:int(m.group(1))]:  # up to the error line itself
+        code = re.sub(r'"[^"]*"|\'[^\']*\'', "", line).split("#")[0]
+        depth = max(depth + code.count("{") - code.count("}"), 0)
+    return (" (an inline table { ... } runs past the end of its line: in TOML 1.0 an inline table must"
+            " stay on one line; break lines inside a list [ ... ] instead)") if depth > 0 else ""
+
+
 def load_scene(path: str | Path) -> Scene:
     """Read, validate and return the scene at ``path``.
 
@@ -230,7 +246,7 @@ def load_scene(path: str | Path) -> Scene:
     try:
         raw = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
-        raise SceneError(f"{path}: not valid TOML: {exc}") from None
+        raise SceneError(f"{path}: not valid TOML: {exc}{_inline_table_hint(text, exc)}") from None
     except RecursionError:
         raise SceneError(f"{path}: not valid TOML for a scene: arrays or tables nested too deeply") from None
     except ValueError as exc:  # an integer of more than 4300 digits: Python's int limit

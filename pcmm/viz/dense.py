@@ -9,7 +9,6 @@ accept).  The other series (rates, positions, energies, forces) are linear betwe
 same times: their own rates are not recorded."""
 from __future__ import annotations
 
-import copy
 import dataclasses
 
 import numpy as np
@@ -73,14 +72,7 @@ def hermite(traj: RecordedRun, samples: int = PLOT_SAMPLES) -> RecordedRun:
         if len(times) == len(t):  # every step already shorter than the plot's resolution
             segs.append(s)
             continue
-        new = copy.copy(s)
-        d = new.__dict__
-        d["t"] = times
-        d["theta"] = cubic_hermite(t, s.theta, s.omega, times)
-        d["q"] = cubic_hermite(t, s.q, s.v, times)
-        for name in _LINEAR:
-            d[name] = _linear(t, getattr(s, name), times)
-        d.pop("_derive", None)
-        d.pop("_resample", None)
-        segs.append(new)
+        segs.append(s.replaced(t=times, theta=cubic_hermite(t, s.theta, s.omega, times),
+                               q=cubic_hermite(t, s.q, s.v, times),
+                               **{name: _linear(t, getattr(s, name), times) for name in _LINEAR}))
     return dataclasses.replace(traj, segments=segs)

@@ -273,15 +273,17 @@ def draw_frame(fig, sketches: list[Sketch], t: float, box, title: str = "", name
     return {"ax": ax, "artists": artists}
 
 
-def sketch_figure(run: RecordedRun, t: float, path: str | Path | None = None, others=(), size=(8.0, 5.0), dpi=110):
+def sketch_figure(run: RecordedRun, t: float, path: str | Path | None = None, others=(), size=(8.0, 5.0), dpi=110,
+                  box=None):
     """The sketch of ``run`` (and ``others``, dashed ghosts) at ``t``: a matplotlib Figure,
-    written to ``path`` when given."""
+    written to ``path`` when given; ``box`` (xmin, xmax, ymin, ymax) narrows the view to part of
+    the scene (a rimless wheel on a long slope), else it holds everything the run sweeps."""
     from .canvas import _matplotlib
     Figure = _matplotlib()
     fig = Figure(figsize=size, dpi=dpi)
     sketches = [Sketch(run)] + [Sketch(o, colour="#888888", ghost=True) for o in others]
     times = np.linspace(float(run.segments[0].t[0]), float(run.segments[-1].t[-1]), 40)
-    box = _union([s.extent(times) for s in sketches])
+    box = box if box is not None else _union([s.extent(times) for s in sketches])
     names = [r.scene_name + ("" if r.impact else " (without impact, dashed)") for r in [run, *others]]
     draw_frame(fig, sketches, t, box, title=f"{run.scene_name} at t = {t:.4g} s", names=names)
     if path is not None:

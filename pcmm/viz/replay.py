@@ -29,6 +29,11 @@ lives under ``/meshcat/pcmm/run2``, and so on):
     from the impact's frame until ``FLASH_S`` later or the next impact.
 ``events/<i>``
     A plate "merge" or "release" at that event's contact point.
+``links/<link>/sym/<i>``
+    The engineer's symbols of :mod:`pcmm.viz.sketch` (pivots, joints, locks, stops), each with a
+    ``visible`` track: shown in its configurations and, for a point pinned where it struck (a cut
+    joint anchored at entry: a rimless wheel's foot), as a grounded pin at the strike's anchor from
+    the strike's frame up to the next strike's frame, exactly the stay in which it holds.
 ``scale``
     A scale bar of a round length with its label, at the bottom left.
 
@@ -651,8 +656,9 @@ def _send_sketch(base, traj: RecordedRun, poses, frame_config, times, keys, view
         else:
             node.set_object(box, _sprite_material(sprite(sym.kind, sym.shape), 0.5 if ghost else 1.0))
         node.set_transform(_translation(sym.xy[0], sym.xy[1], _SYMBOL_Z[sym.kind], sym.angle))
-        if sym.configurations is not None:
-            bool_track(clip(node), [c in sym.configurations for c in frame_config])
+        if sym.configurations is not None or sym.window is not None:
+            # shown in its configurations and, for a point pinned where it struck, for that stay only
+            bool_track(clip(node), [sym.shown(c, float(t)) for c, t in zip(frame_config, times)])
     if ghost:
         return
     h = PLATE_H * view.label_h
