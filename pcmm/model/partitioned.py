@@ -216,6 +216,12 @@ class PartitionedCoordinates:
         """Choose dependent coordinates: driven joints, then the best-conditioned
         columns of the loop rows (QR with column pivoting).  Coordinates in
         ``prefer_independent`` are kept independent when the rest allows it."""
+        if not self.closure.size and len(set(self.drives.index)) == self.drives.size:
+            # drives alone: the driven coordinates, an identity block (condition number 1)
+            self.D = self._best_dependent(None)
+            self.I = np.array([i for i in range(self.nv) if i not in self.D], dtype=int)
+            self.ny = 2 * len(self.I)
+            return
         Jq = self._position_rows(t, q)
         self.D = self._best_dependent(Jq, keep=prefer_independent)
         self.I = np.array([i for i in range(self.nv) if i not in self.D], dtype=int)
@@ -508,8 +514,11 @@ class PartitionedCoordinates:
                      g, 0, "repartition", rate=rate, rate_from_state=True)
 
     def unpack(self, t, y):
-        if self._cache is not None and self._cache[0] == t and np.array_equal(self._cache[1], y):
-            return self._cache[2]
+        cache = self._cache
+        # the same bytes are the same state (the common hit: a guard's value, then its rate);
+        # otherwise numpy decides (-0.0 and 0.0 are one value)
+        if cache is not None and cache[0] == t and (cache[1].tobytes() == y.tobytes() or np.array_equal(cache[1], y)):
+            return cache[2]
         out = self._unpack(t, y)
         self._cache = (t, y.copy(), out)
         if self._trail is not None:  # a re-read segment: keep the solutions at its accepted steps
