@@ -1,0 +1,73 @@
+"""The event path's lean evaluations give the very bits of the plain formulas they replace
+(issue 26 item 2): the mass matrix's symmetrization, the drives' values, the dense output read
+once per root-finder iterate, the bounce's entry check."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pinocchio as pin
+
+import pcmm
+from pcmm.events.entry import pose_mismatches
+from pcmm.model.mechanism import Mechanism
+from pcmm.model.pinocchio_helpers import mass_matrix
+from pcmm.model.rows import Drives
+from pcmm.ode import integrators
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_symmetrized_mass_matrix_is_the_triangle_sum_to_the_bit():
+    rng = np.random.default_rng(11)
+    for n in (1, 2, 3, 5):
+        for _ in range(50):
+            M = rng.normal(size=(n, n))
+            M[rng.random((n, n)) < 0.3] = -0.0  # signed zeros: the sum turns them into 0.0
+            expected = np.triu(M) + np.triu(M, 1).T
+            got = np.where(np.triu(np.ones((n, n), bool)), M, M.T) + 0.0
+            assert got.tobytes() == expected.tobytes()
+    cfg = Mechanism(pcmm.load_scene(ROOT / "examples" / "three_bar.toml"))["config1"]
+    q = pin.randomConfiguration(cfg.model)
+    raw = pin.crba(cfg.model, cfg.data, q).copy()
+    M = mass_matrix(cfg.model, cfg.data, q)
+    assert M.tobytes() == (np.triu(raw) + np.triu(raw, 1).T).tobytes()
+    assert np.array_equal(M, M.T) and np.all(np.linalg.eigvalsh(M) > 0)
+
+
+def test_drive_values_in_one_pass_are_each_orders_horner_sum():
+    d = Drives(joints=("a", "b"), index=(0, 2),
+               coefficients=(np.array([0.3, np.pi, -0.25, 1.5e-3]), np.array([1.0, 0.0, 2.0])))
+    for t in (0.0, 0.1, 1.0 / 3.0, 7.2, -2.5):
+        f, f1, f2 = d.values(t)
+        for k, got in enumerate((f, f1, f2)):
+            assert got.tobytes() == d.value(t, k).tobytes()
+        # closed form of the first: 0.3 + pi t - 0.25 t^2 + 1.5e-3 t^3 and its derivatives
+        assert np.isclose(f[0], 0.3 + np.pi * t - 0.25 * t**2 + 1.5e-3 * t**3, rtol=1e-14, atol=1e-14)
+        assert np.isclose(f1[0], np.pi - 0.5 * t + 4.5e-3 * t**2, rtol=1e-14, atol=1e-14)
+        assert np.isclose(f2[1], 4.0, rtol=0, atol=0)
+
+
+def test_root_finder_reads_each_iterate_once():
+    calls = []
+
+    def sol(u):
+        calls.append(u)
+        return np.array([u - 0.3, 1.0])
+    at = integrators._last_state(sol)
+    value = (lambda u, y: y[0])
+    rate = (lambda u, y, f: y[1])
+    root = integrators._bracketed_newton(lambda u: value(u, at(u)), lambda u: rate(u, at(u), None),
+                                         0.0, 1.0, -0.3, 0.7, 1e-14)
+    assert abs(root - 0.3) < 1e-15
+    assert len(calls) == len(set(calls))  # value and rate at one iterate: one evaluation
+
+
+def test_a_bounce_enters_its_own_configuration_with_zero_offsets():
+    cfg = Mechanism(pcmm.load_scene(ROOT / "examples" / "three_bar_cycle.toml"))["open"]
+    q = np.array([0.4, 1.5, 3.0])
+    offsets, problems = pose_mismatches(cfg, cfg, q, q.copy())
+    assert problems == [] and offsets == {link: 0.0 for link in cfg.links}
+    # a posture a full turn on: the same link poses, offsets of -2 pi (the general route)
+    offsets, problems = pose_mismatches(cfg, cfg, q, q + np.array([2 * np.pi, 0.0, 0.0]))
+    assert problems == [] and all(abs(o + 2 * np.pi) < 1e-12 or abs(o) < 1e-12 for o in offsets.values())
