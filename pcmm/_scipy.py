@@ -18,6 +18,7 @@ ordinary import is used.
 """
 from __future__ import annotations
 
+import functools
 import importlib
 import importlib.machinery
 import importlib.util
@@ -79,17 +80,20 @@ def submodule(package: str, name: str) -> types.ModuleType:
         return importlib.import_module(fullname)
 
 
+@functools.cache
 def lapack():
     """LAPACK of scipy's build (``scipy.linalg.lapack``'s ``dpotrf``, ``dpotrs``, ``dgesv``, ...:
     the same Fortran objects)."""
     return submodule("scipy.linalg", "_flapack")
 
 
+@functools.cache
 def ode():
     """``scipy.integrate.ode``, the driver of Hairer's Fortran DOP853."""
     return submodule("scipy.integrate", "_ode").ode
 
 
+@functools.cache
 def dop853_coefficients():
     """The tableau of scipy's DOP853 (``C``, ``A``, ``B``, ``E3``, ``E5``, ``D``, the stages)."""
     return submodule("scipy.integrate._ivp", "dop853_coefficients")
