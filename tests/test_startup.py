@@ -36,8 +36,9 @@ NEVER = ("matplotlib", "meshcat", "tqdm", "dask", "distributed", "pyarrow", "zar
 
 # scipy packages whose __init__ a plain run must not run: each imports scipy's array-API layer
 # (0.2-0.3 s of CPU); the run loads the few compiled parts it needs alone (pcmm/_scipy.py).
-NOT_INITIALISED = ("scipy.integrate", "scipy.linalg", "scipy.optimize", "scipy.sparse", "scipy.special",
-                   "scipy._lib._array_api")
+# (scipy's own __init__, 15 ms, and numpy.random, 13 ms, are not needed either.)
+NOT_INITIALISED = ("scipy", "scipy.integrate", "scipy.linalg", "scipy.optimize", "scipy.sparse", "scipy.special",
+                   "scipy._lib._array_api", "numpy.random")
 
 
 def modules_of_run(tmp_path, *args) -> list[str]:
