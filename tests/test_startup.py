@@ -34,6 +34,12 @@ sys.exit(code)
 NEVER = ("matplotlib", "meshcat", "tqdm", "dask", "distributed", "pyarrow", "zarr", "pandas",
          "pcmm.viz", "pcmm.studies")
 
+# scipy packages whose __init__ a plain run must not run: each imports scipy's array-API layer
+# (0.2-0.3 s of CPU); the run loads the few compiled parts it needs alone (pcmm/_scipy.py).
+# (scipy's own __init__, 15 ms, and numpy.random, 13 ms, are not needed either.)
+NOT_INITIALISED = ("scipy", "scipy.integrate", "scipy.linalg", "scipy.optimize", "scipy.sparse", "scipy.special",
+                   "scipy._lib._array_api", "numpy.random")
+
 
 def modules_of_run(tmp_path, *args) -> list[str]:
     out = tmp_path / "modules.json"
@@ -59,9 +65,15 @@ def test_plain_run_does_not_import(plain_run, name):
     assert not loaded(plain_run, name), f"a plain 'pcmm run' imported {loaded(plain_run, name)[:5]}"
 
 
+@pytest.mark.parametrize("name", NOT_INITIALISED)
+def test_plain_run_does_not_initialise(plain_run, name):
+    assert name not in plain_run, f"a plain 'pcmm run' ran {name}'s __init__"
+
+
 def test_the_dump_sees_what_a_run_imports(plain_run):
     """The dump is real: the run's own modules (Pinocchio, the run loop) are in it."""
     assert "pinocchio" in plain_run and "pcmm.run.loop" in plain_run and "numpy" in plain_run
+    assert "scipy.integrate._ode" in plain_run and "scipy.linalg._flapack" in plain_run  # the parts alone
 
 
 # The parts that replace scipy's on a run's path compute the same bits as scipy's own.

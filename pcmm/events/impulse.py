@@ -29,9 +29,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import pinocchio as pin
-import scipy.linalg as sla
-from scipy.linalg.lapack import dpotrf as _potrf, dpotrs as _potrs
 
+from .._scipy import lapack
 from ..model.configuration import Configuration
 from .contact import contact_point, contact_state, impact_kind, joint_stop_row
 from .cutting import cut
@@ -84,16 +83,18 @@ class Impulse:
 def _inverse_mass(M: np.ndarray, configuration: str) -> np.ndarray:
     """``M^-1`` by its Cholesky factor: LAPACK's potrf and potrs called directly, the very calls
     ``scipy.linalg.cho_factor`` / ``cho_solve`` make (same bits) without their checks' overhead,
-    which dominates for the few coordinates of a mechanism."""
+    which dominates for the few coordinates of a mechanism (and without importing scipy.linalg,
+    0.3 s at start-up: :mod:`pcmm._scipy`)."""
     if M.shape[0] == 0:
         return np.zeros((0, 0))
-    c, info = _potrf(M, lower=False, overwrite_a=False, clean=False)
-    if info != 0 or not np.isfinite(c).all():
-        return sla.cho_solve(cholesky(M, configuration), np.eye(M.shape[0]))  # its clear error
-    W, info = _potrs(c, np.eye(M.shape[0]), lower=False, overwrite_b=True)
-    if info != 0:
-        return sla.cho_solve(cholesky(M, configuration), np.eye(M.shape[0]))
-    return W
+    la = lapack()
+    c, info = la.dpotrf(M, lower=False, overwrite_a=False, clean=False)
+    if info == 0 and np.isfinite(c).all():
+        W, info = la.dpotrs(c, np.eye(M.shape[0]), lower=False, overwrite_b=True)
+        if info == 0:
+            return W
+    import scipy.linalg as sla  # the checked route, for its clear error
+    return sla.cho_solve(cholesky(M, configuration), np.eye(M.shape[0]))
 
 
 def tangent_of(n: np.ndarray) -> np.ndarray:
