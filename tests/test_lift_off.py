@@ -171,3 +171,16 @@ def test_a_point_pinned_with_a_tensile_force_from_the_start_lifts_off_at_once(ma
     assert [(e["name"], e["t"]) for e in traj.events] == [("lift-off foot", 0.0)]
     assert traj.events[0]["lifted"]["foot"]["normal_force"] == pytest.approx(N, rel=1e-9)
     assert traj.segments[-1].configuration == "flight"
+
+
+def test_the_graph_draws_the_lift_off_before_and_after_the_run(make_scene):
+    """The working-cycle graph has the lift-off pcmm adds (no transition written) as a release
+    edge pinned -> flight, and the run's event lands on it."""
+    from pcmm.results.trajectory import record_views
+    from pcmm.viz.graph import edges, fired
+    scene = pcmm.load_scene(rod_scene(make_scene))
+    views = record_views(scene)
+    assert [(e.name, e.kind, e.source, e.target) for e in edges(views)] == [("lift-off foot", "release", "pinned", "flight")]
+    traj = pcmm.simulate(scene)
+    (edge,) = fired(edges(views), traj.events)
+    assert edge.times == [traj.events[0]["t"]]
