@@ -71,3 +71,24 @@ def test_a_bounce_enters_its_own_configuration_with_zero_offsets():
     # a posture a full turn on: the same link poses, offsets of -2 pi (the general route)
     offsets, problems = pose_mismatches(cfg, cfg, q, q + np.array([2 * np.pi, 0.0, 0.0]))
     assert problems == [] and all(abs(o + 2 * np.pi) < 1e-12 or abs(o) < 1e-12 for o in offsets.values())
+
+
+def test_impulse_solves_by_lapack_directly_are_numpys_to_the_bit():
+    from pcmm.events.impulse import _least_squares
+    from pcmm.model.rows import solve
+    rng = np.random.default_rng(5)
+    for m, n in ((5, 3), (3, 3), (4, 1), (7, 4)):
+        for _ in range(200):
+            A, b = rng.normal(size=(m, n)), rng.normal(size=m)
+            assert _least_squares(A, b).tobytes() == np.linalg.lstsq(A, b, rcond=None)[0].tobytes()
+    for n in (1, 2, 3):
+        for _ in range(200):
+            A = rng.normal(size=(n, n))
+            A = A @ A.T + 0.1 * np.eye(n)
+            B = rng.normal(size=(n, 5))
+            assert solve(A, B).tobytes() == np.linalg.solve(A, B).tobytes()
+    # the cut system's velocity map of a tree (identity rows plus a cut joint's planar rows):
+    # least squares recovers the tree velocity it was made from
+    T = np.vstack([np.eye(3), rng.normal(size=(2, 3))])
+    v = np.array([0.3, -1.2, 2.5])
+    assert np.allclose(_least_squares(T, T @ v), v, rtol=0, atol=1e-14)
