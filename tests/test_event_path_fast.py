@@ -71,3 +71,69 @@ def test_a_bounce_enters_its_own_configuration_with_zero_offsets():
     # a posture a full turn on: the same link poses, offsets of -2 pi (the general route)
     offsets, problems = pose_mismatches(cfg, cfg, q, q + np.array([2 * np.pi, 0.0, 0.0]))
     assert problems == [] and all(abs(o + 2 * np.pi) < 1e-12 or abs(o) < 1e-12 for o in offsets.values())
+
+
+def test_impulse_solves_by_lapack_directly_are_numpys_to_the_bit():
+    from pcmm.events.impulse import _least_squares
+    from pcmm.model.rows import solve
+    rng = np.random.default_rng(5)
+    for m, n in ((5, 3), (3, 3), (4, 1), (7, 4)):
+        for _ in range(200):
+            A, b = rng.normal(size=(m, n)), rng.normal(size=m)
+            assert _least_squares(A, b).tobytes() == np.linalg.lstsq(A, b, rcond=None)[0].tobytes()
+    for n in (1, 2, 3):
+        for _ in range(200):
+            A = rng.normal(size=(n, n))
+            A = A @ A.T + 0.1 * np.eye(n)
+            B = rng.normal(size=(n, 5))
+            assert solve(A, B).tobytes() == np.linalg.solve(A, B).tobytes()
+    # the cut system's velocity map of a tree (identity rows plus a cut joint's planar rows):
+    # least squares recovers the tree velocity it was made from
+    T = np.vstack([np.eye(3), rng.normal(size=(2, 3))])
+    v = np.array([0.3, -1.2, 2.5])
+    assert np.allclose(_least_squares(T, T @ v), v, rtol=0, atol=1e-14)
+
+
+def _grid_states(cfg, t0, rng, n=17):
+    """An event grid's times and states of ``cfg`` (one column each), near its stops."""
+    ts = np.linspace(t0, t0 + 0.01, n)
+    ny = cfg.coords.ny if cfg.coords.constrained else 2 * cfg.nv
+    ys = rng.uniform(-0.2, 0.2, (ny, n))
+    ys[:ny // 2] += np.pi / 2  # coordinates near the O2 pin's value
+    return ts, ys
+
+
+def test_event_grid_reads_a_joint_guard_at_every_sample_in_one_call_to_the_bit():
+    from pcmm.events.guards import make_guard
+    mech = Mechanism(pcmm.load_scene(ROOT / "examples" / "three_bar_cycle.toml"))
+    cfg = mech["open"]
+    q0, v0 = np.array([0.3, np.pi / 2 - 0.01, np.pi - 0.05]), np.array([np.pi, 0.4, -0.2])
+    cfg.coords.pack(0.3 / np.pi, q0, v0)  # the partition: O1 driven, O2 and O3 the state
+    rng = np.random.default_rng(2)
+    tr = next(t for t in mech.scene.transitions_from("open") if t.name == "O2 pin")
+    for rearm in (False, True):
+        g = make_guard(cfg, tr, rearm=rearm)
+        assert g.many is not None
+        ts, ys = _grid_states(cfg, 0.31, rng)
+        ys[2] = np.where(np.arange(17) % 2 == 0, 0.5, -0.5)  # O2's rate: approaching, then leaving the pin
+        expected = [g(t, ys[:, k]) for k, t in enumerate(ts)]
+        got = g.many(ts, ys)
+        assert np.array(got).tobytes() == np.array(expected, float).tobytes()
+        # the value is O2 - pi/2 itself where the guard approaches (plain value)
+        assert got[0] == ys[0, 0] - np.pi / 2
+        wide = g.on_state(cfg.coords.ny)  # a flight's state carries its work as one more component
+        longer = np.vstack([ys, np.ones(17)])
+        assert wide.many(ts, longer) == got
+    # a tree (Example 1): its state is (q, v) itself
+    tree_cfg = Mechanism(pcmm.load_scene(ROOT / "examples" / "three_bar_stop.toml"))
+    name = tree_cfg.scene.initial_configuration
+    cfg = tree_cfg[name]
+    checked = 0
+    for tr in tree_cfg.scene.transitions_from(name):  # the O3 stop: link3 - link2, the row of O3 alone
+        g = make_guard(cfg, tr)
+        if g is None or g.many is None:
+            continue
+        ts, ys = _grid_states(cfg, 0.0, rng)
+        assert np.array(g.many(ts, ys)).tobytes() == np.array([g(t, ys[:, k]) for k, t in enumerate(ts)], float).tobytes()
+        checked += 1
+    assert checked == 1

@@ -577,6 +577,20 @@ class PartitionedCoordinates:
             del self._recent[0]
         return q, v
 
+    def unpack_many(self, ts, ys):
+        """``(q, v)`` at many times at once (one column each) where no Newton solve is involved:
+        drives without a loop and without a planar joint (:meth:`_prescribed`, column by column
+        the same bits); None otherwise.  Leaves the warm starts alone (prescribed coordinates
+        need none)."""
+        if self.closure.size or self.cfg.has_planar:
+            return None
+        k = len(self.I)
+        Q = np.empty((self.nv, len(ts)))
+        V = np.empty_like(Q)
+        Q[self.I], V[self.I] = ys[:k], ys[k:2 * k]
+        Q[self._driven], V[self._driven] = self.drives.values_many(np.asarray(ts, float))
+        return Q, V
+
     def project(self, t, q, v, prefer_independent=()):
         """Assemble (q, v) onto the constraints keeping the independent coordinates
         (a new partition is chosen at q, preferring ``prefer_independent``)."""

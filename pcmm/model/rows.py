@@ -200,6 +200,20 @@ class Drives:
             object.__setattr__(self, "_last", last)
         return last[1]
 
+    def values_many(self, ts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(f, f') at every time of ``ts``, one row per drive: Horner's rule on the array, the
+        very operations :meth:`value` does on each time (numpy's elementwise products and sums
+        round as Python's)."""
+        f = np.empty((len(self.joints), len(ts)))
+        f1 = np.empty_like(f)
+        for i, d in enumerate(self._derivs):
+            for out, cs in ((f, d[0]), (f1, d[1])):
+                acc = np.zeros(len(ts))
+                for c in reversed(cs):
+                    acc = acc * ts + c
+                out[i] = acc
+        return f, f1
+
     def value(self, t, order=0) -> np.ndarray:
         out = np.empty(len(self.joints))
         for i, d in enumerate(self._derivs):

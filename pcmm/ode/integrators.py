@@ -221,7 +221,10 @@ def _locate(e, sol, t_a, t_b, g_a, tol):
     n = 16
     grid = np.linspace(t_a, t_b, n + 1)
     ys = sol(grid)  # every dense output here takes an array of times: one call, (ny, n + 1)
-    vals = [e(s, ys[:, k]) for k, s in enumerate(grid)]
+    many = getattr(e, "many", None)  # the guard at every sample in one call, where it can
+    vals = many(grid, ys) if many is not None else None
+    if vals is None:
+        vals = [e(s, ys[:, k]) for k, s in enumerate(grid)]
     if _crossed(g_a, vals[0], e.direction) and vals[0] != g_a:
         return float(t_a)  # already across at the start of the dense output (round-off)
     xtol = max(tol, 4 * EPS * max(1.0, abs(t_b)))
