@@ -780,15 +780,16 @@ def compare_csv(short, long, rel: float = 1e-7) -> list[str]:
 _SERIES = ("q", "v", "theta", "omega", "xy", "kinetic", "potential", "forces", "constraint_forces")
 
 
-def _differ(kind, k, config, times, pairs, rel) -> list[str]:
+def _differ(where: str, times, pairs, rel: float, note: str = "") -> list[str]:
+    """One message per series ``(A, B, name)`` of ``pairs`` whose largest difference exceeds
+    ``rel`` times its scale (max |B|, at least 1), naming the time of the largest."""
     out = []
     for A, B, name in pairs:
         scale = max(1.0, float(np.max(np.abs(B), initial=0.0)))
         err = float(np.max(np.abs(A - B), initial=0.0))
         if not err <= rel * scale:
             j = int(np.argmax(np.max(np.abs(A - B).reshape(len(times), -1), axis=1)))
-            out.append(f"{kind}: segment {k} ({config}) {name} differs by {err:.3g} at t = {times[j]:.9g} s "
-                       f"(scale {scale:.3g}), the longer run's dense output")
+            out.append(f"{where} {name} differs by {err:.3g} at t = {times[j]:.9g} s (scale {scale:.3g}){note}")
     return out
 
 
@@ -826,15 +827,10 @@ def check_prefix(scene_path, t_short: float, t_long: float, dt: float, folder: P
                 dense = raw.resampled(inside)
                 j_s = np.searchsorted(s.t, inside)
                 pairs = [(getattr(s, name)[j_s], getattr(dense, name), name) for name in _SERIES]
-                problems += _differ(kind, k, s.configuration, inside, pairs, rel_dense)
-            for name in _SERIES:
-                A, B = getattr(s, name)[i_s], getattr(l, name)[i_l]
-                scale = max(1.0, float(np.max(np.abs(B), initial=0.0)))
-                err = float(np.max(np.abs(A - B), initial=0.0))
-                if not err <= rel * scale:
-                    j = int(np.argmax(np.max(np.abs(A - B).reshape(len(common), -1), axis=1)))
-                    problems.append(f"{kind}: segment {k} ({s.configuration}) {name} differs by {err:.3g} "
-                                    f"at t = {common[j]:.9g} s (scale {scale:.3g})")
+                problems += _differ(f"{kind}: segment {k} ({s.configuration})", inside, pairs, rel_dense,
+                                    ", the longer run's dense output")
+            problems += _differ(f"{kind}: segment {k} ({s.configuration})", common,
+                                [(getattr(s, name)[i_s], getattr(l, name)[i_l], name) for name in _SERIES], rel)
         if kind == "dt":
             problems += compare_csv(ts.to_csv(folder / "short.csv"), tl.to_csv(folder / "long.csv"), rel)
     return problems
@@ -856,14 +852,9 @@ def check_resampled_states(scene_path, t_end: float, dt: float, rel: float = 1e-
     for k, (sa, sb) in enumerate(zip(a.segments, b.segments)):
         inner_a, inner_b = sa.t[1:-1], sb.t[1:-1]  # the grid times (the ends are the events')
         common, ia, ib = np.intersect1d(inner_a, inner_b, return_indices=True)
-        for name in ("q", "v", "kinetic"):
-            A, B = getattr(sa, name)[1:-1][ia], getattr(sb, name)[1:-1][ib]
-            scale = max(1.0, float(np.max(np.abs(B), initial=0.0)))
-            err = float(np.max(np.abs(A - B), initial=0.0))
-            if not err <= rel * scale:
-                j = int(np.argmax(np.max(np.abs(A - B).reshape(len(common), -1), axis=1)))
-                problems.append(f"segment {k} ({sa.configuration}) resampled {name} off by {err:.3g} at "
-                                f"t = {common[j]:.9g} s")
+        problems += _differ(f"segment {k} ({sa.configuration}) resampled", common,
+                            [(getattr(sa, name)[1:-1][ia], getattr(sb, name)[1:-1][ib], name)
+                             for name in ("q", "v", "kinetic")], rel)
     return problems
 
 

@@ -34,16 +34,15 @@ import itertools
 import math
 
 import numpy as np
-import scipy.linalg as sla
 
 from ..errors import SimulationError
 from ..model.configuration import Configuration
-from ..model.pinocchio_helpers import cholesky, frame_jacobian
+from ..model.pinocchio_helpers import frame_jacobian
 from ..scene.spec import PinSpec
 from .contact import contact_state
 from .entry import enter
 from .records import event_record
-from .impulse import Impulse, constraint_impulses, joint_impulses, loop_point_impulses, tangent_of
+from .impulse import Impulse, _inverse_mass, constraint_impulses, joint_impulses, loop_point_impulses, tangent_of
 
 SIGN_TOL = 1e-10  # relative: an impulse or a normal speed this small (x the scale) counts as zero
 
@@ -92,7 +91,7 @@ def impact_with_rows(M: np.ndarray, name: str, v: np.ndarray, A: np.ndarray, b: 
     """(v+, lam, redundant) of ``M (v+ - v-) = A^T lam``, ``A v+ = b`` (the Schur complement; a
     redundant set of rows gets the minimum-norm multipliers, the velocity is unique either way, and
     ``redundant`` says the split of the impulse among the rows is not)."""
-    W = sla.cho_solve(cholesky(M, name), np.eye(M.shape[0]))
+    W = _inverse_mass(M, name)  # M^-1 by its Cholesky factor
     if A.shape[0] == 0:
         return v.copy(), np.zeros(0)
     S = A @ W @ A.T

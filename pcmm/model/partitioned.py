@@ -16,7 +16,6 @@ import math
 
 import numpy as np
 import pinocchio as pin
-import scipy.linalg as sla
 
 from . import compiled
 from .configuration import Configuration
@@ -63,6 +62,7 @@ class PartitionedCoordinates:
         self._driven = np.array(drives.index, dtype=int)
         self._drive_rows = np.zeros((drives.size, self.nv))
         self._drive_rows[np.arange(drives.size), self._driven] = 1.0
+        self._no_rows, self._no_jacobian = np.zeros(0), np.zeros((0, self.nv))  # no loop rows
         # revolute cut joints' rows in one compiled call where that is the same function (pcmm.compiled)
         if not closure.specs:
             fast, why = None, "not compiled: drives only"
@@ -152,12 +152,14 @@ class PartitionedCoordinates:
 
     def _phi(self, t, q, need_bias=False, v=None):
         cfg = self.cfg
-        qp = cfg.to_pin(q)
-        if self.closure.revolute_only and not need_bias:
+        if not self.closure.size:  # drives alone: no kinematics pass, their rows need none
+            phi, Jq, bias = self._no_rows, self._no_jacobian, (self._no_rows if need_bias else None)
+        elif self.closure.revolute_only and not need_bias:
+            qp = cfg.to_pin(q)
             phi, Jq = self._point_rows(qp)
             bias = None
         else:
-            self._kinematics(qp, v if need_bias else None)
+            self._kinematics(cfg.to_pin(q), v if need_bias else None)
             phi, Jq, bias = self.closure.evaluate(cfg.model, cfg.data, need_bias)
         if self.drives.size:  # the rheonomic rows q_j - f_j(t): their Jacobian rows are constant
             f, _, f2 = self.drives.values(t)
@@ -172,7 +174,10 @@ class PartitionedCoordinates:
         pass (placements, velocities and accelerations at a = 0, then the Jacobians from them).
         The rows are taken at the returned q itself, not reused from the Newton solve's last
         iterate: near a change point the last correction is large enough to matter."""
-        Jq, bias = self._point_rows_and_bias_at(self.cfg.to_pin(q), v)
+        if not self.closure.size:  # drives alone: their rows and bias need no kinematics pass
+            Jq, bias = self._no_jacobian, self._no_rows
+        else:
+            Jq, bias = self._point_rows_and_bias_at(self.cfg.to_pin(q), v)
         if self.drives.size:
             Jq = np.concatenate((Jq, self._drive_rows))
             bias = np.concatenate((bias, -self.drives.values(t)[2]))
@@ -210,6 +215,12 @@ class PartitionedCoordinates:
         """Choose dependent coordinates: driven joints, then the best-conditioned
         columns of the loop rows (QR with column pivoting).  Coordinates in
         ``prefer_independent`` are kept independent when the rest allows it."""
+        if not self.closure.size and len(set(self.drives.index)) == self.drives.size:
+            # drives alone: the driven coordinates, an identity block (condition number 1)
+            self.D = self._best_dependent(None)
+            self.I = np.array([i for i in range(self.nv) if i not in self.D], dtype=int)
+            self.ny = 2 * len(self.I)
+            return
         Jq = self._position_rows(t, q)
         self.D = self._best_dependent(Jq, keep=prefer_independent)
         self.I = np.array([i for i in range(self.nv) if i not in self.D], dtype=int)
@@ -293,6 +304,7 @@ class PartitionedCoordinates:
         rest = [i for i in range(self.nv) if i not in driven and i not in keep]
         dep = list(driven)
         if self.closure.size:
+            import scipy.linalg as sla  # here: scipy.linalg costs 0.3 s at start-up
             _, _, piv = sla.qr(Jq[:self.closure.size][:, rest], pivoting=True)
             dep += [rest[i] for i in piv[:self.closure.size]]
         return np.array(sorted(dep), dtype=int)
@@ -510,8 +522,11 @@ class PartitionedCoordinates:
                      g, 0, "repartition", rate=rate, rate_from_state=True)
 
     def unpack(self, t, y):
-        if self._cache is not None and self._cache[0] == t and np.array_equal(self._cache[1], y):
-            return self._cache[2]
+        cache = self._cache
+        # the same bytes are the same state (the common hit: a guard's value, then its rate);
+        # otherwise numpy decides (-0.0 and 0.0 are one value)
+        if cache is not None and cache[0] == t and (cache[1].tobytes() == y.tobytes() or np.array_equal(cache[1], y)):
+            return cache[2]
         out = self._unpack(t, y)
         self._cache = (t, y.copy(), out)
         if self._trail is not None:  # a re-read segment: keep the solutions at its accepted steps
@@ -522,6 +537,8 @@ class PartitionedCoordinates:
         return out
 
     def _unpack(self, t, y):
+        if not self.closure.size:
+            return self._prescribed(t, y)
         k = len(self.I)
         q, Jq, Jp = self._solve_dependent(t, y[:k], self._guess(t))
         self._qD = q
@@ -538,6 +555,41 @@ class PartitionedCoordinates:
         if len(self._recent) > 8:
             del self._recent[0]
         return q, v
+
+    def _prescribed(self, t, y):
+        """Drives alone (no loop): the dependent coordinates are the driven ones, prescribed
+        outright, ``q_D = f(t)`` and ``q'_D = f'(t)`` (the drive rows ``q_j - f_j(t) = 0`` are
+        linear with unit Jacobian rows).  No Newton solve: the one a loop needs converges here
+        in one step, and its polishing step lands on ``f(t)`` to the last bit, so the state is
+        the same, only its residual is now exactly zero."""
+        k = len(self.I)
+        f, f1, _ = self.drives.values(t)
+        q = np.empty(self.nv)
+        rates = np.empty(self.nv)
+        q[self.I] = y[:k]
+        rates[self.I] = y[k:]
+        q[self._driven] = f
+        rates[self._driven] = f1
+        self._qD = q
+        v = self.cfg.velocity(q, rates)
+        self._recent.append((t, q, rates))  # what a re-read segment keeps at its steps (unpack)
+        if len(self._recent) > 8:
+            del self._recent[0]
+        return q, v
+
+    def unpack_many(self, ts, ys):
+        """``(q, v)`` at many times at once (one column each) where no Newton solve is involved:
+        drives without a loop and without a planar joint (:meth:`_prescribed`, column by column
+        the same bits); None otherwise.  Leaves the warm starts alone (prescribed coordinates
+        need none)."""
+        if self.closure.size or self.cfg.has_planar:
+            return None
+        k = len(self.I)
+        Q = np.empty((self.nv, len(ts)))
+        V = np.empty_like(Q)
+        Q[self.I], V[self.I] = ys[:k], ys[k:2 * k]
+        Q[self._driven], V[self._driven] = self.drives.values_many(np.asarray(ts, float))
+        return Q, V
 
     def project(self, t, q, v, prefer_independent=()):
         """Assemble (q, v) onto the constraints keeping the independent coordinates

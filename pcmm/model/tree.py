@@ -103,6 +103,10 @@ class TreeCoordinates:
     def unpack(self, t, y):
         return y[:self.nv], y[self.nv:]
 
+    def unpack_many(self, ts, ys):
+        """``(q, v)`` at many states at once (one column each)."""
+        return ys[:self.nv], ys[self.nv:2 * self.nv]
+
     def derivative(self, t, q, v, extra):
         """State derivative at a full (q, v) with an extra generalized force (contact laws)."""
         cfg = self.cfg

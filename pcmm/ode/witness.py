@@ -39,6 +39,10 @@ class Guard:
     rate_from_state: bool = False  # the rate needs no state derivative (the graze test is cheap)
     payload: Any = None  # what the action needs ("unmerge": the merge it watches; "lift-off": (cut joint, target))
     terminal: bool = True
+    #: optional: the values at many states at once, ``many(ts, ys) -> list`` (ys one column per
+    #: time), equal to ``value`` state by state to the bit, or None where it cannot say; an
+    #: event grid reads it (:func:`pcmm.ode.integrators._locate`)
+    many: Callable[[np.ndarray, np.ndarray], list | None] | None = None
 
     def __post_init__(self):
         if self.action not in ACTIONS:
@@ -50,6 +54,7 @@ class Guard:
     def on_state(self, n: int) -> "Guard":
         """This guard read on the first ``n`` components of a longer state (an integrated
         quantity appended to it: a flight's work, a contact law's impulse), its rate too."""
-        value, rate = self.value, self.rate
+        value, rate, many = self.value, self.rate, self.many
         return replace(self, value=lambda t, y: value(t, y[:n]),
-                       rate=None if rate is None else (lambda t, y, f: rate(t, y[:n], None if f is None else f[:n])))
+                       rate=None if rate is None else (lambda t, y, f: rate(t, y[:n], None if f is None else f[:n])),
+                       many=None if many is None else (lambda ts, ys: many(ts, ys[:n])))

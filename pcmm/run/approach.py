@@ -10,7 +10,6 @@ two long steps is measured, not the step's distance.
 from __future__ import annotations
 
 import numpy as np
-from scipy.optimize import minimize_scalar
 
 from ..model.configuration import Configuration
 from ..events.contact import contact_state
@@ -32,6 +31,8 @@ def _refine(cfg: Configuration, tr, seg: SegmentRecord, lo: float, hi: float, t0
     """(t, g): the guard's closest approach to its value within [lo, hi] of ``seg`` on the dense
     output, or the recorded (t0, g0) when the segment has none (a loaded trajectory) or the
     search finds nothing nearer."""
+    from scipy.optimize import minimize_scalar  # here: scipy.optimize costs 0.3 s at start-up
+
     def g(t):
         return float(guard_series(cfg, tr, seg.resampled(np.array([t])).q)[0])
     if not hi > lo:
