@@ -160,12 +160,9 @@ def simultaneous_impact(cfg, trs: list, t, q, v):
     """The impact of the stops ``trs`` (the one that fired first) closed at once: one solve
     (:func:`solve_contacts`).  Returns (Impulse of ``trs[0]`` with every contact's effect, the
     record's ``simultaneous`` block {transition: its contact's outcome}, warnings)."""
-    import scipy.linalg as sla
-
     from ..errors import SimulationError
-    from ..model.pinocchio_helpers import cholesky
     from .contact import contact_point, contact_state, impact_kind
-    from .impulse import Impulse, constraint_impulses, joint_impulses, loop_point_impulses, tangent_of
+    from .impulse import Impulse, _inverse_mass, constraint_impulses, joint_impulses, loop_point_impulses, tangent_of
 
     where = f"t = {t:.9g} s, transitions {', '.join(repr(s.name) for s in trs)} (contacts closed at once)"
     rows, normals, points = [], [], []
@@ -179,7 +176,7 @@ def simultaneous_impact(cfg, trs: list, t, q, v):
     J = np.vstack(rows)
     cfg.kinematics(q, v)
     M = cfg.mass_matrix(q)
-    W = sla.cho_solve(cholesky(M, cfg.name), np.eye(M.shape[0]))
+    W = _inverse_mass(M, cfg.name)  # M^-1 by its Cholesky factor
     G = cfg.coords.equality(t, cfg.model, cfg.data)
     if G.shape[0]:
         WGt = W @ G.T
