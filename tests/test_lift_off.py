@@ -230,3 +230,35 @@ def test_a_strike_whose_pin_would_pull_lifts_off_at_once(make_scene):
     assert lifted["tangential_force"] == pytest.approx(Ft, rel=1e-9)
     assert lifted["normal_acceleration_after"] == pytest.approx(a_n, rel=1e-9)
     assert traj.segments[-1].configuration == "flight"
+
+
+def test_the_other_pinned_point_keeps_its_anchor(make_scene):
+    """An arch of three unit bars (a planar base and two revolutes) with both feet pinned at entry
+    (a four-bar with the floor), swung at 3.5 rad/s: foot a's force is tensile from the start (by
+    the run: -2.97 N), so it lifts off at t = 0 into 'single_b', where foot b stays pinned at the
+    anchor it had, (2, 0), through the whole segment (the loop's closure, to 1e-12)."""
+    from builders import Bar, chain_urdf
+    urdf = chain_urdf([Bar(1.0, 1.0, joint="planar"), Bar(1.0, 1.0), Bar(1.0, 1.0)])
+
+    def pin_(name, link, pt):
+        return {"name": name, "type": "revolute", "a": "frame", "point_a": "entry", "b": link, "point_b": pt,
+                "contact": {"normal": [0.0, 1.0], "friction": "stick"}}
+    fa, fb = pin_("foot_a", "link1", [0.0, 0.0]), pin_("foot_b", "link3", [1.0, 0.0])
+    th, w = math.pi / 3, 3.5
+    path = make_scene({"c.urdf": urdf},
+                      configurations={"double": {"urdf": "c.urdf", "cut_joints": [fa, fb]},
+                                      "single_a": {"urdf": "c.urdf", "cut_joints": [fa]},
+                                      "single_b": {"urdf": "c.urdf", "cut_joints": [fb]}},
+                      q0={"J1": [0.0, 0.0, th], "J2": -th, "J3": -th}, v0={"J1": [0.0, 0.0, w], "J2": -w, "J3": 0.0},
+                      independent=["J1.theta"], t_end=0.1, solver={"rtol": 1e-11, "atol": 1e-12})
+    traj = pcmm.simulate(pcmm.load_scene(path))
+    assert [(e["name"], e["t"], e["to"]) for e in traj.events] == [("lift-off foot_a", 0.0, "single_b")]
+    lifted = traj.events[0]["lifted"]["foot_a"]
+    assert lifted["normal_force"] < 0 and lifted["normal_acceleration_after"] > 0
+    seg = traj.segments[-1]
+    assert seg.configuration == "single_b" and len(seg.t) > 10
+    for q in seg.q:  # link3's tip: J1's origin + link1, link2, link3 along their absolute angles
+        x, y, a1 = q[0], q[1], q[2]
+        a2, a3 = a1 + q[3], a1 + q[3] + q[4]
+        tip = np.array([x + math.cos(a1) + math.cos(a2) + math.cos(a3), y + math.sin(a1) + math.sin(a2) + math.sin(a3)])
+        np.testing.assert_allclose(tip, [2.0, 0.0], atol=1e-11)
