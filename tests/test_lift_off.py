@@ -262,3 +262,12 @@ def test_the_other_pinned_point_keeps_its_anchor(make_scene):
         a2, a3 = a1 + q[3], a1 + q[3] + q[4]
         tip = np.array([x + math.cos(a1) + math.cos(a2) + math.cos(a3), y + math.sin(a1) + math.sin(a2) + math.sin(a3)])
         np.testing.assert_allclose(tip, [2.0, 0.0], atol=1e-11)
+
+
+def test_check_names_the_lift_off_pcmm_adds(make_scene, capsys):
+    import pcmm.cli
+    assert pcmm.cli.main(["check", str(rod_scene(make_scene))]) == 0
+    out = capsys.readouterr().out
+    assert "'pinned': the point held by 'foot' lifts off into 'flight' where its normal force turns tensile" in out
+    assert pcmm.cli.main(["check", str(rod_scene(make_scene, flight=False))]) == 0
+    assert "lifts off" not in capsys.readouterr().out
