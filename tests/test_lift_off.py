@@ -91,13 +91,13 @@ def test_closed_form_is_self_consistent():
         t, phi, w = closed_form(w0=w0, beta=beta)
         assert all(by_hand(p, PHI0, w0, beta)[0] > 0 for p in np.linspace(PHI0, phi - 1e-6, 200))
         assert by_hand(phi + 1e-3, PHI0, w0, beta)[0] < 0
-    t, phi, w = closed_form()
+    _, phi, _ = closed_form()
     assert 0 < phi < BETA and by_hand(phi, PHI0, W0, BETA)[3] > 0
 
 
 def test_pinned_point_lifts_off_by_itself_at_the_closed_form(make_scene):
     t_star, phi_star, w_star = closed_form()
-    N, Ft, _, a_n = by_hand(phi_star, PHI0, W0, BETA)
+    _, Ft, _, a_n = by_hand(phi_star, PHI0, W0, BETA)
     traj = pcmm.simulate(pcmm.load_scene(rod_scene(make_scene)))
     assert [e["name"] for e in traj.events] == ["lift-off foot"]
     ev = traj.events[0]

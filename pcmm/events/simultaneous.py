@@ -225,8 +225,8 @@ def simultaneous_impact(cfg, trs: list, t, q, v):
     imp.constraint_impulses = constraint_impulses(cfg, by_label, loop)
     imp.contact_impulses = point_impulses[:2]
     imp.joint_impulses, imp.rnea_residual = joint_impulses(cfg, q, v_after - v, point_impulses + loop)
-    warnings = [] if sol.unique_impulse else [
+    warnings = [] if sol.unique_impulse else [(
         f"{where}: the velocity after is unique but the impulses are not ({len(sol.alternatives)} admissible "
         "splits, e.g. two points sticking on one body share their tangential impulse in any proportion); the "
-        "least-norm split is reported"]
+        "least-norm split is reported")]
     return imp, block, warnings
