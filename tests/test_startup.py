@@ -153,3 +153,21 @@ def test_scipy_parts_are_scipys_own_objects():
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(p for p in (str(ROOT), os.environ.get("PYTHONPATH")) if p))
     proc = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120)
     assert proc.stdout.strip() == "same", proc.stderr
+
+
+def test_minimize_bounded_has_scipys_bits():
+    """pcmm.ode.roots.minimize_bounded against scipy's minimize_scalar(method="bounded"): the
+    same minimiser, bit for bit, on smooth, kinked and flat functions and tolerances from 1e-14
+    to 1e-3 (and the budget of evaluations hit alike)."""
+    from scipy.optimize import minimize_scalar
+    from pcmm.ode.roots import minimize_bounded
+    rng = np.random.default_rng(11)
+    functions = [lambda x: (x - 0.3) ** 2, lambda x: np.sin(3 * x), lambda x: abs(x - 0.123456),
+                 lambda x: -np.exp(-((x - 1.7) / 0.01) ** 2), lambda x: 1.0, lambda x: x ** 4 - x,
+                 lambda x: np.cos(40 * x) + 0.1 * x]
+    for fun in functions:
+        for lo, width, tol in zip(rng.uniform(-2, 2, 30), 10 ** rng.uniform(-6, 1, 30), 10 ** rng.uniform(-14, -3, 30)):
+            hi = lo + width
+            for maxiter in (500, 7):
+                ref = minimize_scalar(fun, bounds=(lo, hi), method="bounded", options={"xatol": tol, "maxiter": maxiter})
+                assert minimize_bounded(fun, lo, hi, xatol=tol, maxiter=maxiter) == float(ref.x), (lo, hi, tol, maxiter)

@@ -32,7 +32,7 @@ from .. import _scipy
 from ..errors import Repartition, SimulationError
 from .dop853 import dense_step
 from .methods import AUTO, INTEGRATOR_NAMES, METHODS  # noqa: F401  (METHODS: the run loop's import)
-from .roots import brentq
+from .roots import brentq, minimize_bounded
 
 EPS = np.finfo(float).eps
 
@@ -242,10 +242,7 @@ def _locate(e, sol, t_a, t_b, g_a, tol):
     sign = 1.0 if e.direction >= 0 else -1.0  # direction >= 0: a crossing makes the guard rise
     k = int(np.argmax([sign * v for v in vals]))
     lo, hi = grid[max(k - 1, 0)], grid[min(k + 1, n)]
-    from scipy.optimize import minimize_scalar  # here: scipy.optimize costs 0.3 s at start-up
-    best = minimize_scalar(lambda u: -sign * e(u, sol(u)), bounds=(lo, hi), method="bounded",
-                           options={"xatol": xtol})
-    t_x = float(best.x)
+    t_x = minimize_bounded(lambda u: -sign * e(u, sol(u)), lo, hi, xatol=xtol)
     g_x = e(t_x, sol(t_x))
     start_side = vals[max(k - 1, 0)]
     if _crossed(start_side, g_x, e.direction) and g_x != start_side:
