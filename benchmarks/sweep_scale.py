@@ -261,7 +261,12 @@ def main():
         if not args.no_dask:
             address, sched, wk = _dask_cluster(workers)
             try:
-                time.sleep(8)  # the cluster up before the clock starts
+                # the cluster up before the clock starts: its nannies and their worker processes
+                # (``dask worker`` + W nannies + W workers), then time for their imports
+                t_up = time.perf_counter()
+                while len(_tree(wk.pid)) < 1 + 2 * workers and time.perf_counter() - t_up < 120:
+                    time.sleep(0.5)
+                time.sleep(8)
                 cluster = [sched.pid, *_tree(wk.pid)]
                 m = run_sweep([*base, "--out", "dask.csv", "--scheduler", address], d, extra_pids=cluster, n=n)
                 assert m["code"] == 0, m["err"]

@@ -112,3 +112,31 @@ sweep(pcmm.load_scene({str(THREE_BAR)!r}), make_plan([Axis("forces.tau1.value", 
     res = sweep(pcmm.load_scene(THREE_BAR), plan, tmp_path / "r.csv", pcmm.RunOptions(t_end=0.2), workers=1,
                 resume=True)
     assert (res.skipped, res.ran, res.dropped) == (3, 3, [])
+
+
+def test_short_runs_are_queued_two_deep_and_a_crash_or_hang_loses_none_queued_behind_it(monkeypatch):
+    # runs of microseconds: after the first row a worker is handed its next run before it
+    # answers the one it runs; the runs queued behind the one that aborts its worker and the one
+    # that hangs go to another worker, and every run gives exactly one row
+    import study_hooks
+    from pcmm.studies import pool as pool_mod
+    deepest, given = [0], []
+    real_give = pool_mod._Worker.give
+
+    def give(self, fn, job):
+        real_give(self, fn, job)
+        deepest[0] = max(deepest[0], len(self.queue))
+        given.append(job)
+    monkeypatch.setattr(pool_mod._Worker, "give", give)
+    jobs = [1, 2, "abort", 3, 4, "hang", 5, 6, 7, 8, 9, 10]
+    pool = pool_mod.WorkerPool(2, 3.0, lambda job, status, message, seconds: (job, status))
+    try:
+        rows = list(pool.imap(study_hooks.echo, jobs))
+    finally:
+        pool.close()
+    assert sorted(map(str, rows)) == sorted(map(str, [1, 2, 3, 4, 5, 6, 7, 8, 9, 10, ("abort", "crashed"),
+                                                      ("hang", "timeout")]))
+    assert deepest[0] == 2
+    # "abort" (0.5 s) and "hang" were each handed out with a run queued behind them (the runs
+    # before them took microseconds): those two runs were handed out again, the rest once
+    assert len(given) == len(jobs) + 2 and sorted(map(str, set(given))) == sorted(map(str, jobs))
