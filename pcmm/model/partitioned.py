@@ -64,6 +64,7 @@ class PartitionedCoordinates:
         self._drive_rows = np.zeros((drives.size, self.nv))
         self._drive_rows[np.arange(drives.size), self._driven] = 1.0
         self._no_rows, self._no_jacobian = np.zeros(0), np.zeros((0, self.nv))  # no loop rows
+        self._drive_columns_of: dict = {}  # {id(model): (model, the driven joints' columns)} (equality)
         # revolute cut joints' rows in one compiled call where that is the same function (pcmm.compiled)
         if not closure.specs:
             fast, why = None, "not compiled: drives only"
@@ -193,13 +194,21 @@ class PartitionedCoordinates:
     def equality(self, t, model, data):
         """Velocity rows of all constraints on ``model`` (the tree or its cut system);
         kinematics must be computed on ``data``."""
-        _, Jq, _ = self.closure.evaluate(model, data, False)
+        Jq = self.closure.evaluate(model, data, False)[1] if self.closure.size else np.zeros((0, model.nv))
         if self.drives.size:
             Jd = np.zeros((self.drives.size, model.nv))
-            for i, name in enumerate(self.drives.joints):
-                Jd[i, model.joints[model.getJointId(name)].idx_v] = 1.0
+            Jd[np.arange(self.drives.size), self._drive_columns(model)] = 1.0
             Jq = np.vstack([Jq, Jd])
         return Jq
+
+    def _drive_columns(self, model):
+        """The driven joints' velocity columns in ``model`` (the tree or one of its cut systems,
+        which keep the joints' names), found once per model."""
+        known = self._drive_columns_of
+        held = known.get(id(model))
+        if held is None or held[0] is not model:  # the model is held: its id stays its own
+            held = known[id(model)] = (model, [model.joints[model.getJointId(name)].idx_v for name in self.drives.joints])
+        return held[1]
 
     def _position_rows(self, t, q):
         """``dPhi/dq`` at ``q``: the derivative in pcmm's coordinates that a Newton solve of the
