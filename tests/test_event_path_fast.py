@@ -187,3 +187,17 @@ def test_drive_rows_on_a_cut_system_name_the_driven_joint():
             expected = np.zeros((1, cs.model.nv))
             expected[0, cs.model.joints[cs.model.getJointId("O1")].idx_v] = 1.0
             assert J.tobytes() == expected.tobytes()
+
+
+def test_normal_speed_is_contact_states_without_its_kinematics():
+    from pcmm.events.contact import contact_state, normal_speed
+    mech = Mechanism(pcmm.load_scene(ROOT / "examples" / "three_bar_cycle.toml"))
+    cfg = mech["open"]
+    rng = np.random.default_rng(4)
+    for tr in mech.scene.transitions_from("open"):
+        for _ in range(5):
+            q, v = rng.uniform(-3, 3, cfg.nv), rng.normal(size=cfg.nv)
+            assert normal_speed(cfg, q, v, tr.contact) == contact_state(cfg, q, v, tr.contact)[2]
+        # closed form for a joint stop: -s q'_j, negative while the joint moves towards its pin
+        j = cfg.joint_slice[tr.contact.joint].start
+        assert normal_speed(cfg, q, v, tr.contact) == -tr.contact.stop_sign * v[j]
