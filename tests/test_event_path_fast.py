@@ -201,3 +201,21 @@ def test_normal_speed_is_contact_states_without_its_kinematics():
         # closed form for a joint stop: -s q'_j, negative while the joint moves towards its pin
         j = cfg.joint_slice[tr.contact.joint].start
         assert normal_speed(cfg, q, v, tr.contact) == -tr.contact.stop_sign * v[j]
+
+
+def test_a_joint_guard_reads_the_state_entry_itself():
+    """Beside drives without a loop (and on a tree) a joint coordinate is an entry of the state:
+    the guard reads it without assembling (q, v), the same value as through them."""
+    from pcmm.events.guards import make_guard
+    mech = Mechanism(pcmm.load_scene(ROOT / "examples" / "three_bar_cycle.toml"))
+    cfg = mech["open"]
+    assert cfg.coords.state_entry(0) is None  # O1 is driven: not in the state
+    assert cfg.coords.state_entry(1) == (0, 2) and cfg.coords.state_entry(2) == (1, 3)
+    t = 0.4
+    y = cfg.coords.pack(t, np.array([np.pi * t, 1.5, 3.0]), np.array([np.pi, 0.25, -0.5]))
+    for tr in mech.scene.transitions_from("open"):
+        g = make_guard(cfg, tr)
+        row, offset = cfg.measure_row(tr.guard.measure)
+        q, v = cfg.coords.unpack(t, y)
+        assert g(t, y) == row @ q - (tr.guard.value - offset)
+        assert g.rate(t, y, None) == row @ v

@@ -586,6 +586,19 @@ class PartitionedCoordinates:
             del self._recent[0]
         return q, v
 
+    def state_entry(self, j: int) -> tuple[int, int] | None:
+        """Where coordinate ``j`` and its rate sit in the state, ``(p, r)`` with ``q_j = y[p]`` and
+        ``q'_j = y[r]``, for drives without a loop (the independent coordinates are the undriven
+        ones, in order, whatever the posture: :meth:`partition`) and without a planar joint
+        (its rates are not its v); None otherwise, or for a driven joint."""
+        if self.closure.size or self.cfg.has_planar or len(set(self.drives.index)) != self.drives.size:
+            return None
+        free = [i for i in range(self.nv) if i not in self.drives.index]
+        if j not in free:
+            return None
+        p = free.index(j)
+        return p, len(free) + p
+
     def unpack_many(self, ts, ys):
         """``(q, v)`` at many times at once (one column each) where no Newton solve is involved:
         drives without a loop and without a planar joint (:meth:`_prescribed`, column by column
