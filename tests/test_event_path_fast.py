@@ -137,3 +137,85 @@ def test_event_grid_reads_a_joint_guard_at_every_sample_in_one_call_to_the_bit()
         assert np.array(g.many(ts, ys)).tobytes() == np.array([g(t, ys[:, k]) for k, t in enumerate(ts)], float).tobytes()
         checked += 1
     assert checked == 1
+
+
+def _reference_cut_q_and_T(cfg, q, joints):
+    """The cut model's q and T built joint by joint (the construction before the layout was kept)."""
+    from pcmm.events.cutting import _PLANAR_ROWS, _structure
+    from pcmm.model.pinocchio_helpers import LOCAL, joint_jacobian
+    model, data = cfg.model, cfg.data
+    qp = cfg.to_pin(q)
+    pin.computeJointJacobians(model, data, qp)
+    new, _, jmap, _, cut_ids, *_ = _structure(cfg, tuple(joints))
+    parts, T = [], np.zeros((new.nv, model.nv))
+    for jid in range(1, model.njoints):
+        nj, j = new.joints[jmap[jid]], model.joints[jid]
+        if jid in cut_ids:
+            parts.append(np.array([0.0, 0.0, 1.0, 0.0]))
+            T[nj.idx_v:nj.idx_v + 3] = joint_jacobian(model, data, jid, LOCAL)[_PLANAR_ROWS]
+        else:
+            parts.append(qp[j.idx_q:j.idx_q + j.nq])
+            T[nj.idx_v:nj.idx_v + nj.nv, j.idx_v:j.idx_v + j.nv] = np.eye(j.nv)
+    return np.concatenate(parts), T
+
+
+def test_cut_system_from_its_kept_layout_is_the_joint_by_joint_one():
+    from pcmm.events.cutting import cut
+    cfg = Mechanism(pcmm.load_scene(ROOT / "examples" / "three_bar.toml"))["config1"]
+    rng = np.random.default_rng(9)
+    for joints in (("O3",), ("O2",), ("O2", "O3"), ("O1",)):
+        for _ in range(3):
+            q = rng.uniform(-3.0, 3.0, cfg.nv)
+            cs = cut(cfg, q, joints)
+            q_ref, T_ref = _reference_cut_q_and_T(cfg, q, joints)
+            assert cs.q.tobytes() == q_ref.tobytes() and cs.T.tobytes() == T_ref.tobytes()
+            # the cut system moves as the tree: its links' velocities are the tree's (T maps v)
+            v = rng.normal(size=cfg.nv)
+            assert cs.T.shape == (cfg.nv + 2 * len(joints), cfg.nv)
+            assert np.allclose(cs.J_cut @ (cs.T @ v), 0.0, atol=1e-12)  # the cut joints' rows hold
+
+
+def test_drive_rows_on_a_cut_system_name_the_driven_joint():
+    mech = Mechanism(pcmm.load_scene(ROOT / "examples" / "three_bar_cycle.toml"))
+    cfg = mech["open"]
+    from pcmm.events.cutting import cut
+    q = np.array([0.2, 1.5, 3.1])
+    for joints in (("O2",), ("O1",)):
+        cs = cut(cfg, q, joints)
+        for _ in range(2):  # the second time from the kept columns
+            J = cfg.coords.equality(0.0, cs.model, cs.data)
+            expected = np.zeros((1, cs.model.nv))
+            expected[0, cs.model.joints[cs.model.getJointId("O1")].idx_v] = 1.0
+            assert J.tobytes() == expected.tobytes()
+
+
+def test_normal_speed_is_contact_states_without_its_kinematics():
+    from pcmm.events.contact import contact_state, normal_speed
+    mech = Mechanism(pcmm.load_scene(ROOT / "examples" / "three_bar_cycle.toml"))
+    cfg = mech["open"]
+    rng = np.random.default_rng(4)
+    for tr in mech.scene.transitions_from("open"):
+        for _ in range(5):
+            q, v = rng.uniform(-3, 3, cfg.nv), rng.normal(size=cfg.nv)
+            assert normal_speed(cfg, q, v, tr.contact) == contact_state(cfg, q, v, tr.contact)[2]
+        # closed form for a joint stop: -s q'_j, negative while the joint moves towards its pin
+        j = cfg.joint_slice[tr.contact.joint].start
+        assert normal_speed(cfg, q, v, tr.contact) == -tr.contact.stop_sign * v[j]
+
+
+def test_a_joint_guard_reads_the_state_entry_itself():
+    """Beside drives without a loop (and on a tree) a joint coordinate is an entry of the state:
+    the guard reads it without assembling (q, v), the same value as through them."""
+    from pcmm.events.guards import make_guard
+    mech = Mechanism(pcmm.load_scene(ROOT / "examples" / "three_bar_cycle.toml"))
+    cfg = mech["open"]
+    assert cfg.coords.state_entry(0) is None  # O1 is driven: not in the state
+    assert cfg.coords.state_entry(1) == (0, 2) and cfg.coords.state_entry(2) == (1, 3)
+    t = 0.4
+    y = cfg.coords.pack(t, np.array([np.pi * t, 1.5, 3.0]), np.array([np.pi, 0.25, -0.5]))
+    for tr in mech.scene.transitions_from("open"):
+        g = make_guard(cfg, tr)
+        row, offset = cfg.measure_row(tr.guard.measure)
+        q, v = cfg.coords.unpack(t, y)
+        assert g(t, y) == row @ q - (tr.guard.value - offset)
+        assert g.rate(t, y, None) == row @ v

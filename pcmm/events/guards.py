@@ -27,6 +27,17 @@ def _coordinate(cfg: Configuration, tr: TransitionSpec, ctx=None):
     row, offset = cfg.measure_row(tr.guard.measure)
     target = tr.guard.value - offset
     unpack = cfg.coords.unpack
+    entry = _state_entry(cfg, row)
+    if entry is not None:  # the measured coordinate and its rate are entries of the state itself
+        p, r = entry
+
+        def value(t, y):
+            return y[p] - target
+
+        def rate(t, y, f):
+            return y[r]
+        value.many = lambda ts, ys: (ys[p] - target, ys[r])
+        return value, rate
 
     def value(t, y):
         q, _ = unpack(t, y)
@@ -41,6 +52,19 @@ def _coordinate(cfg: Configuration, tr: TransitionSpec, ctx=None):
         def rate(t, y, f):
             return row @ cfg.qdot(*unpack(t, y))
     return value, rate
+
+
+def _state_entry(cfg: Configuration, row: np.ndarray) -> tuple[int, int] | None:
+    """``(p, r)`` where a joint measure (``row`` a unit vector: ``row @ q`` is that coordinate
+    itself, exactly, the other products being zeros) and its rate are the state's entries
+    ``y[p]``, ``y[r]``: a tree's coordinate, or a free coordinate beside drives without a loop
+    (their partition never changes); None otherwise (a loop's coordinates are solved, a planar
+    joint's q' is not v)."""
+    hot = np.flatnonzero(row)
+    if len(hot) != 1 or row[hot[0]] != 1.0 or cfg.has_planar:
+        return None
+    entry = getattr(cfg.coords, "state_entry", None)
+    return entry(int(hot[0])) if callable(entry) else None
 
 
 def _coordinate_many(cfg: Configuration, row: np.ndarray, target: float):

@@ -327,8 +327,12 @@ def joint_impulses(cfg: Configuration, q, dv, point_impulses):
     fext = pin.StdVec_Force()
     for _ in range(model.njoints):
         fext.append(pin.Force.Zero())
+    if "parent_joint" not in cache:  # each link's joint and each joint's name, read once per model
+        cache["parent_joint"] = {link: model.frames[f].parentJoint for link, f in cfg.link_frame.items()}
+        cache["joint_names"] = list(model.names)
+    parent_joint, names = cache["parent_joint"], cache["joint_names"]
     for link, p, F, mz in point_impulses:
-        jid = model.frames[cfg.link_frame[link]].parentJoint
+        jid = parent_joint[link]
         if jid == 0:
             continue
         fx, fy, px, py = float(F[0]), float(F[1]), float(p[0]), float(p[1])
@@ -343,5 +347,5 @@ def joint_impulses(cfg: Configuration, q, dv, point_impulses):
         f = d0.f[jid]
         R = d0.oMi[jid].rotation
         lin = R @ f.linear
-        out[model.names[jid]] = [float(lin[0]), float(lin[1]), float((R @ f.angular)[2])]
+        out[names[jid]] = [float(lin[0]), float(lin[1]), float((R @ f.angular)[2])]
     return out, np.asarray(tau).copy()

@@ -63,6 +63,7 @@ class PartitionedCoordinates:
         self._drive_rows = np.zeros((drives.size, self.nv))
         self._drive_rows[np.arange(drives.size), self._driven] = 1.0
         self._no_rows, self._no_jacobian = np.zeros(0), np.zeros((0, self.nv))  # no loop rows
+        self._drive_columns_of: dict = {}  # {id(model): (model, the driven joints' columns)} (equality)
         # revolute cut joints' rows in one compiled call where that is the same function (pcmm.compiled)
         if not closure.specs:
             fast, why = None, "not compiled: drives only"
@@ -192,13 +193,21 @@ class PartitionedCoordinates:
     def equality(self, t, model, data):
         """Velocity rows of all constraints on ``model`` (the tree or its cut system);
         kinematics must be computed on ``data``."""
-        _, Jq, _ = self.closure.evaluate(model, data, False)
+        Jq = self.closure.evaluate(model, data, False)[1] if self.closure.size else np.zeros((0, model.nv))
         if self.drives.size:
             Jd = np.zeros((self.drives.size, model.nv))
-            for i, name in enumerate(self.drives.joints):
-                Jd[i, model.joints[model.getJointId(name)].idx_v] = 1.0
+            Jd[np.arange(self.drives.size), self._drive_columns(model)] = 1.0
             Jq = np.vstack([Jq, Jd])
         return Jq
+
+    def _drive_columns(self, model):
+        """The driven joints' velocity columns in ``model`` (the tree or one of its cut systems,
+        which keep the joints' names), found once per model."""
+        known = self._drive_columns_of
+        held = known.get(id(model))
+        if held is None or held[0] is not model:  # the model is held: its id stays its own
+            held = known[id(model)] = (model, [model.joints[model.getJointId(name)].idx_v for name in self.drives.joints])
+        return held[1]
 
     def _position_rows(self, t, q):
         """``dPhi/dq`` at ``q``: the derivative in pcmm's coordinates that a Newton solve of the
@@ -576,6 +585,19 @@ class PartitionedCoordinates:
         if len(self._recent) > 8:
             del self._recent[0]
         return q, v
+
+    def state_entry(self, j: int) -> tuple[int, int] | None:
+        """Where coordinate ``j`` and its rate sit in the state, ``(p, r)`` with ``q_j = y[p]`` and
+        ``q'_j = y[r]``, for drives without a loop (the independent coordinates are the undriven
+        ones, in order, whatever the posture: :meth:`partition`) and without a planar joint
+        (its rates are not its v); None otherwise, or for a driven joint."""
+        if self.closure.size or self.cfg.has_planar or len(set(self.drives.index)) != self.drives.size:
+            return None
+        free = [i for i in range(self.nv) if i not in self.drives.index]
+        if j not in free:
+            return None
+        p = free.index(j)
+        return p, len(free) + p
 
     def unpack_many(self, ts, ys):
         """``(q, v)`` at many times at once (one column each) where no Newton solve is involved:

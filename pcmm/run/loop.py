@@ -19,7 +19,7 @@ from dataclasses import replace
 import numpy as np
 
 from ..errors import ModelError, Repartition, SimulationError, UsageError
-from ..events.contact import contact_row, contact_state
+from ..events.contact import contact_row, contact_state, normal_speed
 from ..events.guards import guard_residual, make_guard
 from ..events.holding import Holds
 from ..events.transitions import POSE_TOL, Context
@@ -387,7 +387,7 @@ def _pending(cfg: Configuration, guards, t, y0):
         at_value = 64 * EPS * max(1.0, abs(tr.guard.value))
         if value < -at_value or value > POSE_TOL:  # not at its crossing (far past it: entered from the other side)
             continue
-        _, _, vn, Jn = contact_state(cfg, q, v, tr.contact)
+        vn = normal_speed(cfg, q, v, tr.contact)
         if vn < -1e-12:
             return i
         if abs(vn) <= 1e-12 and _pushed_closed(cfg, t, q, v, tr.contact):
