@@ -178,6 +178,7 @@ def make_guard(cfg: Configuration, tr: TransitionSpec, rearm: bool = False, cont
     if tr.guard.when is not None:
         raw, raw_rate = armed(cfg, tr, raw, raw_rate)
     value, rate = raw, raw_rate
+    affine = _affine(cfg, tr, context) if tr.guard.when is None and not rearm else None
     if rearm:
         def value(t, y):
             val = raw(t, y)
@@ -195,7 +196,19 @@ def make_guard(cfg: Configuration, tr: TransitionSpec, rearm: bool = False, cont
             if direction * r > 0.0 or -direction * raw(t, y) > UNFIRED:
                 return r
             return 0.0  # held at UNFIRED
-    return Guard(_describe(tr), value, direction, "transition", tr, rate, rate is not None)
+    return Guard(_describe(tr), value, direction, "transition", tr, rate, rate is not None, affine=affine)
+
+
+def _affine(cfg: Configuration, tr: TransitionSpec, context=None):
+    """(c, ct, d) with the plain guard's value c . y + ct t + d, where it is affine in a tree's state
+    [q, v] (a coordinate guard: the row of the measure on q; a time guard: t - the instant); else None."""
+    g = tr.guard
+    if g.type == "time":
+        return None, 1.0, _time(cfg, tr, context)[0](0.0, None)
+    if g.type == "coordinate" and not cfg.coords.constrained and not cfg.has_planar:
+        row, offset = cfg.measure_row(g.measure)
+        return np.concatenate([np.asarray(row, float), np.zeros(cfg.nv)]), 0.0, -(g.value - offset)
+    return None
 
 
 def guard_residual(cfg: Configuration, tr: TransitionSpec, t, y) -> float:
