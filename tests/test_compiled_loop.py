@@ -138,3 +138,32 @@ def test_whole_runs_are_the_python_stepped_runs(monkeypatch, scene):
         np.testing.assert_allclose(a.q, b.q, rtol=0, atol=1e-10)
         np.testing.assert_allclose(a.v, b.v, rtol=0, atol=1e-10)
     assert fast.stats["steps"] == slow.stats["steps"]
+
+
+@needs_loop
+def test_a_guard_not_affine_in_the_state_is_scanned_by_python_at_every_step(tmp_path, monkeypatch):
+    """A pendulum falling onto a stop watched by its contact gap (not affine in the state): the
+    compiled loop hands every accepted step to the Python event scanner, and the run is the
+    Python-stepped one (impacts to 1e-12 s, steps to 1e-10)."""
+    from builders import pendulum
+    path = pendulum(tmp_path, 0.5, q0=0.3, t_end=1.0)
+    text = path.read_text()
+    coordinate = '[transitions.guard]\ntype = "coordinate"\nvalue = -1.5707963267948966\n'
+    assert coordinate in text
+    text = text.replace(coordinate, '[transitions.guard]\ntype = "gap"\nvalue = 0.0\n')
+    path.write_text(text.replace('[transitions.guard.measure]\njoint = "J1"\n', ""))
+    made = []
+
+    def counting(*args):
+        made.append(args[-1])
+        return td.SegmentLoop(*args)
+    fast = _simulate(path, monkeypatch, {td.Tree: counting})
+    slow = _simulate(path, monkeypatch, {})
+    assert made and all(made)  # every step through Python: the gap is not affine
+    assert len(fast.events) >= 1 and fast.events[0]["name"] == "stop"
+    for a, b in zip(fast.events, slow.events, strict=True):
+        assert a["name"] == b["name"] and abs(a["t"] - b["t"]) <= 1e-12
+    for a, b in zip(fast.segments, slow.segments, strict=True):
+        np.testing.assert_allclose(a.t, b.t, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(a.q, b.q, rtol=0, atol=1e-10)
+        np.testing.assert_allclose(a.v, b.v, rtol=0, atol=1e-10)
