@@ -417,6 +417,7 @@ def _reporting(fun, progress, every: int = 256):
         if count[0] % every == 0:
             progress(float(t))
         return fun(t, y)
+    f.__wrapped__, f.progress = fun, progress  # a compiled segment loop steps fun itself and reports progress
     return f
 
 
