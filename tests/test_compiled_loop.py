@@ -167,3 +167,27 @@ def test_a_guard_not_affine_in_the_state_is_scanned_by_python_at_every_step(tmp_
         np.testing.assert_allclose(a.t, b.t, rtol=0, atol=1e-12)
         np.testing.assert_allclose(a.q, b.q, rtol=0, atol=1e-10)
         np.testing.assert_allclose(a.v, b.v, rtol=0, atol=1e-10)
+
+
+@needs_loop
+@pytest.mark.parametrize("budget", [20, 37])
+def test_a_spent_step_budget_stops_both_paths_alike(monkeypatch, budget):
+    """More steps than solver.max_steps: the same error at the same step, with the steps taken
+    kept in the partial run (Example 1: within its first segment, and just after the latch)."""
+    import pcmm
+    from builders import EXAMPLES
+    from pcmm.errors import SimulationError
+    from pcmm.ode import integrators
+    monkeypatch.setattr(compiled, "_register_segment_loop", lambda: None)
+    scene = pcmm.load_scene(EXAMPLES / "three_bar.toml")
+    outcomes = []
+    for loops in ({td.Tree: td.SegmentLoop}, {}):
+        monkeypatch.setattr(integrators, "SEGMENT_LOOPS", loops)
+        with pytest.raises(SimulationError) as caught:
+            pcmm.simulate(scene, pcmm.RunOptions(max_steps=budget))
+        assert f"more than {budget} steps" in str(caught.value)
+        outcomes.append((str(caught.value), caught.value.partial.segments[-1].t))
+    (fast, t_fast), (slow, t_slow) = outcomes
+    assert fast == slow
+    assert t_fast.size == t_slow.size > 1
+    np.testing.assert_allclose(t_fast, t_slow, rtol=0, atol=1e-12)
