@@ -14,6 +14,10 @@ td = compiled._tree_dynamics
 needs_loop = pytest.mark.skipif(td is None or not hasattr(td, "SegmentLoop"),
                                 reason=f"the compiled segment loop is not built: {compiled.why_not()}")
 
+# whole runs use it only where the compiled right-hand side runs (not under PCMM_COMPILED=0)
+runs_loop = pytest.mark.skipif(td is None or not hasattr(td, "SegmentLoop") or not compiled.enabled(),
+                               reason=f"the compiled evaluations are off: {compiled.why_not()}")
+
 K, MASS = 4.0, 1.5  # a slider on a spring: x'' = -(K / MASS) x
 W = np.sqrt(K / MASS)
 NO_GUARDS = (np.zeros((0, 2)), np.zeros(0), np.zeros(0), np.zeros(0))
@@ -112,7 +116,7 @@ def _simulate(path, monkeypatch, loops: dict):
 TREE_EXAMPLES = ["three_bar.toml", "three_bar_stop.toml"]
 
 
-@needs_loop
+@runs_loop
 @pytest.mark.parametrize("scene", TREE_EXAMPLES)
 def test_whole_runs_are_the_python_stepped_runs(monkeypatch, scene):
     """The same events at the same times (1e-12 s), the same recorded steps and states (1e-10),
@@ -140,7 +144,7 @@ def test_whole_runs_are_the_python_stepped_runs(monkeypatch, scene):
     assert fast.stats["steps"] == slow.stats["steps"]
 
 
-@needs_loop
+@runs_loop
 def test_a_guard_not_affine_in_the_state_is_scanned_by_python_at_every_step(tmp_path, monkeypatch):
     """A pendulum falling onto a stop watched by its contact gap (not affine in the state): the
     compiled loop hands every accepted step to the Python event scanner, and the run is the
@@ -169,7 +173,7 @@ def test_a_guard_not_affine_in_the_state_is_scanned_by_python_at_every_step(tmp_
         np.testing.assert_allclose(a.v, b.v, rtol=0, atol=1e-10)
 
 
-@needs_loop
+@runs_loop
 @pytest.mark.parametrize("budget", [20, 37])
 def test_a_spent_step_budget_stops_both_paths_alike(monkeypatch, budget):
     """More steps than solver.max_steps: the same error at the same step, with the steps taken
