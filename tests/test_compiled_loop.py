@@ -195,3 +195,33 @@ def test_a_spent_step_budget_stops_both_paths_alike(monkeypatch, budget):
     assert fast == slow
     assert t_fast.size == t_slow.size > 1
     np.testing.assert_allclose(t_fast, t_slow, rtol=0, atol=1e-12)
+
+
+@runs_loop
+def test_a_time_guard_is_scanned_in_the_loop(tmp_path, monkeypatch):
+    """Example 1 let go from its latched configuration by a timer at 0.5 s (a time guard: affine,
+    scanned in C++), where it latches again at once: the events are the Python-stepped run's, and
+    so is every segment's end state (1e-10).  (The segment after the second latch starts from a
+    state 4e-16 away, the release read on another dense output, at 46 rad/s: there the two runs'
+    step times drift apart by up to 3e-10 s while their states agree to 2e-12.)"""
+    from builders import copy_example, example_text
+    text = example_text() + ('\n[[transitions]]\nname = "let go"\ntype = "release"\nfrom = "config2"\n'
+                             'to = "config1"\nguard = { type = "time", at = 0.5 }\n')
+    path = copy_example(tmp_path, "three_bar.toml", text)
+    made = []
+
+    def counting(*args):
+        made.append(args[-1])
+        return td.SegmentLoop(*args)
+    fast = _simulate(path, monkeypatch, {td.Tree: counting})
+    slow = _simulate(path, monkeypatch, {})
+    assert len(made) >= 3 and not any(made)  # every segment scanned in C++
+    names = [e["name"] for e in fast.events]
+    assert names[:2] == ["O3 latches", "let go"] and names == [e["name"] for e in slow.events]
+    assert fast.events[1]["t"] == pytest.approx(0.5, abs=1e-12)
+    for a, b in zip(fast.events, slow.events, strict=True):
+        assert abs(a["t"] - b["t"]) <= 1e-12
+    for a, b in zip(fast.segments, slow.segments, strict=True):
+        assert a.t[-1] == pytest.approx(b.t[-1], abs=1e-12)
+        np.testing.assert_allclose(a.q[[0, -1]], b.q[[0, -1]], rtol=0, atol=1e-10)
+        np.testing.assert_allclose(a.v[[0, -1]], b.v[[0, -1]], rtol=0, atol=1e-10)
