@@ -27,13 +27,30 @@ import warnings
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import integrate as si
-from scipy.optimize import brentq
 
+from .. import _scipy
 from ..errors import Repartition, SimulationError
+from .dop853 import dense_step
 from .methods import AUTO, INTEGRATOR_NAMES, METHODS  # noqa: F401  (METHODS: the run loop's import)
+from .roots import brentq, minimize_bounded
 
 EPS = np.finfo(float).eps
+
+
+class _ScipyIntegrate:
+    """``scipy.integrate`` as the integrators use it, imported on first use: its ``__init__`` costs
+    about 0.5 s of CPU at start-up (benchmarks/startup.py).  ``ode``, the driver of the Fortran
+    DOP853 that a run on a tree uses, comes alone from its module (:mod:`pcmm._scipy`); the rest
+    (scipy's ``OdeSolver`` classes, for the other methods) from the package."""
+
+    def __getattr__(self, name):
+        if name == "ode":
+            return _scipy.ode()
+        import scipy.integrate
+        return getattr(scipy.integrate, name)
+
+
+si = _ScipyIntegrate()
 
 
 @dataclass
@@ -201,11 +218,13 @@ def _locate(e, sol, t_a, t_b, g_a, tol):
     None.  The guard is sampled on a grid; where no sample crosses, the sample closest to a
     crossing is refined by a bounded search for the extremum between its neighbours, so a graze
     shorter than the grid spacing is still found."""
-    from scipy.optimize import minimize_scalar
     n = 16
     grid = np.linspace(t_a, t_b, n + 1)
     ys = sol(grid)  # every dense output here takes an array of times: one call, (ny, n + 1)
-    vals = [e(s, ys[:, k]) for k, s in enumerate(grid)]
+    many = getattr(e, "many", None)  # the guard at every sample in one call, where it can
+    vals = many(grid, ys) if many is not None else None
+    if vals is None:
+        vals = [e(s, ys[:, k]) for k, s in enumerate(grid)]
     if _crossed(g_a, vals[0], e.direction) and vals[0] != g_a:
         return float(t_a)  # already across at the start of the dense output (round-off)
     xtol = max(tol, 4 * EPS * max(1.0, abs(t_b)))
@@ -213,7 +232,8 @@ def _locate(e, sol, t_a, t_b, g_a, tol):
 
     def root(lo, hi, g_lo, g_hi):
         if rate is not None:  # the guard's own rate: Newton's steps, kept in the bracket
-            return _bracketed_newton(lambda u: e(u, sol(u)), lambda u: rate(u, sol(u), None), lo, hi, g_lo, g_hi, xtol)
+            at = _last_state(sol)  # each iterate's value and rate read one dense-output state
+            return _bracketed_newton(lambda u: e(u, at(u)), lambda u: rate(u, at(u), None), lo, hi, g_lo, g_hi, xtol)
         return brentq(lambda u: e(u, sol(u)), lo, hi, xtol=xtol, rtol=4 * EPS)
     for k in range(n):
         if _crossed(vals[k], vals[k + 1], e.direction):
@@ -222,14 +242,24 @@ def _locate(e, sol, t_a, t_b, g_a, tol):
     sign = 1.0 if e.direction >= 0 else -1.0  # direction >= 0: a crossing makes the guard rise
     k = int(np.argmax([sign * v for v in vals]))
     lo, hi = grid[max(k - 1, 0)], grid[min(k + 1, n)]
-    best = minimize_scalar(lambda u: -sign * e(u, sol(u)), bounds=(lo, hi), method="bounded",
-                           options={"xatol": xtol})
-    t_x = float(best.x)
+    t_x = minimize_bounded(lambda u: -sign * e(u, sol(u)), lo, hi, xatol=xtol)
     g_x = e(t_x, sol(t_x))
     start_side = vals[max(k - 1, 0)]
     if _crossed(start_side, g_x, e.direction) and g_x != start_side:
         return t_x if g_x == 0 else root(lo, t_x, start_side, g_x)
     return None
+
+
+def _last_state(sol):
+    """``sol`` remembering its last instant: a root finder's value and rate at one iterate cost
+    one dense-output evaluation (scipy's, some 15 us from Python), not two."""
+    last = [None, None]
+
+    def at(u):
+        if last[0] != u:
+            last[0], last[1] = u, sol(u)
+        return last[1]
+    return at
 
 
 def _bracketed_newton(g, dg, lo, hi, g_lo, g_hi, xtol, max_iter=100) -> float:
@@ -326,7 +356,11 @@ class ScipyMethod:
 
     def __init__(self, name: str):
         self.name = name
-        self.cls = getattr(si, name)
+
+    @property
+    def cls(self):
+        """scipy's class (scipy.integrate is imported when a run first uses one of these)."""
+        return getattr(si, self.name)
 
     def integrate(self, fun, t0, y0, t_bound, events, opts) -> Segment:
         needs_f = _needs_derivative(events)
@@ -364,7 +398,7 @@ class FortranDOP853:
     evaluation (scipy's Python ``OdeSolver`` loop adds several microseconds
     per call, more than a lean right-hand side costs).  Each accepted step is
     scanned for events like every method's; the step that holds an event is
-    taken again by scipy's DOP853 (:func:`_dop853_dense`) for its dense output,
+    taken again by DOP853 as scipy implements it (:func:`_dop853_dense`) for its dense output,
     so events are located to DOP853's 7th-order accuracy.
     """
 
@@ -601,19 +635,15 @@ class _Contd8:
 
 
 def _dop853_dense(fun, t_a, y_a, t_b, opts):
-    """DOP853's 7th-order dense output over one step [t_a, t_b] of the Fortran code: scipy's
-    DOP853 (the same tableau and error control) started with that step size.  It normally
-    takes the step in one; where it splits it, the pieces are joined."""
-    solver = si.DOP853(fun, t_a, y_a, t_b, rtol=opts.rtol, atol=opts.atol, first_step=t_b - t_a)
-    ts, pieces = [t_a], []
-    while solver.status == "running":
-        message = solver.step()
-        if solver.status == "failed":
-            raise SimulationError(f"DOP853 failed while re-integrating the step [{t_a:.9g}, {t_b:.9g}] s "
-                                  f"that holds an event: {message}")
-        ts.append(solver.t)
-        pieces.append(solver.dense_output())
-    return pieces[0] if len(pieces) == 1 else si.OdeSolution(ts, pieces)
+    """DOP853's 7th-order dense output over one step [t_a, t_b] of the Fortran code: DOP853 as
+    scipy implements it (the same tableau and error control, :mod:`pcmm.ode.dop853`) started
+    with that step size.  It normally takes the step in one; where it splits it, the pieces are
+    joined."""
+    sol, message = dense_step(fun, t_a, y_a, t_b, opts.rtol, opts.atol)
+    if sol is None:
+        raise SimulationError(f"DOP853 failed while re-integrating the step [{t_a:.9g}, {t_b:.9g}] s "
+                              f"that holds an event: {message}")
+    return sol
 
 
 class FixedStepRK4:
