@@ -225,3 +225,33 @@ def test_a_time_guard_is_scanned_in_the_loop(tmp_path, monkeypatch):
         assert a.t[-1] == pytest.approx(b.t[-1], abs=1e-12)
         np.testing.assert_allclose(a.q[[0, -1]], b.q[[0, -1]], rtol=0, atol=1e-10)
         np.testing.assert_allclose(a.v[[0, -1]], b.v[[0, -1]], rtol=0, atol=1e-10)
+
+
+@pytest.mark.parametrize("scene", TREE_EXAMPLES)
+def test_a_guards_affine_form_is_its_value(scene):
+    """Guard.affine (what the compiled loop scans) against the guard's own value and rate, at random
+    states of every tree configuration a shipped example's transitions watch; and None where the
+    value is not affine (re-armed after a bounce).  The loop relies on it without checking."""
+    import pcmm
+    from builders import EXAMPLES
+    from pcmm.events.guards import make_guard
+    from pcmm.model.mechanism import Mechanism
+    sc = pcmm.load_scene(EXAMPLES / scene)
+    mech = Mechanism(sc)
+    rng = np.random.default_rng(26)
+    checked = 0
+    for tr in sc.transitions:
+        cfg = mech[tr.source]
+        if cfg.coords.constrained:
+            continue
+        guard = make_guard(cfg, tr, context=0.3)
+        c, ct, d = guard.affine
+        c = np.zeros(2 * cfg.nv) if c is None else c
+        for _ in range(5):
+            t, y = rng.uniform(0.0, 2.0), rng.uniform(-3.0, 3.0, 2 * cfg.nv)
+            f = np.concatenate([y[cfg.nv:], rng.uniform(-5.0, 5.0, cfg.nv)])  # [q' = v, any acceleration]
+            assert guard(t, y) == pytest.approx(c @ y + ct * t + d, rel=1e-15, abs=1e-15)
+            assert guard.rate(t, y, f) == pytest.approx(c @ f + ct, rel=1e-15, abs=1e-15)
+        assert make_guard(cfg, tr, rearm=True, context=0.3).affine is None
+        checked += 1
+    assert checked >= 1
