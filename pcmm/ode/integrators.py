@@ -505,6 +505,8 @@ class FortranDOP853:
                                     _lazy(lambda: _Contd8(*loop.dense())))
                     if hit is not None:
                         return hit, None
+                    if progress is not None and st.count % _PROGRESS_STEPS == 0:
+                        progress(float(t_new))
                 elif code == 2:  # a pause: Python's turn (Ctrl-C, the progress bar)
                     if progress is not None:
                         progress(float(st.ts[-1]))
@@ -559,6 +561,10 @@ def t_bound_reached(st) -> bool:
     return False
 
 
+#: accepted steps between two progress reports of the compiled loop (21 DOP853 steps: about the
+#: 256 evaluations between two reports of the run loop's wrapper)
+_PROGRESS_STEPS = 21
+
 #: compiled segment loops by the type of the object whose bound ``rhs`` a configuration integrates
 #: (a tree's compiled right-hand side): registered by pcmm.model.compiled, the layer above.
 SEGMENT_LOOPS: dict = {}
@@ -577,7 +583,10 @@ def _segment_loop(fun, t0, y0, t_bound, events, opts, beta):
     y0 = np.array(y0, float)
     ny = y0.size
     affine = [getattr(e, "affine", None) for e in events]
-    every_step = any(a is None for a in affine) or not all(getattr(e, "rate_from_state", False) for e in events)
+    # a progress bar (the run loop's wrapper) is fed every _PROGRESS_STEPS steps, as the wrapper's
+    # own count of evaluations did: then every step comes back to Python
+    every_step = (progress is not None or any(a is None for a in affine)
+                  or not all(getattr(e, "rate_from_state", False) for e in events))
     if every_step:
         C, ct, d, direction = np.zeros((0, ny)), np.zeros(0), np.zeros(0), np.zeros(0)
     else:
