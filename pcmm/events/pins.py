@@ -178,12 +178,17 @@ def pin_strike(ctx, cfg: Configuration, tr: PinSpec, t, q, v):
     q_new, v_new = entry.q, entry.v
     # the stance that begins now: each point held by compression only must push, inside its cone
     # (the guards of the stance watch it from here on: PartitionedCoordinates.contact_guards)
+    lifting = {cj for src, cj, _ in ctx.mechanism.scene.lift_offs() if src == tr.target}
     for name, (Fn, Ft) in dst.coords.contact_forces(t, q_new, v_new).items():
         spec = next(s for s in dst.spec.cut_joints if s.name == name)
         scale_F = max(abs(Fn), abs(Ft), 1e-300)
+        if Fn < -1e-12 * scale_F and name in lifting:
+            continue  # it lifts off by itself at once, before any step (pcmm.run.loop._pending)
         if Fn < -1e-12 * scale_F:
             raise SimulationError(f"{where}: right after the strike the point held by '{name}' would be pulled "
-                                  f"(normal force {Fn:.6g} N): it lifts off at once, which '{tr.target}' cannot hold")
+                                  f"(normal force {Fn:.6g} N): it lifts off at once, which '{tr.target}' cannot hold; "
+                                  f"add a configuration with the same URDF and drives and the cut joints of "
+                                  f"'{tr.target}' but '{name}' (pcmm releases the point into it by itself)")
         if spec.friction is not None and math.isfinite(spec.friction) and abs(Ft) > spec.friction * Fn * (1 + 1e-12):
             raise SimulationError(f"{where}: right after the strike the point held by '{name}' would slip: its "
                                   f"force needs friction >= {abs(Ft) / Fn:.6g} (|F_t| / F_n, F_t = {Ft:.6g}, "

@@ -119,7 +119,17 @@ def tree_rhs(model: pin.Model, Q0: np.ndarray, KD: np.ndarray, reference: Callab
     probes = [(0.0, y) for y in _probe_states(model.nv)]
     if not _agrees(checked, tree.rhs, reference, probes, "right-hand side"):
         return None
+    _register_segment_loop()
     return tree.rhs
+
+
+def _register_segment_loop() -> None:
+    """Tell the integrators (a lower layer) that a tree's compiled right-hand side has a compiled
+    segment loop (DOP853 in C++, pcmm/model/_segment_loop.hpp), where this build has one."""
+    loop = getattr(_tree_dynamics, "SegmentLoop", None)
+    if loop is not None:
+        from ..ode.integrators import SEGMENT_LOOPS
+        SEGMENT_LOOPS[_tree_dynamics.Tree] = loop
 
 
 def closure_kinematics(model: pin.Model, frames_a, frames_b, rows: Callable, rows_and_bias: Callable):

@@ -188,9 +188,31 @@ class Drives:
         three at one time, several times)."""
         last = self._last
         if last is None or last[0] != t:
-            last = (t, (self.value(t), self.value(t, 1), self.value(t, 2)))
+            # the three Horner sums of value(t, 0..2) in one pass, the same operations in the same order
+            f, f1, f2 = [], [], []
+            for d in self._derivs:
+                for out, cs in zip((f, f1, f2), d):
+                    acc = 0.0
+                    for c in reversed(cs):
+                        acc = acc * t + c
+                    out.append(acc)
+            last = (t, (np.array(f), np.array(f1), np.array(f2)))
             object.__setattr__(self, "_last", last)
         return last[1]
+
+    def values_many(self, ts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(f, f') at every time of ``ts``, one row per drive: Horner's rule on the array, the
+        very operations :meth:`value` does on each time (numpy's elementwise products and sums
+        round as Python's)."""
+        f = np.empty((len(self.joints), len(ts)))
+        f1 = np.empty_like(f)
+        for i, d in enumerate(self._derivs):
+            for out, cs in ((f, d[0]), (f1, d[1])):
+                acc = np.zeros(len(ts))
+                for c in reversed(cs):
+                    acc = acc * ts + c
+                out[i] = acc
+        return f, f1
 
     def value(self, t, order=0) -> np.ndarray:
         out = np.empty(len(self.joints))

@@ -17,7 +17,7 @@ from ..events.contact import contact_point, contact_state
 from ..events.contact_laws import ContactPhase
 from ..events.guards import guard_residual
 from ..events.records import EventRecord, event_dict
-from ..events.transitions import TRANSITIONS, Outcome, unmerge
+from ..events.transitions import TRANSITIONS, Outcome, lift_off, lift_off_transition, unmerge
 from .state import RunState
 
 #: this many configuration switches at one instant are a cycle that time does not pass in
@@ -71,12 +71,24 @@ def release_merge(run: RunState, guard) -> bool:
     return transform(run, guard.transition, out, None)
 
 
+def release_pin(run: RunState, guard) -> bool:
+    """A point held by compression only whose normal force turns tensile lifts off by itself
+    into the scene's configuration without its cut joint (``guard.payload``), with no impulse."""
+    run.phase = None
+    t0 = time.perf_counter()
+    tr = lift_off_transition(run.cfg.name, *guard.payload)
+    out = lift_off(run.ctx, run.cfg, tr, run.t, run.q, run.v)
+    run.stats["wall_s"] += time.perf_counter() - t0
+    return transform(run, tr, out, None)
+
+
 GUARD_ACTIONS = {
     "repartition": repartition,
     "contact": start_contact,
     "separation": separate,
     "transition": transition,
     "unmerge": release_merge,
+    "lift-off": release_pin,
 }
 
 
