@@ -57,6 +57,9 @@ from pcmm.cli import main as cli_main
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLES = sorted((ROOT / "examples").glob("*.toml"))
 URDFS = sorted((ROOT / "urdf").glob("*.urdf"))
+# The budgets (max_examples) are what reaches every outcome class of each property (pytest
+# --hypothesis-show-statistics); derandomized, every run draws the same cases, but a smaller budget
+# draws other ones, not the first ones of a larger budget (hypothesis sizes its cases by the budget).
 FUZZ = dict(deadline=None, derandomize=True, database=None,
             suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
 NAN, INF = float("nan"), float("inf")
