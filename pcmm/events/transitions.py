@@ -41,7 +41,7 @@ from ..model.configuration import Configuration
 from ..model.mechanism import Mechanism
 from ..model.pinocchio_helpers import LWA
 from ..errors import SimulationError
-from .contact import contact_point, contact_state
+from .contact import contact_point, contact_state, normal_speed
 from .contact_faults import POSE_TOL, contact_findings
 from .records import by_link, event_record
 from .guards import guard_value
@@ -220,8 +220,9 @@ def handle_stop(ctx: Context, cfg: Configuration, tr: StopSpec, t, q, v) -> Outc
                                   "the stop, so the stop needs merge_to (the merged configuration)")
         return _merge(ctx, cfg, tr, tr.merge_to, t, q, v, "stop")
     speed, interval = ctx.tolerances(tr)
-    _, _, vn, _ = contact_state(cfg, q, v, tr.contact)
+    vn = normal_speed(cfg, q, v, tr.contact)  # approaching: the impulse solve takes the kinematics itself
     if vn >= 0:
+        _, _, vn, _ = contact_state(cfg, q, v, tr.contact)  # the merge reads the kinematics at (q, v)
         # The guard fired while the contact does not approach.  A tiny separating speed is the
         # integrator's resolution at the end of an accumulation (the bounces are shorter than its
         # dense-output error): the bodies rest in contact.  A clear one means a wrong normal.
