@@ -18,6 +18,7 @@ ordinary import is used.
 """
 from __future__ import annotations
 
+import functools
 import importlib
 import importlib.machinery
 import importlib.util
@@ -56,9 +57,12 @@ def _exec(fullname: str, path: Path) -> types.ModuleType:
     return module
 
 
-def submodule(package: str, name: str) -> types.ModuleType:
+def submodule(package: str, name: str, siblings: tuple[str, ...] = ()) -> types.ModuleType:
     """``package.name`` (a scipy submodule), loaded without running ``package``'s ``__init__``
-    when that has not run yet; the ordinary import otherwise, or where this fails."""
+    when that has not run yet; the ordinary import otherwise, or where this fails.  ``siblings``:
+    the compiled modules of ``package`` that it imports relatively (``from . import x``), loaded
+    alone first and set on the bare package (else the relative import would import scipy itself,
+    through ``__import__``)."""
     fullname = f"{package}.{name}"
     if fullname in sys.modules:
         return sys.modules[fullname]
@@ -69,6 +73,8 @@ def submodule(package: str, name: str) -> types.ModuleType:
         stub = types.ModuleType(package)  # the package as a bare path, for relative imports
         stub.__path__ = [str(path.parent)]
         stub.__package__ = package
+        for sibling in siblings:
+            setattr(stub, sibling, submodule(package, sibling))
         sys.modules[package] = stub
         try:
             return _exec(fullname, path)
@@ -79,17 +85,20 @@ def submodule(package: str, name: str) -> types.ModuleType:
         return importlib.import_module(fullname)
 
 
+@functools.cache
 def lapack():
     """LAPACK of scipy's build (``scipy.linalg.lapack``'s ``dpotrf``, ``dpotrs``, ``dgesv``, ...:
     the same Fortran objects)."""
     return submodule("scipy.linalg", "_flapack")
 
 
+@functools.cache
 def ode():
     """``scipy.integrate.ode``, the driver of Hairer's Fortran DOP853."""
-    return submodule("scipy.integrate", "_ode").ode
+    return submodule("scipy.integrate", "_ode", siblings=("_vode", "_dop")).ode
 
 
+@functools.cache
 def dop853_coefficients():
     """The tableau of scipy's DOP853 (``C``, ``A``, ``B``, ``E3``, ``E5``, ``D``, the stages)."""
     return submodule("scipy.integrate._ivp", "dop853_coefficients")

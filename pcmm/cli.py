@@ -101,6 +101,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="switch configurations without impulse (the paper's comparison runs)")
     r.add_argument("--out", type=Path, help="save the trajectory (.npz)")
     r.add_argument("--summary", type=Path, help="save the summary (.json)")
+    r.add_argument("--store", type=Path, help="stream the trajectory to this new folder as the run goes, in chunks "
+                   "(memory bounded however long the run; a killed run keeps every chunk written): "
+                   "read it with Trajectory.load(DIR)")
     r.add_argument("--csv", type=Path, help="export the trajectory as CSV")
     r.add_argument("--html", type=Path, help="write a self-contained offline replay page")
     r.add_argument("--replay", action="store_true", help="replay the run in meshcat (browser)")
@@ -358,6 +361,8 @@ def cmd_check(args) -> int:
         f"poses and contacts consistent at {count(len(report.postures), 'guard value')})")
     for line in derived:
         say(f"  {line}")
+    for source, cut_joint, target in scene.lift_offs():  # releases pcmm adds by itself
+        say(f"  '{source}': the point held by '{cut_joint}' lifts off into '{target}' where its normal force turns tensile")
     return 0
 
 
@@ -477,7 +482,7 @@ def cmd_run(args, held=None) -> int:
     else:
         failure = None
         try:
-            traj = simulate(scene, opts, progress=update)
+            traj = simulate(scene, opts, progress=update, store=args.store)
         except SimulationError as exc:
             failure, traj = exc, exc.partial
         except KeyboardInterrupt as exc:  # before simulate's own loop began (models, assembly)

@@ -647,7 +647,26 @@ class Oracle:
         # velocities the target does not have as coordinates: zero (locked)
         rows = []
         contact_events = 0
+        together = []  # (event, contact's name, its row index): contacts closed at once, one impulse
         for e in here:
+            if "simultaneous" in e:
+                for name, c in e["simultaneous"].items():
+                    tr = next(x for x in self.scene.transitions if x.name == name)
+                    together.append((e, name, len(rows)))
+                    rows.append(self.contact_row(tr.contact, Fa, qa, va)[0])
+                    vn_m, vn_p = float(rows[-1] @ va), float(rows[-1] @ vplus)
+                    target = -c["restitution"] * min(vn_m, 0.0)
+                    self.report(t, f"event '{e['name']}': {name}'s normal velocity after ({c['mode']})",
+                                c["normal_velocity"]["after"], vn_p, abs(c["normal_velocity"]["after"] - vn_p),
+                                tol.event * max(1.0, abs(vn_m)))
+                    if c["mode"] != "separate":  # held: Newton's law on its normal
+                        self.report(t, f"event '{e['name']}': {name} held with restitution {c['restitution']}",
+                                    vn_p, target, abs(vn_p - target), tol.event * max(1.0, abs(vn_m)))
+                    if tr.contact.friction is not None:  # its tangential row (t = (n_y, -n_x), in a's frame)
+                        nrm = tr.contact.normal
+                        tang = dataclasses.replace(tr.contact, normal=(nrm[1], -nrm[0]))
+                        rows.append(self.contact_row(tang, Fa, qa, va)[0])
+                continue
             tr = next((x for x in self.scene.transitions if x.name == e["name"]), None)
             if tr is None or tr.contact is None:
                 continue
@@ -690,6 +709,11 @@ class Oracle:
             if P is not None:
                 self.report(t, f"event '{here[0]['name']}': impulse P", P, float(impulses[0]),
                             abs(P - impulses[0]), tol.event * max(1.0, abs(impulses[0]), p))
+        if impulses is not None:
+            for e, name, i in together:  # each contact's normal impulse, unique where the rows are independent
+                P = e["simultaneous"][name]["impulse"]["normal"]
+                self.report(t, f"event '{e['name']}': {name}'s normal impulse", P, float(impulses[i]),
+                            abs(P - impulses[i]), tol.event * max(1.0, abs(impulses[i]), p))
         if drives and impulses is not None:
             # the drive's impulse P works P f'(t) (its coordinate's rate is prescribed, the same on both
             # sides); every other row's impulse works P (v- + v+) / 2 <= 0 (restitution <= 1, locks)

@@ -94,3 +94,100 @@ def test_dense_output_is_dop853s_interpolant():
     assert n > 15
     assert worst_scipy < 1e-14  # round-off: the states are of order one
     assert worst_exact < 1e-8   # the global error at rtol 1e-10 over 3 s
+
+
+# ---- whole runs: the compiled loop against the Python-stepped Fortran code, the reference ---------------------------
+def _simulate(path, monkeypatch, loops: dict):
+    """A run with the integrators' compiled loops set to ``loops`` ({} : the Python-stepped Fortran
+    DOP853, with the same compiled right-hand side)."""
+    import pcmm
+    from pcmm.ode import integrators
+    monkeypatch.setattr(integrators, "SEGMENT_LOOPS", loops)
+    monkeypatch.setattr(compiled, "_register_segment_loop", lambda: None)
+    return pcmm.simulate(pcmm.load_scene(path))
+
+
+# the shipped examples with tree configurations integrated by DOP853F (the rimless wheel's and the
+# compass gait's configurations all hold a pinned foot, a cut joint: scipy's DOP853 steps those)
+TREE_EXAMPLES = ["three_bar.toml", "three_bar_stop.toml"]
+
+
+@needs_loop
+@pytest.mark.parametrize("scene", TREE_EXAMPLES)
+def test_whole_runs_are_the_python_stepped_runs(monkeypatch, scene):
+    """The same events at the same times (1e-12 s), the same recorded steps and states (1e-10),
+    where the compiled loop integrates the segments it can."""
+    from builders import EXAMPLES
+    path = EXAMPLES / scene
+    made = []
+
+    def counting(*args):
+        made.append(args[-1])  # every_step: a guard not affine in the state
+        return td.SegmentLoop(*args)
+    fast = _simulate(path, monkeypatch, {td.Tree: counting})
+    assert made, "no segment ran the compiled loop"
+    slow = _simulate(path, monkeypatch, {})
+    assert len(fast.events) >= 1
+    assert [e["name"] for e in fast.events] == [e["name"] for e in slow.events]
+    for a, b in zip(fast.events, slow.events, strict=True):
+        assert abs(a["t"] - b["t"]) <= 1e-12
+    assert len(fast.segments) == len(slow.segments)
+    for a, b in zip(fast.segments, slow.segments):
+        assert a.t.shape == b.t.shape
+        np.testing.assert_allclose(a.t, b.t, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(a.q, b.q, rtol=0, atol=1e-10)
+        np.testing.assert_allclose(a.v, b.v, rtol=0, atol=1e-10)
+    assert fast.stats["steps"] == slow.stats["steps"]
+
+
+@needs_loop
+def test_a_guard_not_affine_in_the_state_is_scanned_by_python_at_every_step(tmp_path, monkeypatch):
+    """A pendulum falling onto a stop watched by its contact gap (not affine in the state): the
+    compiled loop hands every accepted step to the Python event scanner, and the run is the
+    Python-stepped one (impacts to 1e-12 s, steps to 1e-10)."""
+    from builders import pendulum
+    path = pendulum(tmp_path, 0.5, q0=0.3, t_end=1.0)
+    text = path.read_text()
+    coordinate = '[transitions.guard]\ntype = "coordinate"\nvalue = -1.5707963267948966\n'
+    assert coordinate in text
+    text = text.replace(coordinate, '[transitions.guard]\ntype = "gap"\nvalue = 0.0\n')
+    path.write_text(text.replace('[transitions.guard.measure]\njoint = "J1"\n', ""))
+    made = []
+
+    def counting(*args):
+        made.append(args[-1])
+        return td.SegmentLoop(*args)
+    fast = _simulate(path, monkeypatch, {td.Tree: counting})
+    slow = _simulate(path, monkeypatch, {})
+    assert made and all(made)  # every step through Python: the gap is not affine
+    assert len(fast.events) >= 1 and fast.events[0]["name"] == "stop"
+    for a, b in zip(fast.events, slow.events, strict=True):
+        assert a["name"] == b["name"] and abs(a["t"] - b["t"]) <= 1e-12
+    for a, b in zip(fast.segments, slow.segments, strict=True):
+        np.testing.assert_allclose(a.t, b.t, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(a.q, b.q, rtol=0, atol=1e-10)
+        np.testing.assert_allclose(a.v, b.v, rtol=0, atol=1e-10)
+
+
+@needs_loop
+@pytest.mark.parametrize("budget", [20, 37])
+def test_a_spent_step_budget_stops_both_paths_alike(monkeypatch, budget):
+    """More steps than solver.max_steps: the same error at the same step, with the steps taken
+    kept in the partial run (Example 1: within its first segment, and just after the latch)."""
+    import pcmm
+    from builders import EXAMPLES
+    from pcmm.errors import SimulationError
+    from pcmm.ode import integrators
+    monkeypatch.setattr(compiled, "_register_segment_loop", lambda: None)
+    scene = pcmm.load_scene(EXAMPLES / "three_bar.toml")
+    outcomes = []
+    for loops in ({td.Tree: td.SegmentLoop}, {}):
+        monkeypatch.setattr(integrators, "SEGMENT_LOOPS", loops)
+        with pytest.raises(SimulationError) as caught:
+            pcmm.simulate(scene, pcmm.RunOptions(max_steps=budget))
+        assert f"more than {budget} steps" in str(caught.value)
+        outcomes.append((str(caught.value), caught.value.partial.segments[-1].t))
+    (fast, t_fast), (slow, t_slow) = outcomes
+    assert fast == slow
+    assert t_fast.size == t_slow.size > 1
+    np.testing.assert_allclose(t_fast, t_slow, rtol=0, atol=1e-12)

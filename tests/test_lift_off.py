@@ -35,7 +35,7 @@ from scipy.integrate import quad
 from scipy.optimize import brentq
 
 import pcmm
-from builders import free_bar_urdf
+from builders import free_bar_urdf, rot
 from pcmm.errors import SimulationError
 
 M, L, G_ = 1.0, 1.0, 9.81
@@ -91,13 +91,13 @@ def test_closed_form_is_self_consistent():
         t, phi, w = closed_form(w0=w0, beta=beta)
         assert all(by_hand(p, PHI0, w0, beta)[0] > 0 for p in np.linspace(PHI0, phi - 1e-6, 200))
         assert by_hand(phi + 1e-3, PHI0, w0, beta)[0] < 0
-    t, phi, w = closed_form()
+    _, phi, _ = closed_form()
     assert 0 < phi < BETA and by_hand(phi, PHI0, W0, BETA)[3] > 0
 
 
 def test_pinned_point_lifts_off_by_itself_at_the_closed_form(make_scene):
     t_star, phi_star, w_star = closed_form()
-    N, Ft, _, a_n = by_hand(phi_star, PHI0, W0, BETA)
+    _, Ft, _, a_n = by_hand(phi_star, PHI0, W0, BETA)
     traj = pcmm.simulate(pcmm.load_scene(rod_scene(make_scene)))
     assert [e["name"] for e in traj.events] == ["lift-off foot"]
     ev = traj.events[0]
@@ -171,3 +171,103 @@ def test_a_point_pinned_with_a_tensile_force_from_the_start_lifts_off_at_once(ma
     assert [(e["name"], e["t"]) for e in traj.events] == [("lift-off foot", 0.0)]
     assert traj.events[0]["lifted"]["foot"]["normal_force"] == pytest.approx(N, rel=1e-9)
     assert traj.segments[-1].configuration == "flight"
+
+
+def test_the_graph_draws_the_lift_off_before_and_after_the_run(make_scene):
+    """The working-cycle graph has the lift-off pcmm adds (no transition written) as a release
+    edge pinned -> flight, and the run's event lands on it."""
+    from pcmm.results.trajectory import record_views
+    from pcmm.viz.graph import edges, fired
+    scene = pcmm.load_scene(rod_scene(make_scene))
+    views = record_views(scene)
+    assert [(e.name, e.kind, e.source, e.target) for e in edges(views)] == [("lift-off foot", "release", "pinned", "flight")]
+    traj = pcmm.simulate(scene)
+    (edge,) = fired(edges(views), traj.events)
+    assert edge.times == [traj.events[0]["t"]]
+
+
+def test_a_strike_whose_pin_would_pull_lifts_off_at_once(make_scene):
+    """A spinning rod without gravity strikes the leaning surface with its foot A (a `pin`,
+    flight -> pinned).  By hand: the impulse acts at A, so the angular momentum about A is kept,
+    I_A w+ = I_G w- + m (d x v_G-), d = G - A = (L/2)(sin phi, cos phi); pinned, nothing turns the rod
+    about A, so G circles A and the surface pulls on it, F = -m w+^2 d: N = -m w+^2 (L/2) cos(phi - beta)
+    < 0 and F_t = -m w+^2 (L/2) sin(phi - beta).  The pin holds no instant: the point lifts off at
+    the strike's instant, with no impulse, and freed leaves the surface at n . (w+^2 d) > 0."""
+    phi, w_minus, V, t_hit = 0.2, -6.0, 1.0, 0.01
+    I_G, I_A = M * L * L / 12, M * L * L / 3
+    d = 0.5 * L * np.array([math.sin(phi), math.cos(phi)])
+    vG = np.array([0.0, -V])
+    w_plus = (I_G * w_minus + M * (d[0] * vG[1] - d[1] * vG[0])) / I_A
+    N = -M * w_plus ** 2 * 0.5 * L * math.cos(phi - BETA)
+    Ft = -M * w_plus ** 2 * 0.5 * L * math.sin(phi - BETA)
+    a_n = w_plus ** 2 * 0.5 * L * math.cos(phi - BETA)
+    # the rod's state t_hit before the strike (no gravity: G moves straight, the rod turns at w-)
+    theta_hit = math.pi / 2 - phi
+    th0 = theta_hit - w_minus * t_hit
+    G0 = d - vG * t_hit
+    n = np.array([math.sin(BETA), math.cos(BETA)])
+    foot0 = G0 - 0.5 * L * np.array([math.cos(th0), math.sin(th0)])
+    assert n @ foot0 > 0  # A above the surface before
+    foot = {"name": "foot", "type": "revolute", "a": "frame", "point_a": "entry", "b": "bar", "point_b": [-L / 2, 0.0],
+            "contact": {"normal": list(n), "friction": "stick"}}
+    strike = {"name": "strike", "type": "pin", "from": "flight", "to": "pinned",
+              "guard": {"type": "gap", "value": 0.0, "direction": "decreasing"},
+              "contact": {"a": "frame", "point_a": [0.0, 0.0], "b": "bar", "point_b": [-L / 2, 0.0], "normal": list(n),
+                          "friction": "stick"}}
+    path = make_scene({"rod.urdf": free_bar_urdf(M, L)},
+                      configurations={"flight": {"urdf": "rod.urdf"}, "pinned": {"urdf": "rod.urdf", "cut_joints": [foot]}},
+                      q0={"P": [G0[0], G0[1], th0]}, v0={"P": [*(rot(th0).T @ vG), w_minus]}, gravity=(0.0, 0.0),
+                      t_end=2 * t_hit, transitions=[strike], solver={"rtol": 1e-12, "atol": 1e-13})
+    traj = pcmm.simulate(pcmm.load_scene(path))
+    assert [e["name"] for e in traj.events] == ["strike", "lift-off foot"]
+    pin_ev, lift = traj.events
+    assert pin_ev["t"] == pytest.approx(t_hit, abs=1e-11) and lift["t"] == pin_ev["t"]
+    assert pin_ev["omega_after"]["bar"] == pytest.approx(w_plus, abs=1e-10)
+    assert lift["omega_after"]["bar"] == pin_ev["omega_after"]["bar"]
+    np.testing.assert_allclose(lift["v_after"]["P"], pin_ev["v_after"]["P"], atol=1e-14)
+    lifted = lift["lifted"]["foot"]
+    assert lifted["normal_force"] == pytest.approx(N, rel=1e-9) and N < 0
+    assert lifted["tangential_force"] == pytest.approx(Ft, rel=1e-9)
+    assert lifted["normal_acceleration_after"] == pytest.approx(a_n, rel=1e-9)
+    assert traj.segments[-1].configuration == "flight"
+
+
+def test_the_other_pinned_point_keeps_its_anchor(make_scene):
+    """An arch of three unit bars (a planar base and two revolutes) with both feet pinned at entry
+    (a four-bar with the floor), swung at 3.5 rad/s: foot a's force is tensile from the start (by
+    the run: -2.97 N), so it lifts off at t = 0 into 'single_b', where foot b stays pinned at the
+    anchor it had, (2, 0), through the whole segment (the loop's closure, to 1e-12)."""
+    from builders import Bar, chain_urdf
+    urdf = chain_urdf([Bar(1.0, 1.0, joint="planar"), Bar(1.0, 1.0), Bar(1.0, 1.0)])
+
+    def pin_(name, link, pt):
+        return {"name": name, "type": "revolute", "a": "frame", "point_a": "entry", "b": link, "point_b": pt,
+                "contact": {"normal": [0.0, 1.0], "friction": "stick"}}
+    fa, fb = pin_("foot_a", "link1", [0.0, 0.0]), pin_("foot_b", "link3", [1.0, 0.0])
+    th, w = math.pi / 3, 3.5
+    path = make_scene({"c.urdf": urdf},
+                      configurations={"double": {"urdf": "c.urdf", "cut_joints": [fa, fb]},
+                                      "single_a": {"urdf": "c.urdf", "cut_joints": [fa]},
+                                      "single_b": {"urdf": "c.urdf", "cut_joints": [fb]}},
+                      q0={"J1": [0.0, 0.0, th], "J2": -th, "J3": -th}, v0={"J1": [0.0, 0.0, w], "J2": -w, "J3": 0.0},
+                      independent=["J1.theta"], t_end=0.1, solver={"rtol": 1e-11, "atol": 1e-12})
+    traj = pcmm.simulate(pcmm.load_scene(path))
+    assert [(e["name"], e["t"], e["to"]) for e in traj.events] == [("lift-off foot_a", 0.0, "single_b")]
+    lifted = traj.events[0]["lifted"]["foot_a"]
+    assert lifted["normal_force"] < 0 and lifted["normal_acceleration_after"] > 0
+    seg = traj.segments[-1]
+    assert seg.configuration == "single_b" and len(seg.t) > 10
+    for q in seg.q:  # link3's tip: J1's origin + link1, link2, link3 along their absolute angles
+        x, y, a1 = q[0], q[1], q[2]
+        a2, a3 = a1 + q[3], a1 + q[3] + q[4]
+        tip = np.array([x + math.cos(a1) + math.cos(a2) + math.cos(a3), y + math.sin(a1) + math.sin(a2) + math.sin(a3)])
+        np.testing.assert_allclose(tip, [2.0, 0.0], atol=1e-11)
+
+
+def test_check_names_the_lift_off_pcmm_adds(make_scene, capsys):
+    import pcmm.cli
+    assert pcmm.cli.main(["check", str(rod_scene(make_scene))]) == 0
+    out = capsys.readouterr().out
+    assert "'pinned': the point held by 'foot' lifts off into 'flight' where its normal force turns tensile" in out
+    assert pcmm.cli.main(["check", str(rod_scene(make_scene, flight=False))]) == 0
+    assert "lifts off" not in capsys.readouterr().out

@@ -34,6 +34,12 @@ sys.exit(code)
 NEVER = ("matplotlib", "meshcat", "tqdm", "dask", "distributed", "pyarrow", "zarr", "pandas",
          "pcmm.viz", "pcmm.studies")
 
+# scipy packages whose __init__ a plain run must not run: each imports scipy's array-API layer
+# (0.2-0.3 s of CPU); the run loads the few compiled parts it needs alone (pcmm/_scipy.py).
+# (scipy's own __init__, 15 ms, and numpy.random, 13 ms, are not needed either.)
+NOT_INITIALISED = ("scipy", "scipy.integrate", "scipy.linalg", "scipy.optimize", "scipy.sparse", "scipy.special",
+                   "scipy._lib._array_api", "numpy.random")
+
 
 def modules_of_run(tmp_path, *args) -> list[str]:
     out = tmp_path / "modules.json"
@@ -59,9 +65,15 @@ def test_plain_run_does_not_import(plain_run, name):
     assert not loaded(plain_run, name), f"a plain 'pcmm run' imported {loaded(plain_run, name)[:5]}"
 
 
+@pytest.mark.parametrize("name", NOT_INITIALISED)
+def test_plain_run_does_not_initialise(plain_run, name):
+    assert name not in plain_run, f"a plain 'pcmm run' ran {name}'s __init__"
+
+
 def test_the_dump_sees_what_a_run_imports(plain_run):
     """The dump is real: the run's own modules (Pinocchio, the run loop) are in it."""
     assert "pinocchio" in plain_run and "pcmm.run.loop" in plain_run and "numpy" in plain_run
+    assert "scipy.integrate._ode" in plain_run and "scipy.linalg._flapack" in plain_run  # the parts alone
 
 
 # The parts that replace scipy's on a run's path compute the same bits as scipy's own.
@@ -141,3 +153,21 @@ def test_scipy_parts_are_scipys_own_objects():
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(p for p in (str(ROOT), os.environ.get("PYTHONPATH")) if p))
     proc = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120)
     assert proc.stdout.strip() == "same", proc.stderr
+
+
+def test_minimize_bounded_has_scipys_bits():
+    """pcmm.ode.roots.minimize_bounded against scipy's minimize_scalar(method="bounded"): the
+    same minimiser, bit for bit, on smooth, kinked and flat functions and tolerances from 1e-14
+    to 1e-3 (and the budget of evaluations hit alike)."""
+    from scipy.optimize import minimize_scalar
+    from pcmm.ode.roots import minimize_bounded
+    rng = np.random.default_rng(11)
+    functions = [lambda x: (x - 0.3) ** 2, lambda x: np.sin(3 * x), lambda x: abs(x - 0.123456),
+                 lambda x: -np.exp(-((x - 1.7) / 0.01) ** 2), lambda x: 1.0, lambda x: x ** 4 - x,
+                 lambda x: np.cos(40 * x) + 0.1 * x]
+    for fun in functions:
+        for lo, width, tol in zip(rng.uniform(-2, 2, 30), 10 ** rng.uniform(-6, 1, 30), 10 ** rng.uniform(-14, -3, 30)):
+            hi = lo + width
+            for maxiter in (500, 7):
+                ref = minimize_scalar(fun, bounds=(lo, hi), method="bounded", options={"xatol": tol, "maxiter": maxiter})
+                assert minimize_bounded(fun, lo, hi, xatol=tol, maxiter=maxiter) == float(ref.x), (lo, hi, tol, maxiter)

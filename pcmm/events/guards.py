@@ -235,6 +235,7 @@ def make_guard(cfg: Configuration, tr: TransitionSpec, rearm: bool = False, cont
         def many(ts, ys):
             got = raw_many(ts, ys)
             return None if got is None else got[0].tolist()
+    affine = _affine(cfg, tr, context) if tr.guard.when is None and not rearm else None
     if rearm:
         def value(t, y):
             val = raw(t, y)
@@ -259,7 +260,20 @@ def make_guard(cfg: Configuration, tr: TransitionSpec, rearm: bool = False, cont
                     return None
                 return [val if direction * r > 0.0 else -direction * max(-direction * val, UNFIRED)
                         for val, r in zip(got[0].tolist(), got[1].tolist())]
-    return Guard(_describe(tr), value, direction, "transition", tr, rate, rate is not None, many=many)
+    return Guard(_describe(tr), value, direction, "transition", tr, rate, rate is not None, many=many,
+                 affine=affine)
+
+
+def _affine(cfg: Configuration, tr: TransitionSpec, context=None):
+    """(c, ct, d) with the plain guard's value c . y + ct t + d, where it is affine in a tree's state
+    [q, v] (a coordinate guard: the row of the measure on q; a time guard: t - the instant); else None."""
+    g = tr.guard
+    if g.type == "time":
+        return None, 1.0, _time(cfg, tr, context)[0](0.0, None)
+    if g.type == "coordinate" and not cfg.coords.constrained and not cfg.has_planar:
+        row, offset = cfg.measure_row(g.measure)
+        return np.concatenate([np.asarray(row, float), np.zeros(cfg.nv)]), 0.0, -(g.value - offset)
+    return None
 
 
 def guard_residual(cfg: Configuration, tr: TransitionSpec, t, y) -> float:

@@ -29,9 +29,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import pinocchio as pin
-import scipy.linalg as sla
-from scipy.linalg.lapack import dgelsd as _gelsd, dgelsd_lwork as _gelsd_lwork, dpotrf as _potrf, dpotrs as _potrs
 
+from .._scipy import lapack
 from ..model.configuration import Configuration
 from .contact import contact_point, contact_state, impact_kind, joint_stop_row
 from .cutting import cut
@@ -85,16 +84,18 @@ class Impulse:
 def _inverse_mass(M: np.ndarray, configuration: str) -> np.ndarray:
     """``M^-1`` by its Cholesky factor: LAPACK's potrf and potrs called directly, the very calls
     ``scipy.linalg.cho_factor`` / ``cho_solve`` make (same bits) without their checks' overhead,
-    which dominates for the few coordinates of a mechanism."""
+    which dominates for the few coordinates of a mechanism (and without importing scipy.linalg,
+    0.3 s at start-up: :mod:`pcmm._scipy`)."""
     if M.shape[0] == 0:
         return np.zeros((0, 0))
-    c, info = _potrf(M, lower=False, overwrite_a=False, clean=False)
-    if info != 0 or not np.isfinite(c).all():
-        return sla.cho_solve(cholesky(M, configuration), np.eye(M.shape[0]))  # its clear error
-    W, info = _potrs(c, np.eye(M.shape[0]), lower=False, overwrite_b=True)
-    if info != 0:
-        return sla.cho_solve(cholesky(M, configuration), np.eye(M.shape[0]))
-    return W
+    la = lapack()
+    c, info = la.dpotrf(M, lower=False, overwrite_a=False, clean=False)
+    if info == 0 and np.isfinite(c).all():
+        W, info = la.dpotrs(c, np.eye(M.shape[0]), lower=False, overwrite_b=True)
+        if info == 0:
+            return W
+    import scipy.linalg as sla  # the checked route, for its clear error
+    return sla.cho_solve(cholesky(M, configuration), np.eye(M.shape[0]))
 
 
 _GELSD_WORK: dict[tuple[int, int], tuple[int, int]] = {}
@@ -108,12 +109,12 @@ def _least_squares(A: np.ndarray, b: np.ndarray) -> np.ndarray:
     if m == 0 or n == 0 or m < n:
         return np.linalg.lstsq(A, b, rcond=None)[0]
     if (m, n) not in _GELSD_WORK:
-        work, iwork, info = _gelsd_lwork(m, n, 1, -1)
+        work, iwork, info = lapack().dgelsd_lwork(m, n, 1, -1)
         _GELSD_WORK[(m, n)] = (int(work), int(iwork)) if info == 0 else None
     sizes = _GELSD_WORK[(m, n)]
     if sizes is None:
         return np.linalg.lstsq(A, b, rcond=None)[0]
-    x, _, _, info = _gelsd(A, b, sizes[0], sizes[1], cond=np.finfo(float).eps * max(m, n))
+    x, _, _, info = lapack().dgelsd(A, b, sizes[0], sizes[1], cond=np.finfo(float).eps * max(m, n))
     if info != 0:
         return np.linalg.lstsq(A, b, rcond=None)[0]
     return x[:n]

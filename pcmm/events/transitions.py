@@ -41,13 +41,14 @@ from ..model.configuration import Configuration
 from ..model.mechanism import Mechanism
 from ..model.pinocchio_helpers import LWA
 from ..errors import SimulationError
-from .contact import contact_point, contact_state, normal_speed
+from .contact import contact_point, contact_state
 from .contact_faults import POSE_TOL, contact_findings
 from .records import by_link, event_record
 from .guards import guard_value
 from .entry import VELOCITY_ROUNDOFF, Entry, enter, joints_from_poses, map_state, pose_mismatches  # noqa: F401 - re-exported
 from .impulse import no_impulse, solve_impulse
 from .pins import pin_strike
+from .simultaneous import closed_with, simultaneous_impact
 from ..scene.spec import GuardSpec, LatchSpec, ReleaseSpec, StopSpec, TransitionSpec
 
 RESTING_FACTOR = 100.0  # a guard crossing at a separating speed below 100 x the accumulation speed is rest
@@ -220,9 +221,12 @@ def handle_stop(ctx: Context, cfg: Configuration, tr: StopSpec, t, q, v) -> Outc
                                   "the stop, so the stop needs merge_to (the merged configuration)")
         return _merge(ctx, cfg, tr, tr.merge_to, t, q, v, "stop")
     speed, interval = ctx.tolerances(tr)
-    vn = normal_speed(cfg, q, v, tr.contact)  # approaching: the impulse solve takes the kinematics itself
+    _, _, vn, _ = contact_state(cfg, q, v, tr.contact)
+    together = closed_with(cfg, tr, q)
+    if together and min([vn] + [contact_state(cfg, q, v, s.contact)[2] for s in together]) < 0:
+        # other contacts closed at this instant, one of them approaching: one solve with them all
+        return _simultaneous(ctx, cfg, [tr] + together, t, q, v)
     if vn >= 0:
-        _, _, vn, _ = contact_state(cfg, q, v, tr.contact)  # the merge reads the kinematics at (q, v)
         # The guard fired while the contact does not approach.  A tiny separating speed is the
         # integrator's resolution at the end of an accumulation (the bounces are shorter than its
         # dense-output error): the bodies rest in contact.  A clear one means a wrong normal.
@@ -246,6 +250,22 @@ def handle_stop(ctx: Context, cfg: Configuration, tr: StopSpec, t, q, v) -> Outc
         return _merge(ctx, cfg, tr, tr.merge_to, t, q, v, "stop")
     record = event_record(cfg, tr, t, cfg.name, False, imp, q=q)
     q_new, v_new, _, _ = switch(cfg, cfg, t, q, imp.v_after, what=f"bounce at '{tr.name}'")
+    return Outcome(cfg.name, q_new, v_new, record, {})
+
+
+def _simultaneous(ctx: Context, cfg: Configuration, trs: list, t, q, v) -> Outcome:
+    """Stops whose contacts are closed at once bounce together (:mod:`pcmm.events.simultaneous`)."""
+    imp, block, warnings = simultaneous_impact(cfg, trs, t, q, v)
+    for s in trs:
+        ctx.last_impact[s.name] = t
+    record = event_record(cfg, trs[0], t, cfg.name, False, imp, q=q)
+    record["impulse"]["tangential"] = imp.P_t
+    record["impulse"]["vector"] = [float(x) for x in imp.vector]
+    record["tangent"] = [float(imp.tangent[0]), float(imp.tangent[1])]
+    record["simultaneous"] = block
+    if warnings:
+        record.setdefault("warnings", []).extend(warnings)
+    q_new, v_new, _, _ = switch(cfg, cfg, t, q, imp.v_after, what=f"bounce at {', '.join(repr(s.name) for s in trs)}")
     return Outcome(cfg.name, q_new, v_new, record, {})
 
 

@@ -4,8 +4,10 @@
 // scipy's `ode("dop853")` wraps and pcmm's DOP853F ran through Python call-backs): the 12-stage
 // explicit Runge-Kutta pair of order 8(5,3), its error estimate err/err2, the PI ("Lund-stabilized")
 // step-size control with pcmm's beta, the initial step guess hinit853 and the stiffness test, the
-// parameters scipy passes (safety 0.9, fac1 0.3, fac2 6, uround 2.3e-16, nstiff 1000), stepping
-// over the compiled right-hand side (evaluate_rhs) with no Python in between.
+// parameters scipy passes (safety 0.9, fac1 0.3, fac2 6, nstiff 1000), stepping over the compiled
+// right-hand side (evaluate_rhs) with no Python in between.  Where scipy's C translation of
+// dop853.f (scipy 1.17 here: what DOP853F ran) departs from dop853.f, this follows scipy, so the
+// two give the same steps: a rejected step shrinks by fac1, uround is the machine epsilon.
 //
 // The run loop's guards are scanned here where each is affine in the state, g = c.y + ct t + d (a
 // tree's coordinate guards, time guards): its rate along the flow is c.f + ct.  A step is handed
@@ -95,8 +97,9 @@ constexpr double d71 = -0.25693933462703749003312586129e+02, d76 = -0.1541897486
                  d711 = 0.10409964950896230045147246184e+03, d712 = 0.29840293426660503123344363579e+02,
                  d713 = -0.43533456590011143754432175058e+02, d714 = 0.96324553959188282948394950600e+02,
                  d715 = -0.39177261675615439165231486172e+02, d716 = -0.14972683625798562581422125276e+03;
-// the settings scipy's ode("dop853") passes (dfactor 0.3, ifactor 6) and dop853.f's defaults
-constexpr double safe = 0.9, fac1 = 0.3, fac2 = 6.0, uround = 2.3e-16;
+// the settings scipy's ode("dop853") passes (dfactor 0.3, ifactor 6) and its defaults (uround: the
+// machine epsilon in scipy's C translation, 2.3e-16 in dop853.f)
+constexpr double safe = 0.9, fac1 = 0.3, fac2 = 6.0, uround = 2.220446049250313e-16;
 constexpr long nstiff = 1000;
 }  // namespace dop853
 
@@ -105,7 +108,7 @@ struct SegmentLoop {
   Tree *tree;  // a reference held
   int n;
   double x, xend, posneg, h, hstep, hmax, rtol, atol, beta, facold, expo1, facc1, facc2, hlamb, xold;
-  long nmax, nstep, naccpt, nrejct, nfcn, iasti, nonsti;
+  long nmax, nstep, naccpt, nrejct, nfcn, iasti, nonsti, since_pause;
   bool reject, last, done, dense_ready, every_step;
   int m;  // affine guards
   std::vector<double> *work;  // every vector below, in one allocation
@@ -191,8 +194,9 @@ bool may_fire(double g0, double d0, double g1, double d1, double h, double direc
   return false;
 }
 
-// run the loop until t_bound (0), a candidate step (1) or a failure (Hairer's codes: -2 more than
-// nmax steps, -3 step size too small, -4 stiff)
+// run the loop until t_bound (0), a candidate step (1), a pause (2: every pause_every accepted
+// steps) or a failure (Hairer's codes: -2 more than nmax steps, -3 step size too small, -4 stiff)
+constexpr long pause_every = 4096;
 int advance(SegmentLoop *s) {
   using namespace dop853;
   const int n = s->n;
@@ -323,8 +327,17 @@ int advance(SegmentLoop *s) {
       s->record->push_back(xph);
       s->record->insert(s->record->end(), y, y + n);
       if (s->done) return 0;
+      if (++s->since_pause == pause_every) {  // Python's turn: Ctrl-C, progress, the record taken
+        s->since_pause = 0;
+        return 2;
+      }
     } else {  // rejected
-      hnew = h / std::min(s->facc1, fac11 / safe);
+      // scipy's dop853 (its C translation of dop853.f, which DOP853F ran before this loop and
+      // which stays the reference) shrinks a rejected step by fac1 always: h / min(facc1, facc1 /
+      // safe); dop853.f's rule is h / min(facc1, fac11 / safe).  The same rule as scipy's keeps the
+      // two paths' steps identical (tests/test_compiled_loop.py compares them step by step).
+      (void)fac11;
+      hnew = h / std::min(s->facc1, s->facc1 / safe);
       s->reject = true;
       if (s->naccpt >= 1) ++s->nrejct;
       s->last = false;
@@ -456,7 +469,7 @@ PyObject *loop_new(PyTypeObject *type, PyObject *args, PyObject *) {
   s->facc2 = 1.0 / dop853::fac2;
   s->hlamb = 0.0;
   s->iasti = s->nonsti = 0;
-  s->nstep = s->naccpt = s->nrejct = s->nfcn = 0;
+  s->nstep = s->naccpt = s->nrejct = s->nfcn = s->since_pause = 0;
   s->reject = s->last = s->done = s->dense_ready = false;
   s->xold = t0;
   fcn(s, s->y, s->k1);
@@ -480,7 +493,8 @@ void loop_dealloc(SegmentLoop *s) {
   Py_TYPE(s)->tp_free((PyObject *)s);
 }
 
-// run() -> code: 0 reached t_bound, 1 a candidate step (candidate(), dense()), -2/-3/-4 Hairer's failures
+// run() -> code: 0 reached t_bound, 1 a candidate step (candidate(), dense()), 2 a pause (run again),
+// -2/-3/-4 Hairer's failures
 PyObject *loop_run(SegmentLoop *s, PyObject *) {
   int code;
   Py_BEGIN_ALLOW_THREADS code = advance(s);
@@ -518,7 +532,7 @@ PyObject *loop_counts(SegmentLoop *s, PyObject *) {
 }
 
 PyMethodDef loop_methods[] = {
-    {"run", (PyCFunction)loop_run, METH_NOARGS, "run() -> 0 (t_bound), 1 (a candidate step), -2/-3/-4 (failure)"},
+    {"run", (PyCFunction)loop_run, METH_NOARGS, "run() -> 0 (t_bound), 1 (a candidate step), 2 (a pause), -2/-3/-4 (failure)"},
     {"take", (PyCFunction)loop_take, METH_NOARGS, "take() -> the accepted steps since the last take, rows (t, y)"},
     {"candidate", (PyCFunction)loop_candidate, METH_NOARGS, "candidate() -> (t_old, t_new, y_new, f_new)"},
     {"dense", (PyCFunction)loop_dense, METH_NOARGS, "dense() -> (t_old, h, contd8 coefficients (8, n))"},

@@ -34,6 +34,10 @@ from .pinocchio_helpers import LWA, frame_jacobian, mass_matrix
 from ..scene.spec import ConfigurationSpec, Measure, Scene, Target
 from ..scene.urdf import dynamics_xml
 
+#: a planar joint's coordinates, named "P.x", "P.y", "P.theta" (series, CSV, [initial] independent)
+PLANAR_PARTS = ("x", "y", "theta")
+
+
 @dataclass(frozen=True)
 class Point:
     """A point fixed on a link, registered as an operational frame."""
@@ -355,6 +359,17 @@ class Configuration:
         for name, val in values.items():
             out[self.joint_slice[name]] = val
         return out
+
+    def coordinate_index(self, name: str) -> int:
+        """The index in q of a coordinate named as the series name them: a joint ("J", a planar
+        joint's first coordinate) or one coordinate of a planar joint ("P.x", "P.y", "P.theta")."""
+        if name in self.joint_slice:
+            return self.joint_slice[name].start
+        joint, _, part = name.rpartition(".")
+        sl = self.joint_slice[joint]
+        if sl.stop - sl.start != 3 or part not in PLANAR_PARTS:
+            raise KeyError(name)
+        return sl.start + PLANAR_PARTS.index(part)
 
     def by_joint(self, x: np.ndarray) -> dict[str, float | list[float]]:
         out = {}

@@ -16,7 +16,6 @@ import math
 
 import numpy as np
 import pinocchio as pin
-import scipy.linalg as sla
 
 from . import compiled
 from .configuration import Configuration
@@ -314,6 +313,7 @@ class PartitionedCoordinates:
         rest = [i for i in range(self.nv) if i not in driven and i not in keep]
         dep = list(driven)
         if self.closure.size:
+            import scipy.linalg as sla  # here: scipy.linalg costs 0.3 s at start-up
             _, _, piv = sla.qr(Jq[:self.closure.size][:, rest], pivoting=True)
             dep += [rest[i] for i in piv[:self.closure.size]]
         return np.array(sorted(dep), dtype=int)

@@ -20,7 +20,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import pinocchio as pin
-from scipy.linalg.lapack import dgesv
+
+from .._scipy import lapack
 
 from .configuration import Configuration
 from .pinocchio_helpers import LWA, frame_jacobian
@@ -243,7 +244,7 @@ def solve(A: np.ndarray, b: np.ndarray) -> np.ndarray:
         raise np.linalg.LinAlgError(f"a {A.shape} system with a {b.shape} right-hand side is not square")
     if A.size == 0:
         return np.zeros(b.shape)
-    _, _, x, info = dgesv(A, b)
+    _, _, x, info = lapack().dgesv(A, b)
     if info != 0:
         raise np.linalg.LinAlgError(f"singular matrix (dgesv info {info})" if info > 0 else
                                     f"dgesv rejected argument {-info}")

@@ -16,7 +16,9 @@ from the state, and the ``action`` the loop takes when it fires:
   or the loop is at a singular posture).
 
 The integrators read the value by calling the guard, ``terminal`` and ``direction`` (scipy's
-event convention), and ``rate(t, y, f)`` for their graze test where it is given.
+event convention), and ``rate(t, y, f)`` for their graze test where it is given; ``affine``
+declares a guard linear in the state (a tree's joint-angle and stop guards, time guards), which a
+compiled segment loop then scans without calling back into Python.
 """
 from __future__ import annotations
 
@@ -43,6 +45,9 @@ class Guard:
     #: time), equal to ``value`` state by state to the bit, or None where it cannot say; an
     #: event grid reads it (:func:`pcmm.ode.integrators._locate`)
     many: Callable[[np.ndarray, np.ndarray], list | None] | None = None
+    # (c, ct, d) where the value is affine in the state, g = c . y + ct t + d exactly (c None: no
+    # state term), so its rate along the flow is c . y' + ct: a compiled segment loop scans it itself
+    affine: tuple | None = None
 
     def __post_init__(self):
         if self.action not in ACTIONS:
@@ -55,6 +60,6 @@ class Guard:
         """This guard read on the first ``n`` components of a longer state (an integrated
         quantity appended to it: a flight's work, a contact law's impulse), its rate too."""
         value, rate, many = self.value, self.rate, self.many
-        return replace(self, value=lambda t, y: value(t, y[:n]),
+        return replace(self, value=lambda t, y: value(t, y[:n]), affine=None,
                        rate=None if rate is None else (lambda t, y, f: rate(t, y[:n], None if f is None else f[:n])),
                        many=None if many is None else (lambda ts, ys: many(ts, ys[:n])))

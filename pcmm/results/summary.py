@@ -19,7 +19,7 @@ def summary(traj: Trajectory, initial_configuration: str | None = None) -> dict:
         "status": traj.status, "message": traj.message,
         "configuration_initial": initial_configuration or (traj.segments[0].configuration if traj.segments else None),
         "configuration_final": last.configuration if last is not None else None,
-        "events": traj.events, "final": final, "stats": traj.stats,
+        "events": list(traj.events), "final": final, "stats": traj.stats,
         # the final configuration's guards that did not fire: where each came closest to its value
         "closest_approach": traj.stats.get("closest_approach", []),
         "warnings": list(traj.stats.get("warnings", [])) + [w for e in traj.events for w in e.get("warnings", ())],

@@ -31,6 +31,7 @@ import numpy as np
 
 from ..errors import SimulationError, UsageError
 from ..files import atomic_write
+from .event_log import EventLog
 
 FORMAT = "pcmm-trajectory-2"
 _FORMATS = ("pcmm-trajectory-1", FORMAT)
@@ -218,7 +219,8 @@ class Trajectory:
     scene_name: str
     impact: bool  # False: the comparison run without impact (Figs. 6-9)
     segments: list[SegmentRecord] = field(default_factory=list)
-    events: list[dict] = field(default_factory=list)
+    #: a sequence of dicts, kept compactly as columns (:class:`~pcmm.results.event_log.EventLog`)
+    events: list[dict] = field(default_factory=EventLog)
     stats: dict = field(default_factory=dict)
     status: str = "complete"  # or "partial"
     message: str = ""
@@ -245,6 +247,8 @@ class Trajectory:
         >>> float(traj.t[0]), float(traj.t[-1])
         (0.0, 0.2)
         """
+        if hasattr(self.segments, "times"):  # a run's SegmentLog: without making a record per segment
+            return self.segments.times()
         return np.concatenate([s.t for s in self.segments]) if self.segments else np.zeros(0)
 
     @property
@@ -341,6 +345,8 @@ class Trajectory:
         >>> c[0], c[-1]
         ('config1', 'config2')
         """
+        if hasattr(self.segments, "configurations"):  # a run's SegmentLog: without making records
+            return self.segments.configurations()
         return [s.configuration for s in self.segments for _ in s.t]
 
     def visited(self) -> list[str]:
@@ -403,7 +409,7 @@ class Trajectory:
         views = {"configurations": {c: v for c, v in self.views.get("configurations", {}).items() if c in visited},
                  "forces": self.views.get("forces", {}), "transitions": self.views.get("transitions", [])}
         header = {"format": FORMAT, "scene": self.scene, "scene_name": self.scene_name,
-                  "impact": self.impact, "events": self.events, "stats": self.stats,
+                  "impact": self.impact, "events": list(self.events), "stats": self.stats,
                   "status": self.status, "message": self.message, "views": views,
                   "segments": [{"configuration": s.configuration, "coordinates": s.coordinates,
                                 "links": s.links, "force_names": s.force_names,
@@ -419,7 +425,10 @@ class Trajectory:
 
     @classmethod
     def load(cls, path: str | Path) -> "Trajectory":
-        """Read a trajectory written by :meth:`save` (no scene or model needed).
+        """Read a trajectory written by :meth:`save` (no scene or model needed), or the folder a run
+        streamed to (``pcmm run --store DIR``, :mod:`pcmm.results.store`): its segments and events
+        are then read from its chunks when asked for, and a run killed midway reads as a partial
+        run up to the last chunk it wrote.
 
         Raises
         ------
@@ -427,6 +436,9 @@ class Trajectory:
             The file is missing, truncated, empty or foreign, or its arrays do not fit its header.
         """
         path = Path(path)
+        if path.is_dir() and (path / "run.json").is_file():  # a store: read lazily, chunk by chunk
+            from .store import open_store
+            return open_store(path)
         what = f"{path}: not a pcmm trajectory file (.npz written by 'pcmm run --out')"
         try:
             with np.load(path, allow_pickle=False) as z:
@@ -440,7 +452,7 @@ class Trajectory:
                 for i, meta in enumerate(header["segments"]):
                     segs.append(_segment(meta, {a: np.asarray(z[f"s{i}_{a}"]) for a in _ARRAYS}, i))
                 traj = cls(scene=_text(header["scene"]), scene_name=_text(header["scene_name"]),
-                           impact=bool(header["impact"]), segments=segs, events=list(header["events"]),
+                           impact=bool(header["impact"]), segments=segs, events=header["events"],
                            stats=dict(header["stats"]), status=_text(header["status"]),
                            message=_text(header["message"]))
         except FileNotFoundError:
@@ -450,8 +462,9 @@ class Trajectory:
         except (OSError, EOFError, ValueError, KeyError, TypeError, IndexError, AttributeError, ArithmeticError,
                 MemoryError, zipfile.BadZipFile, zlib.error, RecursionError) as exc:
             raise UsageError(f"{what}: {type(exc).__name__}: {exc}") from None
-        if any(not isinstance(e, dict) for e in traj.events):
+        if not isinstance(traj.events, list) or any(not isinstance(e, dict) for e in traj.events):
             raise UsageError(f"{what}: its events are not records")
+        traj.events = EventLog(traj.events)
         views = header.get("views")
         traj.views = views if isinstance(views, dict) and views else legacy_views(traj.scene)
         traj.source = str(path)
@@ -648,7 +661,16 @@ def record_views(scene) -> dict:
             "forces": {f.name: ({"on": {"kind": f.on.kind, "name": f.on.name}} if f.on is not None else
                                 {"on": None, "points": [f.points.a, f.points.b]})
                        for f in scene.forces},
-            "transitions": [_transition_view(tr, unmerge) for tr in getattr(scene, "transitions", ())]}
+            "transitions": [_transition_view(tr, unmerge) for tr in getattr(scene, "transitions", ())]
+            + [_lift_off_view(*x) for x in (scene.lift_offs() if hasattr(scene, "lift_offs") else ())]}
+
+
+def _lift_off_view(source: str, cut_joint: str, target: str) -> dict:
+    """A pinned point's lift-off that pcmm adds by itself (:meth:`pcmm.scene.spec.Scene.lift_offs`),
+    drawn as the release it is (the event's name, ``lift-off <cut joint>``)."""
+    return {"name": f"lift-off {cut_joint}", "type": "release", "from": source, "to": target, "merge_to": None,
+            "unmerge": False, "restitution": None, "cut": [], "guard": f"normal force of {cut_joint} ↓ 0",
+            "contact": None}
 
 
 def legacy_views(scene_path: str) -> dict:
@@ -677,6 +699,8 @@ def legacy_views(scene_path: str) -> dict:
 
 
 def _json_default(o):
+    if isinstance(o, EventLog):
+        return list(o)
     if isinstance(o, np.ndarray):
         return o.tolist()
     if isinstance(o, (np.floating, np.integer)):

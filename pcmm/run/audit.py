@@ -22,6 +22,7 @@ or an integration that does not conserve what it should shows here; the guard's 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 
@@ -71,19 +72,22 @@ def flight_work(cfg: Configuration, coords, t, y, stepping, q_start) -> float:
     return float(weights @ np.array(values))
 
 
-@dataclass
+_NOTHING_FROZEN: dict = {}  # a tree's flights: one empty partition for all (read only)
+
+
+@dataclass(slots=True)
 class Flight:
     """What the audit of one flight needs, kept when the flight ends and measured when the run
-    has ended (the quadrature's Newton solves and kinematics then disturb nothing the run uses)."""
+    has ended (the quadrature's Newton solves and kinematics then disturb nothing the run uses).
+    Its steps are the recorded segment's, read back when measured (a bouncing run keeps one
+    flight per impact: no copy of them)."""
 
     macro: dict  # its macro-impact's record
     cfg: Configuration
     frozen: dict  # the coordinates' partition during the flight
     forces: object  # the configuration's forces during the flight (a later entry may recompile them)
-    t: np.ndarray
-    y: np.ndarray
+    steps: Callable[[], tuple]  # () -> (t, y, q_start): its steps and the coordinates it started from
     stepping: tuple
-    q_start: np.ndarray
     energy_start: float  # the impulse's: post-impact kinetic + gravity energy at the impact posture
     kinetic_start: float
     energy_end: float
@@ -138,24 +142,25 @@ class FlightAudit:
             ke = event["kinetic_energy_after"]
             self._start = (ke + cfg.gravity_energy(q), ke)
 
-    def flight(self, cfg: Configuration, seg_t, seg_y, stepping, q_start, q_end, v_end) -> None:
-        """The flight just integrated (the recorded steps ``seg_t, seg_y``) ended at ``(q_end, v_end)``;
-        it is measured by :meth:`finish`."""
+    def flight(self, cfg: Configuration, steps, stepping, q_end, v_end) -> None:
+        """The flight just integrated (``steps() -> (t, y, q_start)``: its recorded steps and the
+        coordinates it started from) ended at ``(q_end, v_end)``; it is measured by :meth:`finish`."""
         m, start = self._open, self._start
         self._start = None
         if m is None or start is None:
             return
-        self._flights.append(Flight(m, cfg, cfg.coords.frozen_state(), cfg.forces, np.array(seg_t, float),
-                                    np.array(seg_y, float), stepping, np.array(q_start, float), start[0], start[1],
-                                    mechanical_energy(cfg, q_end, v_end)))
+        frozen = cfg.coords.frozen_state()
+        self._flights.append(Flight(m, cfg, frozen or _NOTHING_FROZEN, cfg.forces, steps, stepping, start[0],
+                                    start[1], mechanical_energy(cfg, q_end, v_end)))
 
     def finish(self) -> None:
         """Measure every flight kept (once, when the run has ended, also a partial one)."""
         flights, self._flights = self._flights, []
         for f in flights:
             cfg, m = f.cfg, f.macro
-            with cfg.coords.restored(f.frozen, f.q_start, (f.t, f.y), f.forces) as reader:  # the flight's, as values
-                work = flight_work(cfg, reader, f.t, f.y, f.stepping, f.q_start)
+            t, y, q_start = f.steps()
+            with cfg.coords.restored(f.frozen, q_start, (t, y), f.forces) as reader:  # the flight's, as values
+                work = flight_work(cfg, reader, t, y, f.stepping, q_start)
             residual = abs(f.energy_end - f.energy_start - work)
             m["flights"] += 1
             m["flight_energy_residual_max"] = max(m["flight_energy_residual_max"], residual)

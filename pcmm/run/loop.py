@@ -27,15 +27,17 @@ from ..model.assembly import assemble
 from ..model.configuration import Configuration
 from ..model.mechanism import Mechanism
 from ..ode.integrators import EPS, INTEGRATORS, Segment, method_for
+from ..results.segment_log import SegmentLog
+from ..results.store import StoreWriter
 from ..results.trajectory import RunStats, Trajectory, holding_extremes, record_views
 from ..scene.load import load_scene
 from ..scene.settings import RunOptions, resolve
 from ..scene.spec import Scene
-from ..signals import describe, exit_status
+from ..signals import deferred, describe, exit_status
 from .actions import GUARD_ACTIONS, action_of
 from .approach import closest_approach
 from .audit import FlightAudit
-from .recording import record as _record
+from .recording import record as _record, recorded_steps
 from .stability import diagnose, fixed_step_instability, largest_velocity, unphysical_speed
 from .state import RunState
 
@@ -51,7 +53,8 @@ def initial_state(scene: Scene, cfg: Configuration):
             "(or none, and pcmm picks the best-conditioned ones)") from None
 
 
-def simulate(scene: Scene | str | os.PathLike, options: RunOptions = RunOptions(), progress=None) -> Trajectory:
+def simulate(scene: Scene | str | os.PathLike, options: RunOptions = RunOptions(), progress=None,
+             store=None) -> Trajectory:
     """Run ``scene`` configuration after configuration (paper Fig. 3).
 
     Parameters
@@ -63,6 +66,11 @@ def simulate(scene: Scene | str | os.PathLike, options: RunOptions = RunOptions(
         switches configurations without impulse (the paper's comparison runs).
     progress : callable, optional
         ``progress(t)`` is called after each segment and every few steps.
+    store : path or StoreWriter, optional
+        A new (or empty) folder the record streams to as the run goes, in chunks
+        (:mod:`pcmm.results.store`): memory no longer grows with the run's length, and a run
+        killed midway leaves every chunk written so far readable (``Trajectory.load(folder)``).
+        The trajectory returned reads its segments and events from the folder.
 
     Returns
     -------
@@ -92,7 +100,7 @@ def simulate(scene: Scene | str | os.PathLike, options: RunOptions = RunOptions(
     >>> ev["kinetic_energy_after"] < ev["kinetic_energy_before"]
     True
     """
-    run = start(_scene_of(scene, options), options)
+    run = start(_scene_of(scene, options), options, store)
     completed = False
     try:
         while True:
@@ -122,6 +130,9 @@ def simulate(scene: Scene | str | os.PathLike, options: RunOptions = RunOptions(
     # the guards that did not fire: computed when read (it reads the final segments' coordinates)
     run.stats.defer("closest_approach", lambda scene=run.scene, cfg=run.cfg, traj=run.traj:
                     closest_approach(scene, cfg, traj))
+    if run.store is not None:  # the last chunk and the end record (its stats read now)
+        with deferred():
+            run.store.end(run.traj)
     return run.traj
 
 
@@ -137,13 +148,13 @@ def _scene_of(scene, options) -> Scene:
     return scene
 
 
-def start(scene: Scene, options: RunOptions) -> RunState:
+def start(scene: Scene, options: RunOptions, store=None) -> RunState:
     """The run's state at t = 0: the initial configuration assembled and checked, the locks it
-    starts with, an empty record."""
+    starts with, an empty record (streamed to ``store``, a folder, when given)."""
     opts = resolve(scene, options)
     mech = Mechanism(scene)
     traj = Trajectory(scene=str(scene.path.resolve()), scene_name=scene.name, impact=opts.impact,
-                      views=record_views(scene))
+                      views=record_views(scene), segments=SegmentLog())
     ctx = Context(mech, opts.impact, opts.accumulation_speed, opts.accumulation_interval,
                   forced_speed=options.accumulation_speed, forced_interval=options.accumulation_interval)
     stats = {"steps": 0, "rhs_evals": 0, "wall_s": 0.0, "record_s": 0.0, "impacts": 0,
@@ -157,7 +168,11 @@ def start(scene: Scene, options: RunOptions) -> RunState:
     audit = FlightAudit()
     stats["macro_impacts"] = audit.macro_impacts
     traj.stats = RunStats(stats, holding=lambda: holding_extremes(traj))  # "holding": computed when read
-    return RunState(scene, opts, mech, ctx, traj, holds, audit, cfg, 0.0, q, v)
+    writer = None
+    if store is not None:
+        writer = store if isinstance(store, StoreWriter) else StoreWriter(store)
+        writer.start(traj)  # the trajectory becomes the store's view
+    return RunState(scene, opts, mech, ctx, traj, holds, audit, cfg, 0.0, q, v, store=writer)
 
 
 def integrate_segment(run: RunState, progress):
@@ -190,11 +205,26 @@ def integrate_segment(run: RunState, progress):
         run.impulse_integral = float(seg.y[-1, -1])
         seg.y = seg.y[:-1]
     elif flight:
-        run.audit.flight(cfg, seg.t, seg.y, stepping, run.q, *cfg.coords.unpack(float(seg.t[-1]), seg.y[:-1, -1]))
+        run.audit.flight(cfg, recorded_steps(run.traj, seg, run.q), stepping,
+                         *cfg.coords.unpack(float(seg.t[-1]), seg.y[:-1, -1]))
         seg.y = seg.y[:-1]
+    if run.store is not None and run.store.due(run.traj):
+        _write_chunk(run)
     if progress:
         progress(float(seg.t[-1]))
     return seg, guards
+
+
+def _write_chunk(run: RunState) -> None:
+    """The chunk being filled is full: its segments and events go to the store, and the run goes
+    on with empty logs.  The flights kept for the audit are measured first (their steps are the
+    chunk's segments'), as every segment's series are, now and not when the run has ended."""
+    def write():
+        run.audit.finish()
+        run.store.flush(run.traj)
+    with deferred() as held:  # a Ctrl-C or SIGTERM meanwhile waits until the chunk is written
+        run.store.aside(write)  # on a thread of its own: the run's Pinocchio data left alone
+    held.reraise()
 
 
 def _integrate(run: RunState, fun, stepping, y0, guards, pending) -> Segment | None:
@@ -276,6 +306,9 @@ def _finish(run: RunState, completed: bool) -> None:
     except (SimulationError, Repartition):
         if completed:  # a partial run keeps what it has; its own error is the one to report
             raise
+    finally:
+        if run.store is not None and not completed:  # a stopped run's store ends here
+            run.store.end(run.traj)
 
 
 def check_start(scene: Scene, cfg: Configuration, t, q, v) -> None:
@@ -417,6 +450,7 @@ def _reporting(fun, progress, every: int = 256):
         if count[0] % every == 0:
             progress(float(t))
         return fun(t, y)
+    f.__wrapped__, f.progress = fun, progress  # a compiled segment loop steps fun itself and reports progress
     return f
 
 

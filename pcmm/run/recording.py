@@ -9,12 +9,14 @@ moment of a locked stretch depended on how far the run went on).
 """
 from __future__ import annotations
 
+import functools
 import time
 
 import numpy as np
 
 from ..events.holding import Holds
 from ..model.configuration import Configuration
+from ..results.segment_log import SegmentLog
 from ..results.trajectory import SegmentRecord, Trajectory
 from ..signals import deferred
 from .dense import dense_states
@@ -30,62 +32,139 @@ def record(traj: Trajectory, cfg: Configuration, seg, offsets, q_start, holds: H
 
 def record_samples(traj: Trajectory, cfg: Configuration, seg, offsets, q_start, holds: Holds, stepping) -> None:
     """Keep the segment's times and the integrator's states; everything derived from them is
-    computed when first asked for (:meth:`SegmentRecord.deferred`), in the partition and from
-    the warm start the segment was integrated with.  ``stepping = (fun, method, opts)`` lets
-    the segment be resampled at other times on the dense output of its steps.  The holding
-    forces of the locks in force at the time are among the constraint forces (labels
-    ``<lock>.hold``); their extremes are ``stats["holding"]``."""
+    computed when first asked for (:class:`SegmentContext`), in the partition and from the warm
+    start the segment was integrated with.  ``stepping = (fun, method, opts)`` lets the segment
+    be resampled at other times on the dense output of its steps.  The holding forces of the
+    locks in force at the time are among the constraint forces (labels ``<lock>.hold``); their
+    extremes are ``stats["holding"]``.
+
+    A run's :class:`~pcmm.results.segment_log.SegmentLog` keeps the numbers in shared blocks and
+    the context once for every segment it is the same for (a bouncing run: one context, a
+    segment per impact); a trajectory whose segments are a plain list gets a record."""
     t0 = time.perf_counter()
-    coords, forces = cfg.coords, cfg.forces
-    frozen = coords.frozen_state()
-    y_full, offsets, q_start = np.array(seg.y, float), dict(offsets), np.array(q_start, float)
-    t = np.asarray(seg.t, float).copy()
-    n_state = coords.ny  # the partition's state size (the tree's: 2 nv)
-    y = y_full[:n_state]  # a contact phase or a flight integrates one more component (its impulse, its work)
-    held, holds = holds.labels(), holds.snapshot()
-    applied = holds.applied(cfg) if held else None  # the holding forces' elements, as values too
-    own_rhs = stepping[0] is coords.rhs  # a tree's right-hand side (a closure over this segment's forces)
-
-    def in_segment_state(work):
-        """Run ``work(reader)`` on a reader of this segment's coordinates (its partition, anchors,
-        steps and force elements, as values: :meth:`Coordinates.restored`; a later entry may have
-        compiled the configuration's forces at other angle offsets); every evaluation reads the
-        calling thread's Pinocchio data (:meth:`Configuration.workspace`), so the series may be
-        read from another thread while the run goes on."""
-        with coords.restored(frozen, q_start, (t, y), forces) as reader:  # accepted: nothing here stops anything
-            return work(reader)
-
-    def derive():
-        def work(reader):
-            return with_holds(cfg, holds, t, derived_series(cfg, reader, t, y, offsets, forces), applied)
-        return in_segment_state(work)
-
-    def resample(times):
-        def work(reader):
-            fun, method, opts = stepping
-            if getattr(fun, "__self__", None) is coords:  # rhs or rhs_with_power: the reader's own
-                fun = getattr(reader, fun.__name__)
-            elif not coords.constrained and own_rhs:
-                fun = reader.fresh_rhs()
-            states = dense_states(t, y_full, times, (fun, method, opts))[:n_state]
-            # the dense steps left the loop's warm starts at the segment's end: the series are
-            # solved from its start onwards, as the recorded ones are (from the end, a loop's
-            # Newton solve at the start could land on another assembly)
-            reader.seed(q_start)
-            return with_holds(cfg, holds, times, derived_series(cfg, reader, times, states, offsets, forces), applied)
-        return in_segment_state(work)
+    coords = cfg.coords
+    t, y_full = np.asarray(seg.t, float), np.asarray(seg.y, float)
+    held = holds.labels()
+    context = SegmentContext(cfg, coords.frozen_state(), dict(offsets), holds.snapshot(),
+                             holds.applied(cfg) if held else None, cfg.forces, stepping,
+                             own_rhs=stepping[0] is coords.rhs,  # a tree's rhs: a closure over these forces
+                             n_state=coords.ny)  # the partition's state size (a flight's y has one more row)
     coord_names = []
     for name in cfg.joint_names:
         sl = cfg.joint_slice[name]
         coord_names += [name] if sl.stop - sl.start == 1 else [f"{name}.x", f"{name}.y", f"{name}.theta"]
-    names = dict(coordinates=coord_names, links=list(cfg.links), force_names=list(forces.names),
+    names = dict(coordinates=coord_names, links=list(cfg.links), force_names=list(cfg.forces.names),
                  constraint_labels=list(coords.labels) + held)
-    # the name lists are the same for every segment of a configuration (and its locks): one copy
-    # per run, not one per segment (a bouncing run has one segment per impact)
-    names = traj.shared_names.setdefault((cfg.name, *(tuple(v) for v in names.values())), names)
-    traj.segments.append(SegmentRecord.deferred(derive, t, resample=resample, configuration=cfg.name, **names))
+    q_start = np.array(q_start, float)
+    log = filling(traj)
+    if isinstance(log, SegmentLog):
+        log.add(log.context_id(cfg.name, names, context), t, y_full, q_start)
+    else:  # one copy of the name lists per configuration, as the log keeps them
+        names = traj.shared_names.setdefault((cfg.name, *(tuple(v) for v in names.values())), names)
+        t, y_full = t.copy(), y_full.copy()
+        traj.segments.append(SegmentRecord.deferred(
+            lambda: context.derive(t, y_full, q_start), t,
+            resample=lambda times: context.resample(t, y_full, q_start, times), configuration=cfg.name, **names))
     traj.stats["constraint_drift_max"] = max(traj.stats["constraint_drift_max"], getattr(coords, "max_residual", 0.0))
     traj.stats["record_s"] += time.perf_counter() - t0
+
+
+def filling(traj: Trajectory):
+    """The segments the run is filling: the trajectory's, or those of the chunk not yet written
+    when the run streams to a store (:mod:`pcmm.results.store`)."""
+    return getattr(traj.segments, "tail", traj.segments)
+
+
+def recorded_steps(traj: Trajectory, seg, q_start):
+    """``() -> (t, y, q_start)`` of the segment just recorded (``seg``, started from ``q_start``):
+    read back from the run's :class:`SegmentLog` (no copy), else copies of them."""
+    log = filling(traj)
+    if isinstance(log, SegmentLog):
+        return functools.partial(log.arrays, len(log) - 1)
+    kept = (np.array(seg.t, float), np.array(seg.y, float), np.array(q_start, float))
+    return lambda: kept
+
+
+class SegmentContext:
+    """What the series of a segment are derived with, as values kept when it was recorded: the
+    configuration, its coordinates' partition and anchors (``frozen``, :meth:`Coordinates.restored`;
+    a later entry may hold them elsewhere), the angle offsets, the locks in force and the force
+    elements they hold with (``applied``, :meth:`Holds.applied`), the force elements (a later entry
+    may compile them at other angle offsets) and the stepping ``(fun, method, opts)`` of its dense
+    output.  The segments of one stay share it (``==``: the same values)."""
+
+    __slots__ = ("cfg", "frozen", "offsets", "holds", "applied", "forces", "stepping", "own_rhs", "n_state")
+
+    def __init__(self, cfg, frozen, offsets, holds, applied, forces, stepping, own_rhs=False, n_state=None):
+        self.cfg, self.frozen, self.offsets, self.holds = cfg, frozen, offsets, holds
+        self.applied, self.forces, self.stepping, self.own_rhs = applied, forces, stepping, own_rhs
+        self.n_state = cfg.coords.ny if n_state is None else n_state
+
+    def __eq__(self, other) -> bool:
+        if not isinstance(other, SegmentContext):
+            return NotImplemented
+        return (self.cfg is other.cfg and self.own_rhs == other.own_rhs and self.n_state == other.n_state
+                and self.forces is other.forces and _same(self.frozen, other.frozen)
+                and self.offsets == other.offsets and _same_holds(self.holds, other.holds)
+                and _same(self.applied, other.applied)
+                and len(self.stepping) == len(other.stepping)
+                and all(a is b or (callable(a) and a == b) for a, b in zip(self.stepping, other.stepping)))
+
+    __hash__ = None
+
+    def _reading(self, t, y, q_start, work):
+        """Run ``work(reader)`` on a reader of the segment's coordinates (its partition, anchors,
+        steps and force elements, as values: :meth:`Coordinates.restored`); every evaluation reads
+        the calling thread's Pinocchio data (:meth:`Configuration.workspace`), so the series may be
+        read from another thread while the run goes on."""
+        n_state = self.n_state  # a contact phase or a flight integrates one more component
+        with self.cfg.coords.restored(self.frozen, q_start, (t, y[:n_state]), self.forces) as reader:
+            return work(reader)
+
+    def derive(self, t, y, q_start) -> dict:
+        """The series of the segment at its own steps ``t`` (states ``y``, started from ``q_start``)."""
+        cfg, n_state = self.cfg, self.n_state
+        return self._reading(t, y, q_start, lambda reader: with_holds(
+            cfg, self.holds, t, derived_series(cfg, reader, t, y[:n_state], self.offsets, self.forces), self.applied))
+
+    def resample(self, t, y, q_start, times) -> dict:
+        """The series of the segment at ``times``, on the dense output of its steps."""
+        cfg, coords, n_state = self.cfg, self.cfg.coords, self.n_state
+
+        def work(reader):
+            fun, method, opts = self.stepping
+            if getattr(fun, "__self__", None) is coords:  # rhs or rhs_with_power: the reader's own
+                fun = getattr(reader, fun.__name__)
+            elif not coords.constrained and self.own_rhs:
+                fun = reader.fresh_rhs()
+            states = dense_states(t, y, times, (fun, method, opts))[:n_state]
+            # the dense steps left the loop's warm starts at the segment's end: the series are
+            # solved from its start onwards, as the recorded ones are (from the end, a loop's
+            # Newton solve at the start could land on another assembly)
+            reader.seed(q_start)
+            return with_holds(cfg, self.holds, times, derived_series(cfg, reader, times, states, self.offsets,
+                                                                     self.forces), self.applied)
+        return self._reading(t, y, q_start, work)
+
+
+def _same(a, b) -> bool:
+    """Values equal, arrays element by element (a frozen partition, the holds' force elements)."""
+    if a is b:
+        return True
+    if isinstance(a, dict) and isinstance(b, dict):
+        return a.keys() == b.keys() and all(_same(a[k], b[k]) for k in a)
+    if isinstance(a, (tuple, list)) and isinstance(b, (tuple, list)):
+        return type(a) is type(b) and len(a) == len(b) and all(_same(x, y) for x, y in zip(a, b))
+    if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
+        return isinstance(a, np.ndarray) and isinstance(b, np.ndarray) and a.shape == b.shape and bool(np.all(a == b))
+    if isinstance(a, (int, float, str)) and isinstance(b, (int, float, str)):
+        return a == b
+    return False  # anything else: the same object only
+
+
+def _same_holds(a: Holds, b: Holds) -> bool:
+    """The same locks in force (the snapshots share everything else with the run's Holds)."""
+    return len(a.items) == len(b.items) and all(x is y for x, y in zip(a.items, b.items))
 
 
 def with_holds(cfg: Configuration, holds: Holds, t, series: dict, applied=None) -> dict:

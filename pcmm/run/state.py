@@ -40,6 +40,7 @@ class RunState:
     y: np.ndarray | None = None  # the integrator's state where the last segment ended
     stepping: tuple | None = None  # (rhs, method, options) of the segment being integrated
     impulse_integral: float = 0.0  # the contact phase's impulse so far (N s), at the segment's end
+    store: object = None  # a StoreWriter (pcmm.results.store): the record streamed to a folder as it goes
 
     @property
     def stats(self):

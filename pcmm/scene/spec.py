@@ -311,3 +311,16 @@ class Scene:
                     and {(d.joint, d.coefficients) for d in self.drives_in(name)} == drives):
                 return name
         return None
+
+    def lift_offs(self) -> list[tuple[str, str, str]]:
+        """(configuration, cut joint, target) of every point held by compression only that lifts
+        off by itself (:meth:`lift_off_target`; not one a ``release`` with a reaction guard watches)."""
+        out = []
+        for name, spec in self.configurations.items():
+            watched = {t.guard.of for t in self.transitions_from(name) if t.guard.type == "reaction"}
+            for cj in spec.cut_joints:
+                if cj.normal is not None and cj.name not in watched:
+                    target = self.lift_off_target(name, cj.name)
+                    if target is not None:
+                        out.append((name, cj.name, target))
+        return out

@@ -1,0 +1,172 @@
+"""The events of a run, kept compactly: columns of numbers, one table per record layout.
+
+A run of many impacts keeps one event record (:class:`pcmm.events.EventRecord`) per impact;
+as nested dicts of Python floats such a record takes ~3 kB, which a run of 1e6 bounces cannot
+afford (issue 26).  :class:`EventLog` keeps each record as its *layout* -- the nested keys,
+the containers, and the text, flags and ``None`` that repeat from one event to the next
+(transition names, configurations, kinds) -- shared by every event of that layout, and a row
+of its numbers in a float64 table of that layout, appended in blocks.  The rare rich values
+(warning messages, anything else that is neither a number nor a short text) are kept aside
+as they are.  Reading an event builds the same dict again: the same keys in the same order,
+the same numbers (a float64 holds a float exactly, and an integer below 2**53), the same types.
+
+The log is a sequence of dicts (``len``, indexing, slices, iteration, ``==`` with a list) and
+grows by :meth:`EventLog.append`; a record is encoded when appended, so changing the dict
+afterwards does not change the log.
+"""
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+BLOCK = 256  # rows of a layout's table allocated at once
+SHORT_TEXT = 48  # texts up to this length are part of the layout (names repeat); longer ones are kept aside
+_EXACT_INT = 2 ** 53
+
+# the layout's leaves: a number of the row (float or int), a constant of the layout, a value kept aside
+_F, _I, _C, _O = "f", "i", "c", "o"
+
+
+def _layout(obj, numbers: list, aside: list):
+    """The hashable layout of ``obj``; its numbers appended to ``numbers``, its rich values to ``aside``."""
+    if type(obj) is float or isinstance(obj, np.float64):
+        numbers.append(obj)
+        return _F
+    if isinstance(obj, bool) or obj is None:
+        return (_C, obj)
+    if type(obj) is int and -_EXACT_INT < obj < _EXACT_INT:
+        numbers.append(obj)
+        return _I
+    if type(obj) is str and len(obj) <= SHORT_TEXT:
+        return (_C, obj)
+    if type(obj) is dict:
+        return ("d", tuple(obj), tuple(_layout(v, numbers, aside) for v in obj.values()))
+    if type(obj) is list:
+        return ("l", tuple(_layout(v, numbers, aside) for v in obj))
+    if type(obj) is tuple:
+        return ("t", tuple(_layout(v, numbers, aside) for v in obj))
+    numbers.append(len(aside))  # a message, an array, anything else: kept as it is
+    aside.append(obj)
+    return _O
+
+
+def _build(layout, row, pos: int, aside: list):
+    """The value of ``layout`` from ``row`` at ``pos``: (value, next position)."""
+    if layout == _F:
+        return float(row[pos]), pos + 1
+    if layout == _I:
+        return int(row[pos]), pos + 1
+    if layout == _O:
+        return aside[int(row[pos])], pos + 1
+    kind = layout[0]
+    if kind == _C:
+        return layout[1], pos
+    if kind == "d":
+        out = {}
+        for key, sub in zip(layout[1], layout[2]):
+            out[key], pos = _build(sub, row, pos, aside)
+        return out, pos
+    items = []
+    for sub in layout[1]:
+        value, pos = _build(sub, row, pos, aside)
+        items.append(value)
+    return (items if kind == "l" else tuple(items)), pos
+
+
+class _Table:
+    """The rows of one layout: float64 blocks of BLOCK rows."""
+
+    __slots__ = ("layout", "width", "blocks", "n")
+
+    def __init__(self, layout, width: int):
+        self.layout, self.width, self.blocks, self.n = layout, width, [], 0
+
+    def append(self, numbers: list) -> int:
+        if self.n == len(self.blocks) * BLOCK:
+            self.blocks.append(np.empty((BLOCK, self.width)))
+        self.blocks[-1][self.n % BLOCK] = numbers
+        self.n += 1
+        return self.n - 1
+
+    def row(self, i: int) -> np.ndarray:
+        return self.blocks[i // BLOCK][i % BLOCK]
+
+
+class EventLog(Sequence):
+    """The events of a run: a sequence of event records (dicts) kept as columns of numbers.
+
+    Examples
+    --------
+    >>> log = EventLog([{"t": 0.5, "name": "floor", "impulse": {"normal": 2.0, "vector": [0.0, 2.0]}}])
+    >>> log.append({"t": 1.5, "name": "floor", "impulse": {"normal": 1.0, "vector": [0.0, 1.0]}})
+    >>> len(log), log[-1]["impulse"]["vector"], [e["t"] for e in log]
+    (2, [0.0, 1.0], [0.5, 1.5])
+    """
+
+    def __init__(self, events=()):
+        self._tables: list[_Table] = []
+        self._by_layout: dict = {}
+        self._index: list[np.ndarray] = []  # blocks of (table, row) per event
+        self._n = 0
+        self._aside: list = []
+        for e in events:
+            self.append(e)
+
+    def append(self, event) -> None:
+        """Keep ``event`` (encoded now: later changes to the dict are not seen)."""
+        numbers: list = []
+        layout = _layout(event, numbers, self._aside)
+        k = self._by_layout.get(layout)
+        if k is None:
+            k = self._by_layout[layout] = len(self._tables)
+            self._tables.append(_Table(layout, len(numbers)))
+        row = self._tables[k].append(numbers)
+        if self._n == len(self._index) * BLOCK:
+            self._index.append(np.empty((BLOCK, 2), np.int64))
+        self._index[-1][self._n % BLOCK] = (k, row)
+        self._n += 1
+
+    def extend(self, events) -> None:
+        for e in events:
+            self.append(e)
+
+    def _event(self, i: int):
+        k, row = self._index[i // BLOCK][i % BLOCK]
+        table = self._tables[k]
+        return _build(table.layout, table.row(int(row)), 0, self._aside)[0]
+
+    def __len__(self) -> int:
+        return self._n
+
+    def __getitem__(self, i):
+        if isinstance(i, slice):
+            return [self._event(j) for j in range(*i.indices(self._n))]
+        i = int(i)
+        if i < 0:
+            i += self._n
+        if not 0 <= i < self._n:
+            raise IndexError("event index out of range")
+        return self._event(i)
+
+    def __iter__(self):
+        for i in range(self._n):
+            yield self._event(i)
+
+    def __eq__(self, other):
+        if isinstance(other, (EventLog, list, tuple)):
+            return len(self) == len(other) and all(a == b for a, b in zip(self, other))
+        return NotImplemented
+
+    def __add__(self, other):
+        return [*self, *other]
+
+    def __radd__(self, other):
+        return [*other, *self]
+
+    def __repr__(self) -> str:
+        return repr(list(self))
+
+    def nbytes(self) -> int:
+        """Bytes of the number tables and the index (the layouts and the values kept aside not counted)."""
+        return sum(b.nbytes for t in self._tables for b in t.blocks) + sum(b.nbytes for b in self._index)

@@ -1,0 +1,296 @@
+"""A run streamed to a folder as it goes: chunks of segments and events, appended, each whole.
+
+``pcmm run SCENE --store DIR`` (``pcmm.simulate(..., store=DIR)``) writes::
+
+    DIR/run.json            the run's header, when it starts: scene, impact, views
+    DIR/chunk-000000.npz    the next segments (their series, derived when the chunk is written)
+    DIR/chunk-000001.npz    and the events since the chunk before, ...
+    DIR/end.json            when the run ends (completed or stopped): status, message, stats
+
+Each file is written under a temporary name and then renamed (:func:`pcmm.files.atomic_write`),
+so a run killed at any instant -- even by SIGKILL -- leaves every chunk it had written whole and
+readable, and none half written.  The run keeps in memory only the segments and events of the
+chunk it is filling: a long run's memory does not grow with its steps or events.
+
+:func:`open_store` reads a folder back as a :class:`~pcmm.results.trajectory.Trajectory`
+(``Trajectory.load(DIR)``) whose segments and events are read from the chunks when asked for,
+one chunk in memory at a time.  A folder without ``end.json`` is a run that was killed: it
+reads as a partial run up to its last chunk.
+
+A chunk's segments are grouped by their name lists (configuration, coordinates, links, force
+elements, constraint rows): each group's series are concatenated (``g<k>_<series>``), and the
+header (the array ``header``, JSON) lists the segments in order with their group and samples,
+the groups' names, and the chunk's events.
+"""
+from __future__ import annotations
+
+import json
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import UsageError
+from ..files import atomic_write
+from .event_log import EventLog
+from .segment_log import SegmentLog
+
+FORMAT = "pcmm-store-1"
+SERIES = ("t", "q", "v", "theta", "omega", "xy", "kinetic", "potential", "forces", "constraint_forces")
+NAMES = ("coordinates", "links", "force_names", "constraint_labels")
+CHUNK_SAMPLES = 50_000  # a chunk is written once the pending segments hold this many samples
+CHUNK_RECORDS = 2_000  # ... or this many segments or events
+
+
+def chunk_path(folder: Path, k: int) -> Path:
+    return folder / f"chunk-{k:06d}.npz"
+
+
+def _json_default(o):
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, (np.floating, np.integer)):
+        return o.item()
+    if isinstance(o, Sequence):
+        return list(o)
+    raise TypeError(f"not JSON serializable: {type(o)}")
+
+
+def _dumps(obj) -> str:
+    return json.dumps(obj, default=_json_default)
+
+
+def write_json(path: Path, obj) -> None:
+    atomic_write(path, lambda f: f.write(_dumps(obj)), force=True)
+
+
+def write_chunk(path: Path, segments: list, events: list) -> None:
+    """One chunk: ``segments`` (records; their series are read now) and ``events`` (dicts)."""
+    groups: dict[tuple, int] = {}
+    parts: dict[int, dict[str, list]] = {}
+    metas = []
+    for s in segments:
+        names = tuple(tuple(getattr(s, n)) for n in NAMES)
+        k = groups.setdefault((s.configuration, names), len(groups))
+        bucket = parts.setdefault(k, {a: [] for a in SERIES})
+        for a in SERIES:
+            bucket[a].append(np.asarray(getattr(s, a), float))
+        metas.append([k, int(len(s.t))])
+    header = {"format": FORMAT, "segments": metas, "events": list(events),
+              "groups": [{"configuration": conf, **{n: list(v) for n, v in zip(NAMES, names)}}
+                         for conf, names in groups]}
+    arrays = {"header": np.array(_dumps(header))}
+    for k, bucket in parts.items():
+        for a, pieces in bucket.items():
+            arrays[f"g{k}_{a}"] = np.concatenate(pieces)
+
+    def write(f):
+        np.savez(f, **arrays)
+    atomic_write(path, write, force=True, binary=True)
+
+
+class _Chunk:
+    """A chunk read back: its segments' records and its events."""
+
+    def __init__(self, path: Path):
+        from .trajectory import SegmentRecord
+        with np.load(path, allow_pickle=False) as z:
+            header = json.loads(str(z["header"][()]))
+            if header.get("format") != FORMAT:
+                raise ValueError(f"{path.name}: format {header.get('format')!r}, expected {FORMAT}")
+            arrays = {name: np.asarray(z[name]) for name in z.files if name != "header"}
+        groups = header["groups"]
+        at = [0] * len(groups)
+        self.segments = []
+        for k, n in header["segments"]:
+            g, a0 = groups[k], at[k]
+            at[k] += n
+            self.segments.append(SegmentRecord(configuration=g["configuration"], **{m: g[m] for m in NAMES},
+                                               **{a: arrays[f"g{k}_{a}"][a0:a0 + n] for a in SERIES}))
+        self.events = header["events"]
+
+
+class StoreReader:
+    """The chunks of a store folder: counts read once (from every chunk's header), records read one
+    chunk at a time."""
+
+    def __init__(self, folder: Path):
+        self.folder = folder
+        self.paths: list[Path] = []
+        self.segment_counts: list[int] = []
+        self.event_counts: list[int] = []
+        self._cached: tuple[int, _Chunk] | None = None
+        self.refresh()
+
+    def refresh(self) -> None:
+        """Take in the chunks written since (consecutive numbers from the last one known)."""
+        while True:
+            path = chunk_path(self.folder, len(self.paths))
+            if not path.is_file():
+                return
+            with np.load(path, allow_pickle=False) as z:
+                header = json.loads(str(z["header"][()]))
+            self.paths.append(path)
+            self.segment_counts.append(len(header["segments"]))
+            self.event_counts.append(len(header["events"]))
+
+    def chunk(self, k: int) -> _Chunk:
+        if self._cached is None or self._cached[0] != k:
+            self._cached = None  # one chunk in memory at a time
+            self._cached = (k, _Chunk(self.paths[k]))
+        return self._cached[1]
+
+
+class _Stored(Sequence):
+    """The segments (or events) of a store: those in its chunks, then the ones not yet written
+    (``tail``, a run's own log while it goes on)."""
+
+    def __init__(self, reader: StoreReader, which: str, tail=()):
+        self.reader, self.which, self.tail = reader, which, tail
+
+    def _counts(self) -> list[int]:
+        return self.reader.segment_counts if self.which == "segments" else self.reader.event_counts
+
+    def __len__(self) -> int:
+        return sum(self._counts()) + len(self.tail)
+
+    def _get(self, i: int):
+        for k, n in enumerate(self._counts()):
+            if i < n:
+                return getattr(self.reader.chunk(k), self.which)[i]
+            i -= n
+        return self.tail[i]
+
+    def __getitem__(self, i):
+        if isinstance(i, slice):
+            return [self._get(j) for j in range(*i.indices(len(self)))]
+        n = len(self)
+        i = int(i)
+        if i < 0:
+            i += n
+        if not 0 <= i < n:
+            raise IndexError(f"{self.which[:-1]} index out of range")
+        return self._get(i)
+
+    def append(self, item) -> None:
+        """A run's new segment or event: into the chunk being filled."""
+        self.tail.append(item)
+
+    def __iter__(self):
+        for k in range(len(self._counts())):
+            yield from list(getattr(self.reader.chunk(k), self.which))
+        yield from self.tail
+
+    def __eq__(self, other):
+        if isinstance(other, (Sequence,)) and not isinstance(other, str):
+            return len(self) == len(other) and all(a == b for a, b in zip(self, other))
+        return NotImplemented
+
+    def __add__(self, other):
+        return [*self, *other]
+
+    def __radd__(self, other):
+        return [*other, *self]
+
+    def __reduce__(self):  # pickled as the records themselves
+        return (list, (list(self),))
+
+    def __repr__(self) -> str:
+        return f"<{len(self)} {self.which} stored in {self.reader.folder}>"
+
+
+class StoreWriter:
+    """Writes a run's record into ``folder`` as it goes (see the module)."""
+
+    def __init__(self, folder: str | Path, chunk_samples: int = CHUNK_SAMPLES, chunk_records: int = CHUNK_RECORDS):
+        self.folder = Path(folder)
+        self.chunk_samples, self.chunk_records = chunk_samples, chunk_records
+        self.reader: StoreReader | None = None
+        self.chunks = 0
+        self._aside = None  # the thread that writes the chunks while the run goes on
+
+    def aside(self, work):
+        """``work()`` on a thread of its own, waited for: every evaluation of the series it derives
+        writes that thread's Pinocchio data (:meth:`Configuration.workspace`), never the data the
+        run's own thread integrates with (a run kept in memory derives its series after it ends)."""
+        if self._aside is None:
+            from concurrent.futures import ThreadPoolExecutor
+            self._aside = ThreadPoolExecutor(1, thread_name_prefix="pcmm-store")
+        return self._aside.submit(work).result()
+
+    def start(self, traj) -> None:
+        """Open the folder (created; it must not hold a store already) and write the header."""
+        if self.folder.exists() and not self.folder.is_dir():
+            raise UsageError(f"--store {self.folder}: is a file; give a folder (created if missing)")
+        if self.folder.is_dir() and any(self.folder.iterdir()):
+            raise UsageError(f"--store {self.folder}: the folder is not empty; give a new or an empty folder "
+                             "(a store is one run's record)")
+        self.folder.mkdir(parents=True, exist_ok=True)
+        write_json(self.folder / "run.json", {"format": FORMAT, "scene": traj.scene, "scene_name": traj.scene_name,
+                                              "impact": traj.impact, "views": traj.views})
+        self.reader = StoreReader(self.folder)
+        traj.segments = _Stored(self.reader, "segments", SegmentLog())  # the run fills the tails
+        traj.events = _Stored(self.reader, "events", EventLog())
+
+    def pending(self, traj) -> tuple[list, list]:
+        segs, events = traj.segments, traj.events
+        return (segs.tail if isinstance(segs, _Stored) else segs), (events.tail if isinstance(events, _Stored) else events)
+
+    def due(self, traj) -> bool:
+        """Is the chunk being filled full?"""
+        segs, events = self.pending(traj)
+        if len(segs) >= self.chunk_records or len(events) >= self.chunk_records:
+            return True
+        return hasattr(segs, "samples") and sum(segs.samples(i) for i in range(len(segs))) >= self.chunk_samples
+
+    def flush(self, traj, more: bool = True) -> None:
+        """Write the pending segments and events as the next chunk; the trajectory then reads them
+        from it, and goes on filling empty logs (``more``) or none."""
+        segs, events = self.pending(traj)
+        if len(segs) or len(events):
+            write_chunk(chunk_path(self.folder, self.chunks), list(segs), list(events))
+            self.chunks += 1
+            self.reader.refresh()
+        traj.segments = _Stored(self.reader, "segments", SegmentLog() if more else ())
+        traj.events = _Stored(self.reader, "events", EventLog() if more else ())
+
+    def end(self, traj) -> None:
+        """The run ended (completed or stopped): its last chunk and its end record."""
+        if self._aside is not None:
+            self._aside.shutdown()
+            self._aside = None
+        self.flush(traj, more=False)
+        stats = dict(traj.stats.items()) if hasattr(traj.stats, "items") else dict(traj.stats)
+        write_json(self.folder / "end.json", {"status": traj.status, "message": traj.message, "stats": stats})
+
+
+def open_store(folder: str | Path):
+    """The run stored in ``folder`` as a :class:`Trajectory` whose segments and events are read
+    from its chunks when asked for.  Raises :class:`UsageError` for a folder that holds no store."""
+    from .trajectory import RunStats, Trajectory
+    folder = Path(folder)
+    what = f"{folder}: not a pcmm store (a folder written by 'pcmm run --store')"
+    try:
+        head = json.loads((folder / "run.json").read_text(encoding="utf-8"))
+        if not isinstance(head, dict) or head.get("format") != FORMAT:
+            raise ValueError(f"format {head.get('format') if isinstance(head, dict) else None!r}, expected {FORMAT}")
+        reader = StoreReader(folder)
+        end_path = folder / "end.json"
+        end = json.loads(end_path.read_text(encoding="utf-8")) if end_path.is_file() else None
+    except FileNotFoundError:
+        raise UsageError(f"{what}: it has no run.json") from None
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise UsageError(f"{what}: {type(exc).__name__}: {exc}") from None
+    segments, events = _Stored(reader, "segments"), _Stored(reader, "events")
+    if end is None:
+        last = segments[-1].t[-1] if len(segments) else 0.0
+        status, stats = "partial", RunStats()
+        message = (f"{folder}: the run stopped without ending its store (killed?): it holds its first "
+                   f"{len(reader.paths)} chunks, to t = {float(last):.6g} s")
+    else:
+        status, message, stats = end["status"], end["message"], end["stats"]
+    traj = Trajectory(scene=head["scene"], scene_name=head["scene_name"], impact=bool(head["impact"]),
+                      segments=segments, events=events, stats=stats, status=status, message=message,
+                      views=head.get("views") or {})
+    traj.source = str(folder)
+    return traj

@@ -1,0 +1,125 @@
+"""A run streamed to a chunked store as it goes (issue 26, item 5): the same record as a run
+kept in memory, bounded memory, and every chunk written before a kill readable."""
+from __future__ import annotations
+
+import json
+import math
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import builders
+import pcmm
+import pcmm.cli
+from pcmm.errors import SimulationError, UsageError
+from pcmm.results.store import StoreWriter, chunk_path
+from pcmm.results.summary import summary
+
+G = 9.81
+PERIOD = 2.0 * math.sqrt(2.0 / G)  # a ball with e = 1 from h = 1 m: one bounce every 0.903 s
+SERIES = ("q", "v", "theta", "omega", "xy", "kinetic", "potential", "forces", "constraint_forces")
+
+
+def _same_record(a, b):
+    assert len(a.segments) == len(b.segments) and len(a.events) == len(b.events)
+    np.testing.assert_array_equal(a.t, b.t)
+    for x, y in zip(a.segments, b.segments):
+        assert x.configuration == y.configuration
+        assert (x.coordinates, x.links, x.force_names, x.constraint_labels) == \
+               (y.coordinates, y.links, y.force_names, y.constraint_labels)
+        for name in SERIES:
+            np.testing.assert_array_equal(getattr(x, name), getattr(y, name), err_msg=name)
+    assert list(a.events) == list(b.events)
+
+
+def _summary_text(traj):
+    s = summary(traj)
+    s["stats"] = {k: v for k, v in s["stats"].items() if k not in ("wall_s", "record_s")}
+    return json.dumps(s, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o))
+
+
+@pytest.mark.parametrize("scene_of", ["ball", "three_bar"])
+def test_a_stored_run_is_the_run_kept_in_memory(tmp_path, scene_of):
+    """Chunks of at most 5 segments or events, or 20 samples (Example 1 records 38, then 13): the stored run (as returned, and read back from its
+    folder) has every array, event and summary value of the same run kept in memory.  The ball
+    (e = 1) bounces 20 times by 19.5 periods; Example 1 latches (a loop, then a merge with its
+    hold) before 0.3 s."""
+    if scene_of == "ball":
+        scene, t_end = pcmm.load_scene(builders.ball(tmp_path, 1.0, merge=False)), 19.5 * PERIOD
+    else:
+        scene, t_end = pcmm.load_scene("examples/three_bar.toml"), 0.3
+    opts = pcmm.RunOptions(t_end=t_end)
+    kept = pcmm.simulate(scene, opts)
+    stored = pcmm.simulate(scene, opts, store=StoreWriter(tmp_path / "store", chunk_samples=20, chunk_records=5))
+    back = pcmm.Trajectory.load(tmp_path / "store")
+    chunks = sorted(p.name for p in (tmp_path / "store").glob("chunk-*.npz"))
+    assert len(chunks) >= (4 if scene_of == "ball" else 2)
+    if scene_of == "ball":
+        assert len(kept.events) == 20
+    for other in (stored, back):
+        _same_record(kept, other)
+        assert _summary_text(other) == _summary_text(kept)
+    assert back.status == "complete" and back.source == str(tmp_path / "store")
+
+
+KILLED = r"""
+import sys, pcmm
+from pcmm.results.store import StoreWriter
+scene = pcmm.load_scene(sys.argv[1])
+pcmm.simulate(scene, pcmm.RunOptions(t_end=1e6), store=StoreWriter(sys.argv[2], chunk_samples=10**9, chunk_records=4))
+"""
+
+
+def test_a_run_killed_midway_leaves_every_chunk_it_wrote_readable(tmp_path):
+    """A run of a million seconds of bouncing is killed (SIGKILL: no handler runs) once it has
+    written 3 chunks of 4 segments each; the store reads as a partial run with every chunk written
+    before the kill, and its events and arrays are those of the same run kept in memory."""
+    path = builders.ball(tmp_path, 1.0, merge=False)
+    folder = tmp_path / "store"
+    env = dict(os.environ, PYTHONPATH=str(Path(pcmm.__file__).parents[1]) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    proc = subprocess.Popen([sys.executable, "-c", KILLED, str(path), str(folder)], env=env,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    try:
+        deadline = time.monotonic() + 120
+        while not chunk_path(folder, 2).is_file():
+            assert proc.poll() is None, proc.stderr.read().decode()
+            assert time.monotonic() < deadline, "no third chunk within 120 s"
+            time.sleep(0.02)
+        proc.send_signal(signal.SIGKILL)
+    finally:
+        proc.kill()
+        proc.wait()
+    assert not (folder / "end.json").exists()
+    back = pcmm.Trajectory.load(folder)
+    chunks = len(list(folder.glob("chunk-*.npz")))
+    assert chunks >= 3 and back.status == "partial" and "killed" in back.message
+    # every chunk whole: 4 segments each, each ending at an impact whose event is the next chunk's
+    assert len(back.segments) == 4 * chunks and len(back.events) == len(back.segments) - 1
+    # the same run kept in memory, to the same t_end (the integrator's steps near an event depend
+    # on it at round-off), stopped by the event budget past the chunks the killed run wrote
+    with pytest.raises(SimulationError, match="more than") as stopped:
+        pcmm.simulate(pcmm.load_scene(path), pcmm.RunOptions(t_end=1e6, max_events=len(back.events) + 2))
+    kept = stopped.value.partial
+    assert list(back.events) == list(kept.events)[:len(back.events)]
+    n = len(back.segments)
+    np.testing.assert_array_equal(back.t, np.concatenate([s.t for s in kept.segments[:n]]))
+    np.testing.assert_array_equal(back.series("q", "Y"), np.concatenate([s.q[:, 0] for s in kept.segments[:n]]))
+
+
+def test_pcmm_run_store_writes_a_folder_that_loads_and_refuses_a_used_one(tmp_path):
+    path = builders.ball(tmp_path, 1.0, merge=False)
+    store, summary_path = tmp_path / "run_store", tmp_path / "s.json"
+    assert pcmm.cli.main(["run", str(path), "--quiet", "--t-end", "3.0", "--store", str(store),
+                          "--summary", str(summary_path)]) == 0
+    back = pcmm.Trajectory.load(store)
+    written = json.loads(summary_path.read_text())
+    assert [e["t"] for e in written["events"]] == [e["t"] for e in back.events]
+    assert len(back.events) == 3  # impacts at 0.452, 1.355, 2.258 s (the next at 3.161 s)
+    with pytest.raises(UsageError, match="not empty"):
+        pcmm.simulate(pcmm.load_scene(path), pcmm.RunOptions(t_end=1.0), store=store)
