@@ -203,7 +203,7 @@ class Configuration:
         check_point_masses(model, self.data, spec, self._planar, self.link_frame)
         self._angle_map()
         self.cut_models: dict = {}  # cut systems by cut joints (pcmm.events.cutting), built on first impact
-        self.impulse_models: dict = {}  # the zero-gravity copy for joint impulses (pcmm.events.impulse)
+        self.impulse_models: dict = {}  # event-path constants: the zero-gravity copy for joint impulses, link joints (pcmm.events.impulse), the frame pivot (pcmm.events.momentum)
         if len(cache) >= _BUILT_MAX:
             cache.pop(next(iter(cache)))
         cache[key] = {k: self.__dict__[k] for k in (
