@@ -219,3 +219,26 @@ def test_a_joint_guard_reads_the_state_entry_itself():
         q, v = cfg.coords.unpack(t, y)
         assert g(t, y) == row @ q - (tr.guard.value - offset)
         assert g.rate(t, y, None) == row @ v
+
+
+def test_the_zero_time_cycle_check_reads_two_events_of_a_long_log():
+    """At every event the run checks its last ZERO_TIME_CYCLE events for a cycle of switches at
+    one instant; on the compact event log each record read is built again, so a log whose
+    ends differ in time is judged from those two records alone."""
+    from pcmm.results.event_log import EventLog
+    from pcmm.run.actions import ZERO_TIME_CYCLE, zero_time_cycle
+
+    class Counted(EventLog):
+        built = 0
+
+        def _event(self, i):
+            Counted.built += 1
+            return super()._event(i)
+    log = Counted([{"t": 0.01 * k, "name": "pin", "from": "a", "to": "b"} for k in range(300)])
+    Counted.built = 0
+    assert zero_time_cycle(log) == ""
+    assert Counted.built == 2
+    # a real cycle at one instant is still found (every record of the tail read)
+    cycle = Counted([{"t": 1.0, "name": n, "from": f, "to": g}
+                     for _ in range(ZERO_TIME_CYCLE // 2) for n, f, g in (("go", "x", "y"), ("back", "y", "x"))])
+    assert zero_time_cycle(cycle) == "'go' (x -> y), 'back' (y -> x)"

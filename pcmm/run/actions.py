@@ -143,8 +143,13 @@ def zero_time_cycle(events: list[dict]) -> str:
     """The transitions of a cycle of switches at one instant ('' if the last ``ZERO_TIME_CYCLE``
     events are not one): with no time passing no impulse can end it, as a macro-impact's
     accumulation ends a bounce sequence, and only the event budget would stop the run."""
+    n = len(events)
+    # the two ends first: a run's event log builds each record it is asked for (pcmm.results.event_log),
+    # and all the last ZERO_TIME_CYCLE of them at every event cost milliseconds
+    if n < ZERO_TIME_CYCLE or events[n - ZERO_TIME_CYCLE]["t"] != events[n - 1]["t"]:
+        return ""
     tail = events[-ZERO_TIME_CYCLE:]
-    if len(tail) < ZERO_TIME_CYCLE or tail[0]["t"] != tail[-1]["t"] or any(e["from"] == e["to"] for e in tail):
+    if any(e["from"] == e["to"] for e in tail):
         return ""
     return ", ".join(dict.fromkeys(f"'{e['name']}' ({e['from']} -> {e['to']})" for e in tail))
 
