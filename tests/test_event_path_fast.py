@@ -238,6 +238,9 @@ def test_the_zero_time_cycle_check_reads_two_events_of_a_long_log():
     Counted.built = 0
     assert zero_time_cycle(log) == ""
     assert Counted.built == 2
+    Counted.built = 0
+    assert zero_time_cycle(log, {"t": 2.99, "name": "pin", "from": "a", "to": "b"}) == ""  # the last, as kept
+    assert Counted.built == 1
     # a real cycle at one instant is still found (every record of the tail read)
     cycle = Counted([{"t": 1.0, "name": n, "from": f, "to": g}
                      for _ in range(ZERO_TIME_CYCLE // 2) for n, f, g in (("go", "x", "y"), ("back", "y", "x"))])
