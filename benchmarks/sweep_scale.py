@@ -9,7 +9,7 @@ and the O3 preload tau3 in [0.15, 0.35] N m, seed 1, Example 1's own t_end of 1 
 1. the local pool (``--workers`` = the usable cores): wall time, runs/s (overall and steady, from
    the first row on), CPU time per row (the sweep and its workers: their rusage), the peak resident
    memory of the sweep and its workers together (sampled every 0.2 s from /proc) and its growth per
-   row from the tenth of the rows to the end, the table's size;
+   row from a tenth of the rows to nine tenths, the table's size;
 2. a Dask cluster of separate processes (``dask scheduler`` and ``dask worker --nworkers W
    --nthreads 1`` started here): the same figures, the cluster's processes counted in the memory
    and, from /proc, in the CPU time;
@@ -48,15 +48,35 @@ KEY = ("forces.tau1.value", "forces.tau3.value")
 
 
 def _tree(pid: int) -> list[int]:
+    """``pid`` and its descendants (the children of every thread: a Dask nanny starts its worker
+    process from another thread than its main one)."""
     out, todo = [pid], [pid]
     while todo:
         p = todo.pop()
+        kids = []
         try:
-            kids = [int(k) for k in Path(f"/proc/{p}/task/{p}/children").read_text().split()]
+            for task in Path(f"/proc/{p}/task").iterdir():
+                try:
+                    kids += [int(k) for k in (task / "children").read_text().split()]
+                except (FileNotFoundError, ProcessLookupError):
+                    continue
         except (FileNotFoundError, ProcessLookupError):
             continue
+        kids = [k for k in dict.fromkeys(kids) if k not in out]
         out += kids
         todo += kids
+    return out
+
+
+def _spawned(pid: int) -> list[int]:
+    """The processes under ``pid`` that multiprocessing spawned (a Dask nanny's worker processes)."""
+    out = []
+    for p in _tree(pid)[1:]:
+        try:
+            if b"spawn_main" in Path(f"/proc/{p}/cmdline").read_bytes():
+                out.append(p)
+        except (FileNotFoundError, ProcessLookupError):
+            pass
     return out
 
 
@@ -91,8 +111,8 @@ def run_sweep(args: list[str], cwd: Path, extra_pids=(), kill_at_rows: int | Non
     """Run ``pcmm sweep`` (a subprocess) and measure it: a dict of ``wall``, ``first_row`` (s
     from the start to the table's first row), ``cpu`` (the sweep and the workers it waited for,
     and the CPU the ``extra_pids`` used meanwhile), ``peak`` (the peak summed RSS of the sweep,
-    its descendants and ``extra_pids``), ``rss_tenth`` and ``rss_last`` (that sum when a tenth of
-    ``n`` rows were in, and at the last sample), ``code``, ``out``, ``err``, ``tree`` (the pids of
+    its descendants and ``extra_pids``), ``rss_tenth`` and ``rss_ninth`` (that sum and the rows
+    when a tenth, and nine tenths, of ``n`` rows were in), ``code``, ``out``, ``err``, ``tree`` (the pids of
     its tree at the last sample).  With ``kill_at_rows`` it is SIGKILLed once its table has that
     many rows."""
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
@@ -101,21 +121,23 @@ def run_sweep(args: list[str], cwd: Path, extra_pids=(), kill_at_rows: int | Non
     t0 = time.perf_counter()
     proc = subprocess.Popen([sys.executable, "-m", "pcmm.cli", "sweep", *args], cwd=cwd, env=env,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    m = {"peak": 0, "tree": [], "first_row": None, "rss_tenth": None, "rss_last": 0}
-    tenth = max(1, (n or 0) // 10)
-    rows, last_count = 0, 0.0
+    m = {"peak": 0, "tree": [], "first_row": None, "rss_tenth": None, "rss_ninth": None}
+    tenth, ninth = max(1, (n or 0) // 10), max(1, 9 * (n or 0) // 10)
+    rows, last_count, lines = 0, 0.0, _LineCount(out_path)
     while proc.poll() is None:
         tree = _tree(proc.pid)
         rss = sum(_rss(p) for p in [*tree, *extra_pids])
-        m["peak"], m["tree"], m["rss_last"] = max(m["peak"], rss), tree, rss
+        m["peak"], m["tree"] = max(m["peak"], rss), tree
         now = time.perf_counter()
         # the table's rows, counted while a figure still waits for them (at most every second)
-        if kill_at_rows is not None or m["first_row"] is None or (n and m["rss_tenth"] is None and now - last_count >= 1.0):
-            rows, last_count = _lines(out_path) - 1, now
+        if kill_at_rows is not None or m["first_row"] is None or (n and m["rss_ninth"] is None and now - last_count >= 1.0):
+            rows, last_count = lines() - 1, now
             if rows >= 1 and m["first_row"] is None:
                 m["first_row"] = now - t0
             if n and rows >= tenth and m["rss_tenth"] is None:
                 m["rss_tenth"] = (rss, rows)
+            if n and rows >= ninth and m["rss_ninth"] is None and rows > m["rss_tenth"][1]:
+                m["rss_ninth"] = (rss, rows)
         if kill_at_rows is not None and rows >= kill_at_rows:
             proc.send_signal(signal.SIGKILL)
             proc.wait()
@@ -127,12 +149,25 @@ def run_sweep(args: list[str], cwd: Path, extra_pids=(), kill_at_rows: int | Non
     return m
 
 
-def _lines(path: Path) -> int:
-    try:
-        with open(path, "rb") as f:
-            return sum(1 for _ in f)
-    except FileNotFoundError:
-        return 0
+class _LineCount:
+    """The lines of a growing file, counted from where the last count stopped (a table of 10,000
+    rows is not read again 20 times a second while the sweep is timed)."""
+
+    def __init__(self, path: Path):
+        self.path, self.offset, self.lines = path, 0, 0
+
+    def __call__(self) -> int:
+        try:
+            with open(self.path, "rb") as f:
+                if os.fstat(f.fileno()).st_size < self.offset:  # started over (--force, a resume's rewrite)
+                    self.offset, self.lines = 0, 0
+                f.seek(self.offset)
+                data = f.read()
+        except FileNotFoundError:
+            return 0
+        self.offset += len(data)
+        self.lines += data.count(b"\n")
+        return self.lines
 
 
 def rows_of(path: Path) -> list[dict]:
@@ -222,8 +257,8 @@ def figures(m: dict, rows: list[dict], size: int, n: int) -> dict:
     """The page's figures of one measured sweep."""
     steady = (len(rows) - 1) / (m["wall"] - m["first_row"]) if m["first_row"] and len(rows) > 1 else float("nan")
     growth = None
-    if m["rss_tenth"] is not None and len(rows) > m["rss_tenth"][1]:
-        growth = (m["rss_last"] - m["rss_tenth"][0]) / (len(rows) - m["rss_tenth"][1])
+    if m["rss_tenth"] is not None and m["rss_ninth"] is not None:
+        growth = (m["rss_ninth"][0] - m["rss_tenth"][0]) / (m["rss_ninth"][1] - m["rss_tenth"][1])
     return {"rows": len(rows), "wall": m["wall"], "first_row": m["first_row"], "steady": steady,
             "cpu": m["cpu"], "peak": m["peak"], "growth": growth, "size": size,
             "in_worker": sum(float(r["wall_s"]) for r in rows) / max(1, len(rows)),
@@ -261,18 +296,22 @@ def main():
         if not args.no_dask:
             address, sched, wk = _dask_cluster(workers)
             try:
-                # the cluster up before the clock starts: its nannies and their worker processes
-                # (``dask worker`` + W nannies + W workers), then time for their imports
+                # the cluster up before the clock starts: the W worker processes its nannies spawn
+                # (multiprocessing's spawn_main), then time for their imports
                 t_up = time.perf_counter()
-                while len(_tree(wk.pid)) < 1 + 2 * workers and time.perf_counter() - t_up < 120:
+                while len(_spawned(wk.pid)) < workers and time.perf_counter() - t_up < 120:
                     time.sleep(0.5)
                 time.sleep(8)
                 cluster = [sched.pid, *_tree(wk.pid)]
+                c0, t_idle = _cpu(cluster), time.perf_counter()
+                time.sleep(5)  # and its CPU when idle (heartbeats, event loops): a rate over the sweep's time
+                idle_rate = (_cpu(cluster) - c0) / (time.perf_counter() - t_idle)
                 m = run_sweep([*base, "--out", "dask.csv", "--scheduler", address], d, extra_pids=cluster, n=n)
                 assert m["code"] == 0, m["err"]
                 dask_rows = rows_of(d / "dask.csv")
                 name = "Dask (scheduler + worker processes)"
                 results[name] = figures(m, dask_rows, (d / "dask.csv").stat().st_size, n)
+                results[name]["idle_cpu"] = idle_rate * m["wall"]
                 strip = lambda rs: sorted((tuple((k, v) for k, v in r.items()  # noqa: E731
                                                  if k not in ("solve_s", "wall_s", "check")) for r in rs))
                 results[name]["same"] = strip(dask_rows) == strip(pool_rows)
@@ -293,7 +332,8 @@ def main():
     table = []
     for name, r in results.items():
         table.append([name, f"{r['rows']:,}", f"{r['wall']:.0f}", ("—" if r["first_row"] is None else f"{r['first_row']:.1f}"), f"{r['rows'] / r['wall']:.1f}",
-                      f"{r['steady']:.1f}", ms(r["cpu"] / r["rows"]), ms(r["in_worker"]), ms(r["solve"]),
+                      f"{r['steady']:.1f}", f"{100 * r['steady'] * r['in_worker'] / workers:.0f}",
+                      ms(r["cpu"] / r["rows"]), ms(r["in_worker"]), ms(r["solve"]),
                       f"{r['peak'] / 2**20:.0f}", "—" if r["growth"] is None else f"{r['growth'] / 1024:.1f}",
                       f"{r['size'] / 2**20:.2f}", f"{r['size'] / max(1, r['rows']):.0f}",
                       "yes" if r.get("same", True) else "NO"])
@@ -316,15 +356,20 @@ def main():
         "checksum and write.", "",
         "## The sweep", "",
         _common.md_table(["backend", "rows", "wall, s", "first row, s", "runs/s", "runs/s from the first row",
-                          "CPU per row, ms", "run in its worker, ms", "of which the solve, ms",
+                          "workers busy from the first row, %", "CPU per row, ms", "run in its worker, ms", "of which the solve, ms",
                           "peak memory, MiB", "memory growth per row, KiB", "table, MiB", "bytes per row",
                           "same rows as the pool"], table), "",
         "CPU per row: the sweep's process and the workers it waited for (their rusage), and for Dask the "
         "CPU the scheduler and worker processes used meanwhile (/proc), over the rows; it includes the "
-        "start-up (imports, workers, the plan's validation). Run in its worker: the row's `wall_s` (scene, "
+        "start-up (imports, workers, the plan's validation)"
+        + "".join(f"; of the {name}'s, {1e3 * r['idle_cpu'] / r['rows']:.1f} ms per row is the CPU its processes use "
+                  "when idle (heartbeats, event loops: measured over 5 s before the sweep)"
+                  for name, r in results.items() if "idle_cpu" in r) + ". Workers busy: the steady rate times the mean "
+        "run in its worker, over the workers (the rest of their time they wait for the sweep, or the "
+        "scheduler, to hand them a run). Run in its worker: the row's `wall_s` (scene, "
         "model, solve, summary), of which the solve: its `solve_s`. Memory: the peak of the summed resident "
         "sets of the sweep, its workers and (Dask) the scheduler and worker processes, sampled every 0.2 s; "
-        "its growth per row from the moment a tenth of the rows were in to the end.", "",
+        "its growth per row from the moment a tenth of the rows were in to the moment nine tenths were.", "",
         f"Killed with SIGKILL once {k['at']:,} rows were in (exit {k['code']}, after {k['killed_after']:.0f} s), with "
         f"{k['kept']:,} rows in the table and {k['workers']} worker processes; {k['orphans']} of them alive 2 s "
         f"later. `--resume` ran the rest in {k['resume_wall']:.0f} s ({k['resume_status']}): rows lost "

@@ -482,7 +482,8 @@ def cmd_run(args, held=None) -> int:
     else:
         failure = None
         try:
-            traj = simulate(scene, opts, progress=update, store=args.store)
+            stored = {"store": args.store} if args.store is not None else {}  # a folder streamed to as it goes
+            traj = simulate(scene, opts, progress=update, **stored)
         except SimulationError as exc:
             failure, traj = exc, exc.partial
         except KeyboardInterrupt as exc:  # before simulate's own loop began (models, assembly)

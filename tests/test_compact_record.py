@@ -66,6 +66,16 @@ def test_event_log_encodes_a_record_when_appended():
     assert log == [{"t": 1.0, "impulse": {"normal": 2.0}}] and log + [] == [{"t": 1.0, "impulse": {"normal": 2.0}}]
 
 
+def test_a_record_read_by_index_is_the_runs_record_from_then_on():
+    """As with a list of dicts: changing ``log[i]`` (or what it holds) changes what the log gives,
+    by index and by iteration (the oracle's own test tampers with a run's event this way)."""
+    log = EventLog([{"t": 1.0, "impulse": {"normal": 2.0}}, {"t": 2.0, "impulse": {"normal": 3.0}}])
+    log[0]["t"] += 0.5
+    log[-1]["impulse"]["normal"] = 7.0
+    assert log[0] is log[0] and [e["t"] for e in log] == [1.5, 2.0]
+    assert list(log)[1] == {"t": 2.0, "impulse": {"normal": 7.0}}
+
+
 def test_event_log_keeps_one_row_of_numbers_per_event_of_a_layout():
     """10,000 events of one layout (3 numbers): 3 floats of a table row and 2 integers of the
     index, 40 bytes each, in blocks of BLOCK events: 10,000 -> 40 blocks of 256."""

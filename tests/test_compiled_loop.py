@@ -14,6 +14,10 @@ td = compiled._tree_dynamics
 needs_loop = pytest.mark.skipif(td is None or not hasattr(td, "SegmentLoop"),
                                 reason=f"the compiled segment loop is not built: {compiled.why_not()}")
 
+# whole runs use it only where the compiled right-hand side runs (not under PCMM_COMPILED=0)
+runs_loop = pytest.mark.skipif(td is None or not hasattr(td, "SegmentLoop") or not compiled.enabled(),
+                               reason=f"the compiled evaluations are off: {compiled.why_not()}")
+
 K, MASS = 4.0, 1.5  # a slider on a spring: x'' = -(K / MASS) x
 W = np.sqrt(K / MASS)
 NO_GUARDS = (np.zeros((0, 2)), np.zeros(0), np.zeros(0), np.zeros(0))
@@ -112,7 +116,7 @@ def _simulate(path, monkeypatch, loops: dict):
 TREE_EXAMPLES = ["three_bar.toml", "three_bar_stop.toml"]
 
 
-@needs_loop
+@runs_loop
 @pytest.mark.parametrize("scene", TREE_EXAMPLES)
 def test_whole_runs_are_the_python_stepped_runs(monkeypatch, scene):
     """The same events at the same times (1e-12 s), the same recorded steps and states (1e-10),
@@ -140,7 +144,7 @@ def test_whole_runs_are_the_python_stepped_runs(monkeypatch, scene):
     assert fast.stats["steps"] == slow.stats["steps"]
 
 
-@needs_loop
+@runs_loop
 def test_a_guard_not_affine_in_the_state_is_scanned_by_python_at_every_step(tmp_path, monkeypatch):
     """A pendulum falling onto a stop watched by its contact gap (not affine in the state): the
     compiled loop hands every accepted step to the Python event scanner, and the run is the
@@ -169,7 +173,7 @@ def test_a_guard_not_affine_in_the_state_is_scanned_by_python_at_every_step(tmp_
         np.testing.assert_allclose(a.v, b.v, rtol=0, atol=1e-10)
 
 
-@needs_loop
+@runs_loop
 @pytest.mark.parametrize("budget", [20, 37])
 def test_a_spent_step_budget_stops_both_paths_alike(monkeypatch, budget):
     """More steps than solver.max_steps: the same error at the same step, with the steps taken
@@ -191,3 +195,63 @@ def test_a_spent_step_budget_stops_both_paths_alike(monkeypatch, budget):
     assert fast == slow
     assert t_fast.size == t_slow.size > 1
     np.testing.assert_allclose(t_fast, t_slow, rtol=0, atol=1e-12)
+
+
+@runs_loop
+def test_a_time_guard_is_scanned_in_the_loop(tmp_path, monkeypatch):
+    """Example 1 let go from its latched configuration by a timer at 0.5 s (a time guard: affine,
+    scanned in C++), where it latches again at once: the events are the Python-stepped run's, and
+    so is every segment's end state (1e-10).  (The segment after the second latch starts from a
+    state 4e-16 away, the release read on another dense output, at 46 rad/s: there the two runs'
+    step times drift apart by up to 3e-10 s while their states agree to 2e-12.)"""
+    from builders import copy_example, example_text
+    text = example_text() + ('\n[[transitions]]\nname = "let go"\ntype = "release"\nfrom = "config2"\n'
+                             'to = "config1"\nguard = { type = "time", at = 0.5 }\n')
+    path = copy_example(tmp_path, "three_bar.toml", text)
+    made = []
+
+    def counting(*args):
+        made.append(args[-1])
+        return td.SegmentLoop(*args)
+    fast = _simulate(path, monkeypatch, {td.Tree: counting})
+    slow = _simulate(path, monkeypatch, {})
+    assert len(made) >= 3 and not any(made)  # every segment scanned in C++
+    names = [e["name"] for e in fast.events]
+    assert names[:2] == ["O3 latches", "let go"] and names == [e["name"] for e in slow.events]
+    assert fast.events[1]["t"] == pytest.approx(0.5, abs=1e-12)
+    for a, b in zip(fast.events, slow.events, strict=True):
+        assert abs(a["t"] - b["t"]) <= 1e-12
+    for a, b in zip(fast.segments, slow.segments, strict=True):
+        assert a.t[-1] == pytest.approx(b.t[-1], abs=1e-12)
+        np.testing.assert_allclose(a.q[[0, -1]], b.q[[0, -1]], rtol=0, atol=1e-10)
+        np.testing.assert_allclose(a.v[[0, -1]], b.v[[0, -1]], rtol=0, atol=1e-10)
+
+
+@pytest.mark.parametrize("scene", TREE_EXAMPLES)
+def test_a_guards_affine_form_is_its_value(scene):
+    """Guard.affine (what the compiled loop scans) against the guard's own value and rate, at random
+    states of every tree configuration a shipped example's transitions watch; and None where the
+    value is not affine (re-armed after a bounce).  The loop relies on it without checking."""
+    import pcmm
+    from builders import EXAMPLES
+    from pcmm.events.guards import make_guard
+    from pcmm.model.mechanism import Mechanism
+    sc = pcmm.load_scene(EXAMPLES / scene)
+    mech = Mechanism(sc)
+    rng = np.random.default_rng(26)
+    checked = 0
+    for tr in sc.transitions:
+        cfg = mech[tr.source]
+        if cfg.coords.constrained:
+            continue
+        guard = make_guard(cfg, tr, context=0.3)
+        c, ct, d = guard.affine
+        c = np.zeros(2 * cfg.nv) if c is None else c
+        for _ in range(5):
+            t, y = rng.uniform(0.0, 2.0), rng.uniform(-3.0, 3.0, 2 * cfg.nv)
+            f = np.concatenate([y[cfg.nv:], rng.uniform(-5.0, 5.0, cfg.nv)])  # [q' = v, any acceleration]
+            assert guard(t, y) == pytest.approx(c @ y + ct * t + d, rel=1e-15, abs=1e-15)
+            assert guard.rate(t, y, f) == pytest.approx(c @ f + ct, rel=1e-15, abs=1e-15)
+        assert make_guard(cfg, tr, rearm=True, context=0.3).affine is None
+        checked += 1
+    assert checked >= 1

@@ -70,10 +70,20 @@ def test_plain_run_does_not_initialise(plain_run, name):
     assert name not in plain_run, f"a plain 'pcmm run' ran {name}'s __init__"
 
 
+def test_a_run_with_loops_initialises_no_scipy_package(tmp_path):
+    """Example 2 (closed loops: partitioned coordinates, the method DOP853, a pivoted QR for the
+    partition) for its first 0.05 s: no scipy package's __init__ either."""
+    modules = modules_of_run(tmp_path, str(ROOT / "examples" / "double_folded.toml"), "--t-end", "0.05",
+                             "--out", str(tmp_path / "run"), "--quiet")
+    assert "pcmm.model.partitioned" in modules and "scipy.linalg._flapack" in modules
+    assert not [name for name in NOT_INITIALISED if name in modules]
+
+
 def test_the_dump_sees_what_a_run_imports(plain_run):
     """The dump is real: the run's own modules (Pinocchio, the run loop) are in it."""
     assert "pinocchio" in plain_run and "pcmm.run.loop" in plain_run and "numpy" in plain_run
-    assert "scipy.integrate._ode" in plain_run and "scipy.linalg._flapack" in plain_run  # the parts alone
+    assert "pcmm.model._tree_dynamics" in plain_run and "scipy.linalg._flapack" in plain_run  # the parts alone
+    # (the compiled segment loop steps a tree: scipy.integrate._ode is loaded only without it)
 
 
 # The parts that replace scipy's on a run's path compute the same bits as scipy's own.
@@ -171,3 +181,39 @@ def test_minimize_bounded_has_scipys_bits():
             for maxiter in (500, 7):
                 ref = minimize_scalar(fun, bounds=(lo, hi), method="bounded", options={"xatol": tol, "maxiter": maxiter})
                 assert minimize_bounded(fun, lo, hi, xatol=tol, maxiter=maxiter) == float(ref.x), (lo, hi, tol, maxiter)
+
+
+@pytest.mark.parametrize("rtol,atol,max_step", [(1e-10, 1e-12, np.inf), (1e-6, 1e-9, 0.05), (1e-3, 1e-6, np.inf)])
+def test_dop853_method_steps_as_scipys(rtol, atol, max_step):
+    """The method DOP853 (pcmm.ode.dop853.DOP853) against scipy.integrate.DOP853 over a whole
+    interval from scipy's own first step: every accepted step, derivative and dense value
+    identical."""
+    from scipy.integrate import DOP853 as ScipyDOP853
+    from pcmm.ode.dop853 import DOP853
+    y0 = np.array([0.3, -0.01, 0.2, 1.5])
+    ours, ref = (cls(_oscillator, 0.0, y0, 3.0, max_step=max_step, rtol=rtol, atol=atol) for cls in (DOP853, ScipyDOP853))
+    steps = 0
+    while ref.status == "running":
+        assert ours.step() == ref.step()
+        assert (ours.t, ours.status) == (ref.t, ref.status)
+        assert np.array_equal(ours.y, ref.y) and np.array_equal(ours.f, ref.f)
+        grid = np.linspace(ref.t_old, ref.t, 5)
+        assert np.array_equal(ours.dense_output()(grid), ref.dense_output()(grid))
+        steps += 1
+    assert ours.status == "finished" and steps > 10
+
+
+def test_pivots_are_scipys():
+    """pcmm.model.rows.pivots against scipy.linalg.qr(A, pivoting=True)'s: the same column
+    order on full-rank, badly scaled and rank-deficient (repeated columns) Jacobians."""
+    import scipy.linalg as sla
+    from pcmm.model.rows import pivots
+    rng = np.random.default_rng(5)
+    for m in range(1, 5):
+        for k in range(m, 8):
+            for _ in range(20):
+                A = rng.normal(size=(m, k)) * 10 ** rng.uniform(-3, 3, size=k)
+                if rng.random() < 0.3:
+                    A[:, rng.integers(k)] = A[:, 0]
+                assert np.array_equal(pivots(A), sla.qr(A, pivoting=True)[2])
+    assert pivots(np.zeros((2, 0))).size == 0

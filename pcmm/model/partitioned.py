@@ -19,7 +19,7 @@ import pinocchio as pin
 
 from . import compiled
 from .configuration import Configuration
-from .rows import ClosureRows, Drives, _det, _max_abs, constrained_accelerations, solve
+from .rows import ClosureRows, Drives, _det, _max_abs, constrained_accelerations, pivots, solve
 from ..errors import Repartition, SimulationError
 from ..ode.witness import Guard
 
@@ -313,8 +313,7 @@ class PartitionedCoordinates:
         rest = [i for i in range(self.nv) if i not in driven and i not in keep]
         dep = list(driven)
         if self.closure.size:
-            import scipy.linalg as sla  # here: scipy.linalg costs 0.3 s at start-up
-            _, _, piv = sla.qr(Jq[:self.closure.size][:, rest], pivoting=True)
+            piv = pivots(Jq[:self.closure.size][:, rest])
             dep += [rest[i] for i in piv[:self.closure.size]]
         return np.array(sorted(dep), dtype=int)
 

@@ -1,4 +1,7 @@
-"""DOP853's 7th-order dense output over one step, without importing scipy.integrate.
+"""DOP853 as scipy.integrate.DOP853 steps it, without importing scipy.integrate.
+
+The method ``DOP853`` (the default with loops or drives) steps with :class:`DOP853`, and the
+Fortran DOP853's events are located on :func:`dense_step`.
 
 Hairer's Fortran DOP853 hands back only the ends of its steps.  Where a step holds an event, or a
 resampled time, the step is taken again from its start with its own size by DOP853 as
@@ -112,11 +115,39 @@ def _stages(fun, t, y, f, h, K, tab):
     return y_new, f_new
 
 
-class Steps:
-    """DOP853 from ``(t0, y0)`` towards ``t_bound`` with a first step of ``h0``, one accepted step
-    per :meth:`step` (``None`` or the failure's message), :meth:`dense` its interpolant."""
+def _rms(x) -> float:
+    return np.linalg.norm(x) / x.size ** 0.5
 
-    def __init__(self, fun, t0, y0, t_bound, rtol, atol, h0):
+
+def _initial_step(fun, t0, y0, t_bound, max_step, f0, direction, rtol, atol):
+    """scipy's choice of the first step (Hairer, Norsett and Wanner, II.4), for order 7."""
+    if y0.size == 0:
+        return np.inf
+    interval_length = abs(t_bound - t0)
+    if interval_length == 0.0:
+        return 0.0
+    scale = atol + np.abs(y0) * rtol
+    d0 = _rms(y0 / scale)
+    d1 = _rms(f0 / scale)
+    h0 = 1e-6 if d0 < 1e-5 or d1 < 1e-5 else 0.01 * d0 / d1
+    h0 = min(h0, interval_length)  # not beyond t_bound
+    y1 = y0 + h0 * direction * f0
+    f1 = fun(t0 + h0 * direction, y1)
+    d2 = _rms((f1 - f0) / scale) / h0
+    if d1 <= 1e-15 and d2 <= 1e-15:
+        h1 = max(1e-6, h0 * 1e-3)
+    else:
+        h1 = (0.01 / max(d1, d2)) ** (1 / (7 + 1))
+    return min(100 * h0, h1, interval_length, max_step)
+
+
+class DOP853:
+    """DOP853 from ``(t0, y0)`` towards ``t_bound``, as ``scipy.integrate.DOP853`` (the same
+    constructor, ``step()``, ``dense_output()``, ``t``, ``y``, ``f``, ``status``): one accepted
+    step per :meth:`step` (``None`` or the failure's message), :meth:`dense_output` its
+    interpolant."""
+
+    def __init__(self, fun, t0, y0, t_bound, max_step=np.inf, rtol=1e-3, atol=1e-6, first_step=None):
         self.tab = tab = _tableau()
         y0 = np.asarray(y0).astype(float, copy=False)
         if y0.ndim != 1:
@@ -126,15 +157,23 @@ class Steps:
         self.fun = lambda t, y: np.asarray(fun(t, y), dtype=float)
         self.t, self.y, self.t_bound, self.n = t0, y0, t_bound, y0.size
         self.direction = np.sign(t_bound - t0) if t_bound != t0 else 1
+        if max_step <= 0:
+            raise ValueError("`max_step` must be positive.")
+        self.max_step = max_step
         if np.any(rtol < 100 * EPS):
             warnings.warn(f"At least one element of `rtol` is too small. Setting `rtol = np.maximum(rtol, "
                           f"{100 * EPS})`.", stacklevel=2)
             rtol = np.maximum(rtol, 100 * EPS)
         self.rtol, self.atol = rtol, np.asarray(atol)
         self.f = self.fun(t0, y0)
-        if h0 <= 0 or h0 > np.abs(t_bound - t0):
-            raise ValueError(f"the first step {h0!r} is not in (0, |t_bound - t0|]")
-        self.h_abs, self.t_old, self.y_old, self.h_previous = h0, None, None, None
+        if first_step is None:
+            self.h_abs = _initial_step(self.fun, t0, y0, t_bound, max_step, self.f, self.direction, self.rtol,
+                                       self.atol)
+        elif first_step <= 0 or first_step > np.abs(t_bound - t0):
+            raise ValueError(f"the first step {first_step!r} is not in (0, |t_bound - t0|]")
+        else:
+            self.h_abs = first_step
+        self.t_old, self.y_old, self.h_previous = None, None, None
         self.K_extended = np.empty((tab.n_extended, self.n), dtype=self.y.dtype)
         self.K = self.K_extended[:tab.n_stages + 1]
         self.status = "running"
@@ -156,7 +195,12 @@ class Steps:
     def _step(self) -> str | None:
         t, y, tab = self.t, self.y, self.tab
         min_step = 10 * np.abs(np.nextafter(t, self.direction * np.inf) - t)
-        h_abs = min_step if self.h_abs < min_step else self.h_abs  # (no max_step here)
+        if self.h_abs > self.max_step:
+            h_abs = self.max_step
+        elif self.h_abs < min_step:
+            h_abs = min_step
+        else:
+            h_abs = self.h_abs
         rejected = False
         while True:
             if h_abs < min_step:
@@ -182,8 +226,10 @@ class Steps:
         self.t, self.y, self.h_abs, self.f = t_new, y_new, h_abs, f_new
         return None
 
-    def dense(self):
+    def dense_output(self):
         """The interpolant of the last accepted step (DOP853's extra stages, evaluated here)."""
+        if self.t_old is None:
+            raise RuntimeError("Dense output is available after a successful step was made.")
         if self.n == 0 or self.t == self.t_old:
             return ConstantStep(self.t_old, self.t, self.y)
         tab, K, h = self.tab, self.K_extended, self.h_previous
@@ -224,12 +270,12 @@ class Pieces:
 def dense_step(fun, t_a, y_a, t_b, rtol, atol):
     """DOP853's dense output over the step [t_a, t_b] of the Fortran code (see the module's
     docstring); ``(None, message)`` where DOP853 fails on it, else ``(interpolant, None)``."""
-    steps = Steps(fun, t_a, y_a, t_b, rtol, atol, t_b - t_a)
+    steps = DOP853(fun, t_a, y_a, t_b, rtol=rtol, atol=atol, first_step=t_b - t_a)
     ts, pieces = [t_a], []
     while steps.status == "running":
         message = steps.step()
         if steps.status == "failed":
             return None, message
         ts.append(steps.t)
-        pieces.append(steps.dense())
+        pieces.append(steps.dense_output())
     return (pieces[0] if len(pieces) == 1 else Pieces(ts, pieces, steps.n)), None

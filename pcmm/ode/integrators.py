@@ -30,7 +30,7 @@ import numpy as np
 
 from .. import _scipy
 from ..errors import Repartition, SimulationError
-from .dop853 import dense_step
+from .dop853 import DOP853, dense_step
 from .methods import AUTO, INTEGRATOR_NAMES, METHODS  # noqa: F401  (METHODS: the run loop's import)
 from .roots import brentq, minimize_bounded
 
@@ -359,8 +359,10 @@ class ScipyMethod:
 
     @property
     def cls(self):
-        """scipy's class (scipy.integrate is imported when a run first uses one of these)."""
-        return getattr(si, self.name)
+        """scipy's class (scipy.integrate is imported when a run first uses one of these); for
+        DOP853, pcmm's step of it (:mod:`pcmm.ode.dop853`: scipy's, bit for bit, without the
+        0.5 s import of scipy.integrate)."""
+        return DOP853 if self.name == "DOP853" else getattr(si, self.name)
 
     def integrate(self, fun, t0, y0, t_bound, events, opts) -> Segment:
         needs_f = _needs_derivative(events)
@@ -505,6 +507,8 @@ class FortranDOP853:
                                     _lazy(lambda: _Contd8(*loop.dense())))
                     if hit is not None:
                         return hit, None
+                    if progress is not None and st.count % _PROGRESS_STEPS == 0:
+                        progress(float(t_new))
                 elif code == 2:  # a pause: Python's turn (Ctrl-C, the progress bar)
                     if progress is not None:
                         progress(float(st.ts[-1]))
@@ -559,6 +563,10 @@ def t_bound_reached(st) -> bool:
     return False
 
 
+#: accepted steps between two progress reports of the compiled loop (21 DOP853 steps: about the
+#: 256 evaluations between two reports of the run loop's wrapper)
+_PROGRESS_STEPS = 21
+
 #: compiled segment loops by the type of the object whose bound ``rhs`` a configuration integrates
 #: (a tree's compiled right-hand side): registered by pcmm.model.compiled, the layer above.
 SEGMENT_LOOPS: dict = {}
@@ -577,7 +585,10 @@ def _segment_loop(fun, t0, y0, t_bound, events, opts, beta):
     y0 = np.array(y0, float)
     ny = y0.size
     affine = [getattr(e, "affine", None) for e in events]
-    every_step = any(a is None for a in affine) or not all(getattr(e, "rate_from_state", False) for e in events)
+    # a progress bar (the run loop's wrapper) is fed every _PROGRESS_STEPS steps, as the wrapper's
+    # own count of evaluations did: then every step comes back to Python
+    every_step = (progress is not None or any(a is None for a in affine)
+                  or not all(getattr(e, "rate_from_state", False) for e in events))
     if every_step:
         C, ct, d, direction = np.zeros((0, ny)), np.zeros(0), np.zeros(0), np.zeros(0)
     else:

@@ -12,7 +12,10 @@ the same numbers (a float64 holds a float exactly, and an integer below 2**53), 
 
 The log is a sequence of dicts (``len``, indexing, slices, iteration, ``==`` with a list) and
 grows by :meth:`EventLog.append`; a record is encoded when appended, so changing the dict
-afterwards does not change the log.
+afterwards does not change the log.  A record read by its index (``log[i]``, a slice) is kept as
+that dict from then on: ``log[0]["t"] = ...`` changes the run's record, as it did when events
+were a list.  Iterating builds each record afresh and keeps none of them (a summary of a long
+run reads every event once), except those already read by index.
 """
 from __future__ import annotations
 
@@ -110,6 +113,7 @@ class EventLog(Sequence):
         self._index: list[np.ndarray] = []  # blocks of (table, row) per event
         self._n = 0
         self._aside: list = []
+        self._read: dict[int, dict] = {}  # the records read by index: the same dict every time
         for e in events:
             self.append(e)
 
@@ -139,19 +143,27 @@ class EventLog(Sequence):
     def __len__(self) -> int:
         return self._n
 
+    def _kept(self, i: int):
+        record = self._read.get(i)
+        if record is None:
+            record = self._read[i] = self._event(i)
+        return record
+
     def __getitem__(self, i):
         if isinstance(i, slice):
-            return [self._event(j) for j in range(*i.indices(self._n))]
+            return [self._kept(j) for j in range(*i.indices(self._n))]
         i = int(i)
         if i < 0:
             i += self._n
         if not 0 <= i < self._n:
             raise IndexError("event index out of range")
-        return self._event(i)
+        return self._kept(i)
 
     def __iter__(self):
+        read = self._read
         for i in range(self._n):
-            yield self._event(i)
+            record = read.get(i)
+            yield record if record is not None else self._event(i)
 
     def __eq__(self, other):
         if isinstance(other, (EventLog, list, tuple)):

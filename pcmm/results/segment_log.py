@@ -18,6 +18,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from .segment import SegmentRecord
+
 DATA_BLOCK = 1 << 16  # floats of a data block (512 kB); a longer segment gets a block of its own
 ROW_BLOCK = 1024  # segment rows allocated at once
 _ROW = 6  # context, data block, offset, samples, state rows, q_start length
@@ -38,6 +40,7 @@ class SegmentLog(Sequence):
         self._data: list[np.ndarray] = []
         self._fill = 0  # floats used in the last data block
         self._n = 0
+        self.total_samples = 0
         self._records: dict[int, object] = {}  # the segments read so far (same object every time)
 
     # ---- growing --------------------------------------------------------------------------
@@ -72,6 +75,7 @@ class SegmentLog(Sequence):
             self._rows.append(np.empty((ROW_BLOCK, _ROW), np.int64))
         self._rows[-1][self._n % ROW_BLOCK] = (context, len(self._data) - 1, at, n, rows, nq)
         self._n += 1
+        self.total_samples += n
 
     # ---- reading --------------------------------------------------------------------------
     def _row(self, i: int):
@@ -104,7 +108,6 @@ class SegmentLog(Sequence):
     def _record(self, i: int):
         rec = self._records.get(i)
         if rec is None:
-            from .trajectory import SegmentRecord  # the record type lives with the trajectory
             k = int(self._row(i)[0])
             configuration, names, context = self._contexts[k]
             t, y, q_start = self.arrays(i)

@@ -12,7 +12,7 @@ so a run killed at any instant -- even by SIGKILL -- leaves every chunk it had w
 readable, and none half written.  The run keeps in memory only the segments and events of the
 chunk it is filling: a long run's memory does not grow with its steps or events.
 
-:func:`open_store` reads a folder back as a :class:`~pcmm.results.trajectory.Trajectory`
+:func:`read_store` reads a folder back as a :class:`~pcmm.results.trajectory.Trajectory`
 (``Trajectory.load(DIR)``) whose segments and events are read from the chunks when asked for,
 one chunk in memory at a time.  A folder without ``end.json`` is a run that was killed: it
 reads as a partial run up to its last chunk.
@@ -24,6 +24,7 @@ the groups' names, and the chunk's events.
 """
 from __future__ import annotations
 
+import bisect
 import json
 from collections.abc import Sequence
 from pathlib import Path
@@ -33,6 +34,7 @@ import numpy as np
 from ..errors import UsageError
 from ..files import atomic_write
 from .event_log import EventLog
+from .segment import SegmentRecord
 from .segment_log import SegmentLog
 
 FORMAT = "pcmm-store-1"
@@ -93,7 +95,6 @@ class _Chunk:
     """A chunk read back: its segments' records and its events."""
 
     def __init__(self, path: Path):
-        from .trajectory import SegmentRecord
         with np.load(path, allow_pickle=False) as z:
             header = json.loads(str(z["header"][()]))
             if header.get("format") != FORMAT:
@@ -119,6 +120,7 @@ class StoreReader:
         self.paths: list[Path] = []
         self.segment_counts: list[int] = []
         self.event_counts: list[int] = []
+        self.starts = {"segments": [0], "events": [0]}  # cumulative counts: where each chunk starts
         self._cached: tuple[int, _Chunk] | None = None
         self.refresh()
 
@@ -133,6 +135,8 @@ class StoreReader:
             self.paths.append(path)
             self.segment_counts.append(len(header["segments"]))
             self.event_counts.append(len(header["events"]))
+            self.starts["segments"].append(self.starts["segments"][-1] + self.segment_counts[-1])
+            self.starts["events"].append(self.starts["events"][-1] + self.event_counts[-1])
 
     def chunk(self, k: int) -> _Chunk:
         if self._cached is None or self._cached[0] != k:
@@ -152,14 +156,14 @@ class _Stored(Sequence):
         return self.reader.segment_counts if self.which == "segments" else self.reader.event_counts
 
     def __len__(self) -> int:
-        return sum(self._counts()) + len(self.tail)
+        return self.reader.starts[self.which][-1] + len(self.tail)
 
     def _get(self, i: int):
-        for k, n in enumerate(self._counts()):
-            if i < n:
-                return getattr(self.reader.chunk(k), self.which)[i]
-            i -= n
-        return self.tail[i]
+        starts = self.reader.starts[self.which]
+        if i >= starts[-1]:  # not yet written (a run's latest: what it reads while it goes on)
+            return self.tail[i - starts[-1]]
+        k = bisect.bisect_right(starts, i) - 1
+        return getattr(self.reader.chunk(k), self.which)[i - starts[k]]
 
     def __getitem__(self, i):
         if isinstance(i, slice):
@@ -241,7 +245,7 @@ class StoreWriter:
         segs, events = self.pending(traj)
         if len(segs) >= self.chunk_records or len(events) >= self.chunk_records:
             return True
-        return hasattr(segs, "samples") and sum(segs.samples(i) for i in range(len(segs))) >= self.chunk_samples
+        return getattr(segs, "total_samples", 0) >= self.chunk_samples
 
     def flush(self, traj, more: bool = True) -> None:
         """Write the pending segments and events as the next chunk; the trajectory then reads them
@@ -264,10 +268,10 @@ class StoreWriter:
         write_json(self.folder / "end.json", {"status": traj.status, "message": traj.message, "stats": stats})
 
 
-def open_store(folder: str | Path):
-    """The run stored in ``folder`` as a :class:`Trajectory` whose segments and events are read
-    from its chunks when asked for.  Raises :class:`UsageError` for a folder that holds no store."""
-    from .trajectory import RunStats, Trajectory
+def read_store(folder: str | Path) -> dict:
+    """The run stored in ``folder``: the fields of its :class:`~pcmm.results.trajectory.Trajectory`
+    (``Trajectory.load(folder)``), whose segments and events are read from its chunks when asked
+    for.  Raises :class:`UsageError` for a folder that holds no store."""
     folder = Path(folder)
     what = f"{folder}: not a pcmm store (a folder written by 'pcmm run --store')"
     try:
@@ -284,13 +288,11 @@ def open_store(folder: str | Path):
     segments, events = _Stored(reader, "segments"), _Stored(reader, "events")
     if end is None:
         last = segments[-1].t[-1] if len(segments) else 0.0
-        status, stats = "partial", RunStats()
+        status, stats = "partial", {}
         message = (f"{folder}: the run stopped without ending its store (killed?): it holds its first "
                    f"{len(reader.paths)} chunks, to t = {float(last):.6g} s")
     else:
         status, message, stats = end["status"], end["message"], end["stats"]
-    traj = Trajectory(scene=head["scene"], scene_name=head["scene_name"], impact=bool(head["impact"]),
-                      segments=segments, events=events, stats=stats, status=status, message=message,
-                      views=head.get("views") or {})
-    traj.source = str(folder)
-    return traj
+    return dict(scene=head["scene"], scene_name=head["scene_name"], impact=bool(head["impact"]),
+                segments=segments, events=events, stats=stats, status=status, message=message,
+                views=head.get("views") or {})
