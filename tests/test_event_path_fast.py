@@ -219,3 +219,37 @@ def test_a_joint_guard_reads_the_state_entry_itself():
         q, v = cfg.coords.unpack(t, y)
         assert g(t, y) == row @ q - (tr.guard.value - offset)
         assert g.rate(t, y, None) == row @ v
+
+
+def test_the_zero_time_cycle_check_reads_two_events_of_a_long_log():
+    """At every event the run checks its last ZERO_TIME_CYCLE events for a cycle of switches at
+    one instant; a compact event log builds each record it is asked for, so a log whose ends
+    differ in time is judged from those two records alone (one, with the event just kept)."""
+    from collections.abc import Sequence
+
+    from pcmm.run.actions import ZERO_TIME_CYCLE, zero_time_cycle
+
+    class Counted(Sequence):  # a log that counts the records it builds
+        def __init__(self, events):
+            self.events, self.built = list(events), 0
+
+        def __len__(self):
+            return len(self.events)
+
+        def __getitem__(self, i):
+            if isinstance(i, slice):
+                out = self.events[i]
+                self.built += len(out)
+                return out
+            self.built += 1
+            return self.events[i]
+    log = Counted([{"t": 0.01 * k, "name": "pin", "from": "a", "to": "b"} for k in range(300)])
+    assert zero_time_cycle(log) == ""
+    assert log.built == 2
+    log.built = 0
+    assert zero_time_cycle(log, {"t": 2.99, "name": "pin", "from": "a", "to": "b"}) == ""  # the last, as kept
+    assert log.built == 1
+    # a real cycle at one instant is still found (every record of the tail read)
+    cycle = Counted([{"t": 1.0, "name": n, "from": f, "to": g}
+                     for _ in range(ZERO_TIME_CYCLE // 2) for n, f, g in (("go", "x", "y"), ("back", "y", "x"))])
+    assert zero_time_cycle(cycle) == "'go' (x -> y), 'back' (y -> x)"
