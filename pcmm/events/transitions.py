@@ -41,12 +41,12 @@ from ..model.configuration import Configuration
 from ..model.mechanism import Mechanism
 from ..model.pinocchio_helpers import LWA
 from ..errors import SimulationError
-from .contact import contact_point, contact_state
+from .contact import contact_state
 from .contact_faults import POSE_TOL, contact_findings
 from .records import by_link, event_record
 from .guards import guard_value
 from .entry import VELOCITY_ROUNDOFF, Entry, enter, joints_from_poses, map_state, pose_mismatches  # noqa: F401 - re-exported
-from .impulse import no_impulse, solve_impulse
+from .impulse import Impulse, no_impulse, solve_impulse
 from .pins import pin_strike
 from .simultaneous import closed_with, simultaneous_impact
 from ..scene.spec import GuardSpec, LatchSpec, ReleaseSpec, StopSpec, TransitionSpec

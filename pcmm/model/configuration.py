@@ -27,7 +27,7 @@ from typing import Callable
 import numpy as np
 import pinocchio as pin
 
-from ..errors import ModelError, SimulationError
+from ..errors import ModelError
 from .coordinates import Coordinates
 from .forces import ForceField, compile_forces, compile_point_springs
 from .pinocchio_helpers import LWA, frame_jacobian, mass_matrix

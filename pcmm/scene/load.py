@@ -19,7 +19,7 @@ from pathlib import Path
 from . import schema as S
 from . import settings
 from ..errors import ModelError, SceneError
-from .spec import (ConfigurationSpec, ContactSpec, CutJointSpec, Derivation, DriveSpec, ForceSpec, GuardSpec,
+from .spec import (ConfigurationSpec, ContactSpec, CutJointSpec, DriveSpec, ForceSpec, GuardSpec,
                    BranchSpec, LatchSpec, Measure, PinSpec, PointPair, ReleaseSpec, Scene, StopSpec, Target)
 from .urdf import MOVABLE, read_urdf
 from .variations import read_urdf_cached, set_values
