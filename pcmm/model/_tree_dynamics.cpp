@@ -28,6 +28,7 @@
 #include <cmath>
 #include <cstring>
 #include <string>
+#include <ctime>
 #include <vector>
 
 namespace {
@@ -248,6 +249,63 @@ void evaluate_rhs(Tree *self, const double *y, double *dy) {
   out.tail(nv) = self->data->ddq;
 }
 
+// evaluation_cost(y, reps) -> {part: CPU seconds per call}: the right-hand side's parts timed in C++
+// (this thread's CPU clock around `reps` calls each, no Python between calls) at the state y, for
+// benchmarks/rhs_loop_cost.py: "rhs" (evaluate_rhs, what the segment loop calls), "forces" (Q0 - KD y
+// alone), "aba" (Pinocchio's ABA compiled into this extension, on the state's own memory) and
+// "aba_library" (the `pin` wheel's own instantiation, Eigen::Ref arguments: what pin.aba runs).
+double thread_seconds() {
+  timespec ts;
+  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
+  return ts.tv_sec + 1e-9 * ts.tv_nsec;
+}
+
+PyObject *tree_evaluation_cost(Tree *self, PyObject *args) {
+  PyObject *y_o;
+  long reps;
+  if (!PyArg_ParseTuple(args, "Ol", &y_o, &reps)) return nullptr;
+  if (!self->ready || reps <= 0) {
+    PyErr_SetString(PyExc_ValueError, "evaluation_cost(y, reps): a finalized tree and reps > 0");
+    return nullptr;
+  }
+  const int nv = self->nv;
+  PyArrayObject *y = vector_arg(y_o, 2 * nv, "y", "state");
+  if (!y) return nullptr;
+  std::vector<double> state((const double *)PyArray_DATA(y), (const double *)PyArray_DATA(y) + 2 * nv), dy(2 * nv);
+  Py_DECREF(y);
+  const Eigen::Map<const VectorXd> st(state.data(), 2 * nv);
+  VectorXd tau = *self->q0_force;
+  for (const auto &ij : *self->kd_nonzero) tau[ij.first] -= (*self->kd)(ij.first, ij.second) * st[ij.second];
+  const VectorXd q = st.head(nv), v = st.tail(nv);
+  double sink = 0.0;
+  double t0 = thread_seconds();
+  for (long r = 0; r < reps; ++r) {
+    evaluate_rhs(self, state.data(), dy.data());
+    sink += dy[2 * nv - 1];
+  }
+  const double rhs = (thread_seconds() - t0) / reps;
+  t0 = thread_seconds();
+  for (long r = 0; r < reps; ++r) {
+    *self->tau = *self->q0_force;
+    for (const auto &ij : *self->kd_nonzero) (*self->tau)[ij.first] -= (*self->kd)(ij.first, ij.second) * state[ij.second];
+    sink += (*self->tau)[nv - 1];
+    state[0] += 0.0 * sink;  // the product is not hoisted out of the loop
+  }
+  const double forces = (thread_seconds() - t0) / reps;
+  t0 = thread_seconds();
+  for (long r = 0; r < reps; ++r) sink += pinocchio::aba(*self->model, *self->data, st.head(nv), st.tail(nv), tau)[nv - 1];
+  const double aba_here = (thread_seconds() - t0) / reps;
+  const Eigen::Ref<const VectorXd> qr(q), vr(v), taur(tau);
+  t0 = thread_seconds();
+  for (long r = 0; r < reps; ++r) sink += pinocchio::aba(*self->model, *self->data, qr, vr, taur)[nv - 1];
+  const double aba_library = (thread_seconds() - t0) / reps;
+  if (!std::isfinite(sink)) {
+    PyErr_SetString(PyExc_FloatingPointError, "evaluation_cost: a non-finite acceleration at y");
+    return nullptr;
+  }
+  return Py_BuildValue("{s:d,s:d,s:d,s:d}", "rhs", rhs, "forces", forces, "aba", aba_here, "aba_library", aba_library);
+}
+
 // rhs(t, y) -> [v, aba(q, v, Q0 - KD y)]: a new array each call (integrators keep what they get)
 PyObject *tree_rhs(Tree *self, PyObject *const *args, Py_ssize_t nargs) {
   if (nargs != 2) {
@@ -358,6 +416,8 @@ PyMethodDef tree_methods[] = {
     {"point_rows_and_bias", (PyCFunction)(void (*)(void))tree_point_rows_and_bias, METH_FASTCALL,
      "point_rows_and_bias(q, v) -> (Phi_q, bias)"},
     {"rhs", (PyCFunction)(void (*)(void))tree_rhs, METH_FASTCALL, "rhs(t, y) -> [v, aba(q, v, Q0 - KD y)]"},
+    {"evaluation_cost", (PyCFunction)tree_evaluation_cost, METH_VARARGS,
+     "evaluation_cost(y, reps) -> {part: CPU seconds per call} (benchmarks/rhs_loop_cost.py)"},
     {nullptr, nullptr, 0, nullptr}};
 
 PyTypeObject TreeType = {PyVarObject_HEAD_INIT(nullptr, 0)};
