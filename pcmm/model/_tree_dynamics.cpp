@@ -236,6 +236,71 @@ bool new_results(npy_intp m, npy_intp nv, PyArrayObject **vec, PyArrayObject **m
   return false;
 }
 
+// Pinocchio's ABA in its LOCAL convention (pinocchio/src/algorithm/aba.hxx, abaLocalConvention), for
+// the accelerations alone: its three passes with the same operations in the same order, so ddq
+// is the same to the last bit, without what aba computes besides ddq and pcmm's right-hand side
+// never reads (per joint, its third pass's spatial acceleration data.a, with gravity, and body force
+// data.f, and the fourth pass summing data.f up the tree: about a quarter of aba's arithmetic on a
+// chain of revolute joints, measured by benchmarks/rhs_loop_cost.py).
+template <typename ConfigVectorType, typename TangentVectorType>
+struct AccelerationsPass1
+    : public pinocchio::fusion::JointUnaryVisitorBase<AccelerationsPass1<ConfigVectorType, TangentVectorType>> {
+  typedef boost::fusion::vector<const Model &, Data &, const ConfigVectorType &, const TangentVectorType &> ArgsType;
+  template <typename JointModel>
+  static void algo(const pinocchio::JointModelBase<JointModel> &jmodel,
+                   pinocchio::JointDataBase<typename JointModel::JointDataDerived> &jdata, const Model &model,
+                   Data &data, const Eigen::MatrixBase<ConfigVectorType> &q,
+                   const Eigen::MatrixBase<TangentVectorType> &v) {
+    const Model::JointIndex i = jmodel.id();
+    jmodel.calc(jdata.derived(), q.derived(), v.derived());
+    const Model::JointIndex &parent = model.parents[i];
+    data.liMi[i] = model.jointPlacements[i] * jdata.M();
+    data.v[i] = jdata.v();
+    if (parent > 0) data.v[i] += data.liMi[i].actInv(data.v[parent]);
+    data.a_gf[i] = jdata.c() + (data.v[i] ^ jdata.v());
+    data.Yaba[i] = model.inertias[i].matrix();
+    data.h[i] = model.inertias[i] * data.v[i];
+    data.f[i] = data.v[i].cross(data.h[i]);  // -f_ext
+  }
+};
+
+struct AccelerationsPass3 : public pinocchio::fusion::JointUnaryVisitorBase<AccelerationsPass3> {
+  typedef boost::fusion::vector<const Model &, Data &> ArgsType;
+  template <typename JointModel>
+  static void algo(const pinocchio::JointModelBase<JointModel> &jmodel,
+                   pinocchio::JointDataBase<typename JointModel::JointDataDerived> &jdata, const Model &model,
+                   Data &data) {
+    const Model::JointIndex i = jmodel.id();
+    const Model::JointIndex parent = model.parents[i];
+    data.a_gf[i] += data.liMi[i].actInv(data.a_gf[parent]);
+    jmodel.jointVelocitySelector(data.ddq).noalias() =
+        jdata.Dinv() * jmodel.jointVelocitySelector(data.u) - jdata.UDinv().transpose() * data.a_gf[i].toVector();
+    data.a_gf[i] += jdata.S() * jmodel.jointVelocitySelector(data.ddq);
+  }
+};
+
+template <typename ConfigVectorType, typename TangentVectorType, typename ForceVectorType>
+const VectorXd &accelerations(const Model &model, Data &data, const Eigen::MatrixBase<ConfigVectorType> &q,
+                              const Eigen::MatrixBase<TangentVectorType> &v,
+                              const Eigen::MatrixBase<ForceVectorType> &tau) {
+  typedef Model::JointIndex JointIndex;
+  data.v[0].setZero();
+  data.a_gf[0] = -model.gravity;
+  data.f[0].setZero();
+  data.u = tau;
+  typedef AccelerationsPass1<ConfigVectorType, TangentVectorType> Pass1;
+  for (JointIndex i = 1; i < (JointIndex)model.njoints; ++i)
+    Pass1::run(model.joints[i], data.joints[i], typename Pass1::ArgsType(model, data, q.derived(), v.derived()));
+  // the backward pass is aba's own (it reads nothing the passes here leave out)
+  typedef pinocchio::impl::AbaLocalConventionBackwardStep<double, 0, pinocchio::JointCollectionDefaultTpl> Pass2;
+  for (JointIndex i = (JointIndex)model.njoints - 1; i > 0; --i)
+    Pass2::run(model.joints[i], data.joints[i], typename Pass2::ArgsType(model, data));
+  typedef AccelerationsPass3 Pass3;
+  for (JointIndex i = 1; i < (JointIndex)model.njoints; ++i)
+    Pass3::run(model.joints[i], data.joints[i], typename Pass3::ArgsType(model, data));
+  return data.ddq;
+}
+
 // dy = [v, aba(q, v, Q0 - KD y)] at y (2 nv numbers each): the right-hand side itself, shared by
 // rhs() and the compiled segment loop (_segment_loop.hpp)
 void evaluate_rhs(Tree *self, const double *y, double *dy) {
@@ -244,15 +309,16 @@ void evaluate_rhs(Tree *self, const double *y, double *dy) {
   Eigen::Map<VectorXd> out(dy, 2 * nv);
   *self->tau = *self->q0_force;
   for (const auto &ij : *self->kd_nonzero) (*self->tau)[ij.first] -= (*self->kd)(ij.first, ij.second) * state[ij.second];
-  pinocchio::aba(*self->model, *self->data, state.head(nv), state.tail(nv), *self->tau);
+  accelerations(*self->model, *self->data, state.head(nv), state.tail(nv), *self->tau);
   out.head(nv) = state.tail(nv);
   out.tail(nv) = self->data->ddq;
 }
 
 // evaluation_cost(y, reps) -> {part: CPU seconds per call}: the right-hand side's parts timed in C++
 // (this thread's CPU clock around `reps` calls each, no Python between calls) at the state y, for
-// benchmarks/rhs_loop_cost.py: "rhs" (evaluate_rhs, what the segment loop calls), "forces" (Q0 - KD y
-// alone), "aba" (Pinocchio's ABA compiled into this extension, on the state's own memory) and
+// benchmarks/rhs_loop_cost.py: "rhs" (evaluate_rhs, what the segment loop calls: the forces and
+// accelerations()), "forces" (Q0 - KD y alone), "aba" (Pinocchio's whole ABA compiled into this
+// extension, on the state's own memory) and
 // "aba_library" (the `pin` wheel's own instantiation, Eigen::Ref arguments: what pin.aba runs).
 double thread_seconds() {
   timespec ts;
