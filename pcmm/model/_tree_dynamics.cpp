@@ -47,6 +47,7 @@ struct Tree {
   std::vector<std::pair<int, int>> *kd_nonzero;  // (row, column) of KD's nonzero entries
   VectorXd *tau;
   std::vector<std::pair<Model::FrameIndex, Model::FrameIndex>> *pairs;  // revolute cut joints' points (a, b)
+  decltype(Data::Yaba) *inertia_matrices;  // each body's 6 x 6 spatial inertia, formed once (finalize)
   int nv;
   bool ready;
 };
@@ -74,6 +75,7 @@ PyObject *tree_new(PyTypeObject *type, PyObject *, PyObject *) {
   self->kd_nonzero = new std::vector<std::pair<int, int>>();
   self->tau = new VectorXd();
   self->pairs = new std::vector<std::pair<Model::FrameIndex, Model::FrameIndex>>();
+  self->inertia_matrices = new decltype(Data::Yaba)();
   self->nv = 0;
   self->ready = false;
   return (PyObject *)self;
@@ -87,6 +89,7 @@ void tree_dealloc(Tree *self) {
   delete self->kd_nonzero;
   delete self->tau;
   delete self->pairs;
+  delete self->inertia_matrices;
   Py_TYPE(self)->tp_free((PyObject *)self);
 }
 
@@ -208,6 +211,8 @@ PyObject *tree_finalize(Tree *self, PyObject *args) {
   self->tau->resize(nv);
   delete self->data;
   self->data = new Data(*self->model);
+  self->inertia_matrices->assign(self->data->Yaba.size(), Data::Inertia::Matrix6::Zero());
+  for (int j = 1; j < self->model->njoints; ++j) (*self->inertia_matrices)[j] = self->model->inertias[j].matrix();
   self->nv = nv;
   self->ready = true;
   Py_RETURN_NONE;
@@ -241,7 +246,8 @@ bool new_results(npy_intp m, npy_intp nv, PyArrayObject **vec, PyArrayObject **m
 // is the same to the last bit, without what aba computes besides ddq and pcmm's right-hand side
 // never reads (per joint, its third pass's spatial acceleration data.a, with gravity, and body force
 // data.f, and the fourth pass summing data.f up the tree: about a quarter of aba's arithmetic on a
-// chain of revolute joints, measured by benchmarks/rhs_loop_cost.py).
+// chain of revolute joints, measured by benchmarks/rhs_loop_cost.py), and with each body's 6 x 6
+// spatial inertia formed once per model instead of at every call.
 template <typename ConfigVectorType, typename TangentVectorType>
 struct AccelerationsPass1
     : public pinocchio::fusion::JointUnaryVisitorBase<AccelerationsPass1<ConfigVectorType, TangentVectorType>> {
@@ -258,7 +264,6 @@ struct AccelerationsPass1
     data.v[i] = jdata.v();
     if (parent > 0) data.v[i] += data.liMi[i].actInv(data.v[parent]);
     data.a_gf[i] = jdata.c() + (data.v[i] ^ jdata.v());
-    data.Yaba[i] = model.inertias[i].matrix();
     data.h[i] = model.inertias[i] * data.v[i];
     data.f[i] = data.v[i].cross(data.h[i]);  // -f_ext
   }
@@ -280,7 +285,8 @@ struct AccelerationsPass3 : public pinocchio::fusion::JointUnaryVisitorBase<Acce
 };
 
 template <typename ConfigVectorType, typename TangentVectorType, typename ForceVectorType>
-const VectorXd &accelerations(const Model &model, Data &data, const Eigen::MatrixBase<ConfigVectorType> &q,
+const VectorXd &accelerations(const Model &model, Data &data, const decltype(Data::Yaba) &inertia_matrices,
+                              const Eigen::MatrixBase<ConfigVectorType> &q,
                               const Eigen::MatrixBase<TangentVectorType> &v,
                               const Eigen::MatrixBase<ForceVectorType> &tau) {
   typedef Model::JointIndex JointIndex;
@@ -288,6 +294,9 @@ const VectorXd &accelerations(const Model &model, Data &data, const Eigen::Matri
   data.a_gf[0] = -model.gravity;
   data.f[0].setZero();
   data.u = tau;
+  // each body's spatial inertia as aba's first pass forms it (model.inertias[i].matrix()), copied:
+  // formed once per model, at finalize
+  for (JointIndex i = 1; i < (JointIndex)model.njoints; ++i) data.Yaba[i] = inertia_matrices[i];
   typedef AccelerationsPass1<ConfigVectorType, TangentVectorType> Pass1;
   for (JointIndex i = 1; i < (JointIndex)model.njoints; ++i)
     Pass1::run(model.joints[i], data.joints[i], typename Pass1::ArgsType(model, data, q.derived(), v.derived()));
@@ -309,7 +318,7 @@ void evaluate_rhs(Tree *self, const double *y, double *dy) {
   Eigen::Map<VectorXd> out(dy, 2 * nv);
   *self->tau = *self->q0_force;
   for (const auto &ij : *self->kd_nonzero) (*self->tau)[ij.first] -= (*self->kd)(ij.first, ij.second) * state[ij.second];
-  accelerations(*self->model, *self->data, state.head(nv), state.tail(nv), *self->tau);
+  accelerations(*self->model, *self->data, *self->inertia_matrices, state.head(nv), state.tail(nv), *self->tau);
   out.head(nv) = state.tail(nv);
   out.tail(nv) = self->data->ddq;
 }
