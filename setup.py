@@ -49,7 +49,7 @@ else:
                        ("BOOST_MPL_LIMIT_LIST_SIZE", "30"), ("BOOST_MPL_LIMIT_VECTOR_SIZE", "30"),
                        ("BOOST_MPL_CFG_NO_PREPROCESSED_HEADERS", None), ("BOOST_FUSION_INVOKE_MAX_ARITY", "12")],
         # -g0: no debug information (Python's own CFLAGS carry -g: 83 MB of it for this one file)
-        extra_compile_args=["-std=c++17", "-O2", "-w", "-g0"],
+        extra_compile_args=["-std=c++17", "-O3", "-w", "-g0"],
         optional=True,
     ))
 

@@ -79,6 +79,47 @@ def test_every_joint_kind_against_crba_and_rnea():
         assert got is not rhs(0.0, y)  # a new array each call: integrators keep the arrays they get
 
 
+def _branched_model():
+    """A tree, not a chain: two branches off the first link (revolute, and prismatic then revolute)
+    and a second root, joints in Pinocchio's depth-first order, yawed placements, offset centres."""
+    model = pin.Model()
+    rng = np.random.default_rng(3)
+
+    def body(parent, joint, xyz):
+        j = model.addJoint(parent, joint, pin.SE3(pin.utils.rotate("z", rng.uniform(-1.0, 1.0)), np.array(xyz)),
+                           f"j{model.njoints}")
+        lever = np.array([rng.uniform(0.0, 0.3), rng.uniform(-0.05, 0.05), 0.0])
+        model.appendBodyToJoint(j, pin.Inertia(rng.uniform(0.2, 1.0), lever,
+                                               np.diag([1e-3, 1e-3, rng.uniform(1e-3, 1e-2)])), pin.SE3.Identity())
+        return j
+    a = body(0, pin.JointModelRZ(), [0.0, 0.0, 0.0])
+    b = body(a, pin.JointModelRZ(), [0.4, 0.0, 0.0])
+    body(b, pin.JointModelRZ(), [0.3, 0.0, 0.0])
+    c = body(a, pin.JointModelPX(), [0.2, 0.1, 0.0])
+    body(c, pin.JointModelRZ(), [0.1, 0.0, 0.0])
+    body(0, pin.JointModelRZ(), [1.0, 0.0, 0.0])
+    model.gravity.linear[:] = [0.0, -9.81, 0.0]
+    return model
+
+
+@needs_extension
+def test_a_branched_tree_against_crba_and_rnea():
+    """The compiled accelerations (aba's passes without its body forces and their sum up the tree)
+    where a body's articulated inertia and bias force gather two children's."""
+    model = _branched_model()
+    assert list(model.parents) == [0, 0, 1, 2, 1, 4, 0]
+    nv = model.nv
+    rng = np.random.default_rng(1)
+    Q0 = rng.uniform(-1.0, 1.0, nv)
+    KD = np.hstack([np.diag(rng.uniform(0.5, 3.0, nv)), rng.uniform(-0.2, 0.2, (nv, nv))])
+    rhs = _tree_rhs(model, Q0, KD)
+    assert rhs is not None, compiled.why_not()
+    for _ in range(20):
+        y = np.concatenate([rng.uniform(-3.0, 3.0, nv), rng.uniform(-4.0, 4.0, nv)])
+        expected = _by_crba(model, y, Q0, KD)
+        np.testing.assert_allclose(rhs(0.0, y), expected, rtol=0, atol=1e-12 * (1 + np.abs(expected).max()))
+
+
 @needs_extension
 def test_armature_enters_as_the_python_model_has_it():
     model = _every_kind_model()

@@ -28,6 +28,7 @@
 #include <cmath>
 #include <cstring>
 #include <string>
+#include <ctime>
 #include <vector>
 
 namespace {
@@ -46,6 +47,7 @@ struct Tree {
   std::vector<std::pair<int, int>> *kd_nonzero;  // (row, column) of KD's nonzero entries
   VectorXd *tau;
   std::vector<std::pair<Model::FrameIndex, Model::FrameIndex>> *pairs;  // revolute cut joints' points (a, b)
+  decltype(Data::Yaba) *inertia_matrices;  // each body's 6 x 6 spatial inertia, formed once (finalize)
   int nv;
   bool ready;
 };
@@ -73,6 +75,7 @@ PyObject *tree_new(PyTypeObject *type, PyObject *, PyObject *) {
   self->kd_nonzero = new std::vector<std::pair<int, int>>();
   self->tau = new VectorXd();
   self->pairs = new std::vector<std::pair<Model::FrameIndex, Model::FrameIndex>>();
+  self->inertia_matrices = new decltype(Data::Yaba)();
   self->nv = 0;
   self->ready = false;
   return (PyObject *)self;
@@ -86,6 +89,7 @@ void tree_dealloc(Tree *self) {
   delete self->kd_nonzero;
   delete self->tau;
   delete self->pairs;
+  delete self->inertia_matrices;
   Py_TYPE(self)->tp_free((PyObject *)self);
 }
 
@@ -207,6 +211,8 @@ PyObject *tree_finalize(Tree *self, PyObject *args) {
   self->tau->resize(nv);
   delete self->data;
   self->data = new Data(*self->model);
+  self->inertia_matrices->assign(self->data->Yaba.size(), Data::Inertia::Matrix6::Zero());
+  for (int j = 1; j < self->model->njoints; ++j) (*self->inertia_matrices)[j] = self->model->inertias[j].matrix();
   self->nv = nv;
   self->ready = true;
   Py_RETURN_NONE;
@@ -235,6 +241,75 @@ bool new_results(npy_intp m, npy_intp nv, PyArrayObject **vec, PyArrayObject **m
   return false;
 }
 
+// Pinocchio's ABA in its LOCAL convention (pinocchio/src/algorithm/aba.hxx, abaLocalConvention), for
+// the accelerations alone: its three passes with the same operations in the same order (ddq the
+// same to the last bit as aba compiled here: Example 1's loop ends on the same state), without
+// what aba computes besides ddq and pcmm's right-hand side never reads (per joint, its third pass's spatial acceleration data.a, with gravity, and body force
+// data.f, and the fourth pass summing data.f up the tree: about a quarter of aba's arithmetic on a
+// chain of revolute joints, measured by benchmarks/rhs_loop_cost.py), and with each body's 6 x 6
+// spatial inertia formed once per model instead of at every call.
+template <typename ConfigVectorType, typename TangentVectorType>
+struct AccelerationsPass1
+    : public pinocchio::fusion::JointUnaryVisitorBase<AccelerationsPass1<ConfigVectorType, TangentVectorType>> {
+  typedef boost::fusion::vector<const Model &, Data &, const ConfigVectorType &, const TangentVectorType &> ArgsType;
+  template <typename JointModel>
+  static void algo(const pinocchio::JointModelBase<JointModel> &jmodel,
+                   pinocchio::JointDataBase<typename JointModel::JointDataDerived> &jdata, const Model &model,
+                   Data &data, const Eigen::MatrixBase<ConfigVectorType> &q,
+                   const Eigen::MatrixBase<TangentVectorType> &v) {
+    const Model::JointIndex i = jmodel.id();
+    jmodel.calc(jdata.derived(), q.derived(), v.derived());
+    const Model::JointIndex &parent = model.parents[i];
+    data.liMi[i] = model.jointPlacements[i] * jdata.M();
+    data.v[i] = jdata.v();
+    if (parent > 0) data.v[i] += data.liMi[i].actInv(data.v[parent]);
+    data.a_gf[i] = jdata.c() + (data.v[i] ^ jdata.v());
+    data.h[i] = model.inertias[i] * data.v[i];
+    data.f[i] = data.v[i].cross(data.h[i]);  // -f_ext
+  }
+};
+
+struct AccelerationsPass3 : public pinocchio::fusion::JointUnaryVisitorBase<AccelerationsPass3> {
+  typedef boost::fusion::vector<const Model &, Data &> ArgsType;
+  template <typename JointModel>
+  static void algo(const pinocchio::JointModelBase<JointModel> &jmodel,
+                   pinocchio::JointDataBase<typename JointModel::JointDataDerived> &jdata, const Model &model,
+                   Data &data) {
+    const Model::JointIndex i = jmodel.id();
+    const Model::JointIndex parent = model.parents[i];
+    data.a_gf[i] += data.liMi[i].actInv(data.a_gf[parent]);
+    jmodel.jointVelocitySelector(data.ddq).noalias() =
+        jdata.Dinv() * jmodel.jointVelocitySelector(data.u) - jdata.UDinv().transpose() * data.a_gf[i].toVector();
+    data.a_gf[i] += jdata.S() * jmodel.jointVelocitySelector(data.ddq);
+  }
+};
+
+template <typename ConfigVectorType, typename TangentVectorType, typename ForceVectorType>
+const VectorXd &accelerations(const Model &model, Data &data, const decltype(Data::Yaba) &inertia_matrices,
+                              const Eigen::MatrixBase<ConfigVectorType> &q,
+                              const Eigen::MatrixBase<TangentVectorType> &v,
+                              const Eigen::MatrixBase<ForceVectorType> &tau) {
+  typedef Model::JointIndex JointIndex;
+  data.v[0].setZero();
+  data.a_gf[0] = -model.gravity;
+  data.f[0].setZero();
+  data.u = tau;
+  // each body's spatial inertia as aba's first pass forms it (model.inertias[i].matrix()), copied:
+  // formed once per model, at finalize
+  for (JointIndex i = 1; i < (JointIndex)model.njoints; ++i) data.Yaba[i] = inertia_matrices[i];
+  typedef AccelerationsPass1<ConfigVectorType, TangentVectorType> Pass1;
+  for (JointIndex i = 1; i < (JointIndex)model.njoints; ++i)
+    Pass1::run(model.joints[i], data.joints[i], typename Pass1::ArgsType(model, data, q.derived(), v.derived()));
+  // the backward pass is aba's own (it reads nothing the passes here leave out)
+  typedef pinocchio::impl::AbaLocalConventionBackwardStep<double, 0, pinocchio::JointCollectionDefaultTpl> Pass2;
+  for (JointIndex i = (JointIndex)model.njoints - 1; i > 0; --i)
+    Pass2::run(model.joints[i], data.joints[i], typename Pass2::ArgsType(model, data));
+  typedef AccelerationsPass3 Pass3;
+  for (JointIndex i = 1; i < (JointIndex)model.njoints; ++i)
+    Pass3::run(model.joints[i], data.joints[i], typename Pass3::ArgsType(model, data));
+  return data.ddq;
+}
+
 // dy = [v, aba(q, v, Q0 - KD y)] at y (2 nv numbers each): the right-hand side itself, shared by
 // rhs() and the compiled segment loop (_segment_loop.hpp)
 void evaluate_rhs(Tree *self, const double *y, double *dy) {
@@ -243,9 +318,67 @@ void evaluate_rhs(Tree *self, const double *y, double *dy) {
   Eigen::Map<VectorXd> out(dy, 2 * nv);
   *self->tau = *self->q0_force;
   for (const auto &ij : *self->kd_nonzero) (*self->tau)[ij.first] -= (*self->kd)(ij.first, ij.second) * state[ij.second];
-  pinocchio::aba(*self->model, *self->data, state.head(nv), state.tail(nv), *self->tau);
+  accelerations(*self->model, *self->data, *self->inertia_matrices, state.head(nv), state.tail(nv), *self->tau);
   out.head(nv) = state.tail(nv);
   out.tail(nv) = self->data->ddq;
+}
+
+// evaluation_cost(y, reps) -> {part: CPU seconds per call}: the right-hand side's parts timed in C++
+// (this thread's CPU clock around `reps` calls each, no Python between calls) at the state y, for
+// benchmarks/rhs_loop_cost.py: "rhs" (evaluate_rhs, what the segment loop calls: the forces and
+// accelerations()), "forces" (Q0 - KD y alone), "aba" (Pinocchio's whole ABA compiled into this
+// extension, on the state's own memory) and
+// "aba_library" (the `pin` wheel's own instantiation, Eigen::Ref arguments: what pin.aba runs).
+double thread_seconds() {
+  timespec ts;
+  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
+  return ts.tv_sec + 1e-9 * ts.tv_nsec;
+}
+
+PyObject *tree_evaluation_cost(Tree *self, PyObject *args) {
+  PyObject *y_o;
+  long reps;
+  if (!PyArg_ParseTuple(args, "Ol", &y_o, &reps)) return nullptr;
+  if (!self->ready || reps <= 0) {
+    PyErr_SetString(PyExc_ValueError, "evaluation_cost(y, reps): a finalized tree and reps > 0");
+    return nullptr;
+  }
+  const int nv = self->nv;
+  PyArrayObject *y = vector_arg(y_o, 2 * nv, "y", "state");
+  if (!y) return nullptr;
+  std::vector<double> state((const double *)PyArray_DATA(y), (const double *)PyArray_DATA(y) + 2 * nv), dy(2 * nv);
+  Py_DECREF(y);
+  const Eigen::Map<const VectorXd> st(state.data(), 2 * nv);
+  VectorXd tau = *self->q0_force;
+  for (const auto &ij : *self->kd_nonzero) tau[ij.first] -= (*self->kd)(ij.first, ij.second) * st[ij.second];
+  const VectorXd q = st.head(nv), v = st.tail(nv);
+  double sink = 0.0;
+  double t0 = thread_seconds();
+  for (long r = 0; r < reps; ++r) {
+    evaluate_rhs(self, state.data(), dy.data());
+    sink += dy[2 * nv - 1];
+  }
+  const double rhs = (thread_seconds() - t0) / reps;
+  t0 = thread_seconds();
+  for (long r = 0; r < reps; ++r) {
+    *self->tau = *self->q0_force;
+    for (const auto &ij : *self->kd_nonzero) (*self->tau)[ij.first] -= (*self->kd)(ij.first, ij.second) * state[ij.second];
+    sink += (*self->tau)[nv - 1];
+    state[0] += 0.0 * sink;  // the product is not hoisted out of the loop
+  }
+  const double forces = (thread_seconds() - t0) / reps;
+  t0 = thread_seconds();
+  for (long r = 0; r < reps; ++r) sink += pinocchio::aba(*self->model, *self->data, st.head(nv), st.tail(nv), tau)[nv - 1];
+  const double aba_here = (thread_seconds() - t0) / reps;
+  const Eigen::Ref<const VectorXd> qr(q), vr(v), taur(tau);
+  t0 = thread_seconds();
+  for (long r = 0; r < reps; ++r) sink += pinocchio::aba(*self->model, *self->data, qr, vr, taur)[nv - 1];
+  const double aba_library = (thread_seconds() - t0) / reps;
+  if (!std::isfinite(sink)) {
+    PyErr_SetString(PyExc_FloatingPointError, "evaluation_cost: a non-finite acceleration at y");
+    return nullptr;
+  }
+  return Py_BuildValue("{s:d,s:d,s:d,s:d}", "rhs", rhs, "forces", forces, "aba", aba_here, "aba_library", aba_library);
 }
 
 // rhs(t, y) -> [v, aba(q, v, Q0 - KD y)]: a new array each call (integrators keep what they get)
@@ -358,6 +491,8 @@ PyMethodDef tree_methods[] = {
     {"point_rows_and_bias", (PyCFunction)(void (*)(void))tree_point_rows_and_bias, METH_FASTCALL,
      "point_rows_and_bias(q, v) -> (Phi_q, bias)"},
     {"rhs", (PyCFunction)(void (*)(void))tree_rhs, METH_FASTCALL, "rhs(t, y) -> [v, aba(q, v, Q0 - KD y)]"},
+    {"evaluation_cost", (PyCFunction)tree_evaluation_cost, METH_VARARGS,
+     "evaluation_cost(y, reps) -> {part: CPU seconds per call} (benchmarks/rhs_loop_cost.py)"},
     {nullptr, nullptr, 0, nullptr}};
 
 PyTypeObject TreeType = {PyVarObject_HEAD_INIT(nullptr, 0)};
