@@ -108,6 +108,8 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--html", type=Path, help="write a self-contained offline replay page")
     r.add_argument("--replay", action="store_true", help="replay the run in meshcat (browser)")
     r.add_argument("--plots", type=Path, help="write the paper's figures (PNG) into this folder")
+    r.add_argument("--no-comparison", action="store_true",
+                   help="with --plots: the figures show only this run; no second run without/with impact")
     r.add_argument("--dt", type=_positive("dt"), help="write the CSV and the figures at times 0, dt, 2 dt, ... "
                    "(and at every event) on the integrator's dense output, s (default: at its steps)")
     r.add_argument("--force", action="store_true", help="overwrite existing output files")
@@ -470,6 +472,8 @@ def cmd_run(args, held=None) -> int:
         from .results.summary import event_table
         _check_outputs([("--out", args.out), ("--summary", args.summary), ("--csv", args.csv),
                         ("--html", args.html)], args.force, folders=[("--plots", args.plots)])
+        if args.no_comparison and args.plots is None:
+            raise UsageError("--no-comparison: only with --plots (it leaves out the figures' comparison run)")
         scene = load_scene(args.scene)
         _check_geometry(scene)
         opts = options_from_arguments(args, t_end=args.t_end, impact=not args.no_impact)
@@ -562,7 +566,8 @@ def _write_results(args, scene, opts, traj, partial: bool):
     comparison = []
 
     def compare_run():
-        if not comparison and not scene.transitions:  # nothing to compare without a transition
+        # --no-comparison: not asked for; a scene without a transition: nothing to compare
+        if not comparison and (args.no_comparison or not scene.transitions):
             comparison.append(None)
         if not comparison:
             from .run.loop import simulate

@@ -279,3 +279,69 @@ def test_the_difference_of_the_two_runs_is_plotted_zero_until_the_first_event(ru
         assert np.abs(d[t < t_event - 1e-9]).max() < 1e-9  # the same run until the latch
         assert np.abs(d[t > t_event + 0.05]).max() > 1e-3  # and apart after it
         assert any(abs(x - t_event) < 1e-12 for ln in ax.get_lines() for x in np.atleast_1d(ln.get_xdata())[:1])
+
+
+# ---- pcmm run --plots: the comparison run, and --no-comparison -------------------------------
+def _run_plots(tmp_path, monkeypatch, capsys, *flags):
+    """``pcmm run BALL --plots figs FLAGS`` in-process: the impact flag of every simulate call,
+    the ``compare`` the figures got, the figures drawn (before saving) and the files written."""
+    import builders
+    from pcmm.cli import main as cli_main
+    from pcmm.run import loop
+    calls, drawn = [], []
+    real_simulate, real_figures = loop.simulate, plots.figures
+
+    def simulate(scene, opts=None, *a, **kw):
+        calls.append(opts.impact)
+        return real_simulate(scene, opts, *a, **kw)
+
+    def figures(traj, compare=None, **kw):
+        drawn.append((traj, compare, real_figures(traj, compare=compare, **kw)))
+        return drawn[-1][2]
+    monkeypatch.setattr(loop, "simulate", simulate)
+    monkeypatch.setattr(plots, "figures", figures)
+    # a ball dropped from 1 m hits the floor at t = sqrt(2/g) = 0.45 s: one transition, one impact
+    scene = builders.ball(tmp_path / "scene", 0.5, t_end=0.6)
+    out = tmp_path / "figs"
+    rc = cli_main(["run", str(scene), "--plots", str(out), "--quiet", *flags])
+    _, err = capsys.readouterr()
+    assert rc == 0, err
+    (traj, compare, figs), = drawn
+    return calls, compare, figs, sorted(p.name for p in out.iterdir()), err
+
+
+def _legend(fig) -> list[str]:
+    return [t.get_text() for leg in fig.legends for t in leg.get_texts()]
+
+
+def test_run_plots_draws_the_comparison_run_by_default(tmp_path, monkeypatch, capsys):
+    calls, compare, figs, names, _ = _run_plots(tmp_path, monkeypatch, capsys)
+    assert calls == [True, False]  # this run, then the comparison run without impact
+    assert compare is not None and compare.impact is False
+    assert names == sorted(f"{k}.png" for k in figs) and "energy.png" in names
+    legend = _legend(figs["energy"])
+    assert any(plots.WITH_IMPACT.lower() in s.lower() for s in legend)
+    assert any(plots.WITHOUT_IMPACT.lower() in s.lower() for s in legend)
+
+
+def test_no_comparison_runs_once_and_draws_this_run_alone(tmp_path, monkeypatch, capsys):
+    calls, compare, figs, names, err = _run_plots(tmp_path, monkeypatch, capsys, "--no-comparison")
+    assert calls == [True] and compare is None  # one simulation: no second run without impact
+    assert "comparison run" not in err
+    # the figures of this run, each written as a PNG (the ball has no link angle to difference)
+    assert {"energy.png", "impulses.png", "slider.png"} <= set(names)
+    assert names == sorted(f"{k}.png" for k in figs)
+    for n in names:
+        assert_png(tmp_path / "figs" / n)
+    legend = _legend(figs["energy"])  # one run: the curves are not tagged with or without impact
+    assert "Kinetic energy" in legend and not any("impact motion" in s for s in legend)
+    assert not any(plots.WITHOUT_IMPACT in s for f in figs.values() for s in _legend(f))
+
+
+def test_no_comparison_without_plots_is_a_usage_error(tmp_path, capsys):
+    import builders
+    from pcmm.cli import main as cli_main
+    scene = builders.ball(tmp_path / "scene", 0.5, t_end=0.1)
+    assert cli_main(["run", str(scene), "--no-comparison", "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert "--no-comparison" in err and "--plots" in err and "Traceback" not in err
