@@ -12,10 +12,10 @@ the same numbers (a float64 holds a float exactly, and an integer below 2**53), 
 
 The log is a sequence of dicts (``len``, indexing, slices, iteration, ``==`` with a list) and
 grows by :meth:`EventLog.append`; a record is encoded when appended, so changing the dict
-afterwards does not change the log.  A record read by its index (``log[i]``, a slice) is kept as
-that dict from then on: ``log[0]["t"] = ...`` changes the run's record, as it did when events
+afterwards does not change the log.  A record read by its index (``log[i]``) is kept as that
+dict from then on: ``log[0]["t"] = ...`` changes the run's record, as it did when events
 were a list.  Iterating builds each record afresh and keeps none of them (a summary of a long
-run reads every event once), except those already read by index.
+run reads every event once), and so does a slice, except for the records already read by index.
 """
 from __future__ import annotations
 
@@ -150,8 +150,8 @@ class EventLog(Sequence):
         return record
 
     def __getitem__(self, i):
-        if isinstance(i, slice):
-            return [self._kept(j) for j in range(*i.indices(self._n))]
+        if isinstance(i, slice):  # as iterating: built afresh, not kept (a run reads its last events after each one)
+            return [self._read.get(j) or self._event(j) for j in range(*i.indices(self._n))]
         i = int(i)
         if i < 0:
             i += self._n
