@@ -36,6 +36,7 @@ else:
     extensions.append(Extension(
         "pcmm.model._tree_dynamics",
         sources=["pcmm/model/_tree_dynamics.cpp"],
+        depends=["pcmm/model/_segment_loop.hpp"],  # the compiled segment loop, included by it
         language="c++",
         include_dirs=[str(prefix / "include"), str(prefix / "include" / "eigen3"), numpy.get_include()],
         library_dirs=[str(prefix / "lib")],
@@ -68,7 +69,7 @@ class CachedBuildExt(build_ext):
 
     def _key(self, ext) -> str:
         h = hashlib.sha256()
-        for src in ext.sources:
+        for src in [*ext.sources, *ext.depends]:
             h.update(Path(src).read_bytes())
         config = prefix / "include" / "pinocchio" / "config.hpp" if prefix else None
         h.update(config.read_bytes() if config and config.is_file() else b"")

@@ -361,6 +361,8 @@ def cmd_check(args) -> int:
         f"poses and contacts consistent at {count(len(report.postures), 'guard value')})")
     for line in derived:
         say(f"  {line}")
+    for source, cut_joint, target in scene.lift_offs():  # releases pcmm adds by itself
+        say(f"  '{source}': the point held by '{cut_joint}' lifts off into '{target}' where its normal force turns tensile")
     return 0
 
 

@@ -647,7 +647,26 @@ class Oracle:
         # velocities the target does not have as coordinates: zero (locked)
         rows = []
         contact_events = 0
+        together = []  # (event, contact's name, its row index): contacts closed at once, one impulse
         for e in here:
+            if "simultaneous" in e:
+                for name, c in e["simultaneous"].items():
+                    tr = next(x for x in self.scene.transitions if x.name == name)
+                    together.append((e, name, len(rows)))
+                    rows.append(self.contact_row(tr.contact, Fa, qa, va)[0])
+                    vn_m, vn_p = float(rows[-1] @ va), float(rows[-1] @ vplus)
+                    target = -c["restitution"] * min(vn_m, 0.0)
+                    self.report(t, f"event '{e['name']}': {name}'s normal velocity after ({c['mode']})",
+                                c["normal_velocity"]["after"], vn_p, abs(c["normal_velocity"]["after"] - vn_p),
+                                tol.event * max(1.0, abs(vn_m)))
+                    if c["mode"] != "separate":  # held: Newton's law on its normal
+                        self.report(t, f"event '{e['name']}': {name} held with restitution {c['restitution']}",
+                                    vn_p, target, abs(vn_p - target), tol.event * max(1.0, abs(vn_m)))
+                    if tr.contact.friction is not None:  # its tangential row (t = (n_y, -n_x), in a's frame)
+                        nrm = tr.contact.normal
+                        tang = dataclasses.replace(tr.contact, normal=(nrm[1], -nrm[0]))
+                        rows.append(self.contact_row(tang, Fa, qa, va)[0])
+                continue
             tr = next((x for x in self.scene.transitions if x.name == e["name"]), None)
             if tr is None or tr.contact is None:
                 continue
@@ -690,6 +709,11 @@ class Oracle:
             if P is not None:
                 self.report(t, f"event '{here[0]['name']}': impulse P", P, float(impulses[0]),
                             abs(P - impulses[0]), tol.event * max(1.0, abs(impulses[0]), p))
+        if impulses is not None:
+            for e, name, i in together:  # each contact's normal impulse, unique where the rows are independent
+                P = e["simultaneous"][name]["impulse"]["normal"]
+                self.report(t, f"event '{e['name']}': {name}'s normal impulse", P, float(impulses[i]),
+                            abs(P - impulses[i]), tol.event * max(1.0, abs(impulses[i]), p))
         if drives and impulses is not None:
             # the drive's impulse P works P f'(t) (its coordinate's rate is prescribed, the same on both
             # sides); every other row's impulse works P (v- + v+) / 2 <= 0 (restitution <= 1, locks)
@@ -756,15 +780,16 @@ def compare_csv(short, long, rel: float = 1e-7) -> list[str]:
 _SERIES = ("q", "v", "theta", "omega", "xy", "kinetic", "potential", "forces", "constraint_forces")
 
 
-def _differ(kind, k, config, times, pairs, rel) -> list[str]:
+def _differ(where: str, times, pairs, rel: float, note: str = "") -> list[str]:
+    """One message per series ``(A, B, name)`` of ``pairs`` whose largest difference exceeds
+    ``rel`` times its scale (max |B|, at least 1), naming the time of the largest."""
     out = []
     for A, B, name in pairs:
         scale = max(1.0, float(np.max(np.abs(B), initial=0.0)))
         err = float(np.max(np.abs(A - B), initial=0.0))
         if not err <= rel * scale:
             j = int(np.argmax(np.max(np.abs(A - B).reshape(len(times), -1), axis=1)))
-            out.append(f"{kind}: segment {k} ({config}) {name} differs by {err:.3g} at t = {times[j]:.9g} s "
-                       f"(scale {scale:.3g}), the longer run's dense output")
+            out.append(f"{where} {name} differs by {err:.3g} at t = {times[j]:.9g} s (scale {scale:.3g}){note}")
     return out
 
 
@@ -802,15 +827,10 @@ def check_prefix(scene_path, t_short: float, t_long: float, dt: float, folder: P
                 dense = raw.resampled(inside)
                 j_s = np.searchsorted(s.t, inside)
                 pairs = [(getattr(s, name)[j_s], getattr(dense, name), name) for name in _SERIES]
-                problems += _differ(kind, k, s.configuration, inside, pairs, rel_dense)
-            for name in _SERIES:
-                A, B = getattr(s, name)[i_s], getattr(l, name)[i_l]
-                scale = max(1.0, float(np.max(np.abs(B), initial=0.0)))
-                err = float(np.max(np.abs(A - B), initial=0.0))
-                if not err <= rel * scale:
-                    j = int(np.argmax(np.max(np.abs(A - B).reshape(len(common), -1), axis=1)))
-                    problems.append(f"{kind}: segment {k} ({s.configuration}) {name} differs by {err:.3g} "
-                                    f"at t = {common[j]:.9g} s (scale {scale:.3g})")
+                problems += _differ(f"{kind}: segment {k} ({s.configuration})", inside, pairs, rel_dense,
+                                    ", the longer run's dense output")
+            problems += _differ(f"{kind}: segment {k} ({s.configuration})", common,
+                                [(getattr(s, name)[i_s], getattr(l, name)[i_l], name) for name in _SERIES], rel)
         if kind == "dt":
             problems += compare_csv(ts.to_csv(folder / "short.csv"), tl.to_csv(folder / "long.csv"), rel)
     return problems
@@ -832,14 +852,9 @@ def check_resampled_states(scene_path, t_end: float, dt: float, rel: float = 1e-
     for k, (sa, sb) in enumerate(zip(a.segments, b.segments)):
         inner_a, inner_b = sa.t[1:-1], sb.t[1:-1]  # the grid times (the ends are the events')
         common, ia, ib = np.intersect1d(inner_a, inner_b, return_indices=True)
-        for name in ("q", "v", "kinetic"):
-            A, B = getattr(sa, name)[1:-1][ia], getattr(sb, name)[1:-1][ib]
-            scale = max(1.0, float(np.max(np.abs(B), initial=0.0)))
-            err = float(np.max(np.abs(A - B), initial=0.0))
-            if not err <= rel * scale:
-                j = int(np.argmax(np.max(np.abs(A - B).reshape(len(common), -1), axis=1)))
-                problems.append(f"segment {k} ({sa.configuration}) resampled {name} off by {err:.3g} at "
-                                f"t = {common[j]:.9g} s")
+        problems += _differ(f"segment {k} ({sa.configuration}) resampled", common,
+                            [(getattr(sa, name)[1:-1][ia], getattr(sb, name)[1:-1][ib], name)
+                             for name in ("q", "v", "kinetic")], rel)
     return problems
 
 

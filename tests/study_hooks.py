@@ -36,3 +36,14 @@ class FaultyPlugin:
 
     def setup(self, worker):
         faulty()
+
+
+def echo(job):
+    """A run for :class:`pcmm.studies.pool.WorkerPool` tests: ``"abort"`` crashes the worker
+    (after 0.5 s), ``"hang"`` hangs it, anything else is its own row."""
+    if job == "abort":
+        time.sleep(0.5)
+        os.abort()
+    if job == "hang":
+        time.sleep(3600)
+    return job

@@ -57,3 +57,23 @@ def test_inverse_mass_of_a_massless_link_says_so():
     M = np.diag([1.0, 0.0, 2.0])  # a link without mass or inertia: not positive definite
     with pytest.raises(SimulationError, match="configuration 'folded': the mass matrix is not positive definite"):
         _inverse_mass(M, "folded")
+
+
+def test_a_study_varying_a_torque_holds_a_bounded_number_of_compiled_trees():
+    """Each torque value is a new key of the compiled trees (a sweep's worker held 523 trees after
+    300 runs): per model at most compiled._KEYS_MAX are kept, and a run whose key was dropped
+    gives the same event again (the tree is rebuilt with the same numbers)."""
+    import pcmm
+    from pcmm.model import compiled
+    if not compiled.enabled():
+        pytest.skip(compiled.why_not())
+    compiled.forget_trees()
+    scene = pcmm.load_scene(ROOT / "examples" / "three_bar.toml")
+    first = pcmm.simulate(scene.with_values({"forces.tau1.value": 1.955}), pcmm.RunOptions(t_end=0.2))
+    for k in range(compiled._KEYS_MAX + 8):
+        pcmm.simulate(scene.with_values({"forces.tau1.value": 1.9 + 0.001 * k}), pcmm.RunOptions(t_end=0.2))
+    held = [len(built) for _, built in compiled._CACHE.trees.values()]
+    assert held and max(held) <= compiled._KEYS_MAX
+    again = pcmm.simulate(scene.with_values({"forces.tau1.value": 1.955}), pcmm.RunOptions(t_end=0.2))
+    assert again.events[0]["t"] == first.events[0]["t"]
+    assert np.array_equal(again.segments[-1].q, first.segments[-1].q)

@@ -357,56 +357,61 @@ def test_grazing_gap_approach_speed_to_zero(tmp_path, v_approach):
 # ======================================================================================
 # 4. two contacts closing at the same instant
 # ======================================================================================
-# What a user should expect (and what pcmm documents by construction: one impulse per
-# event, transitions in scene order): simultaneous contacts are resolved by sequential
-# impulses at the same instant, in scene order, each satisfying its own restitution law,
-# repeated while a contact still approaches; no contact is ever passed through; the total
-# kinetic energy does not rise.
+# What a user should expect (issue 24, item 3, pcmm/events/simultaneous.py): the contacts
+# closed at one instant take one impulse together, one complementarity solve (each held with its
+# own restitution, or separating), in one event whose `simultaneous` block gives each contact's
+# outcome; no contact is ever passed through; the kinetic energy does not rise.  (Until issue 24
+# they were resolved by sequential impulses at the same instant, in scene order.)
+
+def assert_contact_law(c, e, name):
+    """One contact of a simultaneous impact: held with Newton's law, a compressive impulse."""
+    vb, va = c["normal_velocity"]["before"], c["normal_velocity"]["after"]
+    assert vb < 0 and c["mode"] == "hold", name
+    assert va == pytest.approx(-e * vb, rel=1e-9, abs=1e-15), name
+    assert c["impulse"]["normal"] >= 0 and c["impulse"]["tangential"] == 0.0, name
+
 
 def test_two_independent_contacts_at_the_same_instant(tmp_path):
-    """Two balls (1 kg, e = 0.5 and 2 kg, e = 0.8) dropped from the same height: both
-    impacts at t1, in scene order, each with its own law; the balls never go below the floor."""
+    """Two balls (1 kg, e = 0.5 and 2 kg, e = 0.8) dropped from the same height: one event at t1
+    with both contacts, each by its own law (the Delassus matrix is diagonal: the balls are
+    independent, so P_i = m_i (1 + e_i) v1 by hand); the balls never go below the floor."""
     h = 0.5
     t1, v1, _ = ball_times(0.5, h)
     traj = run(builders.two_balls(tmp_path, 0.5, 0.8, h=h, t_end=t1 + 0.05))
     assert_finite(traj)
     first = [ev for ev in traj.events if abs(ev["t"] - t1) < 1e-9]
-    assert [ev["name"] for ev in first] == ["floor1", "floor2"]
-    for ev, e in zip(first, (0.5, 0.8)):
-        assert_impact_laws(ev, e)
-        assert ev["normal_velocity"]["before"] == pytest.approx(-v1, rel=1e-10)
+    assert len(first) == 1 and set(first[0]["simultaneous"]) == {"floor1", "floor2"}
+    for name, e, m in (("floor1", 0.5, 1.0), ("floor2", 0.8, 2.0)):
+        c = first[0]["simultaneous"][name]
+        assert_contact_law(c, e, name)
+        assert c["normal_velocity"]["before"] == pytest.approx(-v1, rel=1e-10)
+        assert c["impulse"]["normal"] == pytest.approx(m * (1 + e) * v1, rel=1e-10)
+    assert first[0]["kinetic_energy_after"] <= first[0]["kinetic_energy_before"]
     assert traj.series("q", "Y1").min() >= -1e-12 and traj.series("q", "Y2").min() >= -1e-12
-
-
-SIMULTANEOUS_BUG = ("two contacts closing at the same instant: after the first impulse pcmm restarts the "
-                    "integration with the second contact's gap already <= 0, so its guard never changes sign "
-                    "and the bar's other end falls through the floor (0.4-0.8 m below it by t_end) with no event "
-                    "(pcmm/simulate.py: no check of the other guards at the post-impact state; "
-                    "solve_ivp needs a sign change)")
 
 
 @pytest.mark.parametrize("e", [0.5, 1.0])
 def test_bar_falling_flat_onto_two_stops(tmp_path, e):
-    """A uniform bar falling flat onto stops under both ends.  With sequential impulses in
-    scene order the exact answer is: left, right, left (e = 1: the bar leaves translating
-    upward with its impact speed, no spin); in every case each impulse satisfies its own law
-    and both ends end up separating, and neither end goes below the floor."""
-    L, h = 1.0, 0.2
+    """A uniform bar falling flat onto stops under both ends: one event, both ends held by the
+    same law; by symmetry (by hand) each end takes m (1 + e) v / 2 and the bar leaves translating
+    upward at e v without spin.  Neither end goes below the floor."""
+    L, h, m = 1.0, 0.2, 1.0
     t_hit = math.sqrt(2 * h / G)
+    v = G * t_hit
     traj = run(builders.flat_bar(tmp_path, e, L=L, h=h, t_end=t_hit + 0.1))
     assert_finite(traj)
     y, th = traj.series("q", "P.y"), traj.series("q", "P.theta")
     lowest = min((y - L / 2 * np.sin(th)).min(), (y + L / 2 * np.sin(th)).min())
     assert lowest >= -1e-9, f"an end of the bar is {-lowest:.3g} m below the floor"
     burst = [ev for ev in traj.events if abs(ev["t"] - t_hit) < 1e-9]
-    assert len(burst) >= 2 and {ev["name"] for ev in burst} == {"left", "right"}
-    assert burst[0]["name"] == "left"  # scene order
-    for ev in burst:
-        assert_impact_laws(ev, e)
-    assert burst[-1]["kinetic_energy_after"] <= burst[0]["kinetic_energy_before"] * (1 + 1e-12)
-    omega = burst[-1]["v_after"]["P"][2]
-    vy = burst[-1]["v_after"]["P"][1]  # the bar is horizontal: body frame = world frame
-    assert vy - abs(omega) * L / 2 >= -1e-12, "an end still approaches the floor after the impacts"
+    assert len(burst) == 1 and set(burst[0]["simultaneous"]) == {"left", "right"}
+    for name, c in burst[0]["simultaneous"].items():
+        assert_contact_law(c, e, name)
+        assert c["impulse"]["normal"] == pytest.approx(m * (1 + e) * v / 2, rel=1e-9)
+    ev = burst[0]
+    assert ev["kinetic_energy_after"] <= ev["kinetic_energy_before"] * (1 + 1e-12)
+    vx, vy, omega = ev["v_after"]["P"]  # the bar is horizontal: body frame = world frame
+    assert vy == pytest.approx(e * v, rel=1e-9) and abs(omega) <= 1e-9 * v and abs(vx) <= 1e-12
 
 
 # ======================================================================================

@@ -104,9 +104,9 @@ def test_a_file_size_limit_is_an_error_naming_the_file_not_a_kill(tmp_path):
 
 
 # ---- 2. signals ---------------------------------------------------------------------------------
-@pytest.mark.slow  # two subprocess runs, each signalled after 5 s of CPU
+@pytest.mark.slow  # two subprocess runs, each signalled after 2.5 s of CPU
 def test_sigterm_and_sighup_keep_the_partial_like_ctrl_c(tmp_path):
-    """Two long bouncing-ball runs, stopped after 5 s of CPU by SIGTERM (a batch scheduler, ``timeout``)
+    """Two long bouncing-ball runs, stopped after 2.5 s of CPU by SIGTERM (a batch scheduler, ``timeout``)
     and SIGHUP (a closed terminal): each writes its partial trajectory and summary, marked
     partial, exits 128 + the signal, and its summary's step count is its samples'."""
     scene = builders.endless_ball(tmp_path / "scene")
@@ -117,8 +117,8 @@ def test_sigterm_and_sighup_keep_the_partial_like_ctrl_c(tmp_path):
         procs[sig] = (d, subprocess.Popen([PY, "-m", "pcmm.cli", "run", str(scene), "--out", "p.npz", "--summary",
                                            "p.json", "--quiet"], cwd=d, env=env(), stdout=subprocess.PIPE,
                                           stderr=subprocess.PIPE, text=True))
-    for sig, (_, proc) in procs.items():  # past start-up: imports take seconds on a loaded machine
-        _wait_for_cpu(proc.pid, 5.0)
+    for sig, (_, proc) in procs.items():  # past start-up (a short run's imports and save: 1.5 s of CPU)
+        _wait_for_cpu(proc.pid, 2.5)
         proc.send_signal(sig)
     for sig, (d, proc) in procs.items():
         out, err = proc.communicate(timeout=60)

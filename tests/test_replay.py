@@ -622,10 +622,13 @@ def test_serve_error_stops_the_server(runs, monkeypatch):
 
 
 # ---- real browser --------------------------------------------------------------------------
-def _chromium(url: str, profile: Path, out: Path | None = None, size: str = "800,600") -> subprocess.Popen:
-    """Headless Chromium: a screenshot into ``out``, or the DOM after the scripts ran on stdout."""
+def _chromium(url: str, profile: Path, out: Path | None = None, size: str = "800,600",
+             dom: bool = False) -> subprocess.Popen:
+    """Headless Chromium: a screenshot into ``out``, and/or (``dom``, or without ``out``) the DOM
+    after the scripts ran on stdout; one launch for both, as a launch costs seconds of CPU (its
+    software WebGL)."""
     profile.mkdir()
-    action = [f"--screenshot={out}"] if out is not None else ["--dump-dom"]
+    action = ([f"--screenshot={out}"] if out is not None else []) + (["--dump-dom"] if dom or out is None else [])
     return subprocess.Popen(
         [str(CHROMIUM), "--headless", "--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
          "--disable-background-networking", "--no-first-run", "--disable-gpu-sandbox",
@@ -646,20 +649,26 @@ def _finish(proc) -> str:
 
 
 def _screenshots(page: Path, times, tmp_path, dom_at=None, size="800,600"):
-    """Images (H, W, 3) of the page opened at each time; plus the DOM at ``dom_at``."""
+    """Images (H, W, 3) of the page opened at each time; plus the DOM at ``dom_at`` (from the
+    screenshot's launch at that time, if there is one at the default size)."""
     from PIL import Image
-    images = []
+    images, dom = [], None
+    with_dom = times.index(dom_at) if dom_at in times and size == "800,600" else None
     for batch in range(0, len(times), 2):  # two at a time: the machine is shared
         procs = []
         for i, t in enumerate(times[batch:batch + 2], start=batch):
             shot = tmp_path / f"t{i}.png"
-            procs.append((shot, _chromium(f"{page.as_uri()}#t={t!r}", tmp_path / f"profile{i}", shot, size)))
-        for shot, proc in procs:
+            procs.append((i, shot, _chromium(f"{page.as_uri()}#t={t!r}", tmp_path / f"profile{i}", shot, size,
+                                             dom=i == with_dom)))
+        for i, shot, proc in procs:
             log = _finish(proc)
             assert shot.exists(), log
             images.append(np.asarray(Image.open(shot).convert("RGB")).astype(int))
-    dom = _chromium(f"{page.as_uri()}#t={dom_at!r}", tmp_path / "profile_dom") if dom_at is not None else None
-    return images, (_finish(dom) if dom is not None else None)
+            if i == with_dom:
+                dom = log
+    if dom_at is not None and with_dom is None:
+        dom = _finish(_chromium(f"{page.as_uri()}#t={dom_at!r}", tmp_path / "profile_dom"))
+    return images, dom
 
 
 def _pixel_map(view, w, h):
@@ -844,10 +853,7 @@ def test_browser_shows_the_second_runs_readout_in_full(runs, tmp_path):
     replay.write_html(runs[0], path, fps=FPS, others=[runs[1]])
     profile = tmp_path / "p"
     shot = tmp_path / "two.png"
-    proc = _chromium(f"{path.as_uri()}#t=0.3", profile, shot, size="520,600")
-    _finish(proc)
-    dom_proc = _chromium(f"{path.as_uri()}#t=0.3", tmp_path / "pd", size="520,600")
-    dom = _finish(dom_proc)
+    dom = _finish(_chromium(f"{path.as_uri()}#t=0.3", profile, shot, size="520,600", dom=True))
     from PIL import Image
     img = np.asarray(Image.open(shot).convert("RGB")).astype(int)
     h, w, _ = img.shape

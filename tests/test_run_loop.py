@@ -133,6 +133,66 @@ def test_a_segments_series_do_not_depend_on_what_comes_after_it(tmp_path):
                                    err_msg=name)
 
 
+# ---- a hold read after the run re-entered its reference configuration at other locked values ------
+ARM = dict(L=(0.4, 0.3, 0.25), m=(1.0, 0.8, 0.5), J3=0.3, elbow=0.4, wrist=-0.6)
+
+
+def arm_relocked(folder: Path, t_end: float = 1.2) -> Path:
+    """A hanging three-bar arm J1-J2-J3 that starts with J2 = 0, J3 = 0.3 locked ('start'); at
+    0.05 s J2 is freed into 'A' (the arm with J3 locked at entry); the elbow latches at J2 = 0.4
+    into 'B' (J2 and J3 locked), whose holding moment J2.hold is solved in 'A' (the configuration
+    with J2 free); at 0.5 s both are freed ('free'), and the wrist latches at J3 = -0.6 into 'A'
+    again: a model of 'A' built for J3 = -0.6, which ``mechanism['A']`` is from then on."""
+    urdf = builders.chain_urdf([builders.Bar(length, mass) for length, mass in zip(ARM["L"], ARM["m"])])
+
+    def latch(name, source, joint, value, direction):
+        return {"name": name, "type": "latch", "from": source, "to": "B" if joint == "J2" else "A", "cut": [joint],
+                "guard": {"type": "coordinate", "measure": {"joint": joint}, "value": value, "direction": direction},
+                "contact": {"joint": joint, "arm": 0.05}}
+    doc = builders.scene_doc(
+        {"start": {"from": "free", "lock": {"J2": 0.0, "J3": ARM["J3"]}}, "free": "arm.urdf",
+         "A": {"from": "free", "lock": ["J3"]}, "B": {"from": "free", "lock": ["J2", "J3"]}},
+        {"J1": 0.0}, {"J1": 0.0}, t_end=t_end, initial="start",
+        transitions=[{"name": "unlock", "type": "release", "from": "start", "to": "A", "guard": {"type": "time", "at": 0.05}},
+                     latch("elbow", "A", "J2", ARM["elbow"], "increasing"),
+                     {"name": "let go", "type": "release", "from": "B", "to": "free", "guard": {"type": "time", "at": 0.5}},
+                     latch("wrist", "free", "J3", ARM["wrist"], "decreasing")])
+    return builders.write_scene(folder, doc, {"arm.urdf": urdf})
+
+
+def kkt_locked_arm(urdf: str, q1: float, v1: float) -> float:
+    """Independent KKT solve on the free arm with J2 and J3 locked at (elbow, J3) and J1 at (q1, v1):
+    the multiplier of J2's row, ``M a + h = A^T lam``, ``A a = 0``, ``A`` the rows of J2 and J3."""
+    model = pin.buildModelFromXML(urdf)
+    model.gravity.linear[:] = [0.0, -G, 0.0]
+    data = model.createData()
+    q, v = np.array([q1, ARM["elbow"], ARM["J3"]]), np.array([v1, 0.0, 0.0])
+    M = pin.crba(model, data, q)
+    M = np.triu(M) + np.triu(M, 1).T
+    A = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
+    K = np.block([[M, -A.T], [A, np.zeros((2, 2))]])
+    return float(np.linalg.solve(K, np.concatenate([-pin.nle(model, data, q, v), np.zeros(2)]))[3])
+
+
+def test_a_holding_moment_read_after_its_reference_was_built_again_is_the_one_of_its_time(tmp_path):
+    """J2.hold of the locked stretch in 'B', read when the run is over (after the wrist latch built
+    'A' again for J3 = -0.6), is the KKT multiplier of J2's row at the segment's recorded state with
+    J3 = 0.3, as it was then; before Holds.applied kept the reference model, it was solved on the
+    model of 'A' of the run's end (J3 = -0.6) and was off by up to 1.03 N m."""
+    traj = pcmm.simulate(pcmm.load_scene(arm_relocked(tmp_path)))
+    assert [e["name"] for e in traj.events] == ["unlock", "elbow", "let go", "wrist"]
+    assert traj.stats["derived_configurations"]["A"] == [{"J3": pytest.approx(ARM["J3"], abs=1e-12)},
+                                                          {"J3": pytest.approx(ARM["wrist"], abs=1e-9)}]
+    (seg,) = [s for s in traj.segments if s.configuration == "B"]
+    assert traj.segments[-1].configuration == "A" and seg.constraint_labels == ["J2.hold"]
+    urdf = (tmp_path / "arm.urdf").read_text()
+    hold = seg.constraint_forces[:, 0]
+    for i in range(len(seg.t)):
+        lam = kkt_locked_arm(urdf, seg.q[i, 0], seg.v[i, 0])
+        assert hold[i] == pytest.approx(lam, abs=1e-9 * max(1.0, abs(lam))), f"t = {seg.t[i]}"
+    assert len(seg.t) >= 6 and np.ptp(hold) > 1.0  # a moment that varies, checked at every sample
+
+
 # ---- issue 22.2: a switch whose target's constraints the impulse does not satisfy -----------------
 FOOT = dict(L=0.8, m=2.0, h=0.5, theta=-0.4)
 

@@ -70,6 +70,16 @@ def contact_state(cfg: Configuration, q, v, contact: ContactSpec):
     return n, gap, float(Jn @ v), Jn
 
 
+def normal_speed(cfg: Configuration, q, v, contact: ContactSpec) -> float:
+    """``vn`` of :func:`contact_state` alone: for a joint stop the joint's own row times v
+    (the same product, without the kinematics pass the normal needs), else from the state."""
+    if contact.joint is not None:
+        Jn = np.zeros(cfg.nv)
+        Jn[cfg.joint_slice[contact.joint].start] = -contact.stop_sign
+        return float(Jn @ v)
+    return contact_state(cfg, q, v, contact)[2]
+
+
 def gap_rate(cfg: Configuration, q, v, contact: ContactSpec) -> float:
     """d/dt of the gap n . (p_b - p_a) at (q, v): the points' normal relative velocity plus
     the turn of the normal with link a, n' = w_a z x n (n is fixed in a)."""

@@ -74,8 +74,40 @@ def _structure(cfg: Configuration, joints: tuple[str, ...]):
     copies = {name: new.addFrame(pin.Frame(f"pcmm:cut:{name}:parent", jmap[model.parents[cfg.joint_id[name]]], 0,
                                            pin.SE3.Identity(), pin.FrameType.OP_FRAME), False)
               for name in joints}
-    cache[joints] = (new, new.createData(), jmap, copies, cut_ids, {})  # {}: the cut joints' complements
+    cache[joints] = (new, new.createData(), jmap, copies, cut_ids, {},  # {}: the cut joints' complements
+                     _layout(model, new, jmap, cut_ids))
     return cache[joints]
+
+
+@dataclass(frozen=True)
+class _Layout:
+    """Where each joint of the tree sits in the cut model, fixed by the topology: the cut
+    model's q with the planar joints at their origin and the kept joints' entries to copy,
+    and T (tree velocity -> cut-system velocity) with the kept joints' identity blocks, the
+    cut joints' three rows left to fill at each pose."""
+
+    q0: np.ndarray
+    q_from: np.ndarray  # entries of the tree's (Pinocchio) q copied into the cut model's q ...
+    q_to: np.ndarray  # ... at these entries
+    T0: np.ndarray
+    planar_rows: tuple  # (tree joint id, first row of its planar joint in T)
+
+
+def _layout(model, new, jmap, cut_ids) -> _Layout:
+    q0 = np.zeros(new.nq)
+    T0 = np.zeros((new.nv, model.nv))
+    q_from, q_to, planar = [], [], []
+    for jid in range(1, model.njoints):
+        nj = new.joints[jmap[jid]]
+        if jid in cut_ids:
+            q0[nj.idx_q:nj.idx_q + 4] = (0.0, 0.0, 1.0, 0.0)  # x, y, cos, sin: at the child's pose
+            planar.append((jid, nj.idx_v))
+        else:
+            j = model.joints[jid]
+            q_from += range(j.idx_q, j.idx_q + j.nq)
+            q_to += range(nj.idx_q, nj.idx_q + nj.nq)
+            T0[nj.idx_v:nj.idx_v + nj.nv, j.idx_v:j.idx_v + j.nv] = np.eye(j.nv)
+    return _Layout(q0, np.array(q_from, dtype=int), np.array(q_to, dtype=int), T0, tuple(planar))
 
 
 #: joints whose motion subspace S (in the joint's frame) does not depend on q: revolute (RX, RY,
@@ -103,32 +135,21 @@ def cut(cfg: Configuration, q: np.ndarray, joints: tuple[str, ...]) -> CutSystem
     joints = tuple(joints)
     qp = cfg.to_pin(q)
     pin.computeJointJacobians(model, data, qp)  # placements (oMi, liMi) and the tree's Jacobians in one pass
-    new, new_data, jmap, copies, cut_ids, known = _structure(cfg, joints)
-    q_parts = []
-    for jid in range(1, model.njoints):
-        if jid in cut_ids:
-            new.jointPlacements[jmap[jid]] = data.oMi[jid]  # the planar joint starts at the child's pose
-            q_parts.append(np.array([0.0, 0.0, 1.0, 0.0]))
-        else:
-            j = model.joints[jid]
-            q_parts.append(qp[j.idx_q:j.idx_q + j.nq])
+    new, new_data, jmap, copies, cut_ids, known, layout = _structure(cfg, joints)
+    for jid, _ in layout.planar_rows:
+        new.jointPlacements[jmap[jid]] = data.oMi[jid]  # the planar joint starts at the child's pose
     for name in joints:
         fr = new.frames[copies[name]]
         fr.placement = data.liMi[cfg.joint_id[name]]
         new.frames[copies[name]] = fr
-    q_f = np.concatenate(q_parts) if q_parts else np.zeros(0)
+    q_f = layout.q0.copy()
+    q_f[layout.q_to] = qp[layout.q_from]
     pin.computeJointJacobians(new, new_data, q_f)
     pin.updateFramePlacements(new, new_data)
     # T: tree velocity -> cut-system velocity
-    T = np.zeros((new.nv, model.nv))
-    for jid in range(1, model.njoints):
-        nj = new.joints[jmap[jid]]
-        if jid in cut_ids:
-            Jl = joint_jacobian(model, data, jid, LOCAL)
-            T[nj.idx_v:nj.idx_v + 3] = Jl[_PLANAR_ROWS]
-        else:
-            j = model.joints[jid]
-            T[nj.idx_v:nj.idx_v + nj.nv, j.idx_v:j.idx_v + j.nv] = np.eye(j.nv)
+    T = layout.T0.copy()
+    for jid, row in layout.planar_rows:
+        T[row:row + 3] = joint_jacobian(model, data, jid, LOCAL)[_PLANAR_ROWS]
     rows, owner, dirs, rots = [], [], [], {}
     for name in joints:
         jid = cfg.joint_id[name]

@@ -27,10 +27,22 @@ def _coordinate(cfg: Configuration, tr: TransitionSpec, ctx=None):
     row, offset = cfg.measure_row(tr.guard.measure)
     target = tr.guard.value - offset
     unpack = cfg.coords.unpack
+    entry = _state_entry(cfg, row)
+    if entry is not None:  # the measured coordinate and its rate are entries of the state itself
+        p, r = entry
+
+        def value(t, y):
+            return y[p] - target
+
+        def rate(t, y, f):
+            return y[r]
+        value.many = lambda ts, ys: (ys[p] - target, ys[r])
+        return value, rate
 
     def value(t, y):
         q, _ = unpack(t, y)
         return row @ q - target
+    value.many = _coordinate_many(cfg, row, target)
     if not cfg.coords.constrained and not cfg.has_planar:
         nv = cfg.nv
 
@@ -40,6 +52,44 @@ def _coordinate(cfg: Configuration, tr: TransitionSpec, ctx=None):
         def rate(t, y, f):
             return row @ cfg.qdot(*unpack(t, y))
     return value, rate
+
+
+def _state_entry(cfg: Configuration, row: np.ndarray) -> tuple[int, int] | None:
+    """``(p, r)`` where a joint measure (``row`` a unit vector: ``row @ q`` is that coordinate
+    itself, exactly, the other products being zeros) and its rate are the state's entries
+    ``y[p]``, ``y[r]``: a tree's coordinate, or a free coordinate beside drives without a loop
+    (their partition never changes); None otherwise (a loop's coordinates are solved, a planar
+    joint's q' is not v)."""
+    hot = np.flatnonzero(row)
+    if len(hot) != 1 or row[hot[0]] != 1.0 or cfg.has_planar:
+        return None
+    entry = getattr(cfg.coords, "state_entry", None)
+    return entry(int(hot[0])) if callable(entry) else None
+
+
+def _coordinate_many(cfg: Configuration, row: np.ndarray, target: float):
+    """A joint coordinate's guard at many states at once: ``(values, rates)`` at the times
+    ``ts`` and states ``ys`` (one column each), for the event grid of an accepted step
+    (:func:`pcmm.ode.integrators._locate`); None where that is not the per-state value to the
+    bit.  For a joint measure ``row`` is a unit vector and ``row @ q`` is that coordinate
+    itself, exactly (the other products are zeros); the coordinates must give all the grid's
+    states in one call (``unpack_many``: a tree, or drives without a loop), without a planar
+    joint (its q' is not v)."""
+    hot = np.flatnonzero(row)
+    if len(hot) != 1 or row[hot[0]] != 1.0 or cfg.has_planar:
+        return None
+    if not callable(getattr(cfg.coords, "unpack_many", None)):
+        return None
+    j = int(hot[0])
+    coords = cfg.coords
+
+    def many(ts, ys):
+        states = coords.unpack_many(ts, ys)
+        if states is None:
+            return None
+        Q, V = states
+        return Q[j] - target, V[j]
+    return many
 
 
 def _gap(cfg: Configuration, tr: TransitionSpec, ctx=None):
@@ -175,9 +225,17 @@ def make_guard(cfg: Configuration, tr: TransitionSpec, rearm: bool = False, cont
     except _NotHeld:
         return None
     direction = tr.guard.direction
+    raw_many = getattr(raw, "many", None)  # all the states of an event grid at once, where given
     if tr.guard.when is not None:
         raw, raw_rate = armed(cfg, tr, raw, raw_rate)
+        raw_many = None
     value, rate = raw, raw_rate
+    many = None
+    if raw_many is not None:
+        def many(ts, ys):
+            got = raw_many(ts, ys)
+            return None if got is None else got[0].tolist()
+    affine = _affine(cfg, tr, context) if tr.guard.when is None and not rearm else None
     if rearm:
         def value(t, y):
             val = raw(t, y)
@@ -195,7 +253,27 @@ def make_guard(cfg: Configuration, tr: TransitionSpec, rearm: bool = False, cont
             if direction * r > 0.0 or -direction * raw(t, y) > UNFIRED:
                 return r
             return 0.0  # held at UNFIRED
-    return Guard(_describe(tr), value, direction, "transition", tr, rate, rate is not None)
+        if raw_many is not None:
+            def many(ts, ys):  # value above, state by state, from the grid's values and rates
+                got = raw_many(ts, ys)
+                if got is None:
+                    return None
+                return [val if direction * r > 0.0 else -direction * max(-direction * val, UNFIRED)
+                        for val, r in zip(got[0].tolist(), got[1].tolist())]
+    return Guard(_describe(tr), value, direction, "transition", tr, rate, rate is not None, many=many,
+                 affine=affine)
+
+
+def _affine(cfg: Configuration, tr: TransitionSpec, context=None):
+    """(c, ct, d) with the plain guard's value c . y + ct t + d, where it is affine in a tree's state
+    [q, v] (a coordinate guard: the row of the measure on q; a time guard: t - the instant); else None."""
+    g = tr.guard
+    if g.type == "time":
+        return None, 1.0, _time(cfg, tr, context)[0](0.0, None)
+    if g.type == "coordinate" and not cfg.coords.constrained and not cfg.has_planar:
+        row, offset = cfg.measure_row(g.measure)
+        return np.concatenate([np.asarray(row, float), np.zeros(cfg.nv)]), 0.0, -(g.value - offset)
+    return None
 
 
 def guard_residual(cfg: Configuration, tr: TransitionSpec, t, y) -> float:

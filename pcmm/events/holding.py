@@ -50,6 +50,18 @@ class Hold:
         return self.carries or self.transition.source
 
 
+@dataclass(frozen=True)
+class Applied:
+    """What a segment's holding forces are solved with, kept as values when it is recorded
+    (:meth:`Holds.applied`), so that reading them after the run went on gives what they were."""
+
+    reference: Configuration  # the reference configuration's model (a derived one: the one built then)
+    frozen: dict  # its coordinates' frozen state (partition, cut-joint anchors): Coordinates.frozen_state
+    forces: object  # its own force elements, compiled at its angle offsets of then
+    acting: object  # the elements acting while the configuration holds (Holds._forces_on), or None
+    springs: object  # the held joints' own springs (Holds._held_springs), or None
+
+
 class Holds:
     """The locks in force during a run, their holding forces and their releases."""
 
@@ -187,28 +199,32 @@ class Holds:
             f"(a URDF, or a configuration derived by locking joints) or set unmerge = false on "
             f"'{hold.label}'")
 
-    def applied(self, cfg: Configuration) -> tuple | None:
-        """The force elements the holding forces of ``cfg`` are solved with now, as values: (the
-        reference configuration's own, those acting while ``cfg`` holds or None: :meth:`_forces_on`,
-        the held joints' springs or None: :meth:`_held_springs`).  A recorded segment keeps them
-        (the run may compile the reference's again at other angle offsets before the segment's
-        holding forces are read).  None without holds or reference."""
+    def applied(self, cfg: Configuration) -> Applied | None:
+        """What the holding forces of ``cfg`` are solved with now, as values (:class:`Applied`): the
+        reference configuration's model, its coordinates' frozen state, its own force elements,
+        those acting while ``cfg`` holds and the held joints' springs.  A recorded segment keeps
+        them: its holding forces are read later, when the run may have entered the reference again
+        (a derived one is then another model, built for other locked values), compiled its forces
+        at other angle offsets or anchored its cut joints elsewhere.  None without holds or
+        reference."""
         ref_name = self.reference(cfg) if self.items else None
         if ref_name is None:
             return None
         ref = self.mechanism[ref_name]
-        return ref.forces, self._forces_on(ref, cfg), self._held_springs(ref, cfg)
+        return Applied(ref, ref.coords.frozen_state(), ref.forces, self._forces_on(ref, cfg), self._held_springs(ref, cfg))
 
-    def _on_reference(self, cfg: Configuration, q: np.ndarray, v: np.ndarray):
-        """(ref, qs, vs): the state of ``cfg`` mapped onto its reference configuration, the
-        held joints at their locked values and at rest."""
-        ref_name = self.reference(cfg)
-        if ref_name is None:
-            raise SimulationError(
-                f"configuration '{cfg.name}': no configuration of the scene has its joints plus the locked "
-                f"{', '.join(sorted(set().union(*(h.joints for h in self.items))))} free and its drives, "
-                "so the holding forces cannot be computed")
-        ref = self.mechanism[ref_name]
+    def _on_reference(self, cfg: Configuration, q: np.ndarray, v: np.ndarray, ref: Configuration | None = None):
+        """(ref, qs, vs): the state of ``cfg`` mapped onto its reference configuration ``ref`` (by
+        default the mechanism's model of :meth:`reference` now), the held joints at their locked
+        values and at rest."""
+        if ref is None:
+            ref_name = self.reference(cfg)
+            if ref_name is None:
+                raise SimulationError(
+                    f"configuration '{cfg.name}': no configuration of the scene has its joints plus the locked "
+                    f"{', '.join(sorted(set().union(*(h.joints for h in self.items))))} free and its drives, "
+                    "so the holding forces cannot be computed")
+            ref = self.mechanism[ref_name]
         qs, vs = np.zeros(ref.nv), np.zeros(ref.nv)
         for name in ref.joint_names:
             sl = ref.joint_slice[name]
@@ -219,7 +235,7 @@ class Holds:
                 qs[ref.joint_slice[name]] = val
         return ref, qs, vs
 
-    def held_energy(self, cfg: Configuration, q: np.ndarray, applied: tuple | None = None) -> float:
+    def held_energy(self, cfg: Configuration, q: np.ndarray, applied: Applied | None = None) -> float:
         """The energy stored in the held joints' own springs (J) at ``q`` of ``cfg``: constant
         while the lock holds them (0 without a hold or a spring).  The configuration's own
         potential energy leaves them out (``cfg`` has no such joint); the recorded potential
@@ -227,10 +243,10 @@ class Holds:
         for :meth:`forces`."""
         if not self.items:
             return 0.0
-        if (applied[2] is None) if applied is not None else not any(f.k for f in self._carried(cfg)):
+        if (applied.springs is None) if applied is not None else not any(f.k for f in self._carried(cfg)):
             return 0.0
-        ref, qs, _ = self._on_reference(cfg, q, np.zeros(cfg.nv))
-        springs = applied[2] if applied is not None else self._held_springs(ref, cfg)
+        ref, qs, _ = self._on_reference(cfg, q, np.zeros(cfg.nv), applied and applied.reference)
+        springs = applied.springs if applied is not None else self._held_springs(ref, cfg)
         return springs.potential_energy(qs)
 
     def _held_springs(self, ref: Configuration, cfg: Configuration):
@@ -244,28 +260,35 @@ class Holds:
             self._maps[key] = compile_forces(tuple(carried), ref.measure_row, ref.target_column, ref.nv)
         return self._maps[key]
 
-    def forces(self, cfg: Configuration, t: float, q: np.ndarray, v: np.ndarray, applied: tuple | None = None) -> dict[str, float]:
-        """{label: holding force or moment} of every hold at (t, q, v) of ``cfg``, with the force
-        elements ``applied`` (:meth:`applied`, a recorded segment's), by default those of now."""
+    def forces(self, cfg: Configuration, t: float, q: np.ndarray, v: np.ndarray, applied: Applied | None = None) -> dict[str, float]:
+        """{label: holding force or moment} of every hold at (t, q, v) of ``cfg``: the multipliers
+        of the lock rows in ``M a + h = Q + J^T lam`` of the reference configuration (its loops'
+        and drives' rows too).  ``applied`` (:meth:`applied`, a recorded segment's) is what they are
+        solved with, as the segment had it: the reference model, its anchors and force elements;
+        by default those of now."""
         if not self.items:
             return {}
-        ref, qs, vs = self._on_reference(cfg, q, v)
-        Jc, bc = ref.coords.rows(t, qs, vs)
+        ref, qs, vs = self._on_reference(cfg, q, v, applied and applied.reference)
+        if applied is None:
+            Jc, bc = ref.coords.rows(t, qs, vs)
+            ref_forces, own = ref.forces, self._forces_on(ref, cfg)
+        else:
+            with ref.coords.restored(applied.frozen, qs) as reader:  # the segment's anchors, not today's
+                Jc, bc = reader.rows(t, qs, vs)
+            ref_forces, own = applied.forces, applied.acting
         rows, bias, owners = [Jc], [bc], []
         for h in self.items:
             if h.merge:
                 Jn, bn = contact_row(ref, qs, vs, h.transition.contact)
                 rows.append(Jn[None, :])
                 bias.append([bn])
-                owners.append(h.label)
             else:
                 (name,) = h.joints
                 e = np.zeros(ref.nv)
                 e[ref.joint_slice[name].start] = 1.0
                 rows.append(e[None, :])
                 bias.append([0.0])
-                owners.append(h.label)
-        ref_forces, own = applied[:2] if applied is not None else (ref.forces, self._forces_on(ref, cfg))
+            owners.append(h.label)
         extra = None if own is None else own.generalized(qs, vs) - ref_forces.generalized(qs, vs)
         _, lam = constrained_accelerations(ref, qs, vs, np.vstack(rows), np.concatenate(bias), extra, forces=ref_forces)
         return {label: float(x) for label, x in zip(owners, lam[Jc.shape[0]:])}

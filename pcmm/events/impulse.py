@@ -29,15 +29,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import pinocchio as pin
-import scipy.linalg as sla
-from scipy.linalg.lapack import dpotrf as _potrf, dpotrs as _potrs
 
+from .._scipy import lapack
 from ..model.configuration import Configuration
 from .contact import contact_point, contact_state, impact_kind, joint_stop_row
 from .cutting import cut
 from .friction import AmbiguousImpact, FrictionalImpulse, routh
 from ..errors import SimulationError
 from ..model.pinocchio_helpers import cholesky, frame_jacobian, mass_matrix
+from ..model.rows import solve
 from ..scene.spec import ContactSpec
 
 
@@ -84,16 +84,40 @@ class Impulse:
 def _inverse_mass(M: np.ndarray, configuration: str) -> np.ndarray:
     """``M^-1`` by its Cholesky factor: LAPACK's potrf and potrs called directly, the very calls
     ``scipy.linalg.cho_factor`` / ``cho_solve`` make (same bits) without their checks' overhead,
-    which dominates for the few coordinates of a mechanism."""
+    which dominates for the few coordinates of a mechanism (and without importing scipy.linalg,
+    0.3 s at start-up: :mod:`pcmm._scipy`)."""
     if M.shape[0] == 0:
         return np.zeros((0, 0))
-    c, info = _potrf(M, lower=False, overwrite_a=False, clean=False)
-    if info != 0 or not np.isfinite(c).all():
-        return sla.cho_solve(cholesky(M, configuration), np.eye(M.shape[0]))  # its clear error
-    W, info = _potrs(c, np.eye(M.shape[0]), lower=False, overwrite_b=True)
+    la = lapack()
+    c, info = la.dpotrf(M, lower=False, overwrite_a=False, clean=False)
+    if info == 0 and np.isfinite(c).all():
+        W, info = la.dpotrs(c, np.eye(M.shape[0]), lower=False, overwrite_b=True)
+        if info == 0:
+            return W
+    import scipy.linalg as sla  # the checked route, for its clear error
+    return sla.cho_solve(cholesky(M, configuration), np.eye(M.shape[0]))
+
+
+_GELSD_WORK: dict[tuple[int, int], tuple[int, int]] = {}
+
+
+def _least_squares(A: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``np.linalg.lstsq(A, b, rcond=None)[0]`` for a vector ``b``: LAPACK's dgelsd with numpy's
+    default cut-off (eps max(m, n)) called directly (the same routine and workspace: the same
+    bits), without numpy's wrapper, which costs as much as the solve at this size."""
+    m, n = A.shape
+    if m == 0 or n == 0 or m < n:
+        return np.linalg.lstsq(A, b, rcond=None)[0]
+    if (m, n) not in _GELSD_WORK:
+        work, iwork, info = lapack().dgelsd_lwork(m, n, 1, -1)
+        _GELSD_WORK[(m, n)] = (int(work), int(iwork)) if info == 0 else None
+    sizes = _GELSD_WORK[(m, n)]
+    if sizes is None:
+        return np.linalg.lstsq(A, b, rcond=None)[0]
+    x, _, _, info = lapack().dgelsd(A, b, sizes[0], sizes[1], cond=np.finfo(float).eps * max(m, n))
     if info != 0:
-        return sla.cho_solve(cholesky(M, configuration), np.eye(M.shape[0]))
-    return W
+        return np.linalg.lstsq(A, b, rcond=None)[0]
+    return x[:n]
 
 
 def tangent_of(n: np.ndarray) -> np.ndarray:
@@ -135,7 +159,7 @@ def solve_impulse(cfg: Configuration, t: float, q: np.ndarray, v: np.ndarray, co
     if G.shape[0]:
         WGt = W @ G.T
         S = G @ WGt
-        W_eff = W - WGt @ np.linalg.solve(S, WGt.T)  # inverse of the paper's M_f, Eq. 25
+        W_eff = W - WGt @ solve(S, WGt.T)  # inverse of the paper's M_f, Eq. 25 (dgesv: numpy's solve's bits)
     else:
         W_eff = W
     denom = J_n @ W_eff @ J_n.T  # Eq. 29 / 42 denominator: n^T J M_f^-1 J^T n
@@ -152,11 +176,11 @@ def solve_impulse(cfg: Configuration, t: float, q: np.ndarray, v: np.ndarray, co
         P = fr.P
     else:
         J = J_n
-        P = -(1.0 + restitution) * np.linalg.solve(denom, J_n @ v_f)  # Eqs. 29, 42
+        P = -(1.0 + restitution) * solve(denom, J_n @ v_f)  # Eqs. 29, 42
     dv_f = W_eff @ J.T @ P  # Eqs. 24, 38 (and 35 with its sign)
     v_f_after = v_f + dv_f  # Eqs. 30, 43
-    mult = -np.linalg.solve(S, G @ W @ J.T @ P) if G.shape[0] else np.zeros(0)
-    v_after, res, *_ = np.linalg.lstsq(cs.T, v_f_after, rcond=None)
+    mult = -solve(S, G @ W @ J.T @ P) if G.shape[0] else np.zeros(0)
+    v_after = _least_squares(cs.T, v_f_after)
     if np.linalg.norm(cs.T @ v_after - v_f_after) > 1e-8 * max(1.0, np.linalg.norm(v_f_after)):
         raise SimulationError(f"t = {t:.9g} s: the cut system's post-impact velocity does not reassemble "
                               "the tree (internal error in joint cutting)")
@@ -303,8 +327,12 @@ def joint_impulses(cfg: Configuration, q, dv, point_impulses):
     fext = pin.StdVec_Force()
     for _ in range(model.njoints):
         fext.append(pin.Force.Zero())
+    if "parent_joint" not in cache:  # each link's joint and each joint's name, read once per model
+        cache["parent_joint"] = {link: model.frames[f].parentJoint for link, f in cfg.link_frame.items()}
+        cache["joint_names"] = list(model.names)
+    parent_joint, names = cache["parent_joint"], cache["joint_names"]
     for link, p, F, mz in point_impulses:
-        jid = model.frames[cfg.link_frame[link]].parentJoint
+        jid = parent_joint[link]
         if jid == 0:
             continue
         fx, fy, px, py = float(F[0]), float(F[1]), float(p[0]), float(p[1])
@@ -319,5 +347,5 @@ def joint_impulses(cfg: Configuration, q, dv, point_impulses):
         f = d0.f[jid]
         R = d0.oMi[jid].rotation
         lin = R @ f.linear
-        out[model.names[jid]] = [float(lin[0]), float(lin[1]), float((R @ f.angular)[2])]
+        out[names[jid]] = [float(lin[0]), float(lin[1]), float((R @ f.angular)[2])]
     return out, np.asarray(tau).copy()

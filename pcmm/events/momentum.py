@@ -32,7 +32,12 @@ def frame_pivot(cfg: Configuration) -> np.ndarray:
 
 def about_point(cfg: Configuration) -> np.ndarray:
     p = cfg.scene.momentum_point
-    return np.asarray(p, float) if p is not None else frame_pivot(cfg)
+    if p is not None:
+        return np.asarray(p, float)
+    kept = cfg.impulse_models  # the configuration's event-path constants: its frame pivot, read once
+    if "frame_pivot" not in kept:
+        kept["frame_pivot"] = frame_pivot(cfg)
+    return kept["frame_pivot"].copy()
 
 
 def momenta(cfg: Configuration, q, v, about) -> tuple[np.ndarray, float]:

@@ -34,16 +34,15 @@ import itertools
 import math
 
 import numpy as np
-import scipy.linalg as sla
 
 from ..errors import SimulationError
 from ..model.configuration import Configuration
-from ..model.pinocchio_helpers import cholesky, frame_jacobian
+from ..model.pinocchio_helpers import frame_jacobian
 from ..scene.spec import PinSpec
 from .contact import contact_state
 from .entry import enter
 from .records import event_record
-from .impulse import Impulse, constraint_impulses, joint_impulses, loop_point_impulses, tangent_of
+from .impulse import Impulse, _inverse_mass, constraint_impulses, joint_impulses, loop_point_impulses, tangent_of
 
 SIGN_TOL = 1e-10  # relative: an impulse or a normal speed this small (x the scale) counts as zero
 
@@ -92,7 +91,7 @@ def impact_with_rows(M: np.ndarray, name: str, v: np.ndarray, A: np.ndarray, b: 
     """(v+, lam, redundant) of ``M (v+ - v-) = A^T lam``, ``A v+ = b`` (the Schur complement; a
     redundant set of rows gets the minimum-norm multipliers, the velocity is unique either way, and
     ``redundant`` says the split of the impulse among the rows is not)."""
-    W = sla.cho_solve(cholesky(M, name), np.eye(M.shape[0]))
+    W = _inverse_mass(M, name)  # M^-1 by its Cholesky factor
     if A.shape[0] == 0:
         return v.copy(), np.zeros(0)
     S = A @ W @ A.T
@@ -179,12 +178,17 @@ def pin_strike(ctx, cfg: Configuration, tr: PinSpec, t, q, v):
     q_new, v_new = entry.q, entry.v
     # the stance that begins now: each point held by compression only must push, inside its cone
     # (the guards of the stance watch it from here on: PartitionedCoordinates.contact_guards)
+    lifting = {cj for src, cj, _ in ctx.mechanism.scene.lift_offs() if src == tr.target}
     for name, (Fn, Ft) in dst.coords.contact_forces(t, q_new, v_new).items():
         spec = next(s for s in dst.spec.cut_joints if s.name == name)
         scale_F = max(abs(Fn), abs(Ft), 1e-300)
+        if Fn < -1e-12 * scale_F and name in lifting:
+            continue  # it lifts off by itself at once, before any step (pcmm.run.loop._pending)
         if Fn < -1e-12 * scale_F:
             raise SimulationError(f"{where}: right after the strike the point held by '{name}' would be pulled "
-                                  f"(normal force {Fn:.6g} N): it lifts off at once, which '{tr.target}' cannot hold")
+                                  f"(normal force {Fn:.6g} N): it lifts off at once, which '{tr.target}' cannot hold; "
+                                  f"add a configuration with the same URDF and drives and the cut joints of "
+                                  f"'{tr.target}' but '{name}' (pcmm releases the point into it by itself)")
         if spec.friction is not None and math.isfinite(spec.friction) and abs(Ft) > spec.friction * Fn * (1 + 1e-12):
             raise SimulationError(f"{where}: right after the strike the point held by '{name}' would slip: its "
                                   f"force needs friction >= {abs(Ft) / Fn:.6g} (|F_t| / F_n, F_t = {Ft:.6g}, "

@@ -35,18 +35,21 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+import pinocchio as pin
 
 from ..model.configuration import Configuration
 from ..model.mechanism import Mechanism
+from ..model.pinocchio_helpers import LWA
 from ..errors import SimulationError
-from .contact import contact_point, contact_state
+from .contact import contact_state
 from .contact_faults import POSE_TOL, contact_findings
 from .records import by_link, event_record
 from .guards import guard_value
 from .entry import VELOCITY_ROUNDOFF, Entry, enter, joints_from_poses, map_state, pose_mismatches  # noqa: F401 - re-exported
-from .impulse import no_impulse, solve_impulse
+from .impulse import Impulse, no_impulse, solve_impulse
 from .pins import pin_strike
-from ..scene.spec import LatchSpec, StopSpec, TransitionSpec
+from .simultaneous import closed_with, simultaneous_impact
+from ..scene.spec import GuardSpec, LatchSpec, ReleaseSpec, StopSpec, TransitionSpec
 
 RESTING_FACTOR = 100.0  # a guard crossing at a separating speed below 100 x the accumulation speed is rest
 
@@ -219,6 +222,10 @@ def handle_stop(ctx: Context, cfg: Configuration, tr: StopSpec, t, q, v) -> Outc
         return _merge(ctx, cfg, tr, tr.merge_to, t, q, v, "stop")
     speed, interval = ctx.tolerances(tr)
     _, _, vn, _ = contact_state(cfg, q, v, tr.contact)
+    together = closed_with(cfg, tr, q)
+    if together and min([vn] + [contact_state(cfg, q, v, s.contact)[2] for s in together]) < 0:
+        # other contacts closed at this instant, one of them approaching: one solve with them all
+        return _simultaneous(ctx, cfg, [tr] + together, t, q, v)
     if vn >= 0:
         # The guard fired while the contact does not approach.  A tiny separating speed is the
         # integrator's resolution at the end of an accumulation (the bounces are shorter than its
@@ -243,6 +250,22 @@ def handle_stop(ctx: Context, cfg: Configuration, tr: StopSpec, t, q, v) -> Outc
         return _merge(ctx, cfg, tr, tr.merge_to, t, q, v, "stop")
     record = event_record(cfg, tr, t, cfg.name, False, imp, q=q)
     q_new, v_new, _, _ = switch(cfg, cfg, t, q, imp.v_after, what=f"bounce at '{tr.name}'")
+    return Outcome(cfg.name, q_new, v_new, record, {})
+
+
+def _simultaneous(ctx: Context, cfg: Configuration, trs: list, t, q, v) -> Outcome:
+    """Stops whose contacts are closed at once bounce together (:mod:`pcmm.events.simultaneous`)."""
+    imp, block, warnings = simultaneous_impact(cfg, trs, t, q, v)
+    for s in trs:
+        ctx.last_impact[s.name] = t
+    record = event_record(cfg, trs[0], t, cfg.name, False, imp, q=q)
+    record["impulse"]["tangential"] = imp.P_t
+    record["impulse"]["vector"] = [float(x) for x in imp.vector]
+    record["tangent"] = [float(imp.tangent[0]), float(imp.tangent[1])]
+    record["simultaneous"] = block
+    if warnings:
+        record.setdefault("warnings", []).extend(warnings)
+    q_new, v_new, _, _ = switch(cfg, cfg, t, q, imp.v_after, what=f"bounce at {', '.join(repr(s.name) for s in trs)}")
     return Outcome(cfg.name, q_new, v_new, record, {})
 
 
@@ -312,14 +335,80 @@ def release(ctx: Context, cfg: Configuration, tr: TransitionSpec, target: str, t
 
 
 def handle_release(ctx: Context, cfg: Configuration, tr: TransitionSpec, t, q, v) -> Outcome:
-    """A ``release`` transition of the scene, fired by its guard."""
+    """A ``release`` transition of the scene, fired by its guard (a reaction guard on a point held
+    by compression only: that point's lift-off, :func:`lift_off`)."""
+    if tr.guard.type == "reaction" and pinned_contact(cfg, tr.guard.of):
+        return lift_off(ctx, cfg, tr, t, q, v, cause=tr.guard.type)
     return release(ctx, cfg, tr, tr.target, t, q, v, cause=tr.guard.type)
+
+
+def pinned_contact(cfg: Configuration, name: str) -> bool:
+    """Is ``name`` a cut joint of ``cfg`` held by compression only (a contact normal)?"""
+    return any(s.name == name and s.normal is not None for s in cfg.spec.cut_joints)
 
 
 def unmerge(ctx: Context, cfg: Configuration, hold, target: str, t, q, v) -> Outcome:
     """Undo a stop-merge whose holding force would turn tensile: the stop's joints are freed at
     rest relative to each other, at the values they locked at."""
     return release(ctx, cfg, hold.transition, target, t, q, v, known=hold.joints, cause="tensile holding force")
+
+
+def lift_off_transition(source: str, name: str, target: str) -> ReleaseSpec:
+    """The release a point pinned by the cut joint ``name`` of ``source`` lifts off by (pcmm's own,
+    not in the scene): its guard, the cut joint's normal force decreasing through 0."""
+    return ReleaseSpec(name=f"lift-off {name}", source=source, cut=(), contact=None, target=target,
+                       guard=GuardSpec("reaction", None, 0.0, -1, of=name))
+
+
+def lift_off(ctx: Context, cfg: Configuration, tr: ReleaseSpec, t, q, v, cause: str = "tensile contact force") -> Outcome:
+    """A point held by compression only (the cut joint ``name`` of ``cfg``, a contact normal) whose
+    normal force turns tensile lifts off by itself into ``target`` (the scene's configuration
+    without it, :meth:`pcmm.scene.spec.Scene.lift_off_target`): a release, with no impulse, the
+    state continuous (:func:`release`).  The other points pinned at entry keep their anchors.
+    Freed, the point must leave the surface: its normal acceleration in ``target`` is >= 0 (the
+    tangential force the pin held is gone with it; a point pushed back into the surface would
+    slide, which pcmm does not model, and the run stops saying so)."""
+    name, target = tr.guard.of, tr.target
+    closure = cfg.coords.closure
+    k = next(i for i, s in enumerate(closure.specs) if s.name == name)
+    Fn, Ft = cfg.coords.contact_forces(t, q, v)[name]
+    cfg.kinematics(q)
+    anchor = cfg.data.oMf[closure.frames_b[k]].translation[:2].copy()  # where the point lifts off
+    keep = {s.name: closure.anchors[i] for i, s in enumerate(closure.specs) if i in closure.anchors and s.name != name}
+    dst = ctx.mechanism.enter(target, cfg, q)
+    if getattr(dst.coords, "constrained", False) and dst.coords.closure.anchored:
+        dst.kinematics(q)
+        dst.coords.closure.set_anchors(dst.data, keep)
+    out = release(ctx, cfg, tr, target, t, q, v, cause=cause)
+    # a scene's release may go to another tree: the check needs the same URDF (the same coordinates)
+    same_tree = list(dst.joint_names) == list(cfg.joint_names)
+    a_n = separating_acceleration(cfg, dst, k, t, out.q, out.v) if same_tree else math.nan
+    scale = max(1.0, abs(float(np.linalg.norm(cfg.scene.gravity))))
+    if a_n < -1e-9 * scale:
+        raise SimulationError(
+            f"t = {t:.9g} s, configuration '{cfg.name}': the point held by cut joint '{name}' lifts off (its normal "
+            f"force turns tensile, tangential force {Ft:.6g} N), but freed in '{target}' it would be pushed back into "
+            f"the surface (normal acceleration {a_n:.6g} m/s^2): it would slide, which pcmm does not model")
+    out.event["lifted"] = {name: {"anchor": [float(x) for x in anchor], "normal_force": float(Fn),
+                                  "tangential_force": float(Ft),
+                                  "normal_acceleration_after": a_n if same_tree else None}}
+    return out
+
+
+def separating_acceleration(src: Configuration, dst: Configuration, k: int, t, q, v) -> float:
+    """The normal acceleration (m/s^2, > 0 leaving) of the point of ``src``'s cut joint ``k``
+    relative to a's, moving with ``dst``'s dynamics at (q, v): the same URDF, so ``dst``'s
+    accelerations act on ``src``'s tree, whose model has the point's frames.  At the lift-off the
+    two points coincide and move together, so the gap's second derivative is n . (a_b - a_a)."""
+    a, _ = dst.coords.accelerations(t, q, v)
+    closure = src.coords.closure
+    spec = closure.specs[k]
+    pin.forwardKinematics(src.model, src.data, src.to_pin(q), v, a)
+    pin.updateFramePlacements(src.model, src.data)
+    acc = (pin.getFrameClassicalAcceleration(src.model, src.data, closure.frames_b[k], LWA).linear[:2]
+           - pin.getFrameClassicalAcceleration(src.model, src.data, closure.frames_a[k], LWA).linear[:2])
+    n = src.data.oMf[closure.links_a[k]].rotation[:2, :2] @ np.asarray(spec.normal, float)
+    return float(n @ acc) / float(np.linalg.norm(n))
 
 
 def handle_pin(ctx: Context, cfg: Configuration, tr: TransitionSpec, t, q, v) -> Outcome:

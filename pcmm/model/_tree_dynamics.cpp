@@ -24,6 +24,8 @@
 #include <pinocchio/algorithm/jacobian.hpp>
 #include <pinocchio/algorithm/kinematics.hpp>
 
+#include <algorithm>
+#include <cmath>
 #include <cstring>
 #include <string>
 #include <vector>
@@ -233,6 +235,19 @@ bool new_results(npy_intp m, npy_intp nv, PyArrayObject **vec, PyArrayObject **m
   return false;
 }
 
+// dy = [v, aba(q, v, Q0 - KD y)] at y (2 nv numbers each): the right-hand side itself, shared by
+// rhs() and the compiled segment loop (_segment_loop.hpp)
+void evaluate_rhs(Tree *self, const double *y, double *dy) {
+  const int nv = self->nv;
+  const Eigen::Map<const VectorXd> state(y, 2 * nv);
+  Eigen::Map<VectorXd> out(dy, 2 * nv);
+  *self->tau = *self->q0_force;
+  for (const auto &ij : *self->kd_nonzero) (*self->tau)[ij.first] -= (*self->kd)(ij.first, ij.second) * state[ij.second];
+  pinocchio::aba(*self->model, *self->data, state.head(nv), state.tail(nv), *self->tau);
+  out.head(nv) = state.tail(nv);
+  out.tail(nv) = self->data->ddq;
+}
+
 // rhs(t, y) -> [v, aba(q, v, Q0 - KD y)]: a new array each call (integrators keep what they get)
 PyObject *tree_rhs(Tree *self, PyObject *const *args, Py_ssize_t nargs) {
   if (nargs != 2) {
@@ -252,13 +267,7 @@ PyObject *tree_rhs(Tree *self, PyObject *const *args, Py_ssize_t nargs) {
     Py_DECREF(y);
     return nullptr;
   }
-  const Eigen::Map<const VectorXd> state((const double *)PyArray_DATA(y), 2 * nv);
-  Eigen::Map<VectorXd> dy((double *)PyArray_DATA(out), 2 * nv);
-  *self->tau = *self->q0_force;
-  for (const auto &ij : *self->kd_nonzero) (*self->tau)[ij.first] -= (*self->kd)(ij.first, ij.second) * state[ij.second];
-  pinocchio::aba(*self->model, *self->data, state.head(nv), state.tail(nv), *self->tau);
-  dy.head(nv) = state.tail(nv);
-  dy.tail(nv) = self->data->ddq;
+  evaluate_rhs(self, (const double *)PyArray_DATA(y), (double *)PyArray_DATA(out));
   Py_DECREF(y);
   return (PyObject *)out;
 }
@@ -353,6 +362,8 @@ PyMethodDef tree_methods[] = {
 
 PyTypeObject TreeType = {PyVarObject_HEAD_INIT(nullptr, 0)};
 
+#include "_segment_loop.hpp"
+
 PyModuleDef module_def = {PyModuleDef_HEAD_INIT, "_tree_dynamics",
                           "A tree configuration's right-hand side with Pinocchio's ABA, in C++.", -1, nullptr};
 
@@ -373,6 +384,23 @@ PyMODINIT_FUNC PyInit__tree_dynamics(void) {
   Py_INCREF(&TreeType);
   if (PyModule_AddObject(m, "Tree", (PyObject *)&TreeType) < 0) {
     Py_DECREF(&TreeType);
+    Py_DECREF(m);
+    return nullptr;
+  }
+  SegmentLoopType.tp_name = "pcmm._tree_dynamics.SegmentLoop";
+  SegmentLoopType.tp_basicsize = sizeof(SegmentLoop);
+  SegmentLoopType.tp_flags = Py_TPFLAGS_DEFAULT;
+  SegmentLoopType.tp_doc = "A tree configuration's segment integrated by Hairer's DOP853 in C++ (_segment_loop.hpp).";
+  SegmentLoopType.tp_new = loop_new;
+  SegmentLoopType.tp_dealloc = (destructor)loop_dealloc;
+  SegmentLoopType.tp_methods = loop_methods;
+  if (PyType_Ready(&SegmentLoopType) < 0) {
+    Py_DECREF(m);
+    return nullptr;
+  }
+  Py_INCREF(&SegmentLoopType);
+  if (PyModule_AddObject(m, "SegmentLoop", (PyObject *)&SegmentLoopType) < 0) {
+    Py_DECREF(&SegmentLoopType);
     Py_DECREF(m);
     return nullptr;
   }

@@ -99,7 +99,7 @@ def _candidates(cfg: Configuration, q0, v0, prefer):
 def assemble(scene: Scene, cfg: Configuration):
     """(q, v, warnings): the initial state of ``cfg`` from ``[initial]``, assembled onto its loops."""
     q0, v0 = cfg.vector(scene.q0), cfg.vector(scene.v0)
-    prefer = [cfg.joint_slice[j].start for j in scene.independent]
+    prefer = [cfg.coordinate_index(j) for j in scene.independent]
     coords = cfg.coords
     if not getattr(coords, "constrained", False) or not coords.closure.size:
         q, v = coords.project(0.0, q0, v0, prefer)

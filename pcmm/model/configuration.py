@@ -27,12 +27,16 @@ from typing import Callable
 import numpy as np
 import pinocchio as pin
 
-from ..errors import ModelError, SimulationError
+from ..errors import ModelError
 from .coordinates import Coordinates
 from .forces import ForceField, compile_forces, compile_point_springs
 from .pinocchio_helpers import LWA, frame_jacobian, mass_matrix
 from ..scene.spec import ConfigurationSpec, Measure, Scene, Target
 from ..scene.urdf import dynamics_xml
+
+#: a planar joint's coordinates, named "P.x", "P.y", "P.theta" (series, CSV, [initial] independent)
+PLANAR_PARTS = ("x", "y", "theta")
+
 
 @dataclass(frozen=True)
 class Point:
@@ -199,7 +203,7 @@ class Configuration:
         check_point_masses(model, self.data, spec, self._planar, self.link_frame)
         self._angle_map()
         self.cut_models: dict = {}  # cut systems by cut joints (pcmm.events.cutting), built on first impact
-        self.impulse_models: dict = {}  # the zero-gravity copy for joint impulses (pcmm.events.impulse)
+        self.impulse_models: dict = {}  # event-path constants: the zero-gravity copy for joint impulses, link joints (pcmm.events.impulse), the frame pivot (pcmm.events.momentum)
         if len(cache) >= _BUILT_MAX:
             cache.pop(next(iter(cache)))
         cache[key] = {k: self.__dict__[k] for k in (
@@ -355,6 +359,17 @@ class Configuration:
         for name, val in values.items():
             out[self.joint_slice[name]] = val
         return out
+
+    def coordinate_index(self, name: str) -> int:
+        """The index in q of a coordinate named as the series name them: a joint ("J", a planar
+        joint's first coordinate) or one coordinate of a planar joint ("P.x", "P.y", "P.theta")."""
+        if name in self.joint_slice:
+            return self.joint_slice[name].start
+        joint, _, part = name.rpartition(".")
+        sl = self.joint_slice[joint]
+        if sl.stop - sl.start != 3 or part not in PLANAR_PARTS:
+            raise KeyError(name)
+        return sl.start + PLANAR_PARTS.index(part)
 
     def by_joint(self, x: np.ndarray) -> dict[str, float | list[float]]:
         out = {}

@@ -16,11 +16,10 @@ import math
 
 import numpy as np
 import pinocchio as pin
-import scipy.linalg as sla
 
 from . import compiled
 from .configuration import Configuration
-from .rows import ClosureRows, Drives, _det, _max_abs, constrained_accelerations, solve
+from .rows import ClosureRows, Drives, _det, _max_abs, constrained_accelerations, pivots, solve
 from ..errors import Repartition, SimulationError
 from ..ode.witness import Guard
 
@@ -63,6 +62,8 @@ class PartitionedCoordinates:
         self._driven = np.array(drives.index, dtype=int)
         self._drive_rows = np.zeros((drives.size, self.nv))
         self._drive_rows[np.arange(drives.size), self._driven] = 1.0
+        self._no_rows, self._no_jacobian = np.zeros(0), np.zeros((0, self.nv))  # no loop rows
+        self._drive_columns_of: dict = {}  # {id(model): (model, the driven joints' columns)} (equality)
         # revolute cut joints' rows in one compiled call where that is the same function (pcmm.compiled)
         if not closure.specs:
             fast, why = None, "not compiled: drives only"
@@ -152,12 +153,14 @@ class PartitionedCoordinates:
 
     def _phi(self, t, q, need_bias=False, v=None):
         cfg = self.cfg
-        qp = cfg.to_pin(q)
-        if self.closure.revolute_only and not need_bias:
+        if not self.closure.size:  # drives alone: no kinematics pass, their rows need none
+            phi, Jq, bias = self._no_rows, self._no_jacobian, (self._no_rows if need_bias else None)
+        elif self.closure.revolute_only and not need_bias:
+            qp = cfg.to_pin(q)
             phi, Jq = self._point_rows(qp)
             bias = None
         else:
-            self._kinematics(qp, v if need_bias else None)
+            self._kinematics(cfg.to_pin(q), v if need_bias else None)
             phi, Jq, bias = self.closure.evaluate(cfg.model, cfg.data, need_bias)
         if self.drives.size:  # the rheonomic rows q_j - f_j(t): their Jacobian rows are constant
             f, _, f2 = self.drives.values(t)
@@ -172,7 +175,10 @@ class PartitionedCoordinates:
         pass (placements, velocities and accelerations at a = 0, then the Jacobians from them).
         The rows are taken at the returned q itself, not reused from the Newton solve's last
         iterate: near a change point the last correction is large enough to matter."""
-        Jq, bias = self._point_rows_and_bias_at(self.cfg.to_pin(q), v)
+        if not self.closure.size:  # drives alone: their rows and bias need no kinematics pass
+            Jq, bias = self._no_jacobian, self._no_rows
+        else:
+            Jq, bias = self._point_rows_and_bias_at(self.cfg.to_pin(q), v)
         if self.drives.size:
             Jq = np.concatenate((Jq, self._drive_rows))
             bias = np.concatenate((bias, -self.drives.values(t)[2]))
@@ -187,13 +193,21 @@ class PartitionedCoordinates:
     def equality(self, t, model, data):
         """Velocity rows of all constraints on ``model`` (the tree or its cut system);
         kinematics must be computed on ``data``."""
-        _, Jq, _ = self.closure.evaluate(model, data, False)
+        Jq = self.closure.evaluate(model, data, False)[1] if self.closure.size else np.zeros((0, model.nv))
         if self.drives.size:
             Jd = np.zeros((self.drives.size, model.nv))
-            for i, name in enumerate(self.drives.joints):
-                Jd[i, model.joints[model.getJointId(name)].idx_v] = 1.0
+            Jd[np.arange(self.drives.size), self._drive_columns(model)] = 1.0
             Jq = np.vstack([Jq, Jd])
         return Jq
+
+    def _drive_columns(self, model):
+        """The driven joints' velocity columns in ``model`` (the tree or one of its cut systems,
+        which keep the joints' names), found once per model."""
+        known = self._drive_columns_of
+        held = known.get(id(model))
+        if held is None or held[0] is not model:  # the model is held: its id stays its own
+            held = known[id(model)] = (model, [model.joints[model.getJointId(name)].idx_v for name in self.drives.joints])
+        return held[1]
 
     def _position_rows(self, t, q):
         """``dPhi/dq`` at ``q``: the derivative in pcmm's coordinates that a Newton solve of the
@@ -210,6 +224,12 @@ class PartitionedCoordinates:
         """Choose dependent coordinates: driven joints, then the best-conditioned
         columns of the loop rows (QR with column pivoting).  Coordinates in
         ``prefer_independent`` are kept independent when the rest allows it."""
+        if not self.closure.size and len(set(self.drives.index)) == self.drives.size:
+            # drives alone: the driven coordinates, an identity block (condition number 1)
+            self.D = self._best_dependent(None)
+            self.I = np.array([i for i in range(self.nv) if i not in self.D], dtype=int)
+            self.ny = 2 * len(self.I)
+            return
         Jq = self._position_rows(t, q)
         self.D = self._best_dependent(Jq, keep=prefer_independent)
         self.I = np.array([i for i in range(self.nv) if i not in self.D], dtype=int)
@@ -293,7 +313,7 @@ class PartitionedCoordinates:
         rest = [i for i in range(self.nv) if i not in driven and i not in keep]
         dep = list(driven)
         if self.closure.size:
-            _, _, piv = sla.qr(Jq[:self.closure.size][:, rest], pivoting=True)
+            piv = pivots(Jq[:self.closure.size][:, rest])
             dep += [rest[i] for i in piv[:self.closure.size]]
         return np.array(sorted(dep), dtype=int)
 
@@ -432,9 +452,10 @@ class PartitionedCoordinates:
     def contact_guards(self) -> list:
         """For each cut joint held by compression only (a ``contact`` normal): a guard where its
         normal force turns tensile, unless a transition of the scene watches it (a release with a
-        reaction guard: the lift-off), and with a finite ``friction`` a guard where its force
-        leaves the friction cone (mu F_n - |F_t| = 0).  Either stops the run with its cause: a
-        pinned point that lifts off or slips with nothing in the scene to take it is not modelled."""
+        reaction guard): it lifts off by itself into the scene's configuration without it
+        (:meth:`pcmm.scene.spec.Scene.lift_off_target`), or where there is none the run stops.
+        With a finite ``friction``, a guard where its force leaves the friction cone
+        (mu F_n - |F_t| = 0): the run stops, a pinned point that slips is not modelled."""
         cfg = self.cfg
         watched = {tr.guard.of for tr in cfg.scene.transitions_from(cfg.name) if tr.guard.type == "reaction"}
         out = []
@@ -444,11 +465,18 @@ class PartitionedCoordinates:
             if s.name not in watched:
                 def tensile(t, y, name=s.name):
                     return self.contact_forces(t, *self.unpack(t, y))[name][0]
-                out.append(Guard(f"cut joint '{s.name}': its normal force turns tensile", tensile, -1, "repartition",
-                                 payload=f"the point held by cut joint '{s.name}' would lift off (its normal force "
-                                 "turns tensile) and the scene gives it nowhere to go: add a release from this "
-                                 f"configuration with guard = {{ type = \"reaction\", of = \"{s.name}\", value = 0.0, "
-                                 "direction = \"decreasing\" } to a configuration without it"))
+                target = cfg.scene.lift_off_target(cfg.name, s.name)
+                if target is not None:  # it lifts off by itself (pcmm.run.actions.lift_off)
+                    out.append(Guard(f"cut joint '{s.name}': its normal force turns tensile (lift-off into "
+                                     f"'{target}')", tensile, -1, "lift-off", payload=(s.name, target)))
+                else:
+                    out.append(Guard(f"cut joint '{s.name}': its normal force turns tensile", tensile, -1, "repartition",
+                                     payload=f"the point held by cut joint '{s.name}' would lift off (its normal force "
+                                     "turns tensile) and the scene gives it nowhere to go: add a configuration with "
+                                     f"the same URDF and drives and the cut joints of '{cfg.name}' but '{s.name}' "
+                                     "(pcmm releases the point into it by itself), or a release from this "
+                                     f"configuration with guard = {{ type = \"reaction\", of = \"{s.name}\", "
+                                     "value = 0.0, direction = \"decreasing\" } to a configuration without it"))
             if s.friction is not None and math.isfinite(s.friction):
                 def cone(t, y, name=s.name, mu=s.friction):
                     Fn, Ft = self.contact_forces(t, *self.unpack(t, y))[name]
@@ -502,8 +530,11 @@ class PartitionedCoordinates:
                      g, 0, "repartition", rate=rate, rate_from_state=True)
 
     def unpack(self, t, y):
-        if self._cache is not None and self._cache[0] == t and np.array_equal(self._cache[1], y):
-            return self._cache[2]
+        cache = self._cache
+        # the same bytes are the same state (the common hit: a guard's value, then its rate);
+        # otherwise numpy decides (-0.0 and 0.0 are one value)
+        if cache is not None and cache[0] == t and (cache[1].tobytes() == y.tobytes() or np.array_equal(cache[1], y)):
+            return cache[2]
         out = self._unpack(t, y)
         self._cache = (t, y.copy(), out)
         if self._trail is not None:  # a re-read segment: keep the solutions at its accepted steps
@@ -514,6 +545,8 @@ class PartitionedCoordinates:
         return out
 
     def _unpack(self, t, y):
+        if not self.closure.size:
+            return self._prescribed(t, y)
         k = len(self.I)
         q, Jq, Jp = self._solve_dependent(t, y[:k], self._guess(t))
         self._qD = q
@@ -530,6 +563,54 @@ class PartitionedCoordinates:
         if len(self._recent) > 8:
             del self._recent[0]
         return q, v
+
+    def _prescribed(self, t, y):
+        """Drives alone (no loop): the dependent coordinates are the driven ones, prescribed
+        outright, ``q_D = f(t)`` and ``q'_D = f'(t)`` (the drive rows ``q_j - f_j(t) = 0`` are
+        linear with unit Jacobian rows).  No Newton solve: the one a loop needs converges here
+        in one step, and its polishing step lands on ``f(t)`` to the last bit, so the state is
+        the same, only its residual is now exactly zero."""
+        k = len(self.I)
+        f, f1, _ = self.drives.values(t)
+        q = np.empty(self.nv)
+        rates = np.empty(self.nv)
+        q[self.I] = y[:k]
+        rates[self.I] = y[k:]
+        q[self._driven] = f
+        rates[self._driven] = f1
+        self._qD = q
+        v = self.cfg.velocity(q, rates)
+        self._recent.append((t, q, rates))  # what a re-read segment keeps at its steps (unpack)
+        if len(self._recent) > 8:
+            del self._recent[0]
+        return q, v
+
+    def state_entry(self, j: int) -> tuple[int, int] | None:
+        """Where coordinate ``j`` and its rate sit in the state, ``(p, r)`` with ``q_j = y[p]`` and
+        ``q'_j = y[r]``, for drives without a loop (the independent coordinates are the undriven
+        ones, in order, whatever the posture: :meth:`partition`) and without a planar joint
+        (its rates are not its v); None otherwise, or for a driven joint."""
+        if self.closure.size or self.cfg.has_planar or len(set(self.drives.index)) != self.drives.size:
+            return None
+        free = [i for i in range(self.nv) if i not in self.drives.index]
+        if j not in free:
+            return None
+        p = free.index(j)
+        return p, len(free) + p
+
+    def unpack_many(self, ts, ys):
+        """``(q, v)`` at many times at once (one column each) where no Newton solve is involved:
+        drives without a loop and without a planar joint (:meth:`_prescribed`, column by column
+        the same bits); None otherwise.  Leaves the warm starts alone (prescribed coordinates
+        need none)."""
+        if self.closure.size or self.cfg.has_planar:
+            return None
+        k = len(self.I)
+        Q = np.empty((self.nv, len(ts)))
+        V = np.empty_like(Q)
+        Q[self.I], V[self.I] = ys[:k], ys[k:2 * k]
+        Q[self._driven], V[self._driven] = self.drives.values_many(np.asarray(ts, float))
+        return Q, V
 
     def project(self, t, q, v, prefer_independent=()):
         """Assemble (q, v) onto the constraints keeping the independent coordinates

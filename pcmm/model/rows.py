@@ -20,7 +20,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import pinocchio as pin
-from scipy.linalg.lapack import dgesv
+
+from .._scipy import lapack
 
 from .configuration import Configuration
 from .pinocchio_helpers import LWA, frame_jacobian
@@ -187,9 +188,31 @@ class Drives:
         three at one time, several times)."""
         last = self._last
         if last is None or last[0] != t:
-            last = (t, (self.value(t), self.value(t, 1), self.value(t, 2)))
+            # the three Horner sums of value(t, 0..2) in one pass, the same operations in the same order
+            f, f1, f2 = [], [], []
+            for d in self._derivs:
+                for out, cs in zip((f, f1, f2), d):
+                    acc = 0.0
+                    for c in reversed(cs):
+                        acc = acc * t + c
+                    out.append(acc)
+            last = (t, (np.array(f), np.array(f1), np.array(f2)))
             object.__setattr__(self, "_last", last)
         return last[1]
+
+    def values_many(self, ts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(f, f') at every time of ``ts``, one row per drive: Horner's rule on the array, the
+        very operations :meth:`value` does on each time (numpy's elementwise products and sums
+        round as Python's)."""
+        f = np.empty((len(self.joints), len(ts)))
+        f1 = np.empty_like(f)
+        for i, d in enumerate(self._derivs):
+            for out, cs in ((f, d[0]), (f1, d[1])):
+                acc = np.zeros(len(ts))
+                for c in reversed(cs):
+                    acc = acc * ts + c
+                out[i] = acc
+        return f, f1
 
     def value(self, t, order=0) -> np.ndarray:
         out = np.empty(len(self.joints))
@@ -214,6 +237,25 @@ def _max_abs(x: np.ndarray) -> float:
     return max(map(abs, xs))
 
 
+def pivots(A: np.ndarray) -> np.ndarray:
+    """The column order of A's QR factorization with column pivoting (LAPACK's dgeqp3, 0-based):
+    ``scipy.linalg.qr(A, pivoting=True)[2]`` by the same calls (a workspace query, then the
+    factorization), without importing scipy.linalg (0.3 s at start-up)."""
+    A = np.asarray(A, float)
+    if not np.isfinite(A).all():
+        raise ValueError("array must not contain infs or NaNs")
+    if A.size == 0:
+        return np.arange(A.shape[1], dtype=np.int32)
+    geqp3 = lapack().dgeqp3
+    work, info = geqp3(A, lwork=-1, overwrite_a=False)[-2:]
+    if info < 0:
+        raise ValueError(f"illegal value in {-info}th argument of internal geqp3")
+    _, jpvt, _, _, info = geqp3(A, lwork=work[0].real.astype(int), overwrite_a=False)
+    if info < 0:
+        raise ValueError(f"illegal value in {-info}th argument of internal geqp3")
+    return jpvt - 1
+
+
 def solve(A: np.ndarray, b: np.ndarray) -> np.ndarray:
     """``np.linalg.solve`` for the small dense systems of a loop, by LAPACK's dgesv directly
     (numpy's wrapper costs four times the solve at this size); LinAlgError when A is singular."""
@@ -221,7 +263,7 @@ def solve(A: np.ndarray, b: np.ndarray) -> np.ndarray:
         raise np.linalg.LinAlgError(f"a {A.shape} system with a {b.shape} right-hand side is not square")
     if A.size == 0:
         return np.zeros(b.shape)
-    _, _, x, info = dgesv(A, b)
+    _, _, x, info = lapack().dgesv(A, b)
     if info != 0:
         raise np.linalg.LinAlgError(f"singular matrix (dgesv info {info})" if info > 0 else
                                     f"dgesv rejected argument {-info}")

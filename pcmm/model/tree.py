@@ -103,6 +103,14 @@ class TreeCoordinates:
     def unpack(self, t, y):
         return y[:self.nv], y[self.nv:]
 
+    def state_entry(self, j: int) -> tuple[int, int]:
+        """Where coordinate ``j`` and its rate sit in the state: ``y = [q, v]``."""
+        return j, self.nv + j
+
+    def unpack_many(self, ts, ys):
+        """``(q, v)`` at many states at once (one column each)."""
+        return ys[:self.nv], ys[self.nv:2 * self.nv]
+
     def derivative(self, t, q, v, extra):
         """State derivative at a full (q, v) with an extra generalized force (contact laws)."""
         cfg = self.cfg

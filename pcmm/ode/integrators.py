@@ -27,13 +27,30 @@ import warnings
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import integrate as si
-from scipy.optimize import brentq
 
+from .. import _scipy
 from ..errors import Repartition, SimulationError
+from .dop853 import DOP853, dense_step
 from .methods import AUTO, INTEGRATOR_NAMES, METHODS  # noqa: F401  (METHODS: the run loop's import)
+from .roots import brentq, minimize_bounded
 
 EPS = np.finfo(float).eps
+
+
+class _ScipyIntegrate:
+    """``scipy.integrate`` as the integrators use it, imported on first use: its ``__init__`` costs
+    about 0.5 s of CPU at start-up (benchmarks/startup.py).  ``ode``, the driver of the Fortran
+    DOP853 that a run on a tree uses, comes alone from its module (:mod:`pcmm._scipy`); the rest
+    (scipy's ``OdeSolver`` classes, for the other methods) from the package."""
+
+    def __getattr__(self, name):
+        if name == "ode":
+            return _scipy.ode()
+        import scipy.integrate
+        return getattr(scipy.integrate, name)
+
+
+si = _ScipyIntegrate()
 
 
 @dataclass
@@ -201,11 +218,13 @@ def _locate(e, sol, t_a, t_b, g_a, tol):
     None.  The guard is sampled on a grid; where no sample crosses, the sample closest to a
     crossing is refined by a bounded search for the extremum between its neighbours, so a graze
     shorter than the grid spacing is still found."""
-    from scipy.optimize import minimize_scalar
     n = 16
     grid = np.linspace(t_a, t_b, n + 1)
     ys = sol(grid)  # every dense output here takes an array of times: one call, (ny, n + 1)
-    vals = [e(s, ys[:, k]) for k, s in enumerate(grid)]
+    many = getattr(e, "many", None)  # the guard at every sample in one call, where it can
+    vals = many(grid, ys) if many is not None else None
+    if vals is None:
+        vals = [e(s, ys[:, k]) for k, s in enumerate(grid)]
     if _crossed(g_a, vals[0], e.direction) and vals[0] != g_a:
         return float(t_a)  # already across at the start of the dense output (round-off)
     xtol = max(tol, 4 * EPS * max(1.0, abs(t_b)))
@@ -213,7 +232,8 @@ def _locate(e, sol, t_a, t_b, g_a, tol):
 
     def root(lo, hi, g_lo, g_hi):
         if rate is not None:  # the guard's own rate: Newton's steps, kept in the bracket
-            return _bracketed_newton(lambda u: e(u, sol(u)), lambda u: rate(u, sol(u), None), lo, hi, g_lo, g_hi, xtol)
+            at = _last_state(sol)  # each iterate's value and rate read one dense-output state
+            return _bracketed_newton(lambda u: e(u, at(u)), lambda u: rate(u, at(u), None), lo, hi, g_lo, g_hi, xtol)
         return brentq(lambda u: e(u, sol(u)), lo, hi, xtol=xtol, rtol=4 * EPS)
     for k in range(n):
         if _crossed(vals[k], vals[k + 1], e.direction):
@@ -222,14 +242,24 @@ def _locate(e, sol, t_a, t_b, g_a, tol):
     sign = 1.0 if e.direction >= 0 else -1.0  # direction >= 0: a crossing makes the guard rise
     k = int(np.argmax([sign * v for v in vals]))
     lo, hi = grid[max(k - 1, 0)], grid[min(k + 1, n)]
-    best = minimize_scalar(lambda u: -sign * e(u, sol(u)), bounds=(lo, hi), method="bounded",
-                           options={"xatol": xtol})
-    t_x = float(best.x)
+    t_x = minimize_bounded(lambda u: -sign * e(u, sol(u)), lo, hi, xatol=xtol)
     g_x = e(t_x, sol(t_x))
     start_side = vals[max(k - 1, 0)]
     if _crossed(start_side, g_x, e.direction) and g_x != start_side:
         return t_x if g_x == 0 else root(lo, t_x, start_side, g_x)
     return None
+
+
+def _last_state(sol):
+    """``sol`` remembering its last instant: a root finder's value and rate at one iterate cost
+    one dense-output evaluation (scipy's, some 15 us from Python), not two."""
+    last = [None, None]
+
+    def at(u):
+        if last[0] != u:
+            last[0], last[1] = u, sol(u)
+        return last[1]
+    return at
 
 
 def _bracketed_newton(g, dg, lo, hi, g_lo, g_hi, xtol, max_iter=100) -> float:
@@ -326,7 +356,13 @@ class ScipyMethod:
 
     def __init__(self, name: str):
         self.name = name
-        self.cls = getattr(si, name)
+
+    @property
+    def cls(self):
+        """scipy's class (scipy.integrate is imported when a run first uses one of these); for
+        DOP853, pcmm's step of it (:mod:`pcmm.ode.dop853`: scipy's, bit for bit, without the
+        0.5 s import of scipy.integrate)."""
+        return DOP853 if self.name == "DOP853" else getattr(si, self.name)
 
     def integrate(self, fun, t0, y0, t_bound, events, opts) -> Segment:
         needs_f = _needs_derivative(events)
@@ -364,7 +400,7 @@ class FortranDOP853:
     evaluation (scipy's Python ``OdeSolver`` loop adds several microseconds
     per call, more than a lean right-hand side costs).  Each accepted step is
     scanned for events like every method's; the step that holds an event is
-    taken again by scipy's DOP853 (:func:`_dop853_dense`) for its dense output,
+    taken again by DOP853 as scipy implements it (:func:`_dop853_dense`) for its dense output,
     so events are located to DOP853's 7th-order accuracy.
     """
 
@@ -376,6 +412,10 @@ class FortranDOP853:
     beta = 0.04
 
     def integrate(self, fun, t0, y0, t_bound, events, opts) -> Segment:
+        loop, progress = _segment_loop(fun, t0, y0, t_bound, events, opts, self.beta)
+        if loop is not None:
+            return _run(lambda counted, f0, st: self._drive_compiled(loop, progress, counted, st, opts),
+                        fun, t0, y0, t_bound, events, opts)
         needs_f = _needs_derivative(events)
 
         def drive(counted, f0, st):
@@ -440,12 +480,48 @@ class FortranDOP853:
             if code < 0:
                 self._diagnose(counted, st, opts)
                 raise SimulationError(self._failure(code, st, opts))
-            if t_bound - st.ts[-1] <= 4 * EPS * max(1.0, abs(t_bound)):
-                st.ts[-1] = t_bound  # Hairer's last step, x + (xend - x), may round an ulp short
-            else:
+            if not t_bound_reached(st):
                 return None, f"DOP853 (Fortran) stopped at t = {st.ts[-1]:.17g} s before t_end = {t_bound:.17g} s"
             return None, None
         return _run(drive, fun, t0, y0, t_bound, events, opts)
+
+    def _drive_compiled(self, loop, progress, counted, st, opts):
+        """The segment stepped by the compiled loop (:func:`_segment_loop`): the same steps as the
+        Fortran code's, without Python between them.  The loop hands back the steps where a guard
+        may fire (or every step, where a guard is not affine in the state); those go through
+        :meth:`_Stepper.accept` as every method's do, located on the loop's own dense output."""
+        events, needs_f = st.events, _needs_derivative(st.events)
+        try:
+            while True:
+                code = loop.run()
+                steps = loop.take()
+                if len(steps):
+                    _record_steps(st, steps)
+                if code == 1:
+                    t_old, t_new, y_new, f_new = loop.candidate()
+                    y_old = st.ys[-1]
+                    if len(steps) and events:  # the guards at the step's start, as accept leaves them
+                        st.g = [e(t_old, y_old) for e in events]
+                        st.rates = [_rate(e, t_old, y_old, None, t_new - t_old) for e in events]
+                    hit = st.accept(t_old, y_old, t_new, y_new, f_new if needs_f else None,
+                                    _lazy(lambda: _Contd8(*loop.dense())))
+                    if hit is not None:
+                        return hit, None
+                    if progress is not None and st.count % _PROGRESS_STEPS == 0:
+                        progress(float(t_new))
+                elif code == 2:  # a pause: Python's turn (Ctrl-C, the progress bar)
+                    if progress is not None:
+                        progress(float(st.ts[-1]))
+                elif code == 0:
+                    if t_bound_reached(st):
+                        return None, None
+                    return None, (f"DOP853 (compiled) stopped at t = {st.ts[-1]:.17g} s before t_end = "
+                                  f"{st.t_bound:.17g} s")
+                else:
+                    self._diagnose(counted, st, opts)
+                    raise SimulationError(self._failure(code, st, opts))
+        finally:
+            counted.n += loop.counts()[0]
 
     @staticmethod
     def _diagnose(counted, st, opts, steps: int = 200) -> None:
@@ -478,20 +554,98 @@ class FortranDOP853:
         return f"DOP853 (Fortran) rejected its input (code {code}) at t = {t:.9g} s"
 
 
+def t_bound_reached(st) -> bool:
+    """Did the last step reach the segment's end?  Hairer's last step, x + (xend - x), may round an
+    ulp short: then its time is set to the end."""
+    if st.t_bound - st.ts[-1] <= 4 * EPS * max(1.0, abs(st.t_bound)):
+        st.ts[-1] = st.t_bound
+        return True
+    return False
+
+
+#: accepted steps between two progress reports of the compiled loop (21 DOP853 steps: about the
+#: 256 evaluations between two reports of the run loop's wrapper)
+_PROGRESS_STEPS = 21
+
+#: compiled segment loops by the type of the object whose bound ``rhs`` a configuration integrates
+#: (a tree's compiled right-hand side): registered by pcmm.model.compiled, the layer above.
+SEGMENT_LOOPS: dict = {}
+
+
+def _segment_loop(fun, t0, y0, t_bound, events, opts, beta):
+    """(the compiled loop for this segment, the progress call-back) where ``fun`` is a compiled
+    right-hand side with a registered loop (``fun`` may be the run loop's progress wrapper of it,
+    ``__wrapped__``), else (None, None): Python steps it, the reference."""
+    progress = getattr(fun, "progress", None)
+    fun = getattr(fun, "__wrapped__", fun)
+    owner = getattr(fun, "__self__", None)
+    make = SEGMENT_LOOPS.get(type(owner))
+    if make is None or getattr(fun, "__name__", None) != "rhs" or not (np.isscalar(opts.rtol) and np.isscalar(opts.atol)):
+        return None, None
+    y0 = np.array(y0, float)
+    ny = y0.size
+    affine = [getattr(e, "affine", None) for e in events]
+    # a progress bar (the run loop's wrapper) is fed every _PROGRESS_STEPS steps, as the wrapper's
+    # own count of evaluations did: then every step comes back to Python
+    every_step = (progress is not None or any(a is None for a in affine)
+                  or not all(getattr(e, "rate_from_state", False) for e in events))
+    if every_step:
+        C, ct, d, direction = np.zeros((0, ny)), np.zeros(0), np.zeros(0), np.zeros(0)
+    else:
+        C = np.array([np.zeros(ny) if c is None else np.asarray(c, float) for c, _, _ in affine]).reshape(len(events), ny)
+        ct = np.array([a[1] for a in affine], float)
+        d = np.array([a[2] for a in affine], float)
+        direction = np.array([e.direction for e in events], float)
+    max_step = opts.max_step if np.isfinite(opts.max_step) else 0.0
+    try:
+        loop = make(owner, float(t0), y0, float(t_bound), float(opts.rtol), float(opts.atol), float(max_step),
+                    int(opts.max_steps), float(beta), C, ct, d, direction, every_step)
+    except (ValueError, TypeError, RuntimeError):  # a state that is not the tree's: Python steps it
+        return None, None
+    return loop, progress
+
+
+def _record_steps(st, steps) -> None:
+    """Accepted steps (rows t, y) the compiled loop took without a candidate event, recorded as
+    :meth:`_Stepper.accept` would (the step budget included)."""
+    room = st.max_steps - st.count
+    if len(steps) > room:
+        keep = steps[:max(room, 0)]
+        st.ts.extend(keep[:, 0].tolist())
+        st.ys.extend(keep[:, 1:])
+        st.count += len(keep)
+        raise SimulationError(_too_many_steps(st.max_steps, float(steps[len(keep), 0]), st.ts[0], st.t_bound))
+    st.ts.extend(steps[:, 0].tolist())
+    st.ys.extend(steps[:, 1:])
+    st.count += len(steps)
+
+
+class _Contd8:
+    """DOP853's 7th-order dense output over one step, from the coefficients of Hairer's ``contd8``
+    (``cont``, 8 x ny) that the compiled loop computes; like scipy's dense outputs it takes a time
+    (returns (ny,)) or an array of times (returns (ny, n))."""
+
+    def __init__(self, t_old, h, cont):
+        self.t_old, self.h, self.cont = t_old, h, cont
+
+    def __call__(self, t):
+        s = (np.asarray(t, float) - self.t_old) / self.h
+        s1 = 1.0 - s
+        c = self.cont if s.ndim == 0 else self.cont[:, :, None]
+        par = c[4] + s * (c[5] + s1 * (c[6] + s * c[7]))
+        return c[0] + s * (c[1] + s1 * (c[2] + s * (c[3] + s1 * par)))
+
+
 def _dop853_dense(fun, t_a, y_a, t_b, opts):
-    """DOP853's 7th-order dense output over one step [t_a, t_b] of the Fortran code: scipy's
-    DOP853 (the same tableau and error control) started with that step size.  It normally
-    takes the step in one; where it splits it, the pieces are joined."""
-    solver = si.DOP853(fun, t_a, y_a, t_b, rtol=opts.rtol, atol=opts.atol, first_step=t_b - t_a)
-    ts, pieces = [t_a], []
-    while solver.status == "running":
-        message = solver.step()
-        if solver.status == "failed":
-            raise SimulationError(f"DOP853 failed while re-integrating the step [{t_a:.9g}, {t_b:.9g}] s "
-                                  f"that holds an event: {message}")
-        ts.append(solver.t)
-        pieces.append(solver.dense_output())
-    return pieces[0] if len(pieces) == 1 else si.OdeSolution(ts, pieces)
+    """DOP853's 7th-order dense output over one step [t_a, t_b] of the Fortran code: DOP853 as
+    scipy implements it (the same tableau and error control, :mod:`pcmm.ode.dop853`) started
+    with that step size.  It normally takes the step in one; where it splits it, the pieces are
+    joined."""
+    sol, message = dense_step(fun, t_a, y_a, t_b, opts.rtol, opts.atol)
+    if sol is None:
+        raise SimulationError(f"DOP853 failed while re-integrating the step [{t_a:.9g}, {t_b:.9g}] s "
+                              f"that holds an event: {message}")
+    return sol
 
 
 class FixedStepRK4:

@@ -8,12 +8,17 @@ from the state, and the ``action`` the loop takes when it fires:
 * ``"transition"``: the scene transition ``transition`` (a latch, a stop, a release) fires;
 * ``"unmerge"``: a stop-merge held by compression only would have to pull (``payload`` is
   the merge); the bodies separate with no impulse;
+* ``"lift-off"``: a point held by compression only (a cut joint with a contact normal) would
+  have to pull (``payload`` is (the cut joint, the configuration without it)); it is freed with
+  no impulse;
 * ``"separation"``: a collision resolved by a continuous contact law ends (the gap reopens);
 * ``"repartition"``: a loop's partition of its coordinates degenerates (a new one is chosen,
   or the loop is at a singular posture).
 
 The integrators read the value by calling the guard, ``terminal`` and ``direction`` (scipy's
-event convention), and ``rate(t, y, f)`` for their graze test where it is given.
+event convention), and ``rate(t, y, f)`` for their graze test where it is given; ``affine``
+declares a guard linear in the state (a tree's joint-angle and stop guards, time guards), which a
+compiled segment loop then scans without calling back into Python.
 """
 from __future__ import annotations
 
@@ -22,7 +27,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-ACTIONS = ("transition", "unmerge", "separation", "repartition")
+ACTIONS = ("transition", "unmerge", "lift-off", "separation", "repartition")
 
 
 @dataclass(eq=False)
@@ -34,8 +39,15 @@ class Guard:
     transition: Any = None  # the scene's TransitionSpec it fires ("transition", "unmerge")
     rate: Callable[[float, np.ndarray, np.ndarray | None], float] | None = None
     rate_from_state: bool = False  # the rate needs no state derivative (the graze test is cheap)
-    payload: Any = None  # what the action needs ("unmerge": the merge it watches)
+    payload: Any = None  # what the action needs ("unmerge": the merge it watches; "lift-off": (cut joint, target))
     terminal: bool = True
+    #: optional: the values at many states at once, ``many(ts, ys) -> list`` (ys one column per
+    #: time), equal to ``value`` state by state to the bit, or None where it cannot say; an
+    #: event grid reads it (:func:`pcmm.ode.integrators._locate`)
+    many: Callable[[np.ndarray, np.ndarray], list | None] | None = None
+    # (c, ct, d) where the value is affine in the state, g = c . y + ct t + d exactly (c None: no
+    # state term), so its rate along the flow is c . y' + ct: a compiled segment loop scans it itself
+    affine: tuple | None = None
 
     def __post_init__(self):
         if self.action not in ACTIONS:
@@ -47,6 +59,7 @@ class Guard:
     def on_state(self, n: int) -> "Guard":
         """This guard read on the first ``n`` components of a longer state (an integrated
         quantity appended to it: a flight's work, a contact law's impulse), its rate too."""
-        value, rate = self.value, self.rate
-        return replace(self, value=lambda t, y: value(t, y[:n]),
-                       rate=None if rate is None else (lambda t, y, f: rate(t, y[:n], None if f is None else f[:n])))
+        value, rate, many = self.value, self.rate, self.many
+        return replace(self, value=lambda t, y: value(t, y[:n]), affine=None,
+                       rate=None if rate is None else (lambda t, y, f: rate(t, y[:n], None if f is None else f[:n])),
+                       many=None if many is None else (lambda ts, ys: many(ts, ys[:n])))

@@ -590,7 +590,16 @@ def record_views(scene) -> dict:
             "forces": {f.name: ({"on": {"kind": f.on.kind, "name": f.on.name}} if f.on is not None else
                                 {"on": None, "points": [f.points.a, f.points.b]})
                        for f in scene.forces},
-            "transitions": [_transition_view(tr, unmerge) for tr in getattr(scene, "transitions", ())]}
+            "transitions": [_transition_view(tr, unmerge) for tr in getattr(scene, "transitions", ())]
+            + [_lift_off_view(*x) for x in (scene.lift_offs() if hasattr(scene, "lift_offs") else ())]}
+
+
+def _lift_off_view(source: str, cut_joint: str, target: str) -> dict:
+    """A pinned point's lift-off that pcmm adds by itself (:meth:`pcmm.scene.spec.Scene.lift_offs`),
+    drawn as the release it is (the event's name, ``lift-off <cut joint>``)."""
+    return {"name": f"lift-off {cut_joint}", "type": "release", "from": source, "to": target, "merge_to": None,
+            "unmerge": False, "restitution": None, "cut": [], "guard": f"normal force of {cut_joint} ↓ 0",
+            "contact": None}
 
 
 def legacy_views(scene_path: str) -> dict:

@@ -17,7 +17,7 @@ from ..events.contact import contact_point, contact_state
 from ..events.contact_laws import ContactPhase
 from ..events.guards import guard_residual
 from ..events.records import EventRecord, event_dict
-from ..events.transitions import TRANSITIONS, Outcome, unmerge
+from ..events.transitions import TRANSITIONS, Outcome, lift_off, lift_off_transition, unmerge
 from .state import RunState
 
 #: this many configuration switches at one instant are a cycle that time does not pass in
@@ -71,12 +71,24 @@ def release_merge(run: RunState, guard) -> bool:
     return transform(run, guard.transition, out, None)
 
 
+def release_pin(run: RunState, guard) -> bool:
+    """A point held by compression only whose normal force turns tensile lifts off by itself
+    into the scene's configuration without its cut joint (``guard.payload``), with no impulse."""
+    run.phase = None
+    t0 = time.perf_counter()
+    tr = lift_off_transition(run.cfg.name, *guard.payload)
+    out = lift_off(run.ctx, run.cfg, tr, run.t, run.q, run.v)
+    run.stats["wall_s"] += time.perf_counter() - t0
+    return transform(run, tr, out, None)
+
+
 GUARD_ACTIONS = {
     "repartition": repartition,
     "contact": start_contact,
     "separation": separate,
     "transition": transition,
     "unmerge": release_merge,
+    "lift-off": release_pin,
 }
 
 
@@ -94,7 +106,7 @@ def transform(run: RunState, tr, out: Outcome, guard_residual: float | None) -> 
     run.stats["impacts"] += int(out.event.get("impact", False))
     run.traj.events.append(out.event)
     run.fired.add(out.event["name"])
-    check_progress(run, tr)
+    check_progress(run, tr, out.event)
     if out.configuration != run.cfg.name:
         run.offsets = {k: run.offsets.get(k, 0.0) + d for k, d in out.angle_offsets.items()}
     else:
@@ -109,11 +121,11 @@ def transform(run: RunState, tr, out: Outcome, guard_residual: float | None) -> 
     return True
 
 
-def check_progress(run: RunState, tr) -> None:
+def check_progress(run: RunState, tr, last: dict | None = None) -> None:
     """Stop a run whose events no longer let time pass (a cycle of switches at one instant) or
-    exceed the event budget."""
+    exceed the event budget.  ``last``: the event just kept, as a dict (the log's last)."""
     t = run.t
-    cycle = zero_time_cycle(run.traj.events)
+    cycle = zero_time_cycle(run.traj.events, last)
     if cycle:
         raise SimulationError(
             f"at t = {t:.9g} s the run switched configuration {ZERO_TIME_CYCLE} times without time "
@@ -127,12 +139,18 @@ def check_progress(run: RunState, tr) -> None:
                               "tolerances if the impacts are meant to go on")
 
 
-def zero_time_cycle(events: list[dict]) -> str:
+def zero_time_cycle(events: list[dict], last: dict | None = None) -> str:
     """The transitions of a cycle of switches at one instant ('' if the last ``ZERO_TIME_CYCLE``
     events are not one): with no time passing no impulse can end it, as a macro-impact's
-    accumulation ends a bounce sequence, and only the event budget would stop the run."""
+    accumulation ends a bounce sequence, and only the event budget would stop the run.  ``last``:
+    the log's last event where the caller holds it (one record fewer to build)."""
+    n = len(events)
+    # the two ends first: a run's event log builds each record it is asked for (pcmm.results.event_log),
+    # and all the last ZERO_TIME_CYCLE of them at every event cost milliseconds
+    if n < ZERO_TIME_CYCLE or events[n - ZERO_TIME_CYCLE]["t"] != (events[n - 1] if last is None else last)["t"]:
+        return ""
     tail = events[-ZERO_TIME_CYCLE:]
-    if len(tail) < ZERO_TIME_CYCLE or tail[0]["t"] != tail[-1]["t"] or any(e["from"] == e["to"] for e in tail):
+    if any(e["from"] == e["to"] for e in tail):
         return ""
     return ", ".join(dict.fromkeys(f"'{e['name']}' ({e['from']} -> {e['to']})" for e in tail))
 

@@ -4,15 +4,16 @@ When a run reaches ``t_end`` in a configuration that still has transitions, none
 fired.  For each, the instant of the run (in that configuration) where the guard came closest to its
 value says whether it was a near miss (a guard value a hair off, an event_tol question) or never
 close (a wrong value, direction or assembly branch).  The nearest recorded step is refined on the
-integrator's dense output between its neighbours (a bounded Brent search), so a near miss between
-two long steps is measured, not the step's distance.
+integrator's dense output between its neighbours (a bounded Brent search,
+:func:`pcmm.ode.roots.minimize_bounded`), so a near miss between two long steps is measured, not
+the step's distance.
 """
 from __future__ import annotations
 
 import numpy as np
-from scipy.optimize import minimize_scalar
 
 from ..model.configuration import Configuration
+from ..ode.roots import minimize_bounded
 from ..events.contact import contact_state
 from ..scene.spec import Scene
 from ..errors import UsageError
@@ -37,11 +38,9 @@ def _refine(cfg: Configuration, tr, seg: SegmentRecord, lo: float, hi: float, t0
     if not hi > lo:
         return t0, g0
     try:
-        res = minimize_scalar(lambda t: abs(g(t) - tr.guard.value), bounds=(lo, hi), method="bounded",
-                              options={"xatol": 1e-12 * max(1.0, abs(hi))})
+        t1 = minimize_bounded(lambda t: abs(g(t) - tr.guard.value), lo, hi, xatol=1e-12 * max(1.0, abs(hi)))
     except UsageError:  # no dense output
         return t0, g0
-    t1 = float(res.x)
     g1 = g(t1)
     return (t1, g1) if abs(g1 - tr.guard.value) < abs(g0 - tr.guard.value) else (t0, g0)
 

@@ -19,7 +19,7 @@ from dataclasses import replace
 import numpy as np
 
 from ..errors import ModelError, Repartition, SimulationError, UsageError
-from ..events.contact import contact_row, contact_state
+from ..events.contact import contact_row, contact_state, normal_speed
 from ..events.guards import guard_residual, make_guard
 from ..events.holding import Holds
 from ..events.transitions import POSE_TOL, Context
@@ -405,12 +405,12 @@ def _guards(scene: Scene, cfg: Configuration, holds: Holds, t: float, phase, bou
 def _pending(cfg: Configuration, guards, t, y0):
     """Index of a guard that is already at or past its crossing at the start of a segment
     while its contact still approaches: a contact that closed at the same instant as the
-    impact just resolved; or a merge whose holding force is already tensile (it never held).  It is resolved now, before any integration (sequential impacts
+    impact just resolved; or a merge (or a pinned point) whose holding force is already tensile (it never held).  It is resolved now, before any integration (sequential impacts
     in scene order); a step would never see it change sign."""
     q, v = cfg.coords.unpack(t, y0)
     for i, g in enumerate(guards):
-        if g.action == "unmerge" and g(t, y0) < 0:
-            return i  # the merge would have to pull from its first instant: the bodies separate now
+        if g.action in ("unmerge", "lift-off") and g(t, y0) < 0:
+            return i  # the merge or pin would have to pull from its first instant: the bodies separate now
         tr = g.transition
         if g.action != "transition" or tr.contact is None or tr.guard.type not in ("coordinate", "gap"):
             continue
@@ -420,7 +420,7 @@ def _pending(cfg: Configuration, guards, t, y0):
         at_value = 64 * EPS * max(1.0, abs(tr.guard.value))
         if value < -at_value or value > POSE_TOL:  # not at its crossing (far past it: entered from the other side)
             continue
-        _, _, vn, Jn = contact_state(cfg, q, v, tr.contact)
+        vn = normal_speed(cfg, q, v, tr.contact)
         if vn < -1e-12:
             return i
         if abs(vn) <= 1e-12 and _pushed_closed(cfg, t, q, v, tr.contact):
@@ -450,6 +450,7 @@ def _reporting(fun, progress, every: int = 256):
         if count[0] % every == 0:
             progress(float(t))
         return fun(t, y)
+    f.__wrapped__, f.progress = fun, progress  # a compiled segment loop steps fun itself and reports progress
     return f
 
 

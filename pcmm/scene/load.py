@@ -19,7 +19,7 @@ from pathlib import Path
 from . import schema as S
 from . import settings
 from ..errors import ModelError, SceneError
-from .spec import (ConfigurationSpec, ContactSpec, CutJointSpec, Derivation, DriveSpec, ForceSpec, GuardSpec,
+from .spec import (ConfigurationSpec, ContactSpec, CutJointSpec, DriveSpec, ForceSpec, GuardSpec,
                    BranchSpec, LatchSpec, Measure, PinSpec, PointPair, ReleaseSpec, Scene, StopSpec, Target)
 from .urdf import MOVABLE, read_urdf
 from .variations import read_urdf_cached, set_values
@@ -802,6 +802,16 @@ class _Builder:
         elif movable and config.info.joints[name].type not in MOVABLE:
             self.p.add(where, f"= {name!r}: joint is fixed in configuration '{config.name}'")
 
+    def _check_coordinate(self, where, name, config):
+        """A joint, or one coordinate of a planar joint ("P.x", "P.y", "P.theta")."""
+        joint, _, part = name.rpartition(".")
+        if name in config.info.joints or not joint or joint not in config.info.joints:
+            self._check_joint(where, name, config)
+        elif config.info.joints[joint].type != "planar" or part not in ("x", "y", "theta"):
+            self.p.add(where, f"= {name!r}: only a planar joint's coordinates are named by a part, and its parts "
+                       f"are .x, .y, .theta ('{joint}' is {config.info.joints[joint].type} in configuration "
+                       f"'{config.name}')")
+
     def _check_measure(self, where, m: Measure, config):
         if m.kind == "joint":
             self._check_joint(where, m.names[0], config)
@@ -902,7 +912,7 @@ class _Builder:
         init_cfg = names.get(scene.initial_configuration)
         for j in scene.independent:
             if init_cfg is not None:
-                self._check_joint("initial.independent", j, init_cfg)
+                self._check_coordinate("initial.independent", j, init_cfg)
         if scene.branch is not None and init_cfg is not None:
             self._check_measure("initial.branch", scene.branch.measure, init_cfg)
         for i, d in enumerate(scene.drives):

@@ -295,3 +295,32 @@ class Scene:
 
     def transitions_from(self, config: str) -> tuple[TransitionSpec, ...]:
         return tuple(t for t in self.transitions if t.source == config)
+
+    def lift_off_target(self, config: str, cut_joint: str) -> str | None:
+        """The configuration a point held by compression only (``cut_joint`` of ``config``, a cut
+        joint with a contact normal) lifts off into by itself when its normal force turns tensile:
+        the first of the scene's configurations with the same URDF (and derivation), the same
+        drives, and the cut joints of ``config`` except ``cut_joint``.  None: there is none (the
+        scene must then watch the point with a release of its own)."""
+        src = self.configurations[config]
+        rest = {s for s in src.cut_joints if s.name != cut_joint}
+        drives = {(d.joint, d.coefficients) for d in self.drives_in(config)}
+        for name, spec in self.configurations.items():
+            if (name != config and spec.urdf == src.urdf and spec.derivation == src.derivation
+                    and len(spec.cut_joints) == len(rest) and set(spec.cut_joints) == rest
+                    and {(d.joint, d.coefficients) for d in self.drives_in(name)} == drives):
+                return name
+        return None
+
+    def lift_offs(self) -> list[tuple[str, str, str]]:
+        """(configuration, cut joint, target) of every point held by compression only that lifts
+        off by itself (:meth:`lift_off_target`; not one a ``release`` with a reaction guard watches)."""
+        out = []
+        for name, spec in self.configurations.items():
+            watched = {t.guard.of for t in self.transitions_from(name) if t.guard.type == "reaction"}
+            for cj in spec.cut_joints:
+                if cj.normal is not None and cj.name not in watched:
+                    target = self.lift_off_target(name, cj.name)
+                    if target is not None:
+                        out.append((name, cj.name, target))
+        return out

@@ -8,6 +8,13 @@ tracker, no shared semaphores) that takes one run at a time over a pipe and keep
   ``crashed`` and the signal or exit code; the worker is replaced and the study goes on.
 * **A run that outlives the time limit** is stopped (its worker killed and replaced) and is a
   row with status ``timeout``.
+* **Short runs are queued two deep**: once the runs are seen to be short (the last one took less
+  than :data:`QUEUE_BELOW` seconds), each worker is handed its next run before it finishes the one
+  it runs, so that it never waits for the study's process to read its row and hand it the next (on
+  a loaded machine, a wait for the CPU).  A queued run's time limit counts from when the study
+  read the row before it (never earlier than the run started); a run queued behind one that
+  crashed or timed out goes to another worker, fresh.  Long runs are handed one at a time (no
+  run waits behind a long one while another worker is idle).
 * **Workers die with their parent**: on Linux each asks the kernel for SIGKILL when the
   process that started it dies (``prctl(PR_SET_PDEATHSIG)``); elsewhere a watcher thread
   exits when the parent is gone.  ``kill -9`` of a study leaves no worker behind.
@@ -28,6 +35,8 @@ from ..errors import SimulationError
 
 #: the per-run time limit when none is given, s (``--run-timeout``)
 DEFAULT_RUN_TIMEOUT = 600.0
+#: runs are queued two deep in each worker while the last run took less than this, s
+QUEUE_BELOW = 1.0
 
 
 def _signal_name(code: int) -> str:
@@ -66,13 +75,24 @@ class _Worker:
             os.close(from_child_w)
         self.send_conn = Connection(to_child_w, readable=False)
         self.recv_conn = Connection(from_child_r, writable=False)
-        self.job = None
-        self.started = 0.0
-        self.ready = False  # set when the worker has started (its imports are not a run's time)
+        self.queue: list = []  # the jobs handed to it, in order: the first is the one it runs
+        self.started = 0.0  # when the first of the queue started (or the row before it was read)
+
+    @property
+    def job(self):
+        """The job it runs."""
+        return self.queue[0]
 
     def give(self, fn, job) -> None:
-        self.job, self.started = job, time.monotonic()
+        if not self.queue:
+            self.started = time.monotonic()
+        self.queue.append(job)
         self.send_conn.send((fn, job))
+
+    def answered(self) -> None:
+        """The row of the job it ran was read: it runs the next in its queue (from now, at the latest)."""
+        self.queue.pop(0)
+        self.started = time.monotonic()
 
     def kill(self) -> int | None:
         try:
@@ -104,7 +124,6 @@ class WorkerPool:
                  init: str | None = None):
         self.timeout, self.on_failure, self.init = timeout, on_failure, init
         self.pool: list[_Worker] = []
-        self.idle: list[_Worker] = []
         self.starting: dict = {}  # recv_conn -> worker not ready yet
         try:
             for _ in range(workers):
@@ -124,22 +143,42 @@ class WorkerPool:
     def imap(self, fn: Callable, jobs: Iterable) -> Iterator:
         """``fn(job)`` for every job, yielded as each finishes.  Stopping early (an error, Ctrl-C)
         kills the pool: the runs in flight are not results."""
+        from collections import deque
         jobs = iter(jobs)
-        busy: dict = {}  # recv_conn -> worker
-        timeout, starting, idle = self.timeout, self.starting, self.idle
+        again: deque = deque()  # jobs that were queued behind a run that crashed or timed out
+        exhausted = False
+        timeout, starting = self.timeout, self.starting
+        depth = 1  # jobs per worker: 2 once a run was seen to take less than QUEUE_BELOW s
+
+        def next_job():
+            nonlocal exhausted
+            if again:
+                return again.popleft()
+            if exhausted:
+                return None
+            job = next(jobs, None)
+            exhausted = job is None
+            return job
+
+        def lost(w: _Worker, status: str, message: str, seconds: float) -> dict:
+            """The row of the run a dead worker ran; the jobs queued behind it go again; a new worker."""
+            row = self.on_failure(w.queue[0], status, message, seconds)
+            again.extend(w.queue[1:])
+            w.queue = []
+            self._start(w)
+            return row
+
         ok = False
         try:
-            exhausted = False
             while True:
-                while idle and not exhausted:
-                    job = next(jobs, None)
-                    if job is None:
-                        exhausted = True
-                        break
-                    w = idle.pop()
-                    w.give(fn, job)
-                    busy[w.recv_conn] = w
-                if not busy and (exhausted or not starting):
+                for w in self.pool:
+                    while w.recv_conn not in starting and len(w.queue) < depth:
+                        job = next_job()
+                        if job is None:
+                            break
+                        w.give(fn, job)
+                busy = {w.recv_conn: w for w in self.pool if w.queue}
+                if not busy and not again and (exhausted or not starting):
                     ok = True
                     return
                 wait_for = None
@@ -154,28 +193,24 @@ class WorkerPool:
                             code = w.kill()
                             raise SimulationError(f"a worker process of the study could not start: "
                                                   f"{death_message(code).replace('running it ', '')}") from None
-                        idle.append(w)
                         continue
-                    w = busy.pop(conn)
+                    w = busy[conn]
                     try:
                         row = conn.recv()
                     except (EOFError, OSError, pickle.UnpicklingError):
                         code = w.kill()
-                        row = self.on_failure(w.job, "crashed", death_message(code), time.monotonic() - w.started)
-                        self._start(w)
+                        row = lost(w, "crashed", death_message(code), time.monotonic() - w.started)
                     else:
-                        idle.append(w)
+                        took = time.monotonic() - w.started
+                        depth = 2 if took < QUEUE_BELOW else 1
+                        w.answered()
                     yield row
                 if timeout is not None:
                     now = time.monotonic()
-                    for conn, w in list(busy.items()):
-                        if now - w.started >= timeout:
-                            del busy[conn]
-                            w.kill()
-                            row = self.on_failure(w.job, "timeout", f"still running after the time limit of "
-                                                  f"{timeout:g} s (--run-timeout); stopped", now - w.started)
-                            self._start(w)
-                            yield row
+                    for w in [w for w in self.pool if w.queue and now - w.started >= timeout]:
+                        w.kill()
+                        yield lost(w, "timeout", f"still running after the time limit of {timeout:g} s "
+                                   "(--run-timeout); stopped", now - w.started)
         finally:
             if not ok:
                 self.close(kill=True)
@@ -193,7 +228,7 @@ class WorkerPool:
                     w.proc.wait(timeout=10)
                 except subprocess.TimeoutExpired:
                     w.kill()
-        self.pool, self.idle, self.starting = [], [], {}
+        self.pool, self.starting = [], {}
 
 
 def run_isolated(fn: Callable, jobs: Iterable, workers: int, timeout: float | None,

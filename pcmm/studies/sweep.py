@@ -48,22 +48,31 @@ class SweepResult:
 
 
 def validate_plan(scene, plan: Plan) -> None:
-    """Build every run's scene before the first run: the validator's message, with the run."""
-    for path in plan.paths:  # a path or value that is wrong on its own is named on its own
-        seen = set()
-        for vals in plan.runs:
-            v = vals[plan.paths.index(path)]
-            if value_text(v) in seen:
-                continue
-            seen.add(value_text(v))
+    """Build every run's scene before the first run: the validator's message, with the run.
+
+    One build per run (a sampled plan of 10,000 runs: about 7 s on this machine); only a run
+    that fails is built again with each of its values alone, so that a path or value that is
+    wrong on its own is named on its own (``--set PATH = VALUE: ...``)."""
+    alone: dict = {}  # (path, value text) -> the problems of that value on its own ([]: none)
+
+    def problems_alone(path, v) -> list:
+        key = (path, value_text(v))
+        if key not in alone:
             try:
                 scene.with_values({path: v})
+                alone[key] = []
             except SceneError as exc:
-                raise SceneError([f"--set {path} = {value_text(v)}: {p}" for p in exc.problems]) from None
+                alone[key] = [f"--set {path} = {value_text(v)}: {p}" for p in exc.problems]
+        return alone[key]
+
     for i, vals in enumerate(plan.runs):
         try:
             scene.with_values(plan.values(i))
         except SceneError as exc:
+            for path, v in zip(plan.paths, vals):
+                own = problems_alone(path, v)
+                if own:
+                    raise SceneError(own) from None
             desc = ", ".join(f"{p} = {value_text(v)}" for p, v in zip(plan.paths, vals))
             raise SceneError([f"run {i} ({desc}): {p}" for p in exc.problems]) from None
 

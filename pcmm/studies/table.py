@@ -10,6 +10,12 @@
 * Text cells go through the same neutralisation as ``pcmm run --csv``
   (:func:`pcmm.results.trajectory.spreadsheet_text`): a cell never starts a spreadsheet formula.
 * Every operating-system failure is an :class:`~pcmm.errors.OutputError` naming the table.
+* **What a row written promises**: a row is in the table (the operating system's file cache)
+  when the sweep counts it, so a kill of the sweep, ``kill -9`` included, loses no counted row.
+  The table is forced to the disk (``fsync``) at most once every :data:`SYNC_EVERY` seconds and
+  when the sweep ends, not at every row: a crash of the machine or a power cut loses at most the
+  rows of the last :data:`SYNC_EVERY` seconds, and a row it cuts short fails its checksum and is
+  run again on resume.
 
 Runs are identified by their parameter values' cell text; Parquet is written beside the CSV
 when pyarrow is importable.
@@ -20,6 +26,7 @@ import csv
 import errno
 import io
 import os
+import time
 import zlib
 from pathlib import Path
 from typing import Iterable
@@ -32,6 +39,9 @@ from .job import QUANTITIES
 #: statuses of runs that did not end by themselves: kept, and run again only with retry_failed
 FAILED_RUN = ("crashed", "timeout")
 CHECK = "check"
+#: the table is forced to the disk at most this often, s (and when the sweep ends)
+SYNC_EVERY = 1.0
+_now = time.monotonic  # the clock of the syncs (a test's to replace)
 
 
 def columns(paths: Iterable[str], collect: Iterable[str]) -> list[str]:
@@ -86,6 +96,8 @@ class ResultsTable:
         self.retried = 0
         self.fd = None
         self.lock = None
+        self.synced = _now()  # when the table was last forced to the disk
+        self.syncs = 0
         if self.path.is_symlink():
             raise _link_error(self.path)
         if self.path.is_dir():
@@ -152,6 +164,7 @@ class ResultsTable:
             self.fd = os.open(self.path, flags, 0o666)
             if fresh:
                 self._write(_line(self.header))
+                self.sync()  # a new table's header is on the disk before its first row
         except OSError as exc:
             if exc.errno == errno.ELOOP:
                 raise _link_error(self.path) from None
@@ -197,19 +210,34 @@ class ResultsTable:
             raise OutputError(self.path, exc) from None
 
     def append(self, row: dict) -> dict:
-        """Write one run's row, whole, with its checksum; the row as its cells."""
+        """Write one run's row, whole, with its checksum; the row as its cells.  The table is
+        forced to the disk when the last time is :data:`SYNC_EVERY` seconds ago."""
         cells = [cell(row.get(c)) for c in self.cols[:-1]]
         cells.append(checksum(cells))
         self._write(_line(cells))
         out = dict(zip(self.cols, cells))
         self.done[self.key(out)] = out
+        if _now() - self.synced >= SYNC_EVERY:
+            self.sync()
         return out
+
+    def sync(self) -> None:
+        """Force the rows written so far to the disk (``fsync``)."""
+        try:
+            os.fsync(self.fd)
+        except OSError as exc:
+            raise OutputError(self.path, exc) from None
+        self.synced = _now()
+        self.syncs += 1
 
     def close(self) -> None:
         try:
             if self.fd is not None:
-                os.close(self.fd)
-                self.fd = None
+                try:
+                    self.sync()
+                finally:
+                    os.close(self.fd)
+                    self.fd = None
         finally:
             self._unlock()
 

@@ -6,7 +6,7 @@ from ..errors import UsageError
 
 def _matplotlib():
     try:
-        import matplotlib
+        import matplotlib  # noqa: F401 - only whether it is there
     except ImportError:
         raise UsageError("figures need matplotlib, an optional extra: pip install 'pcmm[plots]'") from None
     from matplotlib.backends.backend_agg import FigureCanvasAgg

@@ -70,7 +70,7 @@ import numpy as np
 
 from ..errors import UsageError
 from ..files import terminal_text
-from .page import BAR_PX, EVENT_COLOURS, RUN_COLOURS, drawn_impacts, impulse_label, page, run_name
+from .page import BAR_PX, RUN_COLOURS, drawn_impacts, impulse_label, page, run_name
 from ..signals import as_interrupts
 from ..files import atomic_write
 from .marks import RecordedRun, event_kind

@@ -1,0 +1,79 @@
+"""The compiled segment loop against the Python-stepped Fortran DOP853, on whole runs.
+
+``pcmm.simulate`` of a scene (Example 1, ``examples/three_bar.toml``, by default), warm, in one
+process, alternating the two paths run by run (the repetitions are the outer loop), CPU time
+(``time.process_time``: on a shared machine the wall time mostly measures the neighbours):
+
+* *compiled loop*: DOP853 and the guard scan in C++ (pcmm.model._segment_loop.hpp), the default
+  where a tree's compiled right-hand side runs;
+* *Python-stepped*: the path before it (scipy's Fortran dop853 calling the compiled right-hand side
+  back through Python for every evaluation; events located on scipy's DOP853 re-taking the step),
+  selected by emptying ``pcmm.ode.integrators.SEGMENT_LOOPS``.
+
+Both use the same compiled right-hand side, so the ratio is the stepping loop's alone.  Also
+prints the largest event-time difference between the two.
+
+    python benchmarks/segment_loop.py [--scene examples/three_bar.toml] [--reps 21]
+"""
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import argparse  # noqa: E402
+import statistics  # noqa: E402
+import sys  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import pcmm  # noqa: E402
+from pcmm.model import compiled  # noqa: E402
+from pcmm.ode import integrators  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--scene", type=Path, default=ROOT / "examples" / "three_bar.toml")
+    ap.add_argument("--reps", type=int, default=21)
+    args = ap.parse_args(argv)
+    td = compiled._tree_dynamics
+    if td is None or not hasattr(td, "SegmentLoop"):
+        print(f"no compiled segment loop in this build: {compiled.why_not()}", file=sys.stderr)
+        return 1
+    scene = pcmm.load_scene(args.scene)
+    register = compiled._register_segment_loop
+    compiled._register_segment_loop = lambda: None  # the paths are chosen here, run by run
+    paths = {"compiled loop": {td.Tree: td.SegmentLoop}, "Python-stepped": {}}
+    times = {name: [] for name in paths}
+    runs = {}
+    try:
+        for rep in range(args.reps + 1):  # the first round warms up (models built, caches filled)
+            for name, loops in (paths.items() if rep % 2 else reversed(paths.items())):
+                integrators.SEGMENT_LOOPS = loops
+                t0 = time.process_time()
+                runs[name] = pcmm.simulate(scene)
+                if rep:
+                    times[name].append(time.process_time() - t0)
+    finally:
+        compiled._register_segment_loop = register
+        integrators.SEGMENT_LOOPS = {}
+    fast, slow = runs["compiled loop"], runs["Python-stepped"]
+    dt = max((abs(a["t"] - b["t"]) for a, b in zip(fast.events, slow.events, strict=True)), default=0.0)
+    med = {name: statistics.median(ts) for name, ts in times.items()}
+    print(f"{args.scene.name}: pcmm.simulate, CPU time, median of {args.reps} alternating runs")
+    for name in paths:
+        run = runs[name]
+        print(f"  {name:15s} {1e3 * med[name]:8.2f} ms  ({run.stats['steps']} steps, "
+              f"{run.stats['rhs_evals']} evaluations, {len(run.events)} events)")
+    pairs = sorted(s / f for s, f in zip(times["Python-stepped"], times["compiled loop"]))
+    print(f"  speed-up {med['Python-stepped'] / med['compiled loop']:.2f}x (per alternating pair: median "
+          f"{statistics.median(pairs):.2f}x, range {pairs[0]:.2f}-{pairs[-1]:.2f}); "
+          f"largest event-time difference {dt:.2g} s")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,544 @@
+// pcmm._tree_dynamics.SegmentLoop: a tree configuration's segment integrated in C++.
+//
+// Hairer's DOP853 (Hairer, Norsett & Wanner, Solving ODEs I, section II.10; his dop853.f, the code
+// scipy's `ode("dop853")` wraps and pcmm's DOP853F ran through Python call-backs): the 12-stage
+// explicit Runge-Kutta pair of order 8(5,3), its error estimate err/err2, the PI ("Lund-stabilized")
+// step-size control with pcmm's beta, the initial step guess hinit853 and the stiffness test, the
+// parameters scipy passes (safety 0.9, fac1 0.3, fac2 6, nstiff 1000), stepping over the compiled
+// right-hand side (evaluate_rhs) with no Python in between.  Where scipy's C translation of
+// dop853.f (scipy 1.17 here: what DOP853F ran) departs from dop853.f, this follows scipy, so the
+// two give the same steps: a rejected step shrinks by fac1, uround is the machine epsilon.
+//
+// The run loop's guards are scanned here where each is affine in the state, g = c.y + ct t + d (a
+// tree's coordinate guards, time guards): its rate along the flow is c.f + ct.  A step is handed
+// back to Python ("a candidate", run() returns 1) where a guard may fire in it: a sign change, a
+// near-zero value, or a dip of the guard's cubic Hermite model towards zero (pcmm.ode.integrators
+// decides, with the same rules and wider margins here, so no step it would flag is missed); also
+// a step of round-off size or a non-finite state (Python says why).  With `every_step` (guards
+// that are not affine) each accepted step is a candidate.  At a candidate, dense() gives the
+// step's 7th-order dense output (contd8's coefficients, the 3 extra stages), computed on demand.
+// Accepted steps that are not candidates are kept and handed over in one array (take()).
+
+namespace dop853 {
+// the tableau, as in dop853.f
+constexpr double c2 = 0.526001519587677318785587544488e-01, c3 = 0.789002279381515978178381316732e-01,
+                 c4 = 0.118350341907227396726757197510e+00, c5 = 0.281649658092772603273242802490e+00,
+                 c6 = 0.333333333333333333333333333333e+00, c7 = 0.25e+00, c8 = 0.307692307692307692307692307692e+00,
+                 c9 = 0.651282051282051282051282051282e+00, c10 = 0.6e+00, c11 = 0.857142857142857142857142857142e+00,
+                 c14 = 0.1e+00, c15 = 0.2e+00, c16 = 0.777777777777777777777777777778e+00;
+constexpr double b1 = 5.42937341165687622380535766363e-2, b6 = 4.45031289275240888144113950566e0,
+                 b7 = 1.89151789931450038304281599044e0, b8 = -5.8012039600105847814672114227e0,
+                 b9 = 3.1116436695781989440891606237e-1, b10 = -1.52160949662516078556178806805e-1,
+                 b11 = 2.01365400804030348374776537501e-1, b12 = 4.47106157277725905176885569043e-2;
+constexpr double bhh1 = 0.244094488188976377952755905512e+00, bhh2 = 0.733846688281611857341361741547e+00,
+                 bhh3 = 0.220588235294117647058823529412e-01;
+constexpr double er1 = 0.1312004499419488073250102996e-01, er6 = -0.1225156446376204440720569753e+01,
+                 er7 = -0.4957589496572501915214079952e+00, er8 = 0.1664377182454986536961530415e+01,
+                 er9 = -0.3503288487499736816886487290e+00, er10 = 0.3341791187130174790297318841e+00,
+                 er11 = 0.8192320648511571246570742613e-01, er12 = -0.2235530786388629525884427845e-01;
+constexpr double a21 = 5.26001519587677318785587544488e-2, a31 = 1.97250569845378994544595329183e-2,
+                 a32 = 5.91751709536136983633785987549e-2, a41 = 2.95875854768068491816892993775e-2,
+                 a43 = 8.87627564304205475450678981324e-2, a51 = 2.41365134159266685502369798665e-1,
+                 a53 = -8.84549479328286085344864962717e-1, a54 = 9.24834003261792003115737966543e-1,
+                 a61 = 3.7037037037037037037037037037e-2, a64 = 1.70828608729473871279604482173e-1,
+                 a65 = 1.25467687566822425016691814123e-1, a71 = 3.7109375e-2, a74 = 1.70252211019544039314978060272e-1,
+                 a75 = 6.02165389804559606850219397283e-2, a76 = -1.7578125e-2;
+constexpr double a81 = 3.70920001185047927108779319836e-2, a84 = 1.70383925712239993810214054705e-1,
+                 a85 = 1.07262030446373284651809199168e-1, a86 = -1.53194377486244017527936158236e-2,
+                 a87 = 8.27378916381402288758473766002e-3, a91 = 6.24110958716075717114429577812e-1,
+                 a94 = -3.36089262944694129406857109825e0, a95 = -8.68219346841726006818189891453e-1,
+                 a96 = 2.75920996994467083049415600797e1, a97 = 2.01540675504778934086186788979e1,
+                 a98 = -4.34898841810699588477366255144e1, a101 = 4.77662536438264365890433908527e-1,
+                 a104 = -2.48811461997166764192642586468e0, a105 = -5.90290826836842996371446475743e-1,
+                 a106 = 2.12300514481811942347288949897e1, a107 = 1.52792336328824235832596922938e1,
+                 a108 = -3.32882109689848629194453265587e1, a109 = -2.03312017085086261358222928593e-2;
+constexpr double a111 = -9.3714243008598732571704021658e-1, a114 = 5.18637242884406370830023853209e0,
+                 a115 = 1.09143734899672957818500254654e0, a116 = -8.14978701074692612513997267357e0,
+                 a117 = -1.85200656599969598641566180701e1, a118 = 2.27394870993505042818970056734e1,
+                 a119 = 2.49360555267965238987089396762e0, a1110 = -3.0467644718982195003823669022e0,
+                 a121 = 2.27331014751653820792359768449e0, a124 = -1.05344954667372501984066689879e1,
+                 a125 = -2.00087205822486249909675718444e0, a126 = -1.79589318631187989172765950534e1,
+                 a127 = 2.79488845294199600508499808837e1, a128 = -2.85899827713502369474065508674e0,
+                 a129 = -8.87285693353062954433549289258e0, a1210 = 1.23605671757943030647266201528e1,
+                 a1211 = 6.43392746015763530355970484046e-1;
+constexpr double a141 = 5.61675022830479523392909219681e-2, a147 = 2.53500210216624811088794765333e-1,
+                 a148 = -2.46239037470802489917441475441e-1, a149 = -1.24191423263816360469010140626e-1,
+                 a1410 = 1.5329179827876569731206322685e-1, a1411 = 8.20105229563468988491666602057e-3,
+                 a1412 = 7.56789766054569976138603589584e-3, a1413 = -8.298e-3;
+constexpr double a151 = 3.18346481635021405060768473261e-2, a156 = 2.83009096723667755288322961402e-2,
+                 a157 = 5.35419883074385676223797384372e-2, a158 = -5.49237485713909884646569340306e-2,
+                 a1511 = -1.08347328697249322858509316994e-4, a1512 = 3.82571090835658412954920192323e-4,
+                 a1513 = -3.40465008687404560802977114492e-4, a1514 = 1.41312443674632500278074618366e-1,
+                 a161 = -4.28896301583791923408573538692e-1, a166 = -4.69762141536116384314449447206e0,
+                 a167 = 7.68342119606259904184240953878e0, a168 = 4.06898981839711007970213554331e0,
+                 a169 = 3.56727187455281109270669543021e-1, a1613 = -1.39902416515901462129418009734e-3,
+                 a1614 = 2.9475147891527723389556272149e0, a1615 = -9.15095847217987001081870187138e0;
+constexpr double d41 = -0.84289382761090128651353491142e+01, d46 = 0.56671495351937776962531783590e+00,
+                 d47 = -0.30689499459498916912797304727e+01, d48 = 0.23846676565120698287728149680e+01,
+                 d49 = 0.21170345824450282767155149946e+01, d410 = -0.87139158377797299206789907490e+00,
+                 d411 = 0.22404374302607882758541771650e+01, d412 = 0.63157877876946881815570249290e+00,
+                 d413 = -0.88990336451333310820698117400e-01, d414 = 0.18148505520854727256656404962e+02,
+                 d415 = -0.91946323924783554000451984436e+01, d416 = -0.44360363875948939664310572000e+01;
+constexpr double d51 = 0.10427508642579134603413151009e+02, d56 = 0.24228349177525818288430175319e+03,
+                 d57 = 0.16520045171727028198505394887e+03, d58 = -0.37454675472269020279518312152e+03,
+                 d59 = -0.22113666853125306036270938578e+02, d510 = 0.77334326684722638389603898808e+01,
+                 d511 = -0.30674084731089398182061213626e+02, d512 = -0.93321305264302278729567221706e+01,
+                 d513 = 0.15697238121770843886131091075e+02, d514 = -0.31139403219565177677282850411e+02,
+                 d515 = -0.93529243588444783865713862664e+01, d516 = 0.35816841486394083752465898540e+02;
+constexpr double d61 = 0.19985053242002433820987653617e+02, d66 = -0.38703730874935176555105901742e+03,
+                 d67 = -0.18917813819516756882830838328e+03, d68 = 0.52780815920542364900561016686e+03,
+                 d69 = -0.11573902539959630126141871134e+02, d610 = 0.68812326946963000169666922661e+01,
+                 d611 = -0.10006050966910838403183860980e+01, d612 = 0.77771377980534432092869265740e+00,
+                 d613 = -0.27782057523535084065932004339e+01, d614 = -0.60196695231264120758267380846e+02,
+                 d615 = 0.84320405506677161018159903784e+02, d616 = 0.11992291136182789328035130030e+02;
+constexpr double d71 = -0.25693933462703749003312586129e+02, d76 = -0.15418974869023643374053993627e+03,
+                 d77 = -0.23152937917604549567536039109e+03, d78 = 0.35763911791061412378285349910e+03,
+                 d79 = 0.93405324183624310003907691704e+02, d710 = -0.37458323136451633156875139351e+02,
+                 d711 = 0.10409964950896230045147246184e+03, d712 = 0.29840293426660503123344363579e+02,
+                 d713 = -0.43533456590011143754432175058e+02, d714 = 0.96324553959188282948394950600e+02,
+                 d715 = -0.39177261675615439165231486172e+02, d716 = -0.14972683625798562581422125276e+03;
+// the settings scipy's ode("dop853") passes (dfactor 0.3, ifactor 6) and its defaults (uround: the
+// machine epsilon in scipy's C translation, 2.3e-16 in dop853.f)
+constexpr double safe = 0.9, fac1 = 0.3, fac2 = 6.0, uround = 2.220446049250313e-16;
+constexpr long nstiff = 1000;
+}  // namespace dop853
+
+struct SegmentLoop {
+  PyObject_HEAD
+  Tree *tree;  // a reference held
+  int n;
+  double x, xend, posneg, h, hstep, hmax, rtol, atol, beta, facold, expo1, facc1, facc2, hlamb, xold;
+  long nmax, nstep, naccpt, nrejct, nfcn, iasti, nonsti, since_pause;
+  bool reject, last, done, dense_ready, every_step;
+  int m;  // affine guards
+  std::vector<double> *work;  // every vector below, in one allocation
+  double *y, *y1, *k1, *k2, *k3, *k4, *k5, *k6, *k7, *k8, *k9, *k10, *yold, *k1old, *cont, *s14, *s15, *s16;
+  std::vector<double> *guard_c, *guard_ct, *guard_d, *guard_dir, *g_old, *r_old, *g_new, *r_new;
+  std::vector<double> *record;  // accepted steps not yet taken: (t, y) rows
+};
+
+namespace {
+
+void fcn(SegmentLoop *s, const double *y, double *dy) {
+  evaluate_rhs(s->tree, y, dy);
+  ++s->nfcn;
+}
+
+// hinit853: the initial step size guess (order 8)
+double hinit(SegmentLoop *s) {
+  const int n = s->n;
+  double dnf = 0.0, dny = 0.0;
+  for (int i = 0; i < n; ++i) {
+    const double sk = s->atol + s->rtol * std::fabs(s->y[i]);
+    dnf += (s->k1[i] / sk) * (s->k1[i] / sk);
+    dny += (s->y[i] / sk) * (s->y[i] / sk);
+  }
+  double h = (dnf <= 1e-10 || dny <= 1e-10) ? 1.0e-6 : std::sqrt(dny / dnf) * 0.01;
+  h = std::min(h, s->hmax);
+  h = std::copysign(h, s->posneg);
+  for (int i = 0; i < n; ++i) s->y1[i] = s->y[i] + h * s->k1[i];
+  fcn(s, s->y1, s->k2);
+  double der2 = 0.0;
+  for (int i = 0; i < n; ++i) {
+    const double sk = s->atol + s->rtol * std::fabs(s->y[i]);
+    der2 += ((s->k2[i] - s->k1[i]) / sk) * ((s->k2[i] - s->k1[i]) / sk);
+  }
+  der2 = std::sqrt(der2) / h;
+  const double der12 = std::max(std::fabs(der2), std::sqrt(dnf));
+  const double h1 = der12 <= 1e-15 ? std::max(1.0e-6, std::fabs(h) * 1.0e-3) : std::pow(0.01 / der12, 1.0 / 8);
+  h = std::min(std::min(100 * std::fabs(h), h1), s->hmax);
+  return std::copysign(h, s->posneg);
+}
+
+void guard_values(SegmentLoop *s, double t, const double *y, const double *f, double *g, double *r) {
+  const int n = s->n;
+  for (int j = 0; j < s->m; ++j) {
+    const double *c = s->guard_c->data() + (size_t)j * n;
+    double cy = 0.0, cf = 0.0;
+    for (int i = 0; i < n; ++i) {
+      cy += c[i] * y[i];
+      cf += c[i] * f[i];
+    }
+    g[j] = cy + (*s->guard_d)[j] + (*s->guard_ct)[j] * t;
+    r[j] = cf + (*s->guard_ct)[j];
+  }
+}
+
+// may guard j fire in a step from (g0, d0) to (g1, d1) over h?  pcmm.ode.integrators' _crossed and
+// _hermite_dips with margins: a value within `near` of zero counts, a dip within 40 % (not 20 %)
+bool may_fire(double g0, double d0, double g1, double d1, double h, double direction, double near) {
+  if (std::fabs(g1) <= near || std::fabs(g0) <= near) return true;
+  if ((g0 < 0) != (g1 < 0)) return direction == 0 || (direction > 0) == (g1 > 0);
+  if ((g0 < 0 && direction < 0) || (g0 > 0 && direction > 0)) return false;
+  const double c = d0 * h, b = 3 * (g1 - g0) - (2 * d0 + d1) * h, a = 2 * (g0 - g1) + (d0 + d1) * h;
+  double xs[2];
+  int nx = 0;
+  if (a == 0) {
+    if (b != 0) xs[nx++] = -c / (2 * b);
+  } else {
+    const double disc = b * b - 3 * a * c;
+    if (disc < 0) return false;
+    const double rt = std::sqrt(disc);
+    xs[nx++] = (-b - rt) / (3 * a);
+    xs[nx++] = (-b + rt) / (3 * a);
+  }
+  for (int k = 0; k < nx; ++k) {
+    const double x = xs[k];
+    if (x > -0.01 && x < 1.01) {
+      const double g = ((a * x + b) * x + c) * x + g0;
+      if ((g0 < 0 && g >= 0) || (g0 > 0 && g <= 0) || std::fabs(g) < 0.4 * std::max(std::fabs(g0), std::fabs(g1)))
+        return true;
+    }
+  }
+  if (!std::isfinite(a) || !std::isfinite(b) || !std::isfinite(c)) return true;
+  return false;
+}
+
+// run the loop until t_bound (0), a candidate step (1), a pause (2: every pause_every accepted
+// steps) or a failure (Hairer's codes: -2 more than nmax steps, -3 step size too small, -4 stiff)
+constexpr long pause_every = 4096;
+int advance(SegmentLoop *s) {
+  using namespace dop853;
+  const int n = s->n;
+  double *y = s->y, *y1 = s->y1, *k1 = s->k1, *k2 = s->k2, *k3 = s->k3, *k4 = s->k4, *k5 = s->k5, *k6 = s->k6,
+         *k7 = s->k7, *k8 = s->k8, *k9 = s->k9, *k10 = s->k10;
+  if (s->done) return 0;
+  for (;;) {
+    double h = s->h;
+    if (s->nstep > s->nmax) return -2;
+    if (0.1 * std::fabs(h) <= std::fabs(s->x) * uround) return -3;
+    if ((s->x + 1.01 * h - s->xend) * s->posneg > 0.0) {
+      h = s->h = s->xend - s->x;
+      s->last = true;
+    }
+    ++s->nstep;
+    const double x = s->x;
+    for (int i = 0; i < n; ++i) y1[i] = y[i] + h * a21 * k1[i];
+    fcn(s, y1, k2);
+    for (int i = 0; i < n; ++i) y1[i] = y[i] + h * (a31 * k1[i] + a32 * k2[i]);
+    fcn(s, y1, k3);
+    for (int i = 0; i < n; ++i) y1[i] = y[i] + h * (a41 * k1[i] + a43 * k3[i]);
+    fcn(s, y1, k4);
+    for (int i = 0; i < n; ++i) y1[i] = y[i] + h * (a51 * k1[i] + a53 * k3[i] + a54 * k4[i]);
+    fcn(s, y1, k5);
+    for (int i = 0; i < n; ++i) y1[i] = y[i] + h * (a61 * k1[i] + a64 * k4[i] + a65 * k5[i]);
+    fcn(s, y1, k6);
+    for (int i = 0; i < n; ++i) y1[i] = y[i] + h * (a71 * k1[i] + a74 * k4[i] + a75 * k5[i] + a76 * k6[i]);
+    fcn(s, y1, k7);
+    for (int i = 0; i < n; ++i) y1[i] = y[i] + h * (a81 * k1[i] + a84 * k4[i] + a85 * k5[i] + a86 * k6[i] + a87 * k7[i]);
+    fcn(s, y1, k8);
+    for (int i = 0; i < n; ++i)
+      y1[i] = y[i] + h * (a91 * k1[i] + a94 * k4[i] + a95 * k5[i] + a96 * k6[i] + a97 * k7[i] + a98 * k8[i]);
+    fcn(s, y1, k9);
+    for (int i = 0; i < n; ++i)
+      y1[i] = y[i] + h * (a101 * k1[i] + a104 * k4[i] + a105 * k5[i] + a106 * k6[i] + a107 * k7[i] + a108 * k8[i] +
+                          a109 * k9[i]);
+    fcn(s, y1, k10);
+    for (int i = 0; i < n; ++i)
+      y1[i] = y[i] + h * (a111 * k1[i] + a114 * k4[i] + a115 * k5[i] + a116 * k6[i] + a117 * k7[i] + a118 * k8[i] +
+                          a119 * k9[i] + a1110 * k10[i]);
+    fcn(s, y1, k2);
+    const double xph = x + h;
+    for (int i = 0; i < n; ++i)
+      y1[i] = y[i] + h * (a121 * k1[i] + a124 * k4[i] + a125 * k5[i] + a126 * k6[i] + a127 * k7[i] + a128 * k8[i] +
+                          a129 * k9[i] + a1210 * k10[i] + a1211 * k2[i]);
+    fcn(s, y1, k3);
+    for (int i = 0; i < n; ++i) {
+      k4[i] = b1 * k1[i] + b6 * k6[i] + b7 * k7[i] + b8 * k8[i] + b9 * k9[i] + b10 * k10[i] + b11 * k2[i] + b12 * k3[i];
+      k5[i] = y[i] + h * k4[i];
+    }
+    // error estimation
+    double err = 0.0, err2 = 0.0;
+    for (int i = 0; i < n; ++i) {
+      const double sk = s->atol + s->rtol * std::max(std::fabs(y[i]), std::fabs(k5[i]));
+      double erri = k4[i] - bhh1 * k1[i] - bhh2 * k9[i] - bhh3 * k3[i];
+      err2 += (erri / sk) * (erri / sk);
+      erri = er1 * k1[i] + er6 * k6[i] + er7 * k7[i] + er8 * k8[i] + er9 * k9[i] + er10 * k10[i] + er11 * k2[i] +
+             er12 * k3[i];
+      err += (erri / sk) * (erri / sk);
+    }
+    double deno = err + 0.01 * err2;
+    if (deno <= 0.0) deno = 1.0;
+    err = std::fabs(h) * err * std::sqrt(1.0 / (n * deno));
+    // new step size, with Lund's stabilization
+    const double fac11 = std::pow(err, s->expo1);
+    double fac = fac11 / std::pow(s->facold, s->beta);
+    fac = std::max(s->facc2, std::min(s->facc1, fac / safe));
+    double hnew = h / fac;
+    if (err <= 1.0) {  // accepted
+      s->facold = std::max(err, 1.0e-4);
+      ++s->naccpt;
+      fcn(s, k5, k4);
+      // stiffness detection
+      if (s->naccpt % nstiff == 0 || s->iasti > 0) {
+        double stnum = 0.0, stden = 0.0;
+        for (int i = 0; i < n; ++i) {
+          stnum += (k4[i] - k3[i]) * (k4[i] - k3[i]);
+          stden += (k5[i] - y1[i]) * (k5[i] - y1[i]);
+        }
+        if (stden > 0.0) s->hlamb = std::fabs(h) * std::sqrt(stnum / stden);
+        if (s->hlamb > 6.1) {
+          s->nonsti = 0;
+          ++s->iasti;
+          if (s->iasti == 15) return -4;
+        } else {
+          ++s->nonsti;
+          if (s->nonsti == 6) s->iasti = 0;
+        }
+      }
+      // the step's start kept for its dense output (dense()), then the step taken
+      std::copy(y, y + n, s->yold);
+      std::copy(k1, k1 + n, s->k1old);
+      std::copy(k4, k4 + n, k1);
+      std::copy(k5, k5 + n, y);
+      s->xold = x;
+      s->x = xph;
+      s->hstep = h;
+      s->dense_ready = false;
+      if (s->last) {
+        s->h = hnew;
+        s->done = true;
+      } else {
+        if (std::fabs(hnew) > s->hmax) hnew = s->posneg * s->hmax;
+        if (s->reject) hnew = s->posneg * std::min(std::fabs(hnew), std::fabs(h));
+        s->reject = false;
+        s->h = hnew;
+      }
+      // is it a candidate?
+      bool candidate = s->every_step;
+      bool finite = true;
+      for (int i = 0; i < n; ++i) finite = finite && std::isfinite(y[i]);
+      if (!finite || std::fabs(xph - x) < 64 * 2.220446049250313e-16 * std::max(1.0, std::fabs(xph))) candidate = true;
+      if (!candidate && s->m) {
+        guard_values(s, xph, y, k1, s->g_new->data(), s->r_new->data());
+        for (int j = 0; j < s->m && !candidate; ++j) {
+          const double *c = s->guard_c->data() + (size_t)j * n;
+          double scale = std::fabs((*s->guard_d)[j]) + std::fabs((*s->guard_ct)[j] * xph);
+          for (int i = 0; i < n; ++i) scale += std::fabs(c[i] * y[i]);
+          candidate = may_fire((*s->g_old)[j], (*s->r_old)[j], (*s->g_new)[j], (*s->r_new)[j], xph - x,
+                               (*s->guard_dir)[j], 1e-12 * scale);
+        }
+        std::swap(s->g_old, s->g_new);
+        std::swap(s->r_old, s->r_new);
+      } else if (s->m) {
+        guard_values(s, xph, y, k1, s->g_old->data(), s->r_old->data());
+      }
+      if (candidate) return 1;
+      s->record->push_back(xph);
+      s->record->insert(s->record->end(), y, y + n);
+      if (s->done) return 0;
+      if (++s->since_pause == pause_every) {  // Python's turn: Ctrl-C, progress, the record taken
+        s->since_pause = 0;
+        return 2;
+      }
+    } else {  // rejected
+      // scipy's dop853 (its C translation of dop853.f, which DOP853F ran before this loop and
+      // which stays the reference) shrinks a rejected step by fac1 always: h / min(facc1, facc1 /
+      // safe); dop853.f's rule is h / min(facc1, fac11 / safe).  The same rule as scipy's keeps the
+      // two paths' steps identical (tests/test_compiled_loop.py compares them step by step).
+      (void)fac11;
+      hnew = h / std::min(s->facc1, s->facc1 / safe);
+      s->reject = true;
+      if (s->naccpt >= 1) ++s->nrejct;
+      s->last = false;
+      s->h = hnew;
+    }
+  }
+}
+
+// contd8's coefficients of the last accepted step (the 3 extra stages): cont[8 n]
+void dense_coefficients(SegmentLoop *s) {
+  using namespace dop853;
+  const int n = s->n;
+  // the step size as taken (x + h rounds: t_new - t_old may differ from it in the last bit)
+  const double *y = s->yold, *k1 = s->k1old, *k2 = s->k2, *k3 = s->k3, *k4 = s->k1, *k6 = s->k6, *k7 = s->k7,
+               *k8 = s->k8, *k9 = s->k9, *k10 = s->k10, *k5 = s->y;
+  double *cont = s->cont, *y1 = s->y1;
+  const double hs = s->hstep;
+  for (int i = 0; i < n; ++i) {
+    cont[i] = y[i];
+    const double ydiff = k5[i] - y[i];
+    cont[i + n] = ydiff;
+    const double bspl = hs * k1[i] - ydiff;
+    cont[i + 2 * n] = bspl;
+    cont[i + 3 * n] = ydiff - hs * k4[i] - bspl;
+    cont[i + 4 * n] = d41 * k1[i] + d46 * k6[i] + d47 * k7[i] + d48 * k8[i] + d49 * k9[i] + d410 * k10[i] +
+                      d411 * k2[i] + d412 * k3[i];
+    cont[i + 5 * n] = d51 * k1[i] + d56 * k6[i] + d57 * k7[i] + d58 * k8[i] + d59 * k9[i] + d510 * k10[i] +
+                      d511 * k2[i] + d512 * k3[i];
+    cont[i + 6 * n] = d61 * k1[i] + d66 * k6[i] + d67 * k7[i] + d68 * k8[i] + d69 * k9[i] + d610 * k10[i] +
+                      d611 * k2[i] + d612 * k3[i];
+    cont[i + 7 * n] = d71 * k1[i] + d76 * k6[i] + d77 * k7[i] + d78 * k8[i] + d79 * k9[i] + d710 * k10[i] +
+                      d711 * k2[i] + d712 * k3[i];
+  }
+  double *e10 = s->s14, *e2 = s->s15, *e3 = s->s16;
+  for (int i = 0; i < n; ++i)
+    y1[i] = y[i] + hs * (a141 * k1[i] + a147 * k7[i] + a148 * k8[i] + a149 * k9[i] + a1410 * k10[i] + a1411 * k2[i] +
+                         a1412 * k3[i] + a1413 * k4[i]);
+  fcn(s, y1, e10);
+  for (int i = 0; i < n; ++i)
+    y1[i] = y[i] + hs * (a151 * k1[i] + a156 * k6[i] + a157 * k7[i] + a158 * k8[i] + a1511 * k2[i] + a1512 * k3[i] +
+                         a1513 * k4[i] + a1514 * e10[i]);
+  fcn(s, y1, e2);
+  for (int i = 0; i < n; ++i)
+    y1[i] = y[i] + hs * (a161 * k1[i] + a166 * k6[i] + a167 * k7[i] + a168 * k8[i] + a169 * k9[i] + a1613 * k4[i] +
+                         a1614 * e10[i] + a1615 * e2[i]);
+  fcn(s, y1, e3);
+  for (int i = 0; i < n; ++i) {
+    cont[i + 4 * n] = hs * (cont[i + 4 * n] + d413 * k4[i] + d414 * e10[i] + d415 * e2[i] + d416 * e3[i]);
+    cont[i + 5 * n] = hs * (cont[i + 5 * n] + d513 * k4[i] + d514 * e10[i] + d515 * e2[i] + d516 * e3[i]);
+    cont[i + 6 * n] = hs * (cont[i + 6 * n] + d613 * k4[i] + d614 * e10[i] + d615 * e2[i] + d616 * e3[i]);
+    cont[i + 7 * n] = hs * (cont[i + 7 * n] + d713 * k4[i] + d714 * e10[i] + d715 * e2[i] + d716 * e3[i]);
+  }
+  s->dense_ready = true;
+}
+
+PyObject *new_vector(const double *x, npy_intp n) {
+  PyObject *out = PyArray_SimpleNew(1, &n, NPY_DOUBLE);
+  if (out) std::memcpy(PyArray_DATA((PyArrayObject *)out), x, n * sizeof(double));
+  return out;
+}
+
+// SegmentLoop(tree, t0, y0, t_bound, rtol, atol, max_step, nmax, beta, C (m x n), ct (m), d (m),
+//             direction (m), every_step)
+PyObject *loop_new(PyTypeObject *type, PyObject *args, PyObject *) {
+  PyObject *tree_o, *y0_o, *c_o, *ct_o, *d_o, *dir_o;
+  double t0, t_bound, rtol, atol, max_step, beta;
+  long nmax;
+  int every_step;
+  if (!PyArg_ParseTuple(args, "O!dOddddldOOOOp", &TreeType, &tree_o, &t0, &y0_o, &t_bound, &rtol, &atol, &max_step,
+                        &nmax, &beta, &c_o, &ct_o, &d_o, &dir_o, &every_step))
+    return nullptr;
+  Tree *tree = (Tree *)tree_o;
+  if (!tree->ready) {
+    PyErr_SetString(PyExc_RuntimeError, "the tree is not finalized");
+    return nullptr;
+  }
+  const int n = 2 * tree->nv;
+  PyArrayObject *ct = (PyArrayObject *)PyArray_FROMANY(ct_o, NPY_DOUBLE, 1, 1, NPY_ARRAY_IN_ARRAY);
+  if (!ct) return nullptr;
+  const int m = (int)PyArray_DIM(ct, 0);
+  Py_DECREF(ct);
+  SegmentLoop *s = (SegmentLoop *)type->tp_alloc(type, 0);
+  if (!s) return nullptr;
+  Py_INCREF(tree_o);
+  s->tree = tree;
+  s->n = n;
+  s->m = m;
+  s->work = new std::vector<double>((size_t)n * 25, 0.0);
+  double *w = s->work->data();
+  double **slots[] = {&s->y, &s->y1, &s->k1, &s->k2, &s->k3, &s->k4, &s->k5, &s->k6, &s->k7, &s->k8,
+                      &s->k9, &s->k10, &s->yold, &s->k1old, &s->s14, &s->s15, &s->s16};
+  for (double **p : slots) {
+    *p = w;
+    w += n;
+  }
+  s->cont = w;
+  s->guard_c = new std::vector<double>((size_t)m * n);
+  s->guard_ct = new std::vector<double>(m);
+  s->guard_d = new std::vector<double>(m);
+  s->guard_dir = new std::vector<double>(m);
+  s->g_old = new std::vector<double>(m);
+  s->r_old = new std::vector<double>(m);
+  s->g_new = new std::vector<double>(m);
+  s->r_new = new std::vector<double>(m);
+  s->record = new std::vector<double>();
+  if (read_doubles(y0_o, s->y, n, "y0") || read_doubles(c_o, s->guard_c->data(), (Py_ssize_t)m * n, "C") ||
+      read_doubles(ct_o, s->guard_ct->data(), m, "ct") || read_doubles(d_o, s->guard_d->data(), m, "d") ||
+      read_doubles(dir_o, s->guard_dir->data(), m, "direction")) {
+    Py_DECREF(s);
+    return nullptr;
+  }
+  if (!(rtol > 0) || !(atol > 0) || !(beta >= 0 && beta <= 0.2) || nmax <= 0) {
+    PyErr_SetString(PyExc_ValueError, "SegmentLoop: rtol and atol must be > 0, 0 <= beta <= 0.2, nmax > 0");
+    Py_DECREF(s);
+    return nullptr;
+  }
+  s->x = t0;
+  s->xend = t_bound;
+  s->rtol = rtol;
+  s->atol = atol;
+  s->beta = beta;
+  s->nmax = nmax;
+  s->every_step = every_step;
+  s->posneg = std::copysign(1.0, t_bound - t0);
+  s->hmax = std::fabs(std::isfinite(max_step) && max_step > 0 ? max_step : t_bound - t0);
+  s->facold = 1.0e-4;
+  s->expo1 = 1.0 / 8.0 - beta * 0.2;
+  s->facc1 = 1.0 / dop853::fac1;
+  s->facc2 = 1.0 / dop853::fac2;
+  s->hlamb = 0.0;
+  s->iasti = s->nonsti = 0;
+  s->nstep = s->naccpt = s->nrejct = s->nfcn = s->since_pause = 0;
+  s->reject = s->last = s->done = s->dense_ready = false;
+  s->xold = t0;
+  fcn(s, s->y, s->k1);
+  s->h = hinit(s);
+  if (m) guard_values(s, t0, s->y, s->k1, s->g_old->data(), s->r_old->data());
+  return (PyObject *)s;
+}
+
+void loop_dealloc(SegmentLoop *s) {
+  Py_XDECREF((PyObject *)s->tree);
+  delete s->work;
+  delete s->guard_c;
+  delete s->guard_ct;
+  delete s->guard_d;
+  delete s->guard_dir;
+  delete s->g_old;
+  delete s->r_old;
+  delete s->g_new;
+  delete s->r_new;
+  delete s->record;
+  Py_TYPE(s)->tp_free((PyObject *)s);
+}
+
+// run() -> code: 0 reached t_bound, 1 a candidate step (candidate(), dense()), 2 a pause (run again),
+// -2/-3/-4 Hairer's failures
+PyObject *loop_run(SegmentLoop *s, PyObject *) {
+  int code;
+  Py_BEGIN_ALLOW_THREADS code = advance(s);
+  Py_END_ALLOW_THREADS return PyLong_FromLong(code);
+}
+
+// take() -> (k, 1 + n) array: the accepted steps (t, y) recorded since the last take()
+PyObject *loop_take(SegmentLoop *s, PyObject *) {
+  const npy_intp dims[2] = {(npy_intp)(s->record->size() / (s->n + 1)), s->n + 1};
+  PyObject *out = PyArray_SimpleNew(2, dims, NPY_DOUBLE);
+  if (!out) return nullptr;
+  if (!s->record->empty()) std::memcpy(PyArray_DATA((PyArrayObject *)out), s->record->data(), s->record->size() * sizeof(double));
+  s->record->clear();
+  return out;
+}
+
+// candidate() -> (t_old, t_new, y_new, f_new): the last accepted step
+PyObject *loop_candidate(SegmentLoop *s, PyObject *) {
+  return Py_BuildValue("ddNN", s->xold, s->x, new_vector(s->y, s->n), new_vector(s->k1, s->n));
+}
+
+// dense() -> (t_old, h, cont (8, n)): y(t) = contd8 at s = (t - t_old) / h
+PyObject *loop_dense(SegmentLoop *s, PyObject *) {
+  if (!s->dense_ready) dense_coefficients(s);
+  const npy_intp dims[2] = {8, s->n};
+  PyObject *out = PyArray_SimpleNew(2, dims, NPY_DOUBLE);
+  if (!out) return nullptr;
+  std::memcpy(PyArray_DATA((PyArrayObject *)out), s->cont, 8 * (size_t)s->n * sizeof(double));
+  return Py_BuildValue("ddN", s->xold, s->hstep, out);
+}
+
+// counts() -> (evaluations, steps, accepted, rejected)
+PyObject *loop_counts(SegmentLoop *s, PyObject *) {
+  return Py_BuildValue("llll", s->nfcn, s->nstep, s->naccpt, s->nrejct);
+}
+
+PyMethodDef loop_methods[] = {
+    {"run", (PyCFunction)loop_run, METH_NOARGS, "run() -> 0 (t_bound), 1 (a candidate step), 2 (a pause), -2/-3/-4 (failure)"},
+    {"take", (PyCFunction)loop_take, METH_NOARGS, "take() -> the accepted steps since the last take, rows (t, y)"},
+    {"candidate", (PyCFunction)loop_candidate, METH_NOARGS, "candidate() -> (t_old, t_new, y_new, f_new)"},
+    {"dense", (PyCFunction)loop_dense, METH_NOARGS, "dense() -> (t_old, h, contd8 coefficients (8, n))"},
+    {"counts", (PyCFunction)loop_counts, METH_NOARGS, "counts() -> (evaluations, steps, accepted, rejected)"},
+    {nullptr, nullptr, 0, nullptr}};
+
+PyTypeObject SegmentLoopType = {PyVarObject_HEAD_INIT(nullptr, 0)};
+
+}  // namespace

@@ -1,0 +1,257 @@
+"""The compiled segment loop (pcmm/model/_segment_loop.hpp): Hairer's DOP853 stepping a tree's
+compiled right-hand side in C++.  It must be the Fortran code DOP853F ran before (the same steps),
+its dense output must be DOP853's 7th-order interpolant (scipy's, to round-off), and the runs it
+drives must be the Python-stepped runs (events to 1e-12 s, states to 1e-10)."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy import integrate as si
+
+from pcmm.model import compiled
+
+td = compiled._tree_dynamics
+needs_loop = pytest.mark.skipif(td is None or not hasattr(td, "SegmentLoop"),
+                                reason=f"the compiled segment loop is not built: {compiled.why_not()}")
+
+# whole runs use it only where the compiled right-hand side runs (not under PCMM_COMPILED=0)
+runs_loop = pytest.mark.skipif(td is None or not hasattr(td, "SegmentLoop") or not compiled.enabled(),
+                               reason=f"the compiled evaluations are off: {compiled.why_not()}")
+
+K, MASS = 4.0, 1.5  # a slider on a spring: x'' = -(K / MASS) x
+W = np.sqrt(K / MASS)
+NO_GUARDS = (np.zeros((0, 2)), np.zeros(0), np.zeros(0), np.zeros(0))
+
+
+def _oscillator():
+    """A prismatic joint along x with a spring of stiffness K (the force elements' KD row), no gravity."""
+    tree = td.Tree()
+    tree.add_joint("JointModelPX", 0, np.eye(3), np.zeros(3), np.zeros(3), 0.0)
+    tree.set_inertia(1, MASS, np.zeros(3), 0.1 * np.eye(3))
+    tree.finalize(np.zeros(3), np.zeros(1), np.array([[K, 0.0]]))
+    return tree
+
+
+def _exact(t, x0=1.0, v0=0.5):
+    t = np.asarray(t, float)
+    return np.array([x0 * np.cos(W * t) + v0 / W * np.sin(W * t), -x0 * W * np.sin(W * t) + v0 * np.cos(W * t)])
+
+
+def contd8(t_old, h, cont, t):
+    """Hairer's contd8 on the coefficients dense() returns (the integrator's own reading of them is
+    pcmm.ode.integrators._Contd8; this one is written from dop853.f independently)."""
+    s = (np.asarray(t, float) - t_old) / h
+    s1 = 1.0 - s
+    c = cont[:, :, None] if s.ndim else cont
+    par = c[4] + s * (c[5] + s1 * (c[6] + s * c[7]))
+    return c[0] + s * (c[1] + s1 * (c[2] + s * (c[3] + s1 * par)))
+
+
+@needs_loop
+def test_the_steps_are_hairers_fortran_steps():
+    """The same accepted steps as scipy's ode('dop853') (the Fortran code) with pcmm's beta, to the
+    last bit on this problem, and the end state the closed form's to the tolerance."""
+    y0 = _exact(0.0)
+    fortran = []
+    ode = si.ode(lambda t, y: [y[1], -K / MASS * y[0]]).set_integrator("dop853", rtol=1e-10, atol=1e-12,
+                                                                       nsteps=100000, beta=0.04)
+    ode.set_solout(lambda t, y: fortran.append((t, *y)))
+    ode.set_initial_value(y0, 0.0)
+    ode.integrate(10.0)
+    loop = td.SegmentLoop(_oscillator(), 0.0, y0, 10.0, 1e-10, 1e-12, np.inf, 100000, 0.04, *NO_GUARDS, False)
+    assert loop.run() == 0
+    steps = loop.take()
+    fortran = np.array(fortran[1:])  # the first call is at t0, before any step
+    assert steps.shape == fortran.shape and steps.shape[0] > 50
+    np.testing.assert_allclose(steps, fortran, rtol=1e-15, atol=1e-15)
+    assert steps[-1, 0] == 10.0
+    np.testing.assert_allclose(steps[-1, 1:], _exact(10.0), atol=1e-8)
+    evaluations, attempts, accepted, rejected = loop.counts()
+    assert accepted == steps.shape[0] and attempts == accepted + rejected
+    assert evaluations == 2 + 11 * attempts + accepted  # f(t0), hinit's one, 11 stages, the last on acceptance
+
+
+@needs_loop
+def test_dense_output_is_dop853s_interpolant():
+    """Every step's dense output against scipy's DOP853 dense output over the same step (the same
+    7th-order interpolant: round-off apart) and against the closed form (to the tolerance)."""
+    y0 = _exact(0.0)
+    loop = td.SegmentLoop(_oscillator(), 0.0, y0, 3.0, 1e-10, 1e-12, np.inf, 100000, 0.04, *NO_GUARDS, True)
+    rhs = lambda t, y: np.array([y[1], -K / MASS * y[0]])  # noqa: E731
+    worst_scipy = worst_exact = 0.0
+    n = 0
+    while loop.run() == 1:
+        t_old, t_new, y_new, f_new = loop.candidate()
+        np.testing.assert_array_equal(f_new, rhs(t_new, y_new))
+        t_a, h, cont = loop.dense()
+        assert t_a == t_old and abs(t_old + h - t_new) <= 4e-16 * max(1.0, t_new)
+        ts = np.linspace(t_old, t_new, 9)
+        ours = contd8(t_a, h, cont, ts)
+        y_old = contd8(t_a, h, cont, t_old)
+        np.testing.assert_allclose(contd8(t_a, h, cont, t_new), y_new, rtol=0, atol=1e-15)
+        step = si.DOP853(rhs, t_old, y_old, t_new + 1.0, rtol=1e-10, atol=1e-12, first_step=h)
+        step.step()
+        assert step.t == t_new
+        worst_scipy = max(worst_scipy, np.max(np.abs(ours - step.dense_output()(ts))))
+        worst_exact = max(worst_exact, np.max(np.abs(ours - _exact(ts))))
+        n += 1
+    assert n > 15
+    assert worst_scipy < 1e-14  # round-off: the states are of order one
+    assert worst_exact < 1e-8   # the global error at rtol 1e-10 over 3 s
+
+
+# ---- whole runs: the compiled loop against the Python-stepped Fortran code, the reference ---------------------------
+def _simulate(path, monkeypatch, loops: dict):
+    """A run with the integrators' compiled loops set to ``loops`` ({} : the Python-stepped Fortran
+    DOP853, with the same compiled right-hand side)."""
+    import pcmm
+    from pcmm.ode import integrators
+    monkeypatch.setattr(integrators, "SEGMENT_LOOPS", loops)
+    monkeypatch.setattr(compiled, "_register_segment_loop", lambda: None)
+    return pcmm.simulate(pcmm.load_scene(path))
+
+
+# the shipped examples with tree configurations integrated by DOP853F (the rimless wheel's and the
+# compass gait's configurations all hold a pinned foot, a cut joint: scipy's DOP853 steps those)
+TREE_EXAMPLES = ["three_bar.toml", "three_bar_stop.toml"]
+
+
+@runs_loop
+@pytest.mark.parametrize("scene", TREE_EXAMPLES)
+def test_whole_runs_are_the_python_stepped_runs(monkeypatch, scene):
+    """The same events at the same times (1e-12 s), the same recorded steps and states (1e-10),
+    where the compiled loop integrates the segments it can."""
+    from builders import EXAMPLES
+    path = EXAMPLES / scene
+    made = []
+
+    def counting(*args):
+        made.append(args[-1])  # every_step: a guard not affine in the state
+        return td.SegmentLoop(*args)
+    fast = _simulate(path, monkeypatch, {td.Tree: counting})
+    assert made, "no segment ran the compiled loop"
+    slow = _simulate(path, monkeypatch, {})
+    assert len(fast.events) >= 1
+    assert [e["name"] for e in fast.events] == [e["name"] for e in slow.events]
+    for a, b in zip(fast.events, slow.events, strict=True):
+        assert abs(a["t"] - b["t"]) <= 1e-12
+    assert len(fast.segments) == len(slow.segments)
+    for a, b in zip(fast.segments, slow.segments):
+        assert a.t.shape == b.t.shape
+        np.testing.assert_allclose(a.t, b.t, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(a.q, b.q, rtol=0, atol=1e-10)
+        np.testing.assert_allclose(a.v, b.v, rtol=0, atol=1e-10)
+    assert fast.stats["steps"] == slow.stats["steps"]
+
+
+@runs_loop
+def test_a_guard_not_affine_in_the_state_is_scanned_by_python_at_every_step(tmp_path, monkeypatch):
+    """A pendulum falling onto a stop watched by its contact gap (not affine in the state): the
+    compiled loop hands every accepted step to the Python event scanner, and the run is the
+    Python-stepped one (impacts to 1e-12 s, steps to 1e-10)."""
+    from builders import pendulum
+    path = pendulum(tmp_path, 0.5, q0=0.3, t_end=1.0)
+    text = path.read_text()
+    coordinate = '[transitions.guard]\ntype = "coordinate"\nvalue = -1.5707963267948966\n'
+    assert coordinate in text
+    text = text.replace(coordinate, '[transitions.guard]\ntype = "gap"\nvalue = 0.0\n')
+    path.write_text(text.replace('[transitions.guard.measure]\njoint = "J1"\n', ""))
+    made = []
+
+    def counting(*args):
+        made.append(args[-1])
+        return td.SegmentLoop(*args)
+    fast = _simulate(path, monkeypatch, {td.Tree: counting})
+    slow = _simulate(path, monkeypatch, {})
+    assert made and all(made)  # every step through Python: the gap is not affine
+    assert len(fast.events) >= 1 and fast.events[0]["name"] == "stop"
+    for a, b in zip(fast.events, slow.events, strict=True):
+        assert a["name"] == b["name"] and abs(a["t"] - b["t"]) <= 1e-12
+    for a, b in zip(fast.segments, slow.segments, strict=True):
+        np.testing.assert_allclose(a.t, b.t, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(a.q, b.q, rtol=0, atol=1e-10)
+        np.testing.assert_allclose(a.v, b.v, rtol=0, atol=1e-10)
+
+
+@runs_loop
+@pytest.mark.parametrize("budget", [20, 37])
+def test_a_spent_step_budget_stops_both_paths_alike(monkeypatch, budget):
+    """More steps than solver.max_steps: the same error at the same step, with the steps taken
+    kept in the partial run (Example 1: within its first segment, and just after the latch)."""
+    import pcmm
+    from builders import EXAMPLES
+    from pcmm.errors import SimulationError
+    from pcmm.ode import integrators
+    monkeypatch.setattr(compiled, "_register_segment_loop", lambda: None)
+    scene = pcmm.load_scene(EXAMPLES / "three_bar.toml")
+    outcomes = []
+    for loops in ({td.Tree: td.SegmentLoop}, {}):
+        monkeypatch.setattr(integrators, "SEGMENT_LOOPS", loops)
+        with pytest.raises(SimulationError) as caught:
+            pcmm.simulate(scene, pcmm.RunOptions(max_steps=budget))
+        assert f"more than {budget} steps" in str(caught.value)
+        outcomes.append((str(caught.value), caught.value.partial.segments[-1].t))
+    (fast, t_fast), (slow, t_slow) = outcomes
+    assert fast == slow
+    assert t_fast.size == t_slow.size > 1
+    np.testing.assert_allclose(t_fast, t_slow, rtol=0, atol=1e-12)
+
+
+@runs_loop
+def test_a_time_guard_is_scanned_in_the_loop(tmp_path, monkeypatch):
+    """Example 1 let go from its latched configuration by a timer at 0.5 s (a time guard: affine,
+    scanned in C++), where it latches again at once: the events are the Python-stepped run's, and
+    so is every segment's end state (1e-10).  (The segment after the second latch starts from a
+    state 4e-16 away, the release read on another dense output, at 46 rad/s: there the two runs'
+    step times drift apart by up to 3e-10 s while their states agree to 2e-12.)"""
+    from builders import copy_example, example_text
+    text = example_text() + ('\n[[transitions]]\nname = "let go"\ntype = "release"\nfrom = "config2"\n'
+                             'to = "config1"\nguard = { type = "time", at = 0.5 }\n')
+    path = copy_example(tmp_path, "three_bar.toml", text)
+    made = []
+
+    def counting(*args):
+        made.append(args[-1])
+        return td.SegmentLoop(*args)
+    fast = _simulate(path, monkeypatch, {td.Tree: counting})
+    slow = _simulate(path, monkeypatch, {})
+    assert len(made) >= 3 and not any(made)  # every segment scanned in C++
+    names = [e["name"] for e in fast.events]
+    assert names[:2] == ["O3 latches", "let go"] and names == [e["name"] for e in slow.events]
+    assert fast.events[1]["t"] == pytest.approx(0.5, abs=1e-12)
+    for a, b in zip(fast.events, slow.events, strict=True):
+        assert abs(a["t"] - b["t"]) <= 1e-12
+    for a, b in zip(fast.segments, slow.segments, strict=True):
+        assert a.t[-1] == pytest.approx(b.t[-1], abs=1e-12)
+        np.testing.assert_allclose(a.q[[0, -1]], b.q[[0, -1]], rtol=0, atol=1e-10)
+        np.testing.assert_allclose(a.v[[0, -1]], b.v[[0, -1]], rtol=0, atol=1e-10)
+
+
+@pytest.mark.parametrize("scene", TREE_EXAMPLES)
+def test_a_guards_affine_form_is_its_value(scene):
+    """Guard.affine (what the compiled loop scans) against the guard's own value and rate, at random
+    states of every tree configuration a shipped example's transitions watch; and None where the
+    value is not affine (re-armed after a bounce).  The loop relies on it without checking."""
+    import pcmm
+    from builders import EXAMPLES
+    from pcmm.events.guards import make_guard
+    from pcmm.model.mechanism import Mechanism
+    sc = pcmm.load_scene(EXAMPLES / scene)
+    mech = Mechanism(sc)
+    rng = np.random.default_rng(26)
+    checked = 0
+    for tr in sc.transitions:
+        cfg = mech[tr.source]
+        if cfg.coords.constrained:
+            continue
+        guard = make_guard(cfg, tr, context=0.3)
+        c, ct, d = guard.affine
+        c = np.zeros(2 * cfg.nv) if c is None else c
+        for _ in range(5):
+            t, y = rng.uniform(0.0, 2.0), rng.uniform(-3.0, 3.0, 2 * cfg.nv)
+            f = np.concatenate([y[cfg.nv:], rng.uniform(-5.0, 5.0, cfg.nv)])  # [q' = v, any acceleration]
+            assert guard(t, y) == pytest.approx(c @ y + ct * t + d, rel=1e-15, abs=1e-15)
+            assert guard.rate(t, y, f) == pytest.approx(c @ f + ct, rel=1e-15, abs=1e-15)
+        assert make_guard(cfg, tr, rearm=True, context=0.3).affine is None
+        checked += 1
+    assert checked >= 1
