@@ -13,7 +13,7 @@ import pytest
 import builders
 import pcmm
 import pcmm.run.loop as loop
-from pcmm.results.event_log import BLOCK, EventLog
+from pcmm.results.event_log import BLOCK, READ_KEPT, EventLog
 from pcmm.results.segment_log import SegmentLog
 
 G = 9.81
@@ -74,6 +74,22 @@ def test_a_record_read_by_index_is_the_runs_record_from_then_on():
     log[-1]["impulse"]["normal"] = 7.0
     assert log[0] is log[0] and [e["t"] for e in log] == [1.5, 2.0]
     assert list(log)[1] == {"t": 2.0, "impulse": {"normal": 7.0}}
+
+
+def test_records_read_by_index_stay_changed_when_many_more_are_read():
+    """Only the last READ_KEPT records read by index are kept as dicts (a run reads one after each
+    event): one changed and then pushed out by 1,000 reads is written back, the others are not
+    kept (the log's tables grow by the one row written back only)."""
+    log = EventLog({"t": float(k), "impulse": {"normal": 1.0}} for k in range(2_000))
+    log[5]["impulse"]["normal"] = -4.0
+    log[6]["t"] = math.inf
+    before = log.nbytes()
+    for k in range(1_000, 2_000):
+        log[k]
+    assert len(log._read) == READ_KEPT
+    assert log[5] == {"t": 5.0, "impulse": {"normal": -4.0}} and log[6]["t"] == math.inf
+    assert [e["impulse"]["normal"] for e in log[4:7]] == [1.0, -4.0, 1.0]
+    assert log.nbytes() == before  # two rows written back, within the table's last block
 
 
 def test_event_log_keeps_one_row_of_numbers_per_event_of_a_layout():
