@@ -3,6 +3,7 @@
     python benchmarks/memory_long_run.py                  # 1e4 events, in memory and stored
     python benchmarks/memory_long_run.py --events 100000  # 1e5 (minutes)
     python benchmarks/memory_long_run.py --events 1000000 --store-only
+    python benchmarks/memory_long_run.py --events 2000 --chunk 200   # several chunks in a short run
 
 The scene is benchmarks/memory_events.py's ball (e = 1: one event and one segment per bounce).
 Each mode runs two lengths, N/2 and N events, each in a subprocess of its own under
@@ -26,10 +27,14 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from memory_events import PERIOD, write_scene  # noqa: E402  (the same ball)
 
+from pcmm.results.store import CHUNK_RECORDS  # noqa: E402
+
 CHILD = r"""
 import gc, json, resource, sys, time, tracemalloc
 import pcmm
-path, t_end, store = sys.argv[1], float(sys.argv[2]), (sys.argv[3] or None)
+from pcmm.results.store import StoreWriter
+path, t_end, chunk = sys.argv[1], float(sys.argv[2]), int(sys.argv[5])
+store = StoreWriter(sys.argv[3], chunk_records=chunk) if sys.argv[3] else None
 scene = pcmm.load_scene(path)
 pcmm.simulate(scene, pcmm.RunOptions(t_end=3.0))  # warm-up: models built, modules imported
 gc.collect()
@@ -47,9 +52,10 @@ print(json.dumps(dict(events=events, samples=samples, retained=retained, cpu_s=c
 """
 
 
-def measure(path: Path, events: int, store: Path | None, traced: bool) -> dict:
+def measure(path: Path, events: int, store: Path | None, traced: bool, chunk: int) -> dict:
     t_end = events * PERIOD  # the first impact at PERIOD/2, then one per PERIOD
-    out = subprocess.run([sys.executable, "-c", CHILD, str(path), repr(t_end), str(store or ""), "1" if traced else "0"],
+    out = subprocess.run([sys.executable, "-c", CHILD, str(path), repr(t_end), str(store or ""), "1" if traced else "0",
+                          str(chunk)],
                          capture_output=True, text=True)
     if out.returncode:
         sys.exit(f"the run of {events} bounces failed:\n{out.stderr}")
@@ -77,6 +83,7 @@ def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--events", type=int, default=10_000, help="events of the longer run (the shorter: half)")
     p.add_argument("--store-only", action="store_true", help="only the stored runs (1e6 events in memory is large)")
+    p.add_argument("--chunk", type=int, default=CHUNK_RECORDS, help="segments or events per chunk of the store")
     p.add_argument("--untraced", action="store_true", help="no tracemalloc (faster; peak RSS only)")
     args = p.parse_args()
     t0 = time.time()
@@ -85,8 +92,8 @@ def main() -> None:
         modes = (["stored"] if args.store_only else ["in memory", "stored"])
         for mode in modes:
             store = Path(tmp) / "store" if mode == "stored" else None
-            a = measure(path, args.events // 2, store, not args.untraced)
-            b = measure(path, args.events, store, not args.untraced)
+            a = measure(path, args.events // 2, store, not args.untraced, args.chunk)
+            b = measure(path, args.events, store, not args.untraced, args.chunk)
             report(mode, a, b)
     print(f"({time.time() - t0:.0f} s wall in all)")
 

@@ -12,10 +12,11 @@ the same numbers (a float64 holds a float exactly, and an integer below 2**53), 
 
 The log is a sequence of dicts (``len``, indexing, slices, iteration, ``==`` with a list) and
 grows by :meth:`EventLog.append`; a record is encoded when appended, so changing the dict
-afterwards does not change the log.  A record read by its index (``log[i]``, a slice) is kept as
-that dict from then on: ``log[0]["t"] = ...`` changes the run's record, as it did when events
-were a list.  Iterating builds each record afresh and keeps none of them (a summary of a long
-run reads every event once), except those already read by index.
+afterwards does not change the log.  A record read by its index (``log[i]``) is the run's
+record: ``log[0]["t"] = ...`` changes it, as it did when events were a list (the last
+``READ_KEPT`` read are kept as dicts; one pushed out is written back when it was changed).
+Iterating, and a slice, build each record afresh and keep none of them (a summary of a long
+run reads every event once), except those kept.
 """
 from __future__ import annotations
 
@@ -24,6 +25,7 @@ from collections.abc import Sequence
 import numpy as np
 
 BLOCK = 256  # rows of a layout's table allocated at once
+READ_KEPT = 64  # records read by index kept as dicts (a run reads its last ones after each event)
 SHORT_TEXT = 48  # texts up to this length are part of the layout (names repeat); longer ones are kept aside
 _EXACT_INT = 2 ** 53
 
@@ -113,12 +115,19 @@ class EventLog(Sequence):
         self._index: list[np.ndarray] = []  # blocks of (table, row) per event
         self._n = 0
         self._aside: list = []
-        self._read: dict[int, dict] = {}  # the records read by index: the same dict every time
+        # the records last read by index (the same dict while kept here; changed, written back when dropped)
+        self._read: dict[int, dict] = {}
         for e in events:
             self.append(e)
 
     def append(self, event) -> None:
         """Keep ``event`` (encoded now: later changes to the dict are not seen)."""
+        if self._n == len(self._index) * BLOCK:
+            self._index.append(np.empty((BLOCK, 2), np.int64))
+        self._n += 1
+        self._encode(self._n - 1, event)
+
+    def _encode(self, i: int, event) -> None:
         numbers: list = []
         layout = _layout(event, numbers, self._aside)
         k = self._by_layout.get(layout)
@@ -126,10 +135,7 @@ class EventLog(Sequence):
             k = self._by_layout[layout] = len(self._tables)
             self._tables.append(_Table(layout, len(numbers)))
         row = self._tables[k].append(numbers)
-        if self._n == len(self._index) * BLOCK:
-            self._index.append(np.empty((BLOCK, 2), np.int64))
-        self._index[-1][self._n % BLOCK] = (k, row)
-        self._n += 1
+        self._index[i // BLOCK][i % BLOCK] = (k, row)
 
     def extend(self, events) -> None:
         for e in events:
@@ -144,14 +150,23 @@ class EventLog(Sequence):
         return self._n
 
     def _kept(self, i: int):
-        record = self._read.get(i)
+        """Record ``i``, the same dict while it is among the last READ_KEPT read by index; the
+        one it pushes out is written back if it was changed meanwhile (as a list's would stay)."""
+        read = self._read
+        record = read.pop(i, None)
         if record is None:
-            record = self._read[i] = self._event(i)
+            record = self._event(i)
+            if len(read) >= READ_KEPT:
+                j = next(iter(read))
+                dropped = read.pop(j)
+                if dropped != self._event(j):
+                    self._encode(j, dropped)
+        read[i] = record  # the latest last
         return record
 
     def __getitem__(self, i):
-        if isinstance(i, slice):
-            return [self._kept(j) for j in range(*i.indices(self._n))]
+        if isinstance(i, slice):  # as iterating: built afresh, not kept
+            return [self._read.get(j) or self._event(j) for j in range(*i.indices(self._n))]
         i = int(i)
         if i < 0:
             i += self._n

@@ -130,8 +130,8 @@ def simulate(scene: Scene | str | os.PathLike, options: RunOptions = RunOptions(
     # the guards that did not fire: computed when read (it reads the final segments' coordinates)
     run.stats.defer("closest_approach", lambda scene=run.scene, cfg=run.cfg, traj=run.traj:
                     closest_approach(scene, cfg, traj))
-    if run.store is not None:  # the last chunk and the end record (its stats read now)
-        with deferred():
+    if run.store is not None:  # the last chunk and the end record (its stats read now); a signal
+        with deferred():  # meanwhile waits, and is dropped: the run is complete and returned whole
             run.store.end(run.traj)
     return run.traj
 
