@@ -123,3 +123,18 @@ def test_pcmm_run_store_writes_a_folder_that_loads_and_refuses_a_used_one(tmp_pa
     assert len(back.events) == 3  # impacts at 0.452, 1.355, 2.258 s (the next at 3.161 s)
     with pytest.raises(UsageError, match="not empty"):
         pcmm.simulate(pcmm.load_scene(path), pcmm.RunOptions(t_end=1.0), store=store)
+
+
+def test_a_run_stopped_by_an_error_ends_its_store_as_partial_with_its_message(tmp_path):
+    """The event budget stops the bouncing ball after its 6th impact (max_events = 5): the store
+    ends with status "partial" and the error's message, and holds the 6 events and 6 segments (the fall, then 5 flights) the
+    error's own partial trajectory holds."""
+    path = builders.ball(tmp_path, 1.0, merge=False)
+    folder = tmp_path / "store"
+    with pytest.raises(SimulationError, match="more than 5 events") as stopped:
+        pcmm.simulate(pcmm.load_scene(path), pcmm.RunOptions(t_end=100.0, max_events=5),
+                      store=StoreWriter(folder, chunk_records=4))
+    back = pcmm.Trajectory.load(folder)
+    assert back.status == "partial" and "more than 5 events" in back.message
+    assert (folder / "end.json").is_file() and len(back.events) == 6 and len(back.segments) == 6
+    _same_record(stopped.value.partial, back)

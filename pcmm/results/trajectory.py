@@ -17,14 +17,11 @@ from __future__ import annotations
 import csv
 import json
 import math
-import os
-import tempfile
 import tomllib
 import xml.etree.ElementTree as ET
 import zipfile
 import zlib
 from dataclasses import dataclass, field
-from typing import Callable
 from pathlib import Path
 
 import numpy as np
