@@ -244,7 +244,7 @@ def test_impulse_momentum_balance_at_every_event(example_runs, four_bar_run):
     event of both examples (1 latch; 46 bounces and the merge) and at the four-bar's latch."""
     counts = {}
     for name, run in {**example_runs, "four_bar": four_bar_run}.items():
-        events = json.loads(json.dumps(run.events))  # as the summary JSON holds them
+        events = json.loads(json.dumps(list(run.events)))  # as the summary JSON holds them
         counts[name] = len(events)
         for ev in events:
             dL, dH = balance(ev)

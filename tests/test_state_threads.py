@@ -15,13 +15,14 @@ from __future__ import annotations
 
 import math
 import threading
+import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 import pcmm
-from pcmm.results.trajectory import SegmentRecord
+from pcmm.results.segment_log import SegmentLog
 
 from builders import bar_xml, joint_xml, link_xml, robot_xml, scene_doc, stop, write_scene
 
@@ -98,14 +99,15 @@ def test_series_read_in_a_second_thread_while_the_run_goes_on(alone, monkeypatch
     for the segment's and back: a recompilation by the run meanwhile was undone, and the run
     recorded its next segments with the elements of an earlier entry.)"""
     path, ref, derived, resampled = alone
-    finished: list = []  # the records the run has made (each appended when its segment is accepted)
-    made = SegmentRecord.deferred.__func__
+    logs: list = []  # the run's segment log, seen at its first segment (each added complete)
+    add = SegmentLog.add
 
-    def spy(cls, *args, **kwargs):
-        rec = made(cls, *args, **kwargs)
-        finished.append(rec)
-        return rec
-    monkeypatch.setattr(SegmentRecord, "deferred", classmethod(spy))
+    def spy(self, *args, **kwargs):
+        add(self, *args, **kwargs)
+        if not logs:
+            logs.append(self)
+        time.sleep(0.005)  # the reader's turn (the run, compiled, is otherwise done before it reads)
+    monkeypatch.setattr(SegmentLog, "add", spy)
     done = threading.Event()
     read: dict[int, dict] = {}
     again: list[tuple[int, dict]] = []
@@ -114,7 +116,8 @@ def test_series_read_in_a_second_thread_while_the_run_goes_on(alone, monkeypatch
     def reader():
         try:
             while not done.is_set():
-                for i, rec in enumerate(list(finished)):  # each complete when made: its values are kept
+                finished = [logs[0][i] for i in range(len(logs[0]))] if logs else []
+                for i, rec in enumerate(finished):  # each complete when added: its values are kept
                     if i not in read:
                         read[i] = _series(rec)
                     again.append((i, _series(rec.resampled(_times(rec)))))
