@@ -11,7 +11,9 @@ Ctrl-C does, and no interrupt cuts a result in half while it is being kept.
   line's own imports, so a signal while ``pcmm`` starts is answered by ``main`` (a message,
   a partial result), not by Python's traceback.
 
-Handlers can only be installed in the main thread; elsewhere both are no-ops.
+Handlers can only be installed in the main thread; elsewhere both are no-ops.  A signal that
+the process was started with ignored stays ignored (the Unix convention: ``nohup`` ignores SIGHUP,
+a shell's background job SIGINT), so ``nohup pcmm run ...`` outlives the terminal it was started from.
 """
 from __future__ import annotations
 
@@ -35,7 +37,18 @@ def _main_thread() -> bool:
 
 
 def _signals(names):
-    return [getattr(signal, n) for n in names if hasattr(signal, n)]
+    """The signals of ``names`` this platform has and the process does not ignore (an ignored
+    signal was ignored on purpose by whoever started it, ``nohup`` say: it is left so)."""
+    out = []
+    for n in names:
+        sig = getattr(signal, n, None)
+        if sig is None:
+            continue
+        with contextlib.suppress(ValueError, OSError):
+            if signal.getsignal(sig) == signal.SIG_IGN:
+                continue
+        out.append(sig)
+    return out
 
 
 def describe(exc: KeyboardInterrupt) -> str:

@@ -60,3 +60,12 @@ def deadline(seconds, what):
     finally:
         signal.setitimer(signal.ITIMER_REAL, 0)
         signal.signal(signal.SIGALRM, old)
+
+
+def default_signals() -> None:
+    """``preexec_fn`` of a child the suite will signal: SIGINT, SIGTERM and SIGHUP at their
+    default dispositions.  A process started with a signal ignored keeps it ignored (pcmm honours
+    ``nohup`` and a shell's background jobs, :mod:`pcmm.signals`), and the suite itself may be
+    run so (``nohup``, ``cmd &`` in a script: SIGINT ignored), which its children would inherit."""
+    for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+        signal.signal(sig, signal.SIG_DFL)

@@ -116,7 +116,8 @@ def test_sigterm_and_sighup_keep_the_partial_like_ctrl_c(tmp_path):
         d.mkdir()
         procs[sig] = (d, subprocess.Popen([PY, "-m", "pcmm.cli", "run", str(scene), "--out", "p.npz", "--summary",
                                            "p.json", "--quiet"], cwd=d, env=env(), stdout=subprocess.PIPE,
-                                          stderr=subprocess.PIPE, text=True))
+                                          stderr=subprocess.PIPE, text=True,
+                                          preexec_fn=suite_checks.default_signals))
     for sig, (_, proc) in procs.items():  # past start-up (a short run's imports and save: 1.5 s of CPU)
         _wait_for_cpu(proc.pid, 2.5)
         proc.send_signal(sig)
@@ -130,6 +131,32 @@ def test_sigterm_and_sighup_keep_the_partial_like_ctrl_c(tmp_path):
         assert sig.name in saved.message and sig.name in err
         assert summary["stats"]["steps"] == steps_from_samples(saved) > 0
         assert summary["stats"]["rhs_evals"] >= summary["stats"]["steps"]
+
+
+def _ignoring_sighup() -> None:  # what ``nohup`` does before it starts the command
+    suite_checks.default_signals()
+    signal.signal(signal.SIGHUP, signal.SIG_IGN)
+
+
+def test_a_run_started_under_nohup_outlives_the_terminal(tmp_path):
+    """``nohup pcmm run ...``: SIGHUP was ignored by whoever started pcmm, so it stays ignored (the
+    run goes on through a closed terminal and completes), while SIGTERM is still pcmm's to answer.
+    (Before, pcmm installed its handler over the ignored SIGHUP and stopped with a partial run.)"""
+    scene = builders.ball(tmp_path / "scene", 1.0, t_end=20.0)
+    proc = subprocess.Popen([PY, "-m", "pcmm.cli", "run", str(scene), "--out", "p.npz", "--summary", "p.json",
+                             "--quiet"], cwd=tmp_path, env=env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, preexec_fn=_ignoring_sighup)
+    from test_fuzz import _catches
+    _catches(proc, signal.SIGTERM)  # pcmm handles signals from here on
+    status = dict(ln.split(":", 1) for ln in Path(f"/proc/{proc.pid}/status").read_text().splitlines()) \
+        if Path(f"/proc/{proc.pid}/status").exists() else None
+    proc.send_signal(signal.SIGHUP)
+    out, err = proc.communicate(timeout=120)
+    assert proc.returncode == 0 and "Traceback" not in err, err
+    assert json.loads((tmp_path / "p.json").read_text())["status"] == "complete"
+    if status is not None and proc.returncode == 0:  # it was still running when asked: SIGHUP ignored, SIGTERM caught
+        assert int(status["SigIgn"], 16) >> (signal.SIGHUP - 1) & 1
+        assert not int(status["SigCgt"], 16) >> (signal.SIGHUP - 1) & 1
 
 
 def _wait_for_cpu(pid: int, seconds: float, timeout: float = 240.0) -> None:
@@ -465,7 +492,7 @@ def test_ctrl_c_during_start_up_is_a_message(tmp_path):
     scene = builders.ball(tmp_path / "s", 0.5, t_end=0.2)
     for delay in (0.0, 0.05, 0.3, 0.6, 1.0):
         proc = subprocess.Popen([PY, str(script), "check", str(scene)], env=env(), stdout=subprocess.PIPE,
-                                stderr=subprocess.PIPE, text=True)
+                                stderr=subprocess.PIPE, text=True, preexec_fn=suite_checks.default_signals)
         from test_fuzz import _catches
         _catches(proc, signal.SIGTERM)
         time.sleep(delay)

@@ -745,7 +745,8 @@ def test_fs_signals_at_random_moments(tmp_path):
     for i, (at, sig) in enumerate(plan):
         d = tmp_path / f"run{i}"
         d.mkdir()
-        procs.append((at, sig, d, _pcmm(["run", scene, "--out", "t.npz", "--summary", "s.json", "--quiet"], d)))
+        procs.append((at, sig, d, _pcmm(["run", scene, "--out", "t.npz", "--summary", "s.json", "--quiet"], d,
+                                        preexec=suite_checks.default_signals)))
     start = time.monotonic()
     for at, sig, d, p in procs:
         time.sleep(max(0.0, start + at - time.monotonic()))

@@ -20,6 +20,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+import suite_checks
+
 import pcmm
 from pcmm.errors import SceneError, UsageError
 from pcmm.studies.sweep import (QUANTITIES, Axis, Plan, ResultsTable, check_collect, collect_value, columns, make_plan,
@@ -176,7 +178,8 @@ def test_failed_and_partial_runs_are_rows(tmp_path, monkeypatch):
 def _spawn(args, tmp_path):
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     return subprocess.Popen([sys.executable, "-m", "pcmm.cli", "sweep", *args], cwd=tmp_path, env=env,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=suite_checks.default_signals)
 
 
 def _wait_rows(path, n, proc, timeout=120.0):
