@@ -93,6 +93,12 @@ def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="pcmm", description="Impact dynamics of planar constrained "
                                 "metamorphic mechanisms (Song et al., Shock and Vibration 2020).")
     sub = p.add_subparsers(dest="command", required=True)
+    add_parser = sub.add_parser
+
+    def described(name, **kwargs):  # 'pcmm NAME -h' says what NAME does, as 'pcmm -h' lists it
+        kwargs.setdefault("description", kwargs.get("help"))
+        return add_parser(name, **kwargs)
+    sub.add_parser = described
     r = sub.add_parser("run", help="simulate a scene (TOML)")
     r.add_argument("scene", type=Path)
     r.add_argument("--t-end", type=_positive("t-end"), help="end time in s (default: the scene's)")

@@ -230,3 +230,18 @@ def test_quiet_keeps_the_warnings(tmp_path, capsys):
     captured = capsys.readouterr()
     assert "pcmm: warning:" in captured.err and "B given 0, now -0.363742" in captured.err
     assert "slider stop E" not in captured.out  # no event table or closest-approach lines
+
+
+def test_every_command_help_says_what_the_command_does(capsys):
+    """'pcmm NAME -h' opens with the line 'pcmm -h' lists for NAME (a newcomer's 'pcmm new -h'
+    showed only the usage)."""
+    import argparse
+    parser = pcmm.cli.build_parser()
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    listed = {a.dest: a.help for a in sub._choices_actions}
+    assert {"run", "new", "sweep", "optimize", "check"} <= set(listed)
+    for name, text in listed.items():
+        with pytest.raises(SystemExit):
+            pcmm.cli.main([name, "-h"])
+        out = capsys.readouterr().out
+        assert text and " ".join(text.split()) in " ".join(out.split()), (name, out[:300])
