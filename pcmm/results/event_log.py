@@ -20,9 +20,9 @@ run reads every event once), except those kept.
 """
 from __future__ import annotations
 
-from collections.abc import Sequence
-
 import numpy as np
+
+from .segment_log import RecordSequence
 
 BLOCK = 256  # rows of a layout's table allocated at once
 READ_KEPT = 64  # records read by index kept as dicts (a run reads its last ones after each event)
@@ -98,7 +98,7 @@ class _Table:
         return self.blocks[i // BLOCK][i % BLOCK]
 
 
-class EventLog(Sequence):
+class EventLog(RecordSequence):
     """The events of a run: a sequence of event records (dicts) kept as columns of numbers.
 
     Examples
@@ -167,12 +167,7 @@ class EventLog(Sequence):
     def __getitem__(self, i):
         if isinstance(i, slice):  # as iterating: built afresh, not kept
             return [self._read.get(j) or self._event(j) for j in range(*i.indices(self._n))]
-        i = int(i)
-        if i < 0:
-            i += self._n
-        if not 0 <= i < self._n:
-            raise IndexError("event index out of range")
-        return self._kept(i)
+        return self._kept(self._position(i, "event"))
 
     def __iter__(self):
         read = self._read
@@ -184,12 +179,6 @@ class EventLog(Sequence):
         if isinstance(other, (EventLog, list, tuple)):
             return len(self) == len(other) and all(a == b for a, b in zip(self, other))
         return NotImplemented
-
-    def __add__(self, other):
-        return [*self, *other]
-
-    def __radd__(self, other):
-        return [*other, *self]
 
     def __repr__(self) -> str:
         return repr(list(self))

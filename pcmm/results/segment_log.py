@@ -25,7 +25,28 @@ ROW_BLOCK = 1024  # segment rows allocated at once
 _ROW = 6  # context, data block, offset, samples, state rows, q_start length
 
 
-class SegmentLog(Sequence):
+class RecordSequence(Sequence):
+    """What a run's record sequences (segments, events, a store's) share with a list: ``+`` with
+    a list or another sequence gives a plain list, and an index is checked as a list's is."""
+
+    def __add__(self, other):
+        return [*self, *other]
+
+    def __radd__(self, other):
+        return [*other, *self]
+
+    def _position(self, i, what: str) -> int:
+        """Index ``i`` (negative from the end) as a position in ``range(len(self))``, or IndexError."""
+        n = len(self)
+        i = int(i)
+        if i < 0:
+            i += n
+        if not 0 <= i < n:
+            raise IndexError(f"{what} index out of range")
+        return i
+
+
+class SegmentLog(RecordSequence):
     """The segments of a run, in order; grows by :meth:`add`.
 
     ``context`` objects (one per stay whose segments share it) give ``derive(t, y, q_start)``,
@@ -123,22 +144,11 @@ class SegmentLog(Sequence):
     def __getitem__(self, i):
         if isinstance(i, slice):
             return [self._record(j) for j in range(*i.indices(self._n))]
-        i = int(i)
-        if i < 0:
-            i += self._n
-        if not 0 <= i < self._n:
-            raise IndexError("segment index out of range")
-        return self._record(i)
+        return self._record(self._position(i, "segment"))
 
     def __iter__(self):
         for i in range(self._n):
             yield self._record(i)
-
-    def __add__(self, other):
-        return [*self, *other]
-
-    def __radd__(self, other):
-        return [*other, *self]
 
     def __reduce__(self):  # pickled (sent to another process) as its records, series and all
         return (list, (list(self),))

@@ -35,7 +35,7 @@ from ..errors import UsageError
 from ..files import atomic_write
 from .event_log import EventLog
 from .segment import SegmentRecord
-from .segment_log import SegmentLog
+from .segment_log import RecordSequence, SegmentLog
 
 FORMAT = "pcmm-store-1"
 SERIES = ("t", "q", "v", "theta", "omega", "xy", "kinetic", "potential", "forces", "constraint_forces")
@@ -145,7 +145,7 @@ class StoreReader:
         return self._cached[1]
 
 
-class _Stored(Sequence):
+class _Stored(RecordSequence):
     """The segments (or events) of a store: those in its chunks, then the ones not yet written
     (``tail``, a run's own log while it goes on)."""
 
@@ -168,13 +168,7 @@ class _Stored(Sequence):
     def __getitem__(self, i):
         if isinstance(i, slice):
             return [self._get(j) for j in range(*i.indices(len(self)))]
-        n = len(self)
-        i = int(i)
-        if i < 0:
-            i += n
-        if not 0 <= i < n:
-            raise IndexError(f"{self.which[:-1]} index out of range")
-        return self._get(i)
+        return self._get(self._position(i, self.which[:-1]))
 
     def append(self, item) -> None:
         """A run's new segment or event: into the chunk being filled."""
@@ -189,12 +183,6 @@ class _Stored(Sequence):
         if isinstance(other, (Sequence,)) and not isinstance(other, str):
             return len(self) == len(other) and all(a == b for a, b in zip(self, other))
         return NotImplemented
-
-    def __add__(self, other):
-        return [*self, *other]
-
-    def __radd__(self, other):
-        return [*other, *self]
 
     def __reduce__(self):  # pickled as the records themselves
         return (list, (list(self),))
