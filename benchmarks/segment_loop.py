@@ -45,7 +45,7 @@ def main(argv=None) -> int:
         return 1
     scene = pcmm.load_scene(args.scene)
     register = compiled._register_segment_loop
-    compiled._register_segment_loop = lambda: None  # the paths are chosen here, run by run
+    compiled._register_segment_loop = lambda *args: None  # the paths are chosen here, run by run
     paths = {"compiled loop": {td.Tree: td.SegmentLoop}, "Python-stepped": {}}
     times = {name: [] for name in paths}
     runs = {}
