@@ -596,9 +596,10 @@ _PROGRESS_STEPS = 21
 #: Whether scipy's DOP853 (the method "DOP853", what "auto" gives a configuration with loops or
 #: drives) may be stepped by a compiled segment loop (pcmm/model/_segment_loop.hpp with scipy's
 #: tableau).  Off: its steps cannot be numpy's to the bit.  At rtol 1e-10 the error estimate of a
-#: step is a sum of stages that cancel to round-off (three_bar_cycle's second step: 1e-14 absolute,
-#: error norm 1.1e-8), so the summation order of numpy's BLAS dot products against the loop's decides
-#: the next step size: examples/three_bar_cycle.toml's steps part at its third step, and its 531
+#: step is a sum of stages that nearly cancel (three_bar_cycle's second step: stages of 160 rad/s^2
+#: summing to 9e-12, which numpy's BLAS dot product and an in-order sum round 1.6e-14 apart: 0.2 %),
+#: so the summation order moves the next step size (by 0.05 % there): examples/three_bar_cycle.toml's
+#: steps part at its third step, and its 531
 #: event times then differ from the Python-stepped run's by up to 7.6e-10 s (the tolerance's
 #: size, not 1e-12), for 2-20 % of its run time in three measurements (benchmarks/segment_loop.py
 #: --drives, docs/performance.md).  The compiled
