@@ -448,3 +448,25 @@ def test_with_scipys_tableau_the_loop_steps_as_scipys_dop853(monkeypatch):
         dense = DenseStep(*loop.dense())
         ts = np.linspace(ref.t_old, ref.t, 7)
         assert dense(ts).tobytes() == ref.dense_output()(ts).tobytes()
+
+
+@runs_loop
+def test_an_extension_built_without_compiled_drives_falls_back_and_says_so(tmp_path, monkeypatch):
+    """An extension built from sources before compiled drives (its Tree has no set_drives: a stale
+    build) is refused for drives, with the remedy, and the configuration evaluates in Python."""
+    import types
+
+    import pcmm
+    from builders import driven_cart_pendulum
+    from pcmm.model.mechanism import Mechanism
+
+    class OldTree:  # the extension's Tree as built before: no set_drives, no rhs_with_power
+        pass
+    monkeypatch.setattr(compiled, "_tree_dynamics", types.SimpleNamespace(**{**vars(compiled._tree_dynamics),
+                                                                             "Tree": OldTree}))
+    coords = Mechanism(pcmm.load_scene(driven_cart_pendulum(tmp_path)))["swing"].coords
+    assert coords._compiled_drives() is None
+    assert coords.evaluations.startswith("python: this build of pcmm.model._tree_dynamics has no compiled drives")
+    assert "pip install -e ." in coords.evaluations
+    y = np.array([0.3, -0.2])
+    np.testing.assert_array_equal(coords.rhs(0.4, y), coords._python_rhs(0.4, y))

@@ -156,6 +156,10 @@ def drive_tree(model: pin.Model, Q0: np.ndarray, KD: np.ndarray, driven, laws, r
     Q0, KD = np.asarray(Q0, float), np.asarray(KD, float)
     driven = tuple(int(i) for i in driven)
     laws = tuple(tuple(tuple(float(c) for c in cs) for cs in law) for law in laws)
+    if enabled() and not hasattr(_tree_dynamics.Tree, "set_drives"):  # an extension built before drives were
+        _refuse("this build of pcmm.model._tree_dynamics has no compiled drives (built from older sources): "
+                "reinstall pcmm (pip install -e .) to rebuild it")
+        return None
     if len(driven) >= model.nv:
         _refuse("every coordinate is driven: nothing to integrate")
         return None
