@@ -1,7 +1,8 @@
 """Memory of a long bouncing run, kept in memory or streamed to a store (issue 26, item 5).
 
     python benchmarks/memory_long_run.py                  # 1e4 events, in memory and stored
-    python benchmarks/memory_long_run.py --events 100000  # 1e5 (minutes)
+    python benchmarks/memory_long_run.py --events 100000  # 1e5 (hours: ~10 ms of CPU per event)
+    python benchmarks/memory_long_run.py --events 100000 --memory-only
     python benchmarks/memory_long_run.py --events 1000000 --store-only
     python benchmarks/memory_long_run.py --events 2000 --chunk 200   # several chunks in a short run
 
@@ -82,14 +83,16 @@ def report(mode: str, a: dict, b: dict) -> None:
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--events", type=int, default=10_000, help="events of the longer run (the shorter: half)")
-    p.add_argument("--store-only", action="store_true", help="only the stored runs (1e6 events in memory is large)")
+    only = p.add_mutually_exclusive_group()
+    only.add_argument("--store-only", action="store_true", help="only the stored runs (1e6 events in memory is large)")
+    only.add_argument("--memory-only", action="store_true", help="only the runs kept in memory")
     p.add_argument("--chunk", type=int, default=CHUNK_RECORDS, help="segments or events per chunk of the store")
     p.add_argument("--untraced", action="store_true", help="no tracemalloc (faster; peak RSS only)")
     args = p.parse_args()
     t0 = time.time()
     with tempfile.TemporaryDirectory() as tmp:
         path = write_scene(Path(tmp), 1.0)
-        modes = (["stored"] if args.store_only else ["in memory", "stored"])
+        modes = ["stored"] if args.store_only else ["in memory"] if args.memory_only else ["in memory", "stored"]
         for mode in modes:
             store = Path(tmp) / "store" if mode == "stored" else None
             a = measure(path, args.events // 2, store, not args.untraced, args.chunk)
