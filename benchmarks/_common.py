@@ -173,3 +173,67 @@ def timed_segments(log: list):
         yield
     finally:
         sim.INTEGRATORS = integ.INTEGRATORS = original
+
+
+# ---- memory: what a finished run retains --------------------------------------------------
+def traced_run(scene, t_end: float, warm_up: float = 3.0, traced: bool = True, **simulate_kw):
+    """Simulate ``scene`` to ``t_end`` under ``tracemalloc`` (if ``traced``), after a warm-up run to
+    ``warm_up`` s (models built, modules imported: neither is counted).  Returns (trajectory,
+    figures): ``retained``, the bytes still allocated after the run and a collection (what the
+    finished run holds, its trajectory included); ``peak``, the traced peak above the start (both
+    None untraced); ``cpu_s``, the run's CPU time (tracing slows it); ``rss_peak_kb``, the process's
+    peak RSS (all of it: Python, numpy, scipy, Pinocchio and the run).  ``simulate_kw`` goes to
+    :func:`pcmm.simulate` (``store=``)."""
+    import gc
+    import resource
+    import tracemalloc
+
+    import pcmm
+    pcmm.simulate(scene, pcmm.RunOptions(t_end=warm_up))
+    gc.collect()
+    if traced:
+        tracemalloc.start()
+        base = tracemalloc.get_traced_memory()[0]
+    t0 = time.process_time()
+    traj = pcmm.simulate(scene, pcmm.RunOptions(t_end=t_end), **simulate_kw)
+    cpu = time.process_time() - t0
+    gc.collect()
+    retained = peak = None
+    if traced:
+        current, peak = tracemalloc.get_traced_memory()
+        tracemalloc.stop()
+        retained, peak = current - base, peak - base
+    return traj, dict(retained=retained, peak=peak, cpu_s=cpu,
+                      rss_peak_kb=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)
+
+
+def traced_run_in_child(scene_path: Path, t_end: float, store: Path | None = None, chunk: int | None = None,
+                        traced: bool = True) -> dict:
+    """:func:`traced_run` of the scene at ``scene_path`` in a process of its own (so one run's
+    figures, its peak RSS above all, are not another's), streamed to ``store`` in chunks of
+    ``chunk`` records if given.  Returns its figures with the run's ``events``, ``samples``,
+    ``segments`` and ``steps``."""
+    import json
+    import subprocess
+    spec = dict(scene=str(scene_path), t_end=t_end, store=None if store is None else str(store), chunk=chunk,
+                traced=traced)
+    out = subprocess.run([sys.executable, __file__, "traced-run", json.dumps(spec)], capture_output=True, text=True)
+    if out.returncode:
+        sys.exit(f"the run of {scene_path} to t = {t_end:g} s failed:\n{out.stderr}")
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def _traced_run_child(spec: dict) -> dict:
+    import pcmm
+    from pcmm.results.store import StoreWriter
+    store = None
+    if spec["store"] is not None:
+        store = StoreWriter(spec["store"], **({} if spec["chunk"] is None else dict(chunk_records=spec["chunk"])))
+    traj, figures = traced_run(pcmm.load_scene(spec["scene"]), spec["t_end"], traced=spec["traced"], store=store)
+    return dict(figures, events=len(traj.events), samples=sum(len(s.t) for s in traj.segments),
+                segments=len(traj.segments), steps=traj.stats["steps"])
+
+
+if __name__ == "__main__" and sys.argv[1:2] == ["traced-run"]:
+    import json
+    print(json.dumps(_traced_run_child(json.loads(sys.argv[2]))))

@@ -17,50 +17,21 @@ reports its peak RSS (the whole process: Python, numpy, scipy, Pinocchio and the
 from __future__ import annotations
 
 import argparse
-import json
 import shutil
-import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _common import traced_run_in_child  # noqa: E402
 from memory_events import PERIOD, write_scene  # noqa: E402  (the same ball)
 
 from pcmm.results.store import CHUNK_RECORDS  # noqa: E402
 
-CHILD = r"""
-import gc, json, resource, sys, time, tracemalloc
-import pcmm
-from pcmm.results.store import StoreWriter
-path, t_end, chunk = sys.argv[1], float(sys.argv[2]), int(sys.argv[5])
-store = StoreWriter(sys.argv[3], chunk_records=chunk) if sys.argv[3] else None
-scene = pcmm.load_scene(path)
-pcmm.simulate(scene, pcmm.RunOptions(t_end=3.0))  # warm-up: models built, modules imported
-gc.collect()
-if sys.argv[4] == "1":
-    tracemalloc.start()
-    base = tracemalloc.get_traced_memory()[0]
-t0 = time.process_time()
-traj = pcmm.simulate(scene, pcmm.RunOptions(t_end=t_end), store=store)
-cpu = time.process_time() - t0
-gc.collect()
-retained = tracemalloc.get_traced_memory()[0] - base if sys.argv[4] == "1" else None
-events, samples = len(traj.events), sum(len(s.t) for s in traj.segments) if store else int(traj.t.size)
-print(json.dumps(dict(events=events, samples=samples, retained=retained, cpu_s=cpu,
-                      rss_peak_kb=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)))
-"""
-
-
 def measure(path: Path, events: int, store: Path | None, traced: bool, chunk: int) -> dict:
     t_end = events * PERIOD  # the first impact at PERIOD/2, then one per PERIOD
-    out = subprocess.run([sys.executable, "-c", CHILD, str(path), repr(t_end), str(store or ""), "1" if traced else "0",
-                          str(chunk)],
-                         capture_output=True, text=True)
-    if out.returncode:
-        sys.exit(f"the run of {events} bounces failed:\n{out.stderr}")
-    r = json.loads(out.stdout.strip().splitlines()[-1])
+    r = traced_run_in_child(path, t_end, store=store, chunk=chunk, traced=traced)
     if store is not None:
         r["store_mb"] = sum(p.stat().st_size for p in store.iterdir()) / 1e6
         shutil.rmtree(store)
