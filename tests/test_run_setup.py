@@ -18,3 +18,29 @@ def test_urdf_joints_parsed_once_each_call_its_own_copy():
     again = urdf_joints(text)
     assert again == expected
     assert again is not first and again["J1"] is not first["J1"]
+
+
+def test_deferred_holds_a_signal_and_puts_back_each_handler_as_it_was():
+    """Every recorded segment holds signals back (pcmm.signals.deferred, on the C module's calls):
+    a signal meanwhile is held, not acted on; the handler before is back afterwards, the very same
+    object; an ignored signal stays ignored throughout (nohup's SIGHUP)."""
+    import os
+    import signal
+
+    from pcmm.signals import deferred
+
+    seen = []
+
+    def mine(signum, frame):
+        seen.append(signum)
+    before = signal.signal(signal.SIGTERM, mine), signal.signal(signal.SIGHUP, signal.SIG_IGN)
+    try:
+        with deferred() as held:
+            assert signal.getsignal(signal.SIGHUP) == signal.SIG_IGN
+            os.kill(os.getpid(), signal.SIGTERM)
+        assert held.received == [signal.SIGTERM] and seen == []
+        assert signal.getsignal(signal.SIGTERM) is mine
+        assert signal.getsignal(signal.SIGHUP) == signal.SIG_IGN
+    finally:
+        signal.signal(signal.SIGTERM, before[0])
+        signal.signal(signal.SIGHUP, before[1])
