@@ -69,6 +69,18 @@ def child(tree: Path, scene: str, reps: int, compiled: bool = True) -> dict:
     return json.loads(out.strip().splitlines()[-1])
 
 
+def unbuilt_extension(tree: Path) -> str | None:
+    """Why ``tree`` would be measured without its compiled extension (None: it has none, or it is built):
+    a source tree from ``git archive`` has the C++ source but not the module built from it, and its
+    runs would then measure its Python evaluations, not the version as installed."""
+    for source in sorted(tree.glob("pcmm/**/_tree_dynamics.cpp")):
+        if not any(source.parent.glob("_tree_dynamics*.so")):
+            return (f"{tree}: {source.relative_to(tree)} is not built, so its runs would use its Python "
+                    f"evaluations; build it in place first: (cd {tree} && CPLUS_INCLUDE_PATH=<Eigen headers> "
+                    f"{Path(sys.executable).name} setup.py build_ext --inplace)")
+    return None
+
+
 def evaluations_md(evaluations: dict) -> str:
     """'compiled', 'python', or which configurations used which (a tree before stats['evaluations']: '?')."""
     if not evaluations:
@@ -109,6 +121,9 @@ def main(argv=None):
     before = args.before.resolve()
     if not (before / "pcmm" / "__init__.py").is_file():
         ap.error(f"{before}: not a pcmm source tree (no pcmm/__init__.py)")
+    unbuilt = unbuilt_extension(before)
+    if unbuilt:
+        ap.error(unbuilt)
     out = args.out / "versus.md" if args.out.suffix != ".md" else args.out
     scenes = {name: SCENES[name] for name in args.scenes}
     T0 = time.perf_counter()
