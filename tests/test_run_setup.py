@@ -70,3 +70,21 @@ def test_force_elements_compiled_once_per_model_and_specs_and_right_for_each(tmp
         traj = pcmm.simulate(scene)
         t, q = np.asarray(traj.t), np.asarray(traj.series("q", "J1"))
         assert np.max(np.abs(q - 0.1 * np.cos(math.sqrt(k / I_c) * t))) < 1e-8
+
+
+def test_a_urdf_edited_between_two_runs_is_recorded_as_it_now_is(tmp_path):
+    """The views keep a URDF's text while the file is unchanged; an edit (a new size or
+    modification time) is read again, so a run records the file it ran on."""
+    import os
+
+    from pcmm.results.trajectory import _view
+
+    path = tmp_path / "m.urdf"
+    path.write_text(chain_urdf([Bar(0.5, 1.0)]))
+    first = _view(path)
+    assert set(first["joints"]) == {"J1"}
+    path.write_text(chain_urdf([Bar(0.5, 1.0), Bar(0.3, 1.0)]))
+    st = os.stat(path)
+    os.utime(path, ns=(st.st_atime_ns, st.st_mtime_ns + 1_000_000))  # a later modification, as an editor's
+    second = _view(path)
+    assert set(second["joints"]) == {"J1", "J2"} and second["urdf"] == path.read_text()

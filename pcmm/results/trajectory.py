@@ -17,6 +17,7 @@ from __future__ import annotations
 import csv
 import json
 import math
+import os
 import tomllib
 import xml.etree.ElementTree as ET
 import zipfile
@@ -547,9 +548,21 @@ def urdf_joints(urdf_text: str) -> dict[str, dict]:
     return {name: dict(joint) for name, joint in parsed.items()}
 
 
+_URDF_TEXTS: dict[str, tuple[tuple[int, int], str]] = {}  # {path: ((mtime_ns, size), text)} read once while unchanged
+
+
 def _view(urdf_path) -> dict:
-    text = Path(urdf_path).read_text(encoding="utf-8")
-    return {"urdf": text, "joints": urdf_joints(text)}
+    """A URDF file's view: its text as the file now has it (read again once its modification time
+    or size changes; every run records its scene's views) and its joints."""
+    path = os.fspath(urdf_path)
+    st = os.stat(path)
+    stamp = (st.st_mtime_ns, st.st_size)
+    kept = _URDF_TEXTS.get(path)
+    if kept is None or kept[0] != stamp:
+        if len(_URDF_TEXTS) >= _JOINTS_PARSED_MAX:
+            _URDF_TEXTS.pop(next(iter(_URDF_TEXTS)))
+        kept = _URDF_TEXTS[path] = (stamp, Path(path).read_text(encoding="utf-8"))
+    return {"urdf": kept[1], "joints": urdf_joints(kept[1])}
 
 
 def _configuration_view(c) -> dict:
