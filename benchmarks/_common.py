@@ -60,13 +60,15 @@ def machine() -> dict:
 
 
 def pcmm_fingerprint() -> str:
-    """sha1 (10 hex) of pcmm's source files as imported: pcmm is edited while benchmarks run, so every page
-    records which sources it measured (and their latest modification time)."""
+    """sha1 (10 hex) of pcmm's source files as imported (every subpackage's, and the compiled
+    extension's C++): pcmm is edited while benchmarks run, so every page records which sources it
+    measured (and their latest modification time)."""
     import pcmm
-    files = sorted(Path(pcmm.__file__).parent.glob("*.py"))
+    root = Path(pcmm.__file__).parent  # every subpackage's sources and the compiled extension's
+    files = sorted(f for pattern in ("*.py", "*.cpp", "*.hpp") for f in root.rglob(pattern))
     h = hashlib.sha1()
     for f in files:
-        h.update(f.name.encode())
+        h.update(str(f.relative_to(root)).encode())
         h.update(f.read_bytes())
     newest = max(f.stat().st_mtime for f in files)
     return f"{h.hexdigest()[:10]} (newest file {_dt.datetime.fromtimestamp(newest).astimezone():%Y-%m-%d %H:%M:%S %Z})"
