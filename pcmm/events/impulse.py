@@ -371,20 +371,24 @@ def joint_impulses(cfg: Configuration, q, dv, point_impulses):
     """
     model = cfg.model
     cache = cfg.impulse_models  # built once per model (createData is costly)
-    if "zero_gravity" not in cache:
+    kept = cache.get("joint_impulses")
+    if kept is None:
         m0 = model.copy()
         m0.gravity.linear[:] = 0.0
-        cache["zero_gravity"] = (m0, m0.createData())
-    m0, d0 = cache["zero_gravity"]
+        fext = pin.StdVec_Force()
+        for _ in range(model.njoints):
+            fext.append(pin.Force.Zero())
+        # each link's joint and each joint's name, read once per model; the external forces' vector,
+        # reset where the previous event loaded it
+        kept = cache["joint_impulses"] = (m0, m0.createData(), fext,
+                                          {link: model.frames[f].parentJoint for link, f in cfg.link_frame.items()},
+                                          list(model.names), np.zeros(model.nv), [])
+    m0, d0, fext, parent_joint, names, zero_v, loaded = kept
+    for jid in loaded:
+        fext[jid] = pin.Force.Zero()
+    loaded.clear()
     qp = cfg.to_pin(q)
     pin.forwardKinematics(m0, d0, qp)
-    fext = pin.StdVec_Force()
-    for _ in range(model.njoints):
-        fext.append(pin.Force.Zero())
-    if "parent_joint" not in cache:  # each link's joint and each joint's name, read once per model
-        cache["parent_joint"] = {link: model.frames[f].parentJoint for link, f in cfg.link_frame.items()}
-        cache["joint_names"] = list(model.names)
-    parent_joint, names = cache["parent_joint"], cache["joint_names"]
     for link, p, F, mz in point_impulses:
         jid = parent_joint[link]
         if jid == 0:
@@ -395,7 +399,8 @@ def joint_impulses(cfg: Configuration, q, dv, point_impulses):
         moment = np.array([py * 0.0 - 0.0 * fy + 0.0, 0.0 * fx - px * 0.0 + 0.0, px * fy - py * fx + mz])
         f_world = pin.Force(np.array([fx, fy, 0.0]), moment)
         fext[jid] = fext[jid] + d0.oMi[jid].actInv(f_world)
-    tau = pin.rnea(m0, d0, qp, np.zeros(model.nv), dv, fext)
+        loaded.append(jid)
+    tau = pin.rnea(m0, d0, qp, zero_v, dv, fext)
     out = {}
     for jid in range(1, model.njoints):
         f = d0.f[jid]
