@@ -129,12 +129,15 @@ def _forbidden(model, jid: int, q_joint: np.ndarray, known: dict) -> np.ndarray:
     return N
 
 
-def cut(cfg: Configuration, q: np.ndarray, joints: tuple[str, ...]) -> CutSystem:
-    """The cut system of ``cfg`` at pose ``q`` with ``joints`` released."""
+def cut(cfg: Configuration, q: np.ndarray, joints: tuple[str, ...], kinematics: bool = True) -> CutSystem:
+    """The cut system of ``cfg`` at pose ``q`` with ``joints`` released.  ``kinematics=False``: the
+    tree's placements and joint Jacobians at ``q`` are already on ``cfg.data``
+    (:meth:`Configuration.kinematics`), and are not computed again."""
     model, data = cfg.model, cfg.data
     joints = tuple(joints)
     qp = cfg.to_pin(q)
-    pin.computeJointJacobians(model, data, qp)  # placements (oMi, liMi) and the tree's Jacobians in one pass
+    if kinematics:
+        pin.computeJointJacobians(model, data, qp)  # placements (oMi, liMi) and the tree's Jacobians in one pass
     new, new_data, jmap, copies, cut_ids, known, layout = _structure(cfg, joints)
     for jid, _ in layout.planar_rows:
         new.jointPlacements[jmap[jid]] = data.oMi[jid]  # the planar joint starts at the child's pose
