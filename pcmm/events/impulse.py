@@ -182,7 +182,10 @@ def solve_impulse(cfg: Configuration, t: float, q: np.ndarray, v: np.ndarray, co
     data = cfg.data
     cfg.kinematics(q, v)  # placements, frames and joint Jacobians at the impact pose
     if plan.stop:
-        n, _ = joint_stop_row(cfg, cfg.model, data, contact)
+        if plan.prismatic:
+            n, _ = joint_stop_row(cfg, cfg.model, data, contact)
+        else:  # joint_stop_row's normal alone: against the child's y axis
+            n = -contact.stop_sign * data.oMf[plan.frame_b].rotation[:2, 1].copy()
         vn = float(plan.Jn_tree @ v)
         pos_a = pos_b = data.oMf[plan.frame_b].translation[:2].copy()
     else:
@@ -200,8 +203,11 @@ def solve_impulse(cfg: Configuration, t: float, q: np.ndarray, v: np.ndarray, co
         J_rel = (frame_jacobian(cs.model, cs.data, pb.frame_id)[:2]
                  - frame_jacobian(cs.model, cs.data, pa.frame_id)[:2])
         J_n = (n @ J_rel)[None, :]
-    else:
+    elif plan.prismatic:
         J_n = joint_stop_row(cfg, cs.model, cs.data, contact)[1][None, :]
+    else:  # joint_stop_row's row alone: -s (w_b - w_a)
+        J_n = (-contact.stop_sign * (frame_jacobian(cs.model, cs.data, plan.frame_b)[5]
+                                     - frame_jacobian(cs.model, cs.data, plan.frame_a)[5]))[None, :]
     G = np.concatenate((cs.J_cut, cfg.coords.equality(t, cs.model, cs.data)))
     W = _inverse_mass(M_f, cfg.name)
     if G.shape[0]:
