@@ -134,6 +134,7 @@ class _Plan:
     (their impulsive work).  Built at the first impact, kept with the configuration's model
     (``Configuration.impulse_models``) under everything it reads."""
 
+    contact: ContactSpec
     cut_joints: tuple[str, ...]  # tree joints cut at the impact
     cut_loops: tuple[str, ...]  # loop cut joints among the transition's cut (their rows are in G)
     stop: bool  # a joint stop (its own coordinate's row), else a point contact
@@ -149,17 +150,17 @@ class _Plan:
 def _plan(cfg: Configuration, contact: ContactSpec, cut_joints: tuple[str, ...]) -> _Plan:
     labels = tuple(cfg.coords.labels)
     loop_cuts = tuple(s.name for s in cfg.spec.cut_joints)
-    key = ("plan", contact, tuple(cut_joints), labels, loop_cuts)
-    kept = cfg.impulse_models
+    key = ("plan", id(contact), tuple(cut_joints), labels, loop_cuts)  # the contact by identity: its hash
+    kept = cfg.impulse_models  # walks all its fields, and a plan holds the contact it was made for
     plan = kept.get(key)
-    if plan is not None:
+    if plan is not None and plan.contact is contact:
         return plan
     Jn = None
     if contact.joint is not None:
         Jn = np.zeros(cfg.nv)
         Jn[cfg.joint_slice[contact.joint].start] = -contact.stop_sign
     plan = kept[key] = _Plan(
-        cut_joints=tuple(j for j in cut_joints if j not in loop_cuts),
+        contact=contact, cut_joints=tuple(j for j in cut_joints if j not in loop_cuts),
         cut_loops=tuple(j for j in cut_joints if j in loop_cuts),
         stop=contact.joint is not None,
         frictional=contact.joint is None and contact.friction is not None,
