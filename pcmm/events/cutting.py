@@ -19,6 +19,7 @@ from ..model.configuration import Configuration
 from ..model.pinocchio_helpers import LOCAL, frame_jacobian, joint_jacobian
 
 _PLANAR_ROWS = [0, 1, 5]  # vx, vy, wz of a spatial velocity
+_PLANAR_INDEX = np.array(_PLANAR_ROWS)  # the same rows as an index array (cheaper to apply)
 
 
 @dataclass
@@ -152,16 +153,17 @@ def cut(cfg: Configuration, q: np.ndarray, joints: tuple[str, ...], kinematics: 
     # T: tree velocity -> cut-system velocity
     T = layout.T0.copy()
     for jid, row in layout.planar_rows:
-        T[row:row + 3] = joint_jacobian(model, data, jid, LOCAL)[_PLANAR_ROWS]
+        T[row:row + 3] = joint_jacobian(model, data, jid, LOCAL)[_PLANAR_INDEX]
     rows, owner, dirs, rots = [], [], [], {}
     for name in joints:
         jid = cfg.joint_id[name]
-        child = joint_jacobian(new, new_data, jmap[jid], LOCAL)[_PLANAR_ROWS]
-        parent = frame_jacobian(new, new_data, copies[name], LOCAL)[_PLANAR_ROWS]
+        child = joint_jacobian(new, new_data, jmap[jid], LOCAL)[_PLANAR_INDEX]
+        parent = frame_jacobian(new, new_data, copies[name], LOCAL)[_PLANAR_INDEX]
+        relative = child - parent  # the child's velocity relative to the parent's copy of its frame
         jm = model.joints[jid]
         N = _forbidden(model, jid, qp[jm.idx_q:jm.idx_q + jm.nq], known)
         for k in range(N.shape[1]):
-            rows.append(N[:, k] @ (child - parent))
+            rows.append(N[:, k] @ relative)
             owner.append(name)
             dirs.append(N[:, k])
         rots[name] = data.oMi[jid].rotation[:2, :2].copy()

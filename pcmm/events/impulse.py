@@ -134,6 +134,7 @@ class _Plan:
     (their impulsive work).  Built at the first impact, kept with the configuration's model
     (``Configuration.impulse_models``) under everything it reads."""
 
+    contact: ContactSpec
     cut_joints: tuple[str, ...]  # tree joints cut at the impact
     cut_loops: tuple[str, ...]  # loop cut joints among the transition's cut (their rows are in G)
     stop: bool  # a joint stop (its own coordinate's row), else a point contact
@@ -149,17 +150,17 @@ class _Plan:
 def _plan(cfg: Configuration, contact: ContactSpec, cut_joints: tuple[str, ...]) -> _Plan:
     labels = tuple(cfg.coords.labels)
     loop_cuts = tuple(s.name for s in cfg.spec.cut_joints)
-    key = ("plan", contact, tuple(cut_joints), labels, loop_cuts)
-    kept = cfg.impulse_models
+    key = ("plan", id(contact), tuple(cut_joints), labels, loop_cuts)  # the contact by identity: its hash
+    kept = cfg.impulse_models  # walks all its fields, and a plan holds the contact it was made for
     plan = kept.get(key)
-    if plan is not None:
+    if plan is not None and plan.contact is contact:
         return plan
     Jn = None
     if contact.joint is not None:
         Jn = np.zeros(cfg.nv)
         Jn[cfg.joint_slice[contact.joint].start] = -contact.stop_sign
     plan = kept[key] = _Plan(
-        cut_joints=tuple(j for j in cut_joints if j not in loop_cuts),
+        contact=contact, cut_joints=tuple(j for j in cut_joints if j not in loop_cuts),
         cut_loops=tuple(j for j in cut_joints if j in loop_cuts),
         stop=contact.joint is not None,
         frictional=contact.joint is None and contact.friction is not None,
@@ -182,7 +183,10 @@ def solve_impulse(cfg: Configuration, t: float, q: np.ndarray, v: np.ndarray, co
     data = cfg.data
     cfg.kinematics(q, v)  # placements, frames and joint Jacobians at the impact pose
     if plan.stop:
-        n, _ = joint_stop_row(cfg, cfg.model, data, contact)
+        if plan.prismatic:
+            n, _ = joint_stop_row(cfg, cfg.model, data, contact)
+        else:  # joint_stop_row's normal alone: against the child's y axis
+            n = -contact.stop_sign * data.oMf[plan.frame_b].rotation[:2, 1].copy()
         vn = float(plan.Jn_tree @ v)
         pos_a = pos_b = data.oMf[plan.frame_b].translation[:2].copy()
     else:
@@ -200,8 +204,11 @@ def solve_impulse(cfg: Configuration, t: float, q: np.ndarray, v: np.ndarray, co
         J_rel = (frame_jacobian(cs.model, cs.data, pb.frame_id)[:2]
                  - frame_jacobian(cs.model, cs.data, pa.frame_id)[:2])
         J_n = (n @ J_rel)[None, :]
-    else:
+    elif plan.prismatic:
         J_n = joint_stop_row(cfg, cs.model, cs.data, contact)[1][None, :]
+    else:  # joint_stop_row's row alone: -s (w_b - w_a)
+        J_n = (-contact.stop_sign * (frame_jacobian(cs.model, cs.data, plan.frame_b)[5]
+                                     - frame_jacobian(cs.model, cs.data, plan.frame_a)[5]))[None, :]
     G = np.concatenate((cs.J_cut, cfg.coords.equality(t, cs.model, cs.data)))
     W = _inverse_mass(M_f, cfg.name)
     if G.shape[0]:

@@ -392,6 +392,8 @@ class Configuration:
         return sl.start + PLANAR_PARTS.index(part)
 
     def by_joint(self, x: np.ndarray) -> dict[str, float | list[float]]:
+        if not self._planar and len(x) == self.nv == len(self.joint_names):  # one entry per joint, in order
+            return dict(zip(self.joint_names, np.asarray(x, float).tolist()))
         out = {}
         for name in self.joint_names:
             sl = self.joint_slice[name]

@@ -35,15 +35,16 @@ _F, _I, _C, _O = "f", "i", "c", "o"
 
 def _layout(obj, numbers: list, aside: list):
     """The hashable layout of ``obj``; its numbers appended to ``numbers``, its rich values to ``aside``.
-    (Dispatched on the exact type, the common ones first: a record is appended at every event.)"""
+    (Dispatched on the exact type, the common ones first, a container's float items read in its
+    own loop: a record is appended at every event.)"""
     kind = type(obj)
     if kind is float or kind is np.float64:
         numbers.append(obj)
         return _F
     if kind is dict:
-        return ("d", tuple(obj), tuple([_layout(v, numbers, aside) for v in obj.values()]))
+        return ("d", tuple(obj), _items(obj.values(), numbers, aside))
     if kind is list:
-        return ("l", tuple([_layout(v, numbers, aside) for v in obj]))
+        return ("l", _items(obj, numbers, aside))
     if kind is str:
         if len(obj) <= SHORT_TEXT:
             return (_C, obj)
@@ -54,13 +55,25 @@ def _layout(obj, numbers: list, aside: list):
             numbers.append(obj)
             return _I
     elif kind is tuple:
-        return ("t", tuple([_layout(v, numbers, aside) for v in obj]))
+        return ("t", _items(obj, numbers, aside))
     elif isinstance(obj, np.float64):
         numbers.append(obj)
         return _F
     numbers.append(len(aside))  # a message, an array, anything else: kept as it is
     aside.append(obj)
     return _O
+
+
+def _items(values, numbers: list, aside: list) -> tuple:
+    """The layouts of a container's ``values`` (:func:`_layout` of each; a float's here)."""
+    out = []
+    for v in values:
+        if type(v) is float:
+            numbers.append(v)
+            out.append(_F)
+        else:
+            out.append(_layout(v, numbers, aside))
+    return tuple(out)
 
 
 def _build(layout, row, pos: int, aside: list):
