@@ -90,11 +90,34 @@ def released_A(q, w1, w2):
     return w1p, w2p, v_A
 
 
-def walker(make_scene, w1, w2, target="double", configurations=("single_a", "double", "single_b"), t_end=0.05):
-    """The walker on A, leg 1 leaning forward of the strike posture by 0.02 rad, turning at w1 and leg 2 at w2
-    (absolute rates), B above the ground, with a pin strike of B into ``target``."""
-    th1 = math.acos(STANCE / L) + 0.02
-    th2 = -math.acos(STANCE / L)
+def bounce_on_A(q, w1, w2, e):
+    """(w1+, w2+, P_B, P_A) of B striking the ground frictionless with restitution e while A stays
+    pinned: the walker's angular momentum about A and leg 2's about the hip change by B's impulse
+    (0, P_B) only, B's normal velocity after is -e times before; P_A is the rest of the momentum change."""
+    A, G1, hip, G2, B, _, _ = _points(q)
+
+    def state(a, b):  # (H about A, H2 about the hip, vB_y, total momentum) at rates a, b with A fixed
+        vG1, v_hip = _z(a, G1 - A), _z(a, hip - A)
+        vG2, vB = v_hip + _z(b, G2 - hip), v_hip + _z(b, B - hip)
+        H_A = I_G * a + M * _cross(G1 - A, vG1) + I_G * b + M * _cross(G2 - A, vG2)
+        H2 = I_G * b + M * _cross(G2 - hip, vG2)
+        return np.array([H_A, H2, vB[1]]), M * (vG1 + vG2)
+    (H_A, H2, vB_y), p0 = state(w1, w2)
+    c1, c2 = state(1.0, 0.0)[0], state(0.0, 1.0)[0]
+    # [c1 c2 -lever] (w1+, w2+, P) = (H_A, H2, -e vB_y), the levers (B - A) x (0, 1) and (B - hip) x (0, 1)
+    K = np.array([[c1[0], c2[0], -(B - A)[0]], [c1[1], c2[1], -(B - hip)[0]], [c1[2], c2[2], 0.0]])
+    w1p, w2p, P_B = np.linalg.solve(K, [H_A, H2, -e * vB_y])
+    P_A = state(w1p, w2p)[1] - p0 - np.array([0.0, P_B])
+    return w1p, w2p, P_B, P_A
+
+
+def walker(make_scene, w1, w2, target="double", configurations=("single_a", "double", "single_b"), t_end=0.05,
+           bounce=None, stance=STANCE):
+    """The walker on A, its feet ``stance`` from the hip across, leg 1 leaning 0.02 rad back from that
+    posture, turning at w1 and leg 2 at w2 (absolute rates), B above the ground, with a pin strike of B
+    into ``target`` (or a bounce off the ground)."""
+    th1 = math.acos(stance / L) + 0.02
+    th2 = -math.acos(stance / L)
 
     def pin_(name, link, x):
         return {"name": name, "type": "revolute", "a": "frame", "point_a": "entry", "b": link, "point_b": [x, 0.0],
@@ -105,6 +128,10 @@ def walker(make_scene, w1, w2, target="double", configurations=("single_a", "dou
             "guard": {"type": "gap", "value": 0.0, "direction": "decreasing"},
             "contact": {"a": "frame", "point_a": [0.0, 0.0], "b": "link2", "point_b": [L, 0.0], "normal": [0.0, 1.0],
                         "friction": "stick"}}
+    if bounce is not None:  # B bounces off the ground (a stop, frictionless, restitution ``bounce``) instead
+        land = {"name": "B hits", "type": "stop", "from": "single_a", "restitution": bounce, "cut": [],
+                "guard": land["guard"], "contact": {**land["contact"], "friction": None}}
+        del land["contact"]["friction"]
     return make_scene({"c.urdf": chain_urdf([Bar(L, M, joint="planar"), Bar(L, M)])},
                       configurations={c: {"urdf": "c.urdf", "cut_joints": cuts[c]} for c in configurations},
                       q0={"J1": [0.0, 0.0, th1], "J2": th2 - th1}, v0={"J1": [0.0, 0.0, w1], "J2": w2 - w1},
@@ -163,3 +190,32 @@ def test_without_a_configuration_to_release_into_the_strike_stops_with_the_reaso
     assert "'B lands'" in text and "'foot_a'" in text and "pulled" in text
     assert "'double'" in text and "without 'foot_a'" in text
     assert caught.value.partial.segments[-1].configuration == "single_a"
+
+
+@pytest.mark.parametrize("w1, w2, stance, pulled", [(-1.0, 0.0, STANCE, True), (0.0, -2.0, 0.7, False)])
+def test_a_bounce_that_would_pull_a_held_foot_stops_with_the_reason(make_scene, w1, w2, stance, pulled):
+    """B bouncing off the ground (a stop, e = 0.5) while A stays pinned.  Where the bounce's impulse on
+    A is compressive (by hand) the run bounces with it; where it is tensile, A would leave the ground
+    in the same impact, which a stop does not resolve: the run stops there, naming A and its impulse,
+    instead of pulling it silently.  (With B frictionless the ratio P_A / P_B is the walker's geometry's:
+    tensile with the feet 0.3 m from the hip across, compressive at 0.7 m.)"""
+    path = walker(make_scene, w1, w2, configurations=("single_a",), bounce=0.5, t_end=0.03, stance=stance)
+    if not pulled:
+        traj = pcmm.simulate(pcmm.load_scene(path))
+        q, a, b = _strike_state(traj)
+        w1p, w2p, P_B, P_A = bounce_on_A(q, a, b, 0.5)
+        assert P_A[1] > 0.05 and P_B > 0
+        hit = traj.events[0]
+        assert hit["name"] == "B hits" and hit["impulse"]["normal"] == pytest.approx(P_B, rel=1e-9)
+        np.testing.assert_allclose(hit["constraint_impulses"]["foot_a"][:2], P_A, rtol=1e-9, atol=1e-12)
+        assert hit["v_after"]["J1"][2] == pytest.approx(w1p, rel=1e-9)
+        return
+    with pytest.raises(pcmm.SimulationError) as caught:
+        pcmm.simulate(pcmm.load_scene(path))
+    seg = caught.value.partial.segments[-1]
+    q, a, b = seg.q[-1], seg.v[-1][2], seg.v[-1][2] + seg.v[-1][3]
+    P_A = bounce_on_A(q, a, b, 0.5)[3]
+    assert P_A[1] < -0.05  # tensile by hand
+    text = str(caught.value)
+    assert "'B hits'" in text and "'foot_a'" in text and "pull" in text
+    assert f"{P_A[1]:.4g}" in text

@@ -101,6 +101,31 @@ def held_in_both(cfg: Configuration, dst: Configuration, struck: str):
     return out
 
 
+def check_held_points_push(cfg: Configuration, q, imp: Impulse, where: str) -> None:
+    """An impact of ``cfg`` (a bounce, a merge, contacts at once) must not pull a point ``cfg``
+    holds by compression only (a cut joint with a contact normal): such a point would leave the
+    surface in the same impact, which only a pin strike resolves (:func:`pin_strike`).  Raises
+    naming the point and its impulse instead of applying a tensile one."""
+    if not getattr(cfg.coords, "constrained", False) or not imp.constraint_impulses:
+        return
+    closure = cfg.coords.closure
+    cfg.kinematics(q)
+    forces = [imp.constraint_impulses.get(s.name) for s in closure.specs]
+    scale = max([abs(imp.P)] + [float(np.hypot(F[0], F[1])) for F in forces if F is not None])
+    for k, (s, F) in enumerate(zip(closure.specs, forces)):
+        if s.normal is None or F is None:
+            continue
+        n = cfg.data.oMf[closure.links_a[k]].rotation[:2, :2] @ np.asarray(s.normal, float)
+        P = float(n @ np.asarray(F[:2], float)) / float(np.linalg.norm(n))
+        if P < -SIGN_TOL * scale:
+            raise SimulationError(f"{where}: the impact would pull the point held by '{s.name}' (normal impulse "
+                                  f"{P:.6g} N s; it is held by compression only), so the point would leave the "
+                                  "surface in this impact, which pcmm resolves only at a pin strike: model the "
+                                  f"impact as a 'pin' into a configuration without '{s.name}' (its complementarity "
+                                  "decides whether the point stays), or hold the point by a cut joint without a "
+                                  "contact normal; pcmm does not apply a tensile impulse to it")
+
+
 def _released_target(scene, target: str, lifted: list[str]) -> str | None:
     """The configuration like ``target`` without the cut joints ``lifted`` (the one each lifts off
     into by itself, :meth:`~pcmm.scene.spec.SceneSpec.lift_off_target`), or None."""
