@@ -47,7 +47,7 @@ from .records import by_link, event_record
 from .guards import guard_value
 from .entry import VELOCITY_ROUNDOFF, Entry, enter, joints_from_poses, map_state, pose_mismatches  # noqa: F401 - re-exported
 from .impulse import Impulse, no_impulse, solve_impulse
-from .pins import pin_strike
+from .pins import check_held_points_push, pin_strike
 from .simultaneous import closed_with, simultaneous_impact
 from ..scene.spec import GuardSpec, LatchSpec, ReleaseSpec, StopSpec, TransitionSpec
 
@@ -143,6 +143,8 @@ def _merge(ctx: Context, cfg: Configuration, tr: TransitionSpec, target: str, t,
         imp = no_impulse(cfg, q, v, v_after, tr.contact)
     if imp.impact and transition_type == "latch":
         check_latch_compressive(tr, t, imp, v)
+    if imp.impact:
+        check_held_points_push(cfg, q, imp, f"t = {t:.9g} s, transition '{tr.name}'")
     if imp.impact:
         scale = max(1.0, float(np.max(np.abs(v))))
         moving = {n: float(v_after[cfg.joint_slice[n]][0]) for n in locked
@@ -248,6 +250,7 @@ def handle_stop(ctx: Context, cfg: Configuration, tr: StopSpec, t, q, v) -> Outc
                 f"{abs(rest_speed):.3g} m/s) and the bodies come to rest in contact; give the stop a "
                 "merge_to configuration so the run can continue with the bodies merged")
         return _merge(ctx, cfg, tr, tr.merge_to, t, q, v, "stop")
+    check_held_points_push(cfg, q, imp, f"t = {t:.9g} s, transition '{tr.name}'")
     record = event_record(cfg, tr, t, cfg.name, False, imp, q=q)
     q_new, v_new, _, _ = switch(cfg, cfg, t, q, imp.v_after, what=f"bounce at '{tr.name}'")
     return Outcome(cfg.name, q_new, v_new, record, {})
@@ -256,6 +259,7 @@ def handle_stop(ctx: Context, cfg: Configuration, tr: StopSpec, t, q, v) -> Outc
 def _simultaneous(ctx: Context, cfg: Configuration, trs: list, t, q, v) -> Outcome:
     """Stops whose contacts are closed at once bounce together (:mod:`pcmm.events.simultaneous`)."""
     imp, block, warnings = simultaneous_impact(cfg, trs, t, q, v)
+    check_held_points_push(cfg, q, imp, f"t = {t:.9g} s, transitions {', '.join(repr(s.name) for s in trs)}")
     for s in trs:
         ctx.last_impact[s.name] = t
     record = event_record(cfg, trs[0], t, cfg.name, False, imp, q=q)
