@@ -474,7 +474,7 @@ def cross2(a, b) -> float:
 
 def driven_cart_pendulum(folder: Path, coefficients=(0.1, 0.2, 0.9, -0.4), e: float = 0.6, m: float = 0.8,
                          L: float = 0.5, m_cart: float = 1.3, q_stop: float = -1.2, t_end: float = 1.5,
-                         solver=None) -> Path:
+                         solver=None, forces=()) -> Path:
     """A cart on the prismatic joint ``X`` (along x) DRIVEN: x(t) = poly(coefficients); a uniform bar
     (m, L) hangs on the revolute ``J1`` at the cart's origin (q = angle from +x), released horizontal
     and at rest, and falls onto a pin on the cart at q = q_stop (a joint stop, restitution e) whose
@@ -491,6 +491,6 @@ def driven_cart_pendulum(folder: Path, coefficients=(0.1, 0.2, 0.9, -0.4), e: fl
     doc = base_doc("driven_cart_pendulum", "swing", {"swing": "cart.urdf", "rest": {"from": "swing", "lock": {"J1": q_stop}}},
                    {"X": float(coefficients[0]), "J1": 0.0}, {"X": float(coefficients[1]) if len(coefficients) > 1 else 0.0,
                                                               "J1": 0.0},
-                   t_end=t_end, solver=solver, transitions=[tr],
+                   t_end=t_end, solver=solver, transitions=[tr], forces=list(forces),
                    drives=[{"joint": "X", "coefficients": [float(c) for c in coefficients]}])
     return write_scene(folder, doc, {"cart.urdf": urdf})

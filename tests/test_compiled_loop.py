@@ -369,10 +369,20 @@ def test_dop853f_steps_a_driven_configuration_in_the_compiled_loop(tmp_path, mon
 
 def test_drives_that_cannot_be_compiled_say_why(tmp_path):
     """Where the drives' right-hand side is not compiled, the configuration says why and evaluates in
-    Python: every coordinate driven (nothing to integrate), and a loop (its Newton solve)."""
+    Python: every coordinate driven (nothing to integrate), a loop (its Newton solve), point springs
+    (not the linear force elements the compiled tree holds); a run there builds no compiled tree."""
     import pcmm
     from builders import EXAMPLES, driven_cart_pendulum
     from pcmm.model.mechanism import Mechanism
+    spring = {"name": "tie", "type": "point_spring", "a": "link1", "point_a": [0.5, 0.0], "b": "cart",
+              "point_b": [0.0, -0.3], "k": 20.0, "rest": 0.2}
+    path = driven_cart_pendulum(tmp_path / "sprung", t_end=0.2, forces=[spring])
+    sprung = Mechanism(pcmm.load_scene(path))["swing"].coords
+    assert sprung._drives_refused == "point springs" and sprung._compiled_drives() is None
+    assert sprung.evaluations == "python: not compiled: point springs"
+    compiled.forget_trees()
+    run = pcmm.simulate(pcmm.load_scene(path))
+    assert run.stats["evaluations"]["swing"] == "python: not compiled: point springs" and compiled.trees_built() == 0
     mech = Mechanism(pcmm.load_scene(driven_cart_pendulum(tmp_path)))
     rest = mech["rest"].coords
     assert rest._drives_refused == "every coordinate driven" and rest._compiled_drives() is None

@@ -625,7 +625,7 @@ _PROGRESS_STEPS = 21
 #: error norm 1.1e-8), so the summation order of numpy's BLAS dot products against the loop's decides
 #: the next step size: examples/three_bar_cycle.toml's steps part at its third step, and its 531
 #: event times then differ from the Python-stepped run's by up to 7.6e-10 s (the tolerance's
-#: size, not 1e-12), for 3 % of its run time (benchmarks/segment_loop.py --drives).  The compiled
+#: size, not 1e-12), for 2 % of its run time (benchmarks/segment_loop.py --drives).  The compiled
 #: right-hand side of drives is what makes that run faster, with the same events to the bit.
 COMPILED_SCIPY_STEPS = False
 
