@@ -13,7 +13,19 @@ process, alternating the two paths run by run (the repetitions are the outer loo
 Both use the same compiled right-hand side, so the ratio is the stepping loop's alone.  Also
 prints the largest event-time difference between the two.
 
+With ``--drives`` (default scene ``examples/three_bar_cycle.toml``: drives without loops, stepped by
+scipy's DOP853 under "auto") the paths are three, alternating likewise:
+
+* *Python evaluations*: ``PCMM_COMPILED=0`` (the right-hand side of drives in Python, as before
+  issue 26's compiled drives; the trees' too);
+* *compiled rhs*: the drives' right-hand side compiled whole (pcmm.model.compiled.drive_tree),
+  stepped by pcmm's DOP853 in Python: the default;
+* *compiled rhs + loop*: the same, stepped by the compiled loop as scipy's DOP853
+  (``pcmm.ode.integrators.COMPILED_SCIPY_STEPS = True``: not the default, its steps are not numpy's
+  to the bit).
+
     python benchmarks/segment_loop.py [--scene examples/three_bar.toml] [--reps 21]
+    python benchmarks/segment_loop.py --drives [--scene examples/three_bar_cycle.toml] [--reps 5]
 """
 from __future__ import annotations
 
@@ -37,15 +49,20 @@ ROOT = Path(__file__).resolve().parents[1]
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--scene", type=Path, default=ROOT / "examples" / "three_bar.toml")
-    ap.add_argument("--reps", type=int, default=21)
+    ap.add_argument("--reps", type=int, default=None, help="alternating runs per path (default 21; 5 with --drives)")
+    ap.add_argument("--drives", action="store_true", help="the three paths of a scene with drives (see above)")
     args = ap.parse_args(argv)
     td = compiled._tree_dynamics
     if td is None or not hasattr(td, "SegmentLoop"):
         print(f"no compiled segment loop in this build: {compiled.why_not()}", file=sys.stderr)
         return 1
+    if args.drives:
+        return drives(args.scene if args.scene != ap.get_default("scene") else ROOT / "examples" / "three_bar_cycle.toml",
+                      args.reps or 5)
+    args.reps = args.reps or 21
     scene = pcmm.load_scene(args.scene)
     register = compiled._register_segment_loop
-    compiled._register_segment_loop = lambda: None  # the paths are chosen here, run by run
+    compiled._register_segment_loop = lambda *args: None  # the paths are chosen here, run by run
     paths = {"compiled loop": {td.Tree: td.SegmentLoop}, "Python-stepped": {}}
     times = {name: [] for name in paths}
     runs = {}
@@ -72,6 +89,41 @@ def main(argv=None) -> int:
     print(f"  speed-up {med['Python-stepped'] / med['compiled loop']:.2f}x (per alternating pair: median "
           f"{statistics.median(pairs):.2f}x, range {pairs[0]:.2f}-{pairs[-1]:.2f}); "
           f"largest event-time difference {dt:.2g} s")
+    return 0
+
+
+def drives(path: Path, reps: int) -> int:
+    """The three paths of a scene with drives (the module's docstring), alternating run by run."""
+    scene = pcmm.load_scene(path)
+    paths = {"Python evaluations": ("0", False), "compiled rhs": ("1", False), "compiled rhs + loop": ("1", True)}
+    times = {name: [] for name in paths}
+    runs = {}
+    before = os.environ.get(compiled.ENV)
+    try:
+        for rep in range(reps + 1):  # the first round warms up
+            for name, (env, loop) in (paths.items() if rep % 2 else reversed(paths.items())):
+                os.environ[compiled.ENV] = env
+                integrators.COMPILED_SCIPY_STEPS = loop
+                t0 = time.process_time()
+                runs[name] = pcmm.simulate(scene)
+                if rep:
+                    times[name].append(time.process_time() - t0)
+    finally:
+        integrators.COMPILED_SCIPY_STEPS = False
+        if before is None:
+            os.environ.pop(compiled.ENV, None)
+        else:
+            os.environ[compiled.ENV] = before
+    base = runs["Python evaluations"]
+    med = {name: statistics.median(ts) for name, ts in times.items()}
+    print(f"{path.name}: pcmm.simulate, CPU time, median of {reps} alternating runs; load average "
+          f"{' '.join(f'{x:.1f}' for x in os.getloadavg())}")
+    for name in paths:
+        run = runs[name]
+        dt = max((abs(a["t"] - b["t"]) for a, b in zip(run.events, base.events, strict=True)), default=0.0)
+        print(f"  {name:20s} {1e3 * med[name]:8.1f} ms  x{med['Python evaluations'] / med[name]:.2f}  "
+              f"({run.stats['steps']} steps, {run.stats['rhs_evals']} evaluations, {len(run.events)} events; "
+              f"largest event-time difference from the Python evaluations' {dt:.2g} s)")
     return 0
 
 

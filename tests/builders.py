@@ -470,3 +470,27 @@ def rot(theta: float) -> np.ndarray:
 
 def cross2(a, b) -> float:
     return float(a[0] * b[1] - a[1] * b[0])
+
+
+def driven_cart_pendulum(folder: Path, coefficients=(0.1, 0.2, 0.9, -0.4), e: float = 0.6, m: float = 0.8,
+                         L: float = 0.5, m_cart: float = 1.3, q_stop: float = -1.2, t_end: float = 1.5,
+                         solver=None) -> Path:
+    """A cart on the prismatic joint ``X`` (along x) DRIVEN: x(t) = poly(coefficients); a uniform bar
+    (m, L) hangs on the revolute ``J1`` at the cart's origin (q = angle from +x), released horizontal
+    and at rest, and falls onto a pin on the cart at q = q_stop (a joint stop, restitution e) whose
+    bounces merge into 'rest' (J1 locked: every coordinate driven).  No loop: the drive prescribes X.
+    With a = x''(t), the bar's pivot accelerates along x: (m L^2 / 3) q'' = -m g (L/2) cos q
+    + m a (L/2) sin q, and the drive's force is (m_cart + m) a - m (L/2) (q'' sin q + q'^2 cos q)."""
+    urdf = robot_xml("cart_pendulum", link_xml("frame"),
+                     joint_xml("X", "prismatic", "frame", "cart", axis=(1.0, 0.0, 0.0)),
+                     solid_xml("cart", m_cart, 0.05),
+                     joint_xml("J1", "revolute", "cart", "link1"), bar_xml("link1", L, m))
+    tr = stop("pin", "swing", e, {"type": "coordinate", "measure": {"joint": "J1"}, "value": q_stop,
+                                  "direction": "decreasing"},
+              {"joint": "J1", "arm": L / 2}, merge_to="rest", cut=["J1"])
+    doc = base_doc("driven_cart_pendulum", "swing", {"swing": "cart.urdf", "rest": {"from": "swing", "lock": {"J1": q_stop}}},
+                   {"X": float(coefficients[0]), "J1": 0.0}, {"X": float(coefficients[1]) if len(coefficients) > 1 else 0.0,
+                                                              "J1": 0.0},
+                   t_end=t_end, solver=solver, transitions=[tr],
+                   drives=[{"joint": "X", "coefficients": [float(c) for c in coefficients]}])
+    return write_scene(folder, doc, {"cart.urdf": urdf})

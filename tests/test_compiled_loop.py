@@ -107,7 +107,7 @@ def _simulate(path, monkeypatch, loops: dict):
     import pcmm
     from pcmm.ode import integrators
     monkeypatch.setattr(integrators, "SEGMENT_LOOPS", loops)
-    monkeypatch.setattr(compiled, "_register_segment_loop", lambda: None)
+    monkeypatch.setattr(compiled, "_register_segment_loop", lambda *args: None)
     return pcmm.simulate(pcmm.load_scene(path))
 
 
@@ -182,7 +182,7 @@ def test_a_spent_step_budget_stops_both_paths_alike(monkeypatch, budget):
     from builders import EXAMPLES
     from pcmm.errors import SimulationError
     from pcmm.ode import integrators
-    monkeypatch.setattr(compiled, "_register_segment_loop", lambda: None)
+    monkeypatch.setattr(compiled, "_register_segment_loop", lambda *args: None)
     scene = pcmm.load_scene(EXAMPLES / "three_bar.toml")
     outcomes = []
     for loops in ({td.Tree: td.SegmentLoop}, {}):
@@ -255,3 +255,186 @@ def test_a_guards_affine_form_is_its_value(scene):
         assert make_guard(cfg, tr, rearm=True, context=0.3).affine is None
         checked += 1
     assert checked >= 1
+
+
+# ---- drives without loops: prescribed coordinates, the right-hand side compiled whole ---------------------------------
+G = 9.81
+
+
+def _cart_state(t, coefficients):
+    """x(t), x'(t), x''(t) of the cart's drive (a polynomial, low order first), by hand."""
+    c = np.asarray(coefficients, float)
+    x = sum(ck * t**k for k, ck in enumerate(c))
+    x1 = sum(k * ck * t**(k - 1) for k, ck in enumerate(c) if k >= 1)
+    x2 = sum(k * (k - 1) * ck * t**(k - 2) for k, ck in enumerate(c) if k >= 2)
+    return x, x1, x2
+
+
+@runs_loop
+def test_a_driven_carts_compiled_right_hand_side_is_the_closed_form(tmp_path):
+    """The cart's x(t) prescribed (a cubic: its f'' varies), the bar free on it: the compiled rhs is
+    (m L^2 / 3) q'' = -m g (L/2) cos q + m x'' (L/2) sin q, and rhs_with_power's last entry the drive
+    force's power F x' with F = (m_cart + m) x'' - m (L/2) (q'' sin q + q'^2 cos q) (no force
+    element): both derived by hand, at random states and times."""
+    import pcmm
+    from builders import driven_cart_pendulum
+    from pcmm.model.mechanism import Mechanism
+    coefficients, m, L, m_cart = (0.1, 0.2, 0.9, -0.4), 0.8, 0.5, 1.3
+    cfg = Mechanism(pcmm.load_scene(driven_cart_pendulum(tmp_path, coefficients, m=m, L=L, m_cart=m_cart)))["swing"]
+    coords = cfg.coords
+    assert coords.evaluations == "compiled" and coords._compiled_drives() is not None
+    assert list(coords.I) == [cfg.joint_slice["J1"].start] and list(coords.D) == [cfg.joint_slice["X"].start]
+    rng = np.random.default_rng(26)
+    for _ in range(8):
+        t, q, w = rng.uniform(0.0, 2.0), rng.uniform(-3.0, 3.0), rng.uniform(-4.0, 4.0)
+        _, x1, x2 = _cart_state(t, coefficients)
+        qdd = (-m * G * L / 2 * np.cos(q) + m * x2 * L / 2 * np.sin(q)) / (m * L * L / 3)
+        force = (m_cart + m) * x2 - m * L / 2 * (qdd * np.sin(q) + w * w * np.cos(q))
+        y = np.array([q, w])
+        np.testing.assert_allclose(coords.rhs(t, y), [w, qdd], rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(coords.rhs_with_power(t, np.append(y, 0.3)), [w, qdd, force * x1], rtol=1e-12,
+                                   atol=1e-12)
+        # and the Python evaluation it replaces, to round-off
+        np.testing.assert_allclose(coords.rhs(t, y), coords._python_rhs(t, y), rtol=1e-14, atol=1e-14)
+
+
+def _drive_scene(name, tmp_path):
+    from builders import EXAMPLES, driven_cart_pendulum
+    return driven_cart_pendulum(tmp_path) if name == "cart" else EXAMPLES / name
+
+
+@runs_loop
+@pytest.mark.parametrize("scene", ["cart", "three_bar_cycle.toml"])
+def test_drive_runs_with_the_compiled_right_hand_side_are_the_python_runs(tmp_path, monkeypatch, scene):
+    """Every configuration with drives and a free coordinate evaluates its right-hand side compiled
+    (before issue 26's drives: 'python: not compiled: drives only'), and the run is the Python
+    evaluations' run (PCMM_COMPILED=0): the same events at the same times (1e-12 s), the same steps,
+    states to 1e-10."""
+    import pcmm
+    path = _drive_scene(scene, tmp_path)
+    fast = pcmm.simulate(pcmm.load_scene(path))
+    driven = {name for name, why in fast.stats["evaluations"].items()}
+    assert driven and all(why == "compiled" or why.endswith("every coordinate driven")
+                          for why in fast.stats["evaluations"].values()), fast.stats["evaluations"]
+    assert "compiled" in fast.stats["evaluations"].values()
+    monkeypatch.setenv("PCMM_COMPILED", "0")
+    slow = pcmm.simulate(pcmm.load_scene(path))
+    assert all(why.startswith("python") for why in slow.stats["evaluations"].values())
+    assert len(fast.events) >= 4
+    assert [e["name"] for e in fast.events] == [e["name"] for e in slow.events]
+    for a, b in zip(fast.events, slow.events, strict=True):
+        assert abs(a["t"] - b["t"]) <= 1e-12
+    assert fast.stats["steps"] == slow.stats["steps"]
+    assert len(fast.segments) == len(slow.segments)
+    for a, b in zip(fast.segments, slow.segments):
+        assert a.t.shape == b.t.shape
+        np.testing.assert_allclose(a.t, b.t, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(a.q, b.q, rtol=0, atol=1e-10)
+        np.testing.assert_allclose(a.v, b.v, rtol=0, atol=1e-10)
+
+
+@runs_loop
+def test_dop853f_steps_a_driven_configuration_in_the_compiled_loop(tmp_path, monkeypatch):
+    """Under DOP853F the driven cart's segments (its flights between bounces with their work appended:
+    rhs_with_power) run in the compiled loop (Hairer's steps, the stages at their own times), and the
+    run is the Python-stepped Fortran code's: the first segment's steps to 1e-12 s, events to 1e-12 s,
+    every segment's end states to 1e-10.  (After a bounce the two restart from impact states located
+    on different dense outputs, contd8 against scipy's re-taken step, a few ulp apart; at rtol 1e-10
+    the error estimate of a step is of round-off size, so their steps part, by up to 6e-9 s in the
+    flights' step times, while the states at the events agree: as for a tree: test_a_time_guard_is_scanned_in_the_loop)"""
+    from builders import driven_cart_pendulum
+    from pcmm.model.partitioned import PartitionedCoordinates, _drive_segment_loop
+    path = driven_cart_pendulum(tmp_path, solver={"method": "DOP853F", "rtol": 1e-10, "atol": 1e-12})
+    made = []
+
+    def counting(*args, **options):
+        made.append(options)
+        return _drive_segment_loop(*args, **options)
+    fast = _simulate(path, monkeypatch, {td.Tree: td.SegmentLoop, PartitionedCoordinates: counting})
+    slow = _simulate(path, monkeypatch, {})
+    assert len(made) == len(fast.events) + 1  # every segment of 'swing' (the last: to t_end)
+    assert sum(1 for o in made if o.get("power")) == len(fast.events)  # the flights after each bounce
+    assert len(fast.events) >= 4 and [e["name"] for e in fast.events] == [e["name"] for e in slow.events]
+    for a, b in zip(fast.events, slow.events, strict=True):
+        assert abs(a["t"] - b["t"]) <= 1e-12
+    first, first_slow = fast.segments[0], slow.segments[0]
+    assert first.t.shape == first_slow.t.shape and first.t.size > 5
+    np.testing.assert_allclose(first.t, first_slow.t, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(first.q, first_slow.q, rtol=0, atol=1e-10)
+    for a, b in zip(fast.segments, slow.segments, strict=True):
+        assert a.t[-1] == pytest.approx(b.t[-1], abs=1e-12)
+        np.testing.assert_allclose(a.q[[0, -1]], b.q[[0, -1]], rtol=0, atol=1e-10)
+        np.testing.assert_allclose(a.v[[0, -1]], b.v[[0, -1]], rtol=0, atol=1e-10)
+
+
+def test_drives_that_cannot_be_compiled_say_why(tmp_path):
+    """Where the drives' right-hand side is not compiled, the configuration says why and evaluates in
+    Python: every coordinate driven (nothing to integrate), and a loop (its Newton solve)."""
+    import pcmm
+    from builders import EXAMPLES, driven_cart_pendulum
+    from pcmm.model.mechanism import Mechanism
+    mech = Mechanism(pcmm.load_scene(driven_cart_pendulum(tmp_path)))
+    rest = mech["rest"].coords
+    assert rest._drives_refused == "every coordinate driven" and rest._compiled_drives() is None
+    assert rest.evaluations == "python: not compiled: every coordinate driven"
+    sc = pcmm.load_scene(EXAMPLES / "double_folded.toml")
+    looped = [Mechanism(sc)[c.name].coords for c in sc.configurations.values() if sc.drives_in(c.name) and c.cut_joints]
+    assert looped and all(c._drives_refused == "loops" and c._compiled_drives() is None for c in looped)
+
+
+def _sequential_dot(A, x):
+    """``A @ x`` (a matrix and a vector, or two matrices) summed term by term in order: numpy's dot
+    goes through BLAS, whose kernels sum in another order (and round otherwise)."""
+    A, x = np.asarray(A, float), np.asarray(x, float)
+    X = x[:, None] if x.ndim == 1 else x
+    out = np.zeros((A.shape[0], X.shape[1]))
+    for r in range(A.shape[0]):
+        for i in range(X.shape[1]):
+            acc = 0.0
+            for j in range(A.shape[1]):
+                acc += A[r, j] * X[j, i]
+            out[r, i] = acc
+    return out[:, 0] if x.ndim == 1 else out
+
+
+@needs_loop
+def test_with_scipys_tableau_the_loop_steps_as_scipys_dop853(monkeypatch):
+    """SegmentLoop(tableau=...) is scipy's DOP853 (pcmm.ode.dop853.DOP853): on the oscillator, the same
+    accepted steps to the last bit as that class with its dot products summed in order, and its dense
+    output (DenseStep on the loop's F) the same; against numpy's BLAS dot products the steps part at
+    the size the error estimate's round-off moves the step-size control (1e-7 here, at rtol 1e-6),
+    which is why the method DOP853 is not stepped by it (pcmm.ode.integrators.COMPILED_SCIPY_STEPS)."""
+    import types
+
+    from pcmm.ode import dop853
+    from pcmm.ode.dop853 import DOP853, DenseStep, packed_tableau
+    tree = _oscillator()
+    y0 = _exact(0.0)
+
+    def reference():
+        ref = DOP853(tree.rhs, 0.0, y0, 10.0, rtol=1e-6, atol=1e-9)
+        steps = []
+        while ref.status == "running":
+            ref.step()
+            steps.append((ref.t, *ref.y))
+        return np.array(steps)
+    with_blas = reference()
+    monkeypatch.setattr(dop853, "np", types.SimpleNamespace(**{**vars(np), "dot": _sequential_dot}))
+    steps = reference()
+    loop = td.SegmentLoop(_oscillator(), 0.0, y0, 10.0, 1e-6, 1e-9, np.inf, 100000, 0.0, *NO_GUARDS, False,
+                          tableau=packed_tableau())
+    assert loop.run() == 0
+    ours = loop.take()
+    assert ours.shape == steps.shape == with_blas.shape and ours.shape[0] > 10
+    assert ours.tobytes() == steps.tobytes()
+    np.testing.assert_allclose(ours, with_blas, rtol=0, atol=1e-6)
+    np.testing.assert_allclose(ours[-1, 1:], _exact(10.0), atol=1e-4)
+    loop = td.SegmentLoop(_oscillator(), 0.0, y0, 10.0, 1e-6, 1e-9, np.inf, 100000, 0.0, *NO_GUARDS, True,
+                          tableau=packed_tableau())
+    ref = DOP853(tree.rhs, 0.0, y0, 10.0, rtol=1e-6, atol=1e-9)
+    for _ in range(5):
+        assert loop.run() == 1
+        ref.step()
+        dense = DenseStep(*loop.dense())
+        ts = np.linspace(ref.t_old, ref.t, 7)
+        assert dense(ts).tobytes() == ref.dense_output()(ts).tobytes()

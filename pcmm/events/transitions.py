@@ -41,7 +41,7 @@ from ..model.configuration import Configuration
 from ..model.mechanism import Mechanism
 from ..model.pinocchio_helpers import LWA
 from ..errors import SimulationError
-from .contact import contact_state
+from .contact import contact_state, normal_speed
 from .contact_faults import POSE_TOL, contact_findings
 from .records import by_link, event_record
 from .guards import guard_value
@@ -223,7 +223,7 @@ def handle_stop(ctx: Context, cfg: Configuration, tr: StopSpec, t, q, v) -> Outc
                                   "the stop, so the stop needs merge_to (the merged configuration)")
         return _merge(ctx, cfg, tr, tr.merge_to, t, q, v, "stop")
     speed, interval = ctx.tolerances(tr)
-    _, _, vn, _ = contact_state(cfg, q, v, tr.contact)
+    vn = normal_speed(cfg, q, v, tr.contact)  # a joint stop's without a kinematics pass (solve_impulse makes one)
     together = closed_with(cfg, tr, q)
     if together and min([vn] + [contact_state(cfg, q, v, s.contact)[2] for s in together]) < 0:
         # other contacts closed at this instant, one of them approaching: one solve with them all

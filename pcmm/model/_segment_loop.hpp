@@ -18,6 +18,14 @@
 // that are not affine) each accepted step is a candidate.  At a candidate, dense() gives the
 // step's 7th-order dense output (contd8's coefficients, the 3 extra stages), computed on demand.
 // Accepted steps that are not candidates are kept and handed over in one array (take()).
+//
+// With a tableau (scipy's DOP853 coefficients, pcmm.ode.dop853.packed_tableau) the loop steps as
+// scipy.integrate.DOP853 does instead (pcmm.ode.dop853.DOP853: its initial step, its error norm and
+// its step-size control without Lund's stabilization, MIN_FACTOR 0.2, MAX_FACTOR 10, no step
+// budget, no stiffness test), the method "DOP853" that configurations with drives use under
+// "auto"; its dense output is then scipy's (dense() returns the F rows of its DenseStep).  The
+// right-hand side is the tree's (evaluate: with drives y = [q_I, v_I], at the stage's time), or
+// with `power` rhs_with_power's (a flight's state with its work appended).
 
 namespace dop853 {
 // the tableau, as in dop853.f
@@ -109,7 +117,10 @@ struct SegmentLoop {
   int n;
   double x, xend, posneg, h, hstep, hmax, rtol, atol, beta, facold, expo1, facc1, facc2, hlamb, xold;
   long nmax, nstep, naccpt, nrejct, nfcn, iasti, nonsti, since_pause;
-  bool reject, last, done, dense_ready, every_step;
+  bool reject, last, done, dense_ready, every_step, power, rk;
+  double h_abs, rk_max_step;  // scipy's stepping (rk): the next step's size, the largest step
+  std::vector<double> *tab;   // rk: scipy's A (16 x 16), B (12), C (16), E3 (13), E5 (13), D (4 x 16)
+  std::vector<double> *stages, *F, *scale;  // rk: K (16 x n), the dense output's F (7 x n), the error scale
   int m;  // affine guards
   std::vector<double> *work;  // every vector below, in one allocation
   double *y, *y1, *k1, *k2, *k3, *k4, *k5, *k6, *k7, *k8, *k9, *k10, *yold, *k1old, *cont, *s14, *s15, *s16;
@@ -119,8 +130,8 @@ struct SegmentLoop {
 
 namespace {
 
-void fcn(SegmentLoop *s, const double *y, double *dy) {
-  evaluate_rhs(s->tree, y, dy);
+void fcn(SegmentLoop *s, double t, const double *y, double *dy) {
+  evaluate(s->tree, t, y, dy, s->power);
   ++s->nfcn;
 }
 
@@ -137,7 +148,7 @@ double hinit(SegmentLoop *s) {
   h = std::min(h, s->hmax);
   h = std::copysign(h, s->posneg);
   for (int i = 0; i < n; ++i) s->y1[i] = s->y[i] + h * s->k1[i];
-  fcn(s, s->y1, s->k2);
+  fcn(s, s->x + h, s->y1, s->k2);
   double der2 = 0.0;
   for (int i = 0; i < n; ++i) {
     const double sk = s->atol + s->rtol * std::fabs(s->y[i]);
@@ -197,6 +208,190 @@ bool may_fire(double g0, double d0, double g1, double d1, double h, double direc
 // run the loop until t_bound (0), a candidate step (1), a pause (2: every pause_every accepted
 // steps) or a failure (Hairer's codes: -2 more than nmax steps, -3 step size too small, -4 stiff)
 constexpr long pause_every = 4096;
+
+// after the accepted step from x to xph (state s->y, derivative s->k1): is it a candidate (1), or
+// recorded, with t_bound reached (0), a pause due (2), or the loop to go on (-1)?
+int settle(SegmentLoop *s, double x, double xph) {
+  const int n = s->n;
+  const double *y = s->y, *k1 = s->k1;
+  bool candidate = s->every_step;
+  bool finite = true;
+  for (int i = 0; i < n; ++i) finite = finite && std::isfinite(y[i]);
+  if (!finite || std::fabs(xph - x) < 64 * 2.220446049250313e-16 * std::max(1.0, std::fabs(xph))) candidate = true;
+  if (!candidate && s->m) {
+    guard_values(s, xph, y, k1, s->g_new->data(), s->r_new->data());
+    for (int j = 0; j < s->m && !candidate; ++j) {
+      const double *c = s->guard_c->data() + (size_t)j * n;
+      double scale = std::fabs((*s->guard_d)[j]) + std::fabs((*s->guard_ct)[j] * xph);
+      for (int i = 0; i < n; ++i) scale += std::fabs(c[i] * y[i]);
+      candidate = may_fire((*s->g_old)[j], (*s->r_old)[j], (*s->g_new)[j], (*s->r_new)[j], xph - x,
+                           (*s->guard_dir)[j], 1e-12 * scale);
+    }
+    std::swap(s->g_old, s->g_new);
+    std::swap(s->r_old, s->r_new);
+  } else if (s->m) {
+    guard_values(s, xph, y, k1, s->g_old->data(), s->r_old->data());
+  }
+  if (candidate) return 1;
+  s->record->push_back(xph);
+  s->record->insert(s->record->end(), y, y + n);
+  if (s->done) return 0;
+  if (++s->since_pause == pause_every) {  // Python's turn: Ctrl-C, progress, the record taken
+    s->since_pause = 0;
+    return 2;
+  }
+  return -1;
+}
+
+// scipy's tableau, packed (pcmm.ode.dop853.packed_tableau): A 16 x 16, B 12, C 16, E3 13, E5 13, D 4 x 16
+constexpr int rk_stages = 12, rk_extended = 16, rk_tableau_size = 16 * 16 + 12 + 16 + 13 + 13 + 4 * 16;
+inline const double *rk_A(const SegmentLoop *s, int row) { return s->tab->data() + 16 * row; }
+inline const double *rk_B(const SegmentLoop *s) { return s->tab->data() + 256; }
+inline const double *rk_C(const SegmentLoop *s) { return s->tab->data() + 268; }
+inline const double *rk_E3(const SegmentLoop *s) { return s->tab->data() + 284; }
+inline const double *rk_E5(const SegmentLoop *s) { return s->tab->data() + 297; }
+inline const double *rk_D(const SegmentLoop *s, int row) { return s->tab->data() + 310 + 16 * row; }
+
+// scipy's rms norm of x / scale: np.linalg.norm(x / scale) / n ** 0.5
+double rk_rms(const double *x, const double *scale, int n) {
+  double sum = 0.0;
+  for (int i = 0; i < n; ++i) sum += (x[i] / scale[i]) * (x[i] / scale[i]);
+  return std::sqrt(sum) / std::pow((double)n, 0.5);
+}
+
+// stage `st` of scipy's DOP853 from (t, y) with step h into K[st]: y + (K[:st].T @ A[st, :st]) h
+void rk_stage(SegmentLoop *s, int st, double t, const double *y, double h) {
+  const int n = s->n;
+  const double *K = s->stages->data(), *a = rk_A(s, st);
+  for (int i = 0; i < n; ++i) {
+    double dy = 0.0;
+    for (int j = 0; j < st; ++j) dy += K[(size_t)j * n + i] * a[j];
+    s->y1[i] = y[i] + dy * h;
+  }
+  fcn(s, t + rk_C(s)[st] * h, s->y1, s->stages->data() + (size_t)st * n);
+}
+
+// scipy's initial step (pcmm.ode.dop853._initial_step, order 7)
+double rk_initial_step(SegmentLoop *s) {
+  const int n = s->n;
+  const double interval = std::fabs(s->xend - s->x);
+  if (interval == 0.0) return 0.0;
+  double *scale = s->scale->data();
+  for (int i = 0; i < n; ++i) scale[i] = s->atol + std::fabs(s->y[i]) * s->rtol;
+  const double d0 = rk_rms(s->y, scale, n), d1 = rk_rms(s->k1, scale, n);
+  double h0 = (d0 < 1e-5 || d1 < 1e-5) ? 1e-6 : 0.01 * d0 / d1;
+  h0 = std::min(h0, interval);
+  const double step = h0 * s->posneg;
+  for (int i = 0; i < n; ++i) s->y1[i] = s->y[i] + step * s->k1[i];
+  fcn(s, s->x + h0 * s->posneg, s->y1, s->k2);
+  for (int i = 0; i < n; ++i) s->k3[i] = s->k2[i] - s->k1[i];
+  const double d2 = rk_rms(s->k3, scale, n) / h0;
+  const double h1 = (d1 <= 1e-15 && d2 <= 1e-15) ? std::max(1e-6, h0 * 1e-3) : std::pow(0.01 / std::max(d1, d2), 1.0 / (7 + 1));
+  return std::min(std::min(100 * h0, h1), std::min(interval, s->rk_max_step));
+}
+
+// scipy's DOP853 steps (pcmm.ode.dop853.DOP853.step/_step), with the same codes as advance (-3: the
+// step size fell below 10 ulp of t, scipy's "Required step size is less than spacing between numbers")
+int rk_advance(SegmentLoop *s) {
+  const int n = s->n;
+  const double safety = 0.9, min_factor = 0.2, max_factor = 10.0, exponent = -1.0 / (7 + 1);
+  double *K = s->stages->data(), *y = s->y, *scale = s->scale->data(), *ynew = s->k5;
+  if (s->done) return 0;
+  for (;;) {
+    if (n == 0 || s->x == s->xend) {
+      s->done = true;
+      return 0;
+    }
+    const double t = s->x;
+    const double min_step = 10 * std::fabs(std::nextafter(t, s->posneg * INFINITY) - t);
+    double h_abs = s->h_abs > s->rk_max_step ? s->rk_max_step : (s->h_abs < min_step ? min_step : s->h_abs);
+    bool rejected = false;
+    double h, t_new;
+    for (;;) {
+      if (h_abs < min_step) return -3;
+      h = h_abs * s->posneg;
+      t_new = t + h;
+      if (s->posneg * (t_new - s->xend) > 0) t_new = s->xend;
+      h = t_new - t;
+      h_abs = std::fabs(h);
+      ++s->nstep;
+      std::copy(s->k1, s->k1 + n, K);
+      for (int st = 1; st < rk_stages; ++st) rk_stage(s, st, t, y, h);
+      const double *b = rk_B(s);
+      for (int i = 0; i < n; ++i) {
+        double sum = 0.0;
+        for (int j = 0; j < rk_stages; ++j) sum += K[(size_t)j * n + i] * b[j];
+        ynew[i] = y[i] + h * sum;
+      }
+      fcn(s, t + h, ynew, K + (size_t)rk_stages * n);
+      // the error norm (pcmm.ode.dop853._error_norm)
+      const double *e5 = rk_E5(s), *e3 = rk_E3(s);
+      double sum5 = 0.0, sum3 = 0.0;
+      for (int i = 0; i < n; ++i) {
+        scale[i] = s->atol + std::max(std::fabs(y[i]), std::fabs(ynew[i])) * s->rtol;
+        double err5 = 0.0, err3 = 0.0;
+        for (int j = 0; j <= rk_stages; ++j) {
+          err5 += K[(size_t)j * n + i] * e5[j];
+          err3 += K[(size_t)j * n + i] * e3[j];
+        }
+        err5 /= scale[i];
+        err3 /= scale[i];
+        sum5 += err5 * err5;
+        sum3 += err3 * err3;
+      }
+      const double norm5 = std::sqrt(sum5), norm3 = std::sqrt(sum3);
+      const double e5n2 = norm5 * norm5, e3n2 = norm3 * norm3;
+      double error_norm = 0.0;
+      if (!(e5n2 == 0 && e3n2 == 0)) error_norm = std::fabs(h) * e5n2 / std::sqrt((e5n2 + 0.01 * e3n2) * n);
+      if (error_norm < 1) {
+        double factor = error_norm == 0 ? max_factor : std::min(max_factor, safety * std::pow(error_norm, exponent));
+        if (rejected) factor = std::min(1.0, factor);
+        h_abs *= factor;
+        break;
+      }
+      h_abs *= std::max(min_factor, safety * std::pow(error_norm, exponent));
+      rejected = true;
+      ++s->nrejct;
+    }
+    ++s->naccpt;
+    std::copy(y, y + n, s->yold);
+    std::copy(s->k1, s->k1 + n, s->k1old);
+    std::copy(ynew, ynew + n, y);
+    std::copy(K + (size_t)rk_stages * n, K + (size_t)(rk_stages + 1) * n, s->k1);
+    s->xold = t;
+    s->x = t_new;
+    s->hstep = h;
+    s->h_abs = h_abs;
+    s->dense_ready = false;
+    if (s->posneg * (s->x - s->xend) >= 0) s->done = true;
+    const int code = settle(s, t, t_new);
+    if (code >= 0) return code;
+  }
+}
+
+// scipy's dense output of the last accepted step (DOP853.dense_output): the 3 extra stages, then
+// F (7 x n): y(t) = y_old + the Horner sums of F in x and 1 - x (pcmm.ode.dop853.DenseStep)
+void rk_dense(SegmentLoop *s) {
+  const int n = s->n;
+  const double h = s->hstep, *y_old = s->yold, *K = s->stages->data();
+  for (int st = rk_stages + 1; st < rk_extended; ++st) rk_stage(s, st, s->xold, y_old, h);
+  double *F = s->F->data();
+  const double *f_old = K, *f_new = K + (size_t)rk_stages * n;
+  for (int i = 0; i < n; ++i) {
+    const double delta = s->y[i] - y_old[i];
+    F[i] = delta;
+    F[n + i] = h * f_old[i] - delta;
+    F[2 * n + i] = 2 * delta - h * (f_new[i] + f_old[i]);
+    for (int r = 0; r < 4; ++r) {
+      const double *d = rk_D(s, r);
+      double sum = 0.0;
+      for (int j = 0; j < rk_extended; ++j) sum += d[j] * K[(size_t)j * n + i];
+      F[(size_t)(3 + r) * n + i] = h * sum;
+    }
+  }
+  s->dense_ready = true;
+}
+
 int advance(SegmentLoop *s) {
   using namespace dop853;
   const int n = s->n;
@@ -214,35 +409,35 @@ int advance(SegmentLoop *s) {
     ++s->nstep;
     const double x = s->x;
     for (int i = 0; i < n; ++i) y1[i] = y[i] + h * a21 * k1[i];
-    fcn(s, y1, k2);
+    fcn(s, x + c2 * h, y1, k2);
     for (int i = 0; i < n; ++i) y1[i] = y[i] + h * (a31 * k1[i] + a32 * k2[i]);
-    fcn(s, y1, k3);
+    fcn(s, x + c3 * h, y1, k3);
     for (int i = 0; i < n; ++i) y1[i] = y[i] + h * (a41 * k1[i] + a43 * k3[i]);
-    fcn(s, y1, k4);
+    fcn(s, x + c4 * h, y1, k4);
     for (int i = 0; i < n; ++i) y1[i] = y[i] + h * (a51 * k1[i] + a53 * k3[i] + a54 * k4[i]);
-    fcn(s, y1, k5);
+    fcn(s, x + c5 * h, y1, k5);
     for (int i = 0; i < n; ++i) y1[i] = y[i] + h * (a61 * k1[i] + a64 * k4[i] + a65 * k5[i]);
-    fcn(s, y1, k6);
+    fcn(s, x + c6 * h, y1, k6);
     for (int i = 0; i < n; ++i) y1[i] = y[i] + h * (a71 * k1[i] + a74 * k4[i] + a75 * k5[i] + a76 * k6[i]);
-    fcn(s, y1, k7);
+    fcn(s, x + c7 * h, y1, k7);
     for (int i = 0; i < n; ++i) y1[i] = y[i] + h * (a81 * k1[i] + a84 * k4[i] + a85 * k5[i] + a86 * k6[i] + a87 * k7[i]);
-    fcn(s, y1, k8);
+    fcn(s, x + c8 * h, y1, k8);
     for (int i = 0; i < n; ++i)
       y1[i] = y[i] + h * (a91 * k1[i] + a94 * k4[i] + a95 * k5[i] + a96 * k6[i] + a97 * k7[i] + a98 * k8[i]);
-    fcn(s, y1, k9);
+    fcn(s, x + c9 * h, y1, k9);
     for (int i = 0; i < n; ++i)
       y1[i] = y[i] + h * (a101 * k1[i] + a104 * k4[i] + a105 * k5[i] + a106 * k6[i] + a107 * k7[i] + a108 * k8[i] +
                           a109 * k9[i]);
-    fcn(s, y1, k10);
+    fcn(s, x + c10 * h, y1, k10);
     for (int i = 0; i < n; ++i)
       y1[i] = y[i] + h * (a111 * k1[i] + a114 * k4[i] + a115 * k5[i] + a116 * k6[i] + a117 * k7[i] + a118 * k8[i] +
                           a119 * k9[i] + a1110 * k10[i]);
-    fcn(s, y1, k2);
+    fcn(s, x + c11 * h, y1, k2);
     const double xph = x + h;
     for (int i = 0; i < n; ++i)
       y1[i] = y[i] + h * (a121 * k1[i] + a124 * k4[i] + a125 * k5[i] + a126 * k6[i] + a127 * k7[i] + a128 * k8[i] +
                           a129 * k9[i] + a1210 * k10[i] + a1211 * k2[i]);
-    fcn(s, y1, k3);
+    fcn(s, xph, y1, k3);
     for (int i = 0; i < n; ++i) {
       k4[i] = b1 * k1[i] + b6 * k6[i] + b7 * k7[i] + b8 * k8[i] + b9 * k9[i] + b10 * k10[i] + b11 * k2[i] + b12 * k3[i];
       k5[i] = y[i] + h * k4[i];
@@ -268,7 +463,7 @@ int advance(SegmentLoop *s) {
     if (err <= 1.0) {  // accepted
       s->facold = std::max(err, 1.0e-4);
       ++s->naccpt;
-      fcn(s, k5, k4);
+      fcn(s, xph, k5, k4);
       // stiffness detection
       if (s->naccpt % nstiff == 0 || s->iasti > 0) {
         double stnum = 0.0, stden = 0.0;
@@ -304,33 +499,8 @@ int advance(SegmentLoop *s) {
         s->reject = false;
         s->h = hnew;
       }
-      // is it a candidate?
-      bool candidate = s->every_step;
-      bool finite = true;
-      for (int i = 0; i < n; ++i) finite = finite && std::isfinite(y[i]);
-      if (!finite || std::fabs(xph - x) < 64 * 2.220446049250313e-16 * std::max(1.0, std::fabs(xph))) candidate = true;
-      if (!candidate && s->m) {
-        guard_values(s, xph, y, k1, s->g_new->data(), s->r_new->data());
-        for (int j = 0; j < s->m && !candidate; ++j) {
-          const double *c = s->guard_c->data() + (size_t)j * n;
-          double scale = std::fabs((*s->guard_d)[j]) + std::fabs((*s->guard_ct)[j] * xph);
-          for (int i = 0; i < n; ++i) scale += std::fabs(c[i] * y[i]);
-          candidate = may_fire((*s->g_old)[j], (*s->r_old)[j], (*s->g_new)[j], (*s->r_new)[j], xph - x,
-                               (*s->guard_dir)[j], 1e-12 * scale);
-        }
-        std::swap(s->g_old, s->g_new);
-        std::swap(s->r_old, s->r_new);
-      } else if (s->m) {
-        guard_values(s, xph, y, k1, s->g_old->data(), s->r_old->data());
-      }
-      if (candidate) return 1;
-      s->record->push_back(xph);
-      s->record->insert(s->record->end(), y, y + n);
-      if (s->done) return 0;
-      if (++s->since_pause == pause_every) {  // Python's turn: Ctrl-C, progress, the record taken
-        s->since_pause = 0;
-        return 2;
-      }
+      const int code = settle(s, x, xph);
+      if (code >= 0) return code;
     } else {  // rejected
       // scipy's dop853 (its C translation of dop853.f, which DOP853F ran before this loop and
       // which stays the reference) shrinks a rejected step by fac1 always: h / min(facc1, facc1 /
@@ -375,15 +545,15 @@ void dense_coefficients(SegmentLoop *s) {
   for (int i = 0; i < n; ++i)
     y1[i] = y[i] + hs * (a141 * k1[i] + a147 * k7[i] + a148 * k8[i] + a149 * k9[i] + a1410 * k10[i] + a1411 * k2[i] +
                          a1412 * k3[i] + a1413 * k4[i]);
-  fcn(s, y1, e10);
+  fcn(s, s->xold + c14 * hs, y1, e10);
   for (int i = 0; i < n; ++i)
     y1[i] = y[i] + hs * (a151 * k1[i] + a156 * k6[i] + a157 * k7[i] + a158 * k8[i] + a1511 * k2[i] + a1512 * k3[i] +
                          a1513 * k4[i] + a1514 * e10[i]);
-  fcn(s, y1, e2);
+  fcn(s, s->xold + c15 * hs, y1, e2);
   for (int i = 0; i < n; ++i)
     y1[i] = y[i] + hs * (a161 * k1[i] + a166 * k6[i] + a167 * k7[i] + a168 * k8[i] + a169 * k9[i] + a1613 * k4[i] +
                          a1614 * e10[i] + a1615 * e2[i]);
-  fcn(s, y1, e3);
+  fcn(s, s->xold + c16 * hs, y1, e3);
   for (int i = 0; i < n; ++i) {
     cont[i + 4 * n] = hs * (cont[i + 4 * n] + d413 * k4[i] + d414 * e10[i] + d415 * e2[i] + d416 * e3[i]);
     cont[i + 5 * n] = hs * (cont[i + 5 * n] + d513 * k4[i] + d514 * e10[i] + d515 * e2[i] + d516 * e3[i]);
@@ -400,21 +570,28 @@ PyObject *new_vector(const double *x, npy_intp n) {
 }
 
 // SegmentLoop(tree, t0, y0, t_bound, rtol, atol, max_step, nmax, beta, C (m x n), ct (m), d (m),
-//             direction (m), every_step)
-PyObject *loop_new(PyTypeObject *type, PyObject *args, PyObject *) {
-  PyObject *tree_o, *y0_o, *c_o, *ct_o, *d_o, *dir_o;
+//             direction (m), every_step, *, power=False, tableau=None): `power` integrates rhs_with_power
+//             (a tree with drives), `tableau` (scipy's, packed) steps as scipy's DOP853
+PyObject *loop_new(PyTypeObject *type, PyObject *args, PyObject *kwargs) {
+  PyObject *tree_o, *y0_o, *c_o, *ct_o, *d_o, *dir_o, *tab_o = Py_None;
   double t0, t_bound, rtol, atol, max_step, beta;
   long nmax;
-  int every_step;
-  if (!PyArg_ParseTuple(args, "O!dOddddldOOOOp", &TreeType, &tree_o, &t0, &y0_o, &t_bound, &rtol, &atol, &max_step,
-                        &nmax, &beta, &c_o, &ct_o, &d_o, &dir_o, &every_step))
+  int every_step, power = 0;
+  static const char *keywords[] = {"", "", "", "", "", "", "", "", "", "", "", "", "", "", "power", "tableau", nullptr};
+  if (!PyArg_ParseTupleAndKeywords(args, kwargs, "O!dOddddldOOOOp|$pO", (char **)keywords, &TreeType, &tree_o, &t0,
+                                   &y0_o, &t_bound, &rtol, &atol, &max_step, &nmax, &beta, &c_o, &ct_o, &d_o, &dir_o,
+                                   &every_step, &power, &tab_o))
     return nullptr;
   Tree *tree = (Tree *)tree_o;
   if (!tree->ready) {
     PyErr_SetString(PyExc_RuntimeError, "the tree is not finalized");
     return nullptr;
   }
-  const int n = 2 * tree->nv;
+  if (power && !tree->drives) {
+    PyErr_SetString(PyExc_ValueError, "SegmentLoop: power=True needs a tree with drives");
+    return nullptr;
+  }
+  const int n = tree->ny + (power ? 1 : 0);
   PyArrayObject *ct = (PyArrayObject *)PyArray_FROMANY(ct_o, NPY_DOUBLE, 1, 1, NPY_ARRAY_IN_ARRAY);
   if (!ct) return nullptr;
   const int m = (int)PyArray_DIM(ct, 0);
@@ -443,6 +620,16 @@ PyObject *loop_new(PyTypeObject *type, PyObject *args, PyObject *) {
   s->g_new = new std::vector<double>(m);
   s->r_new = new std::vector<double>(m);
   s->record = new std::vector<double>();
+  s->power = power;
+  s->rk = tab_o != Py_None;
+  s->tab = new std::vector<double>(s->rk ? rk_tableau_size : 0);
+  s->stages = new std::vector<double>(s->rk ? (size_t)rk_extended * n : 0);
+  s->F = new std::vector<double>(s->rk ? (size_t)7 * n : 0);
+  s->scale = new std::vector<double>(s->rk ? n : 0);
+  if (s->rk && read_doubles(tab_o, s->tab->data(), rk_tableau_size, "tableau")) {
+    Py_DECREF(s);
+    return nullptr;
+  }
   if (read_doubles(y0_o, s->y, n, "y0") || read_doubles(c_o, s->guard_c->data(), (Py_ssize_t)m * n, "C") ||
       read_doubles(ct_o, s->guard_ct->data(), m, "ct") || read_doubles(d_o, s->guard_d->data(), m, "d") ||
       read_doubles(dir_o, s->guard_dir->data(), m, "direction")) {
@@ -472,8 +659,15 @@ PyObject *loop_new(PyTypeObject *type, PyObject *args, PyObject *) {
   s->nstep = s->naccpt = s->nrejct = s->nfcn = s->since_pause = 0;
   s->reject = s->last = s->done = s->dense_ready = false;
   s->xold = t0;
-  fcn(s, s->y, s->k1);
-  s->h = hinit(s);
+  fcn(s, t0, s->y, s->k1);
+  if (s->rk) {  // scipy's settings: rtol at least 100 eps (it warns), max_step inf where not given
+    s->rtol = std::max(rtol, 100 * dop853::uround);
+    s->rk_max_step = std::isfinite(max_step) && max_step > 0 ? max_step : INFINITY;
+    s->h_abs = rk_initial_step(s);
+    s->h = s->h_abs;
+  } else {
+    s->h = hinit(s);
+  }
   if (m) guard_values(s, t0, s->y, s->k1, s->g_old->data(), s->r_old->data());
   return (PyObject *)s;
 }
@@ -490,6 +684,10 @@ void loop_dealloc(SegmentLoop *s) {
   delete s->g_new;
   delete s->r_new;
   delete s->record;
+  delete s->tab;
+  delete s->stages;
+  delete s->F;
+  delete s->scale;
   Py_TYPE(s)->tp_free((PyObject *)s);
 }
 
@@ -497,7 +695,7 @@ void loop_dealloc(SegmentLoop *s) {
 // -2/-3/-4 Hairer's failures
 PyObject *loop_run(SegmentLoop *s, PyObject *) {
   int code;
-  Py_BEGIN_ALLOW_THREADS code = advance(s);
+  Py_BEGIN_ALLOW_THREADS code = s->rk ? rk_advance(s) : advance(s);
   Py_END_ALLOW_THREADS return PyLong_FromLong(code);
 }
 
@@ -516,8 +714,17 @@ PyObject *loop_candidate(SegmentLoop *s, PyObject *) {
   return Py_BuildValue("ddNN", s->xold, s->x, new_vector(s->y, s->n), new_vector(s->k1, s->n));
 }
 
-// dense() -> (t_old, h, cont (8, n)): y(t) = contd8 at s = (t - t_old) / h
+// dense() -> (t_old, h, cont (8, n)): y(t) = contd8 at s = (t - t_old) / h; with scipy's stepping
+// (t_old, t_new, y_old, F (7, n)), pcmm.ode.dop853.DenseStep's arguments
 PyObject *loop_dense(SegmentLoop *s, PyObject *) {
+  if (s->rk) {
+    if (!s->dense_ready) rk_dense(s);
+    const npy_intp dims[2] = {7, s->n};
+    PyObject *out = PyArray_SimpleNew(2, dims, NPY_DOUBLE);
+    if (!out) return nullptr;
+    std::memcpy(PyArray_DATA((PyArrayObject *)out), s->F->data(), 7 * (size_t)s->n * sizeof(double));
+    return Py_BuildValue("ddNN", s->xold, s->x, new_vector(s->yold, s->n), out);
+  }
   if (!s->dense_ready) dense_coefficients(s);
   const npy_intp dims[2] = {8, s->n};
   PyObject *out = PyArray_SimpleNew(2, dims, NPY_DOUBLE);

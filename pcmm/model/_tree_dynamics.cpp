@@ -20,6 +20,8 @@
 
 #include <pinocchio/multibody.hpp>
 #include <pinocchio/algorithm/aba.hpp>
+#include <pinocchio/algorithm/compute-all-terms.hpp>
+#include <pinocchio/algorithm/contact-dynamics.hpp>
 #include <pinocchio/algorithm/frames.hpp>
 #include <pinocchio/algorithm/jacobian.hpp>
 #include <pinocchio/algorithm/kinematics.hpp>
@@ -38,6 +40,19 @@ using pinocchio::Data;
 using Eigen::VectorXd;
 using RowMatrixXd = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
 
+// Drives without loops: prescribed coordinates q_j = f_j(t), polynomials in t (the scene's drive
+// `coefficients`, the only drive law a scene can give: pcmm.scene.spec.DriveSpec).  The state is
+// the free coordinates and their rates, y = [q_I, v_I]; the driven ones are f(t), f'(t), and the
+// accelerations solve the KKT system of the drive rows q_j - f_j(t) = 0 (unit rows, drift -f''):
+// pinocchio::forwardDynamics with J and gamma, what pcmm.model.rows.constrained_accelerations calls
+// through the binding (pcmm.model.partitioned.PartitionedCoordinates.rhs, its Python evaluation).
+struct DriveLaws {
+  std::vector<int> free, driven;
+  std::vector<std::vector<double>> c0, c1, c2;  // f, f', f'' coefficients, low order first
+  Eigen::MatrixXd J;                            // the drive rows (nd x nv), constant
+  VectorXd gamma, q, v, tau, kq, dv, f, f1, f2;
+};
+
 struct Tree {
   PyObject_HEAD
   Model *model;
@@ -48,7 +63,9 @@ struct Tree {
   VectorXd *tau;
   std::vector<std::pair<Model::FrameIndex, Model::FrameIndex>> *pairs;  // revolute cut joints' points (a, b)
   decltype(Data::Yaba) *inertia_matrices;  // each body's 6 x 6 spatial inertia, formed once (finalize)
+  DriveLaws *drives;  // nullptr: a plain tree, y = [q, v]
   int nv;
+  int ny;  // the state's size: 2 nv, or 2 (nv - drives) with drives
   bool ready;
 };
 
@@ -76,7 +93,9 @@ PyObject *tree_new(PyTypeObject *type, PyObject *, PyObject *) {
   self->tau = new VectorXd();
   self->pairs = new std::vector<std::pair<Model::FrameIndex, Model::FrameIndex>>();
   self->inertia_matrices = new decltype(Data::Yaba)();
+  self->drives = nullptr;
   self->nv = 0;
+  self->ny = 0;
   self->ready = false;
   return (PyObject *)self;
 }
@@ -90,6 +109,7 @@ void tree_dealloc(Tree *self) {
   delete self->tau;
   delete self->pairs;
   delete self->inertia_matrices;
+  delete self->drives;
   Py_TYPE(self)->tp_free((PyObject *)self);
 }
 
@@ -214,7 +234,93 @@ PyObject *tree_finalize(Tree *self, PyObject *args) {
   self->inertia_matrices->assign(self->data->Yaba.size(), Data::Inertia::Matrix6::Zero());
   for (int j = 1; j < self->model->njoints; ++j) (*self->inertia_matrices)[j] = self->model->inertias[j].matrix();
   self->nv = nv;
+  self->ny = 2 * nv;
   self->ready = true;
+  Py_RETURN_NONE;
+}
+
+// a float sequence as a vector, or false (the error set)
+bool read_vector(PyObject *obj, std::vector<double> &out, const char *what) {
+  PyArrayObject *arr = (PyArrayObject *)PyArray_FROMANY(obj, NPY_DOUBLE, 1, 1, NPY_ARRAY_IN_ARRAY);
+  if (!arr) return false;
+  const double *x = (const double *)PyArray_DATA(arr);
+  out.assign(x, x + PyArray_DIM(arr, 0));
+  Py_DECREF(arr);
+  if (out.empty()) {
+    PyErr_Format(PyExc_ValueError, "%s: no coefficient", what);
+    return false;
+  }
+  return true;
+}
+
+// set_drives(driven (nd), laws ((f, f', f'') coefficients, low order first, per drive)): the
+// coordinates `driven` prescribed; rhs(t, y) and rhs_with_power(t, [y, W]) then take y = [q_I, v_I]
+PyObject *tree_set_drives(Tree *self, PyObject *args) {
+  PyObject *driven_o, *laws_o;
+  if (!PyArg_ParseTuple(args, "OO", &driven_o, &laws_o)) return nullptr;
+  if (!self->ready) {
+    PyErr_SetString(PyExc_RuntimeError, "set_drives: the tree is not finalized");
+    return nullptr;
+  }
+  PyObject *driven = PySequence_Fast(driven_o, "driven: a sequence of coordinates");
+  if (!driven) return nullptr;
+  PyObject *laws = PySequence_Fast(laws_o, "laws: a sequence of (f, f', f'') coefficients");
+  if (!laws) {
+    Py_DECREF(driven);
+    return nullptr;
+  }
+  auto *d = new DriveLaws();
+  const int nv = self->nv;
+  const Py_ssize_t nd = PySequence_Fast_GET_SIZE(driven);
+  bool ok = nd > 0 && nd == PySequence_Fast_GET_SIZE(laws);
+  if (!ok) PyErr_SetString(PyExc_ValueError, "set_drives: one law per driven coordinate, at least one");
+  std::vector<bool> is_driven(nv, false);
+  for (Py_ssize_t j = 0; ok && j < nd; ++j) {
+    const long i = PyLong_AsLong(PySequence_Fast_GET_ITEM(driven, j));
+    if (i < 0 || i >= nv || is_driven[i]) {
+      if (!PyErr_Occurred()) PyErr_Format(PyExc_ValueError, "set_drives: coordinate %ld is not a distinct coordinate", i);
+      ok = false;
+      break;
+    }
+    is_driven[i] = true;
+    d->driven.push_back((int)i);
+    PyObject *law = PySequence_Fast(PySequence_Fast_GET_ITEM(laws, j), "a law: (f, f', f'') coefficients");
+    if (!law) {
+      ok = false;
+      break;
+    }
+    std::vector<double> c[3];
+    ok = PySequence_Fast_GET_SIZE(law) == 3;
+    if (!ok) PyErr_SetString(PyExc_ValueError, "set_drives: a law is (f, f', f'') coefficients");
+    for (int k = 0; ok && k < 3; ++k) ok = read_vector(PySequence_Fast_GET_ITEM(law, k), c[k], "a drive law");
+    Py_DECREF(law);
+    if (!ok) break;
+    d->c0.push_back(c[0]);
+    d->c1.push_back(c[1]);
+    d->c2.push_back(c[2]);
+  }
+  Py_DECREF(driven);
+  Py_DECREF(laws);
+  if (!ok) {
+    delete d;
+    return nullptr;
+  }
+  for (int i = 0; i < nv; ++i)
+    if (!is_driven[i]) d->free.push_back(i);
+  d->J = Eigen::MatrixXd::Zero(nd, nv);
+  for (Py_ssize_t j = 0; j < nd; ++j) d->J(j, d->driven[j]) = 1.0;
+  d->gamma.resize(nd);
+  d->f.resize(nd);
+  d->f1.resize(nd);
+  d->f2.resize(nd);
+  d->q.resize(nv);
+  d->v.resize(nv);
+  d->tau.resize(nv);
+  d->kq.resize(nv);
+  d->dv.resize(nv);
+  delete self->drives;
+  self->drives = d;
+  self->ny = 2 * (int)d->free.size();
   Py_RETURN_NONE;
 }
 
@@ -323,6 +429,62 @@ void evaluate_rhs(Tree *self, const double *y, double *dy) {
   out.tail(nv) = self->data->ddq;
 }
 
+// Horner's rule on coefficients low order first, as pcmm.model.rows.Drives.values sums them
+inline double horner(const std::vector<double> &c, double t) {
+  double acc = 0.0;
+  for (auto it = c.rbegin(); it != c.rend(); ++it) acc = acc * t + *it;
+  return acc;
+}
+
+// dy = [v_I, a_I] (and with `power`, the power of the force elements and the drives' motors
+// appended, dy[2k]) at t, y = [q_I, v_I] (y[2k], the work, is not read): the Python evaluation's
+// steps in its order (PartitionedCoordinates._prescribed, ForceField.generalized = Q0 - K q - Dv v,
+// constrained_accelerations, rhs_with_power's power tau.v - lam.Phi_t with Phi_t = -f')
+void evaluate_drives(Tree *self, double t, const double *y, double *dy, bool power) {
+  DriveLaws &d = *self->drives;
+  const int nv = self->nv, k = (int)d.free.size(), nd = (int)d.driven.size();
+  for (int j = 0; j < nd; ++j) {
+    d.f[j] = horner(d.c0[j], t);
+    d.f1[j] = horner(d.c1[j], t);
+    d.f2[j] = horner(d.c2[j], t);
+    d.gamma[j] = -d.f2[j];
+  }
+  for (int i = 0; i < k; ++i) {
+    d.q[d.free[i]] = y[i];
+    d.v[d.free[i]] = y[k + i];
+  }
+  for (int j = 0; j < nd; ++j) {
+    d.q[d.driven[j]] = d.f[j];
+    d.v[d.driven[j]] = d.f1[j];
+  }
+  d.kq.setZero();
+  d.dv.setZero();
+  for (const auto &ij : *self->kd_nonzero) {
+    const double kd = (*self->kd)(ij.first, ij.second);
+    if (ij.second < nv) d.kq[ij.first] += kd * d.q[ij.second];
+    else d.dv[ij.first] += kd * d.v[ij.second - nv];
+  }
+  for (int i = 0; i < nv; ++i) d.tau[i] = (*self->q0_force)[i] - d.kq[i] - d.dv[i];
+  pinocchio::forwardDynamics(*self->model, *self->data, d.q, d.v, d.tau, d.J, d.gamma, 0.0);
+  const VectorXd &a = self->data->ddq;
+  for (int i = 0; i < k; ++i) {
+    dy[i] = d.v[d.free[i]];
+    dy[k + i] = a[d.free[i]];
+  }
+  if (power) {
+    double tv = 0.0, lp = 0.0;
+    for (int i = 0; i < nv; ++i) tv += d.tau[i] * d.v[i];
+    for (int j = 0; j < nd; ++j) lp += self->data->lambda_c[j] * -d.f1[j];
+    dy[2 * k] = tv - lp;
+  }
+}
+
+// the right-hand side at (t, y) into dy: a tree's (evaluate_rhs) or, with drives, evaluate_drives
+inline void evaluate(Tree *self, double t, const double *y, double *dy, bool power) {
+  if (self->drives) evaluate_drives(self, t, y, dy, power);
+  else evaluate_rhs(self, y, dy);
+}
+
 // evaluation_cost(y, reps) -> {part: CPU seconds per call}: the right-hand side's parts timed in C++
 // (this thread's CPU clock around `reps` calls each, no Python between calls) at the state y, for
 // benchmarks/rhs_loop_cost.py: "rhs" (evaluate_rhs, what the segment loop calls: the forces and
@@ -339,8 +501,8 @@ PyObject *tree_evaluation_cost(Tree *self, PyObject *args) {
   PyObject *y_o;
   long reps;
   if (!PyArg_ParseTuple(args, "Ol", &y_o, &reps)) return nullptr;
-  if (!self->ready || reps <= 0) {
-    PyErr_SetString(PyExc_ValueError, "evaluation_cost(y, reps): a finalized tree and reps > 0");
+  if (!self->ready || reps <= 0 || self->drives) {
+    PyErr_SetString(PyExc_ValueError, "evaluation_cost(y, reps): a finalized tree without drives and reps > 0");
     return nullptr;
   }
   const int nv = self->nv;
@@ -381,8 +543,9 @@ PyObject *tree_evaluation_cost(Tree *self, PyObject *args) {
   return Py_BuildValue("{s:d,s:d,s:d,s:d}", "rhs", rhs, "forces", forces, "aba", aba_here, "aba_library", aba_library);
 }
 
-// rhs(t, y) -> [v, aba(q, v, Q0 - KD y)]: a new array each call (integrators keep what they get)
-PyObject *tree_rhs(Tree *self, PyObject *const *args, Py_ssize_t nargs) {
+// rhs(t, y) -> [v, aba(q, v, Q0 - KD y)] (with drives: [v_I, a_I]); rhs_with_power(t, [y, W]) ->
+// [v_I, a_I, P] (drives only): a new array each call (integrators keep what they get)
+PyObject *call_rhs(Tree *self, PyObject *const *args, Py_ssize_t nargs, bool power) {
   if (nargs != 2) {
     PyErr_SetString(PyExc_TypeError, "rhs(t, y) takes two arguments");
     return nullptr;
@@ -391,18 +554,30 @@ PyObject *tree_rhs(Tree *self, PyObject *const *args, Py_ssize_t nargs) {
     PyErr_SetString(PyExc_RuntimeError, "the tree is not finalized");
     return nullptr;
   }
-  const int nv = self->nv;
-  PyArrayObject *y = vector_arg(args[1], 2 * nv, "y", "state");
+  if (power && !self->drives) {
+    PyErr_SetString(PyExc_TypeError, "rhs_with_power: only a tree with drives (set_drives) has it here");
+    return nullptr;
+  }
+  const double t = PyFloat_AsDouble(args[0]);
+  if (t == -1.0 && PyErr_Occurred()) return nullptr;
+  const int n = self->ny + (power ? 1 : 0);
+  PyArrayObject *y = vector_arg(args[1], n, "y", "state");
   if (!y) return nullptr;
-  npy_intp n = 2 * nv;
-  PyArrayObject *out = (PyArrayObject *)PyArray_SimpleNew(1, &n, NPY_DOUBLE);
+  npy_intp dims = n;
+  PyArrayObject *out = (PyArrayObject *)PyArray_SimpleNew(1, &dims, NPY_DOUBLE);
   if (!out) {
     Py_DECREF(y);
     return nullptr;
   }
-  evaluate_rhs(self, (const double *)PyArray_DATA(y), (double *)PyArray_DATA(out));
+  evaluate(self, t, (const double *)PyArray_DATA(y), (double *)PyArray_DATA(out), power);
   Py_DECREF(y);
   return (PyObject *)out;
+}
+
+PyObject *tree_rhs(Tree *self, PyObject *const *args, Py_ssize_t nargs) { return call_rhs(self, args, nargs, false); }
+
+PyObject *tree_rhs_with_power(Tree *self, PyObject *const *args, Py_ssize_t nargs) {
+  return call_rhs(self, args, nargs, true);
 }
 
 // the closure rows Phi_q (2m x nv) of the pairs, from placements and joint Jacobians already computed
@@ -491,6 +666,10 @@ PyMethodDef tree_methods[] = {
     {"point_rows_and_bias", (PyCFunction)(void (*)(void))tree_point_rows_and_bias, METH_FASTCALL,
      "point_rows_and_bias(q, v) -> (Phi_q, bias)"},
     {"rhs", (PyCFunction)(void (*)(void))tree_rhs, METH_FASTCALL, "rhs(t, y) -> [v, aba(q, v, Q0 - KD y)]"},
+    {"set_drives", (PyCFunction)tree_set_drives, METH_VARARGS,
+     "set_drives(driven, laws): coordinates prescribed by polynomials, laws = ((f, f', f'') coefficients, ...)"},
+    {"rhs_with_power", (PyCFunction)(void (*)(void))tree_rhs_with_power, METH_FASTCALL,
+     "rhs_with_power(t, [y, W]) -> [v_I, a_I, P] (with drives)"},
     {"evaluation_cost", (PyCFunction)tree_evaluation_cost, METH_VARARGS,
      "evaluation_cost(y, reps) -> {part: CPU seconds per call} (benchmarks/rhs_loop_cost.py)"},
     {nullptr, nullptr, 0, nullptr}};

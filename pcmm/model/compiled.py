@@ -19,6 +19,7 @@ configuration uses it.  Otherwise the Python evaluation runs and :func:`why_not`
 """
 from __future__ import annotations
 
+import functools
 import importlib.util
 import os
 import threading
@@ -127,13 +128,54 @@ def tree_rhs(model: pin.Model, Q0: np.ndarray, KD: np.ndarray, reference: Callab
     return tree.rhs
 
 
-def _register_segment_loop() -> None:
+def _register_segment_loop(owner: type | None = None, make: Callable | None = None) -> None:
     """Tell the integrators (a lower layer) that a tree's compiled right-hand side has a compiled
-    segment loop (DOP853 in C++, pcmm/model/_segment_loop.hpp), where this build has one."""
+    segment loop (DOP853 in C++, pcmm/model/_segment_loop.hpp), where this build has one; and that
+    ``owner``'s right-hand sides have ``make`` (called as :data:`pcmm.ode.integrators.SEGMENT_LOOPS`
+    says; it ends in :func:`segment_loop`)."""
     loop = getattr(_tree_dynamics, "SegmentLoop", None)
     if loop is not None:
         from ..ode.integrators import SEGMENT_LOOPS
         SEGMENT_LOOPS[_tree_dynamics.Tree] = loop
+        if owner is not None:
+            SEGMENT_LOOPS[owner] = make
+
+
+def segment_loop(tree, *args, **options):
+    """A compiled segment loop over ``tree`` (a tree from :func:`drive_tree`), the arguments
+    those of :data:`pcmm.ode.integrators.SEGMENT_LOOPS`."""
+    return _tree_dynamics.SegmentLoop(tree, *args, **options)
+
+
+def drive_tree(model: pin.Model, Q0: np.ndarray, KD: np.ndarray, driven, laws, reference: Callable,
+               reference_power: Callable):
+    """The compiled tree of a configuration whose coordinates ``driven`` are prescribed (drives
+    without loops: ``laws``, each drive's (f, f', f'') coefficients, low order first, as
+    :class:`pcmm.model.rows.Drives` evaluates them), whose ``rhs(t, [q_I, v_I])`` and
+    ``rhs_with_power(t, [q_I, v_I, W])`` equal ``reference`` and ``reference_power``, the Python
+    evaluations they replace (checked at probe states and times); or None (why_not says)."""
+    Q0, KD = np.asarray(Q0, float), np.asarray(KD, float)
+    driven = tuple(int(i) for i in driven)
+    laws = tuple(tuple(tuple(float(c) for c in cs) for cs in law) for law in laws)
+    if len(driven) >= model.nv:
+        _refuse("every coordinate is driven: nothing to integrate")
+        return None
+
+    def build(tree):
+        tree.finalize(model.gravity.linear, Q0, KD)
+        tree.set_drives(driven, laws)
+    entry = _tree(model, ("drives", Q0.tobytes(), KD.tobytes(), driven, laws), build)
+    if entry is None:
+        return None
+    tree, checked = entry
+    k = model.nv - len(driven)
+    states = _probe_states(k)
+    probes = [(0.37 * (j + 1), y) for j, y in enumerate(states)]  # the drives are functions of time
+    if not (_agrees(checked, tree.rhs, reference, probes, "right-hand side with drives")
+            and _agrees(checked, tree.rhs_with_power, reference_power,
+                        [(t, np.append(y, 0.0)) for t, y in probes], "right-hand side with drives and power")):
+        return None
+    return tree
 
 
 def closure_kinematics(model: pin.Model, frames_a, frames_b, rows: Callable, rows_and_bias: Callable):
@@ -162,7 +204,8 @@ def closure_kinematics(model: pin.Model, frames_a, frames_b, rows: Callable, row
     return tree
 
 
-def _probe_states(nv: int) -> list[np.ndarray]:
+@functools.lru_cache(maxsize=None)
+def _probe_states(nv: int) -> tuple[np.ndarray, ...]:
     """Fixed states: angles over a turn, velocities of order one, every component a different
     irrational rotation (the additive recurrence of the generalized golden ratio: ``k alpha_j``
     mod 1, alpha_j = g^-j with g^(d+1) = g + 1), so no two coordinates move alike.  Not
@@ -173,7 +216,10 @@ def _probe_states(nv: int) -> list[np.ndarray]:
         g = (1.0 + g) ** (1.0 / (d + 1))
     alpha = (1.0 / g) ** np.arange(1, d + 1) % 1.0
     u = (0.5 + np.outer(np.arange(1, _PROBES + 1), alpha)) % 1.0
-    return [np.concatenate([-np.pi + 2 * np.pi * row[:nv], -2.0 + 4.0 * row[nv:]]) for row in u]
+    states = tuple(np.concatenate([-np.pi + 2 * np.pi * row[:nv], -2.0 + 4.0 * row[nv:]]) for row in u)
+    for y in states:  # computed once per size (every configuration of every run asks): shared, read-only
+        y.flags.writeable = False
+    return states
 
 
 def _tree(model: pin.Model, key: tuple, finalize: Callable):

@@ -13,6 +13,7 @@ import contextlib
 import copy
 import dataclasses
 import math
+import threading
 
 import numpy as np
 import pinocchio as pin
@@ -77,6 +78,55 @@ class PartitionedCoordinates:
         self._point_rows = fast.point_rows if fast else self._python_point_rows
         self._point_rows_and_bias_at = fast.point_rows_and_bias if fast else self._python_point_rows_and_bias
         self.evaluations = "compiled" if fast else f"python: {why}"
+        # drives without loops: the right-hand side compiled whole (the prescribed coordinates and the
+        # KKT solve of the drive rows in C++, pcmm.model.compiled.drive_tree), with a compiled segment
+        # loop; _drives_refused says why not where it cannot be (then the Python evaluation runs)
+        self._drives_refused = self._why_drives_not_compiled()
+        self._compiled = None  # (thread, force elements, compiled tree) last used
+        if self._drives_refused is not None and not self.closure.size:
+            self.evaluations = f"python: not compiled: {self._drives_refused}"
+        if self._drives_refused is None:
+            self.D = self._best_dependent(None)  # the driven coordinates, whatever the posture (partition)
+            self.I = np.array([i for i in range(self.nv) if i not in self.D], dtype=int)
+            self.ny = 2 * len(self.I)
+            self.evaluations = "compiled" if self._compiled_drives() is not None else (
+                f"python: {compiled.why_not() or 'not compiled'}")
+
+    def _why_drives_not_compiled(self) -> str | None:
+        """Why the right-hand side of drives without loops is not compiled (None: it may be).  Every
+        drive law a scene can give (a polynomial in t, pcmm.scene.spec.DriveSpec) is compiled; what
+        is not: loops (their Newton solve), a planar joint (its q' is not v), point springs (their
+        forces are not the linear Q0 - KD y), a coordinate driven twice (no partition of drives alone),
+        every coordinate driven (nothing to integrate)."""
+        if self.closure.size or not self.drives.size:
+            return "loops" if self.closure.size else "no drive"
+        if self.cfg.has_planar:
+            return "a planar joint"
+        if self.cfg.forces.points is not None:
+            return "point springs"
+        if len(set(self.drives.index)) != self.drives.size:
+            return "a coordinate driven twice"
+        if self.drives.size >= self.nv:
+            return "every coordinate driven"
+        return None
+
+    def _compiled_drives(self):
+        """The calling thread's compiled tree for these drives and :attr:`forces` (a reader's own
+        force elements included), or None: the Python evaluation runs."""
+        if self._drives_refused is not None:
+            return None
+        forces, me = self.forces, threading.get_ident()
+        held = self._compiled
+        if held is not None and held[0] == me and held[1] is forces:
+            return held[2]
+        if forces.points is not None:
+            return None
+        tree = compiled.drive_tree(self.cfg.model, forces.Q0, forces.KD, self.drives.index, self.drives._derivs,
+                                   self._python_rhs, self._python_rhs_with_power)
+        self._compiled = (me, forces, tree)
+        if tree is not None:
+            compiled._register_segment_loop(PartitionedCoordinates, _drive_segment_loop)
+        return tree
 
     def forces_changed(self):
         """Nothing to rebuild: every evaluation reads :attr:`forces`."""
@@ -642,6 +692,13 @@ class PartitionedCoordinates:
         return self.accelerations(t, q, v)
 
     def rhs(self, t, y):
+        """``[q'_I, q''_I]`` at ``(t, y)``: compiled where the drives are (:meth:`_compiled_drives`)."""
+        fast = self._compiled_drives()
+        if fast is not None:
+            return fast.rhs(t, y)
+        return self._python_rhs(t, y)
+
+    def _python_rhs(self, t, y):
         q, v = self.unpack(t, y)
         a, _ = self._solved_accelerations(t, q, v)
         qd = self.cfg.qdot(q, v)
@@ -651,9 +708,25 @@ class PartitionedCoordinates:
         """``y`` is the state with the work so far appended; the state derivative with one more component: the power of the force elements and
         of the drives.  A constraint's generalized force ``Phi_q^T lam`` has the power
         ``lam . Phi_q v = -lam . Phi_t``: zero for the loops (scleronomic), the motor's
-        ``mu f'(t)`` for a drive."""
+        ``mu f'(t)`` for a drive.  Compiled where the drives are (:meth:`_compiled_drives`)."""
+        fast = self._compiled_drives()
+        if fast is not None:
+            return fast.rhs_with_power(t, y)
+        return self._python_rhs_with_power(t, y)
+
+    def _python_rhs_with_power(self, t, y):
         q, v = self.unpack(t, y[:-1])
         a, lam = self._solved_accelerations(t, q, v)
         power = float(self.forces.generalized(q, v) @ v - lam @ self._phi_t(t))
         qd = self.cfg.qdot(q, v)
         return np.concatenate([qd[self.I], self.cfg.qddot(q, v, a)[self.I], [power]])
+
+
+def _drive_segment_loop(coords: PartitionedCoordinates, *args, **options):
+    """The compiled segment loop of a configuration with drives and no loop (registered for
+    :data:`pcmm.ode.integrators.SEGMENT_LOOPS`): over the calling thread's compiled tree of its
+    drives; a ValueError where there is none (the integrator then steps in Python)."""
+    tree = coords._compiled_drives()
+    if tree is None:
+        raise ValueError(f"no compiled right-hand side: {coords._drives_refused or compiled.why_not()}")
+    return compiled.segment_loop(tree, *args, **options)

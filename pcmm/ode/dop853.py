@@ -41,12 +41,23 @@ class _Tableau:
 
 
 _TABLEAU: list[_Tableau] = []
+_PACKED: list[np.ndarray] = []
 
 
 def _tableau() -> _Tableau:
     if not _TABLEAU:
         _TABLEAU.append(_Tableau())
     return _TABLEAU[0]
+
+
+def packed_tableau() -> np.ndarray:
+    """scipy's DOP853 coefficients in one array, as a compiled segment loop stepping like
+    :class:`DOP853` reads them (pcmm/model/_segment_loop.hpp): A (16 x 16: the 12 stages, the
+    final one's row unused, the dense output's 3 extra), B (12), C (16), E3 (13), E5 (13), D (4 x 16)."""
+    if not _PACKED:
+        c = dop853_coefficients()
+        _PACKED.append(np.concatenate([np.asarray(x, float).ravel() for x in (c.A, c.B, c.C, c.E3, c.E5, c.D)]))
+    return _PACKED[0]
 
 
 class DenseStep:

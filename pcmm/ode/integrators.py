@@ -23,6 +23,7 @@ taken (``exc.segment``) so no result is lost.
 from __future__ import annotations
 
 import math
+import threading
 import warnings
 from dataclasses import dataclass
 
@@ -30,7 +31,7 @@ import numpy as np
 
 from .. import _scipy
 from ..errors import Repartition, SimulationError
-from .dop853 import DOP853, dense_step
+from .dop853 import DOP853, TOO_SMALL_STEP, DenseStep, dense_step, packed_tableau
 from .methods import AUTO, INTEGRATOR_NAMES, METHODS  # noqa: F401  (METHODS: the run loop's import)
 from .roots import brentq, minimize_bounded
 
@@ -297,9 +298,35 @@ def _bracketed_newton(g, dg, lo, hi, g_lo, g_hi, xtol, max_iter=100) -> float:
     return float(x)
 
 
+class _FortranCallbacks(threading.local):
+    """The call-backs of the segment the Fortran DOP853 is integrating on this thread.
+
+    scipy's f2py wrapper of DOP853 keeps a reference to each call-back it is handed and never
+    releases it (scipy 1.17: one per call to the right-hand side and to ``solout``).  Handed each
+    segment's own closures, every segment left them behind with what they hold, and through
+    ``ode``'s bound ``_solout`` its integrator and work arrays (0.57 kB per segment of a bouncing
+    run once emptied, 10 kB before).  So the Fortran code is only ever handed the two functions
+    below, the same objects for the whole process (what leaks is a count on them, no memory), and
+    they call the current segment's, set here for the segment's duration."""
+
+    f = None
+    solout = None
+
+
+_FORTRAN = _FortranCallbacks()
+
+
+def _fortran_rhs(t, y):
+    return _FORTRAN.f(t, y)
+
+
+def _fortran_solout(t, y):
+    return _FORTRAN.solout(t, y)
+
+
 def _guarded_rhs(counted, rhs, zeros, raised):
-    """The right-hand side handed to the Fortran DOP853 (see :meth:`DOP853F.integrate`), a closure
-    of its own: scipy never frees it, so its cells are emptied once the segment is integrated."""
+    """The right-hand side of one segment for the Fortran DOP853 (see :meth:`DOP853F.integrate`),
+    called through :func:`_fortran_rhs`."""
     def f(t, y):
         try:
             if raised:
@@ -365,6 +392,11 @@ class ScipyMethod:
         return DOP853 if self.name == "DOP853" else getattr(si, self.name)
 
     def integrate(self, fun, t0, y0, t_bound, events, opts) -> Segment:
+        if self.name == "DOP853" and COMPILED_SCIPY_STEPS:  # a compiled loop stepping as this class does
+            loop, progress = _segment_loop(fun, t0, y0, t_bound, events, opts, 0.0, tableau=packed_tableau())
+            if loop is not None:
+                return _run(lambda counted, f0, st: self._drive_compiled(loop, progress, counted, st, opts),
+                            fun, t0, y0, t_bound, events, opts)
         needs_f = _needs_derivative(events)
 
         def steps(counted, f0, st):
@@ -381,6 +413,57 @@ class ScipyMethod:
                     f_new = counted(solver.t, solver.y)
                 yield t_old, y_old, solver.t, solver.y, f_new, _lazy(solver.dense_output), None
         return _run(lambda counted, f0, st: _scan(steps(counted, f0, st), st), fun, t0, y0, t_bound, events, opts)
+
+    def _drive_compiled(self, loop, progress, counted, st, opts):
+        """The segment stepped by the compiled loop as :class:`pcmm.ode.dop853.DOP853` steps it (the
+        same steps, round-off apart), its events located on scipy's dense output of the step; a
+        step size below round-off ends the segment as scipy's does (a failed segment)."""
+        def failure(code):
+            FortranDOP853._diagnose(counted, st, opts)  # a non-finite derivative is the cause: say so
+            if code == -3:
+                return f"{self.name} failed: {TOO_SMALL_STEP}"
+            raise SimulationError(FortranDOP853._failure(code, st, opts))
+        return _drive_loop(loop, progress, st, lambda: DenseStep(*loop.dense()), failure, counted, "DOP853")
+
+
+def _drive_loop(loop, progress, st, dense, failure, counted, name):
+    """Step a segment by a compiled loop (:func:`_segment_loop`) to its end or its first event:
+    ``(hit, failure message)``.  The loop hands back the steps where a guard may fire (or every
+    step, where a guard is not affine in the state); those go through :meth:`_Stepper.accept` as
+    every method's do, located on ``dense()``, the loop's own dense output of the step.  A failure
+    code of the loop goes to ``failure(code)`` (which raises, or returns the failed segment's
+    message)."""
+    events, needs_f = st.events, _needs_derivative(st.events)
+    try:
+        while True:
+            code = loop.run()
+            steps = loop.take()
+            if len(steps):
+                _record_steps(st, steps)
+            if code == 1:
+                t_old, t_new, y_new, f_new = loop.candidate()
+                y_old = st.ys[-1]
+                if len(steps) and events:  # the guards at the step's start, as accept leaves them
+                    st.g = [e(t_old, y_old) for e in events]
+                    st.rates = [_rate(e, t_old, y_old, None, t_new - t_old) for e in events]
+                hit = st.accept(t_old, y_old, t_new, y_new, f_new if needs_f else None, _lazy(dense))
+                if hit is not None:
+                    return hit, None
+                if progress is not None and st.count % _PROGRESS_STEPS == 0:
+                    progress(float(t_new))
+            elif code == 2:  # a pause: Python's turn (Ctrl-C, the progress bar)
+                if progress is not None:
+                    progress(float(st.ts[-1]))
+            elif code == 0:
+                if t_bound_reached(st):
+                    return None, None
+                return None, (f"{name} (compiled) stopped at t = {st.ts[-1]:.17g} s before t_end = "
+                              f"{st.t_bound:.17g} s")
+            else:
+                message = failure(code)
+                return None, message
+    finally:
+        counted.n += loop.counts()[0]
 
 
 def _lazy(make):
@@ -454,25 +537,23 @@ class FortranDOP853:
                 except BaseException as exc:
                     raised.append(exc)
                     return -1
-            solver = si.ode(f).set_integrator(
+            solver = si.ode(_fortran_rhs).set_integrator(
                 "dop853", rtol=opts.rtol, atol=opts.atol, nsteps=opts.max_steps, beta=self.beta,
                 max_step=opts.max_step if np.isfinite(opts.max_step) else 0.0)
-            solver.set_solout(solout)
+            solver.set_solout(_fortran_solout)
             solver.set_initial_value(np.array(y0, float), t0)
+            # the Fortran code gets the process's solout itself, not the integrator's bound
+            # ``_solout`` (a new object per segment, leaked with the integrator: _FortranCallbacks)
+            solver._integrator.call_args[2] = _fortran_solout
+            outer = _FORTRAN.f, _FORTRAN.solout  # a segment integrated inside a call-back: restored
+            _FORTRAN.f, _FORTRAN.solout = f, solout
             try:
                 with warnings.catch_warnings():  # scipy warns on a failure code; the message below says it
                     warnings.filterwarnings("ignore", category=UserWarning, module="scipy.integrate._ode")
                     solver.integrate(t_bound)
                 code = solver.get_return_code()
             finally:
-                # scipy's ``ode`` never frees its integrator: the call into the Fortran code keeps a
-                # reference to the integrator's bound ``_solout`` (1.17: 201 integrators alive after
-                # 200 solves).  Emptied, each leaks a bare object instead of its work arrays, this
-                # segment's call-backs and through them its stepper's steps and guards (10 kB per
-                # segment of a bouncing run: benchmarks/memory_events.py)
-                vars(solver._integrator).clear()
-                for cell in f.__closure__:  # f leaks as well: let it keep nothing of this segment
-                    cell.cell_contents = None
+                _FORTRAN.f, _FORTRAN.solout = outer
             if raised:
                 raise raised[0]
             if hits:
@@ -487,41 +568,11 @@ class FortranDOP853:
 
     def _drive_compiled(self, loop, progress, counted, st, opts):
         """The segment stepped by the compiled loop (:func:`_segment_loop`): the same steps as the
-        Fortran code's, without Python between them.  The loop hands back the steps where a guard
-        may fire (or every step, where a guard is not affine in the state); those go through
-        :meth:`_Stepper.accept` as every method's do, located on the loop's own dense output."""
-        events, needs_f = st.events, _needs_derivative(st.events)
-        try:
-            while True:
-                code = loop.run()
-                steps = loop.take()
-                if len(steps):
-                    _record_steps(st, steps)
-                if code == 1:
-                    t_old, t_new, y_new, f_new = loop.candidate()
-                    y_old = st.ys[-1]
-                    if len(steps) and events:  # the guards at the step's start, as accept leaves them
-                        st.g = [e(t_old, y_old) for e in events]
-                        st.rates = [_rate(e, t_old, y_old, None, t_new - t_old) for e in events]
-                    hit = st.accept(t_old, y_old, t_new, y_new, f_new if needs_f else None,
-                                    _lazy(lambda: _Contd8(*loop.dense())))
-                    if hit is not None:
-                        return hit, None
-                    if progress is not None and st.count % _PROGRESS_STEPS == 0:
-                        progress(float(t_new))
-                elif code == 2:  # a pause: Python's turn (Ctrl-C, the progress bar)
-                    if progress is not None:
-                        progress(float(st.ts[-1]))
-                elif code == 0:
-                    if t_bound_reached(st):
-                        return None, None
-                    return None, (f"DOP853 (compiled) stopped at t = {st.ts[-1]:.17g} s before t_end = "
-                                  f"{st.t_bound:.17g} s")
-                else:
-                    self._diagnose(counted, st, opts)
-                    raise SimulationError(self._failure(code, st, opts))
-        finally:
-            counted.n += loop.counts()[0]
+        Fortran code's, without Python between them, located on the loop's own dense output."""
+        def failure(code):
+            self._diagnose(counted, st, opts)
+            raise SimulationError(self._failure(code, st, opts))
+        return _drive_loop(loop, progress, st, lambda: _Contd8(*loop.dense()), failure, counted, "DOP853")
 
     @staticmethod
     def _diagnose(counted, st, opts, steps: int = 200) -> None:
@@ -567,21 +618,44 @@ def t_bound_reached(st) -> bool:
 #: 256 evaluations between two reports of the run loop's wrapper)
 _PROGRESS_STEPS = 21
 
-#: compiled segment loops by the type of the object whose bound ``rhs`` a configuration integrates
-#: (a tree's compiled right-hand side): registered by pcmm.model.compiled, the layer above.
+#: Whether scipy's DOP853 (the method "DOP853", what "auto" gives a configuration with loops or
+#: drives) may be stepped by a compiled segment loop (pcmm/model/_segment_loop.hpp with scipy's
+#: tableau).  Off: its steps cannot be numpy's to the bit.  At rtol 1e-10 the error estimate of a
+#: step is a sum of stages that cancel to round-off (three_bar_cycle's second step: 1e-14 absolute,
+#: error norm 1.1e-8), so the summation order of numpy's BLAS dot products against the loop's decides
+#: the next step size: examples/three_bar_cycle.toml's steps part at its third step, and its 531
+#: event times then differ from the Python-stepped run's by up to 7.6e-10 s (the tolerance's
+#: size, not 1e-12), for 3 % of its run time (benchmarks/segment_loop.py --drives).  The compiled
+#: right-hand side of drives is what makes that run faster, with the same events to the bit.
+COMPILED_SCIPY_STEPS = False
+
+#: compiled segment loops by the type of the object whose bound ``rhs`` (or ``rhs_with_power``) a
+#: configuration integrates (a tree's compiled right-hand side; a configuration's coordinates whose
+#: drives are compiled): registered by pcmm.model, the layer above.  Each is called as
+#: ``make(owner, t0, y0, t_bound, rtol, atol, max_step, max_steps, beta, C, ct, d, direction,
+#: every_step, power=..., tableau=...)`` (the last two only where given).
 SEGMENT_LOOPS: dict = {}
 
 
-def _segment_loop(fun, t0, y0, t_bound, events, opts, beta):
-    """(the compiled loop for this segment, the progress call-back) where ``fun`` is a compiled
-    right-hand side with a registered loop (``fun`` may be the run loop's progress wrapper of it,
-    ``__wrapped__``), else (None, None): Python steps it, the reference."""
+def _segment_loop(fun, t0, y0, t_bound, events, opts, beta, tableau=None):
+    """(the compiled loop for this segment, the progress call-back) where ``fun`` is a right-hand
+    side (``rhs``, or ``rhs_with_power``: a flight's state with its work appended) whose owner has a
+    registered loop (``fun`` may be the run loop's progress wrapper of it, ``__wrapped__``), else
+    (None, None): Python steps it, the reference.  ``tableau``: scipy's DOP853 coefficients, packed
+    (:func:`pcmm.ode.dop853.packed_tableau`), for a loop that steps as scipy's DOP853; without it
+    the loop steps as Hairer's Fortran code with ``beta``."""
     progress = getattr(fun, "progress", None)
     fun = getattr(fun, "__wrapped__", fun)
     owner = getattr(fun, "__self__", None)
     make = SEGMENT_LOOPS.get(type(owner))
-    if make is None or getattr(fun, "__name__", None) != "rhs" or not (np.isscalar(opts.rtol) and np.isscalar(opts.atol)):
+    name = getattr(fun, "__name__", None)
+    if make is None or name not in ("rhs", "rhs_with_power") or not (np.isscalar(opts.rtol) and np.isscalar(opts.atol)):
         return None, None
+    options = {}
+    if name == "rhs_with_power":
+        options["power"] = True
+    if tableau is not None:
+        options["tableau"] = tableau
     y0 = np.array(y0, float)
     ny = y0.size
     affine = [getattr(e, "affine", None) for e in events]
@@ -599,7 +673,7 @@ def _segment_loop(fun, t0, y0, t_bound, events, opts, beta):
     max_step = opts.max_step if np.isfinite(opts.max_step) else 0.0
     try:
         loop = make(owner, float(t0), y0, float(t_bound), float(opts.rtol), float(opts.atol), float(max_step),
-                    int(opts.max_steps), float(beta), C, ct, d, direction, every_step)
+                    int(opts.max_steps), float(beta), C, ct, d, direction, every_step, **options)
     except (ValueError, TypeError, RuntimeError):  # a state that is not the tree's: Python steps it
         return None, None
     return loop, progress
