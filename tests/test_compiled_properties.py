@@ -5,7 +5,8 @@ Hypothesis draws open chains of one to three bars on revolute joints (lengths, m
 gravity or none, linear joint forces with springs and dampers, a start anywhere) with a stop on one
 of the joints (a coordinate guard, scanned in C++, or the contact gap, handed to Python at every
 step), a restitution, and sometimes a merge into the chain with that joint fixed and a timed release
-back (a time guard).  Each scene runs twice: with the compiled loop (the loop must really run: a
+back (a time guard); and Example 1 and its stop variant (a latch and a stop on the cut joint O3)
+with their torques, springs, dampers, start and restitution varied.  Each scene runs twice: with the compiled loop (the loop must really run: a
 silent fallback to Python fails the test) and with the Python-stepped Fortran DOP853 on the same
 compiled right-hand side, the reference.  The same outcome (complete, or the same error), the same
 events at the same times (1e-12 s), the same segments with the same ends (1e-12 s, states 1e-10)
@@ -200,3 +201,36 @@ def test_the_compiled_loop_is_the_python_stepped_run_on_random_chains(case):
     doc, urdfs = case
     with tempfile.TemporaryDirectory() as folder:
         assert_paths_agree(pcmm.load_scene(write_scene(Path(folder), doc, urdfs)))
+
+
+# ---- the shipped tree examples, varied ----------------------------------------------------------------------------------
+@st.composite
+def three_bar_variants(draw):
+    """Example 1 (the latch, a mobile impact with O3 cut) or its stop variant, with the motors'
+    torques, springs and dampers scaled, another start and another restitution."""
+    import tomllib
+
+    from builders import example_text
+    name = draw(st.sampled_from(["three_bar.toml", "three_bar_stop.toml"]))
+    doc = tomllib.loads(example_text(name))
+    for force in doc["forces"]:
+        for key in ("value", "k", "c"):
+            if key in force:
+                force[key] *= draw(st.floats(0.5, 2.0))
+    doc["initial"]["q"] = {j: draw(st.floats(-0.4, 0.4)) for j in doc["initial"]["q"]}
+    doc["initial"]["v"] = {j: draw(st.floats(-2.0, 2.0)) for j in doc["initial"]["v"]}
+    for tr in doc["transitions"]:
+        if "restitution" in tr:
+            tr["restitution"] = draw(st.floats(0.3, 0.95))
+    doc["scene"]["t_end"] = 0.6
+    doc["solver"]["max_events"] = 200
+    return name, doc
+
+
+@settings(PROPERTY, max_examples=6)
+@given(three_bar_variants())
+def test_the_compiled_loop_is_the_python_stepped_run_on_varied_examples(case):
+    from builders import copy_example, dump_toml
+    name, doc = case
+    with tempfile.TemporaryDirectory() as folder:
+        assert_paths_agree(pcmm.load_scene(copy_example(Path(folder), name, dump_toml(doc))))

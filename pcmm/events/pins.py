@@ -30,6 +30,8 @@ normal impulse n . lam >= 0) or lifted (its rows left out, its normal velocity a
 the strike lifts it (holding it would pull: a walker's trailing foot), the run enters the target's
 configuration without its cut joint (:meth:`~pcmm.scene.spec.SceneSpec.lift_off_target`, as a
 force lift-off does), solved again from there; without one it stops and says which to add.
+A bounce, a merge or contacts struck at once (pcmm.events.transitions) that would pull such a point
+stop the run instead, naming it (:func:`check_held_points_push`): their solves do not release it.
 (tests/test_double_support.py: a compass walker, against the momentum balances by hand.)
 
 The new pin's impulse (P_t, P_n) along the contact's tangent t = (n_y, -n_x) and normal must lie in
@@ -120,10 +122,9 @@ def check_held_points_push(cfg: Configuration, q, imp: Impulse, where: str) -> N
         if P < -SIGN_TOL * scale:
             raise SimulationError(f"{where}: the impact would pull the point held by '{s.name}' (normal impulse "
                                   f"{P:.6g} N s; it is held by compression only), so the point would leave the "
-                                  "surface in this impact, which pcmm resolves only at a pin strike: model the "
-                                  f"impact as a 'pin' into a configuration without '{s.name}' (its complementarity "
-                                  "decides whether the point stays), or hold the point by a cut joint without a "
-                                  "contact normal; pcmm does not apply a tensile impulse to it")
+                                  "surface in this impact; pcmm releases a held point within an impact only at a "
+                                  "pin strike, not at a bounce or a merge, and does not apply a tensile impulse to "
+                                  f"it (a cut joint '{s.name}' without a contact normal may pull)")
 
 
 def _released_target(scene, target: str, lifted: list[str]) -> str | None:
