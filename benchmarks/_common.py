@@ -60,13 +60,15 @@ def machine() -> dict:
 
 
 def pcmm_fingerprint() -> str:
-    """sha1 (10 hex) of pcmm's source files as imported: pcmm is edited while benchmarks run, so every page
-    records which sources it measured (and their latest modification time)."""
+    """sha1 (10 hex) of pcmm's source files as imported (every subpackage's, and the compiled
+    extension's C++): pcmm is edited while benchmarks run, so every page records which sources it
+    measured (and their latest modification time)."""
     import pcmm
-    files = sorted(Path(pcmm.__file__).parent.glob("*.py"))
+    root = Path(pcmm.__file__).parent  # every subpackage's sources and the compiled extension's
+    files = sorted(f for pattern in ("*.py", "*.cpp", "*.hpp") for f in root.rglob(pattern))
     h = hashlib.sha1()
     for f in files:
-        h.update(f.name.encode())
+        h.update(str(f.relative_to(root)).encode())
         h.update(f.read_bytes())
     newest = max(f.stat().st_mtime for f in files)
     return f"{h.hexdigest()[:10]} (newest file {_dt.datetime.fromtimestamp(newest).astimezone():%Y-%m-%d %H:%M:%S %Z})"
@@ -173,3 +175,99 @@ def timed_segments(log: list):
         yield
     finally:
         sim.INTEGRATORS = integ.INTEGRATORS = original
+
+
+# ---- memory: what a finished run retains --------------------------------------------------
+def traced_run(scene, t_end: float, warm_up: float = 3.0, traced: bool = True, **simulate_kw):
+    """Simulate ``scene`` to ``t_end`` under ``tracemalloc`` (if ``traced``), after a warm-up run to
+    ``warm_up`` s (models built, modules imported: neither is counted).  Returns (trajectory,
+    figures): ``retained``, the bytes still allocated after the run and a collection (what the
+    finished run holds, its trajectory included); ``peak``, the traced peak above the start (both
+    None untraced); ``cpu_s``, the run's CPU time (tracing slows it); ``rss_peak_kb``, the process's
+    peak RSS (all of it: Python, numpy, scipy, Pinocchio and the run).  ``simulate_kw`` goes to
+    :func:`pcmm.simulate` (``store=``)."""
+    import gc
+    import resource
+    import tracemalloc
+
+    import pcmm
+    pcmm.simulate(scene, pcmm.RunOptions(t_end=warm_up))
+    gc.collect()
+    if traced:
+        tracemalloc.start()
+        base = tracemalloc.get_traced_memory()[0]
+    t0 = time.process_time()
+    traj = pcmm.simulate(scene, pcmm.RunOptions(t_end=t_end), **simulate_kw)
+    cpu = time.process_time() - t0
+    gc.collect()
+    retained = peak = None
+    if traced:
+        current, peak = tracemalloc.get_traced_memory()
+        tracemalloc.stop()
+        retained, peak = current - base, peak - base
+    return traj, dict(retained=retained, peak=peak, cpu_s=cpu,
+                      rss_peak_kb=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)
+
+
+def rss_kb() -> int:
+    """The process's resident set size now (kB; Linux's /proc/self/status, else 0)."""
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1])
+    except OSError:
+        pass
+    return 0
+
+
+class RssTrace:
+    """A run's ``progress(t)`` that reads the resident set size each time the run passes another
+    ``every`` s of simulated time, and prints ``rss t=... kb=...`` to stderr as it goes (a run
+    stopped before its end leaves its trace)."""
+
+    def __init__(self, every: float):
+        self.every, self.next, self.points = every, every, []
+
+    def __call__(self, t: float) -> None:
+        if t >= self.next:
+            self.points.append((t, rss_kb()))
+            print(f"rss t={t:.6g} kb={self.points[-1][1]}", file=sys.stderr, flush=True)
+            while self.next <= t:
+                self.next += self.every
+
+
+def traced_run_in_child(scene_path: Path, t_end: float, store: Path | None = None, chunk: int | None = None,
+                        traced: bool = True, rss_every: float | None = None) -> dict:
+    """:func:`traced_run` of the scene at ``scene_path`` in a process of its own (so one run's
+    figures, its peak RSS above all, are not another's), streamed to ``store`` in chunks of
+    ``chunk`` records if given, its RSS read every ``rss_every`` s of simulated time if given
+    (:class:`RssTrace`, printed to this process's stderr as it goes).  Returns its figures with
+    the run's ``events``, ``samples``, ``segments``, ``steps`` and ``rss_trace`` ([t, kB] pairs)."""
+    import json
+    import subprocess
+    spec = dict(scene=str(scene_path), t_end=t_end, store=None if store is None else str(store), chunk=chunk,
+                traced=traced, rss_every=rss_every)
+    out = subprocess.run([sys.executable, __file__, "traced-run", json.dumps(spec)], stdout=subprocess.PIPE,
+                         stderr=None if rss_every else subprocess.PIPE, text=True)
+    if out.returncode:
+        sys.exit(f"the run of {scene_path} to t = {t_end:g} s failed:\n{out.stderr or '(its stderr above)'}")
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def _traced_run_child(spec: dict) -> dict:
+    import pcmm
+    from pcmm.results.store import StoreWriter
+    store = None
+    if spec["store"] is not None:
+        store = StoreWriter(spec["store"], **({} if spec["chunk"] is None else dict(chunk_records=spec["chunk"])))
+    trace = RssTrace(spec["rss_every"]) if spec.get("rss_every") else None
+    kw = {} if trace is None else dict(progress=trace)
+    traj, figures = traced_run(pcmm.load_scene(spec["scene"]), spec["t_end"], traced=spec["traced"], store=store, **kw)
+    return dict(figures, events=len(traj.events), samples=sum(len(s.t) for s in traj.segments),
+                segments=len(traj.segments), steps=traj.stats["steps"],
+                rss_trace=[] if trace is None else trace.points)
+
+
+if __name__ == "__main__" and sys.argv[1:2] == ["traced-run"]:
+    import json
+    print(json.dumps(_traced_run_child(json.loads(sys.argv[2]))))

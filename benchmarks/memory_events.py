@@ -12,12 +12,13 @@ sample), free of the constant start-up cost.  Each subprocess also reports its p
 """
 from __future__ import annotations
 
-import json
 import math
-import subprocess
 import sys
 import tempfile
 from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _common import traced_run_in_child  # noqa: E402
 
 G = 9.81
 H = 1.0
@@ -59,25 +60,6 @@ guard = {{ type = "gap", value = 0.0, direction = "decreasing" }}
 contact = {{ a = "frame", point_a = [0.0, 0.0], b = "ball", point_b = [0.0, 0.0], normal = [0.0, 1.0] }}
 """
 
-CHILD = r"""
-import gc, json, resource, sys, tracemalloc
-import pcmm
-path, t_end = sys.argv[1], float(sys.argv[2])
-scene = pcmm.load_scene(path)
-pcmm.simulate(scene, pcmm.RunOptions(t_end=3.0))  # warm-up: models built, modules imported
-gc.collect()
-tracemalloc.start()
-base = tracemalloc.get_traced_memory()[0]
-traj = pcmm.simulate(scene, pcmm.RunOptions(t_end=t_end))
-gc.collect()
-current, peak = tracemalloc.get_traced_memory()
-tracemalloc.stop()
-print(json.dumps(dict(events=len(traj.events), samples=int(traj.t.size), segments=len(traj.segments),
-                      steps=traj.stats["steps"], retained=current - base, peak=peak - base,
-                      rss_peak_kb=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)))
-"""
-
-
 def write_scene(folder: Path, t_end: float) -> Path:
     (folder / "free.urdf").write_text(BALL.format(name="ball", jtype="prismatic", axis='<axis xyz="0 1 0"/><limit lower="-1e3" upper="1e3" effort="1e3" velocity="1e3"/>'))
     (folder / "rest.urdf").write_text(BALL.format(name="ball_rest", jtype="fixed", axis=""))
@@ -88,10 +70,7 @@ def write_scene(folder: Path, t_end: float) -> Path:
 
 def measure(path: Path, bounces: int) -> dict:
     t_end = (bounces - 0.5) * PERIOD + 0.5 * PERIOD  # the first impact at PERIOD/2, then one per PERIOD
-    out = subprocess.run([sys.executable, "-c", CHILD, str(path), repr(t_end)], capture_output=True, text=True)
-    if out.returncode:
-        sys.exit(f"the run of {bounces} bounces failed:\n{out.stderr}")
-    return json.loads(out.stdout.strip().splitlines()[-1])
+    return traced_run_in_child(path, t_end)
 
 
 def main(short: int = 1000, long: int = 3000) -> None:

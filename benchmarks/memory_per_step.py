@@ -9,28 +9,23 @@ trajectory's own arrays, and the peak while the segments integrate.
 """
 from __future__ import annotations
 
-import gc
 import sys
-import tracemalloc
+from pathlib import Path
 
 import pcmm
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _common import traced_run  # noqa: E402
+
 
 def main(scene_path: str, t_end: float) -> None:
-    scene = pcmm.load_scene(scene_path)
-    pcmm.simulate(scene, pcmm.RunOptions(t_end=0.01))
-    gc.collect()
-    tracemalloc.start()
-    base = tracemalloc.get_traced_memory()[0]
-    traj = pcmm.simulate(scene, pcmm.RunOptions(t_end=t_end))
-    gc.collect()
-    current, peak = tracemalloc.get_traced_memory()
+    traj, figures = traced_run(pcmm.load_scene(scene_path), t_end, warm_up=0.01)
     samples = traj.t.size
     arrays = sum(getattr(s, a).nbytes for s in traj.segments
                  for a in ("t", "q", "v", "theta", "omega", "xy", "kinetic", "potential", "forces", "constraint_forces"))
     print(f"{scene_path} to t = {t_end:g} s: {traj.stats['steps']} steps, {samples} samples; retained "
-          f"{(current - base) / samples:.0f} B per sample (arrays {arrays / samples:.0f} B), "
-          f"peak {(peak - base) / samples:.0f} B per sample")
+          f"{figures['retained'] / samples:.0f} B per sample (arrays {arrays / samples:.0f} B), "
+          f"peak {figures['peak'] / samples:.0f} B per sample")
 
 
 if __name__ == "__main__":

@@ -17,6 +17,7 @@ a shell's background job SIGINT), so ``nohup pcmm run ...`` outlives the termina
 """
 from __future__ import annotations
 
+import _signal  # the C module under ``signal``: the same calls without its enum conversions
 import contextlib
 import signal
 import threading
@@ -45,7 +46,10 @@ def _signals(names):
         if sig is None:
             continue
         with contextlib.suppress(ValueError, OSError):
-            if signal.getsignal(sig) == signal.SIG_IGN:
+            # _signal's, not signal.getsignal: that one turns the handler into an enum member
+            # where it can, by raising and catching a ValueError for a Python handler (20 us per
+            # signal, a tenth of Example 1's whole run went on these look-ups and settings)
+            if _signal.getsignal(sig) == signal.SIG_IGN:
                 continue
         out.append(sig)
     return out
@@ -118,15 +122,15 @@ def deferred():
     signals that arrived (the caller decides what they mean once the block is done)."""
     held = _Held()
     old = {}
-    if _main_thread():
+    if _main_thread():  # every recorded segment passes here: the C module's calls (see _signals)
         for sig in _signals(_NAMES):
             with contextlib.suppress(ValueError, OSError):
-                old[sig] = signal.signal(sig, held)
+                old[sig] = _signal.signal(sig, held)
     try:
         yield held
     finally:
         for sig, handler in old.items():
-            signal.signal(sig, handler)
+            _signal.signal(sig, handler)
 
 
 __all__ = ["Terminated", "as_interrupts", "deferred", "describe", "exit_status", "hold", "release"]

@@ -13,7 +13,10 @@ import pcmm
 from pcmm.model import compiled
 from builders import EXAMPLES, Bar, chain_urdf, copy_example, example_text
 
-needs_extension = pytest.mark.skipif(compiled._tree_dynamics is None, reason=f"{compiled.why_not()}")
+# the tests of the compiled evaluations themselves: skipped where they do not run (no extension, or
+# PCMM_COMPILED=0, under which the suite checks the Python path: tests/test_python_path.py)
+needs_extension = pytest.mark.skipif(compiled._tree_dynamics is None or not compiled.enabled(),
+                                     reason=f"the compiled evaluations do not run here: {compiled.why_not()}")
 
 # every joint kind a planar URDF gives Pinocchio, with yawed origins, a fixed joint and gravity
 EVERY_KIND = [Bar(0.3, 0.5, yaw=0.4), Bar(0.25, 0.7, axis=(0.0, 0.0, -1.0)),

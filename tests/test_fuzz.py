@@ -552,7 +552,8 @@ def test_fuzz_scene_structure(workdir, case):
         with contextlib.suppress(FileExistsError):
             (d / "loop.urdf").symlink_to(d / "loop.urdf")
         (d / "folder").mkdir(exist_ok=True)
-        event(what.split(" ")[0] + ": " + check_outcome(path, f"{example.name}: {what}", t_end=0.05, run=not hot,
+        event(what.split(" ")[0] + ": " + check_outcome(path, f"{example.name}: {what}", t_end=short(example, 0.05),
+                                                        run=not hot,
                                                         urdf_names=[u.name for u in URDFS]))
 
 

@@ -13,13 +13,13 @@ import json
 import math
 import os
 import re
-import subprocess
 import types
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+import headless
 import pcmm
 from pcmm.viz import replay
 from pcmm.viz import sketch as sk
@@ -28,7 +28,6 @@ ROOT = Path(__file__).resolve().parents[1]
 SCENE = ROOT / "examples" / "three_bar.toml"
 FPS = 60
 T_END = 0.4
-CHROMIUM = Path("/usr/bin/chromium")
 
 try:
     import umsgpack as _msgpack  # meshcat's own dependency
@@ -622,52 +621,30 @@ def test_serve_error_stops_the_server(runs, monkeypatch):
 
 
 # ---- real browser --------------------------------------------------------------------------
-def _chromium(url: str, profile: Path, out: Path | None = None, size: str = "800,600",
-             dom: bool = False) -> subprocess.Popen:
-    """Headless Chromium: a screenshot into ``out``, and/or (``dom``, or without ``out``) the DOM
-    after the scripts ran on stdout; one launch for both, as a launch costs seconds of CPU (its
-    software WebGL)."""
-    profile.mkdir()
-    action = ([f"--screenshot={out}"] if out is not None else []) + (["--dump-dom"] if dom or out is None else [])
-    return subprocess.Popen(
-        [str(CHROMIUM), "--headless", "--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
-         "--disable-background-networking", "--no-first-run", "--disable-gpu-sandbox",
-         f"--user-data-dir={profile}", f"--window-size={size}", "--hide-scrollbars",
-         "--virtual-time-budget=3000", *action, url],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True)
+@pytest.fixture(scope="session")
+def chromium(tmp_path_factory):
+    """One headless Chromium for the session (per xdist worker), each page opened in a fresh
+    browser context of it: a launch costs seconds of CPU (its software WebGL), a page a fraction."""
+    browser = headless.Chromium(tmp_path_factory.mktemp("chromium"))
+    yield browser
+    browser.close()
 
 
-def _finish(proc) -> str:
-    try:
-        out, err = proc.communicate(timeout=150)
-    except subprocess.TimeoutExpired:
-        import signal
-        os.killpg(proc.pid, signal.SIGKILL)  # chromium's own children too
-        proc.communicate()
-        pytest.fail("chromium did not finish in 150 s")
-    return out.decode(errors="replace") + err.decode(errors="replace")[-2000:]
-
-
-def _screenshots(page: Path, times, tmp_path, dom_at=None, size="800,600"):
+def _screenshots(chromium, page: Path, times, tmp_path, dom_at=None, size=(800, 600)):
     """Images (H, W, 3) of the page opened at each time; plus the DOM at ``dom_at`` (from the
-    screenshot's launch at that time, if there is one at the default size)."""
+    screenshot's page at that time, if there is one at the default size)."""
     from PIL import Image
     images, dom = [], None
-    with_dom = times.index(dom_at) if dom_at in times and size == "800,600" else None
-    for batch in range(0, len(times), 2):  # two at a time: the machine is shared
-        procs = []
-        for i, t in enumerate(times[batch:batch + 2], start=batch):
-            shot = tmp_path / f"t{i}.png"
-            procs.append((i, shot, _chromium(f"{page.as_uri()}#t={t!r}", tmp_path / f"profile{i}", shot, size,
-                                             dom=i == with_dom)))
-        for i, shot, proc in procs:
-            log = _finish(proc)
-            assert shot.exists(), log
-            images.append(np.asarray(Image.open(shot).convert("RGB")).astype(int))
-            if i == with_dom:
-                dom = log
+    with_dom = times.index(dom_at) if dom_at in times and size == (800, 600) else None
+    for i, t in enumerate(times):
+        shot = tmp_path / f"t{i}.png"
+        text = chromium.open(f"{page.as_uri()}#t={t!r}", size, shot, dom=i == with_dom)
+        assert shot.exists(), chromium.log
+        images.append(np.asarray(Image.open(shot).convert("RGB")).astype(int))
+        if i == with_dom:
+            dom = text
     if dom_at is not None and with_dom is None:
-        dom = _finish(_chromium(f"{page.as_uri()}#t={dom_at!r}", tmp_path / "profile_dom"))
+        dom = chromium.open(f"{page.as_uri()}#t={dom_at!r}", dom=True)
     return images, dom
 
 
@@ -686,15 +663,15 @@ def _pixel_map(view, w, h):
     return pixel
 
 
-needs_chromium = pytest.mark.skipif(not CHROMIUM.exists(), reason="needs Debian's chromium (/usr/bin/chromium)")
+needs_chromium = pytest.mark.skipif(not headless.CHROMIUM.exists(), reason="needs Debian's chromium (/usr/bin/chromium)")
 
 
 @pytest.mark.browser
 @needs_chromium
-def test_browser_renders_the_mechanism_at_two_times(runs, page, tmp_path):
+def test_browser_renders_the_mechanism_at_two_times(chromium, runs, page, tmp_path):
     traj = runs[0]
     times = (0.05, 0.35)  # before and after the latch (t = 0.167 s)
-    images, _ = _screenshots(page, times, tmp_path)
+    images, _ = _screenshots(chromium, page, times, tmp_path)
     h, w, _ = images[0].shape
     assert (w, h) == (800, 600)
     view = replay.view_box(traj, replay.run_visuals(traj), fps=FPS)
@@ -731,13 +708,13 @@ def _red(img):
 
 @pytest.mark.browser
 @needs_chromium
-def test_browser_shows_the_impulse_arrow_and_the_time_at_the_impact(runs, page, tmp_path):
+def test_browser_shows_the_impulse_arrow_and_the_time_at_the_impact(chromium, runs, page, tmp_path):
     """Opened at the impact's exact instant, the page shows the impulse arrow (red pixels along
     it, none there 30 ms before) and the time readout says that instant."""
     traj = runs[0]
     ev = _first_impact(traj)
     t = ev["t"]
-    images, dom = _screenshots(page, (t, t - 0.03), tmp_path, dom_at=t)
+    images, dom = _screenshots(chromium, page, (t, t - 0.03), tmp_path, dom_at=t)
     at, before = images
     h, w, _ = at.shape
     view = replay.view_box(traj, replay.run_visuals(traj), fps=FPS)
@@ -790,14 +767,14 @@ def _dark(img):
 
 @pytest.mark.browser
 @needs_chromium
-def test_browser_draws_pivots_locks_arcs_and_plates_where_and_when_they_are(cycle_page, tmp_path):
+def test_browser_draws_pivots_locks_arcs_and_plates_where_and_when_they_are(chromium, cycle_page, tmp_path):
     traj, page = cycle_page
     first = next(e for e in traj.events if e.get("impact"))
     lock = next(e for e in traj.events if e.get("merge") and e["to"] == "O2_locked")  # O2 locks
     release = next(e for e in traj.events if e["transition"] == "release")
     t_open, t_locked = 0.5 * first["t"], lock["t"] + 0.5 / CYCLE_FPS
     times = (t_open, t_locked, first["t"], first["t"] - 0.004, release["t"] + 0.1, release["t"] + 1.0)
-    images, _ = _screenshots(page, times, tmp_path, size="1200,600")  # wide: the readout keeps to one line
+    images, _ = _screenshots(chromium, page, times, tmp_path, size=(1200, 600))  # wide: the readout keeps to one line
     h, w, _ = images[0].shape
     view = replay.view_box(traj, replay.run_visuals(traj), fps=CYCLE_FPS)
     pixel = _pixel_map(view, w, h - replay.BAR_PX)
@@ -846,14 +823,13 @@ def test_browser_draws_pivots_locks_arcs_and_plates_where_and_when_they_are(cycl
 
 @pytest.mark.browser
 @needs_chromium
-def test_browser_shows_the_second_runs_readout_in_full(runs, tmp_path):
+def test_browser_shows_the_second_runs_readout_in_full(chromium, runs, tmp_path):
     """Two runs in a narrow window: each run has its own row, the rows wrap instead of being cut,
     and the view shrinks to leave the bar its height."""
     path = tmp_path / "two.html"
     replay.write_html(runs[0], path, fps=FPS, others=[runs[1]])
-    profile = tmp_path / "p"
     shot = tmp_path / "two.png"
-    dom = _finish(_chromium(f"{path.as_uri()}#t=0.3", profile, shot, size="520,600", dom=True))
+    dom = chromium.open(f"{path.as_uri()}#t=0.3", (520, 600), shot, dom=True)
     from PIL import Image
     img = np.asarray(Image.open(shot).convert("RGB")).astype(int)
     h, w, _ = img.shape
@@ -975,14 +951,14 @@ def _cut_ink(img):
 
 @pytest.mark.browser
 @needs_chromium
-def test_browser_draws_the_pinned_foot_while_it_holds_and_not_after(wheel_page, tmp_path):
+def test_browser_draws_the_pinned_foot_while_it_holds_and_not_after(chromium, wheel_page, tmp_path):
     """Screenshots during spoke 0's stay and during spoke 1's: the cut joint's ring (purple) around the
     struck anchor's screen position while that stay lasts, and none at the old anchor after the
     next strike."""
     traj, page = wheel_page
     strike = next(e["t"] for e in traj.events if e["transition"] == "pin")
     times = (0.5 * strike, strike + 0.3)
-    images, _ = _screenshots(page, times, tmp_path, size="1600,700")
+    images, _ = _screenshots(chromium, page, times, tmp_path, size=(1600, 700))
     h, w, _ = images[0].shape
     view = replay.view_box(traj, replay.run_visuals(traj), fps=WHEEL_FPS)
     pixel = _pixel_map(view, w, h - replay.BAR_PX)

@@ -138,3 +138,27 @@ def test_a_run_stopped_by_an_error_ends_its_store_as_partial_with_its_message(tm
     assert back.status == "partial" and "more than 5 events" in back.message
     assert (folder / "end.json").is_file() and len(back.events) == 6 and len(back.segments) == 6
     _same_record(stopped.value.partial, back)
+
+
+def test_a_chunk_header_is_its_json_in_utf8_and_older_string_headers_still_read(tmp_path):
+    """A chunk's header (segments, groups, events: JSON) is kept as its UTF-8 bytes, one byte a
+    character of this ASCII JSON: a numpy string array, as before, holds 4 (UTF-32), and the
+    events' JSON is most of a chunk (a bouncing ball: ~1.2 kB of JSON an event, 2,000 events a
+    chunk).  A chunk written the old way (the same JSON as a numpy string) reads the same."""
+    scene = pcmm.load_scene(builders.ball(tmp_path, 1.0, merge=False))
+    folder = tmp_path / "store"
+    pcmm.simulate(scene, pcmm.RunOptions(t_end=6.5 * PERIOD), store=StoreWriter(folder, chunk_records=4))
+    first = pcmm.Trajectory.load(folder)
+    path = chunk_path(folder, 0)
+    with np.load(path) as z:
+        arrays = {k: z[k] for k in z.files}
+    text = arrays["header"].tobytes().decode("utf-8")
+    header = json.loads(text)
+    assert arrays["header"].dtype == np.uint8 and arrays["header"].nbytes == len(text) == len(text.encode("ascii"))
+    # the fall and 3 flights, and the 3 impacts between them (the 4th segment's is the next chunk's)
+    assert len(header["segments"]) == 4 and len(header["events"]) == 3
+    assert [e["t"] for e in header["events"]] == [e["t"] for e in list(first.events)[:3]]
+    arrays["header"] = np.array(text)  # the old way: 4 bytes a character
+    assert arrays["header"].nbytes == 4 * len(text)
+    np.savez(path, **arrays)
+    _same_record(first, pcmm.Trajectory.load(folder))

@@ -19,6 +19,7 @@ from ..model.configuration import Configuration
 from ..model.pinocchio_helpers import LOCAL, frame_jacobian, joint_jacobian
 
 _PLANAR_ROWS = [0, 1, 5]  # vx, vy, wz of a spatial velocity
+_PLANAR_INDEX = np.array(_PLANAR_ROWS)  # the same rows as an index array (cheaper to apply)
 
 
 @dataclass
@@ -129,12 +130,15 @@ def _forbidden(model, jid: int, q_joint: np.ndarray, known: dict) -> np.ndarray:
     return N
 
 
-def cut(cfg: Configuration, q: np.ndarray, joints: tuple[str, ...]) -> CutSystem:
-    """The cut system of ``cfg`` at pose ``q`` with ``joints`` released."""
+def cut(cfg: Configuration, q: np.ndarray, joints: tuple[str, ...], kinematics: bool = True) -> CutSystem:
+    """The cut system of ``cfg`` at pose ``q`` with ``joints`` released.  ``kinematics=False``: the
+    tree's placements and joint Jacobians at ``q`` are already on ``cfg.data``
+    (:meth:`Configuration.kinematics`), and are not computed again."""
     model, data = cfg.model, cfg.data
     joints = tuple(joints)
     qp = cfg.to_pin(q)
-    pin.computeJointJacobians(model, data, qp)  # placements (oMi, liMi) and the tree's Jacobians in one pass
+    if kinematics:
+        pin.computeJointJacobians(model, data, qp)  # placements (oMi, liMi) and the tree's Jacobians in one pass
     new, new_data, jmap, copies, cut_ids, known, layout = _structure(cfg, joints)
     for jid, _ in layout.planar_rows:
         new.jointPlacements[jmap[jid]] = data.oMi[jid]  # the planar joint starts at the child's pose
@@ -149,16 +153,17 @@ def cut(cfg: Configuration, q: np.ndarray, joints: tuple[str, ...]) -> CutSystem
     # T: tree velocity -> cut-system velocity
     T = layout.T0.copy()
     for jid, row in layout.planar_rows:
-        T[row:row + 3] = joint_jacobian(model, data, jid, LOCAL)[_PLANAR_ROWS]
+        T[row:row + 3] = joint_jacobian(model, data, jid, LOCAL)[_PLANAR_INDEX]
     rows, owner, dirs, rots = [], [], [], {}
     for name in joints:
         jid = cfg.joint_id[name]
-        child = joint_jacobian(new, new_data, jmap[jid], LOCAL)[_PLANAR_ROWS]
-        parent = frame_jacobian(new, new_data, copies[name], LOCAL)[_PLANAR_ROWS]
+        child = joint_jacobian(new, new_data, jmap[jid], LOCAL)[_PLANAR_INDEX]
+        parent = frame_jacobian(new, new_data, copies[name], LOCAL)[_PLANAR_INDEX]
+        relative = child - parent  # the child's velocity relative to the parent's copy of its frame
         jm = model.joints[jid]
         N = _forbidden(model, jid, qp[jm.idx_q:jm.idx_q + jm.nq], known)
         for k in range(N.shape[1]):
-            rows.append(N[:, k] @ (child - parent))
+            rows.append(N[:, k] @ relative)
             owner.append(name)
             dirs.append(N[:, k])
         rots[name] = data.oMi[jid].rotation[:2, :2].copy()

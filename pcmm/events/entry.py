@@ -111,6 +111,8 @@ def _constraint_kind(label: str) -> str:
 def map_state(src: Configuration, dst: Configuration, q, v, known: dict | None = None):
     """(q, v) of ``src`` as ``dst``'s coordinates, by joint name (not yet projected onto
     ``dst``'s constraints), and the velocities of the joints ``dst`` drops."""
+    if src is dst:  # a bounce: every joint maps onto itself (the same entries, signed zeros kept)
+        return q.copy(), v.copy(), {}
     q_new = dst.neutral()
     v_new = np.zeros(dst.nv)
     missing = []

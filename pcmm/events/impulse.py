@@ -25,6 +25,7 @@ as acceleration and the contact impulse as an external force.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -32,7 +33,7 @@ import pinocchio as pin
 
 from .._scipy import lapack
 from ..model.configuration import Configuration
-from .contact import contact_point, contact_state, impact_kind, joint_stop_row
+from .contact import contact_point, contact_state, impact_kind, joint_stop_row, normal_row
 from .cutting import cut
 from .friction import AmbiguousImpact, FrictionalImpulse, routh
 from ..errors import SimulationError
@@ -125,36 +126,90 @@ def tangent_of(n: np.ndarray) -> np.ndarray:
     return np.array([n[1], -n[0]])
 
 
+@dataclass(frozen=True)
+class _Plan:
+    """What an impulse solve at one contact with one set of cut joints needs that no event changes:
+    the cut joints split into the tree's (cut here, :mod:`pcmm.events.cutting`) and the loops' (already
+    rows of ``G``), the contact's frames and its constant row, the drives' rows among the multipliers
+    (their impulsive work).  Built at the first impact, kept with the configuration's model
+    (``Configuration.impulse_models``) under everything it reads."""
+
+    contact: ContactSpec
+    cut_joints: tuple[str, ...]  # tree joints cut at the impact
+    cut_loops: tuple[str, ...]  # loop cut joints among the transition's cut (their rows are in G)
+    stop: bool  # a joint stop (its own coordinate's row), else a point contact
+    frictional: bool
+    prismatic: bool  # a prismatic joint stop
+    kind: str  # "stable" or "mobile"
+    frame_a: int  # link frames of a and b
+    frame_b: int
+    Jn_tree: np.ndarray | None  # a joint stop's row in the tree: -s e_j (constant)
+    drive_rows: tuple[tuple[int, int], ...]  # (multiplier index among the constraint rows, joint velocity index)
+
+
+def _plan(cfg: Configuration, contact: ContactSpec, cut_joints: tuple[str, ...]) -> _Plan:
+    labels = tuple(cfg.coords.labels)
+    loop_cuts = tuple(s.name for s in cfg.spec.cut_joints)
+    key = ("plan", id(contact), tuple(cut_joints), labels, loop_cuts)  # the contact by identity: its hash
+    kept = cfg.impulse_models  # walks all its fields, and a plan holds the contact it was made for
+    plan = kept.get(key)
+    if plan is not None and plan.contact is contact:
+        return plan
+    Jn = None
+    if contact.joint is not None:
+        Jn = np.zeros(cfg.nv)
+        Jn[cfg.joint_slice[contact.joint].start] = -contact.stop_sign
+    plan = kept[key] = _Plan(
+        contact=contact, cut_joints=tuple(j for j in cut_joints if j not in loop_cuts),
+        cut_loops=tuple(j for j in cut_joints if j in loop_cuts),
+        stop=contact.joint is not None,
+        frictional=contact.joint is None and contact.friction is not None,
+        prismatic=contact.joint is not None and cfg.spec.info.joints[contact.joint].type == "prismatic",
+        kind=impact_kind(cfg, contact), frame_a=cfg.link_frame[contact.a], frame_b=cfg.link_frame[contact.b],
+        Jn_tree=Jn,
+        drive_rows=tuple((i, cfg.joint_slice[lab[:-6]].start) for i, lab in enumerate(labels) if lab.endswith(".drive")))
+    return plan
+
+
 def solve_impulse(cfg: Configuration, t: float, q: np.ndarray, v: np.ndarray, contact: ContactSpec,
                   restitution: float, cut_joints: tuple[str, ...], name: str | None = None) -> Impulse:
     """Solve the stable or mobile impulse at (t, q, v) by cutting ``cut_joints``; a point contact
     with ``friction`` takes a two-dimensional impulse (Routh's process).  ``name`` (the
-    transition) goes into the messages."""
-    where = f"t = {t:.9g} s, " + (f"transition '{name}'" if name else f"contact {contact.a}/{contact.b}")
-    n, _, vn, _ = contact_state(cfg, q, v, contact)
-    point = contact_point(cfg, contact)  # where the event reports the contact
-    if contact.joint is None:
-        pa = cfg.point(contact.a, contact.point_a)
-        pb = cfg.point(contact.b, contact.point_b)
-        pos_a, pos_b = cfg.point_position(pa), cfg.point_position(pb)
+    transition) goes into the messages.
+
+    One pass of the tree's kinematics serves the contact, the cut and the report; what does not
+    change between events is the contact's plan (:func:`_plan`) and the cut model's topology."""
+    plan = _plan(cfg, contact, cut_joints)
+    data = cfg.data
+    cfg.kinematics(q, v)  # placements, frames and joint Jacobians at the impact pose
+    if plan.stop:
+        if plan.prismatic:
+            n, _ = joint_stop_row(cfg, cfg.model, data, contact)
+        else:  # joint_stop_row's normal alone: against the child's y axis
+            n = -contact.stop_sign * data.oMf[plan.frame_b].rotation[:2, 1].copy()
+        vn = float(plan.Jn_tree @ v)
+        pos_a = pos_b = data.oMf[plan.frame_b].translation[:2].copy()
     else:
-        pos_a = pos_b = cfg.data.oMf[cfg.link_frame[contact.b]].translation[:2].copy()
-    frictional = contact.joint is None and contact.friction is not None
+        pa, pb, n, Jn_tree = normal_row(cfg, contact)
+        vn = float(Jn_tree @ v)
+        pos_a, pos_b = cfg.point_position(pa), cfg.point_position(pb)
+    point = contact_point(cfg, contact)  # where the event reports the contact
+    frictional = plan.frictional
     tangent = tangent_of(n) if frictional else None
-    # a loop's cut joint is already cut (its rows are in G): its impulse is its rows' multipliers
-    loop_cuts = {s.name for s in cfg.spec.cut_joints}
-    cut_loops = tuple(j for j in cut_joints if j in loop_cuts)
-    cut_joints = tuple(j for j in cut_joints if j not in loop_cuts)
-    cs = cut(cfg, q, cut_joints)
+    cut_joints, cut_loops = plan.cut_joints, plan.cut_loops
+    cs = cut(cfg, q, cut_joints, kinematics=False)
     v_f = cs.T @ v
     M_f = mass_matrix(cs.model, cs.data, cs.q)
-    if contact.joint is None:
+    if not plan.stop:
         J_rel = (frame_jacobian(cs.model, cs.data, pb.frame_id)[:2]
                  - frame_jacobian(cs.model, cs.data, pa.frame_id)[:2])
         J_n = (n @ J_rel)[None, :]
-    else:
+    elif plan.prismatic:
         J_n = joint_stop_row(cfg, cs.model, cs.data, contact)[1][None, :]
-    G = np.vstack([cs.J_cut, cfg.coords.equality(t, cs.model, cs.data)])
+    else:  # joint_stop_row's row alone: -s (w_b - w_a)
+        J_n = (-contact.stop_sign * (frame_jacobian(cs.model, cs.data, plan.frame_b)[5]
+                                     - frame_jacobian(cs.model, cs.data, plan.frame_a)[5]))[None, :]
+    G = np.concatenate((cs.J_cut, cfg.coords.equality(t, cs.model, cs.data)))
     W = _inverse_mass(M_f, cfg.name)
     if G.shape[0]:
         WGt = W @ G.T
@@ -163,12 +218,14 @@ def solve_impulse(cfg: Configuration, t: float, q: np.ndarray, v: np.ndarray, co
     else:
         W_eff = W
     denom = J_n @ W_eff @ J_n.T  # Eq. 29 / 42 denominator: n^T J M_f^-1 J^T n
-    if not np.all(np.isfinite(denom)) or denom[0, 0] <= 1e-14 * np.trace(W_eff):
+    d = float(denom[0, 0])
+    if not math.isfinite(d) or d <= 1e-14 * float(W_eff.trace()):  # no impulse along n
         raise SimulationError(
             f"t = {t:.9g} s: the contact {contact.a}/{contact.b} cannot take an impulse along its normal "
             "(the normal is orthogonal to every allowed motion); check the contact normal and cut joints")
     fr = None
     if frictional:
+        where = f"t = {t:.9g} s, " + (f"transition '{name}'" if name else f"contact {contact.a}/{contact.b}")
         J = np.vstack([tangent @ J_rel, J_n])  # rows (t, n)
         D = J @ W_eff @ J.T  # the contact's Delassus matrix
         vc = J @ v_f
@@ -181,12 +238,12 @@ def solve_impulse(cfg: Configuration, t: float, q: np.ndarray, v: np.ndarray, co
     v_f_after = v_f + dv_f  # Eqs. 30, 43
     mult = -solve(S, G @ W @ J.T @ P) if G.shape[0] else np.zeros(0)
     v_after = _least_squares(cs.T, v_f_after)
-    if np.linalg.norm(cs.T @ v_after - v_f_after) > 1e-8 * max(1.0, np.linalg.norm(v_f_after)):
+    if _norm(cs.T @ v_after - v_f_after) > 1e-8 * max(1.0, _norm(v_f_after)):
         raise SimulationError(f"t = {t:.9g} s: the cut system's post-impact velocity does not reassemble "
                               "the tree (internal error in joint cutting)")
     M = cfg.mass_matrix(q)
     out = Impulse(
-        kind=impact_kind(cfg, contact), restitution=restitution, normal=n, P=float(P[-1]),
+        kind=plan.kind, restitution=restitution, normal=n, P=float(P[-1]),
         vn_before=vn, vn_after=float((J_n @ v_f_after)[0]), v_before=v.copy(), v_after=v_after,
         ke_before=float(0.5 * v @ M @ v), ke_after=float(0.5 * v_after @ M @ v_after), point=point,
         tangent=tangent, P_t=float(P[0]) if frictional else 0.0, friction=fr)
@@ -197,16 +254,15 @@ def solve_impulse(cfg: Configuration, t: float, q: np.ndarray, v: np.ndarray, co
             F += mult[k] * cs.row_dirs[k]
             k += 1
         out.cut_impulses[name] = [*(cs.child_rotation[name] @ F[:2]), float(F[2])]
-    labels = cfg.coords.labels
-    out.constraint_rows = {lab: float(val) for lab, val in zip(labels, mult[len(cs.row_owner):])}
+    rows = mult[len(cs.row_owner):].tolist()
+    out.constraint_rows = dict(zip(cfg.coords.labels, rows))
     # A driven joint keeps its prescribed speed through the impact: its motor's impulsive
     # moment does work (mu q'), so the kinetic energy may rise by that much; what never
     # rises is KE_before + drive_work - KE_after (the energy the impact dissipates).
-    out.drive_work = sum(mu * float(v[cfg.joint_slice[lab[:-6]]][0])
-                         for lab, mu in out.constraint_rows.items() if lab.endswith(".drive"))
-    if contact.joint is None:
+    out.drive_work = sum(rows[i] * float(v[j]) for i, j in plan.drive_rows)
+    if not plan.stop:
         point_impulses = [(contact.b, pos_b, out.vector, 0.0), (contact.a, pos_a, -out.vector, 0.0)]
-    elif cfg.spec.info.joints[contact.joint].type == "prismatic":  # a force along the axis at the child
+    elif plan.prismatic:  # a force along the axis at the child
         point_impulses = [(contact.b, pos_b, out.vector, 0.0), (contact.a, pos_b, -out.vector, 0.0)]
     else:  # a couple: -s P on the child, +s P on the parent
         s_ = contact.stop_sign
@@ -219,8 +275,13 @@ def solve_impulse(cfg: Configuration, t: float, q: np.ndarray, v: np.ndarray, co
         out.cut_impulses[name] = list(out.constraint_impulses[name])
     out.joint_impulses, out.rnea_residual = joint_impulses(cfg, q, v_after - v, point_impulses)
     if fr is not None:
-        check_frictional_energy(fr, out, where)
+        check_frictional_energy(fr, out, f"t = {t:.9g} s, " + (f"transition '{name}'" if name else f"contact {contact.a}/{contact.b}"))
     return out
+
+
+def _norm(x: np.ndarray) -> float:
+    """``np.linalg.norm`` of a vector, by the same operations (the square root of ``x . x``)."""
+    return math.sqrt(float(x.dot(x)))
 
 
 def frictional_impulse(D: np.ndarray, vc: np.ndarray, contact: ContactSpec, e: float, where: str) -> FrictionalImpulse:
@@ -317,20 +378,24 @@ def joint_impulses(cfg: Configuration, q, dv, point_impulses):
     """
     model = cfg.model
     cache = cfg.impulse_models  # built once per model (createData is costly)
-    if "zero_gravity" not in cache:
+    kept = cache.get("joint_impulses")
+    if kept is None:
         m0 = model.copy()
         m0.gravity.linear[:] = 0.0
-        cache["zero_gravity"] = (m0, m0.createData())
-    m0, d0 = cache["zero_gravity"]
+        fext = pin.StdVec_Force()
+        for _ in range(model.njoints):
+            fext.append(pin.Force.Zero())
+        # each link's joint and each joint's name, read once per model; the external forces' vector,
+        # reset where the previous event loaded it
+        kept = cache["joint_impulses"] = (m0, m0.createData(), fext,
+                                          {link: model.frames[f].parentJoint for link, f in cfg.link_frame.items()},
+                                          list(model.names), np.zeros(model.nv), [])
+    m0, d0, fext, parent_joint, names, zero_v, loaded = kept
+    for jid in loaded:
+        fext[jid] = pin.Force.Zero()
+    loaded.clear()
     qp = cfg.to_pin(q)
     pin.forwardKinematics(m0, d0, qp)
-    fext = pin.StdVec_Force()
-    for _ in range(model.njoints):
-        fext.append(pin.Force.Zero())
-    if "parent_joint" not in cache:  # each link's joint and each joint's name, read once per model
-        cache["parent_joint"] = {link: model.frames[f].parentJoint for link, f in cfg.link_frame.items()}
-        cache["joint_names"] = list(model.names)
-    parent_joint, names = cache["parent_joint"], cache["joint_names"]
     for link, p, F, mz in point_impulses:
         jid = parent_joint[link]
         if jid == 0:
@@ -341,7 +406,8 @@ def joint_impulses(cfg: Configuration, q, dv, point_impulses):
         moment = np.array([py * 0.0 - 0.0 * fy + 0.0, 0.0 * fx - px * 0.0 + 0.0, px * fy - py * fx + mz])
         f_world = pin.Force(np.array([fx, fy, 0.0]), moment)
         fext[jid] = fext[jid] + d0.oMi[jid].actInv(f_world)
-    tau = pin.rnea(m0, d0, qp, np.zeros(model.nv), dv, fext)
+        loaded.append(jid)
+    tau = pin.rnea(m0, d0, qp, zero_v, dv, fext)
     out = {}
     for jid in range(1, model.njoints):
         f = d0.f[jid]

@@ -46,10 +46,15 @@ def momenta(cfg: Configuration, q, v, about) -> tuple[np.ndarray, float]:
     if cfg.nv == 0:
         return np.zeros(2), 0.0
     model, data = cfg.model, cfg.data
+    kept = cfg.impulse_models  # the bodies' inertias, read from the model once
+    inertias = kept.get("inertias")
+    if inertias is None:
+        inertias = kept["inertias"] = list(model.inertias)
     pin.forwardKinematics(model, data, cfg.to_pin(q), v)
     total = pin.Force.Zero()
+    oMi, vel = data.oMi, data.v
     for jid in range(1, model.njoints):  # body momenta, moved to the world origin
-        total += data.oMi[jid].act(model.inertias[jid] * data.v[jid])
+        total += oMi[jid].act(inertias[jid] * vel[jid])
     L = np.asarray(total.linear[:2], float).copy()
     H0 = float(total.angular[2])
     o = np.asarray(about, float)

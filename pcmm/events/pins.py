@@ -24,6 +24,16 @@ or several stop the run with a message.  The old foot of a rimless wheel leaves 
 foot's impulse separates it: holding it too would need a tensile impulse (design_24.md section 2.3).
 A kept contact must be in the target (else the scene's ``to`` is wrong, and the message says so).
 
+**Double support.**  A point held by compression only in the source *and* in the target (the other
+foot of a walker that lands) is in the same complementarity: held (its cut joint's rows kept, its
+normal impulse n . lam >= 0) or lifted (its rows left out, its normal velocity after >= 0).  Where
+the strike lifts it (holding it would pull: a walker's trailing foot), the run enters the target's
+configuration without its cut joint (:meth:`~pcmm.scene.spec.SceneSpec.lift_off_target`, as a
+force lift-off does), solved again from there; without one it stops and says which to add.
+A bounce, a merge or contacts struck at once (pcmm.events.transitions) that would pull such a point
+stop the run instead, naming it (:func:`check_held_points_push`): their solves do not release it.
+(tests/test_double_support.py: a compass walker, against the momentum balances by hand.)
+
 The new pin's impulse (P_t, P_n) along the contact's tangent t = (n_y, -n_x) and normal must lie in
 its friction cone when a finite ``friction`` is given, else the strike would slip (the message gives
 the friction it needs, |P_t| / P_n).
@@ -78,6 +88,55 @@ def closed_unilateral(cfg: Configuration, dst: Configuration):
     return out
 
 
+def held_in_both(cfg: Configuration, dst: Configuration, struck: str):
+    """The source's cut joints held by compression only that the target holds too (a foot in
+    double support), but the struck one: [(spec, world normal, normal row)] at the current
+    kinematics of ``cfg``.  Holding one through the strike must take a compressive impulse."""
+    if not getattr(cfg.coords, "constrained", False):
+        return []
+    also = {s.name for s in (dst.spec.cut_joints if dst is not None else ()) if s.normal is not None} - {struck}
+    out = []
+    for k, s in enumerate(cfg.coords.closure.specs):
+        if s.normal is not None and s.name in also:
+            n, J = _rows_of(cfg, s, k)
+            out.append((s, n, n @ J))
+    return out
+
+
+def check_held_points_push(cfg: Configuration, q, imp: Impulse, where: str) -> None:
+    """An impact of ``cfg`` (a bounce, a merge, contacts at once) must not pull a point ``cfg``
+    holds by compression only (a cut joint with a contact normal): such a point would leave the
+    surface in the same impact, which only a pin strike resolves (:func:`pin_strike`).  Raises
+    naming the point and its impulse instead of applying a tensile one."""
+    if not getattr(cfg.coords, "constrained", False) or not imp.constraint_impulses:
+        return
+    closure = cfg.coords.closure
+    cfg.kinematics(q)
+    forces = [imp.constraint_impulses.get(s.name) for s in closure.specs]
+    scale = max([abs(imp.P)] + [float(np.hypot(F[0], F[1])) for F in forces if F is not None])
+    for k, (s, F) in enumerate(zip(closure.specs, forces)):
+        if s.normal is None or F is None:
+            continue
+        n = cfg.data.oMf[closure.links_a[k]].rotation[:2, :2] @ np.asarray(s.normal, float)
+        P = float(n @ np.asarray(F[:2], float)) / float(np.linalg.norm(n))
+        if P < -SIGN_TOL * scale:
+            raise SimulationError(f"{where}: the impact would pull the point held by '{s.name}' (normal impulse "
+                                  f"{P:.6g} N s; it is held by compression only), so the point would leave the "
+                                  "surface in this impact; pcmm releases a held point within an impact only at a "
+                                  "pin strike, not at a bounce or a merge, and does not apply a tensile impulse to "
+                                  f"it (a cut joint '{s.name}' without a contact normal may pull)")
+
+
+def _released_target(scene, target: str, lifted: list[str]) -> str | None:
+    """The configuration like ``target`` without the cut joints ``lifted`` (the one each lifts off
+    into by itself, :meth:`~pcmm.scene.spec.SceneSpec.lift_off_target`), or None."""
+    for name in lifted:
+        target = scene.lift_off_target(target, name)
+        if target is None:
+            return None
+    return target
+
+
 def anchor_where_entered(dst: Configuration, q: np.ndarray) -> dict[str, np.ndarray]:
     """Anchor every cut joint of ``dst`` anchored at entry where b's point is at ``q`` (what a pin
     into ``dst`` does; for checks that enter ``dst`` at a guard's posture)."""
@@ -99,13 +158,15 @@ def impact_with_rows(M: np.ndarray, name: str, v: np.ndarray, A: np.ndarray, b: 
     return v + W @ A.T @ lam, lam, rank < A.shape[0]
 
 
-def pin_strike(ctx, cfg: Configuration, tr: PinSpec, t, q, v):
+def pin_strike(ctx, cfg: Configuration, tr: PinSpec, t, q, v, target: str | None = None):
     """Pin b's point where it strikes, with every constraint of the target at once (module text):
-    (target, q, v, event) of the run's outcome."""
+    (target, q, v, event) of the run's outcome.  ``target``: the configuration entered, when not the
+    transition's own (the one without the points the strike lifts, :func:`_released_target`)."""
+    target = target or tr.target
     where = f"t = {t:.9g} s, transition '{tr.name}'"
-    dst = ctx.mechanism.enter(tr.target, cfg, q)
+    dst = ctx.mechanism.enter(target, cfg, q)
     if list(dst.joint_names) != list(cfg.joint_names):
-        raise SimulationError(f"{where}: a pin keeps the tree and adds a cut joint, but '{tr.target}' has the "
+        raise SimulationError(f"{where}: a pin keeps the tree and adds a cut joint, but '{target}' has the "
                               f"joints {list(dst.joint_names)} and '{cfg.name}' {list(cfg.joint_names)}: give both "
                               "configurations the same URDF")
     n, _, vn, Jn = contact_state(cfg, q, v, tr.contact)
@@ -132,16 +193,24 @@ def pin_strike(ctx, cfg: Configuration, tr: PinSpec, t, q, v):
         b_dst[dst.coords.closure.size:] = dst.coords.drives.values(t)[1]
     M = cfg.mass_matrix(q)
     labels = dst.coords.labels
-    i_struck = labels.index(f"{struck.name}.fx")
+    row_of = {lab: i for i, lab in enumerate(labels)}
+    i_struck = row_of[f"{struck.name}.fx"]
+    both = held_in_both(cfg, dst, struck.name)
     solutions, tried = [], []
-    for held in itertools.product((False, True), repeat=len(unilateral)):
-        rows = [u[2] for u, h in zip(unilateral, held) if h]
-        A = np.vstack([A_dst] + [r[None, :] for r in rows]) if rows else A_dst
-        b = np.concatenate([b_dst, np.zeros(len(rows))])
-        v_plus, lam, redundant = impact_with_rows(M, cfg.name, v, A, b)
-        lam_u = iter(lam[A_dst.shape[0]:])
+    for held in itertools.product((False, True), repeat=len(unilateral) + len(both)):
+        held_u, held_b = held[:len(unilateral)], held[len(unilateral):]
+        # a point held in both configurations and lifted by the strike: its cut joint's rows left out
+        kept = [i for i in range(A_dst.shape[0]) if not any(
+            not h and labels[i] in (f"{s.name}.fx", f"{s.name}.fy") for (s, _, _), h in zip(both, held_b))]
+        rows = [u[2] for u, h in zip(unilateral, held_u) if h]
+        A = np.vstack([A_dst[kept]] + [r[None, :] for r in rows])
+        b = np.concatenate([b_dst[kept], np.zeros(len(rows))])
+        v_plus, lam_kept, redundant = impact_with_rows(M, cfg.name, v, A, b)
+        lam = np.zeros(A_dst.shape[0])  # the target's rows' multipliers (zero on a lifted point's)
+        lam[kept] = lam_kept[:len(kept)]
+        lam_u = iter(lam_kept[len(kept):])
         text, ok = [], True
-        for (s, _, row), h in zip(unilateral, held):
+        for (s, _, row), h in zip(unilateral, held_u):
             if h:
                 P = float(next(lam_u))
                 ok &= P >= -SIGN_TOL * scale
@@ -150,6 +219,15 @@ def pin_strike(ctx, cfg: Configuration, tr: PinSpec, t, q, v):
                 vn_after = float(row @ v_plus)
                 ok &= vn_after >= -SIGN_TOL * scale
                 text.append(f"{s.name} released (normal velocity after {vn_after:.6g} m/s)")
+        for (s, nu, row), h in zip(both, held_b):
+            if h:
+                P = float(nu @ lam[row_of[f"{s.name}.fx"]:row_of[f"{s.name}.fx"] + 2])
+                ok &= P >= -SIGN_TOL * scale
+                text.append(f"{s.name} held (normal impulse {P:.6g} N s)")
+            else:
+                vn_after = float(row @ v_plus)
+                ok &= vn_after >= -SIGN_TOL * scale
+                text.append(f"{s.name} lifted (normal velocity after {vn_after:.6g} m/s)")
         F = lam[i_struck:i_struck + 2]
         ok &= float(n @ F) >= -SIGN_TOL * scale
         tried.append("; ".join(text + [f"the new pin's normal impulse {float(n @ F):.6g} N s"]))
@@ -157,14 +235,25 @@ def pin_strike(ctx, cfg: Configuration, tr: PinSpec, t, q, v):
             solutions.append((held, v_plus, lam, redundant))
     if len(solutions) != 1:
         raise SimulationError(
-            [f"{where}: the strike with the closed contacts {[u[0].name for u in unilateral]} has "
+            [f"{where}: the strike with the closed contacts {[u[0].name for u in unilateral + both]} has "
              f"{'no' if not solutions else len(solutions)} consistent outcome(s) (a rigid-body impact that is "
              f"{'inconsistent' if not solutions else 'ambiguous'} here); the active sets tried:"] + tried)
     held, v_plus, lam, redundant = solutions[0]
+    lifted = [u[0].name for u, h in zip(both, held[len(unilateral):]) if not h]
+    if lifted:  # a foot in double support that the strike would pull: it leaves at the strike
+        released_into = _released_target(ctx.mechanism.scene, target, lifted)
+        if released_into is None:
+            pulls = tried[-1]  # every point held: the impulses the target alone would apply
+            raise SimulationError(f"{where}: the point(s) held by {lifted} in both '{cfg.name}' and '{target}' "
+                                  f"would be pulled by the strike if held ({pulls}), so they leave the surface "
+                                  f"at the strike, and the scene has no configuration to release them into: add "
+                                  f"one with the same URDF and drives and the cut joints of '{target}' without "
+                                  f"{' and '.join(repr(x) for x in lifted)} (pcmm releases them into it by itself)")
+        return pin_strike(ctx, cfg, tr, t, q, v, target=released_into)
     stays = [u[0].name for u, h in zip(unilateral, held) if h]
     if stays:
         raise SimulationError(f"{where}: the contact(s) {stays} stay closed through the strike (their impulse is "
-                              f"compressive), but '{tr.target}' does not hold them: name a target configuration "
+                              f"compressive), but '{target}' does not hold them: name a target configuration "
                               "that keeps them")
     F = lam[i_struck:i_struck + 2]
     P_n, P_t = float(n @ F), float(tang @ F)
@@ -178,7 +267,7 @@ def pin_strike(ctx, cfg: Configuration, tr: PinSpec, t, q, v):
     q_new, v_new = entry.q, entry.v
     # the stance that begins now: each point held by compression only must push, inside its cone
     # (the guards of the stance watch it from here on: PartitionedCoordinates.contact_guards)
-    lifting = {cj for src, cj, _ in ctx.mechanism.scene.lift_offs() if src == tr.target}
+    lifting = {cj for src, cj, _ in ctx.mechanism.scene.lift_offs() if src == target}
     for name, (Fn, Ft) in dst.coords.contact_forces(t, q_new, v_new).items():
         spec = next(s for s in dst.spec.cut_joints if s.name == name)
         scale_F = max(abs(Fn), abs(Ft), 1e-300)
@@ -186,9 +275,9 @@ def pin_strike(ctx, cfg: Configuration, tr: PinSpec, t, q, v):
             continue  # it lifts off by itself at once, before any step (pcmm.run.loop._pending)
         if Fn < -1e-12 * scale_F:
             raise SimulationError(f"{where}: right after the strike the point held by '{name}' would be pulled "
-                                  f"(normal force {Fn:.6g} N): it lifts off at once, which '{tr.target}' cannot hold; "
+                                  f"(normal force {Fn:.6g} N): it lifts off at once, which '{target}' cannot hold; "
                                   f"add a configuration with the same URDF and drives and the cut joints of "
-                                  f"'{tr.target}' but '{name}' (pcmm releases the point into it by itself)")
+                                  f"'{target}' but '{name}' (pcmm releases the point into it by itself)")
         if spec.friction is not None and math.isfinite(spec.friction) and abs(Ft) > spec.friction * Fn * (1 + 1e-12):
             raise SimulationError(f"{where}: right after the strike the point held by '{name}' would slip: its "
                                   f"force needs friction >= {abs(Ft) / Fn:.6g} (|F_t| / F_n, F_t = {Ft:.6g}, "
@@ -208,7 +297,7 @@ def pin_strike(ctx, cfg: Configuration, tr: PinSpec, t, q, v):
     imp.drive_work = sum(mu_ * float(v[cfg.joint_slice[lab[:-6]]][0])
                          for lab, mu_ in by_label.items() if lab.endswith(".drive"))
     imp.joint_impulses, imp.rnea_residual = joint_impulses(cfg, q, v_plus - v, loop)
-    record = event_record(cfg, tr, t, tr.target, True, imp, "pin", q=q)
+    record = event_record(cfg, tr, t, target, True, imp, "pin", q=q)
     record["tangent"] = [float(tang[0]), float(tang[1])]
     record["impulse"]["tangential"] = P_t
     record["impulse"]["vector"] = [float(F[0]), float(F[1])]
@@ -229,7 +318,7 @@ def pin_strike(ctx, cfg: Configuration, tr: PinSpec, t, q, v):
     record["released"] = released
     if redundant:
         record.setdefault("warnings", []).append(
-            f"{where}: the constraints of '{tr.target}' at the strike are redundant (two points pinned on one "
+            f"{where}: the constraints of '{target}' at the strike are redundant (two points pinned on one "
             "rigid body, say): the velocity after is unique, but how the impulse splits among the cut joints is "
             "not; the minimum-norm split is reported")
-    return tr.target, q_new, v_new, record
+    return target, q_new, v_new, record

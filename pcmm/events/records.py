@@ -97,7 +97,7 @@ def friction_record(imp: Impulse) -> dict:
 
 def by_link(cfg: Configuration, v):
     """{link: angular velocity} of ``v``."""
-    return {link: float(w) for link, w in zip(cfg.links, cfg.A @ v)}
+    return dict(zip(cfg.links, (cfg.A @ v).tolist()))
 
 
 def event_dict(cfg: Configuration, tr: TransitionSpec, t, *, transition, to, restitution, merge, impact,

@@ -41,13 +41,13 @@ from ..model.configuration import Configuration
 from ..model.mechanism import Mechanism
 from ..model.pinocchio_helpers import LWA
 from ..errors import SimulationError
-from .contact import contact_state
+from .contact import contact_state, normal_speed
 from .contact_faults import POSE_TOL, contact_findings
 from .records import by_link, event_record
 from .guards import guard_value
 from .entry import VELOCITY_ROUNDOFF, Entry, enter, joints_from_poses, map_state, pose_mismatches  # noqa: F401 - re-exported
 from .impulse import Impulse, no_impulse, solve_impulse
-from .pins import pin_strike
+from .pins import check_held_points_push, pin_strike
 from .simultaneous import closed_with, simultaneous_impact
 from ..scene.spec import GuardSpec, LatchSpec, ReleaseSpec, StopSpec, TransitionSpec
 
@@ -144,6 +144,8 @@ def _merge(ctx: Context, cfg: Configuration, tr: TransitionSpec, target: str, t,
     if imp.impact and transition_type == "latch":
         check_latch_compressive(tr, t, imp, v)
     if imp.impact:
+        check_held_points_push(cfg, q, imp, f"t = {t:.9g} s, transition '{tr.name}'")
+    if imp.impact:
         scale = max(1.0, float(np.max(np.abs(v))))
         moving = {n: float(v_after[cfg.joint_slice[n]][0]) for n in locked
                   if abs(v_after[cfg.joint_slice[n]][0]) > 1e-8 * scale}
@@ -221,7 +223,7 @@ def handle_stop(ctx: Context, cfg: Configuration, tr: StopSpec, t, q, v) -> Outc
                                   "the stop, so the stop needs merge_to (the merged configuration)")
         return _merge(ctx, cfg, tr, tr.merge_to, t, q, v, "stop")
     speed, interval = ctx.tolerances(tr)
-    _, _, vn, _ = contact_state(cfg, q, v, tr.contact)
+    vn = normal_speed(cfg, q, v, tr.contact)  # a joint stop's without a kinematics pass (solve_impulse makes one)
     together = closed_with(cfg, tr, q)
     if together and min([vn] + [contact_state(cfg, q, v, s.contact)[2] for s in together]) < 0:
         # other contacts closed at this instant, one of them approaching: one solve with them all
@@ -248,6 +250,7 @@ def handle_stop(ctx: Context, cfg: Configuration, tr: StopSpec, t, q, v) -> Outc
                 f"{abs(rest_speed):.3g} m/s) and the bodies come to rest in contact; give the stop a "
                 "merge_to configuration so the run can continue with the bodies merged")
         return _merge(ctx, cfg, tr, tr.merge_to, t, q, v, "stop")
+    check_held_points_push(cfg, q, imp, f"t = {t:.9g} s, transition '{tr.name}'")
     record = event_record(cfg, tr, t, cfg.name, False, imp, q=q)
     q_new, v_new, _, _ = switch(cfg, cfg, t, q, imp.v_after, what=f"bounce at '{tr.name}'")
     return Outcome(cfg.name, q_new, v_new, record, {})
@@ -256,6 +259,7 @@ def handle_stop(ctx: Context, cfg: Configuration, tr: StopSpec, t, q, v) -> Outc
 def _simultaneous(ctx: Context, cfg: Configuration, trs: list, t, q, v) -> Outcome:
     """Stops whose contacts are closed at once bounce together (:mod:`pcmm.events.simultaneous`)."""
     imp, block, warnings = simultaneous_impact(cfg, trs, t, q, v)
+    check_held_points_push(cfg, q, imp, f"t = {t:.9g} s, transitions {', '.join(repr(s.name) for s in trs)}")
     for s in trs:
         ctx.last_impact[s.name] = t
     record = event_record(cfg, trs[0], t, cfg.name, False, imp, q=q)

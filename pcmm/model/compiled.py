@@ -19,6 +19,7 @@ configuration uses it.  Otherwise the Python evaluation runs and :func:`why_not`
 """
 from __future__ import annotations
 
+import functools
 import importlib.util
 import os
 import threading
@@ -207,7 +208,8 @@ def closure_kinematics(model: pin.Model, frames_a, frames_b, rows: Callable, row
     return tree
 
 
-def _probe_states(nv: int) -> list[np.ndarray]:
+@functools.lru_cache(maxsize=None)
+def _probe_states(nv: int) -> tuple[np.ndarray, ...]:
     """Fixed states: angles over a turn, velocities of order one, every component a different
     irrational rotation (the additive recurrence of the generalized golden ratio: ``k alpha_j``
     mod 1, alpha_j = g^-j with g^(d+1) = g + 1), so no two coordinates move alike.  Not
@@ -218,7 +220,10 @@ def _probe_states(nv: int) -> list[np.ndarray]:
         g = (1.0 + g) ** (1.0 / (d + 1))
     alpha = (1.0 / g) ** np.arange(1, d + 1) % 1.0
     u = (0.5 + np.outer(np.arange(1, _PROBES + 1), alpha)) % 1.0
-    return [np.concatenate([-np.pi + 2 * np.pi * row[:nv], -2.0 + 4.0 * row[nv:]]) for row in u]
+    states = tuple(np.concatenate([-np.pi + 2 * np.pi * row[:nv], -2.0 + 4.0 * row[nv:]]) for row in u)
+    for y in states:  # computed once per size (every configuration of every run asks): shared, read-only
+        y.flags.writeable = False
+    return states
 
 
 def _tree(model: pin.Model, key: tuple, finalize: Callable):

@@ -58,6 +58,7 @@ class _Built(threading.local):
 _BUILT = _Built()
 _WORKSPACE_LOCK = threading.Lock()  # guards the creation of a thread's Data (Configuration.workspace)
 _BUILT_MAX = 16  # models kept per thread (a large chain's Data holds nv^3-sized tensors)
+_FORCES_KEPT = 16  # compiled force elements kept per model (a sweep over a torque makes a key per row)
 
 
 def _point_keys(scene: Scene, spec: ConfigurationSpec) -> tuple:
@@ -203,12 +204,13 @@ class Configuration:
         check_point_masses(model, self.data, spec, self._planar, self.link_frame)
         self._angle_map()
         self.cut_models: dict = {}  # cut systems by cut joints (pcmm.events.cutting), built on first impact
+        self._forces_compiled: dict = {}  # force elements by (their specs, angle offsets): _compile_forces
         self.impulse_models: dict = {}  # event-path constants: the zero-gravity copy for joint impulses, link joints (pcmm.events.impulse), the frame pivot (pcmm.events.momentum)
         if len(cache) >= _BUILT_MAX:
             cache.pop(next(iter(cache)))
         cache[key] = {k: self.__dict__[k] for k in (
             "model", "nv", "joint_names", "joint_slice", "joint_id", "_planar", "links", "link_frame", "root",
-            "_points", "_data", "A", "b", "link_index", "cut_models", "impulse_models")}
+            "_points", "_data", "A", "b", "link_index", "cut_models", "impulse_models", "_forces_compiled")}
         self._after_model()
 
     @property
@@ -238,7 +240,25 @@ class Configuration:
         self.coords: Coordinates = self._coordinates(self)  # loops and drives, or the plain tree
 
     def _compile_forces(self) -> ForceField:
+        """The force elements of this configuration at its angle offsets.  Without point springs
+        they are a function of their specs, the offsets and the model alone: compiled once per
+        process (and thread) and shared by every run of the model, every later run of a scene
+        (a sweep's, a comparison run's) taking them as they are (a ForceField is frozen and
+        nothing writes its arrays)."""
         forces = self.scene.forces_in(self.name)
+        if all(f.points is None for f in forces):
+            try:
+                key = (forces, self.angle_offsets)
+                compiled = self._forces_compiled.get(key)
+            except TypeError:  # a spec's value that is not hashable: compiled for this run
+                key = compiled = None
+            if compiled is None:
+                compiled = compile_forces(forces, self.measure_row, self.target_column, self.nv)
+                if key is not None:
+                    if len(self._forces_compiled) >= _FORCES_KEPT:
+                        self._forces_compiled.pop(next(iter(self._forces_compiled)))
+                    self._forces_compiled[key] = compiled
+            return compiled
         points = compile_point_springs(forces, self.model, self.to_pin,
                                        lambda link, xy: self.point(link, xy).frame_id)
         return compile_forces(forces, self.measure_row, self.target_column, self.nv, points)
@@ -372,6 +392,8 @@ class Configuration:
         return sl.start + PLANAR_PARTS.index(part)
 
     def by_joint(self, x: np.ndarray) -> dict[str, float | list[float]]:
+        if not self._planar and len(x) == self.nv == len(self.joint_names):  # one entry per joint, in order
+            return dict(zip(self.joint_names, np.asarray(x, float).tolist()))
         out = {}
         for name in self.joint_names:
             sl = self.joint_slice[name]

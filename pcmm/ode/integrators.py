@@ -23,6 +23,7 @@ taken (``exc.segment``) so no result is lost.
 from __future__ import annotations
 
 import math
+import threading
 import warnings
 from dataclasses import dataclass
 
@@ -297,9 +298,35 @@ def _bracketed_newton(g, dg, lo, hi, g_lo, g_hi, xtol, max_iter=100) -> float:
     return float(x)
 
 
+class _FortranCallbacks(threading.local):
+    """The call-backs of the segment the Fortran DOP853 is integrating on this thread.
+
+    scipy's f2py wrapper of DOP853 keeps a reference to each call-back it is handed and never
+    releases it (scipy 1.17: one per call to the right-hand side and to ``solout``).  Handed each
+    segment's own closures, every segment left them behind with what they hold, and through
+    ``ode``'s bound ``_solout`` its integrator and work arrays (0.57 kB per segment of a bouncing
+    run once emptied, 10 kB before).  So the Fortran code is only ever handed the two functions
+    below, the same objects for the whole process (what leaks is a count on them, no memory), and
+    they call the current segment's, set here for the segment's duration."""
+
+    f = None
+    solout = None
+
+
+_FORTRAN = _FortranCallbacks()
+
+
+def _fortran_rhs(t, y):
+    return _FORTRAN.f(t, y)
+
+
+def _fortran_solout(t, y):
+    return _FORTRAN.solout(t, y)
+
+
 def _guarded_rhs(counted, rhs, zeros, raised):
-    """The right-hand side handed to the Fortran DOP853 (see :meth:`DOP853F.integrate`), a closure
-    of its own: scipy never frees it, so its cells are emptied once the segment is integrated."""
+    """The right-hand side of one segment for the Fortran DOP853 (see :meth:`DOP853F.integrate`),
+    called through :func:`_fortran_rhs`."""
     def f(t, y):
         try:
             if raised:
@@ -510,25 +537,23 @@ class FortranDOP853:
                 except BaseException as exc:
                     raised.append(exc)
                     return -1
-            solver = si.ode(f).set_integrator(
+            solver = si.ode(_fortran_rhs).set_integrator(
                 "dop853", rtol=opts.rtol, atol=opts.atol, nsteps=opts.max_steps, beta=self.beta,
                 max_step=opts.max_step if np.isfinite(opts.max_step) else 0.0)
-            solver.set_solout(solout)
+            solver.set_solout(_fortran_solout)
             solver.set_initial_value(np.array(y0, float), t0)
+            # the Fortran code gets the process's solout itself, not the integrator's bound
+            # ``_solout`` (a new object per segment, leaked with the integrator: _FortranCallbacks)
+            solver._integrator.call_args[2] = _fortran_solout
+            outer = _FORTRAN.f, _FORTRAN.solout  # a segment integrated inside a call-back: restored
+            _FORTRAN.f, _FORTRAN.solout = f, solout
             try:
                 with warnings.catch_warnings():  # scipy warns on a failure code; the message below says it
                     warnings.filterwarnings("ignore", category=UserWarning, module="scipy.integrate._ode")
                     solver.integrate(t_bound)
                 code = solver.get_return_code()
             finally:
-                # scipy's ``ode`` never frees its integrator: the call into the Fortran code keeps a
-                # reference to the integrator's bound ``_solout`` (1.17: 201 integrators alive after
-                # 200 solves).  Emptied, each leaks a bare object instead of its work arrays, this
-                # segment's call-backs and through them its stepper's steps and guards (10 kB per
-                # segment of a bouncing run: benchmarks/memory_events.py)
-                vars(solver._integrator).clear()
-                for cell in f.__closure__:  # f leaks as well: let it keep nothing of this segment
-                    cell.cell_contents = None
+                _FORTRAN.f, _FORTRAN.solout = outer
             if raised:
                 raise raised[0]
             if hits:

@@ -34,26 +34,46 @@ _F, _I, _C, _O = "f", "i", "c", "o"
 
 
 def _layout(obj, numbers: list, aside: list):
-    """The hashable layout of ``obj``; its numbers appended to ``numbers``, its rich values to ``aside``."""
-    if type(obj) is float or isinstance(obj, np.float64):
+    """The hashable layout of ``obj``; its numbers appended to ``numbers``, its rich values to ``aside``.
+    (Dispatched on the exact type, the common ones first, a container's float items read in its
+    own loop: a record is appended at every event.)"""
+    kind = type(obj)
+    if kind is float or kind is np.float64:
         numbers.append(obj)
         return _F
-    if isinstance(obj, bool) or obj is None:
+    if kind is dict:
+        return ("d", tuple(obj), _items(obj.values(), numbers, aside))
+    if kind is list:
+        return ("l", _items(obj, numbers, aside))
+    if kind is str:
+        if len(obj) <= SHORT_TEXT:
+            return (_C, obj)
+    elif kind is bool or obj is None:
         return (_C, obj)
-    if type(obj) is int and -_EXACT_INT < obj < _EXACT_INT:
+    elif kind is int:
+        if -_EXACT_INT < obj < _EXACT_INT:
+            numbers.append(obj)
+            return _I
+    elif kind is tuple:
+        return ("t", _items(obj, numbers, aside))
+    elif isinstance(obj, np.float64):
         numbers.append(obj)
-        return _I
-    if type(obj) is str and len(obj) <= SHORT_TEXT:
-        return (_C, obj)
-    if type(obj) is dict:
-        return ("d", tuple(obj), tuple(_layout(v, numbers, aside) for v in obj.values()))
-    if type(obj) is list:
-        return ("l", tuple(_layout(v, numbers, aside) for v in obj))
-    if type(obj) is tuple:
-        return ("t", tuple(_layout(v, numbers, aside) for v in obj))
+        return _F
     numbers.append(len(aside))  # a message, an array, anything else: kept as it is
     aside.append(obj)
     return _O
+
+
+def _items(values, numbers: list, aside: list) -> tuple:
+    """The layouts of a container's ``values`` (:func:`_layout` of each; a float's here)."""
+    out = []
+    for v in values:
+        if type(v) is float:
+            numbers.append(v)
+            out.append(_F)
+        else:
+            out.append(_layout(v, numbers, aside))
+    return tuple(out)
 
 
 def _build(layout, row, pos: int, aside: list):
@@ -148,6 +168,20 @@ class EventLog(RecordSequence):
 
     def __len__(self) -> int:
         return self._n
+
+    def time(self, i: int) -> float:
+        """Event ``i``'s ``"t"`` without building its record where its layout starts with it (every
+        event record's does): the run's zero-time-cycle check reads it at every event."""
+        i = self._position(i, "event")
+        kept = self._read.get(i)
+        if kept is not None:
+            return kept["t"]
+        k, row = self._index[i // BLOCK][i % BLOCK]
+        table = self._tables[k]
+        layout = table.layout
+        if type(layout) is tuple and layout[0] == "d" and layout[1][:1] == ("t",) and layout[2][0] == _F:
+            return float(table.row(int(row))[0])
+        return self._event(i)["t"]
 
     def _kept(self, i: int):
         """Record ``i``, the same dict while it is among the last READ_KEPT read by index; the

@@ -147,7 +147,11 @@ def zero_time_cycle(events: list[dict], last: dict | None = None) -> str:
     n = len(events)
     # the two ends first: a run's event log builds each record it is asked for (pcmm.results.event_log),
     # and all the last ZERO_TIME_CYCLE of them at every event cost milliseconds
-    if n < ZERO_TIME_CYCLE or events[n - ZERO_TIME_CYCLE]["t"] != (events[n - 1] if last is None else last)["t"]:
+    if n < ZERO_TIME_CYCLE:
+        return ""
+    time_of = getattr(events, "time", None)  # a compact log reads a time without building the record
+    first = time_of(n - ZERO_TIME_CYCLE) if time_of is not None else events[n - ZERO_TIME_CYCLE]["t"]
+    if first != (events[n - 1] if last is None else last)["t"]:
         return ""
     tail = events[-ZERO_TIME_CYCLE:]
     if any(e["from"] == e["to"] for e in tail):
