@@ -146,10 +146,11 @@ def _reaction(cfg: Configuration, tr: TransitionSpec, ctx=None):
         raise _NotHeld(tr.guard.of)
     label = ctx.label(tr.guard.of)
     unpack = cfg.coords.unpack
+    forces = ctx.evaluator(cfg)  # the holding forces as this segment has them, prepared once
 
     def value(t, y):
         q, v = unpack(t, y)
-        return ctx.forces(cfg, t, q, v)[label] - tr.guard.value
+        return forces(t, q, v)[label] - tr.guard.value
     return value, None
 
 

@@ -293,18 +293,72 @@ class Holds:
         _, lam = constrained_accelerations(ref, qs, vs, np.vstack(rows), np.concatenate(bias), extra, forces=ref_forces)
         return {label: float(x) for label, x in zip(owners, lam[Jc.shape[0]:])}
 
+    def evaluator(self, cfg: Configuration):
+        """``(t, q, v) -> {label: holding force}``: :meth:`forces` of the holds in force now, to the
+        bit, for a guard that asks at every step of a segment of ``cfg``.  Where the reference's
+        rows depend on time alone (drives without a loop, or a tree) and every merge is a joint
+        stop's (a constant row), what :meth:`forces` rebuilds at each call is built once here: the
+        map of ``cfg``'s coordinates onto the reference, the lock rows stacked under the
+        reference's, the force elements; each call then maps the state, forms the bias and solves
+        the same system (:func:`constrained_accelerations`) with the same arrays.  Otherwise
+        :meth:`forces` itself.  Valid while the holds and the reference's force elements stay as
+        they are: the segment being integrated."""
+        if not self.items:
+            return lambda t, q, v: {}
+        ref_name = self.reference(cfg)
+        timed = None if ref_name is None else self.mechanism[ref_name].coords.time_rows()
+        if timed is None or any(h.merge and h.transition.contact.joint is None for h in self.items):
+            return lambda t, q, v: self.forces(cfg, t, q, v)
+        ref = self.mechanism[ref_name]
+        Jc, bias_of = timed
+        rows, labels = [Jc], []
+        for h in self.items:
+            if h.merge:
+                Jn, _ = contact_row(ref, None, None, h.transition.contact)  # a joint stop's: constant
+                rows.append(Jn[None, :])
+            else:
+                (name,) = h.joints
+                e = np.zeros(ref.nv)
+                e[ref.joint_slice[name].start] = 1.0
+                rows.append(e[None, :])
+            labels.append(h.label)
+        J, m = np.vstack(rows), Jc.shape[0]
+        lock_bias = np.zeros(len(labels))  # joint rows: no bias (as forces() gives them)
+        mine, theirs = [], []  # cfg's coordinates and where they sit in the reference's
+        for name in ref.joint_names:
+            if name in cfg.joint_slice:
+                theirs += range(ref.joint_slice[name].start, ref.joint_slice[name].stop)
+                mine += range(cfg.joint_slice[name].start, cfg.joint_slice[name].stop)
+        held = np.zeros(ref.nv)  # the held joints at their locked values
+        for h in self.items:
+            for name, val in h.joints.items():
+                held[ref.joint_slice[name]] = val
+        mine, theirs = np.array(mine, dtype=int), np.array(theirs, dtype=int)
+        ref_forces, own = ref.forces, self._forces_on(ref, cfg)
+
+        def forces(t, q, v):
+            qs, vs = held.copy(), np.zeros(ref.nv)
+            qs[theirs], vs[theirs] = q[mine], v[mine]
+            extra = None if own is None else own.generalized(qs, vs) - ref_forces.generalized(qs, vs)
+            bias = np.concatenate((bias_of(t), lock_bias))
+            _, lam = constrained_accelerations(ref, qs, vs, J, bias, extra, forces=ref_forces)
+            return dict(zip(labels, lam[m:].tolist()))
+        return forces
+
     # -- guards
     def unmerge_guards(self, cfg: Configuration) -> list[Guard]:
         """One guard per merge held by compression only: fires when its force would turn tensile."""
         out = []
+        forces = None
         for h in self.items:
             if not (h.merge and h.unilateral):
                 continue
             self.release_target(h, cfg)  # a merge that could not be released here is an error now
+            forces = forces or self.evaluator(cfg)
 
             def value(t, y, h=h):
                 q, v = cfg.coords.unpack(t, y)
-                return self.forces(cfg, t, q, v)[h.label]
+                return forces(t, q, v)[h.label]
             out.append(Guard(f"the merge of '{h.label}': its holding force turns tensile", value, -1,
                              "unmerge", h.transition, payload=h))
         return out

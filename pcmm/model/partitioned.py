@@ -674,6 +674,17 @@ class PartitionedCoordinates:
         _, Jq, bias = self._phi(t, q, need_bias=True, v=v)
         return Jq, bias
 
+    def time_rows(self):
+        """``(Phi_q, bias_of)`` where the rows depend on time alone (drives without a loop):
+        ``rows(t, q, v) == (Phi_q, bias_of(t))`` to the bit, the same arrays built once; None with
+        a loop (its rows depend on the posture)."""
+        if self.closure.size:
+            return None
+        Jq = np.concatenate((self._no_jacobian, self._drive_rows)) if self.drives.size else self._no_jacobian
+        if not self.drives.size:
+            return Jq, lambda t: self._no_rows
+        return Jq, lambda t: np.concatenate((self._no_rows, -self.drives.values(t)[2]))
+
     def accelerations(self, t, q, v, extra=None):
         """(a, lam): ``M a + h = Q + extra + Phi_q^T lam`` with ``Phi_q a + bias = 0``."""
         Jq, bias = self.rows(t, q, v)

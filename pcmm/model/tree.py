@@ -139,6 +139,10 @@ class TreeCoordinates:
     def rows(self, t, q, v):
         return np.zeros((0, self.nv)), np.zeros(0)
 
+    def time_rows(self):
+        """``(Phi_q, bias_of)``: a tree has no rows (see PartitionedCoordinates.time_rows)."""
+        return np.zeros((0, self.nv)), lambda t: np.zeros(0)
+
     def residual(self, t, q) -> float:
         return 0.0
 
