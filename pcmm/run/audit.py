@@ -27,6 +27,7 @@ from typing import Callable
 import numpy as np
 
 from ..model.configuration import Configuration
+from ..model.constraints import constrained_accelerations
 from .dense import dense_states
 
 RESOLVED_KINETIC = 1e-6  # flights with less rebound energy than this x the first are round-off dominated
@@ -67,9 +68,36 @@ def flight_work(cfg: Configuration, coords, t, y, stepping, q_start) -> float:
     if getattr(fun, "__self__", None) is cfg.coords:  # rhs or rhs_with_power: the reader's own
         fun = getattr(coords, fun.__name__)
     states = dense_states(t, y, times, (fun, method, opts))[:coords.ny]
-    coords.seed(q_start)
-    values = [power(cfg, coords, ti, *coords.unpack(ti, states[:, i])) for i, ti in enumerate(times)]
-    return float(weights @ np.array(values))
+    values = drive_powers(coords, times, states)
+    if values is None:
+        coords.seed(q_start)
+        values = np.array([power(cfg, coords, ti, *coords.unpack(ti, states[:, i])) for i, ti in enumerate(times)])
+    return float(weights @ values)
+
+
+def drive_powers(coords, times, states) -> np.ndarray | None:
+    """:func:`power` at every node ``(times, states)``, to the bit, where the states need no Newton
+    solve and the rows depend on time alone (drives without a loop): the coordinates of every
+    node unpacked at once (``coords.unpack_many``), the rows built once (``coords.time_rows``),
+    then the same force elements and the same solve for the drives' multipliers at each node.
+    None otherwise (loops, a planar joint), and for a tree (no rows: :func:`power` is one
+    product there)."""
+    timed = coords.time_rows()
+    if timed is None or not timed[0].shape[0]:
+        return None
+    many = coords.unpack_many(times, states)
+    if many is None:
+        return None
+    Jq, bias_of = timed
+    cfg, forces = coords.cfg, coords.forces
+    Q, V = (np.ascontiguousarray(x.T) for x in many)  # one node a row: contiguous, as unpack gives them
+    out = np.empty(len(times))
+    for i, ti in enumerate(times):
+        q, v = Q[i], V[i]
+        p = float(forces.generalized(q, v) @ v)
+        _, lam = constrained_accelerations(cfg, q, v, Jq, bias_of(ti), forces=forces)
+        out[i] = p + float(lam @ (Jq @ v))
+    return out
 
 
 _NOTHING_FROZEN: dict = {}  # a tree's flights: one empty partition for all (read only)
