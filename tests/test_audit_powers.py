@@ -25,9 +25,9 @@ def _short_cycle(tmp_path: Path, t_end: float) -> Path:
 def test_drive_powers_are_power_node_by_node(tmp_path, monkeypatch):
     prepared, flights = audit.drive_powers, []
 
-    def checked(coords, times, states):
-        got = prepared(coords, times, states)
-        want = np.array([audit.power(coords.cfg, coords, ti, *coords.unpack(ti, states[:, i]))
+    def checked(cfg, coords, times, states):
+        got = prepared(cfg, coords, times, states)
+        want = np.array([audit.power(cfg, coords, ti, *coords.unpack(ti, states[:, i]))
                          for i, ti in enumerate(times)])
         flights.append((got, want))
         return got
@@ -39,7 +39,7 @@ def test_drive_powers_are_power_node_by_node(tmp_path, monkeypatch):
         assert got is not None and got.tobytes() == want.tobytes()
         assert np.any(got != 0.0)  # the springs, dampers and the motor do work in flight
     # the audit figures, node by node without the prepared route: the same repr
-    monkeypatch.setattr(audit, "drive_powers", lambda coords, times, states: None)
+    monkeypatch.setattr(audit, "drive_powers", lambda cfg, coords, times, states: None)
     slow = pcmm.simulate(pcmm.load_scene(_short_cycle(tmp_path, 1.5)))
     assert repr(fast.stats["macro_impacts"]) == repr(slow.stats["macro_impacts"])
     assert any(m["flights"] for m in fast.stats["macro_impacts"])
@@ -51,4 +51,4 @@ def test_drive_powers_leave_a_tree_to_power():
     scene = pcmm.load_scene(ROOT / "examples" / "three_bar.toml")
     cfg = Mechanism(scene)[scene.initial_configuration]
     y = np.zeros((2 * cfg.nv, 2))
-    assert audit.drive_powers(cfg.coords, np.array([0.0, 0.1]), y) is None
+    assert audit.drive_powers(cfg, cfg.coords, np.array([0.0, 0.1]), y) is None

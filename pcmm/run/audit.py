@@ -68,14 +68,14 @@ def flight_work(cfg: Configuration, coords, t, y, stepping, q_start) -> float:
     if getattr(fun, "__self__", None) is cfg.coords:  # rhs or rhs_with_power: the reader's own
         fun = getattr(coords, fun.__name__)
     states = dense_states(t, y, times, (fun, method, opts))[:coords.ny]
-    values = drive_powers(coords, times, states)
+    values = drive_powers(cfg, coords, times, states)
     if values is None:
         coords.seed(q_start)
         values = np.array([power(cfg, coords, ti, *coords.unpack(ti, states[:, i])) for i, ti in enumerate(times)])
     return float(weights @ values)
 
 
-def drive_powers(coords, times, states) -> np.ndarray | None:
+def drive_powers(cfg: Configuration, coords, times, states) -> np.ndarray | None:
     """:func:`power` at every node ``(times, states)``, to the bit, where the states need no Newton
     solve and the rows depend on time alone (drives without a loop): the coordinates of every
     node unpacked at once (``coords.unpack_many``), the rows built once (``coords.time_rows``),
@@ -89,7 +89,7 @@ def drive_powers(coords, times, states) -> np.ndarray | None:
     if many is None:
         return None
     Jq, bias_of = timed
-    cfg, forces = coords.cfg, coords.forces
+    forces = coords.forces
     Q, V = (np.ascontiguousarray(x.T) for x in many)  # one node a row: contiguous, as unpack gives them
     out = np.empty(len(times))
     for i, ti in enumerate(times):
