@@ -208,7 +208,7 @@ def closure_kinematics(model: pin.Model, frames_a, frames_b, rows: Callable, row
     return tree
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _probe_states(nv: int) -> tuple[np.ndarray, ...]:
     """Fixed states: angles over a turn, velocities of order one, every component a different
     irrational rotation (the additive recurrence of the generalized golden ratio: ``k alpha_j``
