@@ -276,7 +276,7 @@ def solve_impulse(cfg: Configuration, t: float, q: np.ndarray, v: np.ndarray, co
         out.cut_impulses[name] = list(out.constraint_impulses[name])
     out.joint_impulses, out.rnea_residual = joint_impulses(cfg, q, v_after - v, point_impulses)
     if fr is not None:
-        check_frictional_energy(fr, out, f"t = {t:.9g} s, " + (f"transition '{name}'" if name else f"contact {contact.a}/{contact.b}"))
+        check_frictional_energy(fr, out, where)
     return out
 
 
