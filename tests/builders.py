@@ -249,10 +249,11 @@ def endless_ball(folder: Path) -> Path:
 def pendulum(folder: Path, e: float, L: float = 0.6, m: float = 1.5, qs: float = -math.pi / 2,
              q0: float = 0.0, w0: float = 0.0, g: float = G, t_end: float = 1.0, d: float | None = None,
              direction: str = "decreasing", k: float | None = None, rest_angle: float = 0.0,
-             solver=None, merge: bool = True) -> Path:
+             solver=None, merge: bool = True, spring_configurations=None) -> Path:
     """A uniform bar (m, L) on revolute J1 at the origin (q = angle from +x) and a stop on
     the frame where the bar's point at distance d from the pivot arrives at q = qs.
-    Moving towards the stop means q decreasing (direction 'decreasing') or increasing."""
+    Moving towards the stop means q decreasing (direction 'decreasing') or increasing.
+    ``spring_configurations``: the configurations the spring ``k`` acts in (default: all)."""
     d = L if d is None else d
     s = 1.0 if direction == "decreasing" else -1.0
     normal = [-s * math.sin(qs), s * math.cos(qs)]  # frame -> bar, along the bar's approach
@@ -267,6 +268,8 @@ def pendulum(folder: Path, e: float, L: float = 0.6, m: float = 1.5, qs: float =
     if k is not None:
         forces.append({"name": "spring", "type": "spring", "on": {"joint": "J1"}, "measure": {"joint": "J1"},
                        "k": k, "rest": rest_angle})
+        if spring_configurations is not None:
+            forces[-1]["configurations"] = list(spring_configurations)
     doc = base_doc("pendulum", "c1", {"c1": "p.urdf", "rest": "rest.urdf"}, {"J1": q0}, {"J1": w0}, g=g,
                    t_end=t_end, solver=solver, transitions=[tr] if e is not None else [], forces=forces)
     return write_scene(folder, doc, urdfs)

@@ -19,6 +19,16 @@ bar of 0.5 m dropped on its stop (gap guard, e = 0.5, rtol 1e-8), the steps afte
 were 1.0e-10 s apart between the two paths, and 1.9e-10 s apart between the Python-stepped run and
 itself started 1 ulp faster, while the states at common instants were 8e-15 apart in both cases.
 
+So where the strict bounds fail, the reference's own sensitivity to round-off is measured (the
+Python-stepped run started faster by an epsilon of its first rate) and the compiled run may differ
+by ten times that more.  A wider search (150 cases of each property, random seed 7) found two such
+cases.  A three-bar chattering on its stop (gap guard, e = 0.88, rtol 1e-8): its fifth and sixth
+impacts 5.1e-12 and 1.7e-11 s apart between the two paths (both Python-stepped there: a flight
+between bounces), and 5.2e-12 and 1.7e-11 s apart between the Python-stepped run and itself started
+2.2e-16 rad/s faster; the fifth impact was located on steps 3.3e-4 s apart.  Example 1 latching at
+up to 213 rad/s: the latch at the same instant to the bit, then 304 steps against 307 in the latched
+configuration, the end rates 2.1e-9 rad/s apart (1e-11 relative).
+
 Derandomized with no example database, like tests/test_fuzz.py: every run of the suite draws the
 same cases.
 """
@@ -77,15 +87,49 @@ def _run(scene, loops: dict):
 
 
 def _shape(message):
-    """An error message without its numbers (a time printed to 9 digits may differ in the last)."""
-    return None if message is None else re.sub(r"[-+]?\d[\d.e+-]*", "#", message)
+    """An error message without the scene file's path and its numbers (a time printed to 9 digits may
+    differ in the last)."""
+    return None if message is None else re.sub(r"[-+]?\d[\d.e+-]*", "#", message.split(".toml: ", 1)[-1])
 
 
-def assert_paths_agree(scene) -> int:
+def _differences(a, b, events: int):
+    """(|dt| of the first ``events`` events, |dq|, |dv| at the ends of the segments up to there and
+    on their dense outputs between) of the runs ``a`` and ``b``, after asserting they have the same
+    events and segments (names, configurations) up to there."""
+    names = [e["name"] for e in a.events][:events]
+    assert names == [e["name"] for e in b.events][:events]
+    dt = [abs(x["t"] - y["t"]) for x, y in zip(a.events[:events], b.events[:events])]  # then the segments' ends
+    if len(a.events) < events:
+        assert len(a.events) == len(b.events) and len(a.segments) == len(b.segments)
+        last = len(a.segments)
+    else:  # the segments up to the last event compared
+        last = next(k for k, s in enumerate(a.segments) if s.t[-1] >= a.events[events - 1]["t"]) + 1
+    dq, dv = [], []
+    for k in range(last):
+        sa, sb = a.segments[k], b.segments[k]
+        assert sa.configuration == sb.configuration
+        dt += [abs(sa.t[0] - sb.t[0]), abs(sa.t[-1] - sb.t[-1])]
+        dq += [np.abs(sa.q[end] - sb.q[end]) for end in (0, -1)]
+        dv += [np.abs(sa.v[end] - sb.v[end]) for end in (0, -1)]
+        if sa.t[-1] - sa.t[0] > 4 * T_STEP:  # between: the dense outputs at common instants
+            inside = np.linspace(max(sa.t[0], sb.t[0]), min(sa.t[-1], sb.t[-1]), 9)[1:-1]
+            ra, rb = sa.resampled(inside), sb.resampled(inside)
+            dq.append(np.abs(ra.q - rb.q).ravel())
+            dv.append(np.abs(ra.v - rb.v).ravel())
+    flat = lambda xs: np.concatenate([np.ravel(x) for x in xs]) if xs else np.zeros(0)
+    return np.array(dt), flat(dq), flat(dv)
+
+
+def assert_paths_agree(scene, nudged=None) -> int:
     """Run ``scene`` through the compiled loop and through Python; assert they are the same run:
     the same outcome, the first :data:`EVENTS` events at the same times (1e-12 s), every segment
     up to there with the same ends (1e-12 s, states 1e-10) and the same states on its dense output
     between them (1e-10), and the first segment (both from the same initial state) step by step.
+
+    Where a bound is exceeded, ``nudged`` (the scene started a round-off away) measures the reference's
+    own round-off sensitivity: the Python-stepped run against itself nudged.  The compiled run may
+    then differ from it by the bounds plus ten times that (module text: after a bounce the two
+    paths' steps part, and a later event is located on other steps, to the integrator's tolerance).
     Returns how many segments the compiled loop stepped (at least one)."""
     made = []
 
@@ -99,34 +143,35 @@ def assert_paths_agree(scene) -> int:
     if fast is None:  # both stopped before their first step
         assert slow is None
         return len(made)
-    names = [e["name"] for e in fast.events][:EVENTS]
-    assert names == [e["name"] for e in slow.events][:EVENTS]
-    for a, b in zip(fast.events[:EVENTS], slow.events[:EVENTS], strict=True):
-        assert abs(a["t"] - b["t"]) <= T_EVENT, (a["name"], a["t"], b["t"])
-    if len(fast.events) < EVENTS:
-        assert len(fast.events) == len(slow.events)
-        assert len(fast.segments) == len(slow.segments)
-        last = len(fast.segments)
-    else:  # the segments up to the last event compared
-        last = next(k for k, s in enumerate(fast.segments) if s.t[-1] >= fast.events[EVENTS - 1]["t"]) + 1
     first_a, first_b = fast.segments[0], slow.segments[0]
     assert first_a.t.shape == first_b.t.shape
     np.testing.assert_allclose(first_a.t, first_b.t, rtol=0, atol=T_STEP, err_msg="first segment: times")
     np.testing.assert_allclose(first_a.q, first_b.q, rtol=0, atol=STATE, err_msg="first segment: q")
     np.testing.assert_allclose(first_a.v, first_b.v, rtol=0, atol=STATE, err_msg="first segment: v")
-    for k in range(last):
-        a, b = fast.segments[k], slow.segments[k]
-        assert a.configuration == b.configuration
-        for end in (0, -1):
-            assert abs(a.t[end] - b.t[end]) <= T_STEP, f"segment {k}: ends at {a.t[end]!r}, {b.t[end]!r}"
-            np.testing.assert_allclose(a.q[end], b.q[end], rtol=0, atol=STATE, err_msg=f"segment {k}: q")
-            np.testing.assert_allclose(a.v[end], b.v[end], rtol=0, atol=STATE, err_msg=f"segment {k}: v")
-        if a.t[-1] - a.t[0] > 4 * T_STEP:  # between: the dense outputs at common instants
-            inside = np.linspace(a.t[0], a.t[-1], 9)[1:-1]
-            ra, rb = a.resampled(inside), b.resampled(inside)
-            np.testing.assert_allclose(ra.q, rb.q, rtol=0, atol=STATE, err_msg=f"segment {k}: dense q")
-            np.testing.assert_allclose(ra.v, rb.v, rtol=0, atol=STATE, err_msg=f"segment {k}: dense v")
+    dt, dq, dv = _differences(fast, slow, EVENTS)
+    if dt.max(initial=0) <= T_EVENT and dq.max(initial=0) <= STATE and dv.max(initial=0) <= STATE:
+        return len(made)
+    assert nudged is not None, f"the paths differ by {dt.max():.3g} s, {dq.max():.3g}, {dv.max():.3g}"
+    floor, floor_error = _run(nudged, {})
+    assert _shape(floor_error) == _shape(slow_error)
+    ft, fq, fv = _differences(floor, slow, EVENTS)
+    assert ft.shape == dt.shape and fq.shape == dq.shape and fv.shape == dv.shape
+    # each difference against the reference's sensitivity up to there (in time order: round-off grows
+    # through the run, and one quantity's may vanish by chance where another's does not)
+    for what, d, f in (("event and segment times", dt, ft), ("q", dq, fq), ("v", dv, fv)):
+        bound = (T_EVENT if what.endswith("times") else STATE) + 10 * np.maximum.accumulate(f)
+        assert np.all(d <= bound), f"{what}: {d.max():.3g} apart, the reference nudged {f.max():.3g}"
     return len(made)
+
+
+def _nudge(doc: dict, joint: str) -> dict:
+    """The scene document with the initial rate of ``joint`` moved by round-off: one machine epsilon of
+    max(1, |rate|) (one ulp of a rate of 1e-164, 1e-180, would move nothing)."""
+    import copy
+    out = copy.deepcopy(doc)
+    v = out["initial"]["v"][joint]
+    out["initial"]["v"][joint] = v + float(np.finfo(float).eps) * max(1.0, abs(v))
+    return out
 
 
 # ---- the mechanisms ---------------------------------------------------------------------------------------------------
@@ -200,7 +245,9 @@ def chains_with_a_stop(draw):
 def test_the_compiled_loop_is_the_python_stepped_run_on_random_chains(case):
     doc, urdfs = case
     with tempfile.TemporaryDirectory() as folder:
-        assert_paths_agree(pcmm.load_scene(write_scene(Path(folder), doc, urdfs)))
+        scene = pcmm.load_scene(write_scene(Path(folder) / "run", doc, urdfs))
+        nudged = pcmm.load_scene(write_scene(Path(folder) / "nudged", _nudge(doc, "J1"), urdfs))
+        assert_paths_agree(scene, nudged)
 
 
 # ---- the shipped tree examples, varied ----------------------------------------------------------------------------------
@@ -233,4 +280,8 @@ def test_the_compiled_loop_is_the_python_stepped_run_on_varied_examples(case):
     from builders import copy_example, dump_toml
     name, doc = case
     with tempfile.TemporaryDirectory() as folder:
-        assert_paths_agree(pcmm.load_scene(copy_example(Path(folder), name, dump_toml(doc))))
+        (Path(folder) / "run").mkdir()
+        (Path(folder) / "nudged").mkdir()
+        scene = pcmm.load_scene(copy_example(Path(folder) / "run", name, dump_toml(doc)))
+        nudged = pcmm.load_scene(copy_example(Path(folder) / "nudged", name, dump_toml(_nudge(doc, "O1"))))
+        assert_paths_agree(scene, nudged)

@@ -101,3 +101,42 @@ def test_fast_layout_encodes_as_the_type_checks_do():
     log = EventLog([value])
     back = log[0]
     assert back["z"] == 0.0 and str(back["z"]) == "-0.0" and back["big"] == 2 ** 60 and back["l"] == [1.0, (2, "a")]
+
+
+def test_a_one_by_one_dgesv_is_the_division():
+    """The normal impulse of Eqs. 29 and 42 divides by the 1 x 1 denominator where it was solved by
+    LAPACK's dgesv: the same bits (LU of one entry, then b / a), over magnitudes from 1e-8 to 1e8
+    and both signs, where multiplying by the reciprocal differs in about a quarter of the cases."""
+    from pcmm.model.rows import solve
+    rng = np.random.default_rng(5)
+    a = rng.normal(size=4000) * 10.0 ** rng.uniform(-8, 8, 4000)
+    b = rng.normal(size=4000) * 10.0 ** rng.uniform(-8, 8, 4000)
+    by_lapack = np.array([solve(np.array([[x]]), np.array([y]))[0] for x, y in zip(a, b)])
+    assert by_lapack.tobytes() == (b / a).tobytes()
+    assert np.count_nonzero(by_lapack != b * (1.0 / a)) > 400  # the test can tell the two apart
+
+
+def test_a_frictional_refusal_names_its_transition_when_joints_are_cut(make_scene):
+    """The reference rod's ENERGY_GAIN strike (Newton's law with friction gains energy), with the
+    bar's own free joint listed as cut (a planar joint forbids nothing: no row): the refusal names
+    the transition, not the last cut joint (the plan's loop over the cut joints reused the name)."""
+    import re
+
+    import pytest
+
+    import reference_rod_friction as rf
+    import test_point_impacts as tp
+    from pcmm.errors import SimulationError
+    keep = tp.M, tp.L
+    tp.M, tp.L = 1.0, 1.0
+    try:
+        g = rf.ENERGY_GAIN
+        path, _ = tp.rod_scene(make_scene, g["theta"], g["mu"], g["e"], vG=g["vG"])
+        text = path.read_text()
+        cut = re.sub(r"cut = \[\s*\]", 'cut = ["P"]', text)
+        assert cut != text
+        path.write_text(cut)
+        with pytest.raises(SimulationError, match=r"transition 'floor': Newton's kinematic restitution with friction"):
+            pcmm.simulate(pcmm.load_scene(path))
+    finally:
+        tp.M, tp.L = keep

@@ -4,6 +4,7 @@ what a first run saw, and nothing one run changes may leak into the next."""
 from __future__ import annotations
 
 from builders import Bar, chain_urdf
+
 from pcmm.results.trajectory import urdf_joints
 
 
@@ -53,9 +54,9 @@ def test_force_elements_compiled_once_per_model_and_specs_and_right_for_each(tmp
     import math
 
     import numpy as np
+    from builders import spring_pendulum
 
     import pcmm
-    from builders import spring_pendulum
     from pcmm.model.mechanism import Mechanism
 
     I_c = 0.02

@@ -233,7 +233,8 @@ def solve_impulse(cfg: Configuration, t: float, q: np.ndarray, v: np.ndarray, co
         P = fr.P
     else:
         J = J_n
-        P = -(1.0 + restitution) * solve(denom, J_n @ v_f)  # Eqs. 29, 42
+        # Eqs. 29, 42: LAPACK's dgesv of this 1 x 1 system is the division (the same bits), without its call
+        P = -(1.0 + restitution) * ((J_n @ v_f) / d)
     dv_f = W_eff @ J.T @ P  # Eqs. 24, 38 (and 35 with its sign)
     v_f_after = v_f + dv_f  # Eqs. 30, 43
     mult = -solve(S, G @ W @ J.T @ P) if G.shape[0] else np.zeros(0)
@@ -275,7 +276,7 @@ def solve_impulse(cfg: Configuration, t: float, q: np.ndarray, v: np.ndarray, co
         out.cut_impulses[name] = list(out.constraint_impulses[name])
     out.joint_impulses, out.rnea_residual = joint_impulses(cfg, q, v_after - v, point_impulses)
     if fr is not None:
-        check_frictional_energy(fr, out, f"t = {t:.9g} s, " + (f"transition '{name}'" if name else f"contact {contact.a}/{contact.b}"))
+        check_frictional_energy(fr, out, where)
     return out
 
 

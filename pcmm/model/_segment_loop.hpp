@@ -587,10 +587,6 @@ PyObject *loop_new(PyTypeObject *type, PyObject *args, PyObject *kwargs) {
     PyErr_SetString(PyExc_RuntimeError, "the tree is not finalized");
     return nullptr;
   }
-  if (power && !tree->drives) {
-    PyErr_SetString(PyExc_ValueError, "SegmentLoop: power=True needs a tree with drives");
-    return nullptr;
-  }
   const int n = tree->ny + (power ? 1 : 0);
   PyArrayObject *ct = (PyArrayObject *)PyArray_FROMANY(ct_o, NPY_DOUBLE, 1, 1, NPY_ARRAY_IN_ARRAY);
   if (!ct) return nullptr;

@@ -479,10 +479,21 @@ void evaluate_drives(Tree *self, double t, const double *y, double *dy, bool pow
   }
 }
 
-// the right-hand side at (t, y) into dy: a tree's (evaluate_rhs) or, with drives, evaluate_drives
+// the right-hand side at (t, y) into dy: a tree's (evaluate_rhs) or, with drives, evaluate_drives;
+// with `power` a tree's flight (TreeCoordinates.rhs_with_power): the force elements' power
+// tau.v appended, dy[2 nv], tau = Q0 - KD y as evaluate_rhs left it (y[2 nv], the work, is not read)
 inline void evaluate(Tree *self, double t, const double *y, double *dy, bool power) {
-  if (self->drives) evaluate_drives(self, t, y, dy, power);
-  else evaluate_rhs(self, y, dy);
+  if (self->drives) {
+    evaluate_drives(self, t, y, dy, power);
+    return;
+  }
+  evaluate_rhs(self, y, dy);
+  if (power) {
+    const int nv = self->nv;
+    double tv = 0.0;
+    for (int i = 0; i < nv; ++i) tv += (*self->tau)[i] * y[nv + i];
+    dy[2 * nv] = tv;
+  }
 }
 
 // evaluation_cost(y, reps) -> {part: CPU seconds per call}: the right-hand side's parts timed in C++
@@ -544,7 +555,7 @@ PyObject *tree_evaluation_cost(Tree *self, PyObject *args) {
 }
 
 // rhs(t, y) -> [v, aba(q, v, Q0 - KD y)] (with drives: [v_I, a_I]); rhs_with_power(t, [y, W]) ->
-// [v_I, a_I, P] (drives only): a new array each call (integrators keep what they get)
+// [v_I, a_I, P]: a new array each call (integrators keep what they get)
 PyObject *call_rhs(Tree *self, PyObject *const *args, Py_ssize_t nargs, bool power) {
   if (nargs != 2) {
     PyErr_SetString(PyExc_TypeError, "rhs(t, y) takes two arguments");
@@ -552,10 +563,6 @@ PyObject *call_rhs(Tree *self, PyObject *const *args, Py_ssize_t nargs, bool pow
   }
   if (!self->ready) {
     PyErr_SetString(PyExc_RuntimeError, "the tree is not finalized");
-    return nullptr;
-  }
-  if (power && !self->drives) {
-    PyErr_SetString(PyExc_TypeError, "rhs_with_power: only a tree with drives (set_drives) has it here");
     return nullptr;
   }
   const double t = PyFloat_AsDouble(args[0]);
@@ -669,7 +676,7 @@ PyMethodDef tree_methods[] = {
     {"set_drives", (PyCFunction)tree_set_drives, METH_VARARGS,
      "set_drives(driven, laws): coordinates prescribed by polynomials, laws = ((f, f', f'') coefficients, ...)"},
     {"rhs_with_power", (PyCFunction)(void (*)(void))tree_rhs_with_power, METH_FASTCALL,
-     "rhs_with_power(t, [y, W]) -> [v_I, a_I, P] (with drives)"},
+     "rhs_with_power(t, [y, W]) -> [v_I, a_I, P]: P the power of the force elements (and of the drives' motors)"},
     {"evaluation_cost", (PyCFunction)tree_evaluation_cost, METH_VARARGS,
      "evaluation_cost(y, reps) -> {part: CPU seconds per call} (benchmarks/rhs_loop_cost.py)"},
     {nullptr, nullptr, 0, nullptr}};
@@ -719,6 +726,11 @@ PyMODINIT_FUNC PyInit__tree_dynamics(void) {
     return nullptr;
   }
   if (PyModule_AddStringConstant(m, "PINOCCHIO_VERSION", PINOCCHIO_VERSION) < 0) {
+    Py_DECREF(m);
+    return nullptr;
+  }
+  // a tree without drives has rhs_with_power too (a flight's work appended); older builds refuse it
+  if (PyModule_AddIntConstant(m, "TREE_POWER", 1) < 0) {
     Py_DECREF(m);
     return nullptr;
   }

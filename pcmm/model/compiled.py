@@ -128,6 +128,28 @@ def tree_rhs(model: pin.Model, Q0: np.ndarray, KD: np.ndarray, reference: Callab
     return tree.rhs
 
 
+def tree_power(model: pin.Model, Q0: np.ndarray, KD: np.ndarray, reference: Callable, reference_power: Callable):
+    """The compiled tree of :func:`tree_rhs` (the same one: the same key) whose
+    ``rhs_with_power(t, [q, v, W]) = [v, aba(q, v, tau), tau . v]``, tau = Q0 - KD y (a flight's
+    state with its work appended, :meth:`pcmm.model.tree.TreeCoordinates.rhs_with_power`), checked
+    against ``reference`` and ``reference_power``, the Python evaluations; or None (why_not says)."""
+    if enabled() and not getattr(_tree_dynamics, "TREE_POWER", 0):  # built before trees had it
+        _refuse("this build of pcmm.model._tree_dynamics has no compiled flights of a tree (built from older "
+                "sources): reinstall pcmm (pip install -e .) to rebuild it")
+        return None
+    Q0, KD = np.asarray(Q0, float), np.asarray(KD, float)
+    entry = _tree(model, ("rhs", Q0.tobytes(), KD.tobytes()), lambda tree: tree.finalize(model.gravity.linear, Q0, KD))
+    if entry is None:
+        return None
+    tree, checked = entry
+    states = _probe_states(model.nv)
+    if not (_agrees(checked, tree.rhs, reference, [(0.0, y) for y in states], "right-hand side")
+            and _agrees(checked, tree.rhs_with_power, reference_power,
+                        [(0.0, np.append(y, 0.0)) for y in states], "right-hand side with power")):
+        return None
+    return tree
+
+
 def _register_segment_loop(owner: type | None = None, make: Callable | None = None) -> None:
     """Tell the integrators (a lower layer) that a tree's compiled right-hand side has a compiled
     segment loop (DOP853 in C++, pcmm/model/_segment_loop.hpp), where this build has one; and that
@@ -142,7 +164,7 @@ def _register_segment_loop(owner: type | None = None, make: Callable | None = No
 
 
 def segment_loop(tree, *args, **options):
-    """A compiled segment loop over ``tree`` (a tree from :func:`drive_tree`), the arguments
+    """A compiled segment loop over ``tree`` (a tree from :func:`drive_tree` or :func:`tree_power`), the arguments
     those of :data:`pcmm.ode.integrators.SEGMENT_LOOPS`."""
     return _tree_dynamics.SegmentLoop(tree, *args, **options)
 
@@ -208,7 +230,7 @@ def closure_kinematics(model: pin.Model, frames_a, frames_b, rows: Callable, row
     return tree
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _probe_states(nv: int) -> tuple[np.ndarray, ...]:
     """Fixed states: angles over a turn, velocities of order one, every component a different
     irrational rotation (the additive recurrence of the generalized golden ratio: ``k alpha_j``

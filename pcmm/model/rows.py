@@ -70,8 +70,9 @@ class ClosureRows:
                 return self.anchors[k]
         return None
 
-    @property
+    @functools.cached_property
     def size(self) -> int:
+        """The number of rows (the specs are fixed: counted once; every Newton step of the loop asks)."""
         return sum({"revolute": 2, "prismatic": 2, "weld": 3}[s.type] for s in self.specs)
 
     @functools.cached_property

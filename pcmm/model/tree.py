@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import contextlib
 import copy
+import threading
 
 import numpy as np
 import pinocchio as pin
@@ -26,6 +27,7 @@ class TreeCoordinates:
         self.ny = 2 * cfg.nv
         self.labels: list[str] = []
         self._segment_forces = None  # a reader's own force elements (restored); None: the configuration's
+        self._flight_tree = None  # (thread, force elements, compiled tree or None) last used by rhs_with_power
         self.rhs = self._make_rhs()
 
     @property
@@ -70,6 +72,8 @@ class TreeCoordinates:
             return concatenate((v, aba(model, data, y[:nv], v, subtract(Q0, dot(KD, y, tau), tau))))
         fast = compiled.tree_rhs(model, Q0, KD, rhs)
         self.evaluations = "compiled" if fast else f"python: {compiled.why_not()}"
+        if fast:  # its flights (rhs_with_power) too, in the compiled loop: registered before the first one
+            compiled._register_segment_loop(TreeCoordinates, _flight_segment_loop)
         return fast or rhs
 
     def forces_changed(self):
@@ -125,7 +129,36 @@ class TreeCoordinates:
 
     def rhs_with_power(self, t, y):
         """``y`` is the state with the work so far appended; the state derivative with one more component: the power of the force elements
-        (every applied force but gravity, which the potential energy accounts for)."""
+        (every applied force but gravity, which the potential energy accounts for).  Compiled where
+        the right-hand side is (:meth:`_compiled_flight`): a flight between bounces, with a compiled
+        segment loop."""
+        fast = self._compiled_flight()
+        if fast is not None:
+            return fast.rhs_with_power(t, y)
+        return self._python_rhs_with_power(t, y)
+
+    def _compiled_flight(self):
+        """The calling thread's compiled tree of :attr:`forces` (a reader's own included) whose
+        ``rhs_with_power`` is :meth:`_python_rhs_with_power`, or None: the Python evaluation runs
+        (a planar joint, point springs, nothing to integrate, or :func:`compiled.why_not`)."""
+        forces, me = self.forces, threading.get_ident()
+        held = self._flight_tree
+        if held is not None and held[0] == me and held[1] is forces:
+            return held[2]
+        tree = None
+        if self.nv and not self.cfg.has_planar and forces.points is None:
+            tree = compiled.tree_power(self.cfg.model, forces.Q0, forces.KD, self._python_rhs,
+                                       self._python_rhs_with_power)
+        self._flight_tree = (me, forces, tree)
+        return tree
+
+    def _python_rhs(self, t, y):
+        """``[q', aba(q, v, tau)]``: the Python right-hand side, the reference :meth:`_compiled_flight` checks."""
+        q, v = self.unpack(t, y)
+        tau = self.forces.generalized(q, v)
+        return np.concatenate([self.cfg.qdot(q, v), pin.aba(self.cfg.model, self.cfg.data, self.cfg.to_pin(q), v, tau)])
+
+    def _python_rhs_with_power(self, t, y):
         q, v = self.unpack(t, y[:-1])
         if self.nv == 0:
             return np.zeros(1)
@@ -168,3 +201,13 @@ class TreeCoordinates:
 
     def loop_rows(self, q) -> tuple[np.ndarray, np.ndarray]:
         return np.zeros(0), np.zeros((0, self.cfg.nv))
+
+
+def _flight_segment_loop(coords: TreeCoordinates, *args, **options):
+    """The compiled segment loop of a tree's flight (``rhs_with_power``, registered for
+    :data:`pcmm.ode.integrators.SEGMENT_LOOPS`): over the calling thread's compiled tree of its
+    force elements; a ValueError where there is none (the integrator then steps in Python)."""
+    tree = coords._compiled_flight()
+    if tree is None:
+        raise ValueError(f"no compiled right-hand side: {compiled.why_not()}")
+    return compiled.segment_loop(tree, *args, **options)
