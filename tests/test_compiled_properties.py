@@ -79,7 +79,7 @@ def _run(scene, loops: dict):
     from pcmm.ode import integrators
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(integrators, "SEGMENT_LOOPS", loops)
-        mp.setattr(compiled, "_register_segment_loop", lambda: None)
+        mp.setattr(compiled, "_register_segment_loop", lambda *args: None)
         try:
             return pcmm.simulate(scene), None
         except SimulationError as exc:
