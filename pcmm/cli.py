@@ -616,6 +616,11 @@ def _write_results(args, scene, opts, traj, partial: bool):
                 return traj.save(path, force=True)
             return write_new(path, lambda p: traj.save(p, force=False))
         jobs = [("the partial trajectory is saved in", target, save_partial)]
+        if getattr(args, "store", None) is not None and args.out is None:
+            # a stored run's partial trajectory is its store (every chunk written, ended 'partial'):
+            # a <scene>-partial.npz beside it would load the whole run at once, what --store avoids
+            jobs = []
+            written.append(("the partial trajectory is in its store", args.store))
         if args.summary:
             jobs.append(("the partial summary in", args.summary, write_summary))
         skipped = [f for f, v in (("--csv", args.csv), ("--html", args.html), ("--plots", args.plots)) if v]

@@ -140,6 +140,22 @@ def test_a_run_stopped_by_an_error_ends_its_store_as_partial_with_its_message(tm
     _same_record(stopped.value.partial, back)
 
 
+def test_pcmm_run_store_stopped_keeps_its_partial_in_the_store_not_a_second_file(tmp_path, monkeypatch, capsys):
+    """A stored run stopped by its event budget (the ball's 6th impact, max_events = 5): the
+    partial trajectory is the store, ended 'partial' with its 6 events; no <scene>-partial.npz is
+    written beside it (that file would load the whole run into memory at once, what --store avoids:
+    a 258,000-impact run stopped by SIGTERM rose from 140 MB to 483 MB writing it)."""
+    path = builders.ball(tmp_path, 1.0, merge=False, solver={"max_events": 5})
+    monkeypatch.chdir(tmp_path)
+    store = tmp_path / "run_store"
+    assert pcmm.cli.main(["run", str(path), "--quiet", "--t-end", "100.0", "--store", str(store)]) != 0
+    err = capsys.readouterr().err
+    assert "more than 5 events" in err and f"the partial trajectory is in its store {store}" in err, err
+    assert not list(tmp_path.glob("*-partial.npz"))
+    back = pcmm.Trajectory.load(store)
+    assert back.status == "partial" and len(back.events) == 6 and "more than 5 events" in back.message
+
+
 def test_a_chunk_header_is_its_json_in_utf8_and_older_string_headers_still_read(tmp_path):
     """A chunk's header (segments, groups, events: JSON) is kept as its UTF-8 bytes, one byte a
     character of this ASCII JSON: a numpy string array, as before, holds 4 (UTF-32), and the
