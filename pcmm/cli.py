@@ -659,12 +659,13 @@ class _Kept(OutputError):
 
 
 def _fallback(path: Path, fn):
-    """Write the output ``fn`` makes to a free name in the first folder that takes it."""
-    from .files import fallback_folders, fallback_path
+    """Write the output ``fn`` makes to a free name in the first folder that takes it.  A free
+    name another process takes meanwhile (runs started together on one ``--out``) moves on to the
+    next free name in the same folder, not to the next folder."""
+    from .files import fallback_folders, write_new
     for folder in fallback_folders(_resolved(path).parent):
-        try:
-            target = fallback_path(path, folder)
-            out = fn(target, False)
+        try:  # write_new: the first free name, path's own or stem-N, whatever others create meanwhile
+            out = write_new(folder / Path(path).name, lambda target: fn(target, False))
             return ", ".join(str(f) for f in out) if isinstance(out, list) else out
         except (OutputError, UsageError):
             continue

@@ -4,6 +4,7 @@ from __future__ import annotations
 import csv
 import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -245,3 +246,24 @@ def test_every_command_help_says_what_the_command_does(capsys):
             pcmm.cli.main([name, "-h"])
         out = capsys.readouterr().out
         assert text and " ".join(text.split()) in " ".join(out.split()), (name, out[:300])
+
+
+def test_a_fallback_name_taken_meanwhile_moves_to_the_next_name_in_the_same_folder(tmp_path, monkeypatch):
+    """Three runs started together on one --out (tests/test_fuzz.py's concurrent runs, failing
+    once under load): two find r.npz taken and both pick r-2.npz; the one that loses that race
+    must write r-3.npz beside it, not go on to the system's temporary folder (where the result
+    was kept, but not where the user looks).  The race made deterministic: another run creates
+    r-2.npz between this run's choice of the name and its write."""
+    from pcmm import files
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "r.npz").write_bytes(b"the first run's")
+    real = files.atomic_write
+
+    def meanwhile(path, write, force, binary=False):
+        if Path(path).name == "r-2.npz" and not Path(path).exists():
+            Path(path).write_bytes(b"the second run's")  # the other run got there first
+        return real(path, write, force, binary)
+    monkeypatch.setattr(files, "atomic_write", meanwhile)
+    kept = pcmm.cli._fallback(tmp_path / "r.npz", lambda p, force: files.atomic_write(p, lambda f: f.write(b"mine"), force, binary=True))
+    assert Path(kept) == tmp_path / "r-3.npz" and Path(kept).read_bytes() == b"mine"
+    assert (tmp_path / "r.npz").read_bytes() == b"the first run's" and (tmp_path / "r-2.npz").read_bytes() == b"the second run's"
