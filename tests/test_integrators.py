@@ -246,3 +246,21 @@ def test_bracketed_newton_finds_the_crossing_with_few_evaluations(g, dg, lo, hi,
     x = _bracketed_newton(counted, dg, lo, hi, g(lo), g(hi), xtol=4 * np.finfo(float).eps)
     assert x == pytest.approx(root, abs=1e-14)
     assert len(calls) <= most
+
+
+def test_a_signal_between_a_samples_time_and_its_state_keeps_the_complete_samples():
+    """SIGTERM landed between _Stepper.accept's two appends (a clean-clone CI: a bouncing run's
+    partial then failed with 'cannot reshape array of size 12 into shape (3,5)', a traceback
+    instead of the partial result).  The sample whose state was not appended is not kept; the
+    others are the run's, unchanged."""
+    from types import SimpleNamespace
+    from pcmm.ode.integrators import _Stepper
+    y0 = np.array([1.0, 2.0, 3.0])
+    st = _Stepper(lambda t, y: -y, [], SimpleNamespace(max_steps=10), 0.0, y0, -y0, 1.0)
+    for k in (1, 2, 3):
+        st.ts.append(0.1 * k)
+        st.ys.append(y0 * k)
+    st.ts.append(0.4)  # the signal: this time's state never appended
+    seg = st.segment(None, 7, -1, "stopped")
+    np.testing.assert_array_equal(seg.t, [0.0, 0.1, 0.2, 0.30000000000000004])
+    np.testing.assert_array_equal(seg.y, np.column_stack([y0, y0, 2 * y0, 3 * y0]))

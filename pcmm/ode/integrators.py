@@ -210,8 +210,11 @@ class _Stepper:
         return None
 
     def segment(self, event, nfev, status, message) -> Segment:
-        return Segment(np.array(self.ts), np.array(self.ys).T.reshape(len(self.ys[0]), len(self.ts)),
-                       event, nfev, len(self.ts) - 1, status, message)
+        """The samples so far.  A signal (Ctrl-C, SIGTERM) raised between a sample's time and its
+        state being appended leaves one time without its state: that sample is not kept."""
+        n = min(len(self.ts), len(self.ys))
+        return Segment(np.array(self.ts[:n]), np.array(self.ys[:n]).T.reshape(len(self.ys[0]), n),
+                       event, nfev, n - 1, status, message)
 
 
 def _locate(e, sol, t_a, t_b, g_a, tol):
