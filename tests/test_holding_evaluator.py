@@ -5,25 +5,18 @@ and re-locks (a drive without a loop: the prepared path), and the prepared path 
 guards never fell back to Holds.forces)."""
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 
 import pcmm
+from builders import EXAMPLES
 from pcmm.events import holding
 
-ROOT = Path(__file__).resolve().parents[1]
+#: the working cycle to 1.5 s (its first merges, the O2 release at 1.199 s, re-locks): the run's
+#: common part with the whole cycle, the t_end given as a run option
+CYCLE, SHORT = EXAMPLES / "three_bar_cycle.toml", pcmm.RunOptions(t_end=1.5)
 
 
-def _short_cycle(tmp_path: Path, t_end: float) -> Path:
-    text = (ROOT / "examples" / "three_bar_cycle.toml").read_text()
-    text = text.replace('urdf = "../urdf/', f'urdf = "{ROOT}/urdf/').replace("t_end = 7.5", f"t_end = {t_end}")
-    out = tmp_path / "cycle.toml"
-    out.write_text(text)
-    return out
-
-
-def test_guard_holding_forces_are_forces_to_the_bit(tmp_path, monkeypatch):
+def test_guard_holding_forces_are_forces_to_the_bit(monkeypatch):
     seen, slow = [], [0]
     prepared, reference = holding.Holds.evaluator, holding.Holds.forces
 
@@ -48,7 +41,7 @@ def test_guard_holding_forces_are_forces_to_the_bit(tmp_path, monkeypatch):
 
     monkeypatch.setattr(holding.Holds, "evaluator", checked)
     monkeypatch.setattr(holding.Holds, "forces", counted_forces)
-    run = pcmm.simulate(pcmm.load_scene(_short_cycle(tmp_path, 1.5)))
+    run = pcmm.simulate(pcmm.load_scene(CYCLE), SHORT)
     names = [e["name"] for e in run.events]
     assert any("O2" in n for n in names) and len(seen) > 100  # the O2 release at 1.199 s was watched
     for got, want, got2, want2 in seen:
