@@ -111,6 +111,18 @@ def _simulate(path, monkeypatch, loops: dict):
     return pcmm.simulate(pcmm.load_scene(path))
 
 
+def _both_paths(path, monkeypatch):
+    """(the run through the compiled tree loop, the Python-stepped run, the every_step flag of each
+    compiled loop made: True where a guard not affine in the state has Python scan every step)."""
+    made = []
+
+    def counting(*args):
+        made.append(args[-1])
+        return td.SegmentLoop(*args)
+    fast = _simulate(path, monkeypatch, {td.Tree: counting})
+    return fast, _simulate(path, monkeypatch, {}), made
+
+
 # the shipped examples with tree configurations integrated by DOP853F (the rimless wheel's and the
 # compass gait's configurations all hold a pinned foot, a cut joint: scipy's DOP853 steps those)
 TREE_EXAMPLES = ["three_bar.toml", "three_bar_stop.toml"]
@@ -123,14 +135,8 @@ def test_whole_runs_are_the_python_stepped_runs(monkeypatch, scene):
     where the compiled loop integrates the segments it can."""
     from builders import EXAMPLES
     path = EXAMPLES / scene
-    made = []
-
-    def counting(*args):
-        made.append(args[-1])  # every_step: a guard not affine in the state
-        return td.SegmentLoop(*args)
-    fast = _simulate(path, monkeypatch, {td.Tree: counting})
+    fast, slow, made = _both_paths(path, monkeypatch)
     assert made, "no segment ran the compiled loop"
-    slow = _simulate(path, monkeypatch, {})
     assert len(fast.events) >= 1
     assert [e["name"] for e in fast.events] == [e["name"] for e in slow.events]
     for a, b in zip(fast.events, slow.events, strict=True):
@@ -156,13 +162,7 @@ def test_a_guard_not_affine_in_the_state_is_scanned_by_python_at_every_step(tmp_
     assert coordinate in text
     text = text.replace(coordinate, '[transitions.guard]\ntype = "gap"\nvalue = 0.0\n')
     path.write_text(text.replace('[transitions.guard.measure]\njoint = "J1"\n', ""))
-    made = []
-
-    def counting(*args):
-        made.append(args[-1])
-        return td.SegmentLoop(*args)
-    fast = _simulate(path, monkeypatch, {td.Tree: counting})
-    slow = _simulate(path, monkeypatch, {})
+    fast, slow, made = _both_paths(path, monkeypatch)
     assert made and all(made)  # every step through Python: the gap is not affine
     assert len(fast.events) >= 1 and fast.events[0]["name"] == "stop"
     for a, b in zip(fast.events, slow.events, strict=True):
@@ -208,13 +208,7 @@ def test_a_time_guard_is_scanned_in_the_loop(tmp_path, monkeypatch):
     text = example_text() + ('\n[[transitions]]\nname = "let go"\ntype = "release"\nfrom = "config2"\n'
                              'to = "config1"\nguard = { type = "time", at = 0.5 }\n')
     path = copy_example(tmp_path, "three_bar.toml", text)
-    made = []
-
-    def counting(*args):
-        made.append(args[-1])
-        return td.SegmentLoop(*args)
-    fast = _simulate(path, monkeypatch, {td.Tree: counting})
-    slow = _simulate(path, monkeypatch, {})
+    fast, slow, made = _both_paths(path, monkeypatch)
     assert len(made) >= 3 and not any(made)  # every segment scanned in C++
     names = [e["name"] for e in fast.events]
     assert names[:2] == ["O3 latches", "let go"] and names == [e["name"] for e in slow.events]
