@@ -64,16 +64,8 @@ def main(argv=None) -> int:
     register = compiled._register_segment_loop
     compiled._register_segment_loop = lambda *args: None  # the paths are chosen here, run by run
     paths = {"compiled loop": {td.Tree: td.SegmentLoop}, "Python-stepped": {}}
-    times = {name: [] for name in paths}
-    runs = {}
     try:
-        for rep in range(args.reps + 1):  # the first round warms up (models built, caches filled)
-            for name, loops in (paths.items() if rep % 2 else reversed(paths.items())):
-                integrators.SEGMENT_LOOPS = loops
-                t0 = time.process_time()
-                runs[name] = pcmm.simulate(scene)
-                if rep:
-                    times[name].append(time.process_time() - t0)
+        times, runs = _alternating(scene, paths, args.reps, lambda loops: setattr(integrators, "SEGMENT_LOOPS", loops))
     finally:
         compiled._register_segment_loop = register
         integrators.SEGMENT_LOOPS = {}
@@ -92,22 +84,31 @@ def main(argv=None) -> int:
     return 0
 
 
+def _alternating(scene, paths: dict, reps: int, choose) -> tuple[dict, dict]:
+    """({path: [CPU s of each timed run]}, {path: its last run}): ``reps`` + 1 rounds of
+    ``pcmm.simulate(scene)`` on every path (``choose(paths[name])`` sets one up), in alternating
+    order; the first round warms up (models built, caches filled) and is not timed."""
+    times, runs = {name: [] for name in paths}, {}
+    for rep in range(reps + 1):
+        for name, how in (paths.items() if rep % 2 else reversed(paths.items())):
+            choose(how)
+            t0 = time.process_time()
+            runs[name] = pcmm.simulate(scene)
+            if rep:
+                times[name].append(time.process_time() - t0)
+    return times, runs
+
+
 def drives(path: Path, reps: int) -> int:
     """The three paths of a scene with drives (the module's docstring), alternating run by run."""
     scene = pcmm.load_scene(path)
     paths = {"Python evaluations": ("0", False), "compiled rhs": ("1", False), "compiled rhs + loop": ("1", True)}
-    times = {name: [] for name in paths}
-    runs = {}
     before = os.environ.get(compiled.ENV)
+
+    def choose(how):
+        os.environ[compiled.ENV], integrators.COMPILED_SCIPY_STEPS = how
     try:
-        for rep in range(reps + 1):  # the first round warms up
-            for name, (env, loop) in (paths.items() if rep % 2 else reversed(paths.items())):
-                os.environ[compiled.ENV] = env
-                integrators.COMPILED_SCIPY_STEPS = loop
-                t0 = time.process_time()
-                runs[name] = pcmm.simulate(scene)
-                if rep:
-                    times[name].append(time.process_time() - t0)
+        times, runs = _alternating(scene, paths, reps, choose)
     finally:
         integrators.COMPILED_SCIPY_STEPS = False
         if before is None:
