@@ -5,9 +5,9 @@ to its first re-locks, and the audit figures are those of the node-by-node route
 from __future__ import annotations
 
 import numpy as np
+from builders import EXAMPLES
 
 import pcmm
-from builders import EXAMPLES
 from pcmm.run import audit
 
 #: the working cycle to 1.5 s (its first merges, the O2 release at 1.199 s, re-locks): the run's

@@ -6,9 +6,9 @@ guards never fell back to Holds.forces)."""
 from __future__ import annotations
 
 import numpy as np
+from builders import EXAMPLES
 
 import pcmm
-from builders import EXAMPLES
 from pcmm.events import holding
 
 #: the working cycle to 1.5 s (its first merges, the O2 release at 1.199 s, re-locks): the run's
