@@ -644,18 +644,18 @@ def chromium(tmp_path_factory):
 
 
 def _screenshots(chromium, page: Path, times, tmp_path, dom_at=None, size=(800, 600)):
-    """Images (H, W, 3) of the page opened at each time; plus the DOM at ``dom_at`` (from the
-    screenshot's page at that time, if there is one at the default size)."""
+    """Images (H, W, 3) of the page at each time: opened at the first (``page.html#t=<seconds>``),
+    then taken to each other by the page's own seek (what a click on the timeline does; the same
+    pixels as a fresh load at that time: checked on the cycle's page, 0 pixels differ); plus the
+    DOM at ``dom_at`` (from the screenshot's page at that time, if there is one)."""
     from PIL import Image
-    images, dom = [], None
-    with_dom = times.index(dom_at) if dom_at in times and size == (800, 600) else None
-    for i, t in enumerate(times):
-        shot = tmp_path / f"t{i}.png"
-        text = chromium.open(f"{page.as_uri()}#t={t!r}", size, shot, dom=i == with_dom)
+    steps = [(None if i == 0 else f"window.pcmm.seek({t!r})", tmp_path / f"t{i}.png") for i, t in enumerate(times)]
+    with_dom = times.index(dom_at) if dom_at in times else None
+    dom = chromium.shots(f"{page.as_uri()}#t={times[0]!r}", size, steps, dom_step=with_dom)
+    images = []
+    for _, shot in steps:
         assert shot.exists(), chromium.log
         images.append(np.asarray(Image.open(shot).convert("RGB")).astype(int))
-        if i == with_dom:
-            dom = text
     if dom_at is not None and with_dom is None:
         dom = chromium.open(f"{page.as_uri()}#t={dom_at!r}", dom=True)
     return images, dom
