@@ -4,18 +4,22 @@ A recorded segment keeps the integrator's accepted steps (times and states).  An
 it is reached again from the step that holds it, started from its recorded state with its
 recorded size: DOP853's 7th-order dense output, or a fixed-step method's cubic Hermite from the
 derivatives at both ends (its own dense output).  Used to resample a segment's series and by
-the flight-energy audit's quadrature.
+the flight-energy audit's quadrature.  The audit has the dense output of each step as the
+integrator took it (``kept``, :attr:`pcmm.ode.integrators.Segment.dense`): then no step is taken
+again.
 """
 from __future__ import annotations
 
 import numpy as np
 
 
-def dense_states(t, y, times, stepping) -> np.ndarray:
+def dense_states(t, y, times, stepping, kept=None) -> np.ndarray:
     """The states at ``times`` (within [t[0], t[-1]]) on the dense output of the recorded steps
     ``(t, y)`` (``y`` one column per step end); ``stepping = (fun, method, opts)`` as the segment
-    was integrated.  A state without components (a locked or fully driven stay) is a known
-    function of time: nothing to interpolate."""
+    was integrated.  ``kept``: per step, ``fun -> interpolant`` of that step as the integrator
+    took it, or None (:attr:`~pcmm.ode.integrators.Segment.dense`); a step without one is taken
+    again from its recorded start with its recorded size.  A state without components (a locked
+    or fully driven stay) is a known function of time: nothing to interpolate."""
     from ..ode.integrators import _dop853_dense, _hermite
     fun, method, opts = stepping
     times = np.asarray(times, float)
@@ -31,9 +35,10 @@ def dense_states(t, y, times, stepping) -> np.ndarray:
         rest = [j for j in cols if j not in exact]
         if not rest:
             continue
-        if method.fixed_step:
+        sol = kept[k](fun) if kept is not None and kept[k] is not None else None  # the step as taken
+        if sol is None and method.fixed_step:
             sol = _hermite(t[k], y[:, k], fun(t[k], y[:, k]), t[k + 1], y[:, k + 1], fun(t[k + 1], y[:, k + 1]))
-        else:
+        elif sol is None:
             sol = _dop853_dense(fun, t[k], y[:, k], t[k + 1], opts)
         out[:, rest] = np.asarray(sol(times[rest]), float).reshape(y.shape[0], len(rest))
     return out
