@@ -51,9 +51,9 @@ def power(cfg: Configuration, coords, t: float, q, v) -> float:
     ``coords`` evaluates, with its force elements (``coords.forces``: a recorded segment's reader
     applies the segment's own)."""
     p = float(coords.forces.generalized(q, v) @ v)
-    if len(coords.labels):
-        Jq, _ = coords.rows(t, q, v)
-        _, lam = coords.accelerations(t, q, v)
+    if len(coords.labels):  # the rows once: coords.accelerations(t, q, v) solves with these
+        Jq, bias = coords.rows(t, q, v)
+        _, lam = constrained_accelerations(cfg, q, v, Jq, bias, forces=coords.forces)
         p += float(lam @ (Jq @ v))
     return p
 

@@ -27,18 +27,20 @@ def dense_states(t, y, times, stepping, kept=None) -> np.ndarray:
     if y.shape[0] == 0:
         return out
     k_of = np.clip(np.searchsorted(t, times, side="right") - 1, 0, max(len(t) - 2, 0))
-    for k in np.unique(k_of):
-        cols = np.flatnonzero(k_of == k)
-        exact = {j for j in cols if times[j] == t[k] or times[j] == t[min(k + 1, len(t) - 1)]}
-        for j in exact:
-            out[:, j] = y[:, k] if times[j] == t[k] else y[:, k + 1]
-        rest = [j for j in cols if j not in exact]
-        if not rest:
-            continue
+    # a time on a recorded step's end is that step's state; the others, step by step (in the
+    # order they are asked for within each step) on the step's dense output
+    at_start = times == t[k_of]
+    at_end = ~at_start & (times == t[np.minimum(k_of + 1, len(t) - 1)])
+    out[:, at_start] = y[:, k_of[at_start]]
+    out[:, at_end] = y[:, k_of[at_end] + 1]
+    inside = np.flatnonzero(~(at_start | at_end))
+    order = inside[np.argsort(k_of[inside], kind="stable")]
+    for cols in np.split(order, np.flatnonzero(np.diff(k_of[order])) + 1) if len(order) else ():
+        k = int(k_of[cols[0]])
         sol = kept[k](fun) if kept is not None and kept[k] is not None else None  # the step as taken
         if sol is None and method.fixed_step:
             sol = _hermite(t[k], y[:, k], fun(t[k], y[:, k]), t[k + 1], y[:, k + 1], fun(t[k + 1], y[:, k + 1]))
         elif sol is None:
             sol = _dop853_dense(fun, t[k], y[:, k], t[k + 1], opts)
-        out[:, rest] = np.asarray(sol(times[rest]), float).reshape(y.shape[0], len(rest))
+        out[:, cols] = np.asarray(sol(times[cols]), float).reshape(y.shape[0], len(cols))
     return out
