@@ -280,7 +280,7 @@ class AcceptedStages:
     gives its own reader's, so the run's warm starts are left alone): 3 evaluations instead of the
     16 that taking the step again costs."""
 
-    __slots__ = ("t_old", "t", "y_old", "y", "f", "K", "h")
+    __slots__ = ("K", "f", "h", "t", "t_old", "y", "y_old")
 
     def __init__(self, t_old, t, y_old, y, f, K, h):
         self.t_old, self.t, self.y_old, self.y, self.f, self.K, self.h = t_old, t, y_old, y, f, K, h
@@ -291,7 +291,8 @@ class AcceptedStages:
         tab = _tableau()
         K = np.empty((tab.n_extended, len(self.y_old)), dtype=self.y_old.dtype)
         K[:len(self.K)] = self.K
-        fun_float = lambda t, y: np.asarray(fun(t, y), dtype=float)  # noqa: E731  (as DOP853 wraps it)
+        def fun_float(t, y):  # as DOP853 wraps its right-hand side
+            return np.asarray(fun(t, y), dtype=float)
         return _interpolant(fun_float, self.t_old, self.t, self.y_old, self.y, self.f, K, self.h, tab)
 
 

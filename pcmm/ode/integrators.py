@@ -31,7 +31,7 @@ import numpy as np
 
 from .. import _scipy
 from ..errors import Repartition, SimulationError
-from .dop853 import DOP853, TOO_SMALL_STEP, AcceptedStages, DenseStep, dense_step, packed_tableau
+from .dop853 import DOP853, TOO_SMALL_STEP, DenseStep, dense_step, packed_tableau
 from .methods import AUTO, INTEGRATOR_NAMES, METHODS  # noqa: F401  (METHODS: the run loop's import)
 from .roots import brentq, minimize_bounded
 
@@ -497,7 +497,7 @@ def _drive_loop(loop, progress, st, dense, failure, counted, name, from_row):
 class _lazy:
     """``make()``, made on the first call and kept (``made``: whether it was)."""
 
-    __slots__ = ("make", "value", "made")
+    __slots__ = ("made", "make", "value")
 
     def __init__(self, make):
         self.make, self.value, self.made = make, None, False
@@ -514,7 +514,7 @@ class _KeptStages:
     the right-hand side it is called with (:meth:`AcceptedStages.dense_output`), else None (no
     stages: the step is taken again)."""
 
-    __slots__ = ("stages", "dense")
+    __slots__ = ("dense", "stages")
 
     def __init__(self, stages, dense):
         self.stages, self.dense = stages, dense
