@@ -65,8 +65,8 @@ def flight_work(cfg: Configuration, coords, t, y, stepping, q_start, kept=None) 
     integrator took them, :attr:`pcmm.ode.integrators.Segment.dense`).  The nodes are solved from
     the segment's start ``q_start`` by ``coords``, a reader of the segment (:meth:`Coordinates.restored`)."""
     t = np.asarray(t, float)
-    if len(t) < 2:
-        return 0.0
+    if len(t) < 2 or not (len(coords.labels) or coords.forces.names):
+        return 0.0  # no step; or no force element and no constraint row: no force but gravity does work
     h = np.diff(t) / 2
     times = (t[:-1, None] + h[:, None] * (GAUSS_NODES[None, :] + 1)).ravel()
     weights = (h[:, None] * GAUSS_WEIGHTS[None, :]).ravel()
