@@ -778,6 +778,7 @@ def _dark(img):
     return img.sum(axis=2) < 180
 
 
+@pytest.mark.slow  # the cycle's run and page, six screenshots
 @pytest.mark.browser
 @needs_chromium
 def test_browser_draws_pivots_locks_arcs_and_plates_where_and_when_they_are(chromium, cycle_page, tmp_path):

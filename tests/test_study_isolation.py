@@ -112,6 +112,7 @@ def test_kill_9_of_the_sweep_leaves_no_worker_behind(tmp_path):
     assert [k for k in kids if _alive(k)] == []
 
 
+@pytest.mark.slow  # a Dask cluster; waits out a 5 s limit and 3 s runs
 def test_on_dask_a_crashing_and_a_hanging_run_are_rows_too_and_a_time_limit_counts_from_the_runs_start(tmp_path):
     """A run that kills its Dask worker is a crashed row, one that hangs a timeout row once it has
     run for its time limit (5 s), the others complete.  Then three runs of study_hooks.SLOW_S = 3 s
