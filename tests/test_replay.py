@@ -634,10 +634,13 @@ def test_serve_error_stops_the_server(runs, monkeypatch):
 
 
 # ---- real browser --------------------------------------------------------------------------
-@pytest.fixture(scope="session")
+@pytest.fixture(scope="module")
 def chromium(tmp_path_factory):
-    """One headless Chromium for the session (per xdist worker), each page opened in a fresh
-    browser context of it: a launch costs seconds of CPU (its software WebGL), a page a fraction."""
+    """One headless Chromium for this module's browser tests (per xdist worker), each page opened
+    in a fresh browser context of it: a launch costs seconds of CPU (its software WebGL), a page a
+    fraction.  Closed once the module's tests are done (not at the session's end): even parked on
+    about:blank, the browser takes about 0.06 of a core (tests/headless.py) while the rest of the
+    suite runs."""
     browser = headless.Chromium(tmp_path_factory.mktemp("chromium"))
     yield browser
     browser.close()
@@ -778,6 +781,7 @@ def _dark(img):
     return img.sum(axis=2) < 180
 
 
+@pytest.mark.slow  # the cycle's run and page, six screenshots
 @pytest.mark.browser
 @needs_chromium
 def test_browser_draws_pivots_locks_arcs_and_plates_where_and_when_they_are(chromium, cycle_page, tmp_path):
