@@ -40,6 +40,11 @@ class PartitionedCoordinates:
     position_noise = 4 * np.finfo(float).eps  # dependent coordinates: Newton plus one polishing step
 
     def __init__(self, cfg: Configuration, closure: ClosureRows, drives: Drives):
+        # the loops' right-hand side compiled whole (pcmm/model/_loops.hpp: the Newton solve with its
+        # warm starts, the dependent rates, the KKT solve), where it runs (_compiled_loop)
+        self._loop = None
+        self._loop_held = None  # (thread, force elements) the loop's tree is checked for
+        self._seed_q, self._seed_t = None, 0.0  # the last seed and the time of the last partition
         self.cfg = cfg
         self.closure = closure
         self.drives = drives
@@ -58,7 +63,7 @@ class PartitionedCoordinates:
         self._zeros = np.zeros(self.nv)
         self.checking = True  # conditioning checks (off while recording an accepted segment)
         self._cache = None  # the last unpack: guards and the right-hand side ask for the same point
-        self.max_residual = 0.0  # largest loop residual a Newton solve accepted (the recorded drift's bound)
+        self._max_residual = 0.0  # largest loop residual a Newton solve accepted in Python (max_residual)
         self._segment_forces = None  # a reader's own force elements (restored); None: the configuration's
         self._driven = np.array(drives.index, dtype=int)
         self._drive_rows = np.zeros((drives.size, self.nv))
@@ -91,6 +96,114 @@ class PartitionedCoordinates:
             self.ny = 2 * len(self.I)
             self.evaluations = "compiled" if self._compiled_drives() is not None else (
                 f"python: {compiled.why_not() or 'not compiled'}")
+        # loops: the whole right-hand side compiled where the rows are and nothing else stands in the
+        # way; checked against the Python evaluation at the first partition (_compiled_loop)
+        self._loop_refused = self._why_loop_not_compiled(fast)
+        if fast is not None and self._loop_refused is not None:
+            self.evaluations = f"python: not compiled: {self._loop_refused}"
+
+    def _why_loop_not_compiled(self, rows) -> str | None:
+        """Why the right-hand side of these loops is not compiled whole (None: it may be): it needs
+        the compiled rows of revolute cut joints (``rows``), no planar joint, no point springs and
+        no coordinate driven twice."""
+        if not self.closure.size:
+            return "no loop"
+        if rows is None:
+            return self.evaluations.removeprefix("python: ").removeprefix("not compiled: ")
+        if self.cfg.forces.points is not None:
+            return "point springs"
+        if len(set(self.drives.index)) != self.drives.size:
+            return "a coordinate driven twice"
+        return None
+
+    @property
+    def max_residual(self) -> float:
+        """The largest loop residual a Newton solve accepted (the recorded drift's bound), the
+        compiled loop's solves included."""
+        loop = self._loop
+        return self._max_residual if loop is None else max(self._max_residual, loop.max_residual())
+
+    @max_residual.setter
+    def max_residual(self, value: float) -> None:
+        self._max_residual = value
+
+    @property
+    def checking(self) -> bool:
+        """Whether the conditioning of the partition is checked (off while recording an accepted segment)."""
+        return self._checking
+
+    @checking.setter
+    def checking(self, on: bool) -> None:
+        self._checking = on
+        if self._loop is not None:
+            self._loop.set_checking(on)
+
+    def _compiled_loop(self):
+        """The compiled right-hand side of the loops (a :func:`pcmm.model.compiled.loop`) on the
+        calling thread's compiled tree of :attr:`forces`, checked against the Python evaluation at
+        probe states near the seed in this partition; or None: the Python evaluation runs (and
+        :attr:`evaluations` says why where it is refused)."""
+        held = self._loop_held
+        if held is not None and held[0] == threading.get_ident() and held[1] is self.forces:
+            return self._loop
+        if self._loop_refused is not None or self._seed_q is None or self.D is None:
+            return None
+        forces = self.forces
+        if forces.points is not None:
+            return None
+        entry = compiled.loop_tree(self.cfg.model, self.closure.frames_a, self.closure.frames_b, forces.Q0, forces.KD)
+        if entry is None:
+            return self._refuse_loop(compiled.why_not() or "not compiled")
+        tree, checked = entry
+        if self._loop is None:
+            self._loop = compiled.loop(tree, self.drives.index, self.drives._derivs)
+            self._loop.seed(self._seed_q, self.I, self.D)
+            self._loop.set_checking(self._checking)
+        else:
+            self._loop.set_tree(tree)
+        why = self._loop_disagrees(tree, checked)
+        if why is not None:
+            return self._refuse_loop(why)
+        self._loop_held = (threading.get_ident(), forces)
+        return self._loop
+
+    def _refuse_loop(self, why: str):
+        self._loop_refused = why
+        self._loop, self._loop_held = None, None
+        self.evaluations = f"python: {why}"
+        return None
+
+    def _loop_disagrees(self, tree, checked) -> str | None:
+        """Why the compiled loop on ``tree`` is not the Python evaluation (None: it is): both from
+        the seed, at probe states near it (independent coordinates 1e-3 off, rates of order one,
+        times 1e-3 s on), the right-hand side and the one with power; once per tree and partition."""
+        what = f"loop right-hand side, dependent {tuple(int(i) for i in self.D)}"
+        if what in checked:
+            return None
+        k = len(self.I)
+        base = self._seed_q[self.I]
+        probes = [(self._seed_t + 1e-3 * (j + 1), np.concatenate([base + 1e-3 * p[:k] / np.pi, p[k:2 * k]]))
+                  for j, p in enumerate(compiled._probe_states(max(k, 1)))]
+        reference = copy.copy(self)
+        reference._loop, reference._loop_held, reference._loop_refused = None, None, "the reference"
+        reference._trail, reference._max_residual = None, 0.0
+        reference.checking = False
+        reference.seed(self._seed_q)
+        scratch = compiled.loop(tree, self.drives.index, self.drives._derivs)
+        scratch.seed(self._seed_q, self.I, self.D)
+        scratch.set_checking(False)
+
+        def declined(out, n):
+            return np.full(n, np.nan) if out is None else out
+        try:
+            same = (compiled.agrees(checked, lambda t, y: declined(scratch.rhs(t, y), 2 * k), reference._python_rhs,
+                                    probes, what)
+                    and compiled.agrees(checked, lambda t, y: declined(scratch.rhs_with_power(t, y), 2 * k + 1),
+                                        reference._python_rhs_with_power,
+                                        [(t, np.append(y, 0.0)) for t, y in probes], what + " with power"))
+        except (SimulationError, np.linalg.LinAlgError) as exc:
+            return f"the Python evaluation fails at a probe state near the seed ({exc})"
+        return None if same else (compiled.why_not() or "it disagrees with the Python evaluation")
 
     def _why_drives_not_compiled(self) -> str | None:
         """Why the right-hand side of drives without loops is not compiled (None: it may be).  Every
@@ -158,6 +271,8 @@ class PartitionedCoordinates:
         segment's force elements (a value, compiled at its angle offsets), which the reader's
         evaluations apply instead of the configuration's current ones."""
         reader = copy.copy(self)
+        # a reader's Newton solves follow the segment's steps (_follow): the Python evaluation
+        reader._loop, reader._loop_held, reader._loop_refused = None, None, "a re-read segment"
         if forces is not None:
             reader._segment_forces = forces
         reader.I, reader.D, reader.ny = frozen["I"], frozen["D"], frozen["ny"]
@@ -280,6 +395,7 @@ class PartitionedCoordinates:
             self.I = np.array([i for i in range(self.nv) if i not in self.D], dtype=int)
             self.ny = 2 * len(self.I)
             return
+        self._seed_t = t
         Jq = self._position_rows(t, q)
         self.D = self._best_dependent(Jq, keep=prefer_independent)
         self.I = np.array([i for i in range(self.nv) if i not in self.D], dtype=int)
@@ -405,6 +521,10 @@ class PartitionedCoordinates:
         self._qD = q.copy()
         self._recent = []
         self._cache = None
+        self._seed_q = self._qD
+        self._loop_held = None  # checked again (a new partition is checked once)
+        if self._loop is not None:
+            self._loop.seed(q, self.I, self.D)
 
     def _guess(self, t):
         """The warm start for a solve at ``t``: the recent solution nearest in time, carried to
@@ -580,6 +700,9 @@ class PartitionedCoordinates:
                      g, 0, "repartition", rate=rate, rate_from_state=True)
 
     def unpack(self, t, y):
+        loop = self._compiled_loop() if self._loop_refused is None else None
+        if loop is not None:
+            return self._compiled_unpack(loop, t, y)
         cache = self._cache
         # the same bytes are the same state (the common hit: a guard's value, then its rate);
         # otherwise numpy decides (-0.0 and 0.0 are one value)
@@ -594,11 +717,25 @@ class PartitionedCoordinates:
                 self._reached[k] = self._recent[-1]
         return out
 
-    def _unpack(self, t, y):
+    def _compiled_unpack(self, loop, t, y):
+        """:meth:`unpack` by the compiled loop (its warm starts, its cache); where it declines, the
+        conditioning check decides (a new partition, or a singular posture), or the Python solve
+        from the compiled loop's warm start (its error, or a solution the loop then keeps)."""
+        status, q, v, Jp = loop.unpack(t, y)
+        if status == 0:
+            self._last_Jp = Jp
+            return q, v
+        if status == 1:
+            self._check_conditioning(t, Jp)  # raises (the compiled check fired: a round-off apart otherwise)
+        q, v = self._unpack(t, y, guess=q)
+        loop.remember(t, y, q, self._recent[-1][2], self._last_Jp)
+        return q, v
+
+    def _unpack(self, t, y, guess=None):
         if not self.closure.size:
             return self._prescribed(t, y)
         k = len(self.I)
-        q, Jq, Jp = self._solve_dependent(t, y[:k], self._guess(t))
+        q, Jq, Jp = self._solve_dependent(t, y[:k], self._guess(t) if guess is None else guess)
         self._qD = q
         self._last_Jp = Jp
         # the state's second half is the independent coordinates' rates q'_I (a planar joint's
@@ -703,10 +840,16 @@ class PartitionedCoordinates:
         return self.accelerations(t, q, v)
 
     def rhs(self, t, y):
-        """``[q'_I, q''_I]`` at ``(t, y)``: compiled where the drives are (:meth:`_compiled_drives`)."""
+        """``[q'_I, q''_I]`` at ``(t, y)``: compiled where the drives are (:meth:`_compiled_drives`)
+        or the loops (:meth:`_compiled_loop`; a call it declines is Python's)."""
         fast = self._compiled_drives()
         if fast is not None:
             return fast.rhs(t, y)
+        loop = self._compiled_loop() if self._loop_refused is None else None
+        if loop is not None:
+            out = loop.rhs(t, y)
+            if out is not None:
+                return out
         return self._python_rhs(t, y)
 
     def _python_rhs(self, t, y):
@@ -723,6 +866,11 @@ class PartitionedCoordinates:
         fast = self._compiled_drives()
         if fast is not None:
             return fast.rhs_with_power(t, y)
+        loop = self._compiled_loop() if self._loop_refused is None else None
+        if loop is not None:
+            out = loop.rhs_with_power(t, y)
+            if out is not None:
+                return out
         return self._python_rhs_with_power(t, y)
 
     def _python_rhs_with_power(self, t, y):
