@@ -35,8 +35,16 @@ struct Recent {
   VectorXd q, rates;
 };
 
+// a point spring (pcmm.model.forces.PointSprings): f = f0 - k (L - rest) - c L' along the line between
+// two points (frames of the tree), L = |p_b - p_a|, acting as (J_b - J_a)^T u f
+struct Spring {
+  Model::FrameIndex a, b;
+  double f0, k, rest, c;
+};
+
 struct State {
   int nv = 0, nc = 0, nd = 0, m = 0;
+  std::vector<Spring> springs;
   std::vector<int> driven;
   std::vector<std::vector<double>> c0, c1, c2;  // f, f', f'' coefficients, low order first
   std::vector<int> I, D;
@@ -170,8 +178,22 @@ void rows(Tree *tree, State &s, double t, const VectorXd &q) {
 
 enum Status { OK = 0, CONDITIONING = 1, FAILED = 2 };
 
-// the warm start at t (PartitionedCoordinates._guess, without a re-read segment's trail)
-VectorXd guess(const State &s, double t) {
+// a solution carried to t along its own rates, unless that moves a coordinate by more than PREDICT_MAX
+VectorXd carried(const Recent &near, double t) {
+  const VectorXd step = (t - near.t) * near.rates;
+  if (max_abs(step.data(), (int)step.size()) <= PREDICT_MAX) return near.q + step;
+  return near.q;
+}
+
+// the warm start at t (PartitionedCoordinates._guess); `trail`, where given, is a re-read segment's
+// solution at its accepted step before t (_follow), taken where it lies nearer in time than every recent one
+VectorXd guess(const State &s, double t, const Recent *trail = nullptr) {
+  if (trail) {
+    bool nearer = true;
+    for (const auto &r : s.recent)
+      if (!(std::fabs(trail->t - t) < std::fabs(r.t - t))) nearer = false;
+    if (nearer) return carried(*trail, t);
+  }
   if (s.recent.empty()) return s.seed;
   const Recent *near = &s.recent.front();
   double best = std::fabs(near->t - t);
@@ -180,9 +202,7 @@ VectorXd guess(const State &s, double t) {
       best = std::fabs(r.t - t);
       near = &r;
     }
-  const VectorXd step = (t - near->t) * near->rates;
-  if (max_abs(step.data(), (int)step.size()) <= PREDICT_MAX) return near->q + step;
-  return near->q;
+  return carried(*near, t);
 }
 
 // Newton on the dependent coordinates from q (q_I set): PartitionedCoordinates._solve_dependent.
@@ -236,10 +256,10 @@ void remember(State &s, double t, const double *y, int n, const VectorXd &q, con
 
 // (q, v) at (t, y = [q_I, q'_I]) into s.cq, s.cv (and Phi_q into s.cJ): PartitionedCoordinates.unpack,
 // its cache included; `start` gets the warm start (what Python solves from where this declines)
-Status unpack(Tree *tree, State &s, double t, const double *y, VectorXd &start) {
+Status unpack(Tree *tree, State &s, double t, const double *y, VectorXd &start, const Recent *trail = nullptr) {
   const int k = (int)s.I.size();
   if (same_state(s, t, y, 2 * k)) return OK;
-  start = guess(s, t);
+  start = guess(s, t, trail);
   VectorXd q = start;
   for (int i = 0; i < k; ++i) q[s.I[i]] = y[i];
   const Status st = solve_dependent(tree, s, t, q);
@@ -296,6 +316,28 @@ bool accelerations(Tree *tree, State &s, double t) {
     else dv[ij.first] += kd * v[ij.second - nv];
   }
   for (int i = 0; i < nv; ++i) s.tau[i] = (*tree->q0_force)[i] - kq[i] - dv[i];
+  if (!s.springs.empty()) {  // PointSprings.evaluate, at the placements and Jacobians of the pass above
+    VectorXd Qp = VectorXd::Zero(nv), uJ(nv);
+    pinocchio::Data::Matrix6x Ja(6, nv), Jb(6, nv);
+    for (const Spring &sp : s.springs) {
+      const auto r = data.oMf[sp.b].translation() - data.oMf[sp.a].translation();
+      const double length = std::hypot(r[0], r[1]);
+      if (!(length > 1e-12)) return false;  // Python names the element
+      const double u0 = r[0] / length, u1 = r[1] / length;
+      Ja.setZero();
+      Jb.setZero();
+      pinocchio::getFrameJacobian(model, data, sp.a, pinocchio::LOCAL_WORLD_ALIGNED, Ja);
+      pinocchio::getFrameJacobian(model, data, sp.b, pinocchio::LOCAL_WORLD_ALIGNED, Jb);
+      double rate = 0.0;
+      for (int j = 0; j < nv; ++j) {
+        uJ[j] = u0 * (Jb(0, j) - Ja(0, j)) + u1 * (Jb(1, j) - Ja(1, j));
+        rate += uJ[j] * v[j];
+      }
+      const double f = sp.f0 - sp.k * (length - sp.rest) - sp.c * rate;
+      for (int j = 0; j < nv; ++j) Qp[j] += f * uJ[j];
+    }
+    for (int i = 0; i < nv; ++i) s.tau[i] += Qp[i];
+  }
   try {
     pinocchio::forwardDynamics(model, data, q, v, s.tau, s.J, s.gamma, 0.0);
   } catch (const std::exception &) {
@@ -309,9 +351,34 @@ bool accelerations(Tree *tree, State &s, double t) {
 
 }  // namespace loops
 
+// springs: ((frame a, frame b, f0, k, rest, c), ...) on the tree's frames
+bool read_springs(Tree *tree, PyObject *obj, std::vector<loops::Spring> &out) {
+  PyObject *seq = PySequence_Fast(obj, "springs: a sequence of (frame a, frame b, f0, k, rest, c)");
+  if (!seq) return false;
+  out.clear();
+  for (Py_ssize_t j = 0; j < PySequence_Fast_GET_SIZE(seq); ++j) {
+    int a, b;
+    loops::Spring sp;
+    if (!PyArg_ParseTuple(PySequence_Fast_GET_ITEM(seq, j), "iidddd", &a, &b, &sp.f0, &sp.k, &sp.rest, &sp.c)) {
+      Py_DECREF(seq);
+      return false;
+    }
+    if (a <= 0 || b <= 0 || a >= tree->model->nframes || b >= tree->model->nframes) {
+      PyErr_Format(PyExc_ValueError, "springs: frames %d, %d are not the tree's", a, b);
+      Py_DECREF(seq);
+      return false;
+    }
+    sp.a = a;
+    sp.b = b;
+    out.push_back(sp);
+  }
+  Py_DECREF(seq);
+  return true;
+}
+
 PyObject *loop_object_new(PyTypeObject *type, PyObject *args, PyObject *) {
-  PyObject *tree_o, *driven_o, *laws_o;
-  if (!PyArg_ParseTuple(args, "O!OO", &TreeType, &tree_o, &driven_o, &laws_o)) return nullptr;
+  PyObject *tree_o, *driven_o, *laws_o, *springs_o;
+  if (!PyArg_ParseTuple(args, "O!OOO", &TreeType, &tree_o, &driven_o, &laws_o, &springs_o)) return nullptr;
   Tree *tree = (Tree *)tree_o;
   if (!tree->ready || tree->drives) {
     PyErr_SetString(PyExc_ValueError, "Loop(tree, driven, laws): a finalized tree without drives of its own");
@@ -359,6 +426,10 @@ PyObject *loop_object_new(PyTypeObject *type, PyObject *args, PyObject *) {
     delete s;
     return nullptr;
   }
+  if (!read_springs(tree, springs_o, s->springs)) {
+    delete s;
+    return nullptr;
+  }
   s->nd = (int)s->driven.size();
   s->m = s->nc + s->nd;
   s->f.resize(s->nd);
@@ -387,17 +458,19 @@ void loop_object_dealloc(Loop *self) {
   Py_TYPE(self)->tp_free((PyObject *)self);
 }
 
-// set_tree(tree): the calling thread's tree of the same model (its data is scratch), with the same pairs
-PyObject *loop_set_tree(Loop *self, PyObject *arg) {
-  if (!PyObject_TypeCheck(arg, &TreeType)) {
-    PyErr_SetString(PyExc_TypeError, "set_tree(tree): a Tree");
-    return nullptr;
-  }
+// set_tree(tree, springs): the calling thread's tree of the same model (its data is scratch), with the
+// same pairs, and its force elements' point springs
+PyObject *loop_set_tree(Loop *self, PyObject *args) {
+  PyObject *arg, *springs_o;
+  if (!PyArg_ParseTuple(args, "O!O", &TreeType, &arg, &springs_o)) return nullptr;
   Tree *tree = (Tree *)arg;
   if (!tree->ready || tree->drives || tree->nv != self->s->nv || 2 * (int)tree->pairs->size() != self->s->nc) {
     PyErr_SetString(PyExc_ValueError, "set_tree: a finalized tree of the same coordinates and cut joints");
     return nullptr;
   }
+  std::vector<loops::Spring> springs;
+  if (!read_springs(tree, springs_o, springs)) return nullptr;
+  self->s->springs = springs;
   Py_INCREF(arg);
   Py_XDECREF((PyObject *)self->tree);
   self->tree = tree;
@@ -470,12 +543,23 @@ bool loop_ready(Loop *self) {
   return true;
 }
 
-// unpack(t, y) -> (0, q, v, Phi_q) | (1, warm start, None, Phi_q): the conditioning check fired |
-// (2, warm start, None, None): Python solves from the warm start (and remember()s what it finds)
+// unpack(t, y[, near]) -> (0, q, v, Phi_q) | (1, warm start, None, Phi_q): the conditioning check fired |
+// (2, warm start, None, None): Python solves from the warm start (and remember()s what it finds).
+// `near`: a re-read segment's solution (t, q, q') at its step before t (PartitionedCoordinates._follow), or None
 PyObject *loop_unpack(Loop *self, PyObject *const *args, Py_ssize_t nargs) {
-  if (nargs != 2) {
-    PyErr_SetString(PyExc_TypeError, "unpack(t, y) takes two arguments");
+  if (nargs != 2 && nargs != 3) {
+    PyErr_SetString(PyExc_TypeError, "unpack(t, y[, near]) takes two or three arguments");
     return nullptr;
+  }
+  loops::Recent near;
+  const bool has_near = nargs == 3 && args[2] != Py_None;
+  if (has_near) {
+    PyObject *q_o, *r_o;
+    if (!PyArg_ParseTuple(args[2], "dOO", &near.t, &q_o, &r_o)) return nullptr;
+    near.q.resize(self->s->nv);
+    near.rates.resize(self->s->nv);
+    if (read_doubles(q_o, near.q.data(), self->s->nv, "near q") || read_doubles(r_o, near.rates.data(), self->s->nv, "near q'"))
+      return nullptr;
   }
   if (!loop_ready(self)) return nullptr;
   loops::State &s = *self->s;
@@ -484,7 +568,7 @@ PyObject *loop_unpack(Loop *self, PyObject *const *args, Py_ssize_t nargs) {
   PyArrayObject *y = vector_arg(args[1], 2 * (int)s.I.size(), "y", "state");
   if (!y) return nullptr;
   VectorXd start;
-  const loops::Status st = loops::unpack(self->tree, s, t, (const double *)PyArray_DATA(y), start);
+  const loops::Status st = loops::unpack(self->tree, s, t, (const double *)PyArray_DATA(y), start, has_near ? &near : nullptr);
   Py_DECREF(y);
   if (st == loops::OK) return Py_BuildValue("iNNN", 0, new_vector(s.cq), new_vector(s.cv), new_matrix(s.cJ));
   if (st == loops::CONDITIONING) return Py_BuildValue("iNON", 1, new_vector(start), Py_None, new_matrix(s.Jq));
@@ -564,6 +648,28 @@ PyObject *loop_rhs_with_power(Loop *self, PyObject *const *args, Py_ssize_t narg
   return loop_call(self, args, nargs, true);
 }
 
+// holds(t, y) -> whether unpack(t, y) is the last one's (no solve, no warm start asked)
+PyObject *loop_holds(Loop *self, PyObject *const *args, Py_ssize_t nargs) {
+  if (nargs != 2) {
+    PyErr_SetString(PyExc_TypeError, "holds(t, y) takes two arguments");
+    return nullptr;
+  }
+  const double t = PyFloat_AsDouble(args[0]);
+  if (t == -1.0 && PyErr_Occurred()) return nullptr;
+  PyArrayObject *y = vector_arg(args[1], 2 * (int)self->s->I.size(), "y", "state");
+  if (!y) return nullptr;
+  const bool held = loops::same_state(*self->s, t, (const double *)PyArray_DATA(y), 2 * (int)self->s->I.size());
+  Py_DECREF(y);
+  return PyBool_FromLong(held);
+}
+
+// last() -> (t, q, q') of the last solution kept (a re-read segment keeps it at its step), or None
+PyObject *loop_last(Loop *self, PyObject *) {
+  if (self->s->recent.empty()) Py_RETURN_NONE;
+  const loops::Recent &r = self->s->recent.back();
+  return Py_BuildValue("dNN", r.t, new_vector(r.q), new_vector(r.rates));
+}
+
 PyObject *loop_max_residual(Loop *self, PyObject *) { return PyFloat_FromDouble(self->s->max_residual); }
 
 PyObject *loop_set_checking(Loop *self, PyObject *arg) {
@@ -574,7 +680,8 @@ PyObject *loop_set_checking(Loop *self, PyObject *arg) {
 }
 
 PyMethodDef loop_object_methods[] = {
-    {"set_tree", (PyCFunction)loop_set_tree, METH_O, "set_tree(tree): the calling thread's tree (scratch data)"},
+    {"set_tree", (PyCFunction)loop_set_tree, METH_VARARGS,
+     "set_tree(tree, springs): the calling thread's tree (scratch data) and point springs"},
     {"seed", (PyCFunction)loop_seed, METH_VARARGS, "seed(q, I, D): the partition; Newton starts from q"},
     {"unpack", (PyCFunction)(void (*)(void))loop_unpack, METH_FASTCALL,
      "unpack(t, y) -> (status, q or warm start, v or None, Phi_q or None)"},
@@ -582,6 +689,8 @@ PyMethodDef loop_object_methods[] = {
     {"rhs", (PyCFunction)(void (*)(void))loop_rhs, METH_FASTCALL, "rhs(t, y) -> [q'_I, q''_I] or None"},
     {"rhs_with_power", (PyCFunction)(void (*)(void))loop_rhs_with_power, METH_FASTCALL,
      "rhs_with_power(t, [y, W]) -> [q'_I, q''_I, P] or None"},
+    {"holds", (PyCFunction)(void (*)(void))loop_holds, METH_FASTCALL, "holds(t, y) -> the last unpack's state"},
+    {"last", (PyCFunction)loop_last, METH_NOARGS, "last() -> (t, q, q') of the last solution kept"},
     {"max_residual", (PyCFunction)loop_max_residual, METH_NOARGS, "the largest residual a Newton solve accepted"},
     {"set_checking", (PyCFunction)loop_set_checking, METH_O, "set_checking(on): the conditioning check"},
     {nullptr, nullptr, 0, nullptr}};

@@ -104,14 +104,12 @@ class PartitionedCoordinates:
 
     def _why_loop_not_compiled(self, rows) -> str | None:
         """Why the right-hand side of these loops is not compiled whole (None: it may be): it needs
-        the compiled rows of revolute cut joints (``rows``), no planar joint, no point springs and
-        no coordinate driven twice."""
+        the compiled rows of revolute cut joints (``rows``), no planar joint and no coordinate
+        driven twice."""
         if not self.closure.size:
             return "no loop"
         if rows is None:
             return self.evaluations.removeprefix("python: ").removeprefix("not compiled: ")
-        if self.cfg.forces.points is not None:
-            return "point springs"
         if len(set(self.drives.index)) != self.drives.size:
             return "a coordinate driven twice"
         return None
@@ -149,19 +147,18 @@ class PartitionedCoordinates:
         if self._loop_refused is not None or self._seed_q is None or self.D is None:
             return None
         forces = self.forces
-        if forces.points is not None:
-            return None
-        entry = compiled.loop_tree(self.cfg.model, self.closure.frames_a, self.closure.frames_b, forces.Q0, forces.KD)
-        if entry is None:
+        built = compiled.loop_tree(self.cfg.model, self.closure.frames_a, self.closure.frames_b, forces.Q0, forces.KD,
+                                   forces.points)
+        if built is None:
             return self._refuse_loop(compiled.why_not() or "not compiled")
-        tree, checked = entry
+        (tree, checked), springs = built
         if self._loop is None:
-            self._loop = compiled.loop(tree, self.drives.index, self.drives._derivs)
+            self._loop = compiled.loop(tree, self.drives.index, self.drives._derivs, springs)
             self._loop.seed(self._seed_q, self.I, self.D)
             self._loop.set_checking(self._checking)
         else:
-            self._loop.set_tree(tree)
-        why = self._loop_disagrees(tree, checked)
+            self._loop.set_tree(tree, springs)
+        why = self._loop_disagrees(tree, checked, springs)
         if why is not None:
             return self._refuse_loop(why)
         self._loop_held = (threading.get_ident(), forces)
@@ -173,7 +170,7 @@ class PartitionedCoordinates:
         self.evaluations = f"python: {why}"
         return None
 
-    def _loop_disagrees(self, tree, checked) -> str | None:
+    def _loop_disagrees(self, tree, checked, springs) -> str | None:
         """Why the compiled loop on ``tree`` is not the Python evaluation (None: it is): both from
         the seed, at probe states near it (independent coordinates 1e-3 off, rates of order one,
         times 1e-3 s on), the right-hand side and the one with power; once per tree and partition."""
@@ -189,7 +186,7 @@ class PartitionedCoordinates:
         reference._trail, reference._max_residual = None, 0.0
         reference.checking = False
         reference.seed(self._seed_q)
-        scratch = compiled.loop(tree, self.drives.index, self.drives._derivs)
+        scratch = compiled.loop(tree, self.drives.index, self.drives._derivs, springs)
         scratch.seed(self._seed_q, self.I, self.D)
         scratch.set_checking(False)
 
@@ -271,8 +268,7 @@ class PartitionedCoordinates:
         segment's force elements (a value, compiled at its angle offsets), which the reader's
         evaluations apply instead of the configuration's current ones."""
         reader = copy.copy(self)
-        # a reader's Newton solves follow the segment's steps (_follow): the Python evaluation
-        reader._loop, reader._loop_held, reader._loop_refused = None, None, "a re-read segment"
+        reader._loop, reader._loop_held = None, None  # its own compiled loop (its own warm starts)
         if forces is not None:
             reader._segment_forces = forces
         reader.I, reader.D, reader.ny = frozen["I"], frozen["D"], frozen["ny"]
@@ -721,14 +717,23 @@ class PartitionedCoordinates:
         """:meth:`unpack` by the compiled loop (its warm starts, its cache); where it declines, the
         conditioning check decides (a new partition, or a singular posture), or the Python solve
         from the compiled loop's warm start (its error, or a solution the loop then keeps)."""
-        status, q, v, Jp = loop.unpack(t, y)
+        trail = self._trail
+        if trail is not None and loop.holds(t, y):  # the last one solved: nothing to keep
+            trail = None
+        # a re-read segment: its steps' solutions are warm starts too (_guess, _follow)
+        status, q, v, Jp = loop.unpack(t, y) if trail is None else loop.unpack(t, y, self._follow(t))
         if status == 0:
             self._last_Jp = Jp
-            return q, v
-        if status == 1:
-            self._check_conditioning(t, Jp)  # raises (the compiled check fired: a round-off apart otherwise)
-        q, v = self._unpack(t, y, guess=q)
-        loop.remember(t, y, q, self._recent[-1][2], self._last_Jp)
+        else:
+            if status == 1:
+                self._check_conditioning(t, Jp)  # raises (the compiled check fired: a round-off apart otherwise)
+            q, v = self._unpack(t, y, guess=q)
+            loop.remember(t, y, q, self._recent[-1][2], self._last_Jp)
+        if trail is not None:  # keep the solution at an accepted step of the segment (unpack)
+            ts, ys = trail
+            k = int(np.searchsorted(ts, t, side="left"))
+            if k < len(ts) and ts[k] == t and k not in self._reached and np.array_equal(ys[:, k], y):
+                self._reached[k] = loop.last()
         return q, v
 
     def _unpack(self, t, y, guess=None):
@@ -847,6 +852,8 @@ class PartitionedCoordinates:
             return fast.rhs(t, y)
         loop = self._compiled_loop() if self._loop_refused is None else None
         if loop is not None:
+            if self._trail is not None:  # a re-read segment: its own warm starts, and what it keeps
+                self._compiled_unpack(loop, t, y)
             out = loop.rhs(t, y)
             if out is not None:
                 return out
@@ -868,6 +875,8 @@ class PartitionedCoordinates:
             return fast.rhs_with_power(t, y)
         loop = self._compiled_loop() if self._loop_refused is None else None
         if loop is not None:
+            if self._trail is not None:  # a re-read segment: its own warm starts, and what it keeps
+                self._compiled_unpack(loop, t, y[:-1])
             out = loop.rhs_with_power(t, y)
             if out is not None:
                 return out
