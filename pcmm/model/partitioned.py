@@ -44,6 +44,7 @@ class PartitionedCoordinates:
         # warm starts, the dependent rates, the KKT solve), where it runs (_compiled_loop)
         self._loop = None
         self._loop_held = None  # (thread, force elements) the loop's tree is checked for
+        self._loop_refused = "not decided yet"  # why the loop is not compiled (None: it may be): below
         self._seed_q, self._seed_t = None, 0.0  # the last seed and the time of the last partition
         self.cfg = cfg
         self.closure = closure
@@ -144,8 +145,8 @@ class PartitionedCoordinates:
         held = self._loop_held
         if held is not None and held[0] == threading.get_ident() and held[1] is self.forces:
             return self._loop
-        if self._loop_refused is not None or self._seed_q is None or self.D is None:
-            return None
+        if self._loop_refused is not None or self._seed_q is None or self.D is None or len(self.D) != self.m:
+            return None  # refused, not seeded yet, or redundant rows (the Python evaluation says so)
         forces = self.forces
         built = compiled.loop_tree(self.cfg.model, self.closure.frames_a, self.closure.frames_b, forces.Q0, forces.KD,
                                    forces.points)
@@ -520,7 +521,10 @@ class PartitionedCoordinates:
         self._seed_q = self._qD
         self._loop_held = None  # checked again (a new partition is checked once)
         if self._loop is not None:
-            self._loop.seed(q, self.I, self.D)
+            if len(self.D) == self.m:
+                self._loop.seed(q, self.I, self.D)
+            else:  # redundant rows: the Python evaluation says so (_scaled_det)
+                self._refuse_loop(f"{self.m} constraint rows for {len(self.D)} dependent coordinates")
 
     def _guess(self, t):
         """The warm start for a solve at ``t``: the recent solution nearest in time, carried to
