@@ -670,6 +670,41 @@ PyObject *loop_last(Loop *self, PyObject *) {
   return Py_BuildValue("dNN", r.t, new_vector(r.q), new_vector(r.rates));
 }
 
+// det_rate(t, q, q') -> the time derivative of the scaled determinant of the dependent block along q', by
+// central differences of the rows at q +- eps q', eps = 1e-7 / max(1, max|q'|) (the singularity guard's
+// rate, PartitionedCoordinates.singularity_guard)
+PyObject *loop_det_rate(Loop *self, PyObject *const *args, Py_ssize_t nargs) {
+  if (nargs != 3) {
+    PyErr_SetString(PyExc_TypeError, "det_rate(t, q, qdot) takes three arguments");
+    return nullptr;
+  }
+  if (!loop_ready(self)) return nullptr;
+  loops::State &s = *self->s;
+  const double t = PyFloat_AsDouble(args[0]);
+  if (t == -1.0 && PyErr_Occurred()) return nullptr;
+  PyArrayObject *q_o = vector_arg(args[1], s.nv, "q", "coordinate vector");
+  if (!q_o) return nullptr;
+  PyArrayObject *qd_o = vector_arg(args[2], s.nv, "qdot", "coordinate vector");
+  if (!qd_o) {
+    Py_DECREF(q_o);
+    return nullptr;
+  }
+  const Eigen::Map<const VectorXd> q((const double *)PyArray_DATA(q_o), s.nv), qd((const double *)PyArray_DATA(qd_o), s.nv);
+  double top = qd.size() ? std::fabs(qd[0]) : 0.0;
+  for (int i = 0; i < s.nv; ++i) top = std::isnan(qd[i]) || std::isnan(top) ? std::nan("") : std::max(top, std::fabs(qd[i]));
+  const double eps = 1e-7 / std::max(1.0, top);
+  double det[2];
+  for (int side = 0; side < 2; ++side) {
+    const double step = (side == 0 ? 1.0 : -1.0) * eps;
+    const VectorXd at = q + step * qd;
+    loops::rows(self->tree, s, t, at);
+    det[side] = loops::scaled_det(s, s.Jq);
+  }
+  Py_DECREF(q_o);
+  Py_DECREF(qd_o);
+  return PyFloat_FromDouble((det[0] - det[1]) / (2 * eps));
+}
+
 PyObject *loop_max_residual(Loop *self, PyObject *) { return PyFloat_FromDouble(self->s->max_residual); }
 
 PyObject *loop_set_checking(Loop *self, PyObject *arg) {
@@ -690,6 +725,8 @@ PyMethodDef loop_object_methods[] = {
     {"rhs_with_power", (PyCFunction)(void (*)(void))loop_rhs_with_power, METH_FASTCALL,
      "rhs_with_power(t, [y, W]) -> [q'_I, q''_I, P] or None"},
     {"holds", (PyCFunction)(void (*)(void))loop_holds, METH_FASTCALL, "holds(t, y) -> the last unpack's state"},
+    {"det_rate", (PyCFunction)(void (*)(void))loop_det_rate, METH_FASTCALL,
+     "det_rate(t, q, qdot) -> d/dt of the dependent block's scaled determinant (central differences)"},
     {"last", (PyCFunction)loop_last, METH_NOARGS, "last() -> (t, q, q') of the last solution kept"},
     {"max_residual", (PyCFunction)loop_max_residual, METH_NOARGS, "the largest residual a Newton solve accepted"},
     {"set_checking", (PyCFunction)loop_set_checking, METH_O, "set_checking(on): the conditioning check"},

@@ -28,6 +28,7 @@ NEWTON_TOL = 1e-13
 SINGULAR_COND = 1e9
 #: the largest change (rad or m) the warm start of a loop's Newton solve is extrapolated by
 PREDICT_MAX = 0.05
+_thread_id = threading.get_ident
 
 
 class PartitionedCoordinates:
@@ -693,14 +694,25 @@ class PartitionedCoordinates:
             Jacobians, no Newton solve and no right-hand side)."""
             q, v = self.unpack(t, y)
             qd = self.cfg.qdot(q, v)
+            loop = self._compiled_loop() if self._loop_refused is None else None
+            if loop is not None:  # the same differences, the rows and determinants in C++
+                return loop.det_rate(t, q, qd)
             eps = 1e-7 / max(1.0, float(np.max(np.abs(qd))))
             ahead, behind = (self._scaled_det(self._position_rows(t, q + s * eps * qd)) for s in (1.0, -1.0))
             return (ahead - behind) / (2 * eps)
         return Guard(f"configuration '{self.cfg.name}': the loop's partition of its coordinates degenerates",
                      g, 0, "repartition", rate=rate, rate_from_state=True)
 
+    def _held_loop(self):
+        """The compiled loop where it is ready on this thread for these force elements and no
+        segment is re-read (the common case, asked at every evaluation), else None."""
+        held = self._loop_held
+        if held is not None and self._trail is None and held[0] == _thread_id() and held[1] is self.forces:
+            return self._loop
+        return None
+
     def unpack(self, t, y):
-        loop = self._compiled_loop() if self._loop_refused is None else None
+        loop = self._held_loop() or (self._compiled_loop() if self._loop_refused is None else None)
         if loop is not None:
             return self._compiled_unpack(loop, t, y)
         cache = self._cache
@@ -851,6 +863,10 @@ class PartitionedCoordinates:
     def rhs(self, t, y):
         """``[q'_I, q''_I]`` at ``(t, y)``: compiled where the drives are (:meth:`_compiled_drives`)
         or the loops (:meth:`_compiled_loop`; a call it declines is Python's)."""
+        loop = self._held_loop()
+        if loop is not None:
+            out = loop.rhs(t, y)
+            return self._python_rhs(t, y) if out is None else out
         fast = self._compiled_drives()
         if fast is not None:
             return fast.rhs(t, y)
@@ -873,7 +889,12 @@ class PartitionedCoordinates:
         """``y`` is the state with the work so far appended; the state derivative with one more component: the power of the force elements and
         of the drives.  A constraint's generalized force ``Phi_q^T lam`` has the power
         ``lam . Phi_q v = -lam . Phi_t``: zero for the loops (scleronomic), the motor's
-        ``mu f'(t)`` for a drive.  Compiled where the drives are (:meth:`_compiled_drives`)."""
+        ``mu f'(t)`` for a drive.  Compiled where the drives are (:meth:`_compiled_drives`) or the
+        loops (:meth:`_compiled_loop`)."""
+        loop = self._held_loop()
+        if loop is not None:
+            out = loop.rhs_with_power(t, y)
+            return self._python_rhs_with_power(t, y) if out is None else out
         fast = self._compiled_drives()
         if fast is not None:
             return fast.rhs_with_power(t, y)
