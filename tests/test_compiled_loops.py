@@ -71,6 +71,10 @@ def _compare_at_random_states(scene, starts, rng, n=12):
                 q, v = coords.unpack(t, y)  # the compiled solve closes the loop (the Python binding's rows)
                 phi, Jq = coords.loop_rows(q)
                 assert np.max(np.abs(phi)) < 1e-12 and np.max(np.abs(Jq @ v), initial=0.0) < 1e-9
+                # the singularity guard's rate: central differences 1e-7 apart of determinants whose
+                # rows agree to round-off, so they agree to about 1e-16 / 1e-7
+                fast, slow = coords.singularity_guard().rate(t, y, None), twin.singularity_guard().rate(t, y, None)
+                assert abs(fast - slow) <= 1e-7 * (1.0 + abs(slow)), (fast, slow)
     return worst
 
 
