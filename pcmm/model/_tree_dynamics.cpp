@@ -686,10 +686,11 @@ PyMethodDef tree_methods[] = {
 PyTypeObject TreeType = {PyVarObject_HEAD_INIT(nullptr, 0)};
 
 #include "_segment_loop.hpp"
-#include "_impulse.hpp"  // the impulse of a contact in a tree (pcmm.events.impulse_compiled)
 
 PyModuleDef module_def = {PyModuleDef_HEAD_INIT, "_tree_dynamics",
                           "A tree configuration's right-hand side with Pinocchio's ABA, in C++.", -1, nullptr};
+
+#include "_impulse.hpp"  // the impulse of a contact in a tree (pcmm.events.impulse_compiled)
 
 }  // namespace
 
@@ -732,12 +733,12 @@ PyMODINIT_FUNC PyInit__tree_dynamics(void) {
     Py_DECREF(m);
     return nullptr;
   }
-  // a tree without drives has rhs_with_power too (a flight's work appended); older builds refuse it
-  if (PyModule_AddIntConstant(m, "TREE_POWER", 1) < 0) {
+  if (add_impulse_plan(m) < 0) {  // _impulse.hpp
     Py_DECREF(m);
     return nullptr;
   }
-  if (add_impulse_plan(m) < 0) {  // _impulse.hpp
+  // a tree without drives has rhs_with_power too (a flight's work appended); older builds refuse it
+  if (PyModule_AddIntConstant(m, "TREE_POWER", 1) < 0) {
     Py_DECREF(m);
     return nullptr;
   }
