@@ -17,7 +17,7 @@ from hypothesis import strategies as st
 
 import pcmm
 from pcmm.events import impulse, transitions
-from pcmm.events.impulse_compiled import compiled_impulse, reason
+from pcmm.events.impulse_compiled import compiled_impulse, reason, reasons
 from pcmm.model import compiled
 from pcmm.model.mechanism import Mechanism
 
@@ -99,6 +99,7 @@ def test_every_impulse_of_the_cycle_is_the_python_solve(monkeypatch):
         assert a.v_after[0] == v[0] or abs(a.v_after[0] - v[0]) <= 1e-12 * abs(v[0])  # the drive holds O1'
         assert a.energy_dissipated >= -1e-12 * a.ke_before
     assert all(fast is not None and fast.checked for fast in plans.values())  # the run took the compiled solves
+    assert {what for cfg, *_ in calls for what in reasons(cfg).values()} == {"compiled"}
     for event in traj.events:
         if event["impact"]:
             dL, dH = pcmm.events.momentum.balance(event)
@@ -171,3 +172,6 @@ def test_cases_it_does_not_take_stay_in_python_and_say_why(monkeypatch, tmp_path
     cfg_d = Mechanism(scene_d)["c"]
     plan_d = impulse._plan(cfg_d, scene_d.transitions[0].contact, ("J1", "J2"))
     assert compiled_impulse(cfg_d, plan_d) is None and "driven joint is cut" in reason(cfg_d, plan_d)
+    assert reasons(cfg_d) == {"joint stop J2 (cut J1, J2)": "a driven joint is cut: solved in Python"}
+    assert reasons(cfg) == {"joint stop J2 (cut J2)": "compiled, not yet checked",
+                            "joint stop J2 (cut J1, J2)": "compiled, not yet checked"}

@@ -54,7 +54,7 @@ def compiled_impulse(cfg: Configuration, plan) -> CompiledImpulse | None:
     held = kept.get(key)
     if held is None or held[0] is not plan:  # the plan is held: its id stays its own
         fast, why = _build(cfg, plan)
-        held = kept[key] = [plan, fast, why]
+        held = kept[key] = [plan, fast, why, tuple(cfg.coords.labels)]
     if held[1] is not None and not compiled.enabled():  # PCMM_COMPILED=0 set since it was built
         return None
     return held[1]
@@ -62,7 +62,7 @@ def compiled_impulse(cfg: Configuration, plan) -> CompiledImpulse | None:
 
 def refuse(cfg: Configuration, plan, why: str) -> None:
     """Drop ``plan``'s compiled solve for the Python one (it disagreed with it), saying why."""
-    cfg.impulse_models[("compiled", id(plan))] = [plan, None, why]
+    cfg.impulse_models[("compiled", id(plan))] = [plan, None, why, tuple(cfg.coords.labels)]
 
 
 def reason(cfg: Configuration, plan) -> str | None:
@@ -71,6 +71,23 @@ def reason(cfg: Configuration, plan) -> str | None:
         return compiled.why_not()
     held = cfg.impulse_models.get(("compiled", id(plan)))
     return None if held is None or held[0] is not plan else held[2]
+
+
+def reasons(cfg: Configuration) -> dict[str, str]:
+    """Every impulse plan of ``cfg`` asked so far: {"contact (cut joints)": "compiled", "compiled,
+    not yet checked", or why the Python solve runs it} (a debugging aid).  The model's event-path
+    constants are shared by the configurations built on it: only the plans of ``cfg``'s rows."""
+    out = {}
+    labels = tuple(cfg.coords.labels)
+    for key, held in cfg.impulse_models.items():
+        if not (isinstance(key, tuple) and key and key[0] == "compiled") or held[3] != labels:
+            continue
+        plan, fast, why, _ = held
+        c = plan.contact
+        where = f"joint stop {c.joint}" if c.joint is not None else f"contact {c.a}/{c.b}"
+        what = ("compiled" if fast.checked else "compiled, not yet checked") if fast is not None else why
+        out[f"{where} (cut {', '.join(plan.cut_joints + plan.cut_loops) or 'none'})"] = what
+    return out
 
 
 def _build(cfg: Configuration, plan) -> tuple[CompiledImpulse | None, str | None]:
