@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from builders import Bar, base_doc, chain_urdf, stop, write_scene
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -20,8 +21,6 @@ from pcmm.events import impulse, transitions
 from pcmm.events.impulse_compiled import compiled_impulse, reason, reasons
 from pcmm.model import compiled
 from pcmm.model.mechanism import Mechanism
-
-from builders import Bar, base_doc, chain_urdf, stop, write_scene
 
 ROOT = Path(__file__).resolve().parents[1]
 REL = 1e-12
