@@ -211,3 +211,22 @@ def test_whole_runs_keep_their_events(name, monkeypatch):
     a, b = fast.segments[-1], ref.segments[-1]
     assert a.configuration == b.configuration and a.t[-1] == b.t[-1]
     assert np.max(np.abs(a.q[-1] - b.q[-1])) <= 1e-10 and np.max(np.abs(a.v[-1] - b.v[-1])) <= 1e-10
+
+
+def test_a_study_checks_each_compiled_plan_once(monkeypatch):
+    """The runs of a study load their own scenes (their own contacts): the second run of Example 1
+    takes the first run's compiled plan of its equal contact, checked already, and so solves its
+    latch without the Python solve; its events are the first run's to the bit."""
+    python, calls = impulse.solve_impulse_python, []
+
+    def counted(*args, **kwargs):
+        calls.append(args[1])
+        return python(*args, **kwargs)
+    monkeypatch.setattr(impulse, "solve_impulse_python", counted)
+    path = ROOT / "examples" / "three_bar.toml"
+    first = pcmm.simulate(pcmm.load_scene(path))
+    checked = len(calls)
+    second = pcmm.simulate(pcmm.load_scene(path))
+    assert checked <= 1 and len(calls) == checked  # no Python solve in the second run
+    assert [e["t"] for e in second.events] == [e["t"] for e in first.events]
+    assert second.events[0]["v_after"] == first.events[0]["v_after"]
