@@ -17,7 +17,9 @@ it.  Contacts closed at once (:mod:`pcmm.events.simultaneous`) and pin strikes n
 
 Each plan is checked once against the Python solve, at its first impact
 (:func:`pcmm.events.impulse.solve_impulse`): velocities, impulses and energies to
-:data:`AGREEMENT`; a plan that disagrees is dropped for the Python solve, with the reason.
+:data:`AGREEMENT`; a plan that disagrees is dropped for the Python solve, with the reason.  A
+study's later runs (their own scenes, so their own contacts and plans) take the compiled plan of an
+equal contact, cut and rows on the same model, checked already.
 """
 from __future__ import annotations
 
