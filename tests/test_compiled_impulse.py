@@ -211,3 +211,45 @@ def test_whole_runs_keep_their_events(name, monkeypatch):
     a, b = fast.segments[-1], ref.segments[-1]
     assert a.configuration == b.configuration and a.t[-1] == b.t[-1]
     assert np.max(np.abs(a.q[-1] - b.q[-1])) <= 1e-10 and np.max(np.abs(a.v[-1] - b.v[-1])) <= 1e-10
+
+
+def test_a_study_checks_each_compiled_plan_once(monkeypatch):
+    """The runs of a study load their own scenes (their own contacts): the second run of Example 1
+    takes the first run's compiled plan of its equal contact, checked already, and so solves its
+    latch without the Python solve; its events are the first run's to the bit."""
+    python, calls = impulse.solve_impulse_python, []
+
+    def counted(*args, **kwargs):
+        calls.append(args[1])
+        return python(*args, **kwargs)
+    monkeypatch.setattr(impulse, "solve_impulse_python", counted)
+    path = ROOT / "examples" / "three_bar.toml"
+    first = pcmm.simulate(pcmm.load_scene(path))
+    checked = len(calls)
+    second = pcmm.simulate(pcmm.load_scene(path))
+    assert checked <= 1 and len(calls) == checked  # no Python solve in the second run
+    assert [e["t"] for e in second.events] == [e["t"] for e in first.events]
+    assert second.events[0]["v_after"] == first.events[0]["v_after"]
+
+
+def test_a_plan_that_disagrees_at_its_first_impact_is_dropped(monkeypatch, tmp_path):
+    """The first impact of a plan compares the two solves: a compiled answer off by 1e-6 is
+    refused, that impact gets the Python solve's answer, and so do the later ones, with the reason.
+    (A chain of its own: no other test has checked a plan on its model.)"""
+    scene = pcmm.load_scene(_chain_scene(tmp_path, [Bar(0.47, 1.13), Bar(0.37, 0.61)], 2, "joint", drive=False))
+    cfg = Mechanism(scene)["c"]
+    tr = scene.transitions[0]
+    compiled_solve = impulse._compiled_solve
+
+    def off(*args):
+        out = compiled_solve(*args)
+        out.v_after = out.v_after * (1.0 + 1e-6)
+        return out
+    monkeypatch.setattr(impulse, "_compiled_solve", off)
+    q, v = np.array([0.2, 0.3]), np.array([0.5, -1.5])
+    want = impulse.solve_impulse_python(cfg, 0.1, q, v, tr.contact, 0.5, tuple(tr.cut))
+    for _ in range(2):
+        got = impulse.solve_impulse(cfg, 0.1, q, v, tr.contact, 0.5, tuple(tr.cut))
+        assert got.v_after.tobytes() == want.v_after.tobytes()
+    plan = impulse._plan(cfg, tr.contact, tuple(tr.cut))
+    assert compiled_impulse(cfg, plan) is None and "disagrees with the Python solve: v_after" in reason(cfg, plan)

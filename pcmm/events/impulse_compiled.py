@@ -17,7 +17,9 @@ it.  Contacts closed at once (:mod:`pcmm.events.simultaneous`) and pin strikes n
 
 Each plan is checked once against the Python solve, at its first impact
 (:func:`pcmm.events.impulse.solve_impulse`): velocities, impulses and energies to
-:data:`AGREEMENT`; a plan that disagrees is dropped for the Python solve, with the reason.
+:data:`AGREEMENT`; a plan that disagrees is dropped for the Python solve, with the reason.  A
+study's later runs (their own scenes, so their own contacts and plans) take the compiled plan of an
+equal contact, cut and rows on the same model, checked already.
 """
 from __future__ import annotations
 
@@ -53,8 +55,14 @@ def compiled_impulse(cfg: Configuration, plan) -> CompiledImpulse | None:
     key = ("compiled", id(plan))
     held = kept.get(key)
     if held is None or held[0] is not plan:  # the plan is held: its id stays its own
-        fast, why = _build(cfg, plan)
-        held = kept[key] = [plan, fast, why, tuple(cfg.coords.labels)]
+        labels = tuple(cfg.coords.labels)
+        # the next run of a study makes its own plans (its scene's contacts): it takes the compiled
+        # plan of an equal contact and cut on this model, checked already, instead of a new one
+        same = _by_value(plan, labels)
+        fast, why = kept.get(same) or _build(cfg, plan)
+        if fast is not None or compiled.enabled():  # not a PCMM_COMPILED=0 of the moment
+            kept[same] = (fast, why)
+        held = kept[key] = [plan, fast, why, labels]
     if held[1] is not None and not compiled.enabled():  # PCMM_COMPILED=0 set since it was built
         return None
     return held[1]
@@ -62,7 +70,15 @@ def compiled_impulse(cfg: Configuration, plan) -> CompiledImpulse | None:
 
 def refuse(cfg: Configuration, plan, why: str) -> None:
     """Drop ``plan``'s compiled solve for the Python one (it disagreed with it), saying why."""
-    cfg.impulse_models[("compiled", id(plan))] = [plan, None, why, tuple(cfg.coords.labels)]
+    labels = tuple(cfg.coords.labels)
+    cfg.impulse_models[("compiled", id(plan))] = [plan, None, why, labels]
+    cfg.impulse_models[_by_value(plan, labels)] = (None, why)
+
+
+def _by_value(plan, labels: tuple) -> tuple:
+    """The key of ``plan``'s compiled solve by what it is made of: the contact and cut joints (by
+    value) and the configuration's rows, on the model whose event-path constants hold it."""
+    return ("compiled by value", plan.contact, plan.cut_joints, plan.cut_loops, labels)
 
 
 def reason(cfg: Configuration, plan) -> str | None:
