@@ -18,20 +18,24 @@ from pcmm.run import loop
 def _run(path, monkeypatch, keep: bool):
     """The run, its flights keeping their steps' dense outputs (the default) or not (the audit then
     takes every step again, as before)."""
-    if not keep:
-        real = loop._integrate
-        monkeypatch.setattr(loop, "_integrate", lambda *a, keep_dense=False: real(*a, keep_dense=False))
-    try:
+    with monkeypatch.context() as m:  # undoes this patch alone (not the caller's)
+        if not keep:
+            real = loop._integrate
+            m.setattr(loop, "_integrate", lambda *a, keep_dense=False: real(*a, keep_dense=False))
         return pcmm.simulate(pcmm.load_scene(path))
-    finally:
-        monkeypatch.undo()
 
 
-@pytest.mark.parametrize("method", ["DOP853F", "DOP853"])  # the compiled loop (Fortran without it); pcmm's DOP853
+# the compiled loop (Fortran without it); pcmm's DOP853; the compiled loop stepping as scipy's DOP853
+# (COMPILED_SCIPY_STEPS, not the default: its kept rows are (t_old, t_new, y_old, F), another layout)
+@pytest.mark.parametrize("method", ["DOP853F", "DOP853", "DOP853 compiled"])
 def test_kept_dense_outputs_leave_the_run_alone_and_give_the_audit_of_the_steps_taken_again(tmp_path, monkeypatch,
                                                                                              method):
     """A spring pendulum (k = 3 N m/rad) bouncing on a stop with e = 0.5: the spring does work in
     every flight, so the audit's quadrature of its power is not trivially zero."""
+    if method == "DOP853 compiled":
+        from pcmm.ode import integrators
+        monkeypatch.setattr(integrators, "COMPILED_SCIPY_STEPS", True)
+        method = "DOP853"
     path = pendulum(tmp_path, e=0.5, k=3.0, rest_angle=-2.0, merge=False, t_end=1.4, spring_configurations=["c1"],
                     solver={"method": method})
     kept, again = _run(path, monkeypatch, True), _run(path, monkeypatch, False)
