@@ -22,9 +22,11 @@
 #include <pinocchio/algorithm/aba.hpp>
 #include <pinocchio/algorithm/compute-all-terms.hpp>
 #include <pinocchio/algorithm/contact-dynamics.hpp>
+#include <pinocchio/algorithm/crba.hpp>
 #include <pinocchio/algorithm/frames.hpp>
 #include <pinocchio/algorithm/jacobian.hpp>
 #include <pinocchio/algorithm/kinematics.hpp>
+#include <pinocchio/algorithm/rnea.hpp>
 
 #include <algorithm>
 #include <cmath>
@@ -684,9 +686,12 @@ PyMethodDef tree_methods[] = {
 PyTypeObject TreeType = {PyVarObject_HEAD_INIT(nullptr, 0)};
 
 #include "_segment_loop.hpp"
+#include "_loops.hpp"
 
 PyModuleDef module_def = {PyModuleDef_HEAD_INIT, "_tree_dynamics",
                           "A tree configuration's right-hand side with Pinocchio's ABA, in C++.", -1, nullptr};
+
+#include "_impulse.hpp"  // the impulse of a contact in a tree (pcmm.events.impulse_compiled)
 
 }  // namespace
 
@@ -729,8 +734,16 @@ PyMODINIT_FUNC PyInit__tree_dynamics(void) {
     Py_DECREF(m);
     return nullptr;
   }
+  if (add_impulse_plan(m) < 0) {  // _impulse.hpp
+    Py_DECREF(m);
+    return nullptr;
+  }
   // a tree without drives has rhs_with_power too (a flight's work appended); older builds refuse it
   if (PyModule_AddIntConstant(m, "TREE_POWER", 1) < 0) {
+    Py_DECREF(m);
+    return nullptr;
+  }
+  if (add_loop_type(m) < 0) {  // closed loops' right-hand side (_loops.hpp)
     Py_DECREF(m);
     return nullptr;
   }
