@@ -193,6 +193,7 @@ def _run(scene, monkeypatch, mode: str):
         return pcmm.simulate(scene)
 
 
+@pytest.mark.slow  # each example run whole, twice (three_bar_cycle: 10.9 s)
 @pytest.mark.parametrize("name", ["three_bar", "three_bar_stop", "three_bar_cycle"])
 def test_whole_runs_keep_their_events(name, monkeypatch):
     """Every shipped example with a compiled impulse: the same events (number, order, kind) as with

@@ -128,6 +128,7 @@ def _differences(a, b) -> dict:
             "v": np.array([float(np.max(np.abs(x.v[-1] - y.v[-1]))) for x, y in pairs])}
 
 
+@pytest.mark.slow  # each example run whole, compiled and in Python (double_folded_cycle: 19.5 s)
 @needs_extension
 @pytest.mark.parametrize("name", ["double_folded.toml", "double_folded_cycle.toml", "andrews.toml"])
 def test_whole_runs_are_the_python_runs(tmp_path, monkeypatch, name):
