@@ -686,6 +686,7 @@ PyMethodDef tree_methods[] = {
 PyTypeObject TreeType = {PyVarObject_HEAD_INIT(nullptr, 0)};
 
 #include "_segment_loop.hpp"
+#include "_loops.hpp"
 
 PyModuleDef module_def = {PyModuleDef_HEAD_INIT, "_tree_dynamics",
                           "A tree configuration's right-hand side with Pinocchio's ABA, in C++.", -1, nullptr};
@@ -739,6 +740,10 @@ PyMODINIT_FUNC PyInit__tree_dynamics(void) {
   }
   // a tree without drives has rhs_with_power too (a flight's work appended); older builds refuse it
   if (PyModule_AddIntConstant(m, "TREE_POWER", 1) < 0) {
+    Py_DECREF(m);
+    return nullptr;
+  }
+  if (add_loop_type(m) < 0) {  // closed loops' right-hand side (_loops.hpp)
     Py_DECREF(m);
     return nullptr;
   }

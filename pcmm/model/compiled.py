@@ -260,6 +260,58 @@ def closure_kinematics(model: pin.Model, frames_a, frames_b, rows: Callable, row
     return tree
 
 
+def loop_tree(model: pin.Model, frames_a, frames_b, Q0: np.ndarray, KD: np.ndarray, points=None):
+    """((compiled tree, the names of its functions checked so far), its springs) of a configuration
+    with closed loops: its revolute cut joints' point pairs (frames of ``model``), its linear force
+    elements and its point springs ``points`` (a :class:`pcmm.model.forces.PointSprings` or None),
+    for a :func:`loop`; or None (why_not says)."""
+    if enabled() and not hasattr(_tree_dynamics, "Loop"):  # an extension built before loops were
+        _refuse("this build of pcmm.model._tree_dynamics has no compiled loops (built from older sources): "
+                "reinstall pcmm (pip install -e .) to rebuild it")
+        return None
+    frames_a, frames_b = tuple(map(int, frames_a)), tuple(map(int, frames_b))
+    spring_frames = () if points is None else (tuple(map(int, points.frames_a)), tuple(map(int, points.frames_b)))
+    Q0, KD = np.asarray(Q0, float), np.asarray(KD, float)
+    # the frames in this order, added to a tree that has none: frame i + 1 (checked as they are added)
+    frames = sorted({*frames_a, *frames_b, *(f for fs in spring_frames for f in fs)})
+    index = {f: i + 1 for i, f in enumerate(frames)}
+
+    def build(tree):
+        for f in frames:
+            if tree.add_frame(int(model.frames[f].parentJoint), model.frames[f].placement.rotation,
+                              model.frames[f].placement.translation) != index[f]:
+                raise ValueError(f"frame {f} of the model came out as another frame of the compiled tree")
+        for fa, fb in zip(frames_a, frames_b):
+            tree.add_pair(index[fa], index[fb])
+        tree.finalize(model.gravity.linear, Q0, KD)
+    springs = () if points is None else tuple(
+        (index[int(fa)], index[int(fb)], float(f0), float(k), float(rest), float(c))
+        for fa, fb, f0, k, rest, c in zip(points.frames_a, points.frames_b, points.f0, points.k, points.rest, points.c))
+    # the springs are in the key: a tree's checks (its probe states) hold for its own force elements
+    entry = _tree(model, ("loop", frames_a, frames_b, springs, Q0.tobytes(), KD.tobytes()), build)
+    return None if entry is None else (entry, springs)
+
+
+def loop(tree, driven, laws, springs=()):
+    """A compiled right-hand side of closed loops (pcmm/model/_loops.hpp) on ``tree`` and its point
+    ``springs`` (a :func:`loop_tree`), its drives' coordinates ``driven`` and ``laws`` ((f, f', f'')
+    coefficients, low order first, as :class:`pcmm.model.rows.Drives` evaluates them): it holds its
+    own warm starts, seeded with ``seed(q, I, D)``."""
+    laws = tuple(tuple(tuple(float(c) for c in cs) for cs in law) for law in laws)
+    return _tree_dynamics.Loop(tree, tuple(int(i) for i in driven), laws, springs)
+
+
+def agrees(checked: set, fn, reference, probes, what: str) -> bool:
+    """Whether ``fn`` equals ``reference`` at the probe arguments to :data:`AGREEMENT` (once per
+    compiled tree and ``what``); where not, why_not says by how much."""
+    return _agrees(checked, fn, reference, probes, what)
+
+
+def refuse(reason: str) -> None:
+    """Record why a configuration runs its Python evaluations (what why_not answers next)."""
+    _refuse(reason)
+
+
 @functools.cache
 def _probe_states(nv: int) -> tuple[np.ndarray, ...]:
     """Fixed states: angles over a turn, velocities of order one, every component a different

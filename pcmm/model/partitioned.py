@@ -28,6 +28,7 @@ NEWTON_TOL = 1e-13
 SINGULAR_COND = 1e9
 #: the largest change (rad or m) the warm start of a loop's Newton solve is extrapolated by
 PREDICT_MAX = 0.05
+_thread_id = threading.get_ident
 
 
 class PartitionedCoordinates:
@@ -40,6 +41,12 @@ class PartitionedCoordinates:
     position_noise = 4 * np.finfo(float).eps  # dependent coordinates: Newton plus one polishing step
 
     def __init__(self, cfg: Configuration, closure: ClosureRows, drives: Drives):
+        # the loops' right-hand side compiled whole (pcmm/model/_loops.hpp: the Newton solve with its
+        # warm starts, the dependent rates, the KKT solve), where it runs (_compiled_loop)
+        self._loop = None
+        self._loop_held = None  # (thread, force elements) the loop's tree is checked for
+        self._loop_refused = "not decided yet"  # why the loop is not compiled (None: it may be): below
+        self._seed_q, self._seed_t = None, 0.0  # the last seed and the time of the last partition
         self.cfg = cfg
         self.closure = closure
         self.drives = drives
@@ -58,7 +65,7 @@ class PartitionedCoordinates:
         self._zeros = np.zeros(self.nv)
         self.checking = True  # conditioning checks (off while recording an accepted segment)
         self._cache = None  # the last unpack: guards and the right-hand side ask for the same point
-        self.max_residual = 0.0  # largest loop residual a Newton solve accepted (the recorded drift's bound)
+        self._max_residual = 0.0  # largest loop residual a Newton solve accepted in Python (max_residual)
         self._segment_forces = None  # a reader's own force elements (restored); None: the configuration's
         self._driven = np.array(drives.index, dtype=int)
         self._drive_rows = np.zeros((drives.size, self.nv))
@@ -91,6 +98,111 @@ class PartitionedCoordinates:
             self.ny = 2 * len(self.I)
             self.evaluations = "compiled" if self._compiled_drives() is not None else (
                 f"python: {compiled.why_not() or 'not compiled'}")
+        # loops: the whole right-hand side compiled where the rows are and nothing else stands in the
+        # way; checked against the Python evaluation at the first partition (_compiled_loop)
+        self._loop_refused = self._why_loop_not_compiled(fast)
+        if fast is not None and self._loop_refused is not None:
+            self.evaluations = f"python: not compiled: {self._loop_refused}"
+
+    def _why_loop_not_compiled(self, rows) -> str | None:
+        """Why the right-hand side of these loops is not compiled whole (None: it may be): it needs
+        the compiled rows of revolute cut joints (``rows``), no planar joint and no coordinate
+        driven twice."""
+        if not self.closure.size:
+            return "no loop"
+        if rows is None:
+            return self.evaluations.removeprefix("python: ").removeprefix("not compiled: ")
+        if len(set(self.drives.index)) != self.drives.size:
+            return "a coordinate driven twice"
+        return None
+
+    @property
+    def max_residual(self) -> float:
+        """The largest loop residual a Newton solve accepted (the recorded drift's bound), the
+        compiled loop's solves included."""
+        loop = self._loop
+        return self._max_residual if loop is None else max(self._max_residual, loop.max_residual())
+
+    @max_residual.setter
+    def max_residual(self, value: float) -> None:
+        self._max_residual = value
+
+    @property
+    def checking(self) -> bool:
+        """Whether the conditioning of the partition is checked (off while recording an accepted segment)."""
+        return self._checking
+
+    @checking.setter
+    def checking(self, on: bool) -> None:
+        self._checking = on
+        if self._loop is not None:
+            self._loop.set_checking(on)
+
+    def _compiled_loop(self):
+        """The compiled right-hand side of the loops (a :func:`pcmm.model.compiled.loop`) on the
+        calling thread's compiled tree of :attr:`forces`, checked against the Python evaluation at
+        probe states near the seed in this partition; or None: the Python evaluation runs (and
+        :attr:`evaluations` says why where it is refused)."""
+        held = self._loop_held
+        if held is not None and held[0] == threading.get_ident() and held[1] is self.forces:
+            return self._loop
+        if self._loop_refused is not None or self._seed_q is None or self.D is None or len(self.D) != self.m:
+            return None  # refused, not seeded yet, or redundant rows (the Python evaluation says so)
+        forces = self.forces
+        built = compiled.loop_tree(self.cfg.model, self.closure.frames_a, self.closure.frames_b, forces.Q0, forces.KD,
+                                   forces.points)
+        if built is None:
+            return self._refuse_loop(compiled.why_not() or "not compiled")
+        (tree, checked), springs = built
+        if self._loop is None:
+            self._loop = compiled.loop(tree, self.drives.index, self.drives._derivs, springs)
+            self._loop.seed(self._seed_q, self.I, self.D)
+            self._loop.set_checking(self._checking)
+        else:
+            self._loop.set_tree(tree, springs)
+        why = self._loop_disagrees(tree, checked, springs)
+        if why is not None:
+            return self._refuse_loop(why)
+        self._loop_held = (threading.get_ident(), forces)
+        return self._loop
+
+    def _refuse_loop(self, why: str):
+        self._loop_refused = why
+        self._loop, self._loop_held = None, None
+        self.evaluations = f"python: {why}"
+        return None
+
+    def _loop_disagrees(self, tree, checked, springs) -> str | None:
+        """Why the compiled loop on ``tree`` is not the Python evaluation (None: it is): both from
+        the seed, at probe states near it (independent coordinates 1e-3 off, rates of order one,
+        times 1e-3 s on), the right-hand side and the one with power; once per tree and partition."""
+        what = f"loop right-hand side, dependent {tuple(int(i) for i in self.D)}"
+        if what in checked:
+            return None
+        k = len(self.I)
+        base = self._seed_q[self.I]
+        probes = [(self._seed_t + 1e-3 * (j + 1), np.concatenate([base + 1e-3 * p[:k] / np.pi, p[k:2 * k]]))
+                  for j, p in enumerate(compiled._probe_states(max(k, 1)))]
+        reference = copy.copy(self)
+        reference._loop, reference._loop_held, reference._loop_refused = None, None, "the reference"
+        reference._trail, reference._max_residual = None, 0.0
+        reference.checking = False
+        reference.seed(self._seed_q)
+        scratch = compiled.loop(tree, self.drives.index, self.drives._derivs, springs)
+        scratch.seed(self._seed_q, self.I, self.D)
+        scratch.set_checking(False)
+
+        def declined(out, n):
+            return np.full(n, np.nan) if out is None else out
+        try:
+            same = (compiled.agrees(checked, lambda t, y: declined(scratch.rhs(t, y), 2 * k), reference._python_rhs,
+                                    probes, what)
+                    and compiled.agrees(checked, lambda t, y: declined(scratch.rhs_with_power(t, y), 2 * k + 1),
+                                        reference._python_rhs_with_power,
+                                        [(t, np.append(y, 0.0)) for t, y in probes], what + " with power"))
+        except (SimulationError, np.linalg.LinAlgError) as exc:
+            return f"the Python evaluation fails at a probe state near the seed ({exc})"
+        return None if same else (compiled.why_not() or "it disagrees with the Python evaluation")
 
     def _why_drives_not_compiled(self) -> str | None:
         """Why the right-hand side of drives without loops is not compiled (None: it may be).  Every
@@ -158,6 +270,7 @@ class PartitionedCoordinates:
         segment's force elements (a value, compiled at its angle offsets), which the reader's
         evaluations apply instead of the configuration's current ones."""
         reader = copy.copy(self)
+        reader._loop, reader._loop_held = None, None  # its own compiled loop (its own warm starts)
         if forces is not None:
             reader._segment_forces = forces
         reader.I, reader.D, reader.ny = frozen["I"], frozen["D"], frozen["ny"]
@@ -280,6 +393,7 @@ class PartitionedCoordinates:
             self.I = np.array([i for i in range(self.nv) if i not in self.D], dtype=int)
             self.ny = 2 * len(self.I)
             return
+        self._seed_t = t
         Jq = self._position_rows(t, q)
         self.D = self._best_dependent(Jq, keep=prefer_independent)
         self.I = np.array([i for i in range(self.nv) if i not in self.D], dtype=int)
@@ -405,6 +519,13 @@ class PartitionedCoordinates:
         self._qD = q.copy()
         self._recent = []
         self._cache = None
+        self._seed_q = self._qD
+        self._loop_held = None  # checked again (a new partition is checked once)
+        if self._loop is not None:
+            if len(self.D) == self.m:
+                self._loop.seed(q, self.I, self.D)
+            else:  # redundant rows: the Python evaluation says so (_scaled_det)
+                self._refuse_loop(f"{self.m} constraint rows for {len(self.D)} dependent coordinates")
 
     def _guess(self, t):
         """The warm start for a solve at ``t``: the recent solution nearest in time, carried to
@@ -573,13 +694,27 @@ class PartitionedCoordinates:
             Jacobians, no Newton solve and no right-hand side)."""
             q, v = self.unpack(t, y)
             qd = self.cfg.qdot(q, v)
+            loop = self._compiled_loop() if self._loop_refused is None else None
+            if loop is not None:  # the same differences, the rows and determinants in C++
+                return loop.det_rate(t, q, qd)
             eps = 1e-7 / max(1.0, float(np.max(np.abs(qd))))
             ahead, behind = (self._scaled_det(self._position_rows(t, q + s * eps * qd)) for s in (1.0, -1.0))
             return (ahead - behind) / (2 * eps)
         return Guard(f"configuration '{self.cfg.name}': the loop's partition of its coordinates degenerates",
                      g, 0, "repartition", rate=rate, rate_from_state=True)
 
+    def _held_loop(self):
+        """The compiled loop where it is ready on this thread for these force elements and no
+        segment is re-read (the common case, asked at every evaluation), else None."""
+        held = self._loop_held
+        if held is not None and self._trail is None and held[0] == _thread_id() and held[1] is self.forces:
+            return self._loop
+        return None
+
     def unpack(self, t, y):
+        loop = self._held_loop() or (self._compiled_loop() if self._loop_refused is None else None)
+        if loop is not None:
+            return self._compiled_unpack(loop, t, y)
         cache = self._cache
         # the same bytes are the same state (the common hit: a guard's value, then its rate);
         # otherwise numpy decides (-0.0 and 0.0 are one value)
@@ -594,11 +729,34 @@ class PartitionedCoordinates:
                 self._reached[k] = self._recent[-1]
         return out
 
-    def _unpack(self, t, y):
+    def _compiled_unpack(self, loop, t, y):
+        """:meth:`unpack` by the compiled loop (its warm starts, its cache); where it declines, the
+        conditioning check decides (a new partition, or a singular posture), or the Python solve
+        from the compiled loop's warm start (its error, or a solution the loop then keeps)."""
+        trail = self._trail
+        if trail is not None and loop.holds(t, y):  # the last one solved: nothing to keep
+            trail = None
+        # a re-read segment: its steps' solutions are warm starts too (_guess, _follow)
+        status, q, v, Jp = loop.unpack(t, y) if trail is None else loop.unpack(t, y, self._follow(t))
+        if status == 0:
+            self._last_Jp = Jp
+        else:
+            if status == 1:
+                self._check_conditioning(t, Jp)  # raises (the compiled check fired: a round-off apart otherwise)
+            q, v = self._unpack(t, y, guess=q)
+            loop.remember(t, y, q, self._recent[-1][2], self._last_Jp)
+        if trail is not None:  # keep the solution at an accepted step of the segment (unpack)
+            ts, ys = trail
+            k = int(np.searchsorted(ts, t, side="left"))
+            if k < len(ts) and ts[k] == t and k not in self._reached and np.array_equal(ys[:, k], y):
+                self._reached[k] = loop.last()
+        return q, v
+
+    def _unpack(self, t, y, guess=None):
         if not self.closure.size:
             return self._prescribed(t, y)
         k = len(self.I)
-        q, Jq, Jp = self._solve_dependent(t, y[:k], self._guess(t))
+        q, Jq, Jp = self._solve_dependent(t, y[:k], self._guess(t) if guess is None else guess)
         self._qD = q
         self._last_Jp = Jp
         # the state's second half is the independent coordinates' rates q'_I (a planar joint's
@@ -703,10 +861,22 @@ class PartitionedCoordinates:
         return self.accelerations(t, q, v)
 
     def rhs(self, t, y):
-        """``[q'_I, q''_I]`` at ``(t, y)``: compiled where the drives are (:meth:`_compiled_drives`)."""
+        """``[q'_I, q''_I]`` at ``(t, y)``: compiled where the drives are (:meth:`_compiled_drives`)
+        or the loops (:meth:`_compiled_loop`; a call it declines is Python's)."""
+        loop = self._held_loop()
+        if loop is not None:
+            out = loop.rhs(t, y)
+            return self._python_rhs(t, y) if out is None else out
         fast = self._compiled_drives()
         if fast is not None:
             return fast.rhs(t, y)
+        loop = self._compiled_loop() if self._loop_refused is None else None
+        if loop is not None:
+            if self._trail is not None:  # a re-read segment: its own warm starts, and what it keeps
+                self._compiled_unpack(loop, t, y)
+            out = loop.rhs(t, y)
+            if out is not None:
+                return out
         return self._python_rhs(t, y)
 
     def _python_rhs(self, t, y):
@@ -719,10 +889,22 @@ class PartitionedCoordinates:
         """``y`` is the state with the work so far appended; the state derivative with one more component: the power of the force elements and
         of the drives.  A constraint's generalized force ``Phi_q^T lam`` has the power
         ``lam . Phi_q v = -lam . Phi_t``: zero for the loops (scleronomic), the motor's
-        ``mu f'(t)`` for a drive.  Compiled where the drives are (:meth:`_compiled_drives`)."""
+        ``mu f'(t)`` for a drive.  Compiled where the drives are (:meth:`_compiled_drives`) or the
+        loops (:meth:`_compiled_loop`)."""
+        loop = self._held_loop()
+        if loop is not None:
+            out = loop.rhs_with_power(t, y)
+            return self._python_rhs_with_power(t, y) if out is None else out
         fast = self._compiled_drives()
         if fast is not None:
             return fast.rhs_with_power(t, y)
+        loop = self._compiled_loop() if self._loop_refused is None else None
+        if loop is not None:
+            if self._trail is not None:  # a re-read segment: its own warm starts, and what it keeps
+                self._compiled_unpack(loop, t, y[:-1])
+            out = loop.rhs_with_power(t, y)
+            if out is not None:
+                return out
         return self._python_rhs_with_power(t, y)
 
     def _python_rhs_with_power(self, t, y):

@@ -1,0 +1,214 @@
+"""The compiled right-hand side of closed loops (pcmm/model/_loops.hpp, PartitionedCoordinates._compiled_loop)
+against the Python evaluation it replaces: the Newton solve of the dependent coordinates from the same
+warm starts, the dependent rates and the KKT accelerations, at random states of every loop
+configuration of the shipped examples and of a drawn four-bar; whole runs against PCMM_COMPILED=0."""
+from __future__ import annotations
+
+import copy
+import math
+
+import numpy as np
+import pinocchio as pin
+import pytest
+
+import pcmm
+from pcmm.errors import SimulationError
+from pcmm.model import compiled
+from pcmm.model.mechanism import Mechanism
+
+import builders
+from builders import ROOT
+
+EXAMPLES = ROOT / "examples"
+needs_extension = pytest.mark.skipif(not compiled.enabled() or not hasattr(compiled._tree_dynamics, "Loop"),
+                                     reason=f"the compiled loops are not here: {compiled.why_not()}")
+
+
+def _loop_starts(scene, traj):
+    """{configuration with loops: [(t, q, v) at the start of each of its segments]} of a run."""
+    out = {}
+    mech = Mechanism(scene)
+    for seg in traj.segments:
+        coords = mech[seg.configuration].coords
+        if coords.constrained and coords.closure.size:
+            out.setdefault(seg.configuration, []).append((float(seg.t[0]), seg.q[0].copy(), seg.v[0].copy()))
+    return out
+
+
+def _python_twin(coords):
+    """A copy of ``coords`` that evaluates in Python only (its own warm starts)."""
+    twin = copy.copy(coords)
+    twin._loop, twin._loop_held, twin._loop_refused = None, None, "the reference"
+    twin._trail = None
+    twin.checking = False
+    return twin
+
+
+def _compare_at_random_states(scene, starts, rng, n=12):
+    """At each start: the configuration partitioned and seeded there (pack), then ``n`` random
+    states near it, evaluated one after the other by the compiled loop and by a Python twin (the
+    same sequence of warm starts on both sides); returns the largest relative difference."""
+    mech = Mechanism(scene)
+    worst = 0.0
+    for name, points in starts.items():
+        coords = mech[name].coords
+        for t0, q0, v0 in points[:3]:
+            y0 = coords.pack(t0, q0, v0)
+            coords.checking = False
+            twin = _python_twin(coords)
+            twin.seed(q0)
+            k = len(coords.I)
+            for _ in range(n):
+                y = y0 + np.concatenate([rng.uniform(-2e-3, 2e-3, k), rng.uniform(-0.2, 0.2, k)])
+                t = t0 + rng.uniform(0.0, 1e-2)
+                got = coords.rhs(t, y)
+                assert coords._loop is not None and coords.evaluations == "compiled", coords.evaluations
+                want = twin._python_rhs(t, y)
+                worst = max(worst, float(np.max(np.abs(got - want), initial=0.0)) / (1.0 + float(np.max(np.abs(want), initial=0.0))))
+                w = np.append(y, 0.0)
+                got, want = coords.rhs_with_power(t, w), twin._python_rhs_with_power(t, w)
+                worst = max(worst, float(np.max(np.abs(got - want))) / (1.0 + float(np.max(np.abs(want)))))
+                q, v = coords.unpack(t, y)  # the compiled solve closes the loop (the Python binding's rows)
+                phi, Jq = coords.loop_rows(q)
+                assert np.max(np.abs(phi)) < 1e-12 and np.max(np.abs(Jq @ v), initial=0.0) < 1e-9
+                # the singularity guard's rate: central differences 1e-7 apart of determinants whose
+                # rows agree to round-off, so they agree to about 1e-16 / 1e-7
+                fast, slow = coords.singularity_guard().rate(t, y, None), twin.singularity_guard().rate(t, y, None)
+                assert abs(fast - slow) <= 1e-7 * (1.0 + abs(slow)), (fast, slow)
+    return worst
+
+
+def _runs(path):
+    """(the scene, its run with the compiled loops)."""
+    scene = pcmm.load_scene(path)
+    return scene, pcmm.simulate(scene)
+
+
+@needs_extension
+@pytest.mark.parametrize("name", ["double_folded.toml", "double_folded_cycle.toml", "andrews.toml"])
+def test_every_loop_configuration_of_the_examples_at_random_states(name):
+    scene = pcmm.load_scene(EXAMPLES / name)
+    traj = pcmm.simulate(scene, pcmm.RunOptions(t_end=min(scene.t_end, 3.5)))
+    starts = _loop_starts(scene, traj)
+    assert starts, "the example visits a configuration with loops"
+    assert _compare_at_random_states(scene, starts, np.random.default_rng(7)) < 1e-10
+
+
+@needs_extension
+def test_a_drawn_four_bar_at_random_states(tmp_path):
+    """A four-bar turned by a torque whose rocker strikes a stop and merges (a zero-DOF loop after),
+    drawn: the crank's start, the torque and the stop."""
+    rng = np.random.default_rng(11)
+    for _ in range(3):
+        path = builders.four_bar_rocker_stop(tmp_path, e=0.5, rocker_stop=float(rng.uniform(1.2, 1.6)),
+                                             torque=float(rng.uniform(0.5, 2.0)), theta0=float(rng.uniform(0.8, 1.2)),
+                                             t_end=1.0)
+        scene, traj = _runs(path)
+        starts = _loop_starts(scene, traj)
+        assert set(traj.stats["evaluations"].values()) == {"compiled"}
+        assert _compare_at_random_states(scene, starts, rng) < 1e-10
+
+
+T_EVENT, STATE = 1e-12, 1e-10
+#: each scene's initial rate nudged by one machine epsilon: the reference against itself (its own
+#: round-off sensitivity; tests/test_compiled_properties.py: the same bound)
+NUDGES = {"double_folded.toml": ("v = { D = 0.0 }", "v = { D = 2.220446049250313e-16 }"),
+          "double_folded_cycle.toml": ("v = { D = 0.0 }", "v = { D = 2.220446049250313e-16 }"),
+          "andrews.toml": ("v = { beta = 0.0,", "v = { beta = 2.220446049250313e-16,")}
+
+
+def _differences(a, b) -> dict:
+    """{quantity: its differences in time order}: each event's time, each segment's end time, q and v."""
+    assert [e["name"] for e in a.events] == [e["name"] for e in b.events]
+    assert [s.configuration for s in a.segments] == [s.configuration for s in b.segments]
+    pairs = list(zip(a.segments, b.segments))
+    return {"event times": np.array([abs(x["t"] - y["t"]) for x, y in zip(a.events, b.events)]),
+            "segment ends": np.array([abs(x.t[-1] - y.t[-1]) for x, y in pairs]),
+            "q": np.array([float(np.max(np.abs(x.q[-1] - y.q[-1]))) for x, y in pairs]),
+            "v": np.array([float(np.max(np.abs(x.v[-1] - y.v[-1]))) for x, y in pairs])}
+
+
+@needs_extension
+@pytest.mark.parametrize("name", ["double_folded.toml", "double_folded_cycle.toml", "andrews.toml"])
+def test_whole_runs_are_the_python_runs(tmp_path, monkeypatch, name):
+    """The same events to 1e-12 s and the same segment ends to 1e-10 as with the Python evaluations,
+    or, where the Python run itself moves by more when nudged by round-off (the late bounces of a
+    macro-impact, rebounding at 1e-6 m/s), within ten times that."""
+    compiled.forget_trees()
+    scene, fast = _runs(EXAMPLES / name)
+    for cfg, said in fast.stats["evaluations"].items():
+        coords = Mechanism(scene)[cfg].coords
+        if coords.constrained and coords.closure.size:
+            assert said == "compiled", (cfg, said)
+    monkeypatch.setenv(compiled.ENV, "0")
+    slow = pcmm.simulate(pcmm.load_scene(EXAMPLES / name))
+    apart = _differences(fast, slow)
+    floors = {"event times": T_EVENT, "segment ends": T_EVENT, "q": STATE, "v": STATE}
+    if all(d.max(initial=0) <= floors[what] for what, d in apart.items()):
+        return
+    old, new = NUDGES[name]
+    text = (EXAMPLES / name).read_text().replace('"../urdf/', f'"{ROOT / "urdf"}/')
+    assert old in text
+    path = tmp_path / name
+    path.write_text(text.replace(old, new))
+    nudged = pcmm.simulate(pcmm.load_scene(path))
+    own = _differences(nudged, slow)
+    for what, d in apart.items():
+        bound = floors[what] + 10 * np.maximum.accumulate(own[what])
+        assert np.all(d <= bound), f"{what}: {d.max():.3g} apart, the Python run nudged {own[what].max():.3g}"
+
+
+@needs_extension
+def test_it_steps_aside_with_the_reason_where_it_disagrees(monkeypatch):
+    """A compiled loop that is not the Python evaluation (its drive law off by 1e-6 rad, a
+    defect planted for the test) is refused by the probe check: the loops run in Python, the
+    stats say why, and the run is the Python run to the bit."""
+    compiled.forget_trees()
+    real = compiled.loop
+
+    def planted(tree, driven, laws, springs=()):
+        laws = tuple(((law[0][0] + 1e-6, *law[0][1:]), law[1], law[2]) for law in laws)
+        return real(tree, driven, laws, springs)
+    monkeypatch.setattr(compiled, "loop", planted)
+    traj = pcmm.simulate(pcmm.load_scene(EXAMPLES / "double_folded.toml"), pcmm.RunOptions(t_end=0.5))
+    said = traj.stats["evaluations"]["config1"]
+    assert said.startswith("python: it disagrees with the Python loop right-hand side, dependent (0, 1, 2) by "), said
+    monkeypatch.undo()
+    compiled.forget_trees()
+    monkeypatch.setenv(compiled.ENV, "0")
+    slow = pcmm.simulate(pcmm.load_scene(EXAMPLES / "double_folded.toml"), pcmm.RunOptions(t_end=0.5))
+    np.testing.assert_array_equal(traj.segments[-1].q, slow.segments[-1].q)
+    np.testing.assert_array_equal(traj.segments[-1].v, slow.segments[-1].v)
+
+
+@pytest.mark.parametrize("name", ["compass_gait.toml", "rimless_wheel.toml"])
+def test_loops_on_a_planar_joint_run_in_python_and_say_so(name):
+    """The other examples with loops stand on a planar joint (a body's x, y, theta: q' is not v):
+    not compiled, and the stats say so."""
+    traj = pcmm.simulate(pcmm.load_scene(EXAMPLES / name), pcmm.RunOptions(t_end=0.05))
+    assert set(traj.stats["evaluations"].values()) == {"python: not compiled: a planar joint"}
+
+
+@needs_extension
+def test_a_loop_that_cannot_close_is_the_python_message():
+    """A state whose independent coordinate the loop cannot reach: the compiled solve declines and
+    the Python solve from the same warm start stops the run with its own message."""
+    scene = pcmm.load_scene(EXAMPLES / "double_folded.toml")
+    coords = Mechanism(scene)["config1"].coords
+    t0 = 0.0
+    q0 = np.array([math.pi, -3.459398, 1.095, 0.210561])
+    v0 = np.zeros(4)
+    q, v = coords.project(t0, q0, v0)
+    y = coords.pack(t0, q, v)
+    assert coords._compiled_loop() is not None, coords.evaluations
+    far = y.copy()
+    far[0] += 5.0  # the independent coordinate (the slider E, here) 5 m on: no assembly there
+    twin = _python_twin(coords)
+    twin.checking = True
+    twin.seed(q)
+    with pytest.raises(SimulationError) as python:
+        twin.unpack(0.01, far)
+    with pytest.raises(SimulationError) as fast:
+        coords.unpack(0.01, far)
+    assert str(fast.value) == str(python.value)
+    assert "the loop cannot be closed" in str(fast.value)
