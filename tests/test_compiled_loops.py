@@ -7,17 +7,15 @@ from __future__ import annotations
 import copy
 import math
 
+import builders
 import numpy as np
-import pinocchio as pin
 import pytest
+from builders import ROOT
 
 import pcmm
 from pcmm.errors import SimulationError
 from pcmm.model import compiled
 from pcmm.model.mechanism import Mechanism
-
-import builders
-from builders import ROOT
 
 EXAMPLES = ROOT / "examples"
 needs_extension = pytest.mark.skipif(not compiled.enabled() or not hasattr(compiled._tree_dynamics, "Loop"),

@@ -153,7 +153,8 @@ class PartitionedCoordinates:
         built = compiled.loop_tree(self.cfg.model, self.closure.frames_a, self.closure.frames_b, forces.Q0, forces.KD,
                                    forces.points)
         if built is None:
-            return self._refuse_loop(compiled.why_not() or "not compiled")
+            self._refuse_loop(compiled.why_not() or "not compiled")
+            return None
         (tree, checked), springs = built
         if self._loop is None:
             self._loop = compiled.loop(tree, self.drives.index, self.drives._derivs, springs)
@@ -163,15 +164,16 @@ class PartitionedCoordinates:
             self._loop.set_tree(tree, springs)
         why = self._loop_disagrees(tree, checked, springs)
         if why is not None:
-            return self._refuse_loop(why)
+            self._refuse_loop(why)
+            return None
         self._loop_held = (threading.get_ident(), forces)
         return self._loop
 
-    def _refuse_loop(self, why: str):
+    def _refuse_loop(self, why: str) -> None:
+        """The loops run in Python from now on, and :attr:`evaluations` says ``why``."""
         self._loop_refused = why
         self._loop, self._loop_held = None, None
         self.evaluations = f"python: {why}"
-        return None
 
     def _loop_disagrees(self, tree, checked, springs) -> str | None:
         """Why the compiled loop on ``tree`` is not the Python evaluation (None: it is): both from
