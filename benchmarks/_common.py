@@ -165,9 +165,9 @@ def timed_segments(log: list):
         def __init__(self, inner):
             self.inner, self.fixed_step, self.name = inner, inner.fixed_step, inner.name
 
-        def integrate(self, fun, t0, y0, t_bound, events, opts):
+        def integrate(self, fun, t0, y0, t_bound, events, opts, **kw):
             t = time.perf_counter()
-            seg = self.inner.integrate(fun, t0, y0, t_bound, events, opts)
+            seg = self.inner.integrate(fun, t0, y0, t_bound, events, opts, **kw)
             log.append(SegmentTiming(t0, len(y0), time.perf_counter() - t, seg.nfev, seg.nsteps))
             return seg
     sim.INTEGRATORS = integ.INTEGRATORS = {k: Timed(v) for k, v in original.items()}

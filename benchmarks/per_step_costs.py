@@ -41,14 +41,14 @@ def main(argv=None) -> int:
     ap.add_argument("--reps", type=int, default=8, help="alternating runs per route (after one warm-up round)")
     args = ap.parse_args(argv)
     scene = pcmm.load_scene(args.scene)
-    prepared, powers, finish = holding.Holds.evaluator, audit.drive_powers, audit.FlightAudit.finish
+    prepared, powers, flight = holding.Holds.evaluator, audit.drive_powers, audit.FlightAudit.flight
     spent = {"guards": 0.0, "audit": 0.0}
 
     def timed(fn, key):
-        def call(*a):
+        def call(*a, **kw):
             t0 = time.process_time()
             try:
-                return fn(*a)
+                return fn(*a, **kw)
             finally:
                 spent[key] += time.process_time() - t0
         return call
@@ -60,7 +60,7 @@ def main(argv=None) -> int:
     times = {name: [] for name in routes}
     parts = {name: {"guards": [], "audit": []} for name in routes}
     runs = {}
-    audit.FlightAudit.finish = timed(finish, "audit")
+    audit.FlightAudit.flight = timed(flight, "audit")  # each flight is measured as it ends
     try:
         for rep in range(args.reps + 1):
             for name in (routes if rep % 2 else reversed(list(routes))):
@@ -75,7 +75,7 @@ def main(argv=None) -> int:
                     for key in spent:
                         parts[name][key].append(spent[key])
     finally:
-        holding.Holds.evaluator, audit.drive_powers, audit.FlightAudit.finish = prepared, powers, finish
+        holding.Holds.evaluator, audit.drive_powers, audit.FlightAudit.flight = prepared, powers, flight
     a, b = runs["prepared"], runs["unprepared"]
     same = ([e["t"] for e in a.events] == [e["t"] for e in b.events]
             and repr(a.stats["macro_impacts"]) == repr(b.stats["macro_impacts"]))

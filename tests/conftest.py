@@ -63,3 +63,29 @@ def shipped_run():
             runs[key] = (scene, pcmm.simulate(scene, pcmm.RunOptions(**options)))
         return runs[key]
     return run
+
+
+def _wider_fixtures(item) -> set:
+    """The fixtures of module, class or package scope that ``item`` uses (set up once for the
+    tests of their module that use them)."""
+    return {d for defs in item._fixtureinfo.name2fixturedefs.values() for d in defs
+            if d.scope in ("module", "class", "package")}
+
+
+def pytest_collection_modifyitems(config, items):
+    """The ``slow`` tests first (in their order), except those that share a module-scoped
+    fixture with another test (moved away from it, they would have it set up a second time).
+
+    Under pytest-xdist (``-n auto --dist worksteal``) each worker runs its share in this order
+    and an idle worker takes queued tests from the end of another's queue: with the long tests
+    at the front, the last tests to run are short ones, so no worker still runs a long test
+    while the other has nothing left to do."""
+    users: dict = {}
+    for it in items:
+        for d in _wider_fixtures(it):
+            users[d] = users.get(d, 0) + 1
+    early = [it for it in items if it.get_closest_marker("slow") is not None
+             and all(users[d] == 1 for d in _wider_fixtures(it))]
+    if early:
+        moved = {id(it) for it in early}
+        items[:] = early + [it for it in items if id(it) not in moved]

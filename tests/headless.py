@@ -136,46 +136,86 @@ class Chromium:
             self.call("Page.enable", self._session)
         return self._session
 
+    def _load(self, url: str, size: tuple[int, int], virtual_time_budget_ms: int) -> str:
+        """Load ``url`` afresh in the tab, in a window of ``size``, and let it run for the
+        budget of virtual time; returns the tab's session."""
+        width, height = size
+        tab = self._tab()
+        # a new document every time, also when only the URL's fragment (#t=...) differs
+        self._forget(tab)
+        self.call("Page.navigate", tab, url="about:blank")
+        self.wait_for(tab, "Page.loadEventFired")
+        window = self.call("Browser.getWindowForTarget", targetId=self._target)["windowId"]
+        self.call("Browser.setWindowBounds", windowId=window, bounds={"width": width, "height": height})
+        self.call("Emulation.setDeviceMetricsOverride", tab, width=width, height=height,
+                  deviceScaleFactor=1, mobile=False)
+        # virtual time stands still until the page is navigated, then runs for the budget
+        self.call("Emulation.setVirtualTimePolicy", tab, policy="pause")
+        self._forget(tab)
+        nav = self.call("Page.navigate", tab, url=url)
+        if "errorText" in nav:
+            raise ChromiumError(f"{url}: {nav['errorText']}")
+        self.call("Emulation.setVirtualTimePolicy", tab, policy="pauseIfNetworkFetchesPending",
+                  budget=virtual_time_budget_ms)
+        self.wait_for(tab, "Page.loadEventFired", "Emulation.virtualTimeBudgetExpired")
+        return tab
+
+    def _screenshot(self, tab: str, path: Path) -> None:
+        png = self.call("Page.captureScreenshot", tab, format="png")["data"]
+        path.write_bytes(base64.b64decode(png))
+
+    def _park(self, tab: str) -> None:
+        # park the tab: a replay page left loaded keeps its WebGL scene rendering in the GPU
+        # process (measured: 0.9 of a core while the browser waits for the next test, 0.06 on
+        # about:blank), which slowed every other test of the suite
+        self._forget(tab)
+        self.call("Page.navigate", tab, url="about:blank")
+        self.wait_for(tab, "Page.loadEventFired")
+
     def open(self, url: str, size: tuple[int, int] = (800, 600), screenshot: Path | None = None,
              dom: bool = False, virtual_time_budget_ms: int = 3000) -> str | None:
         """Load ``url`` afresh in a window of ``size`` (width, height) pixels, let its scripts run
         for ``virtual_time_budget_ms`` of virtual time, then write a PNG of the window into
         ``screenshot`` and/or return the DOM (``dom``)."""
-        width, height = size
         try:
-            tab = self._tab()
-            # a new document every time, also when only the URL's fragment (#t=...) differs
-            self._forget(tab)
-            self.call("Page.navigate", tab, url="about:blank")
-            self.wait_for(tab, "Page.loadEventFired")
-            window = self.call("Browser.getWindowForTarget", targetId=self._target)["windowId"]
-            self.call("Browser.setWindowBounds", windowId=window, bounds={"width": width, "height": height})
-            self.call("Emulation.setDeviceMetricsOverride", tab, width=width, height=height,
-                      deviceScaleFactor=1, mobile=False)
-            # virtual time stands still until the page is navigated, then runs for the budget
-            self.call("Emulation.setVirtualTimePolicy", tab, policy="pause")
-            self._forget(tab)
-            nav = self.call("Page.navigate", tab, url=url)
-            if "errorText" in nav:
-                raise ChromiumError(f"{url}: {nav['errorText']}")
-            self.call("Emulation.setVirtualTimePolicy", tab, policy="pauseIfNetworkFetchesPending",
-                      budget=virtual_time_budget_ms)
-            self.wait_for(tab, "Page.loadEventFired", "Emulation.virtualTimeBudgetExpired")
+            tab = self._load(url, size, virtual_time_budget_ms)
             text = None
             if screenshot is not None:
-                png = self.call("Page.captureScreenshot", tab, format="png")["data"]
-                screenshot.write_bytes(base64.b64decode(png))
+                self._screenshot(tab, screenshot)
             if dom:
                 text = self.call("Runtime.evaluate", tab, expression=_DOM, returnByValue=True)["result"]["value"]
-            # park the tab: a replay page left loaded keeps its WebGL scene rendering in the GPU
-            # process (measured: 0.9 of a core while the browser waits for the next test, 0.06 on
-            # about:blank), which slowed every other test of the suite
-            self._forget(tab)
-            self.call("Page.navigate", tab, url="about:blank")
-            self.wait_for(tab, "Page.loadEventFired")
+            self._park(tab)
             return text
         except BaseException:
             self._drop_tab()  # the next page gets a new tab, whatever state this one was left in
+            raise
+
+    def shots(self, url: str, size: tuple[int, int], steps: list[tuple[str | None, Path]],
+              virtual_time_budget_ms: int = 3000, step_budget_ms: int = 500, dom_step: int | None = None) -> str | None:
+        """Load ``url`` once as :meth:`open` does; then for each ``(expression, screenshot)`` of
+        ``steps``: evaluate the JavaScript ``expression`` in the page (none: the page as loaded),
+        let it run for ``step_budget_ms`` of virtual time (its animation frames draw what the
+        expression changed) and write a PNG of the window into ``screenshot``.  Returns the DOM
+        as it is at step ``dom_step`` (if given)."""
+        text = None
+        try:
+            tab = self._load(url, size, virtual_time_budget_ms)
+            for i, (expression, screenshot) in enumerate(steps):
+                if expression is not None:
+                    reply = self.call("Runtime.evaluate", tab, expression=expression)
+                    if "exceptionDetails" in reply:
+                        raise ChromiumError(f"{expression}: {reply['exceptionDetails']}")
+                    self._forget(tab)
+                    self.call("Emulation.setVirtualTimePolicy", tab, policy="pauseIfNetworkFetchesPending",
+                              budget=step_budget_ms)
+                    self.wait_for(tab, "Emulation.virtualTimeBudgetExpired")
+                self._screenshot(tab, screenshot)
+                if i == dom_step:
+                    text = self.call("Runtime.evaluate", tab, expression=_DOM, returnByValue=True)["result"]["value"]
+            self._park(tab)
+            return text
+        except BaseException:
+            self._drop_tab()
             raise
 
     def _forget(self, session: str) -> None:

@@ -4,8 +4,13 @@ import os
 import time
 
 
+#: how long a tau1 = 5.0 run of :func:`faulty` waits before it runs, s
+SLOW_S = 3.0
+
+
 def faulty():
-    """tau1 = 3.0: the run aborts its worker (a native crash); tau1 = 4.0: the run hangs."""
+    """tau1 = 3.0: the run aborts its worker (a native crash); tau1 = 4.0: the run hangs;
+    tau1 = 5.0: the run waits :data:`SLOW_S` seconds, then runs."""
     import pcmm.run.loop as loop
     real = loop.simulate
 
@@ -14,6 +19,8 @@ def faulty():
             os.abort()
         if scene.forces[0].value == 4.0:
             time.sleep(3600)
+        if scene.forces[0].value == 5.0:
+            time.sleep(SLOW_S)
         return real(scene, options, progress)
     loop.simulate = simulate
 

@@ -102,6 +102,7 @@ def test_event_log_keeps_one_row_of_numbers_per_event_of_a_layout():
     assert log[9_999] == {"t": 9999.0, "name": "floor", "impulse": {"normal": 1.0 / 10_000, "vector": [0.0]}}
 
 
+@pytest.mark.slow  # two bouncing runs of 100 and 300 bounces, measured
 def test_a_bouncing_run_retains_a_small_constant_per_event(tmp_path):
     """A ball with e = 1 from h = 1 m bounces every 2 sqrt(2 h / g) = 0.903 s.  Between 100 and
     300 bounces the record grows by its events and segments only; before the compact record it

@@ -303,8 +303,13 @@ def test_drive_runs_with_the_compiled_right_hand_side_are_the_python_runs(tmp_pa
     """Every configuration with drives and a free coordinate evaluates its right-hand side compiled
     (before issue 26's drives: 'python: not compiled: drives only'), and the run is the Python
     evaluations' run (PCMM_COMPILED=0): the same events at the same times (1e-12 s), the same steps,
-    states to 1e-10."""
+    states to 1e-10. The impulses are solved in Python in both runs: the compiled impulse agrees with
+    it to round-off, which three_bar_cycle's accumulations amplify to ~5e-10 s (a one-ulp nudge of
+    the Python run does the same; tests/test_compiled_impulse.py holds it to that), and this test is
+    about the right-hand side."""
     import pcmm
+    import pcmm.events.impulse as impulse
+    monkeypatch.setattr(impulse, "compiled_impulse", lambda cfg, plan: None)
     path = _drive_scene(scene, tmp_path)
     fast = pcmm.simulate(pcmm.load_scene(path))
     driven = {name for name, why in fast.stats["evaluations"].items()}
@@ -547,3 +552,50 @@ def test_an_extension_built_without_compiled_flights_falls_back_and_says_so(tmp_
     np.testing.assert_array_equal(coords.rhs_with_power(0.4, y), coords._python_rhs_with_power(0.4, y))
     with pytest.raises(ValueError, match="no compiled right-hand side"):
         _flight_segment_loop(coords, 0.0, y, 1.0)
+
+
+@needs_loop
+def test_kept_dense_outputs_are_each_steps_own_and_leave_steps_and_counts_alone():
+    """With keep_dense (a flight, for its energy audit) the loop forms every accepted step's dense
+    output as it accepts it (take_dense(), one row per step): the steps and the evaluation count
+    are those of a loop without it; each row is that step's contd8 (its ends the recorded states,
+    scipy's DOP853 dense output of the same step to round-off, the closed form to the tolerance);
+    at a candidate step, dense() gives the kept row's bits, and counts its 3 evaluations only when
+    asked, as a loop without keep_dense does."""
+    y0 = _exact(0.0)
+    args = (0.0, y0, 3.0, 1e-10, 1e-12, np.inf, 100000, 0.04, *NO_GUARDS)
+    plain, kept = td.SegmentLoop(_oscillator(), *args, False), td.SegmentLoop(_oscillator(), *args, False, keep_dense=True)
+    assert plain.run() == kept.run() == 0
+    steps = plain.take()
+    np.testing.assert_array_equal(kept.take(), steps)
+    assert kept.counts() == plain.counts()
+    rows = kept.take_dense()
+    assert rows.shape == (len(steps), 2 + 8 * 2) and len(steps) > 15 and kept.take_dense().shape[0] == 0
+    def rhs(t, y):
+        return np.array([y[1], -K / MASS * y[0]])
+    ends = np.vstack([np.concatenate([[0.0], y0]), steps])
+    worst_scipy = 0.0
+    for (t_old, *y_old), (t_new, *y_new), row in zip(ends[:-1], ends[1:], rows):
+        assert row[0] == t_old
+        cont = row[2:].reshape(8, 2)
+        ts = np.linspace(t_old, t_new, 9)
+        ours = contd8(t_old, row[1], cont, ts)
+        np.testing.assert_allclose(ours[:, [0, -1]].T, [y_old, y_new], rtol=0, atol=1e-15)
+        step = si.DOP853(rhs, t_old, np.array(y_old), t_new + 1.0, rtol=1e-10, atol=1e-12, first_step=row[1])
+        step.step()
+        worst_scipy = max(worst_scipy, np.max(np.abs(ours - step.dense_output()(ts))))
+        np.testing.assert_allclose(ours, _exact(ts), rtol=0, atol=1e-8)
+    assert worst_scipy < 1e-14
+    # every step a candidate: dense() at every other one, in both loops
+    plain, kept = td.SegmentLoop(_oscillator(), *args, True), td.SegmentLoop(_oscillator(), *args, True, keep_dense=True)
+    k = 0
+    while plain.run() == 1:
+        assert kept.run() == 1
+        row = kept.take_dense()
+        assert row.shape == (1, 18)
+        if k % 2 == 0:
+            t_old, h, cont = plain.dense()
+            assert kept.dense()[2].tobytes() == cont.tobytes() == row[0, 2:].tobytes() and row[0, 1] == h
+        assert kept.counts() == plain.counts()
+        k += 1
+    assert k > 15

@@ -423,6 +423,7 @@ def cli_cases(draw):
     return example, doc, what, hot, flags, outputs, existing
 
 
+@pytest.mark.slow  # 60 CLI invocations
 @settings(max_examples=60, **FUZZ)
 @given(case=cli_cases())
 def test_fuzz_cli(workdir, case):

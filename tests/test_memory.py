@@ -79,3 +79,32 @@ def test_fortran_dop853_retains_nothing_per_segment():
     finally:
         tracemalloc.stop()
     assert per_segment < 64, f"{per_segment:.0f} B retained per segment"
+
+
+def test_a_bouncing_run_holds_no_flight_for_its_audit_while_it_runs(tmp_path):
+    """Each flight's energy audit (pcmm.run.audit) is measured when the flight ends, and what only
+    the audit needed (its steps' dense outputs) is then dropped.  When the flights waited for
+    their audit until the run ended, each held its steps, its reader and its stepping (~0.58 kB
+    of the 1.26 kB per event a 1e5-bounce run grew by while it ran).  Measured inside one run of a
+    ball with e = 1 (one flight per bounce, 0.903 s apart, from h = 1 m): the traced memory after
+    60 and after 200 bounces, read by the progress call-back; what it grew by per bounce was
+    632 B with the flights kept, 108 B without (the event table and the segment log's blocks)."""
+    period = 2.0 * math.sqrt(2.0 / 9.81)
+    path = builders.ball(tmp_path, 1.0, t_end=201.0 * period, solver={"max_events": 10**6})
+    scene = pcmm.load_scene(path)
+    pcmm.simulate(scene, pcmm.RunOptions(t_end=5.0 * period))  # warm-up: models, modules, caches
+    marks, traced = (60, 200), {}
+
+    def progress(t):
+        for m in marks:
+            if m not in traced and t >= (m + 0.25) * period:  # m bounces, at 0.5, 1.5, ... periods
+                gc.collect()
+                traced[m] = tracemalloc.get_traced_memory()[0]
+    tracemalloc.start()
+    try:
+        traj = pcmm.simulate(scene, progress=progress)
+    finally:
+        tracemalloc.stop()
+    assert len(traj.events) == 201 and traj.stats["macro_impacts"][0]["flights"] == 201
+    per_bounce = (traced[200] - traced[60]) / (200 - 60)
+    assert per_bounce < 400, f"{per_bounce:.0f} B per bounce while the run goes"

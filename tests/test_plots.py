@@ -29,6 +29,14 @@ def runs():
             pcmm.simulate(scene, pcmm.RunOptions(**opts, impact=False)))
 
 
+@pytest.fixture(scope="module")
+def written(runs, tmp_path_factory):
+    """``write_figures(runs[0], out, compare=runs[1])``: (out, the files), drawn once for the two
+    tests that read them (the figures, drawn and saved, are most of a test's time)."""
+    out = tmp_path_factory.mktemp("plots") / "figs"  # created by write_figures
+    return out, plots.write_figures(runs[0], out, compare=runs[1])
+
+
 def assert_png(path: Path):
     import matplotlib.image as mpimg
     data = path.read_bytes()
@@ -40,9 +48,8 @@ def assert_png(path: Path):
     assert img[..., :3].std() > 0.02, f"{path}: blank image"
 
 
-def test_three_bar_with_and_without_impact(runs, tmp_path):
-    out = tmp_path / "figs"  # created by write_figures
-    files = plots.write_figures(runs[0], out, compare=runs[1])
+def test_three_bar_with_and_without_impact(written):
+    out, files = written
     assert {f.name for f in files} == BASE | {"impulses.png", "holding_forces.png", "angle_differences.png"}
     assert sorted(p.name for p in out.iterdir()) == sorted(f.name for f in files), "no stray files"
     for f in files:
@@ -137,11 +144,11 @@ def _stems(ax):
     return stem.markerline.get_xdata(), stem.markerline.get_ydata()
 
 
-def test_figures_returns_the_figures_write_figures_saves(runs, tmp_path):
+def test_figures_returns_the_figures_write_figures_saves(runs, written):
     from matplotlib.figure import Figure
     figs = runs[0].plot(compare=runs[1])
     assert all(isinstance(f, Figure) for f in figs.values())
-    files = plots.write_figures(runs[0], tmp_path, compare=runs[1])
+    _, files = written  # write_figures(runs[0], out, compare=runs[1])
     assert [f.stem for f in files] == list(figs)
 
 

@@ -23,6 +23,7 @@ import headless
 import pcmm
 from pcmm.viz import replay
 from pcmm.viz import sketch as sk
+from pcmm.viz.page import IMAGE_REF
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENE = ROOT / "examples" / "three_bar.toml"
@@ -44,9 +45,21 @@ _COMMANDS = re.compile(r"var PCMM_COMMANDS = \[(.*?)\];", re.S)
 _DATA = re.compile(r'<script type="application/json" id="pcmm-data">(.*?)</script>', re.S)
 
 
+_IMAGES = re.compile(r"var PCMM_IMAGES = (\[.*?\]);", re.S)
+
+
 def decode_commands(html: str) -> list[dict]:
+    """The page's meshcat commands as meshcat reads them: each texture's ``pcmm-image:<i>``
+    replaced by the page's picture ``i`` (as the page's script does)."""
     (block,) = _COMMANDS.findall(html)
-    return [_unpack(base64.b64decode(m)) for m in re.findall(r'"([A-Za-z0-9+/=]+)"', block)]
+    (table,) = _IMAGES.findall(html)
+    images = json.loads(table.replace("<\\/", "</"))
+    commands = [_unpack(base64.b64decode(m)) for m in re.findall(r'"([A-Za-z0-9+/=]+)"', block)]
+    for c in commands:
+        for image in c.get("object", {}).get("images", []) if c["type"] == "set_object" else []:
+            assert image["url"].startswith(IMAGE_REF), "a picture inlined in a command, not in the table"
+            image["url"] = images[int(image["url"][len(IMAGE_REF):])]
+    return commands
 
 
 def page_data(html: str) -> dict:
@@ -621,28 +634,31 @@ def test_serve_error_stops_the_server(runs, monkeypatch):
 
 
 # ---- real browser --------------------------------------------------------------------------
-@pytest.fixture(scope="session")
+@pytest.fixture(scope="module")
 def chromium(tmp_path_factory):
-    """One headless Chromium for the session (per xdist worker), each page opened in a fresh
-    browser context of it: a launch costs seconds of CPU (its software WebGL), a page a fraction."""
+    """One headless Chromium for this module's browser tests (per xdist worker), each page opened
+    in a fresh browser context of it: a launch costs seconds of CPU (its software WebGL), a page a
+    fraction.  Closed once the module's tests are done (not at the session's end): even parked on
+    about:blank, the browser takes about 0.06 of a core (tests/headless.py) while the rest of the
+    suite runs."""
     browser = headless.Chromium(tmp_path_factory.mktemp("chromium"))
     yield browser
     browser.close()
 
 
 def _screenshots(chromium, page: Path, times, tmp_path, dom_at=None, size=(800, 600)):
-    """Images (H, W, 3) of the page opened at each time; plus the DOM at ``dom_at`` (from the
-    screenshot's page at that time, if there is one at the default size)."""
+    """Images (H, W, 3) of the page at each time: opened at the first (``page.html#t=<seconds>``),
+    then taken to each other by the page's own seek (what a click on the timeline does; the same
+    pixels as a fresh load at that time: checked on the cycle's page, 0 pixels differ); plus the
+    DOM at ``dom_at`` (from the screenshot's page at that time, if there is one)."""
     from PIL import Image
-    images, dom = [], None
-    with_dom = times.index(dom_at) if dom_at in times and size == (800, 600) else None
-    for i, t in enumerate(times):
-        shot = tmp_path / f"t{i}.png"
-        text = chromium.open(f"{page.as_uri()}#t={t!r}", size, shot, dom=i == with_dom)
+    steps = [(None if i == 0 else f"window.pcmm.seek({t!r})", tmp_path / f"t{i}.png") for i, t in enumerate(times)]
+    with_dom = times.index(dom_at) if dom_at in times else None
+    dom = chromium.shots(f"{page.as_uri()}#t={times[0]!r}", size, steps, dom_step=with_dom)
+    images = []
+    for _, shot in steps:
         assert shot.exists(), chromium.log
         images.append(np.asarray(Image.open(shot).convert("RGB")).astype(int))
-        if i == with_dom:
-            dom = text
     if dom_at is not None and with_dom is None:
         dom = chromium.open(f"{page.as_uri()}#t={dom_at!r}", dom=True)
     return images, dom
@@ -765,6 +781,7 @@ def _dark(img):
     return img.sum(axis=2) < 180
 
 
+@pytest.mark.slow  # the cycle's run and page, six screenshots
 @pytest.mark.browser
 @needs_chromium
 def test_browser_draws_pivots_locks_arcs_and_plates_where_and_when_they_are(chromium, cycle_page, tmp_path):
@@ -911,6 +928,29 @@ def _pins(commands, clips):
         if "/sym/" in path and _texture_png(obj) == cut_png:
             out[path] = (float(tfs[path][0, 3]), float(tfs[path][1, 3]))
     return out
+
+
+def test_the_page_keeps_each_picture_once_and_every_symbol_names_its_own(wheel_page):
+    """The page's image table holds each distinct picture (a sprite, a label) once, every entry
+    is named by a command, and each symbol's node is drawn with its own kind's sprite: the
+    wheel's eight symbols per stay share a few sprites, not one copy each."""
+    traj, page = wheel_page
+    html = page.read_text(encoding="utf-8")
+    (table,) = _IMAGES.findall(html)
+    images = json.loads(table.replace("<\\/", "</"))
+    assert len(images) == len(set(images)) and all(u.startswith("data:image/png;base64,") for u in images)
+    commands = decode_commands(html)
+    used = [im["url"] for c in commands if c["type"] == "set_object" for im in c["object"].get("images", [])]
+    assert set(used) == set(images)
+    symbols = {path: _texture_png(obj) for path, obj in _objects(commands).items() if "/sym/" in path}
+    drawn = [sym for i, sym in enumerate(sk.symbols(traj)) if sym.kind != "guide"
+             and any(p.endswith(f"/sym/{i}") for p in symbols)]
+    assert len(drawn) == len(symbols) > len({replay.sprite(s.kind, s.shape) for s in drawn})
+    for i, sym in enumerate(sk.symbols(traj)):
+        for path, png in symbols.items():
+            if path.endswith(f"/sym/{i}"):
+                assert png == replay.sprite(sym.kind, sym.shape), path
+    assert len(images) < len(used)
 
 
 def test_the_page_draws_each_pinned_foot_at_its_strike_for_exactly_its_stay(wheel_page):

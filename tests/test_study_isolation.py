@@ -33,15 +33,15 @@ def test_a_crashing_and_a_hanging_run_are_rows_and_the_sweep_goes_on(tmp_path):
     plan = make_plan([Axis("forces.tau1.value", (1.955, 3.0, 4.0, 2.1))])
     out = tmp_path / "r.csv"
     t0 = time.monotonic()
-    res = sweep(pcmm.load_scene(THREE_BAR), plan, out, pcmm.RunOptions(t_end=0.2), workers=2, run_timeout=8.0,
+    res = sweep(pcmm.load_scene(THREE_BAR), plan, out, pcmm.RunOptions(t_end=0.2), workers=2, run_timeout=5.0,
                 worker_init="study_hooks:faulty")
     took = time.monotonic() - t0
     rows = {r["forces.tau1.value"]: r for r in read(out)}
     assert res.status == {"complete": 2, "crashed": 1, "timeout": 1}
     assert rows["3.0"]["status"] == "crashed"
     assert "died of SIGABRT (aborted: a crash in native code)" in rows["3.0"]["error"]
-    assert rows["4.0"]["status"] == "timeout" and "time limit of 8 s" in rows["4.0"]["error"]
-    assert 8.0 <= float(rows["4.0"]["wall_s"]) < 30 and took < 60  # stopped at its limit, not for ever
+    assert rows["4.0"]["status"] == "timeout" and "time limit of 5 s" in rows["4.0"]["error"]
+    assert 5.0 <= float(rows["4.0"]["wall_s"]) < 30 and took < 60  # stopped at its limit, not for ever
     assert rows["1.955"]["status"] == rows["2.1"]["status"] == "complete"
     # the paper's latch time (Table 1) from a worker that replaced a crashed one
     assert float(rows["1.955"]["first_impact_t"]) == pytest.approx(0.1672851, abs=1e-7)
@@ -112,7 +112,12 @@ def test_kill_9_of_the_sweep_leaves_no_worker_behind(tmp_path):
     assert [k for k in kids if _alive(k)] == []
 
 
-def test_on_dask_a_crashing_and_a_hanging_run_are_rows_too(tmp_path):
+@pytest.mark.slow  # a Dask cluster; waits out a 5 s limit and 3 s runs
+def test_on_dask_a_crashing_and_a_hanging_run_are_rows_too_and_a_time_limit_counts_from_the_runs_start(tmp_path):
+    """A run that kills its Dask worker is a crashed row, one that hangs a timeout row once it has
+    run for its time limit (5 s), the others complete.  Then three runs of study_hooks.SLOW_S = 3 s
+    on the two workers: the third waits 3 s for a worker, so it ends 6 s after its submission but
+    3 s after its start, and completes (a limit counted from submission stopped it at 5 s)."""
     distributed = pytest.importorskip("distributed")
     import dask
     from distributed.diagnostics.plugin import WorkerPlugin
@@ -121,15 +126,27 @@ def test_on_dask_a_crashing_and_a_hanging_run_are_rows_too(tmp_path):
     class Faulty(study_hooks.FaultyPlugin, WorkerPlugin):  # its setup first
         pass
     plan = make_plan([Axis("forces.tau1.value", (1.955, 3.0, 4.0))])
+    slow = make_plan([Axis("forces.tau1.value", (5.0,)), Axis("forces.tau3.value", (0.23, 0.235, 0.24))])
+    limit = 5.0
+    assert study_hooks.SLOW_S < limit < 2 * study_hooks.SLOW_S
     with dask.config.set({"distributed.scheduler.allowed-failures": 0}):
         with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
                                       dashboard_address=None) as cluster:
             with distributed.Client(cluster) as client:
                 client.register_plugin(Faulty())
             res = sweep(pcmm.load_scene(THREE_BAR), plan, tmp_path / "r.csv", pcmm.RunOptions(t_end=0.2),
-                        scheduler=cluster.scheduler_address, run_timeout=20.0)
+                        scheduler=cluster.scheduler_address, run_timeout=limit)
+            t0 = time.monotonic()
+            res_slow = sweep(pcmm.load_scene(THREE_BAR), slow, tmp_path / "slow.csv", pcmm.RunOptions(t_end=0.2),
+                             scheduler=cluster.scheduler_address, run_timeout=limit)
+            took = time.monotonic() - t0
     rows = {r["forces.tau1.value"]: r for r in read(tmp_path / "r.csv")}
     assert res.status == {"complete": 1, "crashed": 1, "timeout": 1}
     assert rows["3.0"]["status"] == "crashed" and "the Dask cluster lost the run" in rows["3.0"]["error"]
-    assert rows["4.0"]["status"] == "timeout" and "time limit of 20 s" in rows["4.0"]["error"]
+    assert rows["4.0"]["status"] == "timeout" and "time limit of 5 s" in rows["4.0"]["error"]
+    assert limit <= float(rows["4.0"]["wall_s"]) < 4 * limit  # stopped at its limit, counted from its start
     assert float(rows["1.955"]["first_impact_t"]) == pytest.approx(0.1672851, abs=1e-7)
+    # the slow runs: all complete, and the last one had to wait for a worker
+    assert res_slow.status == {"complete": 3}, read(tmp_path / "slow.csv")
+    assert all(float(r["wall_s"]) >= study_hooks.SLOW_S for r in read(tmp_path / "slow.csv"))
+    assert took >= 2 * study_hooks.SLOW_S > limit

@@ -114,6 +114,7 @@ sweep(pcmm.load_scene({str(THREE_BAR)!r}), make_plan([Axis("forces.tau1.value", 
     assert (res.skipped, res.ran, res.dropped) == (3, 3, [])
 
 
+@pytest.mark.slow  # a pool of workers, a crash and a hang
 def test_short_runs_are_queued_two_deep_and_a_crash_or_hang_loses_none_queued_behind_it(monkeypatch):
     # runs of microseconds: after the first row a worker is handed its next run before it
     # answers the one it runs; the runs queued behind the one that aborts its worker and the one

@@ -146,6 +146,7 @@ def test_cells_are_neutralised_by_the_function_run_csv_uses():
     assert cell(None) == "" and cell(True) == "true" and cell(3) == "3"
 
 
+@pytest.mark.slow  # sweeps and figures under hostile names
 def test_hostile_names_in_the_table_the_terminal_and_the_figures(tmp_path):
     scene = hostile_scene(tmp_path)
     path = "transitions.t$\\oops$.restitution"

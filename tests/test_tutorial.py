@@ -29,6 +29,7 @@ def test_the_tutorial_has_its_parts():
     assert (ROOT / "docs" / "figures" / "conventions.png").is_file()
 
 
+@pytest.mark.slow  # every block of the tutorial, its runs and figures
 def test_every_block_of_the_tutorial_runs(tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)
     pytest.importorskip("matplotlib")  # the tutorial writes figures

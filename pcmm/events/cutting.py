@@ -130,6 +130,15 @@ def _forbidden(model, jid: int, q_joint: np.ndarray, known: dict) -> np.ndarray:
     return N
 
 
+def forbidden_motions(model, jid: int) -> np.ndarray | None:
+    """The planar motions joint ``jid`` forbids (3 x k, the basis :func:`cut` gives its rows) where
+    they do not depend on the pose (revolute and prismatic joints), else None."""
+    jm = model.joints[jid]
+    if not jm.shortname().startswith(_CONSTANT_S):
+        return None
+    return _forbidden(model, jid, np.zeros(jm.nq), {})
+
+
 def cut(cfg: Configuration, q: np.ndarray, joints: tuple[str, ...], kinematics: bool = True) -> CutSystem:
     """The cut system of ``cfg`` at pose ``q`` with ``joints`` released.  ``kinematics=False``: the
     tree's placements and joint Jacobians at ``q`` are already on ``cfg.data``

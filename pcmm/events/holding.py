@@ -74,6 +74,7 @@ class Holds:
         self._maps: dict = {}  # (reference, configuration, holds) -> the forces acting while it holds
         self._refs: dict = {}  # (configuration, holds) -> its reference configuration
         self._sets: dict | None = None  # {configuration: its URDF's movable joints}, read on first use
+        self._evaluator: tuple | None = None  # (what it was built from, by identity; the evaluator): evaluator
 
     # -- book-keeping
     def lock(self, src: Configuration, dst: Configuration, tr: TransitionSpec, q: np.ndarray, merge: bool) -> None:
@@ -302,10 +303,18 @@ class Holds:
         reference's, the force elements; each call then maps the state, forms the bias and solves
         the same system (:func:`constrained_accelerations`) with the same arrays.  Otherwise
         :meth:`forces` itself.  Valid while the holds and the reference's force elements stay as
-        they are: the segment being integrated."""
+        they are: the segment being integrated, and the next ones while the configuration, its
+        reference, the reference's coordinates and force elements and the holds are the same
+        objects (a bounce's re-arm in a sequence of impacts), which get the one built last."""
         if not self.items:
             return lambda t, q, v: {}
         ref_name = self.reference(cfg)
+        if ref_name is not None:  # the one built last, where nothing it was built from has changed since
+            ref = self.mechanism[ref_name]
+            key = (cfg, ref, ref.coords, ref.forces, self._forces_on(ref, cfg), *self.items)  # by identity
+            last = self._evaluator
+            if last is not None and len(last[0]) == len(key) and all(a is b for a, b in zip(last[0], key)):
+                return last[1]
         timed = None if ref_name is None else self.mechanism[ref_name].coords.time_rows()
         if timed is None or any(h.merge and h.transition.contact.joint is None for h in self.items):
             return lambda t, q, v: self.forces(cfg, t, q, v)
@@ -343,6 +352,7 @@ class Holds:
             bias = np.concatenate((bias_of(t), lock_bias))
             _, lam = constrained_accelerations(ref, qs, vs, J, bias, extra, forces=ref_forces)
             return dict(zip(labels, lam[m:].tolist()))
+        self._evaluator = (key, forces)  # a bounce re-arms with the same holds: built once for its sequence
         return forces
 
     # -- guards

@@ -36,6 +36,7 @@ from ..model.configuration import Configuration
 from .contact import contact_point, contact_state, impact_kind, joint_stop_row, normal_row
 from .cutting import cut
 from .friction import AmbiguousImpact, FrictionalImpulse, routh
+from .impulse_compiled import CompiledImpulse, compiled_impulse, disagreement, refuse
 from ..errors import SimulationError
 from ..model.pinocchio_helpers import cholesky, frame_jacobian, mass_matrix
 from ..model.rows import solve
@@ -176,6 +177,56 @@ def solve_impulse(cfg: Configuration, t: float, q: np.ndarray, v: np.ndarray, co
     """Solve the stable or mobile impulse at (t, q, v) by cutting ``cut_joints``; a point contact
     with ``friction`` takes a two-dimensional impulse (Routh's process).  ``name`` (the
     transition) goes into the messages.
+
+    Compiled where the contact's plan takes it (:mod:`pcmm.events.impulse_compiled`: a tree whose
+    rows are drives, a joint stop or a frictionless point contact), checked against
+    :func:`solve_impulse_python` at the plan's first impact; else that Python solve."""
+    plan = _plan(cfg, contact, cut_joints)
+    fast = compiled_impulse(cfg, plan)
+    if fast is not None:
+        out = _compiled_solve(cfg, plan, fast, q, v, restitution)
+        if out is not None and fast.checked:
+            return out
+        if out is not None:  # the plan's first impact: the two solves must agree
+            reference = solve_impulse_python(cfg, t, q, v, contact, restitution, cut_joints, name)
+            why = disagreement(out, reference)
+            if why is None:
+                fast.checked = True
+                return out
+            refuse(cfg, plan, why)
+            return reference
+    return solve_impulse_python(cfg, t, q, v, contact, restitution, cut_joints, name)
+
+
+def _compiled_solve(cfg: Configuration, plan: _Plan, fast: CompiledImpulse, q, v, restitution) -> Impulse | None:
+    """The :class:`Impulse` of ``fast``'s compiled solve (pcmm/model/_impulse.hpp); None where it
+    takes no impulse along the normal (the Python solve then says why)."""
+    got = fast.plan.solve(q, v, restitution)
+    if got is None:
+        return None
+    v_after, (P, vn_before, vn_after, ke_before, ke_after, drive_work), n, point, pos_a, pos_b, mu, cut, joints, tau = got
+    contact = plan.contact
+    out = Impulse(kind=plan.kind, restitution=restitution, normal=n, P=P, vn_before=vn_before, vn_after=vn_after,
+                  v_before=v.copy(), v_after=v_after, ke_before=ke_before, ke_after=ke_after, point=point,
+                  drive_work=drive_work, rnea_residual=tau)
+    out.cut_impulses = dict(zip(fast.cut_names, cut.tolist()))
+    out.constraint_rows = dict(zip(fast.drive_labels, mu.tolist()))
+    out.constraint_impulses = constraint_impulses(cfg, out.constraint_rows, []) if fast.drive_labels else {}
+    out.joint_impulses = dict(zip(fast.joint_names, joints.tolist()))
+    if not plan.stop:
+        out.contact_impulses = [(contact.b, pos_b, P * n, 0.0), (contact.a, pos_a, -P * n, 0.0)]
+    elif plan.prismatic:
+        out.contact_impulses = [(contact.b, pos_b, P * n, 0.0), (contact.a, pos_b, -P * n, 0.0)]
+    else:
+        s_ = contact.stop_sign
+        out.contact_impulses = [(contact.b, pos_b, np.zeros(2), -s_ * P), (contact.a, pos_b, np.zeros(2), s_ * P)]
+    return out
+
+
+def solve_impulse_python(cfg: Configuration, t: float, q: np.ndarray, v: np.ndarray, contact: ContactSpec,
+                         restitution: float, cut_joints: tuple[str, ...], name: str | None = None) -> Impulse:
+    """The impulse by the cut system in Python: the reference, and the solve of every case the
+    compiled one does not take.
 
     One pass of the tree's kinematics serves the contact, the cut and the report; what does not
     change between events is the contact's plan (:func:`_plan`) and the cut model's topology."""

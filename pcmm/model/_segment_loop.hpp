@@ -18,6 +18,10 @@
 // that are not affine) each accepted step is a candidate.  At a candidate, dense() gives the
 // step's 7th-order dense output (contd8's coefficients, the 3 extra stages), computed on demand.
 // Accepted steps that are not candidates are kept and handed over in one array (take()).
+// With `keep_dense` (a flight, for its energy audit) every accepted step's dense output is formed
+// as it is accepted and handed over in one array too (take_dense()); its 3 evaluations are not
+// counted as the run's unless the run asks for that step's dense() (an event located in it), as
+// without keep_dense: the counts, like the steps, are the same either way.
 //
 // With a tableau (scipy's DOP853 coefficients, pcmm.ode.dop853.packed_tableau) the loop steps as
 // scipy.integrate.DOP853 does instead (pcmm.ode.dop853.DOP853: its initial step, its error norm and
@@ -126,6 +130,8 @@ struct SegmentLoop {
   double *y, *y1, *k1, *k2, *k3, *k4, *k5, *k6, *k7, *k8, *k9, *k10, *yold, *k1old, *cont, *s14, *s15, *s16;
   std::vector<double> *guard_c, *guard_ct, *guard_d, *guard_dir, *g_old, *r_old, *g_new, *r_new;
   std::vector<double> *record;  // accepted steps not yet taken: (t, y) rows
+  bool keep_dense, dense_charged;  // keep_dense: dense_record filled; dense_charged: dense()'s evaluations counted
+  std::vector<double> *dense_record;  // keep_dense: each accepted step's dense() rows, (2 + 8 n) each
 };
 
 namespace {
@@ -209,10 +215,36 @@ bool may_fire(double g0, double d0, double g1, double d1, double h, double direc
 // steps) or a failure (Hairer's codes: -2 more than nmax steps, -3 step size too small, -4 stiff)
 constexpr long pause_every = 4096;
 
+void dense_coefficients(SegmentLoop *s);
+void rk_dense(SegmentLoop *s);
+
+// keep_dense: the accepted step's dense output formed now (the same bits dense() gives) and kept,
+// as dense() returns it: (t_old, h, cont) or with scipy's stepping (t_old, t_new, y_old, F); its
+// evaluations are not counted (dense() counts them if the run asks for this step's)
+void keep_dense_output(SegmentLoop *s) {
+  const int n = s->n;
+  const long counted = s->nfcn;
+  if (s->rk) {
+    rk_dense(s);
+    s->dense_record->push_back(s->xold);
+    s->dense_record->push_back(s->x);
+    s->dense_record->insert(s->dense_record->end(), s->yold, s->yold + n);
+    s->dense_record->insert(s->dense_record->end(), s->F->data(), s->F->data() + (size_t)7 * n);
+  } else {
+    dense_coefficients(s);
+    s->dense_record->push_back(s->xold);
+    s->dense_record->push_back(s->hstep);
+    s->dense_record->insert(s->dense_record->end(), s->cont, s->cont + (size_t)8 * n);
+  }
+  s->dense_charged = false;
+  s->nfcn = counted;
+}
+
 // after the accepted step from x to xph (state s->y, derivative s->k1): is it a candidate (1), or
 // recorded, with t_bound reached (0), a pause due (2), or the loop to go on (-1)?
 int settle(SegmentLoop *s, double x, double xph) {
   const int n = s->n;
+  if (s->keep_dense) keep_dense_output(s);
   const double *y = s->y, *k1 = s->k1;
   bool candidate = s->every_step;
   bool finite = true;
@@ -570,17 +602,19 @@ PyObject *new_vector(const double *x, npy_intp n) {
 }
 
 // SegmentLoop(tree, t0, y0, t_bound, rtol, atol, max_step, nmax, beta, C (m x n), ct (m), d (m),
-//             direction (m), every_step, *, power=False, tableau=None): `power` integrates rhs_with_power
-//             (a tree with drives), `tableau` (scipy's, packed) steps as scipy's DOP853
+//             direction (m), every_step, *, power=False, tableau=None, keep_dense=False): `power` integrates
+//             rhs_with_power (a tree with drives), `tableau` (scipy's, packed) steps as scipy's DOP853,
+//             `keep_dense` keeps every accepted step's dense output (take_dense())
 PyObject *loop_new(PyTypeObject *type, PyObject *args, PyObject *kwargs) {
   PyObject *tree_o, *y0_o, *c_o, *ct_o, *d_o, *dir_o, *tab_o = Py_None;
   double t0, t_bound, rtol, atol, max_step, beta;
   long nmax;
-  int every_step, power = 0;
-  static const char *keywords[] = {"", "", "", "", "", "", "", "", "", "", "", "", "", "", "power", "tableau", nullptr};
-  if (!PyArg_ParseTupleAndKeywords(args, kwargs, "O!dOddddldOOOOp|$pO", (char **)keywords, &TreeType, &tree_o, &t0,
+  int every_step, power = 0, keep_dense = 0;
+  static const char *keywords[] = {"", "", "", "", "", "", "", "", "", "", "", "", "", "", "power", "tableau",
+                                   "keep_dense", nullptr};
+  if (!PyArg_ParseTupleAndKeywords(args, kwargs, "O!dOddddldOOOOp|$pOp", (char **)keywords, &TreeType, &tree_o, &t0,
                                    &y0_o, &t_bound, &rtol, &atol, &max_step, &nmax, &beta, &c_o, &ct_o, &d_o, &dir_o,
-                                   &every_step, &power, &tab_o))
+                                   &every_step, &power, &tab_o, &keep_dense))
     return nullptr;
   Tree *tree = (Tree *)tree_o;
   if (!tree->ready) {
@@ -616,6 +650,9 @@ PyObject *loop_new(PyTypeObject *type, PyObject *args, PyObject *kwargs) {
   s->g_new = new std::vector<double>(m);
   s->r_new = new std::vector<double>(m);
   s->record = new std::vector<double>();
+  s->dense_record = new std::vector<double>();
+  s->keep_dense = keep_dense;
+  s->dense_charged = true;
   s->power = power;
   s->rk = tab_o != Py_None;
   s->tab = new std::vector<double>(s->rk ? rk_tableau_size : 0);
@@ -680,6 +717,7 @@ void loop_dealloc(SegmentLoop *s) {
   delete s->g_new;
   delete s->r_new;
   delete s->record;
+  delete s->dense_record;
   delete s->tab;
   delete s->stages;
   delete s->F;
@@ -713,6 +751,8 @@ PyObject *loop_candidate(SegmentLoop *s, PyObject *) {
 // dense() -> (t_old, h, cont (8, n)): y(t) = contd8 at s = (t - t_old) / h; with scipy's stepping
 // (t_old, t_new, y_old, F (7, n)), pcmm.ode.dop853.DenseStep's arguments
 PyObject *loop_dense(SegmentLoop *s, PyObject *) {
+  if (s->dense_ready && !s->dense_charged) s->nfcn += 3;  // formed for keep_dense: the run's now
+  s->dense_charged = true;
   if (s->rk) {
     if (!s->dense_ready) rk_dense(s);
     const npy_intp dims[2] = {7, s->n};
@@ -729,6 +769,19 @@ PyObject *loop_dense(SegmentLoop *s, PyObject *) {
   return Py_BuildValue("ddN", s->xold, s->hstep, out);
 }
 
+// take_dense() -> (k, 2 + 8 n) array: with keep_dense, the dense() of every step accepted since the
+// last take_dense(), flattened: (t_old, h, cont (8 n)) or with scipy's stepping (t_old, t_new, y_old, F (7 n))
+PyObject *loop_take_dense(SegmentLoop *s, PyObject *) {
+  const npy_intp width = 2 + 8 * (npy_intp)s->n;
+  const npy_intp dims[2] = {(npy_intp)(s->dense_record->size() / width), width};
+  PyObject *out = PyArray_SimpleNew(2, dims, NPY_DOUBLE);
+  if (!out) return nullptr;
+  if (!s->dense_record->empty())
+    std::memcpy(PyArray_DATA((PyArrayObject *)out), s->dense_record->data(), s->dense_record->size() * sizeof(double));
+  s->dense_record->clear();
+  return out;
+}
+
 // counts() -> (evaluations, steps, accepted, rejected)
 PyObject *loop_counts(SegmentLoop *s, PyObject *) {
   return Py_BuildValue("llll", s->nfcn, s->nstep, s->naccpt, s->nrejct);
@@ -740,6 +793,8 @@ PyMethodDef loop_methods[] = {
     {"candidate", (PyCFunction)loop_candidate, METH_NOARGS, "candidate() -> (t_old, t_new, y_new, f_new)"},
     {"dense", (PyCFunction)loop_dense, METH_NOARGS, "dense() -> (t_old, h, contd8 coefficients (8, n))"},
     {"counts", (PyCFunction)loop_counts, METH_NOARGS, "counts() -> (evaluations, steps, accepted, rejected)"},
+    {"take_dense", (PyCFunction)loop_take_dense, METH_NOARGS,
+     "take_dense() -> with keep_dense, the dense() of each step accepted since the last take_dense, one row each"},
     {nullptr, nullptr, 0, nullptr}};
 
 PyTypeObject SegmentLoopType = {PyVarObject_HEAD_INIT(nullptr, 0)};

@@ -22,9 +22,11 @@
 #include <pinocchio/algorithm/aba.hpp>
 #include <pinocchio/algorithm/compute-all-terms.hpp>
 #include <pinocchio/algorithm/contact-dynamics.hpp>
+#include <pinocchio/algorithm/crba.hpp>
 #include <pinocchio/algorithm/frames.hpp>
 #include <pinocchio/algorithm/jacobian.hpp>
 #include <pinocchio/algorithm/kinematics.hpp>
+#include <pinocchio/algorithm/rnea.hpp>
 
 #include <algorithm>
 #include <cmath>
@@ -689,6 +691,8 @@ PyTypeObject TreeType = {PyVarObject_HEAD_INIT(nullptr, 0)};
 PyModuleDef module_def = {PyModuleDef_HEAD_INIT, "_tree_dynamics",
                           "A tree configuration's right-hand side with Pinocchio's ABA, in C++.", -1, nullptr};
 
+#include "_impulse.hpp"  // the impulse of a contact in a tree (pcmm.events.impulse_compiled)
+
 }  // namespace
 
 PyMODINIT_FUNC PyInit__tree_dynamics(void) {
@@ -727,6 +731,10 @@ PyMODINIT_FUNC PyInit__tree_dynamics(void) {
     return nullptr;
   }
   if (PyModule_AddStringConstant(m, "PINOCCHIO_VERSION", PINOCCHIO_VERSION) < 0) {
+    Py_DECREF(m);
+    return nullptr;
+  }
+  if (add_impulse_plan(m) < 0) {  // _impulse.hpp
     Py_DECREF(m);
     return nullptr;
   }

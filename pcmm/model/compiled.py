@@ -204,6 +204,36 @@ def drive_tree(model: pin.Model, Q0: np.ndarray, KD: np.ndarray, driven, laws, r
     return tree
 
 
+def impulse_tree(model: pin.Model, frames) -> tuple | None:
+    """(compiled tree of ``model`` with the frames ``frames`` of the Python model added, {Python frame:
+    its frame in the tree}, the names of what was checked on it) for an impulse plan
+    (:mod:`pcmm.events.impulse_compiled`): zero gravity and no force element (the impulse's joint
+    impulses are RNEA's at zero velocity and gravity); or None (why_not says).  Its joints, inertias and frames are the model's numbers; the impulse plan
+    itself is checked against the Python solve at its first impact."""
+    if enabled() and not hasattr(_tree_dynamics, "ImpulsePlan"):  # an extension built before impulses were
+        _refuse("this build of pcmm.model._tree_dynamics has no compiled impulse (built from older sources): "
+                "reinstall pcmm (pip install -e .) to rebuild it")
+        return None
+    if np.any(np.asarray(model.armature) != 0):  # the cut system the Python solve forms has none
+        _refuse("a joint with armature: the cut system of the Python impulse solve carries none")
+        return None
+    frames = tuple(sorted({int(f) for f in frames}))
+    index = {f: k + 1 for k, f in enumerate(frames)}  # frame 0 is the universe; add_frame numbers on from it
+    nv = model.nv
+
+    def build(tree):
+        for f in frames:
+            frame = model.frames[f]
+            got = tree.add_frame(int(frame.parentJoint), frame.placement.rotation, frame.placement.translation)
+            if got != index[f]:
+                raise ValueError(f"frame {model.frames[f].name!r} came out as frame {got}")
+        tree.finalize(np.zeros(3), np.zeros(nv), np.zeros((nv, 2 * nv)))
+    entry = _tree(model, ("impulse", frames), build)
+    if entry is None:
+        return None
+    return entry[0], index, entry[1]
+
+
 def closure_kinematics(model: pin.Model, frames_a, frames_b, rows: Callable, rows_and_bias: Callable):
     """A compiled object whose ``point_rows(q) -> (Phi, Phi_q)`` and ``point_rows_and_bias(q, v)
     -> (Phi_q, bias)`` are the kinematic constraint of each revolute cut joint (point ``b`` on

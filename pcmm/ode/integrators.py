@@ -63,6 +63,10 @@ class Segment:
     nsteps: int
     status: int  # 0 reached t_bound, 1 event, -1 failure
     message: str
+    # with ``keep_dense``: one entry per accepted step, ``fun -> interpolant`` of that step as the
+    # integrator took it (None where the method keeps nothing: :func:`pcmm.run.dense.dense_states`
+    # then takes the step again); None without
+    dense: list | None = None
 
 
 class _Counted:
@@ -165,16 +169,18 @@ def _hermite_dips(g0, d0, g1, d1, h, direction) -> bool:
 class _Stepper:
     """Event scanning over accepted steps, shared by every method."""
 
-    def __init__(self, fun, events, opts, t0, y0, f0, t_bound):
+    def __init__(self, fun, events, opts, t0, y0, f0, t_bound, keep_dense=False):
         self.fun, self.events, self.opts, self.t_bound = fun, events, opts, t_bound
+        self.kept = [] if keep_dense else None  # each accepted step's dense output (Segment.dense)
         self.ts, self.ys = [t0], [np.array(y0, float)]
         self.g = [e(t0, self.ys[0]) for e in events]
         self.rates = [_rate(e, t0, self.ys[0], f0, 1e-6) for e in events] if events else []
         self.count = 0
         self.max_steps = opts.max_steps  # read once: opts may resolve attributes through a fallback
 
-    def accept(self, t_old, y_old, t_new, y_new, f_new, dense):
-        """Record one step; return (event index, t_event, y_event) if a guard fires in it."""
+    def accept(self, t_old, y_old, t_new, y_new, f_new, dense, keep=None):
+        """Record one step; return (event index, t_event, y_event) if a guard fires in it.  ``keep``:
+        what :attr:`kept` keeps of it (``fun -> interpolant``), where the segment keeps them."""
         if not math.isfinite(y_new @ y_new) and not np.all(np.isfinite(y_new)):  # (the dot: one cheap test)
             raise SimulationError(
                 f"the state became {y_new.tolist()} (not finite) at t = {t_new:.9g} s: the method "
@@ -199,6 +205,8 @@ class _Stepper:
                     if found is not None and (hit is None or found < hit[1]):
                         hit = (i, found)
             self.g, self.rates = g_new, r_new
+        if self.kept is not None:
+            self.kept.append(keep)
         if hit is not None:
             i, te = hit
             ye = np.asarray(dense()(te), float)
@@ -213,8 +221,9 @@ class _Stepper:
         """The samples so far.  A signal (Ctrl-C, SIGTERM) raised between a sample's time and its
         state being appended leaves one time without its state: that sample is not kept."""
         n = min(len(self.ts), len(self.ys))
+        dense = self.kept if self.kept is not None and len(self.kept) == n - 1 else None
         return Segment(np.array(self.ts[:n]), np.array(self.ys[:n]).T.reshape(len(self.ys[0]), n),
-                       event, nfev, n - 1, status, message)
+                       event, nfev, n - 1, status, message, dense)
 
 
 def _locate(e, sol, t_a, t_b, g_a, tol):
@@ -342,13 +351,14 @@ def _guarded_rhs(counted, rhs, zeros, raised):
     return f
 
 
-def _run(driver, fun, t0, y0, t_bound, events, opts):
+def _run(driver, fun, t0, y0, t_bound, events, opts, keep_dense=False):
     """Set up the counted right-hand side and the event scanner, let ``driver(counted, f0, st)``
     step (it returns ``(hit, failure)``), and turn what it raises into pcmm errors that carry
-    the steps already taken."""
+    the steps already taken.  ``keep_dense``: the segment keeps each step's dense output
+    (:attr:`Segment.dense`)."""
     counted = _Counted(fun)
     f0 = counted(t0, np.asarray(y0, float))
-    st = _Stepper(counted, events, opts, t0, y0, f0, t_bound)
+    st = _Stepper(counted, events, opts, t0, y0, f0, t_bound, keep_dense)
     try:
         hit, failure = driver(counted, f0, st)
     except (SimulationError, KeyboardInterrupt, Repartition) as exc:
@@ -369,11 +379,12 @@ def _run(driver, fun, t0, y0, t_bound, events, opts):
 
 
 def _scan(steps, st):
-    """Feed a method's accepted steps to the event scanner: ``(hit, failure)``."""
-    for t_old, y_old, t_new, y_new, f_new, dense, failure in steps:
+    """Feed a method's accepted steps to the event scanner: ``(hit, failure)``.  ``steps`` yields
+    ``(t_old, y_old, t_new, y_new, f_new, dense, failure, keep)``."""
+    for t_old, y_old, t_new, y_new, f_new, dense, failure, keep in steps:
         if failure:
             return None, failure
-        hit = st.accept(t_old, y_old, t_new, y_new, f_new, dense)
+        hit = st.accept(t_old, y_old, t_new, y_new, f_new, dense, keep)
         if hit is not None:
             return hit, None
     return None, None
@@ -394,13 +405,15 @@ class ScipyMethod:
         0.5 s import of scipy.integrate)."""
         return DOP853 if self.name == "DOP853" else getattr(si, self.name)
 
-    def integrate(self, fun, t0, y0, t_bound, events, opts) -> Segment:
+    def integrate(self, fun, t0, y0, t_bound, events, opts, keep_dense=False) -> Segment:
         if self.name == "DOP853" and COMPILED_SCIPY_STEPS:  # a compiled loop stepping as this class does
-            loop, progress = _segment_loop(fun, t0, y0, t_bound, events, opts, 0.0, tableau=packed_tableau())
+            loop, progress = _segment_loop(fun, t0, y0, t_bound, events, opts, 0.0, tableau=packed_tableau(),
+                                           keep_dense=keep_dense)
             if loop is not None:
                 return _run(lambda counted, f0, st: self._drive_compiled(loop, progress, counted, st, opts),
-                            fun, t0, y0, t_bound, events, opts)
+                            fun, t0, y0, t_bound, events, opts, keep_dense)
         needs_f = _needs_derivative(events)
+        stages = keep_dense and self.cls is DOP853  # pcmm's own DOP853 hands its stages out
 
         def steps(counted, f0, st):
             solver = self.cls(counted, t0, np.array(y0, float), t_bound, rtol=opts.rtol, atol=opts.atol,
@@ -409,13 +422,16 @@ class ScipyMethod:
                 t_old, y_old = solver.t, solver.y.copy()
                 message = solver.step()
                 if solver.status == "failed":
-                    yield t_old, y_old, solver.t, solver.y, None, None, f"{self.name} failed: {message}"
+                    yield t_old, y_old, solver.t, solver.y, None, None, f"{self.name} failed: {message}", None
                     return
                 f_new = getattr(solver, "f", None)  # BDF and LSODA keep none
                 if f_new is None and needs_f:
                     f_new = counted(solver.t, solver.y)
-                yield t_old, y_old, solver.t, solver.y, f_new, _lazy(solver.dense_output), None
-        return _run(lambda counted, f0, st: _scan(steps(counted, f0, st), st), fun, t0, y0, t_bound, events, opts)
+                dense = _lazy(solver.dense_output)
+                keep = _KeptStages(solver.accepted_stages(), dense) if stages else None
+                yield t_old, y_old, solver.t, solver.y, f_new, dense, None, keep
+        return _run(lambda counted, f0, st: _scan(steps(counted, f0, st), st), fun, t0, y0, t_bound, events, opts,
+                    keep_dense)
 
     def _drive_compiled(self, loop, progress, counted, st, opts):
         """The segment stepped by the compiled loop as :class:`pcmm.ode.dop853.DOP853` steps it (the
@@ -426,30 +442,39 @@ class ScipyMethod:
             if code == -3:
                 return f"{self.name} failed: {TOO_SMALL_STEP}"
             raise SimulationError(FortranDOP853._failure(code, st, opts))
-        return _drive_loop(loop, progress, st, lambda: DenseStep(*loop.dense()), failure, counted, "DOP853")
+        return _drive_loop(loop, progress, st, lambda: DenseStep(*loop.dense()), failure, counted, "DOP853",
+                           lambda row, n: DenseStep(row[0], row[1], row[2:2 + n], row[2 + n:].reshape(7, n)))
 
 
-def _drive_loop(loop, progress, st, dense, failure, counted, name):
+def _drive_loop(loop, progress, st, dense, failure, counted, name, from_row):
     """Step a segment by a compiled loop (:func:`_segment_loop`) to its end or its first event:
     ``(hit, failure message)``.  The loop hands back the steps where a guard may fire (or every
     step, where a guard is not affine in the state); those go through :meth:`_Stepper.accept` as
     every method's do, located on ``dense()``, the loop's own dense output of the step.  A failure
     code of the loop goes to ``failure(code)`` (which raises, or returns the failed segment's
-    message)."""
+    message).  Where the segment keeps its steps' dense outputs, the loop formed each as it
+    accepted the step (``take_dense()``, one row each: ``from_row(row, n)`` is its interpolant)."""
     events, needs_f = st.events, _needs_derivative(st.events)
+    keeping = st.kept is not None and hasattr(loop, "take_dense")
     try:
         while True:
             code = loop.run()
             steps = loop.take()
+            rows = loop.take_dense() if keeping else ()
+            kept = [_Ready(from_row(row, (row.size - 2) // 8)) for row in rows]  # one per step accepted
+            if len(kept) != len(steps) + (code == 1):
+                kept = []
             if len(steps):
-                _record_steps(st, steps)
+                _record_steps(st, steps, kept[:len(steps)] if kept else None)
             if code == 1:
                 t_old, t_new, y_new, f_new = loop.candidate()
                 y_old = st.ys[-1]
                 if len(steps) and events:  # the guards at the step's start, as accept leaves them
                     st.g = [e(t_old, y_old) for e in events]
                     st.rates = [_rate(e, t_old, y_old, None, t_new - t_old) for e in events]
-                hit = st.accept(t_old, y_old, t_new, y_new, f_new if needs_f else None, _lazy(dense))
+                lazy = _lazy(dense)
+                keep = kept[len(steps)] if len(kept) == len(steps) + 1 else _KeptStages(None, lazy)
+                hit = st.accept(t_old, y_old, t_new, y_new, f_new if needs_f else None, lazy, keep)
                 if hit is not None:
                     return hit, None
                 if progress is not None and st.count % _PROGRESS_STEPS == 0:
@@ -469,14 +494,47 @@ def _drive_loop(loop, progress, st, dense, failure, counted, name):
         counted.n += loop.counts()[0]
 
 
-def _lazy(make):
-    cache = []
+class _lazy:
+    """``make()``, made on the first call and kept (``made``: whether it was)."""
 
-    def get():
-        if not cache:
-            cache.append(make())
-        return cache[0]
-    return get
+    __slots__ = ("made", "make", "value")
+
+    def __init__(self, make):
+        self.make, self.value, self.made = make, None, False
+
+    def __call__(self):
+        if not self.made:
+            self.value, self.made, self.make = self.make(), True, None
+        return self.value
+
+
+class _KeptStages:
+    """A step kept for its dense output (:attr:`Segment.dense`): the interpolant the run already
+    formed (an event located in it), else one formed from the step's stages (pcmm's DOP853) with
+    the right-hand side it is called with (:meth:`AcceptedStages.dense_output`), else None (no
+    stages: the step is taken again)."""
+
+    __slots__ = ("dense", "stages")
+
+    def __init__(self, stages, dense):
+        self.stages, self.dense = stages, dense
+
+    def __call__(self, fun):
+        if self.dense.made:
+            return self.dense()
+        return None if self.stages is None else self.stages.dense_output(fun)
+
+
+class _Ready:
+    """A step kept with the interpolant it already has (:attr:`Segment.dense`)."""
+
+    __slots__ = ("sol",)
+
+    def __init__(self, sol):
+        self.sol = sol
+
+    def __call__(self, fun):
+        return self.sol
 
 
 class FortranDOP853:
@@ -497,11 +555,11 @@ class FortranDOP853:
     # of 535 evaluations, 2 instead of 7 rejections; benchmarks/handwritten_baseline.py).
     beta = 0.04
 
-    def integrate(self, fun, t0, y0, t_bound, events, opts) -> Segment:
-        loop, progress = _segment_loop(fun, t0, y0, t_bound, events, opts, self.beta)
+    def integrate(self, fun, t0, y0, t_bound, events, opts, keep_dense=False) -> Segment:
+        loop, progress = _segment_loop(fun, t0, y0, t_bound, events, opts, self.beta, keep_dense=keep_dense)
         if loop is not None:
             return _run(lambda counted, f0, st: self._drive_compiled(loop, progress, counted, st, opts),
-                        fun, t0, y0, t_bound, events, opts)
+                        fun, t0, y0, t_bound, events, opts, keep_dense)
         needs_f = _needs_derivative(events)
 
         def drive(counted, f0, st):
@@ -532,7 +590,7 @@ class FortranDOP853:
                     # the derivative only where a guard's rate needs it (most read it from the state)
                     f_new = counted(t, y) if needs_f else None
                     dense = _lazy(lambda: _dop853_dense(counted, t_old, y_old, t, opts))
-                    hit = st.accept(t_old, y_old, t, y, f_new, dense)
+                    hit = st.accept(t_old, y_old, t, y, f_new, dense, _KeptStages(None, dense))
                     if hit is not None:
                         hits.append(hit)
                         return -1
@@ -567,7 +625,7 @@ class FortranDOP853:
             if not t_bound_reached(st):
                 return None, f"DOP853 (Fortran) stopped at t = {st.ts[-1]:.17g} s before t_end = {t_bound:.17g} s"
             return None, None
-        return _run(drive, fun, t0, y0, t_bound, events, opts)
+        return _run(drive, fun, t0, y0, t_bound, events, opts, keep_dense)
 
     def _drive_compiled(self, loop, progress, counted, st, opts):
         """The segment stepped by the compiled loop (:func:`_segment_loop`): the same steps as the
@@ -575,7 +633,8 @@ class FortranDOP853:
         def failure(code):
             self._diagnose(counted, st, opts)
             raise SimulationError(self._failure(code, st, opts))
-        return _drive_loop(loop, progress, st, lambda: _Contd8(*loop.dense()), failure, counted, "DOP853")
+        return _drive_loop(loop, progress, st, lambda: _Contd8(*loop.dense()), failure, counted, "DOP853",
+                           lambda row, n: _Contd8(row[0], row[1], row[2:].reshape(8, n)))
 
     @staticmethod
     def _diagnose(counted, st, opts, steps: int = 200) -> None:
@@ -642,7 +701,7 @@ COMPILED_SCIPY_STEPS = False
 SEGMENT_LOOPS: dict = {}
 
 
-def _segment_loop(fun, t0, y0, t_bound, events, opts, beta, tableau=None):
+def _segment_loop(fun, t0, y0, t_bound, events, opts, beta, tableau=None, keep_dense=False):
     """(the compiled loop for this segment, the progress call-back) where ``fun`` is a right-hand
     side (``rhs``, or ``rhs_with_power``: a flight's state with its work appended) whose owner has a
     registered loop (``fun`` may be the run loop's progress wrapper of it, ``__wrapped__``), else
@@ -661,6 +720,8 @@ def _segment_loop(fun, t0, y0, t_bound, events, opts, beta, tableau=None):
         options["power"] = True
     if tableau is not None:
         options["tableau"] = tableau
+    if keep_dense:
+        options["keep_dense"] = True
     y0 = np.array(y0, float)
     ny = y0.size
     affine = [getattr(e, "affine", None) for e in events]
@@ -676,17 +737,24 @@ def _segment_loop(fun, t0, y0, t_bound, events, opts, beta, tableau=None):
         d = np.array([a[2] for a in affine], float)
         direction = np.array([e.direction for e in events], float)
     max_step = opts.max_step if np.isfinite(opts.max_step) else 0.0
+    args = (owner, float(t0), y0, float(t_bound), float(opts.rtol), float(opts.atol), float(max_step),
+            int(opts.max_steps), float(beta), C, ct, d, direction, every_step)
     try:
-        loop = make(owner, float(t0), y0, float(t_bound), float(opts.rtol), float(opts.atol), float(max_step),
-                    int(opts.max_steps), float(beta), C, ct, d, direction, every_step, **options)
+        try:
+            loop = make(*args, **options)
+        except TypeError:  # an extension built before keep_dense: the steps are taken again for their dense output
+            if not options.pop("keep_dense", False):
+                raise
+            loop = make(*args, **options)
     except (ValueError, TypeError, RuntimeError):  # a state that is not the tree's: Python steps it
         return None, None
     return loop, progress
 
 
-def _record_steps(st, steps) -> None:
+def _record_steps(st, steps, kept=None) -> None:
     """Accepted steps (rows t, y) the compiled loop took without a candidate event, recorded as
-    :meth:`_Stepper.accept` would (the step budget included)."""
+    :meth:`_Stepper.accept` would (the step budget included); ``kept``: their dense outputs, where
+    the segment keeps them (:attr:`Segment.dense`)."""
     room = st.max_steps - st.count
     if len(steps) > room:
         keep = steps[:max(room, 0)]
@@ -697,6 +765,8 @@ def _record_steps(st, steps) -> None:
     st.ts.extend(steps[:, 0].tolist())
     st.ys.extend(steps[:, 1:])
     st.count += len(steps)
+    if st.kept is not None:
+        st.kept.extend([None] * len(steps) if kept is None else kept)
 
 
 class _Contd8:
@@ -730,12 +800,13 @@ def _dop853_dense(fun, t_a, y_a, t_b, opts):
 class FixedStepRK4:
     """Classical Runge-Kutta with a fixed step (the paper's MATLAB route).
 
-    Its dense output is the cubic Hermite interpolant of each step."""
+    Its dense output is the cubic Hermite interpolant of each step (two evaluations: with
+    ``keep_dense`` its steps keep nothing, :func:`pcmm.run.dense.dense_states` forms it again)."""
 
     fixed_step = True
     name = "RK4"
 
-    def integrate(self, fun, t0, y0, t_bound, events, opts) -> Segment:
+    def integrate(self, fun, t0, y0, t_bound, events, opts, keep_dense=False) -> Segment:
         def steps(counted, f0, st):
             h = opts.step
             t, y, f = t0, np.array(y0, float), f0
@@ -744,7 +815,7 @@ class FixedStepRK4:
                 if y.size == 0:  # nothing to integrate (a locked or fully driven configuration)
                     t_new = t + hh
                     f_new = counted(t_new, y)
-                    yield t, y, t_new, y, f_new, _lazy(lambda a=(t, y, f, t_new, y, f_new): _hermite(*a)), None
+                    yield t, y, t_new, y, f_new, _lazy(lambda a=(t, y, f, t_new, y, f_new): _hermite(*a)), None, None
                     t = t_new
                     continue
                 k2 = counted(t + hh / 2, y + hh / 2 * f)
@@ -753,9 +824,10 @@ class FixedStepRK4:
                 y_new = y + hh / 6 * (f + 2 * k2 + 2 * k3 + k4)
                 t_new = t + hh
                 f_new = counted(t_new, y_new) if np.all(np.isfinite(y_new)) else y_new
-                yield t, y, t_new, y_new, f_new, _lazy(lambda a=(t, y, f, t_new, y_new, f_new): _hermite(*a)), None
+                yield t, y, t_new, y_new, f_new, _lazy(lambda a=(t, y, f, t_new, y_new, f_new): _hermite(*a)), None, None
                 t, y, f = t_new, y_new, f_new
-        return _run(lambda counted, f0, st: _scan(steps(counted, f0, st), st), fun, t0, y0, t_bound, events, opts)
+        return _run(lambda counted, f0, st: _scan(steps(counted, f0, st), st), fun, t0, y0, t_bound, events, opts,
+                    keep_dense)
 
 
 def _hermite(t0, y0, f0, t1, y1, f1):

@@ -11,18 +11,23 @@ energy bookkeeping:
 * the energy at the end is that of the state the flight reached (the next event's pre-impact
   state);
 * the work is a separate quadrature: 4-point Gauss-Legendre on every recorded step of the
-  flight, the states at the nodes from the steps' dense output (:mod:`pcmm.run.dense`), the
-  power ``Q(q, v) . v`` of the force elements plus ``lam . Phi_q v`` of the drives' rows.
+  flight, the states at the nodes from the steps' dense output (:mod:`pcmm.run.dense`: each
+  step's interpolant as the integrator took it, its stages kept, not the step taken again), the
+  power ``Q(q, v) . v`` of the force elements plus ``lam . Phi_q v`` of the drives' rows, solved
+  at the nodes by a reader of the segment.  The work component the flight integrates with its
+  state is not read.
 
 ``residual = E_end - E_start - W``.  Anything that moves the flight's start away from the
 impulse's result (a wrong re-entry velocity, a restart state shifted off the impact posture)
 or an integration that does not conserve what it should shows here; the guard's own location
 (how far an impact lies from the stop) is ``guard_residual_max``.
+
+Each flight is measured when it ends, and what only the audit needed (its steps' stages) is then
+dropped: a long bouncing run does not hold its flights until it ends.  The measuring reads the
+segment through a reader (:meth:`Coordinates.restored`: a copy, warm-started on its own), so the
+run's coordinates and their warm starts are left as they were.
 """
 from __future__ import annotations
-
-from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 
@@ -46,28 +51,29 @@ def power(cfg: Configuration, coords, t: float, q, v) -> float:
     ``coords`` evaluates, with its force elements (``coords.forces``: a recorded segment's reader
     applies the segment's own)."""
     p = float(coords.forces.generalized(q, v) @ v)
-    if len(coords.labels):
-        Jq, _ = coords.rows(t, q, v)
-        _, lam = coords.accelerations(t, q, v)
+    if len(coords.labels):  # the rows once: coords.accelerations(t, q, v) solves with these
+        Jq, bias = coords.rows(t, q, v)
+        _, lam = constrained_accelerations(cfg, q, v, Jq, bias, forces=coords.forces)
         p += float(lam @ (Jq @ v))
     return p
 
 
-def flight_work(cfg: Configuration, coords, t, y, stepping, q_start) -> float:
+def flight_work(cfg: Configuration, coords, t, y, stepping, q_start, kept=None) -> float:
     """The work (J) of :func:`power` over a recorded segment ``(t, y)`` (states as columns), by
     Gauss-Legendre quadrature on each step's dense output (``y`` may carry more components
-    than the state, as the integrator had them).  The nodes are solved from the segment's
-    start ``q_start`` by ``coords``, a reader of the segment (:meth:`Coordinates.restored`)."""
+    than the state, as the integrator had them; ``kept``: the steps' dense outputs as the
+    integrator took them, :attr:`pcmm.ode.integrators.Segment.dense`).  The nodes are solved from
+    the segment's start ``q_start`` by ``coords``, a reader of the segment (:meth:`Coordinates.restored`)."""
     t = np.asarray(t, float)
-    if len(t) < 2:
-        return 0.0
+    if len(t) < 2 or not (len(coords.labels) or coords.forces.names):
+        return 0.0  # no step; or no force element and no constraint row: no force but gravity does work
     h = np.diff(t) / 2
     times = (t[:-1, None] + h[:, None] * (GAUSS_NODES[None, :] + 1)).ravel()
     weights = (h[:, None] * GAUSS_WEIGHTS[None, :]).ravel()
     fun, method, opts = stepping
     if getattr(fun, "__self__", None) is cfg.coords:  # rhs or rhs_with_power: the reader's own
         fun = getattr(coords, fun.__name__)
-    states = dense_states(t, y, times, (fun, method, opts))[:coords.ny]
+    states = dense_states(t, y, times, (fun, method, opts), kept)[:coords.ny]
     values = drive_powers(cfg, coords, times, states)
     if values is None:
         coords.seed(q_start)
@@ -100,27 +106,6 @@ def drive_powers(cfg: Configuration, coords, times, states) -> np.ndarray | None
     return out
 
 
-_NOTHING_FROZEN: dict = {}  # a tree's flights: one empty partition for all (read only)
-
-
-@dataclass(slots=True)
-class Flight:
-    """What the audit of one flight needs, kept when the flight ends and measured when the run
-    has ended (the quadrature's Newton solves and kinematics then disturb nothing the run uses).
-    Its steps are the recorded segment's, read back when measured (a bouncing run keeps one
-    flight per impact: no copy of them)."""
-
-    macro: dict  # its macro-impact's record
-    cfg: Configuration
-    frozen: dict  # the coordinates' partition during the flight
-    forces: object  # the configuration's forces during the flight (a later entry may recompile them)
-    steps: Callable[[], tuple]  # () -> (t, y, q_start): its steps and the coordinates it started from
-    stepping: tuple
-    energy_start: float  # the impulse's: post-impact kinetic + gravity energy at the impact posture
-    kinetic_start: float
-    energy_end: float
-
-
 class FlightAudit:
     """The energy balance of every flight between two impacts at the same contact.
 
@@ -145,7 +130,6 @@ class FlightAudit:
         self._open: dict | None = None
         self._kinetic_first = 0.0
         self._start: tuple[float, float] | None = None  # (energy, kinetic energy) the flight starts with
-        self._flights: list[Flight] = []  # measured by finish()
 
     def event(self, cfg: Configuration, q, event: dict, bounced: bool, guard_residual: float | None) -> None:
         """An event at posture ``q`` of ``cfg``; ``bounced``: a flight at the same stop follows."""
@@ -170,30 +154,24 @@ class FlightAudit:
             ke = event["kinetic_energy_after"]
             self._start = (ke + cfg.gravity_energy(q), ke)
 
-    def flight(self, cfg: Configuration, steps, stepping, q_end, v_end) -> None:
+    def flight(self, cfg: Configuration, steps, stepping, q_end, v_end, kept=None) -> None:
         """The flight just integrated (``steps() -> (t, y, q_start)``: its recorded steps and the
-        coordinates it started from) ended at ``(q_end, v_end)``; it is measured by :meth:`finish`."""
+        coordinates it started from; ``kept``: their dense outputs as the integrator took them)
+        ended at ``(q_end, v_end)``: measured now (see the module)."""
         m, start = self._open, self._start
         self._start = None
         if m is None or start is None:
             return
-        frozen = cfg.coords.frozen_state()
-        self._flights.append(Flight(m, cfg, frozen or _NOTHING_FROZEN, cfg.forces, steps, stepping, start[0],
-                                    start[1], mechanical_energy(cfg, q_end, v_end)))
-
-    def finish(self) -> None:
-        """Measure every flight kept (once, when the run has ended, also a partial one)."""
-        flights, self._flights = self._flights, []
-        for f in flights:
-            cfg, m = f.cfg, f.macro
-            t, y, q_start = f.steps()
-            with cfg.coords.restored(f.frozen, q_start, (t, y), f.forces) as reader:  # the flight's, as values
-                work = flight_work(cfg, reader, t, y, f.stepping, q_start)
-            residual = abs(f.energy_end - f.energy_start - work)
-            m["flights"] += 1
-            m["flight_energy_residual_max"] = max(m["flight_energy_residual_max"], residual)
-            if m["flights"] == 1:
-                self._kinetic_first = f.kinetic_start
-            if f.kinetic_start > RESOLVED_KINETIC * self._kinetic_first:
-                m["flight_energy_relative_max"] = max(m["flight_energy_relative_max"], residual / f.kinetic_start)
-                m["flights_resolved"] += 1
+        energy_start, kinetic_start = start
+        energy_end = mechanical_energy(cfg, q_end, v_end)
+        t, y, q_start = steps()
+        with cfg.coords.restored(cfg.coords.frozen_state(), q_start, (t, y), cfg.forces) as reader:
+            work = flight_work(cfg, reader, t, y, stepping, q_start, kept)
+        residual = abs(energy_end - energy_start - work)
+        m["flights"] += 1
+        m["flight_energy_residual_max"] = max(m["flight_energy_residual_max"], residual)
+        if m["flights"] == 1:
+            self._kinetic_first = kinetic_start
+        if kinetic_start > RESOLVED_KINETIC * self._kinetic_first:
+            m["flight_energy_relative_max"] = max(m["flight_energy_relative_max"], residual / kinetic_start)
+            m["flights_resolved"] += 1

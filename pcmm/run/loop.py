@@ -196,7 +196,9 @@ def integrate_segment(run: RunState, progress):
         guards = [g.on_state(y0.size) for g in guards]
         y0, fun = np.append(y0, 0.0), cfg.coords.rhs_with_power
     stepping = run.stepping = (fun, method_for(run.opts.method, cfg.coords.constrained), run.opts)  # for dense resampling
-    seg = _integrate(run, _reporting(fun, progress) if progress is not None else fun, stepping, y0, guards, pending)
+    # a flight keeps each step's dense output as taken, for its audit (measured when it ends, then dropped)
+    seg = _integrate(run, _reporting(fun, progress) if progress is not None else fun, stepping, y0, guards, pending,
+                     keep_dense=flight)
     if seg is None:
         return None, guards
     _record(run.traj, cfg, seg, run.offsets, run.q, run.holds, stepping)
@@ -206,8 +208,8 @@ def integrate_segment(run: RunState, progress):
         seg.y = seg.y[:-1]
     elif flight:
         run.audit.flight(cfg, recorded_steps(run.traj, seg, run.q), stepping,
-                         *cfg.coords.unpack(float(seg.t[-1]), seg.y[:-1, -1]))
-        seg.y = seg.y[:-1]
+                         *cfg.coords.unpack(float(seg.t[-1]), seg.y[:-1, -1]), kept=seg.dense)
+        seg.y, seg.dense = seg.y[:-1], None
     if run.store is not None and run.store.due(run.traj):
         _write_chunk(run)
     if progress:
@@ -217,19 +219,17 @@ def integrate_segment(run: RunState, progress):
 
 def _write_chunk(run: RunState) -> None:
     """The chunk being filled is full: its segments and events go to the store, and the run goes
-    on with empty logs.  The flights kept for the audit are measured first (their steps are the
-    chunk's segments'), as every segment's series are, now and not when the run has ended."""
-    def write():
-        run.audit.finish()
-        run.store.flush(run.traj)
+    on with empty logs (every segment's series are derived now, not when the run has ended; its
+    flights were audited as each ended)."""
     with deferred() as held:  # a Ctrl-C or SIGTERM meanwhile waits until the chunk is written
-        run.store.aside(write)  # on a thread of its own: the run's Pinocchio data left alone
+        run.store.aside(lambda: run.store.flush(run.traj))  # on a thread of its own: the run's Pinocchio data left alone
     held.reraise()
 
 
-def _integrate(run: RunState, fun, stepping, y0, guards, pending) -> Segment | None:
+def _integrate(run: RunState, fun, stepping, y0, guards, pending, keep_dense=False) -> Segment | None:
     """One segment from ``run.t``: simultaneous (a contact already closed), integrated, or a known
-    motion (no free coordinate).  Its steps and time count in the stats, also when it fails."""
+    motion (no free coordinate).  Its steps and time count in the stats, also when it fails.
+    ``keep_dense``: the segment keeps its steps' dense outputs (:attr:`Segment.dense`)."""
     cfg, t, opts, stats = run.cfg, run.t, run.opts, run.stats
     method = stepping[1]
     t0 = time.perf_counter()
@@ -240,7 +240,7 @@ def _integrate(run: RunState, fun, stepping, y0, guards, pending) -> Segment | N
             unstable = method.fixed_step and fixed_step_instability(cfg, stepping[0], t, y0, opts.step, method.name)
             if unstable:  # the step alone would make the motion grow: say so, before any symptom
                 raise SimulationError(unstable)
-            seg = method.integrate(fun, t, y0, opts.t_end, guards, opts)
+            seg = method.integrate(fun, t, y0, opts.t_end, guards, opts, keep_dense=keep_dense)
         else:  # no free coordinate: the motion is a known function of time, not integrated
             seg = _known_motion(cfg, t, y0, guards, opts)
     except Repartition as exc:  # a loop's dependent block degenerated: new partition, go on
@@ -294,21 +294,15 @@ def _stopped(run: RunState, exc: SimulationError) -> SimulationError:
 
 
 def _finish(run: RunState, completed: bool) -> None:
-    """What every run keeps, a partial one too: the configurations built and their evaluations,
-    and the flights' energy balances (measured now that the run needs its state no more)."""
+    """What every run keeps, a partial one too: the configurations built and their evaluations
+    (the flights' energy balances were measured as each ended)."""
     stats, mech = run.stats, run.mech
     stats["configurations_built"] = list(mech.built)
     stats["derived_configurations"] = mech.derived
     # which evaluations each configuration ran: "compiled", or "python" and why (pcmm.compiled)
     stats["evaluations"] = {name: mech[name].coords.evaluations for name in mech.built}
-    try:
-        run.audit.finish()
-    except (SimulationError, Repartition):
-        if completed:  # a partial run keeps what it has; its own error is the one to report
-            raise
-    finally:
-        if run.store is not None and not completed:  # a stopped run's store ends here
-            run.store.end(run.traj)
+    if run.store is not None and not completed:  # a stopped run's store ends here
+        run.store.end(run.traj)
 
 
 def check_start(scene: Scene, cfg: Configuration, t, q, v) -> None:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import itertools
 import time
+import uuid
 from typing import Iterable, Iterator
 
 from ..errors import UsageError
@@ -77,24 +78,44 @@ class DaskCluster:
             self.cluster.close()
 
 
+def _run_reporting_start(job: Job, topic: str) -> dict:
+    """:func:`run_one` on a Dask worker, first telling the client that the run starts now (an
+    event on ``topic`` naming the task): its time limit counts from here, not from when it was
+    submitted (it may wait for a worker, or for a crashed one to be replaced)."""
+    import distributed
+    worker = distributed.get_worker()
+    worker.log_event(topic, {"key": str(worker.get_current_task())})
+    return run_one(job)
+
+
 def run_dask(jobs: Iterable[Job], dask: DaskCluster, run_timeout: float | None = DEFAULT_RUN_TIMEOUT) -> Iterator[dict]:
-    """The runs on a Dask cluster, about one per worker thread in flight (so that a run's time
-    limit counts from about when it starts).  A run the cluster loses (its worker died, and
-    died again on the retries Dask allows) is a ``crashed`` row; a run past ``run_timeout`` a
-    ``timeout`` row, and its worker is restarted."""
+    """The runs on a Dask cluster, about one per worker thread in flight.  A run the cluster
+    loses (its worker died, and died again on the retries Dask allows) is a ``crashed`` row; a
+    run still going ``run_timeout`` seconds after it started on its worker (a run that Dask
+    starts again after losing its worker: after that start) is a ``timeout`` row, and its worker
+    is restarted."""
     import distributed
     client = dask.client
     jobs = iter(jobs)
     pending: dict = {}  # future -> (job, submitted at)
+    started: dict[str, float] = {}  # task key -> when its worker reported it started (this clock)
+    topic = f"pcmm-run-started-{uuid.uuid4().hex}"
+
+    def on_start(event) -> None:  # in the client's event-loop thread
+        started[str(event[1]["key"])] = time.monotonic()
+    client.subscribe_topic(topic, on_start)
     try:
         while True:
             for job in itertools.islice(jobs, max(0, dask.slots + 1 - len(pending))):
-                pending[client.submit(run_one, job, pure=False)] = (job, time.monotonic())
+                pending[client.submit(_run_reporting_start, job, topic, pure=False)] = (job, time.monotonic())
             if not pending:
                 return
             wait_for = None
             if run_timeout is not None:
-                wait_for = max(0.05, min(t0 for _, t0 in pending.values()) + run_timeout - time.monotonic())
+                now = time.monotonic()
+                # a run not started yet has its deadline run_timeout after its start, later than now + run_timeout
+                deadlines = [started.get(str(f.key), now) + run_timeout for f in pending]
+                wait_for = max(0.05, min(deadlines) - now)
             try:
                 done = distributed.wait(list(pending), timeout=wait_for, return_when="FIRST_COMPLETED").done
             except (distributed.TimeoutError, TimeoutError):
@@ -106,17 +127,23 @@ def run_dask(jobs: Iterable[Job], dask: DaskCluster, run_timeout: float | None =
                 except Exception as exc:  # the cluster lost the run: its worker died (on every retry)
                     row = failed_row(job, "crashed", f"the Dask cluster lost the run ({type(exc).__name__}: "
                                      f"{exc}): its worker process died while running it", time.monotonic() - t0)
+                started.pop(str(fut.key), None)
                 yield row
             if run_timeout is not None:
                 now = time.monotonic()
-                for fut in [f for f, (_, t0) in pending.items() if now - t0 >= run_timeout]:
-                    job, t0 = pending.pop(fut)
+                for fut in [f for f in pending if now - started.get(str(f.key), now) >= run_timeout]:
+                    job, _ = pending.pop(fut)
+                    t_start = started.pop(str(fut.key))
                     _stop_on_cluster(client, fut)
                     yield failed_row(job, "timeout", f"still running after the time limit of {run_timeout:g} s "
-                                     "(--run-timeout); stopped (its Dask worker restarted)", now - t0)
+                                     "(--run-timeout); stopped (its Dask worker restarted)", now - t_start)
     finally:
         for fut in pending:
             fut.cancel()
+        try:
+            client.unsubscribe_topic(topic)
+        except Exception:  # the client is closing or closed: nothing is subscribed any more
+            pass
 
 
 def _stop_on_cluster(client, fut) -> None:

@@ -38,9 +38,11 @@ def impulse_label(ev: dict) -> str:
     return f"P = {abs(float(ev['impulse']['normal'])):.4g} N·s"
 
 
-def drawn_impacts(traj: RecordedRun) -> list[dict]:
-    """Events with an impulse to draw (an impact with a contact point and a non-zero impulse)."""
-    return [e for e in traj.events if e.get("impact") and e.get("contact_point") is not None
+def drawn_impacts(traj: RecordedRun | list[dict]) -> list[dict]:
+    """Events (of a run, or a list of its events) with an impulse to draw (an impact with a
+    contact point and a non-zero impulse)."""
+    events = traj if isinstance(traj, list) else traj.events
+    return [e for e in events if e.get("impact") and e.get("contact_point") is not None
             and e.get("impulse") and float(np.linalg.norm(e["impulse"]["vector"])) > 0]
 
 
@@ -167,6 +169,15 @@ _JS = r"""
 """
 
 
+def _events_data(run: RecordedRun) -> list[dict]:
+    """The timeline's entries of ``run``'s events; an impact with an arrow carries its impulse."""
+    events = list(run.events)  # each record built once (an EventLog builds one on every read)
+    drawn = {id(e) for e in drawn_impacts(events)}
+    return [{"t": float(e["t"]), "kind": event_kind(e), "text": describe_event(e),
+             **({"impulse": float(e["impulse"]["normal"]), "label": impulse_label(e)} if id(e) in drawn else {})}
+            for e in events]
+
+
 def page_data(runs, info) -> dict:
     view = info["view"]
     several = len(runs) > 1
@@ -182,10 +193,7 @@ def page_data(runs, info) -> dict:
                   "colour": _hex(RUN_COLOURS[i % len(RUN_COLOURS)]) if several else None,
                   "segments": [[float(s.t[0]), s.configuration] for s in r.segments],
                   "groups": macro_groups(r),
-                  "events": [{"t": float(e["t"]), "kind": event_kind(e), "text": describe_event(e),
-                              **({"impulse": float(e["impulse"]["normal"]), "label": impulse_label(e)}
-                                 if e in drawn_impacts(r) else {})}
-                             for e in r.events]}
+                  "events": _events_data(r)}
                  for i, r in enumerate(runs)],
     }
 
@@ -249,8 +257,28 @@ def _viewer_js() -> str:
     return path.read_text(encoding="utf-8")
 
 
-def page(runs, info, commands: list[bytes]) -> str:
-    """The page (text) for ``runs``, with ``info`` from the scene builder and its ``commands``."""
+#: How a command names a picture of the page's image table (``pcmm-image:<index>``).
+IMAGE_REF = "pcmm-image:"
+
+#: Before meshcat reads a command, a texture's ``pcmm-image:<i>`` becomes PCMM_IMAGES[i] (its data URL).
+_RESOLVE_IMAGES = f"""
+var PCMM_HANDLE = viewer.handle_command.bind(viewer);
+viewer.handle_command = function (cmd) {{
+  if (cmd.type === "set_object" && cmd.object && cmd.object.images) {{
+    cmd.object.images.forEach(function (im) {{
+      if (typeof im.url === "string" && im.url.indexOf("{IMAGE_REF}") === 0) {{
+        im.url = PCMM_IMAGES[parseInt(im.url.slice({len(IMAGE_REF)}), 10)];
+      }}
+    }});
+  }}
+  PCMM_HANDLE(cmd);
+}};
+"""
+
+
+def page(runs, info, commands: list[bytes], images: list[str] = ()) -> str:
+    """The page (text) for ``runs``, with ``info`` from the scene builder and its ``commands``;
+    ``images`` are the distinct pictures (data URLs) the commands name ``pcmm-image:<index>``."""
     data = page_data(runs, info)
     title = "pcmm replay: " + " vs ".join(run_name(r) for r in runs)
     packed = ",\n".join(f'"{base64.b64encode(c).decode("ascii")}"' for c in commands)
@@ -265,6 +293,9 @@ def page(runs, info, commands: list[bytes]) -> str:
 <script>{_viewer_js()}</script>
 <script>
 var viewer = new MeshCat.Viewer(document.getElementById("meshcat-pane"));
+/* each distinct picture once (data URLs); the commands name them "{IMAGE_REF}<index>" */
+var PCMM_IMAGES = {_script_json(list(images))};
+{_RESOLVE_IMAGES}
 /* the replay's meshcat commands (msgpack, base64), handled in order */
 var PCMM_COMMANDS = [
 {packed}

@@ -53,6 +53,7 @@ from __future__ import annotations
 
 import atexit
 import contextlib
+import functools
 import io
 import math
 import os
@@ -70,7 +71,7 @@ import numpy as np
 
 from ..errors import UsageError
 from ..files import terminal_text
-from .page import BAR_PX, RUN_COLOURS, drawn_impacts, impulse_label, page, run_name
+from .page import BAR_PX, IMAGE_REF, RUN_COLOURS, drawn_impacts, impulse_label, page, run_name
 from ..signals import as_interrupts
 from ..files import atomic_write
 from .marks import RecordedRun, event_kind
@@ -437,6 +438,7 @@ def view_box(traj: RecordedRun, visuals: dict[str, dict[str, list[Visual]]], fps
     return fitted_view([traj], [visuals], frame_times(traj, fps))
 
 
+@functools.lru_cache(maxsize=1024)  # an event plate's text is drawn at each of its fading steps
 def _label_png(text: str, fill=(255, 244, 204), ink=(20, 20, 20), outline=(120, 100, 40),
                border: int = 3) -> tuple[bytes, float]:
     """A PNG plate with ``text``; returns (bytes, width / height)."""
@@ -522,15 +524,31 @@ def _meshcat():
 
 class _Recorder:
     """A meshcat window that keeps every command (msgpack, in order) for the offline page and
-    forwards it to a live meshcat window if there is one."""
+    forwards it to a live meshcat window if there is one.
+
+    Each distinct picture (a texture's data URL: a symbol's sprite, a label) is kept once in
+    ``images``; the kept commands name it ``pcmm-image:<index>`` (:data:`pcmm.viz.page.IMAGE_REF`),
+    which the page resolves before meshcat reads the command.  The cycle's page to 2.3 s has 653
+    textures of 419 distinct pictures (its 210 symbol sprites: 6), 7.3 MB instead of 10.0."""
 
     def __init__(self, live=None):
         self.commands: list[bytes] = []
+        self.images: list[str] = []
+        self._image_index: dict[str, int] = {}
         self.live = live
 
     def send(self, command):
         import umsgpack  # meshcat's own dependency
-        self.commands.append(umsgpack.packb(command.lower()))
+        lowered = command.lower()
+        if lowered.get("type") == "set_object":
+            for image in lowered["object"].get("images", ()):
+                url = image.get("url")
+                if isinstance(url, str) and url.startswith("data:"):
+                    k = self._image_index.setdefault(url, len(self.images))
+                    if k == len(self.images):
+                        self.images.append(url)
+                    image["url"] = f"{IMAGE_REF}{k}"
+        self.commands.append(umsgpack.packb(lowered))
         if self.live is not None:
             self.live.send(command)
 
@@ -892,7 +910,7 @@ def _build(runs, fps: float, live=None, layout: str = "overlay", view: str = "ru
     mc = _import_meshcat()
     rec = _Recorder(live)
     info = _send_scene(mc.Visualizer(window=rec), runs, fps, layout, view)
-    return page(runs, info, rec.commands), info
+    return page(runs, info, rec.commands, rec.images), info
 
 
 def html_page(traj: RecordedRun, fps: float = 60, others=(), layout: str = "overlay", view: str = "run") -> str:

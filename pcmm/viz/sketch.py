@@ -224,8 +224,9 @@ def macro_groups(run: RecordedRun) -> list[list[int]]:
     """The events as groups: a macro-impact (consecutive events of one stop transition, its
     impacts and the merge that ends it) is one group; every other event is a group of one."""
     groups: list[list[int]] = []
-    for i, ev in enumerate(run.events):
-        prev = run.events[groups[-1][-1]] if groups else None
+    events = list(run.events)  # each record built once (an EventLog builds one on every read)
+    for i, ev in enumerate(events):
+        prev = events[groups[-1][-1]] if groups else None
         if (prev is not None and ev.get("transition") == "stop" and prev.get("transition") == "stop"
                 and ev.get("name") == prev.get("name") and not prev.get("merge")):
             groups[-1].append(i)
@@ -310,8 +311,9 @@ def event_marks(run: RecordedRun) -> list[Symbol]:
     out: list[Symbol] = []
     roots = root_links(run)
     root = next(iter(sorted(roots)), None)
+    events = list(run.events)  # each record built once (an EventLog builds one on every read)
     for group in macro_groups(run):
-        first, last = run.events[group[0]], run.events[group[-1]]
+        first, last = events[group[0]], events[group[-1]]
         t0, t1 = float(first["t"]), float(last["t"]) + PLATE_S
         body = event_body(run, first)
         p = first.get("contact_point")
@@ -324,7 +326,7 @@ def event_marks(run: RecordedRun) -> list[Symbol]:
         out.append(Symbol("plate", link, local, 0.0, first.get("name", ""), window=(t0, t1),
                           text=plate_text(last, len(group), first),
                           extra={"events": list(group), "kind": event_kind(first)}))
-    for i, ev in enumerate(run.events):
+    for i, ev in enumerate(events):
         imp = ev.get("impulse") or {}
         if not ev.get("impact") or not imp.get("joint") or not imp.get("moment"):
             continue
@@ -332,7 +334,7 @@ def event_marks(run: RecordedRun) -> list[Symbol]:
         if child is None:
             continue
         t = float(ev["t"])
-        later = [float(e["t"]) for e in run.events[i + 1:] if float(e["t"]) > t]
+        later = [float(e["t"]) for e in events[i + 1:] if float(e["t"]) > t]
         m = float(imp["moment"])
         # the sense: the moment on body b turns it back from the stop, against its rate before
         before = (ev.get("v_before") or {}).get(imp["joint"])

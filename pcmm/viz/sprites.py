@@ -4,6 +4,7 @@ page, which lays each on a flat plate riding on its link.  A sprite covers the s
 point; the shapes are those of the 2D sketch (:mod:`pcmm.viz.draw2d`)."""
 from __future__ import annotations
 
+import functools
 import io
 import math
 
@@ -26,6 +27,7 @@ def _circle(draw, x, y, r, **kw):
     draw.ellipse([u0, v0, u1, v1], **kw)
 
 
+@functools.cache  # a few kinds and shapes; a page draws each many times
 def sprite(kind: str, shape: str = "") -> bytes:
     """The PNG of one symbol kind (``ground``, ``pivot``, ``revolute``, ``locked``, ``slider``,
     ``cut``, ``stop``, ``arc``)."""

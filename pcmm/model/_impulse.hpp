@@ -1,0 +1,341 @@
+// The impulse of one contact in a tree configuration (pcmm.events.impulse: the paper's Eqs. 21-43),
+// in one compiled call: included from _tree_dynamics.cpp (it uses its Tree), bound as
+// pcmm._tree_dynamics.ImpulsePlan.
+//
+// The Python solve cuts the metamorphic joint (the system f of section 2.2, a free planar joint in
+// its place) and brings the cut joint's forbidden motions back as rows G; with W = M_f^-1,
+// W_eff = W - W G^T (G W G^T)^-1 G W (Eq. 25) and P = -(1 + e) (J W_eff J^T)^-1 J v- (Eqs. 29, 42).
+// In a tree the cut joint's rows allow exactly the motions the joint itself allows: T (tree velocity
+// -> cut-system velocity) maps the tree's velocities one to one onto the velocities G's cut rows
+// admit.  So the cut system's W_eff, seen through T, is the tree's own inverse inertia restricted by
+// the remaining rows (the drives'), and the same impulse follows from the tree's mass matrix:
+//   W = M^-1 (CRBA, Cholesky),  W_eff = W - W A^T (A W A^T)^-1 A W  (A: the drive rows, unit rows),
+//   P = -(1 + e) J v- / (J W_eff J^T),  dv = W_eff J^T P,  mu = -(A W A^T)^-1 A W J^T P,
+// with J the contact's normal row in the tree (the same row the Python solve forms on the cut
+// system, read through T).  The cut joint's impulsive reaction, the multipliers of its rows there,
+// is the part of the joint's transmitted impulse along the motions it forbids: N N^T f, f the
+// impulse the joint carries by RNEA (zero gravity and velocity, dv as acceleration, the contact
+// impulses as external forces: the second route the Python solve takes for every joint).
+// Mathematically the same numbers as the Python solve; the same to round-off in floating point
+// (tests/test_compiled_impulse.py compares the two on every impulse of three_bar_cycle and on drawn chains).
+//
+// Taken: joint stops (revolute, prismatic) and frictionless point contacts (stops, latches, merges)
+// in a tree whose only rows are drives on uncut joints.  Everything else (loops, friction, planar
+// joints, simultaneous contacts) stays with the Python solve, which pcmm.events.impulse_compiled
+// decides before building a plan.
+
+struct ImpulseCore {
+  int kind = 0;  // 0: revolute joint stop, 1: prismatic joint stop, 2: point contact
+  int stop_v = 0;  // a joint stop's velocity index
+  double sign = 1.0;  // a joint stop's stop_sign s
+  double arm = 0.0;  // a joint stop's reporting lever on the child's x axis
+  Eigen::Vector3d vec = Eigen::Vector3d::Zero();  // prismatic: the axis in b's frame; point: the normal in a's frame
+  Model::FrameIndex frame_a = 0, frame_b = 0;  // link frames (this plan's tree)
+  Model::FrameIndex point_a = 0, point_b = 0;  // point contacts: the contact points' frames
+  std::vector<int> drives;  // the drive rows' velocity columns, in the order of the rows' labels
+  std::vector<std::pair<Model::JointIndex, Eigen::MatrixXd>> cuts;  // (joint, N: 3 x k forbidden motions, planar)
+  // scratch, sized once
+  Eigen::MatrixXd M, W, W_eff, WAt, S, Ja, Jb, Jpa, Jpb;
+  Eigen::RowVectorXd J;
+  VectorXd zero, dv, x;
+  std::vector<pinocchio::Force> fext;
+};
+
+struct ImpulsePlan {
+  PyObject_HEAD
+  Tree *tree;  // a reference held: its model (zero gravity, the contact's frames added) and data
+  ImpulseCore *core;
+};
+
+PyObject *impulse_plan_new(PyTypeObject *type, PyObject *args, PyObject *) {
+  PyObject *tree_o, *vec_o, *drives_o, *cuts_o;
+  int kind, stop_v, fa, fb, pa, pb;
+  double sign, arm;
+  if (!PyArg_ParseTuple(args, "O!iiddOiiiiOO", &TreeType, &tree_o, &kind, &stop_v, &sign, &arm, &vec_o, &fa, &fb,
+                        &pa, &pb, &drives_o, &cuts_o))
+    return nullptr;
+  Tree *tree = (Tree *)tree_o;
+  if (!tree->ready || tree->drives) {
+    PyErr_SetString(PyExc_ValueError, "ImpulsePlan: a finalized tree without drives");
+    return nullptr;
+  }
+  const Model &model = *tree->model;
+  const int nv = model.nv;
+  auto frame_ok = [&](int f) { return f > 0 && f < (int)model.nframes; };
+  if (kind < 0 || kind > 2 || !frame_ok(fa) || !frame_ok(fb) || (kind < 2 && (stop_v < 0 || stop_v >= nv)) ||
+      (kind == 2 && (!frame_ok(pa) || !frame_ok(pb)))) {
+    PyErr_SetString(PyExc_ValueError, "ImpulsePlan: a contact kind 0-2 with frames of the tree and a stop's coordinate");
+    return nullptr;
+  }
+  auto core = new ImpulseCore();
+  core->kind = kind;
+  core->stop_v = stop_v;
+  core->sign = sign;
+  core->arm = arm;
+  core->frame_a = fa;
+  core->frame_b = fb;
+  core->point_a = pa;
+  core->point_b = pb;
+  bool ok = read_doubles(vec_o, core->vec.data(), 3, "vec") == 0;
+  PyObject *drives = ok ? PySequence_Fast(drives_o, "drives: a sequence of velocity columns") : nullptr;
+  ok = drives != nullptr;
+  for (Py_ssize_t i = 0; ok && i < PySequence_Fast_GET_SIZE(drives); ++i) {
+    const long c = PyLong_AsLong(PySequence_Fast_GET_ITEM(drives, i));
+    ok = c >= 0 && c < nv;
+    if (!ok && !PyErr_Occurred()) PyErr_Format(PyExc_ValueError, "ImpulsePlan: drive column %ld", c);
+    if (ok) core->drives.push_back((int)c);
+  }
+  Py_XDECREF(drives);
+  PyObject *cuts = ok ? PySequence_Fast(cuts_o, "cuts: a sequence of (joint, N)") : nullptr;
+  ok = ok && cuts != nullptr;
+  for (Py_ssize_t i = 0; ok && i < PySequence_Fast_GET_SIZE(cuts); ++i) {
+    int j;
+    PyObject *n_o;
+    ok = PyArg_ParseTuple(PySequence_Fast_GET_ITEM(cuts, i), "iO", &j, &n_o);
+    if (!ok) break;
+    PyArrayObject *n = (PyArrayObject *)PyArray_FROMANY(n_o, NPY_DOUBLE, 2, 2, NPY_ARRAY_IN_ARRAY);
+    ok = n && j > 0 && j < (int)model.njoints && PyArray_DIM(n, 0) == 3;
+    if (ok) {
+      const int k = (int)PyArray_DIM(n, 1);
+      Eigen::MatrixXd N(3, k);
+      const double *p = (const double *)PyArray_DATA(n);
+      for (int r = 0; r < 3; ++r)
+        for (int c = 0; c < k; ++c) N(r, c) = p[r * k + c];
+      core->cuts.emplace_back(j, N);
+    } else if (!PyErr_Occurred()) {
+      PyErr_SetString(PyExc_ValueError, "ImpulsePlan: a cut is (joint of the tree, N: 3 x k)");
+    }
+    Py_XDECREF(n);
+  }
+  Py_XDECREF(cuts);
+  if (!ok) {
+    delete core;
+    return nullptr;
+  }
+  const int nd = (int)core->drives.size();
+  core->M.resize(nv, nv);
+  core->W.resize(nv, nv);
+  core->W_eff.resize(nv, nv);
+  core->WAt.resize(nv, nd);
+  core->S.resize(nd, nd);
+  for (auto *m : {&core->Ja, &core->Jb, &core->Jpa, &core->Jpb}) m->setZero(6, nv);
+  core->J.resize(nv);
+  core->zero = VectorXd::Zero(nv);
+  core->dv.resize(nv);
+  core->x.resize(nv);
+  core->fext.assign(model.njoints, pinocchio::Force::Zero());
+  ImpulsePlan *self = (ImpulsePlan *)type->tp_alloc(type, 0);
+  if (!self) {
+    delete core;
+    return nullptr;
+  }
+  Py_INCREF(tree_o);
+  self->tree = tree;
+  self->core = core;
+  return (PyObject *)self;
+}
+
+void impulse_plan_dealloc(ImpulsePlan *self) {
+  delete self->core;
+  Py_XDECREF((PyObject *)self->tree);
+  Py_TYPE(self)->tp_free((PyObject *)self);
+}
+
+inline PyObject *impulse_vector(const double *x, npy_intp n) {
+  PyArrayObject *out = (PyArrayObject *)PyArray_SimpleNew(1, &n, NPY_DOUBLE);
+  if (out && n) std::memcpy(PyArray_DATA(out), x, n * sizeof(double));
+  return (PyObject *)out;
+}
+
+// solve(q, v, e) -> (v_after, (P, vn_before, vn_after, ke_before, ke_after, drive_work), normal (2),
+// point (2), pos_a (2), pos_b (2), mu (drive rows), cut (k x 3), joints (njoints - 1 x 3), residual (nv));
+// None where the contact takes no impulse along its normal (the Python solve says why)
+PyObject *impulse_plan_solve(ImpulsePlan *self, PyObject *const *args, Py_ssize_t nargs) {
+  if (nargs != 3) {
+    PyErr_SetString(PyExc_TypeError, "solve(q, v, e) takes three arguments");
+    return nullptr;
+  }
+  const Model &model = *self->tree->model;
+  Data &data = *self->tree->data;
+  ImpulseCore &c = *self->core;
+  const int nv = model.nv, nd = (int)c.drives.size();
+  const double e = PyFloat_AsDouble(args[2]);
+  if (e == -1.0 && PyErr_Occurred()) return nullptr;
+  PyArrayObject *q_a = vector_arg(args[0], nv, "q", "coordinate vector");
+  if (!q_a) return nullptr;
+  PyArrayObject *v_a = vector_arg(args[1], nv, "v", "velocity vector");
+  if (!v_a) {
+    Py_DECREF(q_a);
+    return nullptr;
+  }
+  const Eigen::Map<const VectorXd> q((const double *)PyArray_DATA(q_a), nv), v((const double *)PyArray_DATA(v_a), nv);
+  // D(q) of Eq. 1 by CRBA (its upper triangle), symmetrized; then placements, frames and Jacobians
+  pinocchio::crba(model, data, q);
+  c.M = data.M;
+  c.M.triangularView<Eigen::StrictlyLower>() = c.M.transpose();
+  pinocchio::computeJointJacobians(model, data, q);
+  pinocchio::updateFramePlacements(model, data);
+  const auto LWA = pinocchio::LOCAL_WORLD_ALIGNED;
+  c.Ja.setZero();
+  c.Jb.setZero();
+  pinocchio::getFrameJacobian(model, data, c.frame_a, LWA, c.Ja);
+  pinocchio::getFrameJacobian(model, data, c.frame_b, LWA, c.Jb);
+  const pinocchio::SE3 &Mb = data.oMf[c.frame_b];
+  Eigen::Vector2d n, point, pos_a, pos_b;
+  double vn_before;
+  if (c.kind == 0) {  // a revolute stop: the couple against the child's y axis, J = -s (w_b - w_a)
+    n = -c.sign * Mb.rotation().col(1).head<2>();
+    c.J = -c.sign * (c.Jb.row(5) - c.Ja.row(5));
+    vn_before = -c.sign * v[c.stop_v];
+    pos_a = pos_b = Mb.translation().head<2>();
+    point = pos_b + c.arm * Mb.rotation().col(0).head<2>();
+  } else if (c.kind == 1) {  // a prismatic stop: along the axis, J = -s axis . (v_b - v_a - w_a z x r)
+    const Eigen::Vector3d axis3 = Mb.rotation() * c.vec;
+    const Eigen::Vector2d axis = axis3.head<2>() / axis3.head<2>().norm();
+    n = -c.sign * axis;
+    const Eigen::Vector2d r = Mb.translation().head<2>() - data.oMf[c.frame_a].translation().head<2>();
+    Eigen::MatrixXd rel = c.Jb.topRows(2) - c.Ja.topRows(2);
+    rel.row(0) += r[1] * c.Ja.row(5);
+    rel.row(1) -= r[0] * c.Ja.row(5);
+    c.J = -c.sign * (axis.transpose() * rel);
+    vn_before = -c.sign * v[c.stop_v];
+    pos_a = pos_b = Mb.translation().head<2>();
+    point = pos_b + c.arm * Mb.rotation().col(0).head<2>();
+  } else {  // a point contact: n fixed in a, J = n . (J_pb - J_pa)
+    const Eigen::Vector2d nl = c.vec.head<2>();
+    n = data.oMf[c.frame_a].rotation().topLeftCorner<2, 2>() * nl;
+    n /= n.norm();
+    c.Jpa.setZero();
+    c.Jpb.setZero();
+    pinocchio::getFrameJacobian(model, data, c.point_a, LWA, c.Jpa);
+    pinocchio::getFrameJacobian(model, data, c.point_b, LWA, c.Jpb);
+    c.J = n.transpose() * (c.Jpb.topRows(2) - c.Jpa.topRows(2));
+    vn_before = c.J.dot(v);
+    pos_a = data.oMf[c.point_a].translation().head<2>();
+    pos_b = data.oMf[c.point_b].translation().head<2>();
+    point = pos_b;
+  }
+  // W = M^-1; W_eff, the inverse of the paper's M_f (Eq. 25), restricted by the drive rows
+  Eigen::LLT<Eigen::MatrixXd> llt(c.M);
+  if (llt.info() != Eigen::Success) {
+    Py_DECREF(q_a);
+    Py_DECREF(v_a);
+    Py_RETURN_NONE;  // the Python solve names the configuration whose mass matrix is not positive definite
+  }
+  c.W = llt.solve(Eigen::MatrixXd::Identity(nv, nv));
+  c.W_eff = c.W;
+  Eigen::LLT<Eigen::MatrixXd> s_llt;
+  if (nd) {
+    for (int k = 0; k < nd; ++k) c.WAt.col(k) = c.W.col(c.drives[k]);
+    for (int i = 0; i < nd; ++i)
+      for (int k = 0; k < nd; ++k) c.S(i, k) = c.W(c.drives[i], c.drives[k]);
+    s_llt.compute(c.S);
+    c.W_eff -= c.WAt * s_llt.solve(c.WAt.transpose());
+  }
+  c.x = c.W_eff * c.J.transpose();
+  const double d = c.J.dot(c.x);  // Eqs. 29, 42: the denominator J W_eff J^T
+  if (!std::isfinite(d) || !(d > 1e-10 * c.W_eff.trace()) || (nd && s_llt.info() != Eigen::Success)) {
+    Py_DECREF(q_a);
+    Py_DECREF(v_a);
+    Py_RETURN_NONE;  // no impulse along n (or nearly none): the Python solve decides and says why
+  }
+  const double P = -(1.0 + e) * (c.J.dot(v) / d);  // Eqs. 29, 42
+  c.dv = c.x * P;  // Eqs. 24, 38
+  npy_intp nvd = nv;
+  PyArrayObject *v_after = (PyArrayObject *)PyArray_SimpleNew(1, &nvd, NPY_DOUBLE);
+  if (!v_after) {
+    Py_DECREF(q_a);
+    Py_DECREF(v_a);
+    return nullptr;
+  }
+  Eigen::Map<VectorXd> va((double *)PyArray_DATA(v_after), nv);
+  va = v + c.dv;  // Eqs. 30, 43
+  VectorXd mu(nd);
+  double drive_work = 0.0;
+  if (nd) {
+    mu = -s_llt.solve(c.WAt.transpose() * c.J.transpose()) * P;  // the drives' impulses
+    for (int k = 0; k < nd; ++k) drive_work += mu[k] * v[c.drives[k]];
+  }
+  const double vn_after = c.J.dot(va);
+  const double ke_before = 0.5 * v.dot(c.M * v), ke_after = 0.5 * va.dot(c.M * va);
+  // the contact impulses as external forces on their links (world, moment about the origin)
+  for (auto &f : c.fext) f.setZero();
+  auto load = [&](Model::FrameIndex frame, const Eigen::Vector2d &p, double fx, double fy, double mz) {
+    const Model::JointIndex j = model.frames[frame].parentJoint;
+    if (j == 0) return;
+    pinocchio::Force f(Eigen::Vector3d(fx, fy, 0.0), Eigen::Vector3d(0.0, 0.0, p[0] * fy - p[1] * fx + mz));
+    c.fext[j] += data.oMi[j].actInv(f);
+  };
+  if (c.kind == 0) {  // a couple: -s P on the child, +s P on the parent
+    load(c.frame_b, pos_b, 0.0, 0.0, -c.sign * P);
+    load(c.frame_a, pos_b, 0.0, 0.0, c.sign * P);
+  } else {
+    const Eigen::Vector2d F = P * n;
+    load(c.frame_b, pos_b, F[0], F[1], 0.0);
+    load(c.frame_a, c.kind == 1 ? pos_b : pos_a, -F[0], -F[1], 0.0);
+  }
+  pinocchio::rnea(model, data, q, c.zero, c.dv, c.fext);
+  const npy_intp jdims[2] = {(npy_intp)model.njoints - 1, 3}, cdims[2] = {(npy_intp)c.cuts.size(), 3};
+  PyArrayObject *joints = (PyArrayObject *)PyArray_SimpleNew(2, jdims, NPY_DOUBLE);
+  PyArrayObject *cut = (PyArrayObject *)PyArray_SimpleNew(2, cdims, NPY_DOUBLE);
+  if (joints && cut) {
+    double *out = (double *)PyArray_DATA(joints);
+    for (int j = 1; j < (int)model.njoints; ++j) {
+      const Eigen::Matrix3d &R = data.oMi[j].rotation();
+      const Eigen::Vector3d lin = R * data.f[j].linear(), ang = R * data.f[j].angular();
+      out[3 * (j - 1)] = lin[0];
+      out[3 * (j - 1) + 1] = lin[1];
+      out[3 * (j - 1) + 2] = ang[2];
+    }
+    double *co = (double *)PyArray_DATA(cut);
+    for (size_t k = 0; k < c.cuts.size(); ++k) {
+      const auto &[j, N] = c.cuts[k];
+      const Eigen::Vector3d f(data.f[j].linear()[0], data.f[j].linear()[1], data.f[j].angular()[2]);
+      const Eigen::Vector3d F = N * (N.transpose() * f);  // along the motions the cut joint forbids
+      const Eigen::Vector2d Fw = data.oMi[j].rotation().topLeftCorner<2, 2>() * F.head<2>();
+      co[3 * k] = Fw[0];
+      co[3 * k + 1] = Fw[1];
+      co[3 * k + 2] = F[2];
+    }
+  }
+  Py_DECREF(q_a);
+  Py_DECREF(v_a);
+  if (!joints || !cut) {
+    Py_XDECREF(joints);
+    Py_XDECREF(cut);
+    Py_DECREF(v_after);
+    return nullptr;
+  }
+  return Py_BuildValue("N(dddddd)NNNNNNNN", v_after, P, vn_before, vn_after, ke_before, ke_after, drive_work,
+                       impulse_vector(n.data(), 2), impulse_vector(point.data(), 2), impulse_vector(pos_a.data(), 2),
+                       impulse_vector(pos_b.data(), 2), impulse_vector(mu.data(), nd), cut, joints,
+                       impulse_vector(data.tau.data(), nv));
+}
+
+PyMethodDef impulse_plan_methods[] = {
+    {"solve", (PyCFunction)(void (*)(void))impulse_plan_solve, METH_FASTCALL,
+     "solve(q, v, e) -> (v_after, (P, vn_before, vn_after, ke_before, ke_after, drive_work), normal, point, pos_a, "
+     "pos_b, mu, cut, joints, residual), or None"},
+    {nullptr, nullptr, 0, nullptr}};
+
+PyTypeObject ImpulsePlanType = {PyVarObject_HEAD_INIT(nullptr, 0)};
+
+// called from PyInit__tree_dynamics: the type added to the module, or -1
+int add_impulse_plan(PyObject *m) {
+  ImpulsePlanType.tp_name = "pcmm._tree_dynamics.ImpulsePlan";
+  ImpulsePlanType.tp_basicsize = sizeof(ImpulsePlan);
+  ImpulsePlanType.tp_flags = Py_TPFLAGS_DEFAULT;
+  ImpulsePlanType.tp_doc =
+      "ImpulsePlan(tree, kind, stop_v, sign, arm, vec, frame_a, frame_b, point_a, point_b, drives, cuts): one "
+      "contact's impulse in a tree configuration (_impulse.hpp)";
+  ImpulsePlanType.tp_new = impulse_plan_new;
+  ImpulsePlanType.tp_dealloc = (destructor)impulse_plan_dealloc;
+  ImpulsePlanType.tp_methods = impulse_plan_methods;
+  if (PyType_Ready(&ImpulsePlanType) < 0) return -1;
+  Py_INCREF(&ImpulsePlanType);
+  if (PyModule_AddObject(m, "ImpulsePlan", (PyObject *)&ImpulsePlanType) < 0) {
+    Py_DECREF(&ImpulsePlanType);
+    return -1;
+  }
+  return 0;
+}
