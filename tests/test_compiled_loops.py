@@ -7,17 +7,15 @@ from __future__ import annotations
 import copy
 import math
 
+import builders
 import numpy as np
-import pinocchio as pin
 import pytest
+from builders import ROOT
 
 import pcmm
 from pcmm.errors import SimulationError
 from pcmm.model import compiled
 from pcmm.model.mechanism import Mechanism
-
-import builders
-from builders import ROOT
 
 EXAMPLES = ROOT / "examples"
 needs_extension = pytest.mark.skipif(not compiled.enabled() or not hasattr(compiled._tree_dynamics, "Loop"),
@@ -75,6 +73,13 @@ def _compare_at_random_states(scene, starts, rng, n=12):
                 # rows agree to round-off, so they agree to about 1e-16 / 1e-7
                 fast, slow = coords.singularity_guard().rate(t, y, None), twin.singularity_guard().rate(t, y, None)
                 assert abs(fast - slow) <= 1e-7 * (1.0 + abs(slow)), (fast, slow)
+                # a segment reader's rows and accelerations (the audit's powers, the lazy series): compiled
+                with coords.restored(coords.frozen_state(), q0) as reader:
+                    got = (*reader.accelerations(t, q, v), *reader.rows(t, q, v))
+                    assert reader._reader_kkt(t, q, v) is not None, reader.evaluations
+                want = (*twin.accelerations(t, q, v), *twin.rows(t, q, v))
+                for g, w in zip(got, want):
+                    worst = max(worst, float(np.max(np.abs(g - w), initial=0.0)) / (1.0 + float(np.max(np.abs(w), initial=0.0))))
     return worst
 
 
