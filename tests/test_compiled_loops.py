@@ -218,3 +218,25 @@ def test_a_loop_that_cannot_close_is_the_python_message():
         coords.unpack(0.01, far)
     assert str(fast.value) == str(python.value)
     assert "the loop cannot be closed" in str(fast.value)
+
+
+@pytest.mark.parametrize("mode", ["1", "0"])
+def test_the_series_of_a_run_stopped_at_a_singular_posture_read(tmp_path, monkeypatch, mode):
+    """A parallelogram four-bar driven into its change point stops there; the partial run's last
+    segment ends with its last accepted step recorded twice (the stop's state at the same instant).
+    Its series are read as every segment's: each sample closes the loop (a RecursionError before:
+    the re-read solve of a step asked for the step itself as its warm start, at a repeated time)."""
+    monkeypatch.setenv(compiled.ENV, mode)
+    path = builders.parallelogram(tmp_path, 0.5, 2.0, t_end=2.0)
+    with pytest.raises(SimulationError, match="singular") as stop:
+        pcmm.simulate(pcmm.load_scene(path))
+    partial = stop.value.partial
+    last = partial.segments[-1]
+    assert last.t[-1] == last.t[-2], "the case: a repeated instant at the segment's end"
+    scene = pcmm.load_scene(path)
+    coords = Mechanism(scene)["c"].coords
+    for seg in partial.segments:
+        for q in seg.q:
+            phi, _ = coords.loop_rows(q)
+            assert np.max(np.abs(phi)) < 1e-12
+    assert len(partial.series("theta", "crank")) == sum(len(seg.t) for seg in partial.segments)

@@ -562,9 +562,9 @@ class PartitionedCoordinates:
         from the neighbouring step converges as it did in the run.  None at the segment's first
         step (its start is the seed) or when ``t`` is the step being solved."""
         ts, ys = self._trail
-        k = int(np.searchsorted(ts, t, side="right")) - 1
-        if k < len(ts) and k >= 0 and ts[k] == t:
-            k -= 1  # that step is the one being solved: start from the one before
+        # the last step strictly before t: where t is a step (the one being solved), the one before it,
+        # also where the segment repeats that instant (a stopped run's last step, recorded twice)
+        k = int(np.searchsorted(ts, t, side="left")) - 1
         k = min(k, len(ts) - 1)
         if k <= 0:
             return None
