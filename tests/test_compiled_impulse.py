@@ -66,6 +66,16 @@ def _assert_same(a, b):
     assert abs(a.vn_before - b.vn_before) <= REL * v_scale and abs(a.vn_after - b.vn_after) <= REL * v_scale
 
 
+def _momenta_match(cfg, q, imp):
+    """The compiled solve's momenta about the origin are pcmm.events.momentum.momenta's (to round-off)."""
+    from pcmm.events.momentum import momenta
+    for k, v in enumerate((imp.v_before, imp.v_after)):
+        L, H0 = momenta(cfg, q, v, np.zeros(2))
+        scale = max(1.0, float(np.max(np.abs(L))), abs(H0))
+        got = np.array(imp.momenta[3 * k:3 * k + 3])
+        assert np.max(np.abs(got - np.array([L[0], L[1], H0]))) <= 1e-13 * scale
+
+
 def _newton(imp, e):
     """Newton's restitution law on the normal, Eq. 21: vn+ = -e vn-, to round-off of the state's speeds."""
     assert imp.vn_before < 0
@@ -93,6 +103,7 @@ def test_every_impulse_of_the_cycle_is_the_python_solve(monkeypatch):
         plans[id(plan)] = compiled_impulse(cfg, plan)
         a, b = _both(cfg, t, q, v, contact, e, cut)
         _assert_same(a, b)
+        _momenta_match(cfg, q, a)
         _newton(a, e)
         _newton(b, e)
         assert a.v_after[0] == v[0] or abs(a.v_after[0] - v[0]) <= 1e-12 * abs(v[0])  # the drive holds O1'
@@ -150,6 +161,7 @@ def test_drawn_chains_agree_with_the_python_solve(chain, data, kind, drive, e):
         v[k - 1] = -data.draw(st.floats(0.1, 3.0), label="approach")  # J_k decreasing: towards the stop
         a, b = _both(cfg, 0.2, q, v, tr.contact, e, tr.cut)
         _assert_same(a, b)
+        _momenta_match(cfg, q, a)
         _newton(a, e)
         _newton(b, e)
 
@@ -193,6 +205,7 @@ def _run(scene, monkeypatch, mode: str):
         return pcmm.simulate(scene)
 
 
+@pytest.mark.slow  # each example run whole, twice (three_bar_cycle: 10.9 s)
 @pytest.mark.parametrize("name", ["three_bar", "three_bar_stop", "three_bar_cycle"])
 def test_whole_runs_keep_their_events(name, monkeypatch):
     """Every shipped example with a compiled impulse: the same events (number, order, kind) as with

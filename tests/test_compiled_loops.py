@@ -7,17 +7,15 @@ from __future__ import annotations
 import copy
 import math
 
+import builders
 import numpy as np
-import pinocchio as pin
 import pytest
+from builders import ROOT
 
 import pcmm
 from pcmm.errors import SimulationError
 from pcmm.model import compiled
 from pcmm.model.mechanism import Mechanism
-
-import builders
-from builders import ROOT
 
 EXAMPLES = ROOT / "examples"
 needs_extension = pytest.mark.skipif(not compiled.enabled() or not hasattr(compiled._tree_dynamics, "Loop"),
@@ -75,6 +73,13 @@ def _compare_at_random_states(scene, starts, rng, n=12):
                 # rows agree to round-off, so they agree to about 1e-16 / 1e-7
                 fast, slow = coords.singularity_guard().rate(t, y, None), twin.singularity_guard().rate(t, y, None)
                 assert abs(fast - slow) <= 1e-7 * (1.0 + abs(slow)), (fast, slow)
+                # a segment reader's rows and accelerations (the audit's powers, the lazy series): compiled
+                with coords.restored(coords.frozen_state(), q0) as reader:
+                    got = (*reader.accelerations(t, q, v), *reader.rows(t, q, v))
+                    assert reader._reader_kkt(t, q, v) is not None, reader.evaluations
+                want = (*twin.accelerations(t, q, v), *twin.rows(t, q, v))
+                for g, w in zip(got, want):
+                    worst = max(worst, float(np.max(np.abs(g - w), initial=0.0)) / (1.0 + float(np.max(np.abs(w), initial=0.0))))
     return worst
 
 
@@ -128,6 +133,7 @@ def _differences(a, b) -> dict:
             "v": np.array([float(np.max(np.abs(x.v[-1] - y.v[-1]))) for x, y in pairs])}
 
 
+@pytest.mark.slow  # each example run whole, compiled and in Python (double_folded_cycle: 19.5 s)
 @needs_extension
 @pytest.mark.parametrize("name", ["double_folded.toml", "double_folded_cycle.toml", "andrews.toml"])
 def test_whole_runs_are_the_python_runs(tmp_path, monkeypatch, name):
@@ -212,3 +218,25 @@ def test_a_loop_that_cannot_close_is_the_python_message():
         coords.unpack(0.01, far)
     assert str(fast.value) == str(python.value)
     assert "the loop cannot be closed" in str(fast.value)
+
+
+@pytest.mark.parametrize("mode", ["1", "0"])
+def test_the_series_of_a_run_stopped_at_a_singular_posture_read(tmp_path, monkeypatch, mode):
+    """A parallelogram four-bar driven into its change point stops there; the partial run's last
+    segment ends with its last accepted step recorded twice (the stop's state at the same instant).
+    Its series are read as every segment's: each sample closes the loop (a RecursionError before:
+    the re-read solve of a step asked for the step itself as its warm start, at a repeated time)."""
+    monkeypatch.setenv(compiled.ENV, mode)
+    path = builders.parallelogram(tmp_path, 0.5, 2.0, t_end=2.0)
+    with pytest.raises(SimulationError, match="singular") as stop:
+        pcmm.simulate(pcmm.load_scene(path))
+    partial = stop.value.partial
+    last = partial.segments[-1]
+    assert last.t[-1] == last.t[-2], "the case: a repeated instant at the segment's end"
+    scene = pcmm.load_scene(path)
+    coords = Mechanism(scene)["c"].coords
+    for seg in partial.segments:
+        for q in seg.q:
+            phi, _ = coords.loop_rows(q)
+            assert np.max(np.abs(phi)) < 1e-12
+    assert len(partial.series("theta", "crank")) == sum(len(seg.t) for seg in partial.segments)

@@ -7,6 +7,7 @@ import tracemalloc
 from types import SimpleNamespace
 
 import numpy as np
+import pytest
 import scipy.integrate._ode as scipy_ode
 
 import builders
@@ -81,6 +82,7 @@ def test_fortran_dop853_retains_nothing_per_segment():
     assert per_segment < 64, f"{per_segment:.0f} B retained per segment"
 
 
+@pytest.mark.slow  # a traced bouncing run (7.2 s)
 def test_a_bouncing_run_holds_no_flight_for_its_audit_while_it_runs(tmp_path):
     """Each flight's energy audit (pcmm.run.audit) is measured when the flight ends, and what only
     the audit needed (its steps' dense outputs) is then dropped.  When the flights waited for

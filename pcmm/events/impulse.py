@@ -72,6 +72,9 @@ class Impulse:
     tangent: np.ndarray | None = None  # frictional contacts: world unit tangent t = (n_y, -n_x)
     P_t: float = 0.0  # frictional contacts: tangential impulse on b along t (N s)
     friction: FrictionalImpulse | None = None  # Routh's process: phases, slip, the works
+    # the moving bodies' momenta about the world origin, before and after ([Lx, Ly, H0] each), where
+    # the solve had them at hand (the compiled one); else the event record computes them
+    momenta: tuple | None = None
 
     @property
     def vector(self) -> np.ndarray:
@@ -204,11 +207,12 @@ def _compiled_solve(cfg: Configuration, plan: _Plan, fast: CompiledImpulse, q, v
     got = fast.plan.solve(q, v, restitution)
     if got is None:
         return None
-    v_after, (P, vn_before, vn_after, ke_before, ke_after, drive_work), n, point, pos_a, pos_b, mu, cut, joints, tau = got
+    v_after, (P, vn_before, vn_after, ke_before, ke_after, drive_work), n, point, pos_a, pos_b, mu, cut, joints, tau, \
+        momenta = got
     contact = plan.contact
     out = Impulse(kind=plan.kind, restitution=restitution, normal=n, P=P, vn_before=vn_before, vn_after=vn_after,
                   v_before=v.copy(), v_after=v_after, ke_before=ke_before, ke_after=ke_after, point=point,
-                  drive_work=drive_work, rnea_residual=tau)
+                  drive_work=drive_work, rnea_residual=tau, momenta=momenta)
     out.cut_impulses = dict(zip(fast.cut_names, cut.tolist()))
     out.constraint_rows = dict(zip(fast.drive_labels, mu.tolist()))
     out.constraint_impulses = constraint_impulses(cfg, out.constraint_rows, []) if fast.drive_labels else {}

@@ -55,8 +55,11 @@ def momenta(cfg: Configuration, q, v, about) -> tuple[np.ndarray, float]:
     oMi, vel = data.oMi, data.v
     for jid in range(1, model.njoints):  # body momenta, moved to the world origin
         total += oMi[jid].act(inertias[jid] * vel[jid])
-    L = np.asarray(total.linear[:2], float).copy()
-    H0 = float(total.angular[2])
+    return _about(np.asarray(total.linear[:2], float).copy(), float(total.angular[2]), about)
+
+
+def _about(L: np.ndarray, H0: float, about) -> tuple[np.ndarray, float]:
+    """(L, H about ``about``) from the linear momentum and the angular momentum about the origin."""
     o = np.asarray(about, float)
     return L, H0 - float(o[0] * L[1] - o[1] * L[0])
 
@@ -86,10 +89,17 @@ def external_impulses(cfg: Configuration, tr: TransitionSpec, imp, q) -> dict[st
     return out
 
 
-def momentum_record(cfg: Configuration, q, v_before, v_after) -> dict:
+def momentum_record(cfg: Configuration, q, v_before, v_after, at_origin: tuple | None = None) -> dict:
+    """The momenta before and after about the scene's point; ``at_origin``: (Lx, Ly, H0) before and
+    after about the world origin, where the impulse solve computed them (:func:`momenta`'s
+    operations), moved to the point here."""
     o = about_point(cfg)
-    Lb, Hb = momenta(cfg, q, v_before, o)
-    La, Ha = momenta(cfg, q, v_after, o)
+    if at_origin is None:
+        Lb, Hb = momenta(cfg, q, v_before, o)
+        La, Ha = momenta(cfg, q, v_after, o)
+    else:
+        Lb, Hb = _about(np.array(at_origin[:2]), at_origin[2], o)
+        La, Ha = _about(np.array(at_origin[3:5]), at_origin[5], o)
     return {"about": [float(o[0]), float(o[1])], "linear_before": [float(x) for x in Lb],
             "linear_after": [float(x) for x in La], "angular_before": Hb, "angular_after": Ha}
 

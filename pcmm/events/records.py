@@ -149,7 +149,7 @@ def event_record(cfg: Configuration, tr: TransitionSpec, t, target: str, merge: 
                   v=(imp.v_before, imp.v_after), ke=(imp.ke_before, imp.ke_after), restitution=imp.restitution,
                   impact=imp.impact, P=imp.P, normal=imp.normal, vn=(imp.vn_before, imp.vn_after))
     if q is not None:
-        common["momentum"] = momentum_record(cfg, q, imp.v_before, imp.v_after)
+        common["momentum"] = momentum_record(cfg, q, imp.v_before, imp.v_after, imp.momenta)
     if not imp.impact:
         record = event_dict(cfg, tr, t, **common)
         ke0, ke1 = imp.ke_before, imp.ke_after

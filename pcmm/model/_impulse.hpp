@@ -148,7 +148,8 @@ inline PyObject *impulse_vector(const double *x, npy_intp n) {
 }
 
 // solve(q, v, e) -> (v_after, (P, vn_before, vn_after, ke_before, ke_after, drive_work), normal (2),
-// point (2), pos_a (2), pos_b (2), mu (drive rows), cut (k x 3), joints (njoints - 1 x 3), residual (nv));
+// point (2), pos_a (2), pos_b (2), mu (drive rows), cut (k x 3), joints (njoints - 1 x 3), residual (nv),
+// (Lx, Ly, H0 before, Lx, Ly, H0 after): the momenta about the world origin);
 // None where the contact takes no impulse along its normal (the Python solve says why)
 PyObject *impulse_plan_solve(ImpulsePlan *self, PyObject *const *args, Py_ssize_t nargs) {
   if (nargs != 3) {
@@ -275,6 +276,7 @@ PyObject *impulse_plan_solve(ImpulsePlan *self, PyObject *const *args, Py_ssize_
     load(c.frame_a, c.kind == 1 ? pos_b : pos_a, -F[0], -F[1], 0.0);
   }
   pinocchio::rnea(model, data, q, c.zero, c.dv, c.fext);
+  const VectorXd tau = data.tau;  // the generalized residual (the drives' impulses), before data is reused
   const npy_intp jdims[2] = {(npy_intp)model.njoints - 1, 3}, cdims[2] = {(npy_intp)c.cuts.size(), 3};
   PyArrayObject *joints = (PyArrayObject *)PyArray_SimpleNew(2, jdims, NPY_DOUBLE);
   PyArrayObject *cut = (PyArrayObject *)PyArray_SimpleNew(2, cdims, NPY_DOUBLE);
@@ -298,6 +300,17 @@ PyObject *impulse_plan_solve(ImpulsePlan *self, PyObject *const *args, Py_ssize_
       co[3 * k + 2] = F[2];
     }
   }
+  // the moving bodies' momenta about the world origin before and after (pcmm.events.momentum.momenta's
+  // operations: each body's I v moved to the world, summed in joint order): [Lx, Ly, H0] each
+  double momenta[6];
+  for (int k = 0; k < 2; ++k) {
+    pinocchio::forwardKinematics(model, data, q, k == 0 ? VectorXd(v) : VectorXd(va));
+    pinocchio::Force total = pinocchio::Force::Zero();
+    for (int j = 1; j < (int)model.njoints; ++j) total += data.oMi[j].act(model.inertias[j] * data.v[j]);
+    momenta[3 * k] = total.linear()[0];
+    momenta[3 * k + 1] = total.linear()[1];
+    momenta[3 * k + 2] = total.angular()[2];
+  }
   Py_DECREF(q_a);
   Py_DECREF(v_a);
   if (!joints || !cut) {
@@ -306,16 +319,17 @@ PyObject *impulse_plan_solve(ImpulsePlan *self, PyObject *const *args, Py_ssize_
     Py_DECREF(v_after);
     return nullptr;
   }
-  return Py_BuildValue("N(dddddd)NNNNNNNN", v_after, P, vn_before, vn_after, ke_before, ke_after, drive_work,
+  return Py_BuildValue("N(dddddd)NNNNNNNN(dddddd)", v_after, P, vn_before, vn_after, ke_before, ke_after, drive_work,
                        impulse_vector(n.data(), 2), impulse_vector(point.data(), 2), impulse_vector(pos_a.data(), 2),
                        impulse_vector(pos_b.data(), 2), impulse_vector(mu.data(), nd), cut, joints,
-                       impulse_vector(data.tau.data(), nv));
+                       impulse_vector(tau.data(), nv), momenta[0], momenta[1], momenta[2], momenta[3], momenta[4],
+                       momenta[5]);
 }
 
 PyMethodDef impulse_plan_methods[] = {
     {"solve", (PyCFunction)(void (*)(void))impulse_plan_solve, METH_FASTCALL,
      "solve(q, v, e) -> (v_after, (P, vn_before, vn_after, ke_before, ke_after, drive_work), normal, point, pos_a, "
-     "pos_b, mu, cut, joints, residual), or None"},
+     "pos_b, mu, cut, joints, residual, momenta about the origin before and after), or None"},
     {nullptr, nullptr, 0, nullptr}};
 
 PyTypeObject ImpulsePlanType = {PyVarObject_HEAD_INIT(nullptr, 0)};

@@ -279,11 +279,11 @@ Status unpack(Tree *tree, State &s, double t, const double *y, VectorXd &start, 
   return OK;
 }
 
-// the accelerations at the solved (q, v) = (s.cq, s.cv) into the tree's data (ddq, lambda_c), tau in
-// s.tau: false where Python must decide (pinocchio's KKT solve failed or is not finite)
-bool accelerations(Tree *tree, State &s, double t) {
+// the accelerations at an assembled (q, v) into the tree's data (ddq, lambda_c), the rows and their
+// bias in s.J, s.gamma, tau in s.tau: false where Python must decide (pinocchio's KKT solve failed or
+// is not finite, a point spring of zero length)
+bool accelerations(Tree *tree, State &s, double t, const VectorXd &q, const VectorXd &v) {
   const int nv = s.nv;
-  const VectorXd &q = s.cq, &v = s.cv;
   Model &model = *tree->model;
   Data &data = *tree->data;
   if (s.nc) {
@@ -623,7 +623,7 @@ PyObject *loop_call(Loop *self, PyObject *const *args, Py_ssize_t nargs, bool po
   VectorXd start;
   const loops::Status st = loops::unpack(self->tree, s, t, (const double *)PyArray_DATA(y), start);
   Py_DECREF(y);
-  if (st != loops::OK || !loops::accelerations(self->tree, s, t)) Py_RETURN_NONE;
+  if (st != loops::OK || !loops::accelerations(self->tree, s, t, s.cq, s.cv)) Py_RETURN_NONE;
   npy_intp dims = n;
   PyArrayObject *out = (PyArrayObject *)PyArray_SimpleNew(1, &dims, NPY_DOUBLE);
   if (!out) return nullptr;
@@ -705,6 +705,34 @@ PyObject *loop_det_rate(Loop *self, PyObject *const *args, Py_ssize_t nargs) {
   return PyFloat_FromDouble((det[0] - det[1]) / (2 * eps));
 }
 
+// kkt(t, q, v) -> (a, lam, Phi_q, bias) at an assembled (q, v): M a + h = tau + Phi_q^T lam,
+// Phi_q a + bias = 0 (PartitionedCoordinates.accelerations and rows); None where Python must decide
+PyObject *loop_kkt(Loop *self, PyObject *const *args, Py_ssize_t nargs) {
+  if (nargs != 3) {
+    PyErr_SetString(PyExc_TypeError, "kkt(t, q, v) takes three arguments");
+    return nullptr;
+  }
+  loops::State &s = *self->s;
+  const double t = PyFloat_AsDouble(args[0]);
+  if (t == -1.0 && PyErr_Occurred()) return nullptr;
+  PyArrayObject *q_o = vector_arg(args[1], s.nv, "q", "coordinate vector");
+  if (!q_o) return nullptr;
+  PyArrayObject *v_o = vector_arg(args[2], s.nv, "v", "velocity vector");
+  if (!v_o) {
+    Py_DECREF(q_o);
+    return nullptr;
+  }
+  const VectorXd q = Eigen::Map<const VectorXd>((const double *)PyArray_DATA(q_o), s.nv),
+                 v = Eigen::Map<const VectorXd>((const double *)PyArray_DATA(v_o), s.nv);
+  Py_DECREF(q_o);
+  Py_DECREF(v_o);
+  if (!loops::accelerations(self->tree, s, t, q, v)) Py_RETURN_NONE;
+  const Data &data = *self->tree->data;
+  const RowMatrixXd J = s.J;
+  const VectorXd lam = data.lambda_c.head(s.m);
+  return Py_BuildValue("NNNN", new_vector(data.ddq), new_vector(lam), new_matrix(J), new_vector(s.gamma));
+}
+
 PyObject *loop_max_residual(Loop *self, PyObject *) { return PyFloat_FromDouble(self->s->max_residual); }
 
 PyObject *loop_set_checking(Loop *self, PyObject *arg) {
@@ -725,6 +753,8 @@ PyMethodDef loop_object_methods[] = {
     {"rhs_with_power", (PyCFunction)(void (*)(void))loop_rhs_with_power, METH_FASTCALL,
      "rhs_with_power(t, [y, W]) -> [q'_I, q''_I, P] or None"},
     {"holds", (PyCFunction)(void (*)(void))loop_holds, METH_FASTCALL, "holds(t, y) -> the last unpack's state"},
+    {"kkt", (PyCFunction)(void (*)(void))loop_kkt, METH_FASTCALL,
+     "kkt(t, q, v) -> (a, lam, Phi_q, bias) at an assembled state, or None"},
     {"det_rate", (PyCFunction)(void (*)(void))loop_det_rate, METH_FASTCALL,
      "det_rate(t, q, qdot) -> d/dt of the dependent block's scaled determinant (central differences)"},
     {"last", (PyCFunction)loop_last, METH_NOARGS, "last() -> (t, q, q') of the last solution kept"},

@@ -47,6 +47,7 @@ class PartitionedCoordinates:
         self._loop_held = None  # (thread, force elements) the loop's tree is checked for
         self._loop_refused = "not decided yet"  # why the loop is not compiled (None: it may be): below
         self._seed_q, self._seed_t = None, 0.0  # the last seed and the time of the last partition
+        self._reader = False  # a segment reader (restored): its rows and accelerations compiled too
         self.cfg = cfg
         self.closure = closure
         self.drives = drives
@@ -152,7 +153,8 @@ class PartitionedCoordinates:
         built = compiled.loop_tree(self.cfg.model, self.closure.frames_a, self.closure.frames_b, forces.Q0, forces.KD,
                                    forces.points)
         if built is None:
-            return self._refuse_loop(compiled.why_not() or "not compiled")
+            self._refuse_loop(compiled.why_not() or "not compiled")
+            return None
         (tree, checked), springs = built
         if self._loop is None:
             self._loop = compiled.loop(tree, self.drives.index, self.drives._derivs, springs)
@@ -162,15 +164,16 @@ class PartitionedCoordinates:
             self._loop.set_tree(tree, springs)
         why = self._loop_disagrees(tree, checked, springs)
         if why is not None:
-            return self._refuse_loop(why)
+            self._refuse_loop(why)
+            return None
         self._loop_held = (threading.get_ident(), forces)
         return self._loop
 
-    def _refuse_loop(self, why: str):
+    def _refuse_loop(self, why: str) -> None:
+        """The loops run in Python from now on, and :attr:`evaluations` says ``why``."""
         self._loop_refused = why
         self._loop, self._loop_held = None, None
         self.evaluations = f"python: {why}"
-        return None
 
     def _loop_disagrees(self, tree, checked, springs) -> str | None:
         """Why the compiled loop on ``tree`` is not the Python evaluation (None: it is): both from
@@ -271,6 +274,7 @@ class PartitionedCoordinates:
         evaluations apply instead of the configuration's current ones."""
         reader = copy.copy(self)
         reader._loop, reader._loop_held = None, None  # its own compiled loop (its own warm starts)
+        reader._reader = True
         if forces is not None:
             reader._segment_forces = forces
         reader.I, reader.D, reader.ny = frozen["I"], frozen["D"], frozen["ny"]
@@ -558,9 +562,9 @@ class PartitionedCoordinates:
         from the neighbouring step converges as it did in the run.  None at the segment's first
         step (its start is the seed) or when ``t`` is the step being solved."""
         ts, ys = self._trail
-        k = int(np.searchsorted(ts, t, side="right")) - 1
-        if k < len(ts) and k >= 0 and ts[k] == t:
-            k -= 1  # that step is the one being solved: start from the one before
+        # the last step strictly before t: where t is a step (the one being solved), the one before it,
+        # also where the segment repeats that instant (a stopped run's last step, recorded twice)
+        k = int(np.searchsorted(ts, t, side="left")) - 1
         k = min(k, len(ts) - 1)
         if k <= 0:
             return None
@@ -829,8 +833,21 @@ class PartitionedCoordinates:
 
     def rows(self, t, q, v):
         """(Phi_q, bias) of every constraint at (q, v): ``Phi_q a + bias = 0``."""
+        got = self._reader_kkt(t, q, v)
+        if got is not None:
+            return got[2], got[3]
         _, Jq, bias = self._phi(t, q, need_bias=True, v=v)
         return Jq, bias
+
+    def _reader_kkt(self, t, q, v):
+        """``(a, lam, Phi_q, bias)`` at an assembled (q, v) by a segment reader's compiled loop
+        (:meth:`restored`: the audit's powers, the lazy series, a hold's rows); None otherwise.  The
+        run's own coordinates keep the Python evaluation here: its callers (a reaction guard, the
+        contact forces) read the frame placements it leaves on the configuration's data."""
+        if not self._reader or self._loop_refused is not None:
+            return None
+        loop = self._compiled_loop()
+        return None if loop is None else loop.kkt(t, q, v)
 
     def time_rows(self):
         """``(Phi_q, bias_of)`` where the rows depend on time alone (drives without a loop):
@@ -845,6 +862,10 @@ class PartitionedCoordinates:
 
     def accelerations(self, t, q, v, extra=None):
         """(a, lam): ``M a + h = Q + extra + Phi_q^T lam`` with ``Phi_q a + bias = 0``."""
+        if extra is None:
+            got = self._reader_kkt(t, q, v)
+            if got is not None:
+                return got[0], got[1]
         Jq, bias = self.rows(t, q, v)
         return constrained_accelerations(self.cfg, q, v, Jq, bias, extra, forces=self.forces)
 
