@@ -62,3 +62,22 @@ def test_a_run_far_from_its_change_point_is_read_on_its_own_branch(tmp_path, mon
     assert max(np.diff(run.t)) * 2.0 > 10 * 0.05, "the case: a step far longer than one warm-start prediction"
     _assert_on_parallelogram_branch(run, 2.0)
     _assert_on_parallelogram_branch(run.resampled(0.01), 2.0)
+
+
+@pytest.mark.parametrize("mode", ["0", "1"])
+@pytest.mark.parametrize("theta1", [2.0, 3.0, 3.14])
+def test_a_long_first_step_is_read_on_the_branch_it_starts_on(tmp_path, monkeypatch, mode, theta1):
+    """A segment's first step is solved from the segment's start (the seed): a step from theta = 0.5
+    to theta1 (up to next to the change point) read back on the parallelogram branch
+    (theta_B = -theta1, theta_D = theta1), the branch of its start."""
+    monkeypatch.setenv(compiled.ENV, mode)
+    from pcmm.model.mechanism import Mechanism
+    path = builders.parallelogram(tmp_path, 0.5, 2.0)
+    coords = Mechanism(pcmm.load_scene(path))["c"].coords
+    q0, v0 = np.array([0.5, -0.5, 0.5]), np.array([2.0, -2.0, 2.0])
+    y0 = coords.pack(0.0, q0, v0)  # the independent coordinate: the crank's or the coupler's relative angle
+    q1 = np.array([theta1, -theta1, theta1])
+    ts, ys = np.array([0.0, (theta1 - 0.5) / 2.0]), np.array([y0, [q1[coords.I[0]], y0[1]]]).T
+    with coords.restored(coords.frozen_state(), q0, steps=(ts, ys)) as reader:
+        q, _ = reader.unpack(ts[1], ys[:, 1])
+    np.testing.assert_allclose(q, q1, rtol=0, atol=1e-9)

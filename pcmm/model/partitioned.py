@@ -556,13 +556,19 @@ class PartitionedCoordinates:
         """In a re-read segment, where the solution ``q`` at ``t`` (independent coordinates ``qI``)
         was solved across a long step (carrying the step before ``t`` to ``t`` along its rates
         would move a coordinate by more than PREDICT_MAX, so the Newton solve started from the step
-        itself): the warm start continued from that step along the way (:meth:`_continued`) when
+        itself; or the segment's first step, solved from the segment's start, moved a coordinate by
+        more than PREDICT_MAX): the warm start continued from that step along the way (:meth:`_continued`) when
         ``q`` lies farther than PREDICT_MAX from it — ``q`` is then on another assembly branch, or
         an angle 2 pi away, not the run's — else None (``q`` stands, to the last bit)."""
         if self._trail is None or not self.closure.size:
             return None
         near = self._follow(t)
-        if near is None or _max_abs((t - near[0]) * near[2]) <= PREDICT_MAX:
+        if near is None:  # the segment's first step: from its start, the seed
+            t0 = self._trail[0][0]
+            if not t > t0 or _max_abs(q - self._seed_q) <= PREDICT_MAX:
+                return None
+            near = (t0, self._seed_q, None)
+        elif _max_abs((t - near[0]) * near[2]) <= PREDICT_MAX:
             return None
         tc, qc, rates = self._continued(t, qI, near)
         start = qc + (t - tc) * rates
