@@ -81,3 +81,22 @@ def test_a_long_first_step_is_read_on_the_branch_it_starts_on(tmp_path, monkeypa
     with coords.restored(coords.frozen_state(), q0, steps=(ts, ys)) as reader:
         q, _ = reader.unpack(ts[1], ys[:, 1])
     np.testing.assert_allclose(q, q1, rtol=0, atol=1e-9)
+
+
+@pytest.mark.parametrize("mode", ["0", "1"])
+def test_a_step_across_the_change_point_is_refused_not_read_on_a_guessed_branch(tmp_path, monkeypatch, mode):
+    """A recorded step from theta = 2.9 to 3.3 passes the change point (theta = pi, where the
+    parallelogram and anti-parallelogram branches cross; no accepted segment does, the run stops
+    there): the reader says so, naming the instant and the loop's cut joint, rather than return a
+    branch (before: the anti-parallelogram's theta_D = 3.062 for theta_A = 3.3, silently)."""
+    monkeypatch.setenv(compiled.ENV, mode)
+    from pcmm.model.mechanism import Mechanism
+    path = builders.parallelogram(tmp_path, 2.9, 2.0)
+    coords = Mechanism(pcmm.load_scene(path))["c"].coords
+    q0, v0 = np.array([2.9, -2.9, 2.9]), np.array([2.0, -2.0, 2.0])
+    y0 = coords.pack(0.0, q0, v0)
+    q1 = np.array([3.3, -3.3, 3.3])
+    ts, ys = np.array([0.0, 0.2]), np.array([y0, [q1[coords.I[0]], y0[1]]]).T
+    with coords.restored(coords.frozen_state(), q0, steps=(ts, ys)) as reader:
+        with pytest.raises(SimulationError, match=r"t = 0\.2 s, the loop of cut joint 'C' passes a singular posture"):
+            reader.unpack(ts[1], ys[:, 1])

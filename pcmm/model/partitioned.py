@@ -584,8 +584,13 @@ class PartitionedCoordinates:
         which carrying to ``t`` moves no coordinate by more than PREDICT_MAX (the rates are the
         tangent per unit time), the same branch as ``near``.  Where the pieces shrink to nothing
         (at or next to a singular posture, where the branches meet) it raises: the reader cannot
-        tell which branch the run was on."""
+        tell which branch the run was on; so it does where the dependent block's determinant changes
+        sign along the way (the path crosses a singular posture: a change point, where the branches
+        cross, which no accepted segment does: its partition's guard stops the run first)."""
         tr, q, _ = near
+        loop = "the loop of cut joint" + ("s " if len(self.closure.specs) > 1 else " ") + ", ".join(
+            f"'{c.name}'" for c in self.closure.specs)
+        sign = None
         dt = t - tr
         dI = np.asarray(qI, float) - q[self.I]
         position = self.cfg.position_jacobian
@@ -594,6 +599,14 @@ class PartitionedCoordinates:
             tc = tr + s * dt
             phi, Jq, _ = self._phi(tc, qc)
             Jp = position(qc, Jq)
+            det = self._scaled_det(Jp)
+            if sign is not None and det * sign < 0:
+                raise SimulationError(
+                    f"configuration '{self.cfg.name}': re-reading a recorded segment at t = {t:.9g} s, {loop} "
+                    f"passes a singular posture between t = {tr:.9g} s (a recorded step) and t = {tc:.9g} s "
+                    "(its dependent block's determinant changes sign): beyond it the assembly branch "
+                    "is not determined; pcmm will not guess it")
+            sign = det if det != 0 else sign
             tangent = np.zeros(self.nv)
             tangent[self.I] = dI
             try:
@@ -608,7 +621,7 @@ class PartitionedCoordinates:
                 if not (h * size >= 1e-9 and math.isfinite(size)):
                     raise SimulationError(
                         f"configuration '{self.cfg.name}': re-reading a recorded segment at t = {t:.9g} s, "
-                        f"the loop's dependent coordinates cannot be followed from the recorded step at "
+                        f"the dependent coordinates of {loop} cannot be followed from the recorded step at "
                         f"t = {tr:.9g} s (the continuation stalls at t = {tc:.9g} s): the loop is at or next "
                         "to a singular posture, where its assembly branches meet; pcmm will not guess the branch")
                 guess = qc + h * tangent
