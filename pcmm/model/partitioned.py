@@ -552,6 +552,88 @@ class PartitionedCoordinates:
         # start past a branch point): beyond PREDICT_MAX the nearest solution is the start
         return q + step if _max_abs(step) <= PREDICT_MAX else q
 
+    def _off_branch(self, t, qI, q):
+        """In a re-read segment, where the solution ``q`` at ``t`` (independent coordinates ``qI``)
+        was solved across a long step (carrying the step before ``t`` to ``t`` along its rates
+        would move a coordinate by more than PREDICT_MAX, so the Newton solve started from the step
+        itself; or the segment's first step, solved from the segment's start, moved a coordinate by
+        more than PREDICT_MAX): the warm start continued from that step along the way (:meth:`_continued`) when
+        ``q`` lies farther than PREDICT_MAX from it — ``q`` is then on another assembly branch, or
+        an angle 2 pi away, not the run's — else None (``q`` stands, to the last bit)."""
+        if self._trail is None or not self.closure.size:
+            return None
+        near = self._follow(t)
+        if near is None:  # the segment's first step: from its start, the seed
+            t0 = self._trail[0][0]
+            if not t > t0 or _max_abs(q - self._seed_q) <= PREDICT_MAX:
+                return None
+            near = (t0, self._seed_q, None)
+        elif _max_abs((t - near[0]) * near[2]) <= PREDICT_MAX:
+            return None
+        tc, qc, rates = self._continued(t, qI, near)
+        start = qc + (t - tc) * rates
+        return start if _max_abs(q - start) > PREDICT_MAX else None
+
+    def _continued(self, t, qI, near):
+        """Continuation of the dependent coordinates from a solution ``near = (t_r, q_r, q'_r)`` to
+        the time ``t`` and independent coordinates ``qI``, along the straight path
+        ``s -> (t_r + s (t - t_r), q_I,r + s (qI - q_I,r))``, s in [0, 1]: each piece is predicted
+        along the path's tangent (``dq_D/ds`` from ``Phi_q dq/ds + Phi_t dt/ds = 0``) by at most
+        PREDICT_MAX and corrected by Newton; a piece whose correction is not small against its
+        prediction is halved (it left the branch it started on).  Returns ``(t_c, q_c, q'_c)`` from
+        which carrying to ``t`` moves no coordinate by more than PREDICT_MAX (the rates are the
+        tangent per unit time), the same branch as ``near``.  Where the pieces shrink to nothing
+        (at or next to a singular posture, where the branches meet) it raises: the reader cannot
+        tell which branch the run was on; so it does where the dependent block's determinant changes
+        sign along the way (the path crosses a singular posture: a change point, where the branches
+        cross, which no accepted segment does: its partition's guard stops the run first)."""
+        tr, q, _ = near
+        loop = "the loop of cut joint" + ("s " if len(self.closure.specs) > 1 else " ") + ", ".join(
+            f"'{c.name}'" for c in self.closure.specs)
+        sign = None
+        dt = t - tr
+        dI = np.asarray(qI, float) - q[self.I]
+        position = self.cfg.position_jacobian
+        s, qc, h = 0.0, q.copy(), 1.0
+        while True:
+            tc = tr + s * dt
+            phi, Jq, _ = self._phi(tc, qc)
+            Jp = position(qc, Jq)
+            det = self._scaled_det(Jp)
+            if sign is not None and det * sign < 0:
+                raise SimulationError(
+                    f"configuration '{self.cfg.name}': re-reading a recorded segment at t = {t:.9g} s, {loop} "
+                    f"passes a singular posture between t = {tr:.9g} s (a recorded step) and t = {tc:.9g} s "
+                    "(its dependent block's determinant changes sign): beyond it the assembly branch "
+                    "is not determined; pcmm will not guess it")
+            sign = det if det != 0 else sign
+            tangent = np.zeros(self.nv)
+            tangent[self.I] = dI
+            try:
+                tangent[self.D] = solve(Jp[:, self.D], -(Jp[:, self.I] @ dI + self._phi_t(tc) * dt))
+            except np.linalg.LinAlgError:
+                tangent = None
+            if tangent is not None and _max_abs((1.0 - s) * tangent) <= PREDICT_MAX:
+                return tc, qc, tangent / dt
+            size = _max_abs(tangent) if tangent is not None else math.inf
+            h = min(h * 2.0, 1.0 - s, PREDICT_MAX / size if math.isfinite(size) else 0.0)
+            while True:
+                if not (h * size >= 1e-9 and math.isfinite(size)):
+                    raise SimulationError(
+                        f"configuration '{self.cfg.name}': re-reading a recorded segment at t = {t:.9g} s, "
+                        f"the dependent coordinates of {loop} cannot be followed from the recorded step at "
+                        f"t = {tr:.9g} s (the continuation stalls at t = {tc:.9g} s): the loop is at or next "
+                        "to a singular posture, where its assembly branches meet; pcmm will not guess the branch")
+                guess = qc + h * tangent
+                try:
+                    q1, _, _ = self._solve_dependent(tr + (s + h) * dt, q[self.I] + (s + h) * dI, guess)
+                except SimulationError:
+                    q1 = None
+                if q1 is not None and _max_abs(q1 - guess) <= 0.2 * h * size + 1e-12:
+                    break
+                h *= 0.5
+            s, qc = s + h, q1
+
     def _follow(self, t):
         """While a segment is re-read (:meth:`restored` with its steps): the solution at the
         accepted step at or before ``t`` (``(t_k, q, q')``), the steps before it solved one after
@@ -749,6 +831,10 @@ class PartitionedCoordinates:
                 self._check_conditioning(t, Jp)  # raises (the compiled check fired: a round-off apart otherwise)
             q, v = self._unpack(t, y, guess=q)
             loop.remember(t, y, q, self._recent[-1][2], self._last_Jp)
+        branch = self._off_branch(t, y[:len(self.I)], q) if trail is not None else None
+        if branch is not None:  # a re-read segment's long step: the run's branch (as the Python path)
+            q, v = self._unpack(t, y, guess=branch)
+            loop.remember(t, y, q, self._recent[-1][2], self._last_Jp)
         if trail is not None:  # keep the solution at an accepted step of the segment (unpack)
             ts, ys = trail
             k = int(np.searchsorted(ts, t, side="left"))
@@ -761,6 +847,10 @@ class PartitionedCoordinates:
             return self._prescribed(t, y)
         k = len(self.I)
         q, Jq, Jp = self._solve_dependent(t, y[:k], self._guess(t) if guess is None else guess)
+        if guess is None:  # a re-read segment's long step: the run's branch, not the one Newton found
+            branch = self._off_branch(t, y[:k], q)
+            if branch is not None:
+                q, Jq, Jp = self._solve_dependent(t, y[:k], branch)
         self._qD = q
         self._last_Jp = Jp
         # the state's second half is the independent coordinates' rates q'_I (a planar joint's
