@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import copy
 import math
+import shutil
 
 import builders
 import numpy as np
@@ -185,6 +186,35 @@ def test_it_steps_aside_with_the_reason_where_it_disagrees(monkeypatch):
     slow = pcmm.simulate(pcmm.load_scene(EXAMPLES / "double_folded.toml"), pcmm.RunOptions(t_end=0.5))
     np.testing.assert_array_equal(traj.segments[-1].q, slow.segments[-1].q)
     np.testing.assert_array_equal(traj.segments[-1].v, slow.segments[-1].v)
+
+
+@needs_extension
+def test_a_second_scene_on_the_same_model_with_another_drive_is_checked_again(tmp_path, monkeypatch):
+    """Two scenes on one URDF in one process (as a study runs them) share the Pinocchio model and
+    so its compiled loop tree (same cut joint, force elements, gravity): what differs is the crank's
+    drive law, which the compiled loop carries besides its tree.  The first scene's probe check
+    must not stand for the second's: with the second's compiled loop off by 1e-6 rad in its drive
+    (a defect planted for the test), the probe check refuses it, and the run says why."""
+    compiled.forget_trees()
+    first = pcmm.simulate(pcmm.load_scene(EXAMPLES / "double_folded.toml"), pcmm.RunOptions(t_end=0.2))
+    assert first.stats["evaluations"]["config1"] == "compiled", first.stats["evaluations"]
+    # the same example with the crank accelerating: theta1 = pi + (pi/5) t + 0.45 t^2
+    (tmp_path / "scenes").mkdir()
+    shutil.copytree(ROOT / "urdf", tmp_path / "urdf")
+    law = "coefficients = [3.141592653589793, 0.6283185307179586]"
+    text = (EXAMPLES / "double_folded.toml").read_text()
+    assert text.count(law) == 1
+    second = tmp_path / "scenes" / "double_folded_accelerating.toml"
+    second.write_text(text.replace(law, "coefficients = [3.141592653589793, 0.6283185307179586, 0.45]"))
+    real = compiled.loop
+
+    def planted(tree, driven, laws, springs=()):
+        laws = tuple(((law[0][0] + 1e-6, *law[0][1:]), law[1], law[2]) for law in laws)
+        return real(tree, driven, laws, springs)
+    monkeypatch.setattr(compiled, "loop", planted)
+    traj = pcmm.simulate(pcmm.load_scene(second), pcmm.RunOptions(t_end=0.2))
+    said = traj.stats["evaluations"]["config1"]
+    assert said.startswith("python: it disagrees with the Python loop right-hand side, dependent (0, 1, 2) by "), said
 
 
 @pytest.mark.parametrize("name", ["compass_gait.toml", "rimless_wheel.toml"])

@@ -177,8 +177,7 @@ def drive_tree(model: pin.Model, Q0: np.ndarray, KD: np.ndarray, driven, laws, r
     ``rhs_with_power(t, [q_I, v_I, W])`` equal ``reference`` and ``reference_power``, the Python
     evaluations they replace (checked at probe states and times); or None (why_not says)."""
     Q0, KD = np.asarray(Q0, float), np.asarray(KD, float)
-    driven = tuple(int(i) for i in driven)
-    laws = tuple(tuple(tuple(float(c) for c in cs) for cs in law) for law in laws)
+    driven, laws = drives_key(driven, laws)
     if enabled() and not hasattr(_tree_dynamics.Tree, "set_drives"):  # an extension built before drives were
         _refuse("this build of pcmm.model._tree_dynamics has no compiled drives (built from older sources): "
                 "reinstall pcmm (pip install -e .) to rebuild it")
@@ -297,14 +296,21 @@ def loop(tree, driven, laws, springs=()):
     ``springs`` (a :func:`loop_tree`), its drives' coordinates ``driven`` and ``laws`` ((f, f', f'')
     coefficients, low order first, as :class:`pcmm.model.rows.Drives` evaluates them): it holds its
     own warm starts, seeded with ``seed(q, I, D)``."""
-    laws = tuple(tuple(tuple(float(c) for c in cs) for cs in law) for law in laws)
-    return _tree_dynamics.Loop(tree, tuple(int(i) for i in driven), laws, springs)
+    return _tree_dynamics.Loop(tree, *drives_key(driven, laws), springs)
 
 
-def agrees(checked: set, fn, reference, probes, what: str) -> bool:
+def drives_key(driven, laws) -> tuple:
+    """(driven coordinates, laws) as plain ints and floats: what a compiled evaluation with drives
+    is built from, hashable (a key of what was checked)."""
+    return (tuple(int(i) for i in driven),
+            tuple(tuple(tuple(float(c) for c in cs) for cs in law) for law in laws))
+
+
+def agrees(checked: set, fn, reference, probes, what: str, key=None) -> bool:
     """Whether ``fn`` equals ``reference`` at the probe arguments to :data:`AGREEMENT` (once per
-    compiled tree and ``what``); where not, why_not says by how much."""
-    return _agrees(checked, fn, reference, probes, what)
+    compiled tree and ``key``, ``what`` where None: the key holds every input of ``fn`` that the
+    tree's own key does not); where not, why_not says by how much (naming ``what``)."""
+    return _agrees(checked, fn, reference, probes, what, key)
 
 
 def refuse(reason: str) -> None:
@@ -395,10 +401,11 @@ def _rebuild(model: pin.Model):
     return tree
 
 
-def _agrees(checked: set, fn, reference, probes, what: str) -> bool:
+def _agrees(checked: set, fn, reference, probes, what: str, key=None) -> bool:
     """``fn`` and ``reference`` at the probe arguments, output by output, to round-off; once per
-    compiled tree and function (``checked`` remembers)."""
-    if what in checked:
+    compiled tree and function (``checked`` remembers ``key``, ``what`` where None)."""
+    key = what if key is None else key
+    if key in checked:
         _last_reason.clear()
         return True
     for args in probes:
@@ -420,6 +427,6 @@ def _agrees(checked: set, fn, reference, probes, what: str) -> bool:
                 _refuse(f"it disagrees with the Python {what} by {np.max(np.abs(g - e)):.3g} "
                         f"(allowed {AGREEMENT * scale:.3g})")
                 return False
-    checked.add(what)
+    checked.add(key)
     _last_reason.clear()
     return True

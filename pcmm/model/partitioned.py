@@ -178,9 +178,13 @@ class PartitionedCoordinates:
     def _loop_disagrees(self, tree, checked, springs) -> str | None:
         """Why the compiled loop on ``tree`` is not the Python evaluation (None: it is): both from
         the seed, at probe states near it (independent coordinates 1e-3 off, rates of order one,
-        times 1e-3 s on), the right-hand side and the one with power; once per tree and partition."""
+        times 1e-3 s on), the right-hand side and the one with power; once per tree, partition and
+        drives.  The tree's key holds its cut joints, force elements, point springs, gravity and
+        armature (compiled.loop_tree); the drives are the compiled loop's own, and configurations
+        on one URDF (one model, so one tree) may drive it differently: they are in the key here."""
         what = f"loop right-hand side, dependent {tuple(int(i) for i in self.D)}"
-        if what in checked:
+        key = (what, compiled.drives_key(self.drives.index, self.drives._derivs))
+        if key in checked and (key, "with power") in checked:  # both: the one with power may have failed
             return None
         k = len(self.I)
         base = self._seed_q[self.I]
@@ -199,10 +203,11 @@ class PartitionedCoordinates:
             return np.full(n, np.nan) if out is None else out
         try:
             same = (compiled.agrees(checked, lambda t, y: declined(scratch.rhs(t, y), 2 * k), reference._python_rhs,
-                                    probes, what)
+                                    probes, what, key)
                     and compiled.agrees(checked, lambda t, y: declined(scratch.rhs_with_power(t, y), 2 * k + 1),
                                         reference._python_rhs_with_power,
-                                        [(t, np.append(y, 0.0)) for t, y in probes], what + " with power"))
+                                        [(t, np.append(y, 0.0)) for t, y in probes], what + " with power",
+                                        (key, "with power")))
         except (SimulationError, np.linalg.LinAlgError) as exc:
             return f"the Python evaluation fails at a probe state near the seed ({exc})"
         return None if same else (compiled.why_not() or "it disagrees with the Python evaluation")
