@@ -217,6 +217,33 @@ def test_a_second_scene_on_the_same_model_with_another_drive_is_checked_again(tm
     assert said.startswith("python: it disagrees with the Python loop right-hand side, dependent (0, 1, 2) by "), said
 
 
+@needs_extension
+def test_a_loop_whose_power_disagreed_is_checked_again_on_the_next_scene(monkeypatch):
+    """A compiled loop whose right-hand side agrees but whose right-hand side with power does not
+    (its power off by 1e-6 W, a defect planted for the test) is refused; the next scene on the same
+    model and drives must not take the right-hand side's pass for both: it is refused too."""
+    compiled.forget_trees()
+    real = compiled.loop
+
+    class Planted:
+        def __init__(self, loop):
+            self._loop = loop
+
+        def __getattr__(self, name):
+            return getattr(self._loop, name)
+
+        def rhs_with_power(self, t, y):
+            out = self._loop.rhs_with_power(t, y)
+            return None if out is None else out + np.eye(1, len(out), len(out) - 1)[0] * 1e-6
+
+    monkeypatch.setattr(compiled, "loop", lambda *args: Planted(real(*args)))
+    for _ in range(2):
+        traj = pcmm.simulate(pcmm.load_scene(EXAMPLES / "double_folded.toml"), pcmm.RunOptions(t_end=0.2))
+        said = traj.stats["evaluations"]["config1"]
+        assert said.startswith("python: it disagrees with the Python loop right-hand side, dependent (0, 1, 2) "
+                               "with power by "), said
+
+
 @pytest.mark.parametrize("name", ["compass_gait.toml", "rimless_wheel.toml"])
 def test_loops_on_a_planar_joint_run_in_python_and_say_so(name):
     """The other examples with loops stand on a planar joint (a body's x, y, theta: q' is not v):
