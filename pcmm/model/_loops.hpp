@@ -384,45 +384,11 @@ PyObject *loop_object_new(PyTypeObject *type, PyObject *args, PyObject *) {
     PyErr_SetString(PyExc_ValueError, "Loop(tree, driven, laws): a finalized tree without drives of its own");
     return nullptr;
   }
-  PyObject *driven = PySequence_Fast(driven_o, "driven: a sequence of coordinates");
-  if (!driven) return nullptr;
-  PyObject *laws = PySequence_Fast(laws_o, "laws: a sequence of (f, f', f'') coefficients");
-  if (!laws) {
-    Py_DECREF(driven);
-    return nullptr;
-  }
   auto *s = new loops::State();
   const int nv = tree->nv;
   s->nv = nv;
   s->nc = 2 * (int)tree->pairs->size();
-  bool ok = PySequence_Fast_GET_SIZE(driven) == PySequence_Fast_GET_SIZE(laws);
-  if (!ok) PyErr_SetString(PyExc_ValueError, "Loop: one law per driven coordinate");
-  for (Py_ssize_t j = 0; ok && j < PySequence_Fast_GET_SIZE(driven); ++j) {
-    const long i = PyLong_AsLong(PySequence_Fast_GET_ITEM(driven, j));
-    if (i < 0 || i >= nv) {
-      if (!PyErr_Occurred()) PyErr_Format(PyExc_ValueError, "Loop: coordinate %ld does not exist", i);
-      ok = false;
-      break;
-    }
-    s->driven.push_back((int)i);
-    PyObject *law = PySequence_Fast(PySequence_Fast_GET_ITEM(laws, j), "a law: (f, f', f'') coefficients");
-    if (!law) {
-      ok = false;
-      break;
-    }
-    std::vector<double> c[3];
-    ok = PySequence_Fast_GET_SIZE(law) == 3;
-    if (!ok) PyErr_SetString(PyExc_ValueError, "Loop: a law is (f, f', f'') coefficients");
-    for (int k = 0; ok && k < 3; ++k) ok = read_vector(PySequence_Fast_GET_ITEM(law, k), c[k], "a drive law");
-    Py_DECREF(law);
-    if (!ok) break;
-    s->c0.push_back(c[0]);
-    s->c1.push_back(c[1]);
-    s->c2.push_back(c[2]);
-  }
-  Py_DECREF(driven);
-  Py_DECREF(laws);
-  if (!ok) {
+  if (!read_drive_laws(driven_o, laws_o, nv, "Loop", s->driven, s->c0, s->c1, s->c2)) {
     delete s;
     return nullptr;
   }
