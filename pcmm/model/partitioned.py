@@ -927,21 +927,28 @@ class PartitionedCoordinates:
         return self.unpack(t, np.concatenate([q[self.I], self.cfg.qdot(q, v)[self.I]]))
 
     def rows(self, t, q, v):
-        """(Phi_q, bias) of every constraint at (q, v): ``Phi_q a + bias = 0``."""
-        got = self._reader_kkt(t, q, v)
-        if got is not None:
-            return got[2], got[3]
+        """(Phi_q, bias) of every constraint at (q, v): ``Phi_q a + bias = 0`` (a segment reader's
+        compiled loop builds them without its KKT solve: the flight audit's power solves for the
+        multipliers itself, :func:`pcmm.run.audit.power`)."""
+        loop = self._reader_loop()
+        if loop is not None:
+            return loop.rows(t, q, v)
         _, Jq, bias = self._phi(t, q, need_bias=True, v=v)
         return Jq, bias
 
-    def _reader_kkt(self, t, q, v):
-        """``(a, lam, Phi_q, bias)`` at an assembled (q, v) by a segment reader's compiled loop
-        (:meth:`restored`: the audit's powers, the lazy series, a hold's rows); None otherwise.  The
-        run's own coordinates keep the Python evaluation here: its callers (a reaction guard, the
-        contact forces) read the frame placements it leaves on the configuration's data."""
+    def _reader_loop(self):
+        """A segment reader's compiled loop (:meth:`restored`: the audit's powers, the lazy series, a
+        hold's rows); None otherwise.  The run's own coordinates keep the Python evaluation of their
+        rows and accelerations: its callers (a reaction guard, the contact forces) read the frame
+        placements it leaves on the configuration's data."""
         if not self._reader or self._loop_refused is not None:
             return None
-        loop = self._compiled_loop()
+        return self._compiled_loop()
+
+    def _reader_kkt(self, t, q, v):
+        """``(a, lam, Phi_q, bias)`` at an assembled (q, v) by a segment reader's compiled loop
+        (:meth:`_reader_loop`); None otherwise, or where its KKT solve hands back to Python."""
+        loop = self._reader_loop()
         return None if loop is None else loop.kkt(t, q, v)
 
     def time_rows(self):
