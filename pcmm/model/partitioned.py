@@ -28,6 +28,9 @@ NEWTON_TOL = 1e-13
 SINGULAR_COND = 1e9
 #: the largest change (rad or m) the warm start of a loop's Newton solve is extrapolated by
 PREDICT_MAX = 0.05
+# the whole constraint Jacobian has lost its rank where its smallest singular value is at most this
+# fraction of its largest: a change point or a dead centre (at_degenerate_partition, _refuse_singular_read)
+RANK_LOST = 1e-6
 _thread_id = threading.get_ident
 
 
@@ -593,8 +596,7 @@ class PartitionedCoordinates:
         sign along the way (the path crosses a singular posture: a change point, where the branches
         cross, which no accepted segment does: its partition's guard stops the run first)."""
         tr, q, _ = near
-        loop = "the loop of cut joint" + ("s " if len(self.closure.specs) > 1 else " ") + ", ".join(
-            f"'{c.name}'" for c in self.closure.specs)
+        loop = self._loop_name()
         sign = None
         dt = t - tr
         dI = np.asarray(qI, float) - q[self.I]
@@ -639,6 +641,34 @@ class PartitionedCoordinates:
                 h *= 0.5
             s, qc = s + h, q1
 
+    def _loop_name(self) -> str:
+        """The loop named by its cut joints, for a message: "the loop of cut joint 'C'"."""
+        return "the loop of cut joint" + ("s " if len(self.closure.specs) > 1 else " ") + ", ".join(
+            f"'{c.name}'" for c in self.closure.specs)
+
+    def _refuse_singular_read(self, t, Jp):
+        """A segment reader (:meth:`restored`) must not return a solution at a singular posture of the
+        loop, where the whole constraint Jacobian ``Jp`` has lost its rank (:data:`RANK_LOST`, the run's
+        own test in :meth:`at_degenerate_partition`): a change point or a dead centre, where the
+        assembly branches meet.  There the dependent rates are not determined and the Newton solve of
+        the positions stalls short of the meeting point (a parallelogram read at its change point,
+        theta = pi to the last bit: 5.4e-7 off, its rates (2, -1.5, 0.5) for the run's (2, -2, 2));
+        an accepted segment never holds such a posture (the run stops there), so a read that lands on
+        one is asked for an instant the run did not reach on this branch.  Raises, naming the time and
+        the cut joints.  The SVD runs only where the dependent block's scaled determinant allows a lost
+        rank: it is at most m^(m/2) times the Jacobian's smallest-to-largest singular value ratio."""
+        m = Jp.shape[0]
+        if not m or abs(self._scaled_det(Jp)) > m ** (m / 2) * RANK_LOST:
+            return
+        s = np.linalg.svd(Jp, compute_uv=False)
+        if s[-1] > RANK_LOST * s[0]:
+            return
+        raise SimulationError(
+            f"configuration '{self.cfg.name}': re-reading a recorded segment at t = {t:.9g} s, {self._loop_name()} "
+            f"is at a singular posture (constraint Jacobian singular values {s[0]:.3g} ... {s[-1]:.3g}): at a "
+            "change point or dead centre its assembly branches meet and its rates are not determined; pcmm "
+            "will not guess them")
+
     def _follow(self, t):
         """While a segment is re-read (:meth:`restored` with its steps): the solution at the
         accepted step at or before ``t`` (``(t_k, q, q')``), the steps before it solved one after
@@ -675,7 +705,7 @@ class PartitionedCoordinates:
         at a singular posture (a dead centre, a change point) and the run stops."""
         Jq = self._position_rows(t, q)
         s = np.linalg.svd(Jq, compute_uv=False)
-        if s[-1] <= 1e-6 * s[0] or np.array_equal(self._best_dependent(Jq), self.D):
+        if s[-1] <= RANK_LOST * s[0] or np.array_equal(self._best_dependent(Jq), self.D):
             # rank lost, or no partition does better than the one that degenerated
             raise SimulationError(
                 f"configuration '{self.cfg.name}': the loop reaches a singular posture at t = {t:.9g} s "
@@ -840,6 +870,8 @@ class PartitionedCoordinates:
         if branch is not None:  # a re-read segment's long step: the run's branch (as the Python path)
             q, v = self._unpack(t, y, guess=branch)
             loop.remember(t, y, q, self._recent[-1][2], self._last_Jp)
+        elif status == 0 and self._reader:  # the Python solves above check their own
+            self._refuse_singular_read(t, self._last_Jp)
         if trail is not None:  # keep the solution at an accepted step of the segment (unpack)
             ts, ys = trail
             k = int(np.searchsorted(ts, t, side="left"))
@@ -856,6 +888,8 @@ class PartitionedCoordinates:
             branch = self._off_branch(t, y[:k], q)
             if branch is not None:
                 q, Jq, Jp = self._solve_dependent(t, y[:k], branch)
+        if self._reader:
+            self._refuse_singular_read(t, Jp)
         self._qD = q
         self._last_Jp = Jp
         # the state's second half is the independent coordinates' rates q'_I (a planar joint's
