@@ -578,8 +578,7 @@ class PartitionedCoordinates:
             near = (t0, self._seed_q, None)
         elif _max_abs((t - near[0]) * near[2]) <= PREDICT_MAX:
             return None
-        tc, qc, rates = self._continued(t, qI, near)
-        start = qc + (t - tc) * rates
+        start = self._continued(t, qI, near)
         return start if _max_abs(q - start) > PREDICT_MAX else None
 
     def _continued(self, t, qI, near):
@@ -588,9 +587,11 @@ class PartitionedCoordinates:
         ``s -> (t_r + s (t - t_r), q_I,r + s (qI - q_I,r))``, s in [0, 1]: each piece is predicted
         along the path's tangent (``dq_D/ds`` from ``Phi_q dq/ds + Phi_t dt/ds = 0``) by at most
         PREDICT_MAX and corrected by Newton; a piece whose correction is not small against its
-        prediction is halved (it left the branch it started on).  Returns ``(t_c, q_c, q'_c)`` from
-        which carrying to ``t`` moves no coordinate by more than PREDICT_MAX (the rates are the
-        tangent per unit time), the same branch as ``near``.  Where the pieces shrink to nothing
+        prediction is halved (it left the branch it started on).  Returns the coordinates at ``t``
+        on the branch of ``near``, the determinant's sign checked all the way (it once stopped
+        PREDICT_MAX short of ``t`` and carried the rest along the tangent: a parallelogram read
+        3.4e-3 past its change point came back on the anti-parallelogram, its rates off by 1 and
+        3, tests/test_loop_branch.py).  Where the pieces shrink to nothing
         (at or next to a singular posture, where the branches meet) it raises: the reader cannot
         tell which branch the run was on; so it does where the dependent block's determinant changes
         sign along the way (the path crosses a singular posture: a change point, where the branches
@@ -614,16 +615,18 @@ class PartitionedCoordinates:
                     "(its dependent block's determinant changes sign): beyond it the assembly branch "
                     "is not determined; pcmm will not guess it")
             sign = det if det != 0 else sign
+            if s == 1.0:  # at the read, its determinant's sign checked
+                return qc
             tangent = np.zeros(self.nv)
             tangent[self.I] = dI
             try:
                 tangent[self.D] = solve(Jp[:, self.D], -(Jp[:, self.I] @ dI + self._phi_t(tc) * dt))
             except np.linalg.LinAlgError:
                 tangent = None
-            if tangent is not None and _max_abs((1.0 - s) * tangent) <= PREDICT_MAX:
-                return tc, qc, tangent / dt
             size = _max_abs(tangent) if tangent is not None else math.inf
             h = min(h * 2.0, 1.0 - s, PREDICT_MAX / size if math.isfinite(size) else 0.0)
+            if 1.0 - s - h < 1e-6 * h:  # what would be left: the rest of the way
+                h = 1.0 - s
             while True:
                 if not (h * size >= 1e-9 and math.isfinite(size)):
                     raise SimulationError(
@@ -639,7 +642,7 @@ class PartitionedCoordinates:
                 if q1 is not None and _max_abs(q1 - guess) <= 0.2 * h * size + 1e-12:
                     break
                 h *= 0.5
-            s, qc = s + h, q1
+            s, qc = (1.0 if h == 1.0 - s else s + h), q1
 
     def _loop_name(self) -> str:
         """The loop named by its cut joints, for a message: "the loop of cut joint 'C'"."""
