@@ -264,7 +264,7 @@ def loop_tree(model: pin.Model, frames_a, frames_b, Q0: np.ndarray, KD: np.ndarr
     with closed loops: its revolute cut joints' point pairs (frames of ``model``), its linear force
     elements and its point springs ``points`` (a :class:`pcmm.model.forces.PointSprings` or None),
     for a :func:`loop`; or None (why_not says)."""
-    if enabled() and not hasattr(_tree_dynamics, "Loop"):  # an extension built before loops were
+    if enabled() and not hasattr(getattr(_tree_dynamics, "Loop", None), "rows"):  # built before loops (or their rows) were
         _refuse("this build of pcmm.model._tree_dynamics has no compiled loops (built from older sources): "
                 "reinstall pcmm (pip install -e .) to rebuild it")
         return None
