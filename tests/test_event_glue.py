@@ -58,3 +58,30 @@ def test_a_pendulum_bouncing_on_its_stop(tmp_path, monkeypatch):
     assert built_fast == [("c1", "stop", False), ("c1", "stop", True)]
     assert built_slow == [("c1", "stop", False)] + [("c1", "stop", True)] * 3
     _same_run(fast, slow)
+
+
+def test_the_guard_residual_read_from_the_state_is_the_rebuilt_guards(monkeypatch):
+    """At each of three_bar_cycle's impacts (to 1.5 s), and at states moved off them at random, the
+    residual read off the state entry (actions._residual) is the value of the guard built again
+    (guards.guard_residual), to the bit."""
+    from types import SimpleNamespace
+
+    from pcmm.run import actions
+    seen = []
+    fast = actions._residual
+
+    def kept(run, guard):
+        seen.append((run.cfg, run.t, np.array(run.y), guard))
+        return fast(run, guard)
+    monkeypatch.setattr(actions, "_residual", kept)
+    pcmm.simulate(pcmm.load_scene(EXAMPLES / "three_bar_cycle.toml"), pcmm.RunOptions(t_end=1.5))
+    assert len(seen) > 50 and all(g.linear is not None for *_, g in seen)
+    rng = np.random.default_rng(1)
+    nonzero = 0
+    for cfg, t, y, guard in seen:
+        for state in (y, y + rng.normal(scale=1e-3, size=y.shape)):
+            got = fast(SimpleNamespace(cfg=cfg, t=t, y=state), guard)
+            want = actions.guard_residual(cfg, guard.transition, t, state)
+            assert type(got) is float and got == want
+            nonzero += got != 0.0
+    assert nonzero >= len(seen)
