@@ -85,3 +85,88 @@ def test_the_guard_residual_read_from_the_state_is_the_rebuilt_guards(monkeypatc
             assert type(got) is float and got == want
             nonzero += got != 0.0
     assert nonzero >= len(seen)
+
+
+# ---- the event log's generated readers (pcmm.results.event_log._flattener) -------------------------
+from hypothesis import given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+from pcmm.results import event_log  # noqa: E402
+
+
+def _typed(x):
+    """``x`` with every value's exact type beside it (``1 == 1.0 == True``, a log must not mix them)."""
+    if isinstance(x, dict):
+        return ("dict", [(k, _typed(v)) for k, v in x.items()])
+    if isinstance(x, (list, tuple)):
+        return (type(x).__name__, [_typed(v) for v in x])
+    name = "float" if isinstance(x, np.float64) else type(x).__name__  # the log keeps a numpy float as a float
+    return (name, x if x == x else "nan")
+
+
+leaf = st.one_of(st.floats(allow_nan=False), st.integers(-2 ** 60, 2 ** 60), st.booleans(), st.none(),
+                 st.sampled_from(["O2 pin", "stop", "x" * 60]), st.floats(-10, 10).map(np.float64),
+                 st.integers(-5, 5).map(np.int64))
+record = st.recursive(leaf, lambda inner: st.one_of(
+    st.lists(inner, max_size=3), st.lists(inner, max_size=3).map(tuple),
+    st.dictionaries(st.sampled_from(["t", "a", "b", "v"]), inner, max_size=3)), max_leaves=12)
+
+
+def _mutations(rec):
+    """``rec`` and records one leaf away from it: each number as an int, a bool, None, a numpy scalar."""
+    yield rec
+    if isinstance(rec, dict):
+        for k, v in rec.items():
+            for m in _mutations(v):
+                yield {**rec, k: m}
+        if len(rec) > 1:
+            yield dict(reversed(rec.items()))  # the same items, another key order: another layout
+    elif isinstance(rec, (list, tuple)):
+        for i, v in enumerate(rec):
+            for m in _mutations(v):
+                yield type(rec)([*rec[:i], m, *rec[i + 1:]])
+        yield type(rec)([*rec, 1.0])
+    else:
+        yield from (1, 1.0, True, None, np.float64(1.0), np.int64(1), "O2 pin")
+
+
+@settings(max_examples=120, deadline=None)
+@given(st.lists(st.dictionaries(st.sampled_from(["t", "name", "impulse", "v"]), record, min_size=1, max_size=4),
+                min_size=1, max_size=4))
+def test_the_log_gives_back_every_record_with_its_types(records):
+    """Records of a few layouts, each followed by records one leaf away (an int for a float, a bool,
+    None, a numpy scalar, another key order, one more item): each read back as appended, types and
+    all, and each stored as the general encoder (_layout) stores it (the values kept aside apart)."""
+    sequence = [m for rec in records for m in _mutations(rec)][:200]
+    log = event_log.EventLog()
+    for rec in sequence:
+        log.append(rec)
+    assert [_typed(r) for r in log] == [_typed(r) for r in sequence]
+    for i, rec in enumerate(sequence):  # the same table and row as _layout gives
+        numbers, aside = [], []
+        layout = event_log._layout(rec, numbers, aside)
+        k, row = log._index[i // event_log.BLOCK][i % event_log.BLOCK]
+        table = log._tables[k]
+        assert table.layout == layout
+        assert table.row(int(row)).tolist()[:len(numbers)][:len(numbers) if not aside else 0] == \
+            [float(x) for x in numbers][:len(numbers) if not aside else 0]
+
+
+def test_a_run_of_bounces_appends_by_the_generated_reader(monkeypatch):
+    """three_bar_cycle's records go through the generated readers (the general encoder runs once
+    per layout, not once per impact), and come back as the run's records."""
+    calls = []
+    general = event_log._layout
+
+    def counted(obj, numbers, aside):
+        if type(obj) is dict and "name" in obj:  # a record, not one of its containers
+            calls.append(1)
+        return general(obj, numbers, aside)
+    traj = pcmm.simulate(pcmm.load_scene(EXAMPLES / "three_bar_cycle.toml"), pcmm.RunOptions(t_end=1.5))
+    records = list(traj.events)
+    monkeypatch.setattr(event_log, "_layout", counted)
+    log = event_log.EventLog()
+    for r in records:
+        log.append(r)
+    assert len(records) > 50 and 0 < len(calls) < 10
+    assert [_typed(r) for r in log] == [_typed(r) for r in records]
