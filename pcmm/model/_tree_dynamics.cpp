@@ -712,6 +712,7 @@ PyModuleDef module_def = {PyModuleDef_HEAD_INIT, "_tree_dynamics",
                           "A tree configuration's right-hand side with Pinocchio's ABA, in C++.", -1, nullptr};
 
 #include "_impulse.hpp"  // the impulse of a contact in a tree (pcmm.events.impulse_compiled)
+#include "_locate.hpp"   // an event located on a step's dense output (pcmm.ode.integrators._locate)
 
 }  // namespace
 
@@ -764,6 +765,10 @@ PyMODINIT_FUNC PyInit__tree_dynamics(void) {
     return nullptr;
   }
   if (add_loop_type(m) < 0) {  // closed loops' right-hand side (_loops.hpp)
+    Py_DECREF(m);
+    return nullptr;
+  }
+  if (add_locate(m) < 0) {  // an event's location (_locate.hpp)
     Py_DECREF(m);
     return nullptr;
   }

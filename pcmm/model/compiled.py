@@ -155,6 +155,10 @@ def _register_segment_loop(owner: type | None = None, make: Callable | None = No
     segment loop (DOP853 in C++, pcmm/model/_segment_loop.hpp), where this build has one; and that
     ``owner``'s right-hand sides have ``make`` (called as :data:`pcmm.ode.integrators.SEGMENT_LOOPS`
     says; it ends in :func:`segment_loop`)."""
+    locate = getattr(_tree_dynamics, "locate", None)
+    if locate is not None:  # the event locator (_locate.hpp), for every configuration's guards from now on
+        from ..ode.integrators import COMPILED_LOCATE
+        COMPILED_LOCATE[:] = [locate, enabled]
     loop = getattr(_tree_dynamics, "SegmentLoop", None)
     if loop is not None:
         from ..ode.integrators import SEGMENT_LOOPS

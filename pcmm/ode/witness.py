@@ -48,6 +48,12 @@ class Guard:
     # (c, ct, d) where the value is affine in the state, g = c . y + ct t + d exactly (c None: no
     # state term), so its rate along the flow is c . y' + ct: a compiled segment loop scans it itself
     affine: tuple | None = None
+    #: optional: the value and the rate as linear forms of the state, ``(c, ct, d, r, rt, rearm, unfired)``:
+    #: g = c . y + ct t + d and g' = r . y + rt over the first ``len(c)`` components of y (float64
+    #: arrays), exactly as ``value`` and ``rate`` compute them; ``rearm``: read as a re-armed guard
+    #: (held at ``-direction unfired`` until its rate approaches the fired side).  The compiled
+    #: locator reads it (:func:`pcmm.ode.integrators._locate`, pcmm/model/_locate.hpp)
+    linear: tuple | None = None
 
     def __post_init__(self):
         if self.action not in ACTIONS:
