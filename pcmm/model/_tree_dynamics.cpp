@@ -685,6 +685,7 @@ PyMethodDef tree_methods[] = {
 
 PyTypeObject TreeType = {PyVarObject_HEAD_INIT(nullptr, 0)};
 
+#include "_holding.hpp"  // the holding forces of the locks in force (pcmm.events.holding)
 #include "_segment_loop.hpp"
 #include "_loops.hpp"
 
@@ -744,6 +745,10 @@ PyMODINIT_FUNC PyInit__tree_dynamics(void) {
     return nullptr;
   }
   if (add_loop_type(m) < 0) {  // closed loops' right-hand side (_loops.hpp)
+    Py_DECREF(m);
+    return nullptr;
+  }
+  if (add_holding_type(m) < 0) {  // the holding forces, and the segment loop's scan of their guards (_holding.hpp)
     Py_DECREF(m);
     return nullptr;
   }
