@@ -395,8 +395,11 @@ class ScipyMethod:
 
     fixed_step = False
 
-    def __init__(self, name: str):
+    def __init__(self, name: str, compiled_steps: bool = False):
         self.name = name
+        # DOP853 only: stepped by a compiled segment loop with scipy's tableau where the right-hand
+        # side has one (what "auto" gives a configuration with drives: method_for), else as always
+        self.compiled_steps = compiled_steps
 
     @property
     def cls(self):
@@ -406,7 +409,7 @@ class ScipyMethod:
         return DOP853 if self.name == "DOP853" else getattr(si, self.name)
 
     def integrate(self, fun, t0, y0, t_bound, events, opts, keep_dense=False) -> Segment:
-        if self.name == "DOP853" and COMPILED_SCIPY_STEPS:  # a compiled loop stepping as this class does
+        if self.name == "DOP853" and (self.compiled_steps or COMPILED_SCIPY_STEPS):  # a compiled loop stepping as this class does
             loop, progress = _segment_loop(fun, t0, y0, t_bound, events, opts, 0.0, tableau=packed_tableau(),
                                            keep_dense=keep_dense)
             if loop is not None:
@@ -707,9 +710,11 @@ def t_bound_reached(st) -> bool:
 #: 256 evaluations between two reports of the run loop's wrapper)
 _PROGRESS_STEPS = 21
 
-#: Whether scipy's DOP853 (the method "DOP853", what "auto" gives a configuration with loops or
-#: drives) may be stepped by a compiled segment loop (pcmm/model/_segment_loop.hpp with scipy's
-#: tableau).  Off: its steps cannot be numpy's to the bit.  At rtol 1e-10 the error estimate of a
+#: Whether the method "DOP853" (scipy's, stepped by pcmm: what a scene asking for it by name gets) may
+#: be stepped by a compiled segment loop (pcmm/model/_segment_loop.hpp with scipy's tableau).  Off:
+#: its steps cannot be numpy's to the bit, and the method named stays the reference.  ("auto" gives
+#: a configuration with drives or loops scipy's DOP853 stepped by that loop where it has one:
+#: :data:`AUTO_DOP853`.)  At rtol 1e-10 the error estimate of a
 #: step is a sum of stages that nearly cancel (three_bar_cycle's second step: stages of 160 rad/s^2
 #: summing to 9e-12, which numpy's BLAS dot product and an in-order sum round 1.6e-14 apart: 0.2 %),
 #: so the summation order moves the next step size (by 0.05 % there): examples/three_bar_cycle.toml's
@@ -884,6 +889,14 @@ INTEGRATORS["DOP853F"] = FortranDOP853()
 INTEGRATORS["RK4"] = FixedStepRK4()
 assert tuple(INTEGRATORS) == INTEGRATOR_NAMES, "pcmm.ode.methods names every integrator of the registry"
 
+#: what "auto" gives a configuration with drives or loops: scipy's DOP853 (its tableau, error norm and
+#: step-size control), stepped by the compiled segment loop where the right-hand side has one (drives
+#: without a loop), else by pcmm.ode.dop853 in Python.  Its steps are the Python ones round-off apart
+#: (the error estimate's sums in another order), not Hairer's DOP853F (another step-size control: the
+#: event times of three_bar_cycle then move by the tolerance's size, 2.3e-8 s, not 2.3e-9 s);
+#: docs/performance.md, "Drives without loops".
+AUTO_DOP853 = ScipyMethod("DOP853", compiled_steps=True)
+
 # "auto": per configuration, the cheaper method at equal accuracy (docs/benchmarks/work_precision.md).
 # On a tree the right-hand side is one aba, and scipy's Python step loop would cost more than it:
 # Hairer's Fortran DOP853 is about 2x faster there, with event times as accurate (Example 1 at rtol
@@ -894,6 +907,6 @@ assert tuple(INTEGRATORS) == INTEGRATOR_NAMES, "pcmm.ode.methods names every int
 def method_for(name: str, constrained: bool):
     """The integrator a configuration uses under the run's ``method`` setting."""
     if name == AUTO:
-        return INTEGRATORS["DOP853" if constrained else "DOP853F"]
+        return AUTO_DOP853 if constrained else INTEGRATORS["DOP853F"]
     return INTEGRATORS[name]
 
