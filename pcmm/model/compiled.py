@@ -343,6 +343,16 @@ def agrees(checked: set, fn, reference, probes, what: str, key=None) -> bool:
     return _agrees(checked, fn, reference, probes, what, key)
 
 
+def agrees_on(tree, fn, reference, probes, what: str) -> bool:
+    """:func:`agrees` for a function of ``tree``, a compiled tree this thread built (the names checked
+    on it are its own): False for a tree it does not hold."""
+    for _, built in _CACHE.trees.values():
+        for held, checked in built.values():
+            if held is tree:
+                return _agrees(checked, fn, reference, probes, what)
+    return False
+
+
 def refuse(reason: str) -> None:
     """Record why a configuration runs its Python evaluations (what why_not answers next)."""
     _refuse(reason)
