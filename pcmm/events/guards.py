@@ -21,6 +21,7 @@ from ..model.configuration import Configuration
 from .contact import contact_state, gap_rate
 from ..scene.spec import TransitionSpec
 from ..ode.witness import Guard
+from .holding import guard_value as holding_guard_value
 
 
 def _coordinate(cfg: Configuration, tr: TransitionSpec, ctx=None):
@@ -155,14 +156,9 @@ def _reaction(cfg: Configuration, tr: TransitionSpec, ctx=None):
         return _cut_joint_force(cfg, tr)
     if ctx is None or not ctx.holds(tr.guard.of, cfg):
         raise _NotHeld(tr.guard.of)
-    label = ctx.label(tr.guard.of)
-    unpack = cfg.coords.unpack
     forces = ctx.evaluator(cfg)  # the holding forces as this segment has them, prepared once
-
-    def value(t, y):
-        q, v = unpack(t, y)
-        return forces(t, q, v)[label] - tr.guard.value
-    return value, None
+    # (compiled where it can be: then a compiled segment loop scans it too, value.holding)
+    return holding_guard_value(cfg, forces, ctx.label(tr.guard.of), tr.guard.value), None
 
 
 class _NotHeld(Exception):
@@ -257,6 +253,7 @@ def make_guard(cfg: Configuration, tr: TransitionSpec, rearm: bool = False, cont
             linear = (c, float(plain[1]), float(plain[2]), np.concatenate([np.zeros(nq), c[:nq]]), 0.0)
     if linear is not None:
         linear = (*linear, bool(rearm), UNFIRED)
+    holding = getattr(raw, "holding", None) if tr.guard.when is None and not rearm else None
     if rearm:
         def value(t, y):
             val = raw(t, y)
@@ -282,7 +279,7 @@ def make_guard(cfg: Configuration, tr: TransitionSpec, rearm: bool = False, cont
                 return [val if direction * r > 0.0 else -direction * max(-direction * val, UNFIRED)
                         for val, r in zip(got[0].tolist(), got[1].tolist())]
     return Guard(_describe(tr), value, direction, "transition", tr, rate, rate is not None, many=many,
-                 affine=affine, linear=linear)
+                 affine=affine, linear=linear, holding=holding)
 
 
 def _affine(cfg: Configuration, tr: TransitionSpec, context=None):

@@ -501,6 +501,83 @@ void evaluate_drives(Tree *self, double t, const double *y, double *dy, bool pow
   }
 }
 
+// drive_powers(times (n), states (2k x n, one node a column)) -> (n): the power of the force elements and
+// of the drives' motors at each node of a flight's quadrature, as pcmm.run.audit.drive_powers forms it
+// from its own KKT solve at each node (the prescribed coordinates, tau = Q0 - K q - D v,
+// forwardDynamics with the drive rows, then tau . v + lam . (J v)): the flight-energy audit's check,
+// apart from the integrator's right-hand side (not its appended power)
+PyObject *tree_drive_powers(Tree *self, PyObject *args) {
+  PyObject *t_o, *y_o;
+  if (!PyArg_ParseTuple(args, "OO", &t_o, &y_o)) return nullptr;
+  if (!self->ready || !self->drives) {
+    PyErr_SetString(PyExc_ValueError, "drive_powers: a finalized tree with drives");
+    return nullptr;
+  }
+  PyArrayObject *times = (PyArrayObject *)PyArray_FROMANY(t_o, NPY_DOUBLE, 1, 1, NPY_ARRAY_IN_ARRAY);
+  if (!times) return nullptr;
+  PyArrayObject *states = (PyArrayObject *)PyArray_FROMANY(y_o, NPY_DOUBLE, 2, 2, NPY_ARRAY_IN_ARRAY);
+  const npy_intp n = PyArray_DIM(times, 0);
+  if (!states || PyArray_DIM(states, 0) < self->ny || PyArray_DIM(states, 1) != n) {
+    if (states) PyErr_Format(PyExc_ValueError, "drive_powers: states must be (>= %d) x %zd", self->ny, (Py_ssize_t)n);
+    Py_DECREF(times);
+    Py_XDECREF(states);
+    return nullptr;
+  }
+  PyArrayObject *out = (PyArrayObject *)PyArray_SimpleNew(1, &n, NPY_DOUBLE);
+  if (!out) {
+    Py_DECREF(times);
+    Py_DECREF(states);
+    return nullptr;
+  }
+  DriveLaws &d = *self->drives;
+  const int nv = self->nv, k = (int)d.free.size(), nd = (int)d.driven.size();
+  const double *ts = (const double *)PyArray_DATA(times), *ys = (const double *)PyArray_DATA(states);
+  double *po = (double *)PyArray_DATA(out);
+  bool ok = true;
+  for (npy_intp c = 0; c < n && ok; ++c) {
+    const double t = ts[c];
+    for (int j = 0; j < nd; ++j) {
+      d.f[j] = horner(d.c0[j], t);
+      d.f1[j] = horner(d.c1[j], t);
+      d.gamma[j] = -horner(d.c2[j], t);
+    }
+    for (int i = 0; i < k; ++i) {
+      d.q[d.free[i]] = ys[(npy_intp)i * n + c];
+      d.v[d.free[i]] = ys[(npy_intp)(k + i) * n + c];
+    }
+    for (int j = 0; j < nd; ++j) {
+      d.q[d.driven[j]] = d.f[j];
+      d.v[d.driven[j]] = d.f1[j];
+    }
+    d.kq.setZero();
+    d.dv.setZero();
+    for (const auto &ij : *self->kd_nonzero) {
+      const double kd = (*self->kd)(ij.first, ij.second);
+      if (ij.second < nv) d.kq[ij.first] += kd * d.q[ij.second];
+      else d.dv[ij.first] += kd * d.v[ij.second - nv];
+    }
+    for (int i = 0; i < nv; ++i) d.tau[i] = (*self->q0_force)[i] - d.kq[i] - d.dv[i];
+    try {
+      pinocchio::forwardDynamics(*self->model, *self->data, d.q, d.v, d.tau, d.J, d.gamma, 0.0);
+    } catch (const std::exception &exc) {
+      PyErr_Format(PyExc_ArithmeticError, "drive_powers: the KKT solve failed at t = %.17g (%s)", t, exc.what());
+      ok = false;
+      break;
+    }
+    double tv = 0.0, lv = 0.0;
+    for (int i = 0; i < nv; ++i) tv += d.tau[i] * d.v[i];
+    for (int j = 0; j < nd; ++j) lv += self->data->lambda_c[j] * d.v[d.driven[j]];
+    po[c] = tv + lv;
+  }
+  Py_DECREF(times);
+  Py_DECREF(states);
+  if (!ok) {
+    Py_DECREF(out);
+    return nullptr;
+  }
+  return (PyObject *)out;
+}
+
 // the right-hand side at (t, y) into dy: a tree's (evaluate_rhs) or, with drives, evaluate_drives;
 // with `power` a tree's flight (TreeCoordinates.rhs_with_power): the force elements' power
 // tau.v appended, dy[2 nv], tau = Q0 - KD y as evaluate_rhs left it (y[2 nv], the work, is not read)
@@ -699,12 +776,15 @@ PyMethodDef tree_methods[] = {
      "set_drives(driven, laws): coordinates prescribed by polynomials, laws = ((f, f', f'') coefficients, ...)"},
     {"rhs_with_power", (PyCFunction)(void (*)(void))tree_rhs_with_power, METH_FASTCALL,
      "rhs_with_power(t, [y, W]) -> [v_I, a_I, P]: P the power of the force elements (and of the drives' motors)"},
+    {"drive_powers", (PyCFunction)tree_drive_powers, METH_VARARGS,
+     "drive_powers(times, states) -> the power of the force elements and the drives' motors at each node"},
     {"evaluation_cost", (PyCFunction)tree_evaluation_cost, METH_VARARGS,
      "evaluation_cost(y, reps) -> {part: CPU seconds per call} (benchmarks/rhs_loop_cost.py)"},
     {nullptr, nullptr, 0, nullptr}};
 
 PyTypeObject TreeType = {PyVarObject_HEAD_INIT(nullptr, 0)};
 
+#include "_holding.hpp"  // the holding forces of the locks in force (pcmm.events.holding)
 #include "_segment_loop.hpp"
 #include "_loops.hpp"
 
@@ -769,6 +849,10 @@ PyMODINIT_FUNC PyInit__tree_dynamics(void) {
     return nullptr;
   }
   if (add_locate(m) < 0) {  // an event's location (_locate.hpp)
+    Py_DECREF(m);
+    return nullptr;
+  }
+  if (add_holding_type(m) < 0) {  // the holding forces, and the segment loop's scan of their guards (_holding.hpp)
     Py_DECREF(m);
     return nullptr;
   }

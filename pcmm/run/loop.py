@@ -301,6 +301,8 @@ def _finish(run: RunState, completed: bool) -> None:
     stats["derived_configurations"] = mech.derived
     # which evaluations each configuration ran: "compiled", or "python" and why (pcmm.compiled)
     stats["evaluations"] = {name: mech[name].coords.evaluations for name in mech.built}
+    # and the holding forces of each configuration's locks: "compiled", or "python" and why (pcmm.events.holding)
+    stats["holding_evaluations"] = dict(run.holds.evaluations)
     if run.store is not None and not completed:  # a stopped run's store ends here
         run.store.end(run.traj)
 
