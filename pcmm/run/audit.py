@@ -38,6 +38,7 @@ from .dense import dense_states
 
 RESOLVED_KINETIC = 1e-6  # flights with less rebound energy than this x the first are round-off dominated
 GAUSS_NODES, GAUSS_WEIGHTS = np.polynomial.legendre.leggauss(4)
+_NODES_1 = GAUSS_NODES + 1  # each step's nodes at t_k + h (x + 1), h its half size
 
 
 def mechanical_energy(cfg: Configuration, q, v) -> float:
@@ -68,9 +69,9 @@ def flight_work(cfg: Configuration, coords, t, y, stepping, q_start, kept=None) 
     t = np.asarray(t, float)
     if len(t) < 2 or not (len(coords.labels) or coords.forces.names):
         return 0.0  # no step; or no force element and no constraint row: no force but gravity does work
-    h = np.diff(t) / 2
-    times = (t[:-1, None] + h[:, None] * (GAUSS_NODES[None, :] + 1)).ravel()
-    weights = (h[:, None] * GAUSS_WEIGHTS[None, :]).ravel()
+    h = ((t[1:] - t[:-1]) / 2)[:, None]  # (what np.diff forms)
+    times = (t[:-1, None] + h * _NODES_1).ravel()
+    weights = (h * GAUSS_WEIGHTS).ravel()
     fun, method, opts = stepping
     if getattr(fun, "__self__", None) is cfg.coords:  # rhs or rhs_with_power: the reader's own
         fun = getattr(coords, fun.__name__)

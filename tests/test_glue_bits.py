@@ -1,0 +1,121 @@
+"""The per-event glue cut for speed (issue 26, item 2) gives the same bits as the route it replaces.
+
+* The flight audit's states at its Gauss nodes are evaluated at once on the kept steps' DOP853
+  polynomials (:func:`pcmm.run.dense._polynomial_states`); the reference is the definition: each
+  step's own interpolant called at the times inside it, a recorded state at a step's end.
+"""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from builders import driven_cart_pendulum, pendulum
+
+import pcmm
+from pcmm.ode.dop853 import DenseStep
+from pcmm.ode.integrators import _Contd8
+from pcmm.run import dense
+
+EXAMPLES = __import__("pathlib").Path(__file__).resolve().parents[1] / "examples"
+
+
+class _Kept:
+    """A kept step (Segment.dense's entries: ``fun -> interpolant``)."""
+
+    def __init__(self, sol):
+        self.sol = sol
+
+    def __call__(self, fun):
+        return self.sol
+
+
+def _steps(rng, kind, n, ny):
+    """``n`` random steps of increasing time and their interpolants of ``kind`` (random coefficients:
+    the evaluation, not the integrator, is under test)."""
+    t = np.cumsum(np.concatenate([[rng.uniform(0.0, 2.0)], rng.uniform(1e-3, 0.3, n)]))
+    sols = []
+    for k in range(n):
+        if kind == "contd8" or (kind == "mixed" and k % 2):
+            sols.append(_Contd8(t[k], t[k + 1] - t[k], rng.normal(size=(8, ny))))
+        else:
+            sols.append(DenseStep(t[k], t[k + 1], rng.normal(size=ny), rng.normal(size=(7, ny))))
+    y = rng.normal(size=(ny, n + 1))
+    return t, y, sols
+
+
+def _reference(t, y, sols, times):
+    """Each time on its own step's interpolant, called with the times inside that step; a time on a
+    recorded step's end is the recorded state (what dense_states promises)."""
+    out = np.empty((y.shape[0], len(times)))
+    n = len(t)
+    for i, ti in enumerate(times):
+        k = min(max(int(np.searchsorted(t, ti, side="right")) - 1, 0), n - 2)
+        if ti == t[k]:
+            out[:, i] = y[:, k]
+        elif ti == t[k + 1]:
+            out[:, i] = y[:, k + 1]
+    for k, sol in enumerate(sols):
+        cols = [i for i, ti in enumerate(times) if min(max(int(np.searchsorted(t, ti, side="right")) - 1, 0), n - 2) == k
+                and ti != t[k] and ti != t[k + 1]]
+        if cols:
+            out[:, cols] = np.asarray(sol(np.asarray(times)[cols]), float).reshape(y.shape[0], len(cols))
+    return out
+
+
+@pytest.mark.parametrize("kind", ["dense step", "contd8", "mixed"])
+@pytest.mark.parametrize("seed", range(6))
+def test_states_at_once_are_each_steps_interpolant_to_the_bit(kind, seed):
+    rng = np.random.default_rng(seed)
+    n, ny = int(rng.integers(1, 6)), int(rng.integers(1, 8))
+    t, y, sols = _steps(rng, kind, n, ny)
+    kept = [_Kept(s) for s in sols]
+    h = np.diff(t) / 2
+    nodes = (t[:-1, None] + h[:, None] * (np.polynomial.legendre.leggauss(4)[0] + 1)).ravel()  # the audit's
+    cases = [nodes, rng.uniform(t[0], t[-1], 9),  # unsorted
+             np.concatenate([nodes[::-1], t, [t[-1], t[0]]]),  # steps' ends among them, in any order
+             t[[0, -1]], t[-1:], np.empty(0)]
+    for times in cases:
+        got = dense.dense_states(t, y, times, (None, None, None), kept)
+        want = _reference(t, y, sols, times)
+        assert got.shape == want.shape and got.tobytes() == want.tobytes(), (kind, times)
+
+
+def test_one_form_is_evaluated_at_once_and_any_other_step_by_step(monkeypatch):
+    """The at-once route is taken where every step is of one form (else it would not be under test),
+    and declines a mixed segment, which goes step by step (the same bits: the test above)."""
+    rng = np.random.default_rng(7)
+    taken = []
+    real = dense._polynomial_states
+    monkeypatch.setattr(dense, "_polynomial_states", lambda *a: taken.append(real(*a)) or taken[-1])
+    for kind in ("dense step", "contd8", "mixed"):
+        t, y, sols = _steps(rng, kind, 4, 3)
+        dense.dense_states(t, y, (t[:-1] + t[1:]) / 2, (None, None, None), [_Kept(s) for s in sols])
+    assert [x is not None for x in taken] == [True, True, False]
+
+
+def _macro_impacts(path, monkeypatch, at_once: bool):
+    with monkeypatch.context() as m:
+        if not at_once:
+            m.setattr(dense, "_polynomial_states", lambda *a: None)
+        return pcmm.simulate(pcmm.load_scene(path)).stats["macro_impacts"]
+
+
+@pytest.mark.parametrize("scene", ["spring pendulum, compiled", "spring pendulum, DOP853", "driven cart pendulum",
+                                   "three_bar_cycle"])
+def test_the_audit_is_the_same_to_the_bit(scene, tmp_path, monkeypatch):
+    """Every flight's residual, evaluated at once and step by step: the same numbers.  The kept steps
+    are contd8 rows (a tree's compiled loop), DOP853's stages (pcmm's DOP853), scipy's ``y_old, F`` rows
+    (drives stepped by the compiled loop with scipy's tableau)."""
+    if scene.startswith("spring pendulum"):
+        solver = {"method": "DOP853"} if scene.endswith("DOP853") else None
+        path = pendulum(tmp_path, e=0.5, k=3.0, rest_angle=-2.0, merge=False, t_end=1.4, spring_configurations=["c1"],
+                        solver=solver)
+    elif scene == "driven cart pendulum":
+        path = driven_cart_pendulum(tmp_path, e=0.8, t_end=1.5)
+    else:
+        path = EXAMPLES / "three_bar_cycle.toml"
+    at_once, stepwise = _macro_impacts(path, monkeypatch, True), _macro_impacts(path, monkeypatch, False)
+    flights = sum(m["flights"] for m in at_once)
+    assert flights >= 3 and any(m["flight_energy_residual_max"] > 0 for m in at_once)
+    assert json.dumps(at_once) == json.dumps(stepwise)
