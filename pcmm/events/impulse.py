@@ -36,11 +36,14 @@ from ..model.configuration import Configuration
 from .contact import contact_point, contact_state, impact_kind, joint_stop_row, normal_row
 from .cutting import cut
 from .friction import AmbiguousImpact, FrictionalImpulse, routh
-from .impulse_compiled import CompiledImpulse, compiled_impulse, disagreement, refuse
+from .impulse_compiled import NO_IMPULSE, CompiledImpulse, compiled_impulse, disagreement, refuse
 from ..errors import SimulationError
 from ..model.pinocchio_helpers import cholesky, frame_jacobian, mass_matrix
 from ..model.rows import solve
 from ..scene.spec import ContactSpec
+
+#: NO_IMPULSE: the one rule of both solves for 'no impulse along the normal' (defined beside the
+#: compiled plan, which this module imports)
 
 
 @dataclass
@@ -274,7 +277,7 @@ def solve_impulse_python(cfg: Configuration, t: float, q: np.ndarray, v: np.ndar
         W_eff = W
     denom = J_n @ W_eff @ J_n.T  # Eq. 29 / 42 denominator: n^T J M_f^-1 J^T n
     d = float(denom[0, 0])
-    if not math.isfinite(d) or d <= 1e-14 * float(W_eff.trace()):  # no impulse along n
+    if not math.isfinite(d) or d <= NO_IMPULSE * float(W_eff.trace()):  # no impulse along n
         raise SimulationError(
             f"t = {t:.9g} s: the contact {contact.a}/{contact.b} cannot take an impulse along its normal "
             "(the normal is orthogonal to every allowed motion); check the contact normal and cut joints")

@@ -31,6 +31,15 @@ from ..model import compiled
 from ..model.configuration import Configuration
 from .cutting import forbidden_motions
 
+#: No impulse along the contact's normal where the denominator of Eqs. 29 and 42, J W_eff J^T (the
+#: inverse of the mass the contact meets), is at most this fraction of tr(W_eff): the normal is then
+#: orthogonal to every motion the tree and its drives allow.  One rule for the Python solve
+#: (pcmm.events.impulse, which imports it from here) and the compiled one (pcmm/model/_impulse.hpp
+#: takes it when its plan is built, and hands such a contact back to the Python solve for the
+#: message).  A ratio, so it also refuses a contact on a link 1e14 times heavier than the tree's
+#: lightest coordinate (docs/limits.md).
+NO_IMPULSE = 1e-14
+
 #: |compiled - Python| <= AGREEMENT * (1 + scale) at the first impact of each plan, scale the
 #: largest magnitude of the quantity's kind (velocities, impulses, energies)
 AGREEMENT = 1e-9
@@ -154,7 +163,7 @@ def _build(cfg: Configuration, plan) -> tuple[CompiledImpulse | None, str | None
             tree, kind, stop_v, float(contact.stop_sign) if plan.stop else 1.0,
             float(contact.arm or 0.0) if plan.stop else 0.0, vec, index[plan.frame_a], index[plan.frame_b],
             index[pa] if pa is not None else 0, index[pb] if pb is not None else 0,
-            [cfg.joint_slice[j].start for j in drives], cuts)
+            [cfg.joint_slice[j].start for j in drives], cuts, NO_IMPULSE)
     except (TypeError, ValueError) as exc:
         return None, f"the compiled impulse plan could not be built: {exc}"
     return CompiledImpulse(fast, labels, tuple(plan.cut_joints), tuple(cfg.joint_names)), None

@@ -255,6 +255,55 @@ bool read_vector(PyObject *obj, std::vector<double> &out, const char *what) {
   return true;
 }
 
+// The drive laws q_j = f_j(t) of the coordinates `driven_o` (indices into the nv velocity
+// coordinates, each at most once), one law per coordinate in `laws_o`: the coefficients of f, f'
+// and f'', low order first (pcmm.model.compiled.drives_key builds them).  Appends to driven and
+// c0/c1/c2; false with the Python error set, the message led by `who`.  Tree.set_drives and the
+// loops' Loop(tree, driven, laws, springs) both read their drives here.
+bool read_drive_laws(PyObject *driven_o, PyObject *laws_o, int nv, const char *who, std::vector<int> &driven,
+                     std::vector<std::vector<double>> &c0, std::vector<std::vector<double>> &c1,
+                     std::vector<std::vector<double>> &c2) {
+  PyObject *driven_seq = PySequence_Fast(driven_o, "driven: a sequence of coordinates");
+  if (!driven_seq) return false;
+  PyObject *laws = PySequence_Fast(laws_o, "laws: a sequence of (f, f', f'') coefficients");
+  if (!laws) {
+    Py_DECREF(driven_seq);
+    return false;
+  }
+  const Py_ssize_t nd = PySequence_Fast_GET_SIZE(driven_seq);
+  bool ok = nd == PySequence_Fast_GET_SIZE(laws);
+  if (!ok) PyErr_Format(PyExc_ValueError, "%s: one law per driven coordinate", who);
+  std::vector<bool> seen(nv, false);
+  for (Py_ssize_t j = 0; ok && j < nd; ++j) {
+    const long i = PyLong_AsLong(PySequence_Fast_GET_ITEM(driven_seq, j));
+    if (i < 0 || i >= nv || seen[i]) {
+      if (!PyErr_Occurred())
+        PyErr_Format(PyExc_ValueError, "%s: coordinate %ld is not one of the %d coordinates, or is driven twice", who, i, nv);
+      ok = false;
+      break;
+    }
+    seen[i] = true;
+    driven.push_back((int)i);
+    PyObject *law = PySequence_Fast(PySequence_Fast_GET_ITEM(laws, j), "a law: (f, f', f'') coefficients");
+    if (!law) {
+      ok = false;
+      break;
+    }
+    std::vector<double> c[3];
+    ok = PySequence_Fast_GET_SIZE(law) == 3;
+    if (!ok) PyErr_Format(PyExc_ValueError, "%s: a law is (f, f', f'') coefficients", who);
+    for (int k = 0; ok && k < 3; ++k) ok = read_vector(PySequence_Fast_GET_ITEM(law, k), c[k], "a drive law");
+    Py_DECREF(law);
+    if (!ok) break;
+    c0.push_back(c[0]);
+    c1.push_back(c[1]);
+    c2.push_back(c[2]);
+  }
+  Py_DECREF(driven_seq);
+  Py_DECREF(laws);
+  return ok;
+}
+
 // set_drives(driven (nd), laws ((f, f', f'') coefficients, low order first, per drive)): the
 // coordinates `driven` prescribed; rhs(t, y) and rhs_with_power(t, [y, W]) then take y = [q_I, v_I]
 PyObject *tree_set_drives(Tree *self, PyObject *args) {
@@ -264,49 +313,20 @@ PyObject *tree_set_drives(Tree *self, PyObject *args) {
     PyErr_SetString(PyExc_RuntimeError, "set_drives: the tree is not finalized");
     return nullptr;
   }
-  PyObject *driven = PySequence_Fast(driven_o, "driven: a sequence of coordinates");
-  if (!driven) return nullptr;
-  PyObject *laws = PySequence_Fast(laws_o, "laws: a sequence of (f, f', f'') coefficients");
-  if (!laws) {
-    Py_DECREF(driven);
-    return nullptr;
-  }
   auto *d = new DriveLaws();
   const int nv = self->nv;
-  const Py_ssize_t nd = PySequence_Fast_GET_SIZE(driven);
-  bool ok = nd > 0 && nd == PySequence_Fast_GET_SIZE(laws);
-  if (!ok) PyErr_SetString(PyExc_ValueError, "set_drives: one law per driven coordinate, at least one");
-  std::vector<bool> is_driven(nv, false);
-  for (Py_ssize_t j = 0; ok && j < nd; ++j) {
-    const long i = PyLong_AsLong(PySequence_Fast_GET_ITEM(driven, j));
-    if (i < 0 || i >= nv || is_driven[i]) {
-      if (!PyErr_Occurred()) PyErr_Format(PyExc_ValueError, "set_drives: coordinate %ld is not a distinct coordinate", i);
-      ok = false;
-      break;
-    }
-    is_driven[i] = true;
-    d->driven.push_back((int)i);
-    PyObject *law = PySequence_Fast(PySequence_Fast_GET_ITEM(laws, j), "a law: (f, f', f'') coefficients");
-    if (!law) {
-      ok = false;
-      break;
-    }
-    std::vector<double> c[3];
-    ok = PySequence_Fast_GET_SIZE(law) == 3;
-    if (!ok) PyErr_SetString(PyExc_ValueError, "set_drives: a law is (f, f', f'') coefficients");
-    for (int k = 0; ok && k < 3; ++k) ok = read_vector(PySequence_Fast_GET_ITEM(law, k), c[k], "a drive law");
-    Py_DECREF(law);
-    if (!ok) break;
-    d->c0.push_back(c[0]);
-    d->c1.push_back(c[1]);
-    d->c2.push_back(c[2]);
-  }
-  Py_DECREF(driven);
-  Py_DECREF(laws);
-  if (!ok) {
+  if (!read_drive_laws(driven_o, laws_o, nv, "set_drives", d->driven, d->c0, d->c1, d->c2)) {
     delete d;
     return nullptr;
   }
+  const Py_ssize_t nd = (Py_ssize_t)d->driven.size();
+  if (nd == 0) {
+    PyErr_SetString(PyExc_ValueError, "set_drives: at least one driven coordinate");
+    delete d;
+    return nullptr;
+  }
+  std::vector<bool> is_driven(nv, false);
+  for (int i : d->driven) is_driven[i] = true;
   for (int i = 0; i < nv; ++i)
     if (!is_driven[i]) d->free.push_back(i);
   d->J = Eigen::MatrixXd::Zero(nd, nv);
@@ -772,6 +792,7 @@ PyModuleDef module_def = {PyModuleDef_HEAD_INIT, "_tree_dynamics",
                           "A tree configuration's right-hand side with Pinocchio's ABA, in C++.", -1, nullptr};
 
 #include "_impulse.hpp"  // the impulse of a contact in a tree (pcmm.events.impulse_compiled)
+#include "_locate.hpp"   // an event located on a step's dense output (pcmm.ode.integrators._locate)
 
 }  // namespace
 
@@ -824,6 +845,10 @@ PyMODINIT_FUNC PyInit__tree_dynamics(void) {
     return nullptr;
   }
   if (add_loop_type(m) < 0) {  // closed loops' right-hand side (_loops.hpp)
+    Py_DECREF(m);
+    return nullptr;
+  }
+  if (add_locate(m) < 0) {  // an event's location (_locate.hpp)
     Py_DECREF(m);
     return nullptr;
   }

@@ -155,6 +155,10 @@ def _register_segment_loop(owner: type | None = None, make: Callable | None = No
     segment loop (DOP853 in C++, pcmm/model/_segment_loop.hpp), where this build has one; and that
     ``owner``'s right-hand sides have ``make`` (called as :data:`pcmm.ode.integrators.SEGMENT_LOOPS`
     says; it ends in :func:`segment_loop`)."""
+    locate = getattr(_tree_dynamics, "locate", None)
+    if locate is not None:  # the event locator (_locate.hpp), for every configuration's guards from now on
+        from ..ode.integrators import COMPILED_LOCATE
+        COMPILED_LOCATE[:] = [locate, enabled]
     loop = getattr(_tree_dynamics, "SegmentLoop", None)
     if loop is not None:
         from ..ode.integrators import SEGMENT_LOOPS
@@ -294,7 +298,7 @@ def loop_tree(model: pin.Model, frames_a, frames_b, Q0: np.ndarray, KD: np.ndarr
     with closed loops: its revolute cut joints' point pairs (frames of ``model``), its linear force
     elements and its point springs ``points`` (a :class:`pcmm.model.forces.PointSprings` or None),
     for a :func:`loop`; or None (why_not says)."""
-    if enabled() and not hasattr(_tree_dynamics, "Loop"):  # an extension built before loops were
+    if enabled() and not hasattr(getattr(_tree_dynamics, "Loop", None), "rows"):  # built before loops (or their rows) were
         _refuse("this build of pcmm.model._tree_dynamics has no compiled loops (built from older sources): "
                 "reinstall pcmm (pip install -e .) to rebuild it")
         return None

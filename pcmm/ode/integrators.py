@@ -226,11 +226,50 @@ class _Stepper:
                        event, nfev, n - 1, status, message, dense)
 
 
+#: the compiled locator, ``[locate, enabled]`` where a higher layer registered it (pcmm.model.compiled:
+#: pcmm/model/_locate.hpp, this module's :func:`_locate` in C++): ``enabled()`` says whether it may run now
+COMPILED_LOCATE: list = []
+
+
+def _polynomial(sol):
+    """``(t_old, h, cont)``: the step's dense output as Hairer's ``contd8`` coefficients (8 x ny, the
+    polynomial :class:`_Contd8` evaluates), for DOP853's own dense outputs (the compiled loop's, and
+    scipy's ``y_old`` and ``F``, which are the same polynomial evaluated in the same order); else None."""
+    cls = type(sol)
+    if cls is _Contd8:
+        return sol.t_old, sol.h, sol.cont
+    if cls is DenseStep:
+        cont = getattr(sol, "contd8", None)
+        if cont is None:
+            F = sol.F
+            if F.ndim != 2 or F.shape[0] != 7:
+                return None
+            cont = np.empty((8, F.shape[1]))
+            cont[0] = sol.y_old
+            cont[1:] = F
+            sol.contd8 = cont
+        return sol.t_old, sol.h, cont
+    return None
+
+
 def _locate(e, sol, t_a, t_b, g_a, tol):
     """First crossing of ``e`` in its direction on the dense output ``sol`` over [t_a, t_b], or
     None.  The guard is sampled on a grid; where no sample crosses, the sample closest to a
     crossing is refined by a bounded search for the extremum between its neighbours, so a graze
-    shorter than the grid spacing is still found."""
+    shorter than the grid spacing is still found.  A guard linear in the state (``Guard.linear``)
+    on DOP853's dense output is located by the same algorithm in C++ (:data:`COMPILED_LOCATE`),
+    with the same bits."""
+    linear = getattr(e, "linear", None)
+    if linear is not None and COMPILED_LOCATE and COMPILED_LOCATE[1]():
+        poly = _polynomial(sol)
+        if poly is not None and len(linear[0]) <= poly[2].shape[1]:
+            return COMPILED_LOCATE[0](poly[0], poly[1], poly[2], t_a, t_b, g_a, tol, e.direction, *linear)
+    return _locate_python(e, sol, t_a, t_b, g_a, tol)
+
+
+def _locate_python(e, sol, t_a, t_b, g_a, tol):
+    """:func:`_locate` in Python: the reference, and every guard or dense output the compiled
+    locator does not take."""
     n = 16
     grid = np.linspace(t_a, t_b, n + 1)
     ys = sol(grid)  # every dense output here takes an array of times: one call, (ny, n + 1)

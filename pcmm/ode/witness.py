@@ -49,6 +49,12 @@ class Guard:
     # state term; c shorter than the state: its first len(c) entries), so its rate along the flow is
     # c . y' + ct: a compiled segment loop scans it itself
     affine: tuple | None = None
+    #: optional: the value and the rate as linear forms of the state, ``(c, ct, d, r, rt, rearm, unfired)``:
+    #: g = c . y + ct t + d and g' = r . y + rt over the first ``len(c)`` components of y (float64
+    #: arrays), exactly as ``value`` and ``rate`` compute them; ``rearm``: read as a re-armed guard
+    #: (held at ``-direction unfired`` until its rate approaches the fired side).  The compiled
+    #: locator reads it (:func:`pcmm.ode.integrators._locate`, pcmm/model/_locate.hpp)
+    linear: tuple | None = None
     # (compiled holding forces, index, offset) where the value is that compiled evaluator's holding force
     # ``index`` at the state minus ``offset`` (pcmm.events.holding.guard_value), with no rate of its own:
     # a compiled segment loop scans it itself (its rate by pcmm.ode.integrators._rate's forward difference)
