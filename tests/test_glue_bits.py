@@ -14,7 +14,7 @@ from builders import driven_cart_pendulum, pendulum
 
 import pcmm
 from pcmm.ode.dop853 import DenseStep
-from pcmm.ode.integrators import _Contd8
+from pcmm.ode.integrators import _Contd8, _ScipyDense
 from pcmm.run import dense
 
 EXAMPLES = __import__("pathlib").Path(__file__).resolve().parents[1] / "examples"
@@ -38,6 +38,8 @@ def _steps(rng, kind, n, ny):
     for k in range(n):
         if kind == "contd8" or (kind == "mixed" and k % 2):
             sols.append(_Contd8(t[k], t[k + 1] - t[k], rng.normal(size=(8, ny))))
+        elif kind == "scipy dense" or (kind == "dense steps" and k % 2):
+            sols.append(_ScipyDense(t[k], t[k + 1], rng.normal(size=ny), rng.normal(size=(7, ny))))
         else:
             sols.append(DenseStep(t[k], t[k + 1], rng.normal(size=ny), rng.normal(size=(7, ny))))
     y = rng.normal(size=(ny, n + 1))
@@ -63,7 +65,7 @@ def _reference(t, y, sols, times):
     return out
 
 
-@pytest.mark.parametrize("kind", ["dense step", "contd8", "mixed"])
+@pytest.mark.parametrize("kind", ["dense step", "scipy dense", "dense steps", "contd8", "mixed"])
 @pytest.mark.parametrize("seed", range(6))
 def test_states_at_once_are_each_steps_interpolant_to_the_bit(kind, seed):
     rng = np.random.default_rng(seed)
@@ -88,10 +90,10 @@ def test_one_form_is_evaluated_at_once_and_any_other_step_by_step(monkeypatch):
     taken = []
     real = dense._polynomial_states
     monkeypatch.setattr(dense, "_polynomial_states", lambda *a: taken.append(real(*a)) or taken[-1])
-    for kind in ("dense step", "contd8", "mixed"):
+    for kind in ("dense step", "dense steps", "contd8", "mixed"):
         t, y, sols = _steps(rng, kind, 4, 3)
         dense.dense_states(t, y, (t[:-1] + t[1:]) / 2, (None, None, None), [_Kept(s) for s in sols])
-    assert [x is not None for x in taken] == [True, True, False]
+    assert [x is not None for x in taken] == [True, True, True, False]
 
 
 def _macro_impacts(path, monkeypatch, at_once: bool):

@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..ode.dop853 import DenseStep
-from ..ode.integrators import _Contd8
+from ..ode.integrators import _Contd8, _ScipyDense
 
 
 def dense_states(t, y, times, stepping, kept=None) -> np.ndarray:
@@ -67,11 +67,11 @@ def _polynomial_states(formed: dict, steps: list, k_in, times_in) -> np.ndarray 
     gathered, then the form's evaluation (:meth:`DenseStep.__call__`, :meth:`_Contd8.__call__`)
     over every time at once, its operations in their order, element by element: the same bits."""
     sols = [formed[k] for k in steps]
-    kind = type(sols[0])
-    if kind is not DenseStep and kind is not _Contd8:
+    kind = _form(sols[0])
+    if kind is None:
         return None
     for s in sols:
-        if type(s) is not kind:
+        if _form(s) is not kind:
             return None
     if kind is DenseStep:
         coefficients = [(s.y_old, s.F) for s in sols]
@@ -117,6 +117,18 @@ def _polynomial_states(formed: dict, steps: list, k_in, times_in) -> np.ndarray 
     s1 = 1.0 - x
     par = c[:, 4] + x * (c[:, 5] + s1 * (c[:, 6] + x * c[:, 7]))
     return (c[:, 0] + x * (c[:, 1] + s1 * (c[:, 2] + x * (c[:, 3] + s1 * par)))).T
+
+
+def _form(sol):
+    """The form of DOP853's polynomial ``sol`` evaluates an array of times with: :class:`DenseStep`
+    (scipy's ``y_old, F``; its subclass ``_ScipyDense`` evaluates arrays with ``DenseStep``'s own
+    call), :class:`_Contd8`, or None (another interpolant)."""
+    cls = type(sol)
+    if cls is _Contd8 or cls is DenseStep:
+        return cls
+    if cls is _ScipyDense:
+        return DenseStep
+    return None
 
 
 def _stepwise(t, y, k_in, times_in, stepping, formed: dict) -> np.ndarray:
