@@ -121,3 +121,50 @@ def test_the_audit_is_the_same_to_the_bit(scene, tmp_path, monkeypatch):
     flights = sum(m["flights"] for m in at_once)
     assert flights >= 3 and any(m["flight_energy_residual_max"] > 0 for m in at_once)
     assert json.dumps(at_once) == json.dumps(stepwise)
+
+
+def _holding_series(traj):
+    """Every segment's derived holding forces and its context's locks and offsets, as values."""
+    out = []
+    for i, seg in enumerate(traj.segments):
+        ctx = traj.segments._contexts[int(traj.segments._row(i)[0])][2]
+        out.append((seg.constraint_labels, seg.constraint_forces.tobytes(), seg.q.tobytes(),
+                    [h.label for h in ctx.holds.items], sorted(ctx.offsets.items())))
+    return out
+
+
+def test_a_shared_context_keeps_the_locks_and_offsets_of_its_segments(monkeypatch):
+    """The recording compares the run's own locks and angle offsets with the latest context and copies
+    them only where the log keeps a new one (SegmentContext.kept).  three_bar_cycle's first 2.5 s (locks
+    taken and released: O3 held while O2 bounces, and the other way round): every segment's holding
+    forces, coordinates, locks and offsets are those of a run where every segment keeps a context of its
+    own, copied when it was recorded; and the contexts kept are copies, not the run's objects."""
+    from pcmm.run import recording
+    opts = pcmm.RunOptions(t_end=2.5)
+    shared = pcmm.simulate(pcmm.load_scene(EXAMPLES / "three_bar_cycle.toml"), opts)
+    with monkeypatch.context() as m:
+        m.setattr(recording.SegmentContext, "__eq__", lambda a, b: False)  # never shared
+        own = pcmm.simulate(pcmm.load_scene(EXAMPLES / "three_bar_cycle.toml"), opts)
+    n, contexts = len(shared.segments), len(shared.segments._contexts)
+    assert len(own.segments._contexts) == len(own.segments) == n > 100 and contexts < n / 5
+    held = [c for _, _, c in shared.segments._contexts if c.holds.items]
+    assert held and len(held) < contexts  # stays with locks and without
+    a, b = _holding_series(shared), _holding_series(own)
+    assert a == b
+    assert any(r[3] for r in a) and any(not r[3] for r in a)  # segments with locks and without
+
+
+def test_same_reads_integer_arrays_by_their_bytes_and_floats_by_value():
+    """recording._same on a partition's integer indices (compared by bytes) gives ==' s answer; floats
+    keep value semantics (-0.0 equals 0.0, NaN is not NaN) and dtypes that differ compare by value."""
+    from pcmm.run.recording import _same
+    cases = [(np.array([0, 2]), np.array([0, 2]), True), (np.array([0, 2]), np.array([0, 3]), False),
+             (np.array([0, 2]), np.array([0, 2, 3]), False), (np.array([0, 2], np.int32), np.array([0, 2]), True),
+             (np.array([True, False]), np.array([True, False]), True), (np.array([], int), np.array([], int), True),
+             (np.array([0.0]), np.array([-0.0]), True), (np.array([np.nan]), np.array([np.nan]), False),
+             ({"I": np.array([1]), "D": np.array([0, 2]), "ny": 2}, {"I": np.array([1]), "D": np.array([0, 2]), "ny": 2},
+              True),
+             ({"I": np.array([1]), "D": np.array([0, 2]), "ny": 2}, {"I": np.array([2]), "D": np.array([0, 1]), "ny": 2},
+              False)]
+    for x, y, want in cases:
+        assert _same(x, y) is want and _same(y, x) is want, (x, y)

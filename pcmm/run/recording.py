@@ -46,7 +46,8 @@ def record_samples(traj: Trajectory, cfg: Configuration, seg, offsets, q_start, 
     coords = cfg.coords
     t, y_full = np.asarray(seg.t, float), np.asarray(seg.y, float)
     held = holds.labels()
-    context = SegmentContext(cfg, coords.frozen_state(), dict(offsets), holds.snapshot(),
+    # the run's own offsets and locks, compared as they are now; a context the log keeps gets copies
+    context = SegmentContext(cfg, coords.frozen_state(), offsets, holds,
                              holds.applied(cfg) if held else None, cfg.forces, stepping,
                              own_rhs=stepping[0] is coords.rhs,  # a tree's rhs: a closure over these forces
                              n_state=coords.ny)  # the partition's state size (a flight's y has one more row)
@@ -59,8 +60,9 @@ def record_samples(traj: Trajectory, cfg: Configuration, seg, offsets, q_start, 
     q_start = np.array(q_start, float)
     log = filling(traj)
     if isinstance(log, SegmentLog):
-        log.add(log.context_id(cfg.name, names, context), t, y_full, q_start)
+        log.add(log.context_id(cfg.name, names, context, SegmentContext.kept), t, y_full, q_start)
     else:  # one copy of the name lists per configuration, as the log keeps them
+        context = context.kept()
         names = traj.shared_names.setdefault((cfg.name, *(tuple(v) for v in names.values())), names)
         t, y_full = t.copy(), y_full.copy()
         traj.segments.append(SegmentRecord.deferred(
@@ -113,6 +115,13 @@ class SegmentContext:
 
     __hash__ = None
 
+    def kept(self) -> "SegmentContext":
+        """This context with copies of what the run changes later (its angle offsets, its locks:
+        :meth:`Holds.snapshot`), as a recorded segment keeps it; made only where the log keeps a new
+        context, which the run's own offsets and locks are compared as they are (``==``)."""
+        self.offsets, self.holds = dict(self.offsets), self.holds.snapshot()
+        return self
+
     def _reading(self, t, y, q_start, work):
         """Run ``work(reader)`` on a reader of the segment's coordinates (its partition, anchors,
         steps and force elements, as values: :meth:`Coordinates.restored`); every evaluation reads
@@ -155,7 +164,11 @@ def _same(a, b) -> bool:
     if a is b:
         return True
     if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
-        return isinstance(a, np.ndarray) and isinstance(b, np.ndarray) and a.shape == b.shape and bool((a == b).all())
+        if not (isinstance(a, np.ndarray) and isinstance(b, np.ndarray) and a.shape == b.shape):
+            return False
+        if a.dtype == b.dtype and a.dtype.kind in "biu":  # integers (a partition's indices): equal values, equal bytes
+            return a.tobytes() == b.tobytes()
+        return bool((a == b).all())
     if isinstance(a, dict) and isinstance(b, dict):
         if a.keys() != b.keys():
             return False
