@@ -198,3 +198,22 @@ def test_the_audit_on_the_runs_coordinates_is_the_audit_on_a_reader(scene, tmp_p
     assert [e["t"] for e in on_run.events] == [e["t"] for e in on_reader.events]
     for a, b in zip(on_run.segments, on_reader.segments, strict=True):
         assert a.t.tobytes() == b.t.tobytes() and a.q.tobytes() == b.q.tobytes() and a.v.tobytes() == b.v.tobytes()
+
+
+@pytest.mark.parametrize("scene", ["pendulum (a point contact)", "driven cart pendulum (a joint stop with an arm)"])
+def test_the_event_records_impulse_is_its_normal_impulse_along_the_normal(scene, tmp_path):
+    """events/records.event_dict forms the impulse's vector on Python floats (numpy's products, the
+    same bits): P n for a point contact, (M / arm) n for a revolute stop with an arm, to the bit,
+    and the record's normal is the impulse's unit normal."""
+    if scene.startswith("pendulum"):
+        path = pendulum(tmp_path, 0.9, q0=0.0, t_end=2.0)
+    else:
+        path = driven_cart_pendulum(tmp_path, e=0.8)
+    events = [e for e in pcmm.simulate(pcmm.load_scene(path), pcmm.RunOptions()).events if e["impact"]]
+    assert len(events) >= 2
+    for e in events:
+        imp, n = e["impulse"], np.array(e["normal"])
+        assert abs(np.hypot(*n) - 1.0) < 1e-15 and all(type(x) is float for x in imp["vector"] + e["normal"])
+        if "joint" in imp:
+            assert imp["normal"] == imp["moment"] / imp["arm"] and imp["moment"] != 0.0
+        assert imp["vector"] == [float(np.float64(imp["normal"]) * n[0]) + 0.0, float(np.float64(imp["normal"]) * n[1]) + 0.0]
