@@ -110,8 +110,7 @@ class SegmentContext:
                 and self.forces is other.forces and _same(self.frozen, other.frozen)
                 and self.offsets == other.offsets and _same_holds(self.holds, other.holds)
                 and _same(self.applied, other.applied)
-                and len(self.stepping) == len(other.stepping)
-                and all(a is b or (callable(a) and a == b) for a, b in zip(self.stepping, other.stepping)))
+                and _same_stepping(self.stepping, other.stepping))
 
     __hash__ = None
 
@@ -163,19 +162,21 @@ def _same(a, b) -> bool:
     generators, and the array's own reduction, not numpy's wrappers.)"""
     if a is b:
         return True
-    if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
-        if not (isinstance(a, np.ndarray) and isinstance(b, np.ndarray) and a.shape == b.shape):
-            return False
-        if a.dtype == b.dtype and a.dtype.kind in "biu":  # integers (a partition's indices): equal values, equal bytes
-            return a.tobytes() == b.tobytes()
-        return bool((a == b).all())
-    if isinstance(a, dict) and isinstance(b, dict):
+    if isinstance(a, dict) and isinstance(b, dict):  # (the frozen partitions: first)
         if a.keys() != b.keys():
             return False
         for k in a:
             if not _same(a[k], b[k]):
                 return False
         return True
+    if isinstance(a, (int, float, str)) and isinstance(b, (int, float, str)):
+        return a == b
+    if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
+        if not (isinstance(a, np.ndarray) and isinstance(b, np.ndarray) and a.shape == b.shape):
+            return False
+        if a.dtype == b.dtype and a.dtype.kind in "biu":  # integers (a partition's indices): equal values, equal bytes
+            return a.tobytes() == b.tobytes()
+        return bool((a == b).all())
     if isinstance(a, (tuple, list)) and isinstance(b, (tuple, list)):
         if type(a) is not type(b) or len(a) != len(b):
             return False
@@ -183,8 +184,6 @@ def _same(a, b) -> bool:
             if not _same(x, y):
                 return False
         return True
-    if isinstance(a, (int, float, str)) and isinstance(b, (int, float, str)):
-        return a == b
     if type(a) is type(b) and dataclasses.is_dataclass(a) and not isinstance(a, type):
         # (the holds' Applied: a record of values, its reference configuration compared as the same object)
         for name in _field_names(type(a)):
@@ -199,9 +198,24 @@ def _field_names(cls) -> tuple:
     return tuple(f.name for f in dataclasses.fields(cls))
 
 
+def _same_stepping(a: tuple, b: tuple) -> bool:
+    """The same ``(fun, method, opts)``: each the same object, or an equal callable (a bound method)."""
+    if len(a) != len(b):
+        return False
+    for x, y in zip(a, b):
+        if x is not y and not (callable(x) and x == y):
+            return False
+    return True
+
+
 def _same_holds(a: Holds, b: Holds) -> bool:
     """The same locks in force (the snapshots share everything else with the run's Holds)."""
-    return len(a.items) == len(b.items) and all(x is y for x, y in zip(a.items, b.items))
+    if len(a.items) != len(b.items):
+        return False
+    for x, y in zip(a.items, b.items):
+        if x is not y:
+            return False
+    return True
 
 
 def with_holds(cfg: Configuration, holds: Holds, t, series: dict, applied=None) -> dict:
