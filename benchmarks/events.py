@@ -13,6 +13,10 @@ event split into its four parts, plus the whole run's CPU time:
 * **re-arm** - the guards of the next segment built and checked (``pcmm.run.loop._guards`` and
   ``_pending``).
 
+Between two events it times the same way the **flight audit** (``pcmm.run.audit.FlightAudit.flight``,
+the flight's energy balance measured as it ends) and the **recording** of the segment
+(``pcmm.run.loop._record``).
+
 Each part is timed with ``time.process_time`` around its calls (CPU time: on a machine shared
 by many processes the wall time mostly measures the neighbours), summed over the run and
 divided by the number of events, each part's least over ``--reps`` runs (the machine's load
@@ -43,7 +47,7 @@ from pathlib import Path  # noqa: E402
 import pcmm  # noqa: E402
 from pcmm.events import transitions  # noqa: E402
 from pcmm.ode import integrators  # noqa: E402
-from pcmm.run import actions, loop  # noqa: E402
+from pcmm.run import actions, audit, loop  # noqa: E402
 
 SCENE = Path(__file__).resolve().parents[1] / "examples" / "three_bar_cycle.toml"
 PARTS = {  # part: (module, attribute) whose calls are timed
@@ -51,6 +55,10 @@ PARTS = {  # part: (module, attribute) whose calls are timed
     "impulse": [(transitions, "solve_impulse")],
     "switch": [(transitions, "switch"), (actions, "transform")],
     "re-arm": [(loop, "_guards"), (loop, "_pending")],
+}
+BETWEEN = {  # the glue of each segment between two events, timed the same way
+    "flight audit": [(audit.FlightAudit, "flight")],  # the flight's energy audit, as it ends
+    "recording": [(loop, "_record")],  # the segment kept
 }
 HANDLERS = [(actions.GUARD_ACTIONS, "transition"), (actions.GUARD_ACTIONS, "unmerge")]
 REPLAYED = {  # the parts whose calls depend on their arguments alone (and scratch space): (module, attribute)
@@ -76,7 +84,7 @@ def instrumented_run(scene):
     spent = defaultdict(float)
     saved = []
     try:
-        for part, places in PARTS.items():
+        for part, places in {**PARTS, **BETWEEN}.items():
             for mod, name in places:
                 saved.append((mod, name, getattr(mod, name)))
                 setattr(mod, name, timed(spent, part, getattr(mod, name)))
@@ -159,6 +167,7 @@ def main(argv=None) -> int:
     print(f"             re-arm   {best['re-arm'] * us:8.1f} us")
     total = sum(best[k] for k in ("location", "impulse", "switch", "re-arm"))
     print(f"             total    {total * us:8.1f} us  (handler, other: {max(switch_other, 0.0) * us:.1f} us)")
+    print("  between events, per event: " + ", ".join(f"{part} {best[part] * us:.1f} us" for part in BETWEEN))
     print(f"  whole run: {min(plain):.3f} s CPU (instrumented: {best['run']:.3f} s)")
     if args.replay:
         n, parts = replayed(scene, args.replay)
