@@ -15,6 +15,7 @@ from builders import driven_cart_pendulum, pendulum
 import pcmm
 from pcmm.ode.dop853 import DenseStep
 from pcmm.ode.integrators import _Contd8, _ScipyDense
+from pcmm.model import compiled
 from pcmm.run import dense
 
 EXAMPLES = __import__("pathlib").Path(__file__).resolve().parents[1] / "examples"
@@ -190,8 +191,8 @@ def test_the_audit_on_the_runs_coordinates_is_the_audit_on_a_reader(scene, tmp_p
     on_reader = pcmm.simulate(pcmm.load_scene(path), opts)
     flights = sum(m["flights"] for m in on_run.stats["macro_impacts"])
     assert flights >= 3 and len(taken) == flights
-    if scene.endswith("Python stepping"):
-        assert all(w is None for w in taken)
+    if scene.endswith("Python stepping") or not compiled.enabled():  # the steps' stages kept, not their polynomials
+        assert any(w is None for w in taken)  # (a flight of one step, the event's, has its interpolant formed)
     else:
         assert all(w is not None for w in taken)
     assert json.dumps(on_run.stats["macro_impacts"]) == json.dumps(on_reader.stats["macro_impacts"])
