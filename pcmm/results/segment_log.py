@@ -106,7 +106,7 @@ class SegmentLog(RecordSequence):
 
     def arrays(self, i: int):
         """(t, y, q_start) of segment ``i``: views of the blocks (read-only)."""
-        k, b, at, n, rows, nq = (int(x) for x in self._row(i))
+        k, b, at, n, rows, nq = self._row(i).tolist()  # Python ints
         block = self._data[b]
         q_start, t = block[at:at + nq], block[at + nq:at + nq + n]
         y = block[at + nq + n:at + nq + n + rows * n].reshape(rows, n)
