@@ -49,7 +49,10 @@ def enter(src: Configuration, dst: Configuration, t: float, q: np.ndarray, v: np
     exception the scene asks for (a run without impact, the paper's comparison): the locked
     joints' velocities are dropped and the rest assembled, as its event reports.
     """
-    q_map, v_map, dropped = map_state(src, dst, q, v, known)
+    if src is dst:  # a bounce: every joint maps onto itself (map_state's copies; the projection below makes its own)
+        q_map, v_map, dropped = q, v, {}
+    else:
+        q_map, v_map, dropped = map_state(src, dst, q, v, known)
     scale = max(1.0, float(np.abs(v).max())) if len(v) else 1.0  # (the method: numpy's np.max wrappers cost more than the reduction)
     if not reset:
         moving = {n: w for n, w in dropped.items() if abs(w) > VELOCITY_ROUNDOFF * scale}
@@ -68,7 +71,7 @@ def enter(src: Configuration, dst: Configuration, t: float, q: np.ndarray, v: np
                                  "(check the fixed joint's origin in the merged configuration)"])
     residual = 0.0
     if len(dst.coords.labels) and not reset:
-        Jq, _ = dst.coords.rows(t, q_new, v_new)
+        Jq = _jacobian(dst, t, q_new, v_new)
         # v_new satisfies every row (the projection solved them), so Phi_q v_map + Phi_t = Phi_q (v_map - v_new)
         rows = Jq @ (v_map - v_new)
         tol = VELOCITY_ROUNDOFF * scale * max(1.0, float(np.abs(Jq).max()))
@@ -76,6 +79,14 @@ def enter(src: Configuration, dst: Configuration, t: float, q: np.ndarray, v: np
         if residual > tol:
             raise SimulationError(_violated(src, dst, t, what, rows, tol, v_map, v_new))
     return Entry(q_new, v_new, dropped, offsets, residual)
+
+
+def _jacobian(dst: Configuration, t, q, v) -> np.ndarray:
+    """``Phi_q`` of ``dst``'s rows at (q, v): where they depend on time alone (drives without a
+    loop: ``time_rows``, the same array ``rows`` gives) without evaluating the drives and the bias."""
+    timed = getattr(dst.coords, "time_rows", None)
+    timed = timed() if timed is not None else None
+    return timed[0] if timed is not None else dst.coords.rows(t, q, v)[0]
 
 
 def _violated(src, dst, t, what, rows, tol, v_map, v_new) -> list[str]:
