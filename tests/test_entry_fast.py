@@ -116,3 +116,31 @@ def test_runs_are_the_same_bits_with_every_shortcut_bypassed(tmp_path, monkeypat
     slow = run_bits(scene, t_end)
     assert len(fast[0]) == len(slow[0]) and fast[4] == slow[4] > (100 if which == "cycle" else 10)
     assert fast == slow
+
+
+def test_a_guard_on_a_longer_state_is_the_replaced_guard(tmp_path):
+    """``Guard.on_state`` (a flight's guards, its work appended to the state) copies the fields instead
+    of ``dataclasses.replace``: every field the same object but the three read on the state's head, and
+    those give the guard's own values on it."""
+    from dataclasses import fields, replace
+    from pcmm.ode.witness import Guard
+    calls = []
+
+    def value(t, y):
+        calls.append(len(y))
+        return float(y[0] - 0.25 * y[1] + t)
+    g = Guard("probe", value, -1, "unmerge", transition="tr", payload=("p",), rate=lambda t, y, f: float(y[1]),
+              many=lambda ts, ys: list(ys[0] - 0.25 * ys[1] + ts), affine=(np.array([1.0, -0.25]), 1.0, 0.0),
+              holding=("h", 0, 0.0))
+    wide, ref = g.on_state(2), replace(g)
+    assert type(wide) is Guard
+    for f in fields(Guard):
+        if f.name not in ("value", "rate", "many"):
+            assert getattr(wide, f.name) is getattr(ref, f.name), f.name
+    y = np.array([0.7, -1.3, 42.0])  # the work appended: never read
+    assert wide(0.5, y) == g(0.5, y[:2]) == 0.7 + 0.325 + 0.5 and calls == [2, 2]
+    assert wide.rate(0.5, y, None) == -1.3 and wide.rate(0.5, y, np.ones(3)) == -1.3
+    ys = np.array([[0.7, 0.1], [-1.3, 2.0], [9.0, 9.0]])
+    assert wide.many(np.array([0.5, 1.0]), ys) == g.many(np.array([0.5, 1.0]), ys[:2])
+    plain = Guard("plain", value, 1)
+    assert plain.on_state(2).rate is None and plain.on_state(2).many is None
