@@ -60,8 +60,9 @@ def general_projection(coords: PartitionedCoordinates, t, q, v, prefer_independe
 
 
 def general_jacobian(dst, t, q, v):
-    """The entry's rows by the general route (every row and its bias at (q, v))."""
-    return dst.coords.rows(t, q, v)[0]
+    """The entry's rows by the general route (every row and its bias at (q, v)), and their scale."""
+    Jq = dst.coords.rows(t, q, v)[0]
+    return Jq, max(1.0, float(np.abs(Jq).max()))
 
 
 def drive(t: float, k: int) -> float:
@@ -93,7 +94,9 @@ def test_drives_only_projection_is_the_general_route_to_the_bit(tmp_path, planar
         assert np.array_equal(fast_q[free], q[free])
         assert np.allclose(rates[free], cfg.qdot(q, v)[free], rtol=1e-15, atol=1e-15)
         # the entry's rows: the constant drive row, as every row of the general route gives it
-        assert entry._jacobian(cfg, t, fast_q, fast_v).tobytes() == general_jacobian(cfg, t, fast_q, fast_v).tobytes()
+        (Jq, scale), (Jq_ref, scale_ref) = entry._jacobian(cfg, t, fast_q, fast_v), general_jacobian(cfg, t, fast_q, fast_v)
+        assert Jq.tobytes() == Jq_ref.tobytes() and Jq.shape == Jq_ref.shape and scale == scale_ref == 1.0
+        assert entry._jacobian(cfg, t, fast_q, fast_v)[0] is Jq and not Jq.flags.writeable  # kept, read-only
 
 
 def run_bits(scene, t_end=None):
