@@ -28,6 +28,11 @@ NEWTON_TOL = 1e-13
 SINGULAR_COND = 1e9
 #: the largest change (rad or m) the warm start of a loop's Newton solve is extrapolated by
 PREDICT_MAX = 0.05
+#: whether the method "DOP853" (what "auto" gives a configuration with closed loops) is stepped by the
+#: compiled segment loop over the compiled loop (pcmm/model/_segment_loop.hpp with scipy's tableau: the
+#: same step-size control as pcmm.ode.dop853.DOP853, in C++), where the loop is compiled; off: pcmm's
+#: DOP853 steps it in Python over the same compiled right-hand side (the reference the tests compare with)
+STEP_LOOPS_COMPILED = True
 _thread_id = threading.get_ident
 
 
@@ -118,6 +123,14 @@ class PartitionedCoordinates:
         return None
 
     @property
+    def compiled_scipy_steps(self) -> bool:
+        """Whether the compiled segment loop steps these coordinates as scipy's DOP853 (what
+        :func:`pcmm.ode.integrators.method_for` gives a configuration with loops): closed loops whose
+        right-hand side is compiled (:data:`STEP_LOOPS_COMPILED`), not a segment being re-read."""
+        return (STEP_LOOPS_COMPILED and bool(self.closure.size) and self._loop_refused is None
+                and self._trail is None and compiled.enabled())
+
+    @property
     def max_residual(self) -> float:
         """The largest loop residual a Newton solve accepted (the recorded drift's bound), the
         compiled loop's solves included."""
@@ -167,6 +180,7 @@ class PartitionedCoordinates:
             self._refuse_loop(why)
             return None
         self._loop_held = (threading.get_ident(), forces)
+        compiled._register_segment_loop(PartitionedCoordinates, _segment_loop)
         return self._loop
 
     def _refuse_loop(self, why: str) -> None:
@@ -245,7 +259,7 @@ class PartitionedCoordinates:
                                    self._python_rhs, self._python_rhs_with_power)
         self._compiled = (me, forces, tree)
         if tree is not None:
-            compiled._register_segment_loop(PartitionedCoordinates, _drive_segment_loop)
+            compiled._register_segment_loop(PartitionedCoordinates, _segment_loop)
         return tree
 
     def forces_changed(self):
@@ -792,7 +806,8 @@ class PartitionedCoordinates:
             ahead, behind = (self._scaled_det(self._position_rows(t, q + s * eps * qd)) for s in (1.0, -1.0))
             return (ahead - behind) / (2 * eps)
         return Guard(f"configuration '{self.cfg.name}': the loop's partition of its coordinates degenerates",
-                     g, 0, "repartition", rate=rate, rate_from_state=True)
+                     g, 0, "repartition", rate=rate, rate_from_state=True,
+                     loop_scan=("singularity",) if self.closure.size else None)
 
     def _held_loop(self):
         """The compiled loop where it is ready on this thread for these force elements and no
@@ -1029,6 +1044,24 @@ class PartitionedCoordinates:
         power = float(self.forces.generalized(q, v) @ v - lam @ self._phi_t(t))
         qd = self.cfg.qdot(q, v)
         return np.concatenate([qd[self.I], self.cfg.qddot(q, v, a)[self.I], [power]])
+
+
+def _segment_loop(coords: PartitionedCoordinates, *args, **options):
+    """The compiled segment loop of these coordinates (registered for
+    :data:`pcmm.ode.integrators.SEGMENT_LOOPS`): over the compiled loop (pcmm/model/_loops.hpp) with
+    closed loops, each call it declines taken by the Python evaluation (``_python_rhs``, as :meth:`rhs`
+    does), or over the compiled tree of drives without a loop; a ValueError where there is none (the
+    integrator then steps in Python)."""
+    if not coords.closure.size:
+        return _drive_segment_loop(coords, *args, **options)
+    loop = coords._held_loop()
+    if loop is None and coords._trail is None and coords._loop_refused is None:
+        coords._compiled_loop()
+        loop = coords._held_loop()
+    if loop is None:
+        raise ValueError(f"no compiled loop: {coords._loop_refused or compiled.why_not() or 'a segment re-read'}")
+    fallback = coords._python_rhs_with_power if options.get("power") else coords._python_rhs
+    return compiled.segment_loop(loop, *args, fallback=fallback, **options)
 
 
 def _drive_segment_loop(coords: PartitionedCoordinates, *args, **options):

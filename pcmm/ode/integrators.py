@@ -406,7 +406,7 @@ class ScipyMethod:
         return DOP853 if self.name == "DOP853" else getattr(si, self.name)
 
     def integrate(self, fun, t0, y0, t_bound, events, opts, keep_dense=False) -> Segment:
-        if self.name == "DOP853" and COMPILED_SCIPY_STEPS:  # a compiled loop stepping as this class does
+        if self.name == "DOP853" and (COMPILED_SCIPY_STEPS or _steps_compiled(fun)):  # a compiled loop stepping as this class does
             loop, progress = _segment_loop(fun, t0, y0, t_bound, events, opts, 0.0, tableau=packed_tableau(),
                                            keep_dense=keep_dense)
             if loop is not None:
@@ -458,7 +458,14 @@ def _drive_loop(loop, progress, st, dense, failure, counted, name, from_row):
     keeping = st.kept is not None and hasattr(loop, "take_dense")
     try:
         while True:
-            code = loop.run()
+            try:
+                code = loop.run()
+            except BaseException:  # a call the loop handed to Python raised there: the steps before it stand
+                steps, rows = loop.take(), loop.take_dense() if keeping else ()
+                if len(steps):
+                    kept = [_Ready(from_row(row, (row.size - 2) // 8)) for row in rows]
+                    _record_steps(st, steps, kept if len(kept) == len(steps) else None)
+                raise
             steps = loop.take()
             rows = loop.take_dense() if keeping else ()
             kept = [_Ready(from_row(row, (row.size - 2) // 8)) for row in rows]  # one per step accepted
@@ -701,6 +708,14 @@ COMPILED_SCIPY_STEPS = False
 SEGMENT_LOOPS: dict = {}
 
 
+def _steps_compiled(fun) -> bool:
+    """Whether the owner of ``fun`` has its compiled segment loop step the method "DOP853" (scipy's
+    stepping) although :data:`COMPILED_SCIPY_STEPS` is off: its ``compiled_scipy_steps`` (closed loops,
+    whose compiled right-hand side is the Python one's to round-off, not to the bit, already)."""
+    fun = getattr(fun, "__wrapped__", fun)
+    return bool(getattr(getattr(fun, "__self__", None), "compiled_scipy_steps", False))
+
+
 def _segment_loop(fun, t0, y0, t_bound, events, opts, beta, tableau=None, keep_dense=False):
     """(the compiled loop for this segment, the progress call-back) where ``fun`` is a right-hand
     side (``rhs``, or ``rhs_with_power``: a flight's state with its work appended) whose owner has a
@@ -725,10 +740,16 @@ def _segment_loop(fun, t0, y0, t_bound, events, opts, beta, tableau=None, keep_d
     y0 = np.array(y0, float)
     ny = y0.size
     affine = [getattr(e, "affine", None) for e in events]
+    # a closed loop's guards on its solution (Guard.loop_scan), which its compiled loop scans itself
+    solved = [getattr(e, "loop_scan", None) if a is None else None for e, a in zip(events, affine)]
     # a progress bar (the run loop's wrapper) is fed every _PROGRESS_STEPS steps, as the wrapper's
     # own count of evaluations did: then every step comes back to Python
-    every_step = (progress is not None or any(a is None for a in affine)
+    every_step = (progress is not None or any(a is None and s is None for a, s in zip(affine, solved))
                   or not all(getattr(e, "rate_from_state", False) for e in events))
+    if any(s is not None for s in solved) and not every_step:
+        options["solved"] = [(i, 0, np.asarray(s[1], float), float(s[2]), float(s[3])) if s[0] == "coordinate"
+                             else (i, 1, None, 0.0, 0.0) for i, s in enumerate(solved) if s is not None]
+        affine = [(None, 0.0, 0.0) if a is None else a for a in affine]  # their rows: unused
     if every_step:
         C, ct, d, direction = np.zeros((0, ny)), np.zeros(0), np.zeros(0), np.zeros(0)
     else:
