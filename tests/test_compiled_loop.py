@@ -306,18 +306,20 @@ def test_drive_runs_with_the_compiled_right_hand_side_are_the_python_runs(tmp_pa
     states to 1e-10. The impulses are solved in Python in both runs: the compiled impulse agrees with
     it to round-off, which three_bar_cycle's accumulations amplify to ~5e-10 s (a one-ulp nudge of
     the Python run does the same; tests/test_compiled_impulse.py holds it to that), and this test is
-    about the right-hand side."""
+    about the right-hand side.  Both are stepped by pcmm's DOP853 in Python (the method "DOP853"):
+    "auto" steps them in the compiled loop, round-off apart (tests/test_compiled_holding.py)."""
     import pcmm
     import pcmm.events.impulse as impulse
     monkeypatch.setattr(impulse, "compiled_impulse", lambda cfg, plan: None)
     path = _drive_scene(scene, tmp_path)
-    fast = pcmm.simulate(pcmm.load_scene(path))
+    options = pcmm.RunOptions(method="DOP853")
+    fast = pcmm.simulate(pcmm.load_scene(path), options)
     driven = {name for name, why in fast.stats["evaluations"].items()}
     assert driven and all(why == "compiled" or why.endswith("every coordinate driven")
                           for why in fast.stats["evaluations"].values()), fast.stats["evaluations"]
     assert "compiled" in fast.stats["evaluations"].values()
     monkeypatch.setenv("PCMM_COMPILED", "0")
-    slow = pcmm.simulate(pcmm.load_scene(path))
+    slow = pcmm.simulate(pcmm.load_scene(path), options)
     assert all(why.startswith("python") for why in slow.stats["evaluations"].values())
     assert len(fast.events) >= 4
     assert [e["name"] for e in fast.events] == [e["name"] for e in slow.events]

@@ -2,7 +2,8 @@
 Holds.forces's to the bit: the same system solved with the same arrays, only built once per
 segment.  Checked at every guard evaluation of a run of the working cycle to its first releases
 and re-locks (a drive without a loop: the prepared path), and the prepared path really ran (the
-guards never fell back to Holds.forces)."""
+guards never fell back to Holds.forces).  This is the prepared Python evaluator, the compiled one
+switched off (it is Holds.forces's to round-off: tests/test_compiled_holding.py)."""
 from __future__ import annotations
 
 import numpy as np
@@ -39,6 +40,7 @@ def test_guard_holding_forces_are_forces_to_the_bit(monkeypatch):
             return got
         return forces
 
+    monkeypatch.setattr(holding, "_compiled_evaluator", lambda *args: (None, "the prepared Python evaluator"))
     monkeypatch.setattr(holding.Holds, "evaluator", checked)
     monkeypatch.setattr(holding.Holds, "forces", counted_forces)
     run = pcmm.simulate(pcmm.load_scene(CYCLE), SHORT)

@@ -11,6 +11,8 @@ the invariant every sample is checked against, with the crank's angle continuous
 no sample moves by more than the recorded rate allows over the sample spacing)."""
 from __future__ import annotations
 
+import re
+
 import builders
 import numpy as np
 import pytest
@@ -106,3 +108,59 @@ def test_a_step_across_the_change_point_is_refused_not_read_on_a_guessed_branch(
     with coords.restored(coords.frozen_state(), q0, steps=(ts, ys)) as reader:
         with pytest.raises(SimulationError, match=r"t = 0\.2 s, the loop of cut joint 'C' passes a singular posture"):
             reader.unpack(ts[1], ys[:, 1])
+
+
+@pytest.mark.parametrize("mode", ["0", "1"])
+@pytest.mark.parametrize("theta1", [np.pi, np.pi - 5e-8])
+def test_a_read_at_the_change_point_is_refused_not_read_off_the_meeting_point(tmp_path, monkeypatch, mode, theta1):
+    """Recorded steps at theta = 2.9, 3.0, 3.1, 3.12 and theta1 at (or 5e-8 before) the change point
+    theta = pi, where the parallelogram and anti-parallelogram branches meet and the constraint
+    Jacobian loses rank: there the rates of the dependent coordinates are not determined.  The last
+    step is short (no continuation: the solve starts from theta = 3.12 carried along its rates).  The
+    reader names the instant and the loop's cut joint (before: at theta = pi it returned theta_D
+    5.4e-7 off pi and the rates (2, -1.5, 0.5) for the run's (2, -2, 2); 5e-8 before pi, (2, -1.52, 0.56))."""
+    monkeypatch.setenv(compiled.ENV, mode)
+    compiled.forget_trees()
+    from pcmm.model.mechanism import Mechanism
+    path = builders.parallelogram(tmp_path, 2.9, 2.0)
+    coords = Mechanism(pcmm.load_scene(path))["c"].coords
+    q0, v0 = np.array([2.9, -2.9, 2.9]), np.array([2.0, -2.0, 2.0])
+    y0 = coords.pack(0.0, q0, v0)
+    i = coords.I[0]
+    thetas = np.array([2.9, 3.0, 3.1, 3.12, theta1])
+    ts = (thetas - 2.9) / 2.0
+    ys = np.array([[np.array([th, -th, th])[i], y0[1]] for th in thetas]).T
+    with coords.restored(coords.frozen_state(), q0, steps=(ts, ys)) as reader:
+        q, v = reader.unpack(ts[3], ys[:, 3])  # theta = 3.12: read on its branch
+        np.testing.assert_allclose(q, [3.12, -3.12, 3.12], rtol=0, atol=1e-12)
+        np.testing.assert_allclose(v, [2.0, -2.0, 2.0], rtol=0, atol=1e-7)
+        _assert_path(mode)
+        said = re.escape(f"re-reading a recorded segment at t = {ts[4]:.9g} s, the loop of cut joint 'C' is at a "
+                         "singular posture")
+        with pytest.raises(SimulationError, match=said):
+            reader.unpack(ts[4], ys[:, 4])
+
+
+@pytest.mark.parametrize("mode", ["0", "1"])
+@pytest.mark.parametrize("theta1", [3.1416, 3.142, 3.145])
+def test_a_read_just_past_the_change_point_is_refused(tmp_path, monkeypatch, mode, theta1):
+    """Recorded steps at theta = 2.9, 3.0 and theta1, 7.3e-6 to 3.4e-3 past the change point: the
+    continuation from theta = 3.0 crosses it (the dependent block's determinant changes sign) and the
+    reader says so.  Before, the continuation stopped PREDICT_MAX (0.05) short of the read and never
+    saw the crossing: the reads came back on the anti-parallelogram (theta_D = 3.1399 for
+    theta_A = 3.145, rates (2, -1, -1) for the parallelogram's (2, -2, 2))."""
+    monkeypatch.setenv(compiled.ENV, mode)
+    from pcmm.model.mechanism import Mechanism
+    path = builders.parallelogram(tmp_path, 2.9, 2.0)
+    coords = Mechanism(pcmm.load_scene(path))["c"].coords
+    q0, v0 = np.array([2.9, -2.9, 2.9]), np.array([2.0, -2.0, 2.0])
+    y0 = coords.pack(0.0, q0, v0)
+    i = coords.I[0]
+    thetas = np.array([2.9, 3.0, theta1])
+    ts = (thetas - 2.9) / 2.0
+    ys = np.array([[np.array([th, -th, th])[i], y0[1]] for th in thetas]).T
+    with coords.restored(coords.frozen_state(), q0, steps=(ts, ys)) as reader:
+        said = re.escape(f"re-reading a recorded segment at t = {ts[2]:.9g} s, the loop of cut joint 'C' passes a "
+                         "singular posture")
+        with pytest.raises(SimulationError, match=said):
+            reader.unpack(ts[2], ys[:, 2])

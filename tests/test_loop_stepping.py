@@ -116,20 +116,20 @@ NUDGES = {"double_folded.toml": ("v = { D = 0.0 }", "v = { D = 2.220446049250313
                                           ("andrews.toml", 0)])
 def test_the_examples_are_the_python_stepped_runs(tmp_path, monkeypatch, name, events):
     """Example 2 (47 impacts, a macro-impact and a merge), its working cycle (144 events) and Andrews'
-    squeezer (seven bodies, five loops, point springs): the same events and segments as pcmm's DOP853
-    stepping in Python, within the Python run's one-ulp sensitivity; the compiled loop stepped every loop
+    squeezer (seven bodies, five loops, point springs; its scene names DOP853, the Python stepping, so it
+    runs under "auto" here): the same events and segments as pcmm's DOP853 stepping in Python, within the Python run's one-ulp sensitivity; the compiled loop stepped every loop
     segment it was given, and the Loop declined no evaluation."""
     path = EXAMPLES / name
     spy = _Spy(monkeypatch)
-    fast = _run(path, True, monkeypatch)
+    fast = _run(path, True, monkeypatch, method="auto")  # andrews.toml names DOP853: the Python stepping
     made = spy.over_loops()
     assert made
     assert sum(loop.fallbacks() for _, loop in made) == 0
     spy.loops.clear()
-    slow = _run(path, False, monkeypatch)
+    slow = _run(path, False, monkeypatch, method="auto")
     assert not spy.over_loops()
     assert len(fast.events) == len(slow.events) == events
-    apart = _within_nudge(fast, slow, _nudged(tmp_path, path, *NUDGES[name]), monkeypatch)
+    apart = _within_nudge(fast, slow, _nudged(tmp_path, path, *NUDGES[name]), monkeypatch, method="auto")
     if not events:  # one segment to the end: its final state
         assert apart["q"].max() < 1e-8 and apart["v"].max() < 1e-7
 
@@ -175,6 +175,18 @@ def test_a_declined_evaluation_is_taken_by_python(tmp_path, monkeypatch):
             assert np.all(np.diff(seg.t) >= 0)
             for q in seg.q:  # every recorded posture on the parallelogram branch: rocker parallel to the crank
                 assert abs(math.remainder(q[2] - q[0], 2 * math.pi)) < 1e-9
+
+
+@needs_extension
+def test_the_named_method_dop853_steps_in_python(tmp_path, monkeypatch):
+    """A scene that names DOP853 gets pcmm's DOP853 stepping in Python, the reference (only "auto" gives
+    loops the compiled stepping)."""
+    path = builders.four_bar_rocker_stop(tmp_path, e=0.5, rocker_stop=1.6, torque=1.0, t_end=0.3)
+    spy = _Spy(monkeypatch)
+    _run(path, True, monkeypatch, method="DOP853")
+    assert not spy.over_loops()
+    _run(path, True, monkeypatch, method="auto")
+    assert spy.over_loops()
 
 
 @needs_extension

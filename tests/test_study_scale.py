@@ -138,6 +138,11 @@ def test_short_runs_are_queued_two_deep_and_a_crash_or_hang_loses_none_queued_be
     assert sorted(map(str, rows)) == sorted(map(str, [1, 2, 3, 4, 5, 6, 7, 8, 9, 10, ("abort", "crashed"),
                                                       ("hang", "timeout")]))
     assert deepest[0] == 2
-    # "abort" (0.5 s) and "hang" were each handed out with a run queued behind them (the runs
-    # before them took microseconds): those two runs were handed out again, the rest once
-    assert len(given) == len(jobs) + 2 and sorted(map(str, set(given))) == sorted(map(str, jobs))
+    # "abort" (0.5 s) and "hang" are each handed out with a run queued behind them when the runs
+    # before them answer quickly; on a loaded machine a worker may not have had its second run
+    # yet.  Either way a run queued behind a lost worker is handed out again and only those: at
+    # most one per lost worker, every other run exactly once
+    extra = len(given) - len(jobs)
+    assert 0 <= extra <= 2 and sorted(map(str, set(given))) == sorted(map(str, jobs))
+    again = [j for j in set(given) if given.count(j) > 1]
+    assert len(again) == extra and not {"abort", "hang"} & set(again)

@@ -21,6 +21,7 @@ from ..model.configuration import Configuration
 from .contact import contact_state, gap_rate
 from ..scene.spec import TransitionSpec
 from ..ode.witness import Guard
+from .holding import guard_value as holding_guard_value
 
 
 def _coordinate(cfg: Configuration, tr: TransitionSpec, ctx=None):
@@ -37,6 +38,7 @@ def _coordinate(cfg: Configuration, tr: TransitionSpec, ctx=None):
         def rate(t, y, f):
             return y[r]
         value.many = lambda ts, ys: (ys[p] - target, ys[r])
+        value.linear = (_unit(p, max(p, r) + 1), 0.0, -target, _unit(r, max(p, r) + 1), 0.0)
         return value, rate
 
     def value(t, y):
@@ -52,6 +54,12 @@ def _coordinate(cfg: Configuration, tr: TransitionSpec, ctx=None):
         def rate(t, y, f):
             return row @ cfg.qdot(*unpack(t, y))
     return value, rate
+
+
+def _unit(i: int, n: int) -> np.ndarray:
+    row = np.zeros(n)
+    row[i] = 1.0
+    return row
 
 
 def _state_entry(cfg: Configuration, row: np.ndarray) -> tuple[int, int] | None:
@@ -117,7 +125,11 @@ def _time(cfg: Configuration, tr: TransitionSpec, ctx=None):
 
     def value(t, y):
         return t - instant
+    value.linear = (_NO_ROW, 1.0, -instant, _NO_ROW, 1.0)  # t + (-instant): t - instant, the same bits
     return value, (lambda t, y, f: 1.0)
+
+
+_NO_ROW = np.zeros(0)
 
 
 def _cut_joint_force(cfg: Configuration, tr: TransitionSpec):
@@ -144,14 +156,9 @@ def _reaction(cfg: Configuration, tr: TransitionSpec, ctx=None):
         return _cut_joint_force(cfg, tr)
     if ctx is None or not ctx.holds(tr.guard.of, cfg):
         raise _NotHeld(tr.guard.of)
-    label = ctx.label(tr.guard.of)
-    unpack = cfg.coords.unpack
     forces = ctx.evaluator(cfg)  # the holding forces as this segment has them, prepared once
-
-    def value(t, y):
-        q, v = unpack(t, y)
-        return forces(t, q, v)[label] - tr.guard.value
-    return value, None
+    # (compiled where it can be: then a compiled segment loop scans it too, value.holding)
+    return holding_guard_value(cfg, forces, ctx.label(tr.guard.of), tr.guard.value), None
 
 
 class _NotHeld(Exception):
@@ -237,6 +244,16 @@ def make_guard(cfg: Configuration, tr: TransitionSpec, rearm: bool = False, cont
             got = raw_many(ts, ys)
             return None if got is None else got[0].tolist()
     affine = _affine(cfg, tr, context) if tr.guard.when is None and not rearm else None
+    linear = getattr(raw, "linear", None) if tr.guard.when is None else None
+    if linear is None and tr.guard.when is None and raw_rate is not None:
+        plain = affine if not rearm else _affine(cfg, tr, context)
+        if plain is not None and plain[0] is not None:  # a tree's joint-angle guard: rate row @ v
+            c = np.asarray(plain[0], float)
+            nq = c.size - cfg.nv
+            linear = (c, float(plain[1]), float(plain[2]), np.concatenate([np.zeros(nq), c[:nq]]), 0.0)
+    if linear is not None:
+        linear = (*linear, bool(rearm), UNFIRED)
+    holding = getattr(raw, "holding", None) if tr.guard.when is None and not rearm else None
     loop_scan = _loop_scan(cfg, tr, rearm) if tr.guard.when is None else None
     if rearm:
         def value(t, y):
@@ -263,7 +280,7 @@ def make_guard(cfg: Configuration, tr: TransitionSpec, rearm: bool = False, cont
                 return [val if direction * r > 0.0 else -direction * max(-direction * val, UNFIRED)
                         for val, r in zip(got[0].tolist(), got[1].tolist())]
     return Guard(_describe(tr), value, direction, "transition", tr, rate, rate is not None, many=many,
-                 affine=affine, loop_scan=loop_scan)
+                 affine=affine, linear=linear, holding=holding, loop_scan=loop_scan)
 
 
 def _affine(cfg: Configuration, tr: TransitionSpec, context=None):

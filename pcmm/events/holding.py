@@ -21,6 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..model import compiled
 from ..model.configuration import Configuration
 from ..model.constraints import constrained_accelerations
 from ..errors import SimulationError
@@ -75,6 +76,9 @@ class Holds:
         self._refs: dict = {}  # (configuration, holds) -> its reference configuration
         self._sets: dict | None = None  # {configuration: its URDF's movable joints}, read on first use
         self._evaluator: tuple | None = None  # (what it was built from, by identity; the evaluator): evaluator
+        # {configuration: "compiled", or "python: why"}: how its holding forces were evaluated, as
+        # each segment's evaluator was built (the run's stats["holding_evaluations"])
+        self.evaluations: dict[str, str] = {}
 
     # -- book-keeping
     def lock(self, src: Configuration, dst: Configuration, tr: TransitionSpec, q: np.ndarray, merge: bool) -> None:
@@ -317,6 +321,9 @@ class Holds:
                 return last[1]
         timed = None if ref_name is None else self.mechanism[ref_name].coords.time_rows()
         if timed is None or any(h.merge and h.transition.contact.joint is None for h in self.items):
+            self.evaluations[cfg.name] = ("python: not compiled: " + ("no reference configuration" if ref_name is None else
+                                          "the reference's rows depend on the posture (a loop)" if timed is None else
+                                          "a merge at a point contact (its row depends on the posture)"))
             return lambda t, q, v: self.forces(cfg, t, q, v)
         ref = self.mechanism[ref_name]
         Jc, bias_of = timed
@@ -352,8 +359,11 @@ class Holds:
             bias = np.concatenate((bias_of(t), lock_bias))
             _, lam = constrained_accelerations(ref, qs, vs, J, bias, extra, forces=ref_forces)
             return dict(zip(labels, lam[m:].tolist()))
-        self._evaluator = (key, forces)  # a bounce re-arms with the same holds: built once for its sequence
-        return forces
+        fast, why = _compiled_evaluator(cfg, ref, J, m, labels, mine, theirs, held, ref_forces, own, forces)
+        self.evaluations[cfg.name] = "compiled" if fast is not None else f"python: {why}"
+        chosen = fast or forces
+        self._evaluator = (key, chosen)  # a bounce re-arms with the same holds: built once for its sequence
+        return chosen
 
     # -- guards
     def unmerge_guards(self, cfg: Configuration) -> list[Guard]:
@@ -365,10 +375,98 @@ class Holds:
                 continue
             self.release_target(h, cfg)  # a merge that could not be released here is an error now
             forces = forces or self.evaluator(cfg)
-
-            def value(t, y, h=h):
-                q, v = cfg.coords.unpack(t, y)
-                return forces(t, q, v)[h.label]
+            value = guard_value(cfg, forces, h.label)
             out.append(Guard(f"the merge of '{h.label}': its holding force turns tensile", value, -1,
-                             "unmerge", h.transition, payload=h))
+                             "unmerge", h.transition, payload=h, holding=getattr(value, "holding", None)))
         return out
+
+
+def guard_value(cfg: Configuration, forces, label: str, offset: float = 0.0):
+    """``(t, y) -> forces(t, q, v)[label] - offset`` at ``cfg``'s integrator state: the value of a
+    guard on a holding force (``forces``: a :meth:`Holds.evaluator`).  Where the evaluator is compiled
+    with ``cfg``'s state map (``forces.at_state``) it reads the state itself, and carries ``holding``
+    = (the compiled evaluator, the label's index, ``offset``): a compiled segment loop evaluates the
+    very same call at each step's end (pcmm/model/_segment_loop.hpp); a state it cannot solve (the
+    KKT solve fails) goes to the Python evaluator, as every call of a compiled evaluator does."""
+    unpack = cfg.coords.unpack
+    fast = getattr(forces, "at_state", None)
+    if fast is None:
+        def value(t, y):
+            q, v = unpack(t, y)
+            return forces(t, q, v)[label] - offset
+        return value
+    i = forces.labels.index(label)
+    at_state, python = fast.at_state, forces.python
+
+    def value(t, y):
+        lam = at_state(t, y)
+        if lam is None:
+            q, v = unpack(t, y)
+            return python(t, q, v)[label] - offset
+        return float(lam[i]) - offset
+    value.holding = (fast, i, float(offset))
+    return value
+
+
+def _state_map(cfg: Configuration):
+    """``(free, driven, laws)``: ``cfg``'s integrator state is ``y = [q[free], q'[free]]`` with the
+    coordinates ``driven`` prescribed by ``laws`` ((f, f') coefficients, low order first, as
+    :class:`pcmm.model.rows.Drives` sums them): a tree, or drives without a loop (whose partition
+    never changes); None otherwise (a loop's coordinates are solved, a planar joint's v is not q')."""
+    coords = cfg.coords
+    if cfg.has_planar:
+        return None
+    if not coords.constrained:
+        return list(range(cfg.nv)), [], []
+    closure, drives = getattr(coords, "closure", None), getattr(coords, "drives", None)
+    if closure is None or drives is None or closure.size or len(set(drives.index)) != drives.size \
+            or getattr(coords, "I", None) is None:
+        return None
+    return ([int(i) for i in coords.I], [int(i) for i in coords._driven],
+            [(d[0], d[1]) for d in drives._derivs])
+
+
+def _compiled_evaluator(cfg, ref, J, m, labels, mine, theirs, held, ref_forces, own, python):
+    """(the compiled evaluator of :meth:`Holds.evaluator`, None) where it is ``python``'s to round-off
+    at probe states (:data:`pcmm.model.compiled.AGREEMENT`), else (None, why).  It is ``python`` with
+    the same solve in C++ (pcmm/model/_holding.hpp), and where ``cfg``'s state map is known
+    (:func:`_state_map`) also reads ``cfg``'s integrator state (``at_state``), checked against
+    ``python`` at ``cfg.coords.unpack`` of probe states; every call it cannot solve goes to ``python``."""
+    if not compiled.enabled():
+        return None, compiled.why_not() or "not compiled"
+    if ref_forces.points is not None or (own is not None and own.points is not None):
+        return None, "not compiled: point springs"
+    drives = getattr(ref.coords, "drives", None)
+    f2 = [] if drives is None or not drives.size else [d[2] for d in drives._derivs]
+    if len(f2) != m:
+        return None, "not compiled: the reference's rows are not its drives' alone"
+    built = compiled.holding_forces(ref.model, ref_forces.Q0, ref_forces.KD, J, m, f2, mine, theirs, held, cfg.nv,
+                                    None if own is None else (own.Q0, own.KD))
+    if built is None:
+        return None, compiled.why_not() or "not compiled"
+    fast, checked = built
+    key = ("holding", np.asarray(J).tobytes(), m, tuple(map(tuple, f2)), tuple(mine.tolist()), tuple(theirs.tolist()),
+           held.tobytes(), cfg.nv, None if own is None else (own.Q0.tobytes(), own.KD.tobytes()))
+    nv = cfg.nv
+    probes = [(0.37 * (j + 1), y[:nv], y[nv:]) for j, y in enumerate(compiled._probe_states(nv))]
+    if not compiled.agrees(checked, fast.forces, lambda t, q, v: np.array(list(python(t, q, v).values())), probes,
+                           "holding forces", key=key + ("forces",)):
+        return None, compiled.why_not() or "it disagrees with the Python holding forces"
+
+    def forces(t, q, v):
+        lam = fast.forces(t, q, v)
+        if lam is None:  # the KKT solve failed: the Python evaluator decides, as it does
+            return python(t, q, v)
+        return dict(zip(labels, lam.tolist()))
+    forces.labels, forces.python, forces.at_state = list(labels), python, None
+    state = _state_map(cfg)
+    if state is not None:
+        free, driven, laws = state
+        fast.set_state(free, driven, laws)
+        k = len(free)
+        unpack = cfg.coords.unpack
+        states = [(0.37 * (j + 1), y) for j, y in enumerate(compiled._probe_states(max(k, 1)))] if k else []
+        if k and compiled.agrees(checked, fast.at_state, lambda t, y: np.array(list(python(t, *unpack(t, y)).values())),
+                                 states, "holding forces at the state", key=key + ("state", tuple(free), tuple(driven))):
+            forces.at_state = fast
+    return forces, None

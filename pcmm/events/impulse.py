@@ -42,6 +42,14 @@ from ..model.pinocchio_helpers import cholesky, frame_jacobian, mass_matrix
 from ..model.rows import solve
 from ..scene.spec import ContactSpec
 
+#: No impulse along the contact's normal where the denominator of Eqs. 29 and 42, J W_eff J^T (the
+#: inverse of the mass the contact meets), is at most this fraction of tr(W_eff): the normal is then
+#: orthogonal to every motion the tree and its drives allow.  One rule for the Python and the compiled
+#: solve (pcmm/model/_impulse.hpp takes it when its plan is built, and hands such a contact back here
+#: for the message).  A ratio, so it also refuses a contact on a link 1e14 times heavier than the
+#: tree's lightest coordinate (docs/limits.md).
+NO_IMPULSE = 1e-14
+
 
 @dataclass
 class Impulse:
@@ -274,7 +282,7 @@ def solve_impulse_python(cfg: Configuration, t: float, q: np.ndarray, v: np.ndar
         W_eff = W
     denom = J_n @ W_eff @ J_n.T  # Eq. 29 / 42 denominator: n^T J M_f^-1 J^T n
     d = float(denom[0, 0])
-    if not math.isfinite(d) or d <= 1e-14 * float(W_eff.trace()):  # no impulse along n
+    if not math.isfinite(d) or d <= NO_IMPULSE * float(W_eff.trace()):  # no impulse along n
         raise SimulationError(
             f"t = {t:.9g} s: the contact {contact.a}/{contact.b} cannot take an impulse along its normal "
             "(the normal is orthogonal to every allowed motion); check the contact normal and cut joints")

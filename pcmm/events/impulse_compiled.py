@@ -149,12 +149,13 @@ def _build(cfg: Configuration, plan) -> tuple[CompiledImpulse | None, str | None
     if built is None:
         return None, compiled.why_not()
     tree, index, _ = built
+    from .impulse import NO_IMPULSE  # the Python solve's rule (that module imports this one)
     try:
         fast = compiled._tree_dynamics.ImpulsePlan(
             tree, kind, stop_v, float(contact.stop_sign) if plan.stop else 1.0,
             float(contact.arm or 0.0) if plan.stop else 0.0, vec, index[plan.frame_a], index[plan.frame_b],
             index[pa] if pa is not None else 0, index[pb] if pb is not None else 0,
-            [cfg.joint_slice[j].start for j in drives], cuts)
+            [cfg.joint_slice[j].start for j in drives], cuts, NO_IMPULSE)
     except (TypeError, ValueError) as exc:
         return None, f"the compiled impulse plan could not be built: {exc}"
     return CompiledImpulse(fast, labels, tuple(plan.cut_joints), tuple(cfg.joint_names)), None

@@ -34,6 +34,9 @@ struct ImpulseCore {
   Model::FrameIndex point_a = 0, point_b = 0;  // point contacts: the contact points' frames
   std::vector<int> drives;  // the drive rows' velocity columns, in the order of the rows' labels
   std::vector<std::pair<Model::JointIndex, Eigen::MatrixXd>> cuts;  // (joint, N: 3 x k forbidden motions, planar)
+  // no impulse along n where J W_eff J^T <= no_impulse tr(W_eff): the Python solve's own rule
+  // (pcmm.events.impulse.NO_IMPULSE, given at construction), which then says why
+  double no_impulse = 0.0;
   // scratch, sized once
   Eigen::MatrixXd M, W, W_eff, WAt, S, Ja, Jb, Jpa, Jpb;
   Eigen::RowVectorXd J;
@@ -50,9 +53,9 @@ struct ImpulsePlan {
 PyObject *impulse_plan_new(PyTypeObject *type, PyObject *args, PyObject *) {
   PyObject *tree_o, *vec_o, *drives_o, *cuts_o;
   int kind, stop_v, fa, fb, pa, pb;
-  double sign, arm;
-  if (!PyArg_ParseTuple(args, "O!iiddOiiiiOO", &TreeType, &tree_o, &kind, &stop_v, &sign, &arm, &vec_o, &fa, &fb,
-                        &pa, &pb, &drives_o, &cuts_o))
+  double sign, arm, no_impulse;
+  if (!PyArg_ParseTuple(args, "O!iiddOiiiiOOd", &TreeType, &tree_o, &kind, &stop_v, &sign, &arm, &vec_o, &fa, &fb,
+                        &pa, &pb, &drives_o, &cuts_o, &no_impulse))
     return nullptr;
   Tree *tree = (Tree *)tree_o;
   if (!tree->ready || tree->drives) {
@@ -72,6 +75,7 @@ PyObject *impulse_plan_new(PyTypeObject *type, PyObject *args, PyObject *) {
   core->stop_v = stop_v;
   core->sign = sign;
   core->arm = arm;
+  core->no_impulse = no_impulse;
   core->frame_a = fa;
   core->frame_b = fb;
   core->point_a = pa;
@@ -235,7 +239,7 @@ PyObject *impulse_plan_solve(ImpulsePlan *self, PyObject *const *args, Py_ssize_
   }
   c.x = c.W_eff * c.J.transpose();
   const double d = c.J.dot(c.x);  // Eqs. 29, 42: the denominator J W_eff J^T
-  if (!std::isfinite(d) || !(d > 1e-10 * c.W_eff.trace()) || (nd && s_llt.info() != Eigen::Success)) {
+  if (!std::isfinite(d) || !(d > c.no_impulse * c.W_eff.trace()) || (nd && s_llt.info() != Eigen::Success)) {
     Py_DECREF(q_a);
     Py_DECREF(v_a);
     Py_RETURN_NONE;  // no impulse along n (or nearly none): the Python solve decides and says why
@@ -340,7 +344,7 @@ int add_impulse_plan(PyObject *m) {
   ImpulsePlanType.tp_basicsize = sizeof(ImpulsePlan);
   ImpulsePlanType.tp_flags = Py_TPFLAGS_DEFAULT;
   ImpulsePlanType.tp_doc =
-      "ImpulsePlan(tree, kind, stop_v, sign, arm, vec, frame_a, frame_b, point_a, point_b, drives, cuts): one "
+      "ImpulsePlan(tree, kind, stop_v, sign, arm, vec, frame_a, frame_b, point_a, point_b, drives, cuts, no_impulse): one "
       "contact's impulse in a tree configuration (_impulse.hpp)";
   ImpulsePlanType.tp_new = impulse_plan_new;
   ImpulsePlanType.tp_dealloc = (destructor)impulse_plan_dealloc;

@@ -279,10 +279,11 @@ Status unpack(Tree *tree, State &s, double t, const double *y, VectorXd &start, 
   return OK;
 }
 
-// the accelerations at an assembled (q, v) into the tree's data (ddq, lambda_c), the rows and their
-// bias in s.J, s.gamma, tau in s.tau: false where Python must decide (pinocchio's KKT solve failed or
-// is not finite, a point spring of zero length)
-bool accelerations(Tree *tree, State &s, double t, const VectorXd &q, const VectorXd &v) {
+// the rows Phi_q at an assembled (q, v) and their bias (Phi_q a + bias = 0) into s.J, s.gamma, with no
+// solve: the cut joints' points at velocity v and zero acceleration (their classical acceleration is
+// the bias), then the drives' unit rows with bias -f''(t).  Leaves the kinematics of (q, v) in the
+// tree's data (accelerations reads the springs' placements and Jacobians from it).
+void rows_and_bias(Tree *tree, State &s, double t, const VectorXd &q, const VectorXd &v) {
   const int nv = s.nv;
   Model &model = *tree->model;
   Data &data = *tree->data;
@@ -308,6 +309,16 @@ bool accelerations(Tree *tree, State &s, double t, const VectorXd &q, const Vect
     s.J(s.nc + j, s.driven[j]) = 1.0;
     s.gamma[s.nc + j] = -s.f2[j];
   }
+}
+
+// the accelerations at an assembled (q, v) into the tree's data (ddq, lambda_c), the rows and their
+// bias in s.J, s.gamma (rows_and_bias), tau in s.tau: false where Python must decide (pinocchio's KKT
+// solve failed or is not finite, a point spring of zero length)
+bool accelerations(Tree *tree, State &s, double t, const VectorXd &q, const VectorXd &v) {
+  const int nv = s.nv;
+  Model &model = *tree->model;
+  Data &data = *tree->data;
+  rows_and_bias(tree, s, t, q, v);
   // ForceField.generalized: Q0 - K q - Dv v
   VectorXd kq = VectorXd::Zero(nv), dv = VectorXd::Zero(nv);
   for (const auto &ij : *tree->kd_nonzero) {
@@ -384,45 +395,11 @@ PyObject *loop_object_new(PyTypeObject *type, PyObject *args, PyObject *) {
     PyErr_SetString(PyExc_ValueError, "Loop(tree, driven, laws): a finalized tree without drives of its own");
     return nullptr;
   }
-  PyObject *driven = PySequence_Fast(driven_o, "driven: a sequence of coordinates");
-  if (!driven) return nullptr;
-  PyObject *laws = PySequence_Fast(laws_o, "laws: a sequence of (f, f', f'') coefficients");
-  if (!laws) {
-    Py_DECREF(driven);
-    return nullptr;
-  }
   auto *s = new loops::State();
   const int nv = tree->nv;
   s->nv = nv;
   s->nc = 2 * (int)tree->pairs->size();
-  bool ok = PySequence_Fast_GET_SIZE(driven) == PySequence_Fast_GET_SIZE(laws);
-  if (!ok) PyErr_SetString(PyExc_ValueError, "Loop: one law per driven coordinate");
-  for (Py_ssize_t j = 0; ok && j < PySequence_Fast_GET_SIZE(driven); ++j) {
-    const long i = PyLong_AsLong(PySequence_Fast_GET_ITEM(driven, j));
-    if (i < 0 || i >= nv) {
-      if (!PyErr_Occurred()) PyErr_Format(PyExc_ValueError, "Loop: coordinate %ld does not exist", i);
-      ok = false;
-      break;
-    }
-    s->driven.push_back((int)i);
-    PyObject *law = PySequence_Fast(PySequence_Fast_GET_ITEM(laws, j), "a law: (f, f', f'') coefficients");
-    if (!law) {
-      ok = false;
-      break;
-    }
-    std::vector<double> c[3];
-    ok = PySequence_Fast_GET_SIZE(law) == 3;
-    if (!ok) PyErr_SetString(PyExc_ValueError, "Loop: a law is (f, f', f'') coefficients");
-    for (int k = 0; ok && k < 3; ++k) ok = read_vector(PySequence_Fast_GET_ITEM(law, k), c[k], "a drive law");
-    Py_DECREF(law);
-    if (!ok) break;
-    s->c0.push_back(c[0]);
-    s->c1.push_back(c[1]);
-    s->c2.push_back(c[2]);
-  }
-  Py_DECREF(driven);
-  Py_DECREF(laws);
-  if (!ok) {
+  if (!read_drive_laws(driven_o, laws_o, nv, "Loop", s->driven, s->c0, s->c1, s->c2)) {
     delete s;
     return nullptr;
   }
@@ -734,32 +711,55 @@ PyObject *loop_det_rate(Loop *self, PyObject *const *args, Py_ssize_t nargs) {
   return PyFloat_FromDouble(rate);
 }
 
-// kkt(t, q, v) -> (a, lam, Phi_q, bias) at an assembled (q, v): M a + h = tau + Phi_q^T lam,
-// Phi_q a + bias = 0 (PartitionedCoordinates.accelerations and rows); None where Python must decide
-PyObject *loop_kkt(Loop *self, PyObject *const *args, Py_ssize_t nargs) {
+// the arguments (t, q, v) of kkt and rows: a time and an assembled state of the loop's nv coordinates;
+// false with the error set
+bool state_args(const loops::State &s, PyObject *const *args, Py_ssize_t nargs, const char *who, double &t,
+                VectorXd &q, VectorXd &v) {
   if (nargs != 3) {
-    PyErr_SetString(PyExc_TypeError, "kkt(t, q, v) takes three arguments");
-    return nullptr;
+    PyErr_Format(PyExc_TypeError, "%s(t, q, v) takes three arguments", who);
+    return false;
   }
-  loops::State &s = *self->s;
-  const double t = PyFloat_AsDouble(args[0]);
-  if (t == -1.0 && PyErr_Occurred()) return nullptr;
+  t = PyFloat_AsDouble(args[0]);
+  if (t == -1.0 && PyErr_Occurred()) return false;
   PyArrayObject *q_o = vector_arg(args[1], s.nv, "q", "coordinate vector");
-  if (!q_o) return nullptr;
+  if (!q_o) return false;
   PyArrayObject *v_o = vector_arg(args[2], s.nv, "v", "velocity vector");
   if (!v_o) {
     Py_DECREF(q_o);
-    return nullptr;
+    return false;
   }
-  const VectorXd q = Eigen::Map<const VectorXd>((const double *)PyArray_DATA(q_o), s.nv),
-                 v = Eigen::Map<const VectorXd>((const double *)PyArray_DATA(v_o), s.nv);
+  q = Eigen::Map<const VectorXd>((const double *)PyArray_DATA(q_o), s.nv);
+  v = Eigen::Map<const VectorXd>((const double *)PyArray_DATA(v_o), s.nv);
   Py_DECREF(q_o);
   Py_DECREF(v_o);
+  return true;
+}
+
+// kkt(t, q, v) -> (a, lam, Phi_q, bias) at an assembled (q, v): M a + h = tau + Phi_q^T lam,
+// Phi_q a + bias = 0 (PartitionedCoordinates.accelerations and rows); None where Python must decide
+PyObject *loop_kkt(Loop *self, PyObject *const *args, Py_ssize_t nargs) {
+  loops::State &s = *self->s;
+  double t;
+  VectorXd q, v;
+  if (!state_args(s, args, nargs, "kkt", t, q, v)) return nullptr;
   if (!loops::accelerations(self->tree, s, t, q, v)) Py_RETURN_NONE;
   const Data &data = *self->tree->data;
   const RowMatrixXd J = s.J;
   const VectorXd lam = data.lambda_c.head(s.m);
   return Py_BuildValue("NNNN", new_vector(data.ddq), new_vector(lam), new_matrix(J), new_vector(s.gamma));
+}
+
+// rows(t, q, v) -> (Phi_q, bias) at an assembled (q, v), Phi_q a + bias = 0, without the KKT solve:
+// the same arrays as kkt's last two (PartitionedCoordinates.rows of a segment reader: the flight
+// audit's power solves for the multipliers itself)
+PyObject *loop_rows(Loop *self, PyObject *const *args, Py_ssize_t nargs) {
+  loops::State &s = *self->s;
+  double t;
+  VectorXd q, v;
+  if (!state_args(s, args, nargs, "rows", t, q, v)) return nullptr;
+  loops::rows_and_bias(self->tree, s, t, q, v);
+  const RowMatrixXd J = s.J;
+  return Py_BuildValue("NN", new_matrix(J), new_vector(s.gamma));
 }
 
 PyObject *loop_max_residual(Loop *self, PyObject *) { return PyFloat_FromDouble(self->s->max_residual); }
@@ -784,6 +784,8 @@ PyMethodDef loop_object_methods[] = {
     {"holds", (PyCFunction)(void (*)(void))loop_holds, METH_FASTCALL, "holds(t, y) -> the last unpack's state"},
     {"kkt", (PyCFunction)(void (*)(void))loop_kkt, METH_FASTCALL,
      "kkt(t, q, v) -> (a, lam, Phi_q, bias) at an assembled state, or None"},
+    {"rows", (PyCFunction)(void (*)(void))loop_rows, METH_FASTCALL,
+     "rows(t, q, v) -> (Phi_q, bias) at an assembled state, no solve"},
     {"det_rate", (PyCFunction)(void (*)(void))loop_det_rate, METH_FASTCALL,
      "det_rate(t, q, qdot) -> d/dt of the dependent block's scaled determinant (central differences)"},
     {"last", (PyCFunction)loop_last, METH_NOARGS, "last() -> (t, q, q') of the last solution kept"},

@@ -15,7 +15,14 @@
 // near-zero value, or a dip of the guard's cubic Hermite model towards zero (pcmm.ode.integrators
 // decides, with the same rules and wider margins here, so no step it would flag is missed); also
 // a step of round-off size or a non-finite state (Python says why).  With `every_step` (guards
-// that are not affine) each accepted step is a candidate.  At a candidate, dense() gives the
+// that are not affine) each accepted step is a candidate.
+// A guard on a holding force (a merge held by compression only, a reaction guard: `holding`, each
+// with its compiled HoldingForces, _holding.hpp) is scanned here too: its value lam_i - offset at the
+// step's end, its rate by the forward difference pcmm.ode.integrators._rate takes for a guard without
+// a rate of its own, (g(t + d, y + d f) - g(t, y)) / d with d = max(1e-7 |h|, 1e-12 max(1, |t|)), so
+// that Python, handed the step, finds the same values (the same compiled call from its guard); at a
+// candidate, candidate_start() gives the values and rates at the step's start as Python's scanner
+// would have kept them.  At a candidate, dense() gives the
 // step's 7th-order dense output (contd8's coefficients, the 3 extra stages), computed on demand.
 // Accepted steps that are not candidates are kept and handed over in one array (take()).
 // With `keep_dense` (a flight, for its energy audit) every accepted step's dense output is formed
@@ -136,6 +143,13 @@ constexpr double safe = 0.9, fac1 = 0.3, fac2 = 6.0, uround = 2.220446049250313e
 constexpr long nstiff = 1000;
 }  // namespace dop853
 
+// guard j reads the holding force `index` of `forces` minus `offset` (its value, a reference held)
+struct HoldingGuard {
+  int j, index;
+  double offset;
+  HoldingForces *forces;
+};
+
 struct SegmentLoop {
   PyObject_HEAD
   Tree *tree;  // a reference held
@@ -165,6 +179,8 @@ struct SegmentLoop {
   std::vector<int> *guard_kind;
   std::vector<double> *guard_row, *guard_unfired, *g_scale;
   int nv;  // a loop's coordinates (the rows of its solved guards)
+  std::vector<HoldingGuard> *holding;  // guards on holding forces, scanned with their compiled solve
+  std::vector<double> *g_start, *r_start, *probe;  // a candidate's start values and rates; scratch
 };
 
 namespace {
@@ -287,11 +303,36 @@ void solved_guard_values(SegmentLoop *s, double t, const double *y, double *g, d
   }
 }
 
-// every guard's value and rate at (t, y) with derivative f into g, r; the scale of each value's terms in g_scale
-void guard_values(SegmentLoop *s, double t, const double *y, const double *f, double *g, double *r) {
+// the guards' values g and rates r at (t, y) with derivative f, after a step of size h; false where a
+// holding force could not be solved (its value and rate are then NaN: the step goes to Python)
+bool guard_values(SegmentLoop *s, double t, const double *y, const double *f, double *g, double *r, double h) {
   const int n = s->n;
+  bool ok = true;
+  for (const HoldingGuard &hg : *s->holding) {
+    HoldingForces *hf = hg.forces;
+    std::vector<double> lam(hf->core->nh);
+    double &gj = g[hg.j], &rj = r[hg.j];
+    if (!holding_at_state(hf, t, y, lam.data())) {
+      gj = rj = NAN;
+      ok = false;
+      continue;
+    }
+    gj = lam[hg.index] - hg.offset;
+    // pcmm.ode.integrators._rate: the guard has no rate of its own
+    const double d = std::max(1e-7 * std::fabs(h), 1e-12 * std::max(1.0, std::fabs(t)));
+    double *yd = s->probe->data();
+    for (int i = 0; i < n; ++i) yd[i] = y[i] + d * f[i];
+    if (!holding_at_state(hf, t + d, yd, lam.data())) {
+      rj = NAN;
+      ok = false;
+      continue;
+    }
+    rj = ((lam[hg.index] - hg.offset) - gj) / d;
+  }
   for (int j = 0; j < s->m; ++j) {
     if ((*s->guard_kind)[j] >= 0) continue;  // solved_guard_values
+    if (!s->holding->empty() && std::any_of(s->holding->begin(), s->holding->end(), [j](const HoldingGuard &hg) { return hg.j == j; }))
+      continue;
     const double *c = s->guard_c->data() + (size_t)j * n;
     double cy = 0.0, cf = 0.0, scale = std::fabs((*s->guard_d)[j]) + std::fabs((*s->guard_ct)[j] * t);
     for (int i = 0; i < n; ++i) {
@@ -304,6 +345,7 @@ void guard_values(SegmentLoop *s, double t, const double *y, const double *f, do
     (*s->g_scale)[j] = scale;
   }
   if (s->loop) solved_guard_values(s, t, y, g, r);
+  return ok;
 }
 
 // may guard j fire in a step from (g0, d0) to (g1, d1) over h?  pcmm.ode.integrators' _crossed and
@@ -385,18 +427,31 @@ int settle(SegmentLoop *s, double x, double xph) {
   const double *y = s->y, *k1 = s->k1;
   // the guards at the step's end first: a loop's solved guards read the Loop's solution there, which the
   // dense output's stages below move
-  if (s->m) guard_values(s, xph, y, k1, s->g_new->data(), s->r_new->data());
+  bool scanned = true;  // false: a holding force could not be solved (Python decides the step)
+  if (s->m) scanned = guard_values(s, xph, y, k1, s->g_new->data(), s->r_new->data(), xph - x);
   s->dense_dropped = false;
   if (s->keep_dense) keep_dense_output(s);
-  bool candidate = s->every_step || s->dense_dropped;
+  bool candidate = s->every_step || s->dense_dropped || !scanned;
   bool finite = true;
   for (int i = 0; i < n; ++i) finite = finite && std::isfinite(y[i]);
   if (!finite || std::fabs(xph - x) < 64 * 2.220446049250313e-16 * std::max(1.0, std::fabs(xph))) candidate = true;
-  for (int j = 0; j < s->m && !candidate; ++j)
-    candidate = may_fire((*s->g_old)[j], (*s->r_old)[j], (*s->g_new)[j], (*s->r_new)[j], xph - x,
-                         (*s->guard_dir)[j], 1e-12 * (*s->g_scale)[j]);
-  std::swap(s->g_old, s->g_new);
-  std::swap(s->r_old, s->r_new);
+  if (s->m) {
+    *s->g_start = *s->g_old;  // the step's start, as Python's scanner keeps it (candidate_start)
+    *s->r_start = *s->r_old;
+    for (int j = 0; j < s->m && !candidate; ++j) {
+      const double *c = s->guard_c->data() + (size_t)j * n;
+      double scale = std::fabs((*s->guard_d)[j]) + std::fabs((*s->guard_ct)[j] * xph);
+      for (int i = 0; i < n; ++i) scale += std::fabs(c[i] * y[i]);
+      for (const HoldingGuard &hg : *s->holding)
+        if (hg.j == j) scale = std::fabs(hg.offset) + std::fabs((*s->g_new)[j] + hg.offset);
+      if ((*s->guard_kind)[j] >= 0) scale = (*s->g_scale)[j];  // a loop's solved guard: its own terms
+      const double g0 = (*s->g_old)[j], d0 = (*s->r_old)[j], g1 = (*s->g_new)[j], d1 = (*s->r_new)[j];
+      if (!std::isfinite(g0) || !std::isfinite(d0) || !std::isfinite(g1) || !std::isfinite(d1)) candidate = true;
+      else candidate = may_fire(g0, d0, g1, d1, xph - x, (*s->guard_dir)[j], 1e-12 * scale);
+    }
+    std::swap(s->g_old, s->g_new);
+    std::swap(s->r_old, s->r_new);
+  }
   if (candidate) return 1;
   s->record->push_back(xph);
   s->record->insert(s->record->end(), y, y + n);
@@ -760,6 +815,33 @@ int read_solved(SegmentLoop *s, PyObject *obj) {
   return 0;
 }
 
+// holding: a sequence of (guard j, HoldingForces, index, offset); 0, or -1 with the error set
+int read_holding_guards(SegmentLoop *s, PyObject *obj, int n) {
+  PyObject *seq = PySequence_Fast(obj, "holding: a sequence of (guard, HoldingForces, index, offset)");
+  if (!seq) return -1;
+  for (Py_ssize_t k = 0; k < PySequence_Fast_GET_SIZE(seq); ++k) {
+    HoldingGuard hg;
+    PyObject *forces;
+    if (!PyArg_ParseTuple(PySequence_Fast_GET_ITEM(seq, k), "iO!id", &hg.j, &HoldingForcesType, &forces, &hg.index,
+                          &hg.offset)) {
+      Py_DECREF(seq);
+      return -1;
+    }
+    hg.forces = (HoldingForces *)forces;
+    if (hg.j < 0 || hg.j >= s->m || hg.index < 0 || hg.index >= hg.forces->core->nh || !hg.forces->core->state ||
+        2 * (int)hg.forces->core->free.size() > n) {
+      PyErr_Format(PyExc_ValueError, "holding: guard %d, force %d: not a guard of this loop, a hold, or a state map "
+                   "that fits its state", hg.j, hg.index);
+      Py_DECREF(seq);
+      return -1;
+    }
+    Py_INCREF(forces);
+    s->holding->push_back(hg);
+  }
+  Py_DECREF(seq);
+  return 0;
+}
+
 PyObject *new_vector(const double *x, npy_intp n) {
   PyObject *out = PyArray_SimpleNew(1, &n, NPY_DOUBLE);
   if (out) std::memcpy(PyArray_DATA((PyArrayObject *)out), x, n * sizeof(double));
@@ -778,11 +860,12 @@ PyObject *loop_new(PyTypeObject *type, PyObject *args, PyObject *kwargs) {
   double t0, t_bound, rtol, atol, max_step, beta;
   long nmax;
   int every_step, power = 0, keep_dense = 0;
+  PyObject *holding_o = Py_None;
   static const char *keywords[] = {"", "", "", "", "", "", "", "", "", "", "", "", "", "", "power", "tableau",
-                                   "keep_dense", "fallback", "solved", nullptr};
-  if (!PyArg_ParseTupleAndKeywords(args, kwargs, "OdOddddldOOOOp|$pOpOO", (char **)keywords, &tree_o, &t0,
+                                   "keep_dense", "fallback", "solved", "holding", nullptr};
+  if (!PyArg_ParseTupleAndKeywords(args, kwargs, "OdOddddldOOOOp|$pOpOOO", (char **)keywords, &tree_o, &t0,
                                    &y0_o, &t_bound, &rtol, &atol, &max_step, &nmax, &beta, &c_o, &ct_o, &d_o, &dir_o,
-                                   &every_step, &power, &tab_o, &keep_dense, &fallback_o, &solved_o))
+                                   &every_step, &power, &tab_o, &keep_dense, &fallback_o, &solved_o, &holding_o))
     return nullptr;
   Loop *owner_loop = nullptr;
   Tree *tree;
@@ -849,6 +932,14 @@ PyObject *loop_new(PyTypeObject *type, PyObject *args, PyObject *kwargs) {
   s->r_new = new std::vector<double>(m);
   s->record = new std::vector<double>();
   s->dense_record = new std::vector<double>();
+  s->holding = new std::vector<HoldingGuard>();
+  s->g_start = new std::vector<double>(m);
+  s->r_start = new std::vector<double>(m);
+  s->probe = new std::vector<double>(n);
+  if (holding_o != Py_None && read_holding_guards(s, holding_o, n)) {
+    Py_DECREF(s);
+    return nullptr;
+  }
   s->keep_dense = keep_dense;
   s->dense_charged = true;
   s->power = power;
@@ -903,7 +994,8 @@ PyObject *loop_new(PyTypeObject *type, PyObject *args, PyObject *kwargs) {
   } else {
     s->h = hinit(s);
   }
-  if (m) guard_values(s, t0, s->y, s->k1, s->g_old->data(), s->r_old->data());
+  // at the start, as pcmm.ode.integrators._Stepper forms them (a rate's step size 1e-6 there)
+  if (m) guard_values(s, t0, s->y, s->k1, s->g_old->data(), s->r_old->data(), 1e-6);
   if (s->failed) {  // the first evaluations fell back and failed: Python steps this segment (and meets it)
     PyErr_Restore(s->exc_type, s->exc_value, s->exc_tb);
     s->exc_type = s->exc_value = s->exc_tb = nullptr;
@@ -937,6 +1029,12 @@ void loop_dealloc(SegmentLoop *s) {
   delete s->r_new;
   delete s->record;
   delete s->dense_record;
+  if (s->holding)
+    for (const HoldingGuard &hg : *s->holding) Py_XDECREF((PyObject *)hg.forces);
+  delete s->holding;
+  delete s->g_start;
+  delete s->r_start;
+  delete s->probe;
   delete s->tab;
   delete s->stages;
   delete s->F;
@@ -973,6 +1071,12 @@ PyObject *loop_take(SegmentLoop *s, PyObject *) {
   if (!s->record->empty()) std::memcpy(PyArray_DATA((PyArrayObject *)out), s->record->data(), s->record->size() * sizeof(double));
   s->record->clear();
   return out;
+}
+
+// candidate_start() -> (g, r): every guard's value and rate at the candidate step's start, as the loop
+// scanned them (a holding guard's: what Python's scanner would have kept from the step before)
+PyObject *loop_candidate_start(SegmentLoop *s, PyObject *) {
+  return Py_BuildValue("NN", new_vector(s->g_start->data(), s->m), new_vector(s->r_start->data(), s->m));
 }
 
 // candidate() -> (t_old, t_new, y_new, f_new): the last accepted step
@@ -1031,6 +1135,8 @@ PyMethodDef loop_methods[] = {
     {"dense", (PyCFunction)loop_dense, METH_NOARGS, "dense() -> (t_old, h, contd8 coefficients (8, n))"},
     {"counts", (PyCFunction)loop_counts, METH_NOARGS, "counts() -> (evaluations, steps, accepted, rejected)"},
     {"fallbacks", (PyCFunction)loop_fallbacks, METH_NOARGS, "fallbacks() -> the evaluations a Loop declined (Python took them)"},
+    {"candidate_start", (PyCFunction)loop_candidate_start, METH_NOARGS,
+     "candidate_start() -> (g, r): the guards' values and rates at the candidate step's start"},
     {"take_dense", (PyCFunction)loop_take_dense, METH_NOARGS,
      "take_dense() -> with keep_dense, the dense() of each step accepted since the last take_dense, one row each"},
     {nullptr, nullptr, 0, nullptr}};

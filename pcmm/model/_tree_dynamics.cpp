@@ -255,6 +255,55 @@ bool read_vector(PyObject *obj, std::vector<double> &out, const char *what) {
   return true;
 }
 
+// The drive laws q_j = f_j(t) of the coordinates `driven_o` (indices into the nv velocity
+// coordinates, each at most once), one law per coordinate in `laws_o`: the coefficients of f, f'
+// and f'', low order first (pcmm.model.compiled.drives_key builds them).  Appends to driven and
+// c0/c1/c2; false with the Python error set, the message led by `who`.  Tree.set_drives and the
+// loops' Loop(tree, driven, laws, springs) both read their drives here.
+bool read_drive_laws(PyObject *driven_o, PyObject *laws_o, int nv, const char *who, std::vector<int> &driven,
+                     std::vector<std::vector<double>> &c0, std::vector<std::vector<double>> &c1,
+                     std::vector<std::vector<double>> &c2) {
+  PyObject *driven_seq = PySequence_Fast(driven_o, "driven: a sequence of coordinates");
+  if (!driven_seq) return false;
+  PyObject *laws = PySequence_Fast(laws_o, "laws: a sequence of (f, f', f'') coefficients");
+  if (!laws) {
+    Py_DECREF(driven_seq);
+    return false;
+  }
+  const Py_ssize_t nd = PySequence_Fast_GET_SIZE(driven_seq);
+  bool ok = nd == PySequence_Fast_GET_SIZE(laws);
+  if (!ok) PyErr_Format(PyExc_ValueError, "%s: one law per driven coordinate", who);
+  std::vector<bool> seen(nv, false);
+  for (Py_ssize_t j = 0; ok && j < nd; ++j) {
+    const long i = PyLong_AsLong(PySequence_Fast_GET_ITEM(driven_seq, j));
+    if (i < 0 || i >= nv || seen[i]) {
+      if (!PyErr_Occurred())
+        PyErr_Format(PyExc_ValueError, "%s: coordinate %ld is not one of the %d coordinates, or is driven twice", who, i, nv);
+      ok = false;
+      break;
+    }
+    seen[i] = true;
+    driven.push_back((int)i);
+    PyObject *law = PySequence_Fast(PySequence_Fast_GET_ITEM(laws, j), "a law: (f, f', f'') coefficients");
+    if (!law) {
+      ok = false;
+      break;
+    }
+    std::vector<double> c[3];
+    ok = PySequence_Fast_GET_SIZE(law) == 3;
+    if (!ok) PyErr_Format(PyExc_ValueError, "%s: a law is (f, f', f'') coefficients", who);
+    for (int k = 0; ok && k < 3; ++k) ok = read_vector(PySequence_Fast_GET_ITEM(law, k), c[k], "a drive law");
+    Py_DECREF(law);
+    if (!ok) break;
+    c0.push_back(c[0]);
+    c1.push_back(c[1]);
+    c2.push_back(c[2]);
+  }
+  Py_DECREF(driven_seq);
+  Py_DECREF(laws);
+  return ok;
+}
+
 // set_drives(driven (nd), laws ((f, f', f'') coefficients, low order first, per drive)): the
 // coordinates `driven` prescribed; rhs(t, y) and rhs_with_power(t, [y, W]) then take y = [q_I, v_I]
 PyObject *tree_set_drives(Tree *self, PyObject *args) {
@@ -264,49 +313,20 @@ PyObject *tree_set_drives(Tree *self, PyObject *args) {
     PyErr_SetString(PyExc_RuntimeError, "set_drives: the tree is not finalized");
     return nullptr;
   }
-  PyObject *driven = PySequence_Fast(driven_o, "driven: a sequence of coordinates");
-  if (!driven) return nullptr;
-  PyObject *laws = PySequence_Fast(laws_o, "laws: a sequence of (f, f', f'') coefficients");
-  if (!laws) {
-    Py_DECREF(driven);
-    return nullptr;
-  }
   auto *d = new DriveLaws();
   const int nv = self->nv;
-  const Py_ssize_t nd = PySequence_Fast_GET_SIZE(driven);
-  bool ok = nd > 0 && nd == PySequence_Fast_GET_SIZE(laws);
-  if (!ok) PyErr_SetString(PyExc_ValueError, "set_drives: one law per driven coordinate, at least one");
-  std::vector<bool> is_driven(nv, false);
-  for (Py_ssize_t j = 0; ok && j < nd; ++j) {
-    const long i = PyLong_AsLong(PySequence_Fast_GET_ITEM(driven, j));
-    if (i < 0 || i >= nv || is_driven[i]) {
-      if (!PyErr_Occurred()) PyErr_Format(PyExc_ValueError, "set_drives: coordinate %ld is not a distinct coordinate", i);
-      ok = false;
-      break;
-    }
-    is_driven[i] = true;
-    d->driven.push_back((int)i);
-    PyObject *law = PySequence_Fast(PySequence_Fast_GET_ITEM(laws, j), "a law: (f, f', f'') coefficients");
-    if (!law) {
-      ok = false;
-      break;
-    }
-    std::vector<double> c[3];
-    ok = PySequence_Fast_GET_SIZE(law) == 3;
-    if (!ok) PyErr_SetString(PyExc_ValueError, "set_drives: a law is (f, f', f'') coefficients");
-    for (int k = 0; ok && k < 3; ++k) ok = read_vector(PySequence_Fast_GET_ITEM(law, k), c[k], "a drive law");
-    Py_DECREF(law);
-    if (!ok) break;
-    d->c0.push_back(c[0]);
-    d->c1.push_back(c[1]);
-    d->c2.push_back(c[2]);
-  }
-  Py_DECREF(driven);
-  Py_DECREF(laws);
-  if (!ok) {
+  if (!read_drive_laws(driven_o, laws_o, nv, "set_drives", d->driven, d->c0, d->c1, d->c2)) {
     delete d;
     return nullptr;
   }
+  const Py_ssize_t nd = (Py_ssize_t)d->driven.size();
+  if (nd == 0) {
+    PyErr_SetString(PyExc_ValueError, "set_drives: at least one driven coordinate");
+    delete d;
+    return nullptr;
+  }
+  std::vector<bool> is_driven(nv, false);
+  for (int i : d->driven) is_driven[i] = true;
   for (int i = 0; i < nv; ++i)
     if (!is_driven[i]) d->free.push_back(i);
   d->J = Eigen::MatrixXd::Zero(nd, nv);
@@ -479,6 +499,83 @@ void evaluate_drives(Tree *self, double t, const double *y, double *dy, bool pow
     for (int j = 0; j < nd; ++j) lp += self->data->lambda_c[j] * -d.f1[j];
     dy[2 * k] = tv - lp;
   }
+}
+
+// drive_powers(times (n), states (2k x n, one node a column)) -> (n): the power of the force elements and
+// of the drives' motors at each node of a flight's quadrature, as pcmm.run.audit.drive_powers forms it
+// from its own KKT solve at each node (the prescribed coordinates, tau = Q0 - K q - D v,
+// forwardDynamics with the drive rows, then tau . v + lam . (J v)): the flight-energy audit's check,
+// apart from the integrator's right-hand side (not its appended power)
+PyObject *tree_drive_powers(Tree *self, PyObject *args) {
+  PyObject *t_o, *y_o;
+  if (!PyArg_ParseTuple(args, "OO", &t_o, &y_o)) return nullptr;
+  if (!self->ready || !self->drives) {
+    PyErr_SetString(PyExc_ValueError, "drive_powers: a finalized tree with drives");
+    return nullptr;
+  }
+  PyArrayObject *times = (PyArrayObject *)PyArray_FROMANY(t_o, NPY_DOUBLE, 1, 1, NPY_ARRAY_IN_ARRAY);
+  if (!times) return nullptr;
+  PyArrayObject *states = (PyArrayObject *)PyArray_FROMANY(y_o, NPY_DOUBLE, 2, 2, NPY_ARRAY_IN_ARRAY);
+  const npy_intp n = PyArray_DIM(times, 0);
+  if (!states || PyArray_DIM(states, 0) < self->ny || PyArray_DIM(states, 1) != n) {
+    if (states) PyErr_Format(PyExc_ValueError, "drive_powers: states must be (>= %d) x %zd", self->ny, (Py_ssize_t)n);
+    Py_DECREF(times);
+    Py_XDECREF(states);
+    return nullptr;
+  }
+  PyArrayObject *out = (PyArrayObject *)PyArray_SimpleNew(1, &n, NPY_DOUBLE);
+  if (!out) {
+    Py_DECREF(times);
+    Py_DECREF(states);
+    return nullptr;
+  }
+  DriveLaws &d = *self->drives;
+  const int nv = self->nv, k = (int)d.free.size(), nd = (int)d.driven.size();
+  const double *ts = (const double *)PyArray_DATA(times), *ys = (const double *)PyArray_DATA(states);
+  double *po = (double *)PyArray_DATA(out);
+  bool ok = true;
+  for (npy_intp c = 0; c < n && ok; ++c) {
+    const double t = ts[c];
+    for (int j = 0; j < nd; ++j) {
+      d.f[j] = horner(d.c0[j], t);
+      d.f1[j] = horner(d.c1[j], t);
+      d.gamma[j] = -horner(d.c2[j], t);
+    }
+    for (int i = 0; i < k; ++i) {
+      d.q[d.free[i]] = ys[(npy_intp)i * n + c];
+      d.v[d.free[i]] = ys[(npy_intp)(k + i) * n + c];
+    }
+    for (int j = 0; j < nd; ++j) {
+      d.q[d.driven[j]] = d.f[j];
+      d.v[d.driven[j]] = d.f1[j];
+    }
+    d.kq.setZero();
+    d.dv.setZero();
+    for (const auto &ij : *self->kd_nonzero) {
+      const double kd = (*self->kd)(ij.first, ij.second);
+      if (ij.second < nv) d.kq[ij.first] += kd * d.q[ij.second];
+      else d.dv[ij.first] += kd * d.v[ij.second - nv];
+    }
+    for (int i = 0; i < nv; ++i) d.tau[i] = (*self->q0_force)[i] - d.kq[i] - d.dv[i];
+    try {
+      pinocchio::forwardDynamics(*self->model, *self->data, d.q, d.v, d.tau, d.J, d.gamma, 0.0);
+    } catch (const std::exception &exc) {
+      PyErr_Format(PyExc_ArithmeticError, "drive_powers: the KKT solve failed at t = %.17g (%s)", t, exc.what());
+      ok = false;
+      break;
+    }
+    double tv = 0.0, lv = 0.0;
+    for (int i = 0; i < nv; ++i) tv += d.tau[i] * d.v[i];
+    for (int j = 0; j < nd; ++j) lv += self->data->lambda_c[j] * d.v[d.driven[j]];
+    po[c] = tv + lv;
+  }
+  Py_DECREF(times);
+  Py_DECREF(states);
+  if (!ok) {
+    Py_DECREF(out);
+    return nullptr;
+  }
+  return (PyObject *)out;
 }
 
 // the right-hand side at (t, y) into dy: a tree's (evaluate_rhs) or, with drives, evaluate_drives;
@@ -679,12 +776,15 @@ PyMethodDef tree_methods[] = {
      "set_drives(driven, laws): coordinates prescribed by polynomials, laws = ((f, f', f'') coefficients, ...)"},
     {"rhs_with_power", (PyCFunction)(void (*)(void))tree_rhs_with_power, METH_FASTCALL,
      "rhs_with_power(t, [y, W]) -> [v_I, a_I, P]: P the power of the force elements (and of the drives' motors)"},
+    {"drive_powers", (PyCFunction)tree_drive_powers, METH_VARARGS,
+     "drive_powers(times, states) -> the power of the force elements and the drives' motors at each node"},
     {"evaluation_cost", (PyCFunction)tree_evaluation_cost, METH_VARARGS,
      "evaluation_cost(y, reps) -> {part: CPU seconds per call} (benchmarks/rhs_loop_cost.py)"},
     {nullptr, nullptr, 0, nullptr}};
 
 PyTypeObject TreeType = {PyVarObject_HEAD_INIT(nullptr, 0)};
 
+#include "_holding.hpp"  // the holding forces of the locks in force (pcmm.events.holding)
 #include "_segment_loop.hpp"
 #include "_loops.hpp"
 
@@ -692,6 +792,7 @@ PyModuleDef module_def = {PyModuleDef_HEAD_INIT, "_tree_dynamics",
                           "A tree configuration's right-hand side with Pinocchio's ABA, in C++.", -1, nullptr};
 
 #include "_impulse.hpp"  // the impulse of a contact in a tree (pcmm.events.impulse_compiled)
+#include "_locate.hpp"   // an event located on a step's dense output (pcmm.ode.integrators._locate)
 
 }  // namespace
 
@@ -744,6 +845,14 @@ PyMODINIT_FUNC PyInit__tree_dynamics(void) {
     return nullptr;
   }
   if (add_loop_type(m) < 0) {  // closed loops' right-hand side (_loops.hpp)
+    Py_DECREF(m);
+    return nullptr;
+  }
+  if (add_locate(m) < 0) {  // an event's location (_locate.hpp)
+    Py_DECREF(m);
+    return nullptr;
+  }
+  if (add_holding_type(m) < 0) {  // the holding forces, and the segment loop's scan of their guards (_holding.hpp)
     Py_DECREF(m);
     return nullptr;
   }

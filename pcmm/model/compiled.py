@@ -155,6 +155,10 @@ def _register_segment_loop(owner: type | None = None, make: Callable | None = No
     segment loop (DOP853 in C++, pcmm/model/_segment_loop.hpp), where this build has one; and that
     ``owner``'s right-hand sides have ``make`` (called as :data:`pcmm.ode.integrators.SEGMENT_LOOPS`
     says; it ends in :func:`segment_loop`)."""
+    locate = getattr(_tree_dynamics, "locate", None)
+    if locate is not None:  # the event locator (_locate.hpp), for every configuration's guards from now on
+        from ..ode.integrators import COMPILED_LOCATE
+        COMPILED_LOCATE[:] = [locate, enabled]
     loop = getattr(_tree_dynamics, "SegmentLoop", None)
     if loop is not None:
         from ..ode.integrators import SEGMENT_LOOPS
@@ -201,6 +205,36 @@ def drive_tree(model: pin.Model, Q0: np.ndarray, KD: np.ndarray, driven, laws, r
                         [(t, np.append(y, 0.0)) for t, y in probes], "right-hand side with drives and power")):
         return None
     return tree
+
+
+def holding_forces(model: pin.Model, Q0: np.ndarray, KD: np.ndarray, J: np.ndarray, m: int, f2, mine, theirs,
+                   held: np.ndarray, cfg_nv: int, own=None):
+    """(a compiled HoldingForces (pcmm/model/_holding.hpp), the names checked on its tree) for the
+    holding forces of the locks in force, solved on the reference configuration ``model`` with its
+    force elements ``Q0``, ``KD``: the rows ``J`` (its ``m`` drive rows, their f'' coefficients
+    ``f2``, then one constant row per lock), the configuration's coordinates ``mine`` at the
+    reference's ``theirs``, the held joints at ``held``, and ``own`` = (Q0, KD) of the force elements
+    acting while the configuration holds where they differ from the reference's (None: the same);
+    or None (why_not says).  It is not checked here: :meth:`pcmm.events.holding.Holds.evaluator`
+    checks it against the Python evaluator it replaces before a guard uses it."""
+    if enabled() and not hasattr(_tree_dynamics, "HoldingForces"):  # an extension built before it was
+        _refuse("this build of pcmm.model._tree_dynamics has no compiled holding forces (built from older sources): "
+                "reinstall pcmm (pip install -e .) to rebuild it")
+        return None
+    Q0, KD = np.asarray(Q0, float), np.asarray(KD, float)
+    entry = _tree(model, ("holding", Q0.tobytes(), KD.tobytes()), lambda tree: tree.finalize(model.gravity.linear, Q0, KD))
+    if entry is None:
+        return None
+    tree, checked = entry
+    own_q0, own_kd = (None, None) if own is None else (np.asarray(own[0], float), np.asarray(own[1], float))
+    try:
+        fast = _tree_dynamics.HoldingForces(tree, np.asarray(J, float), int(m), [tuple(map(float, c)) for c in f2],
+                                            [int(i) for i in mine], [int(i) for i in theirs], np.asarray(held, float),
+                                            int(cfg_nv), own_q0, own_kd)
+    except (ValueError, TypeError) as exc:
+        _refuse(f"the compiled holding forces refused the configuration: {exc}")
+        return None
+    return fast, checked
 
 
 def impulse_tree(model: pin.Model, frames) -> tuple | None:
@@ -264,7 +298,7 @@ def loop_tree(model: pin.Model, frames_a, frames_b, Q0: np.ndarray, KD: np.ndarr
     with closed loops: its revolute cut joints' point pairs (frames of ``model``), its linear force
     elements and its point springs ``points`` (a :class:`pcmm.model.forces.PointSprings` or None),
     for a :func:`loop`; or None (why_not says)."""
-    if enabled() and not hasattr(_tree_dynamics, "Loop"):  # an extension built before loops were
+    if enabled() and not hasattr(getattr(_tree_dynamics, "Loop", None), "rows"):  # built before loops (or their rows) were
         _refuse("this build of pcmm.model._tree_dynamics has no compiled loops (built from older sources): "
                 "reinstall pcmm (pip install -e .) to rebuild it")
         return None
@@ -311,6 +345,16 @@ def agrees(checked: set, fn, reference, probes, what: str, key=None) -> bool:
     compiled tree and ``key``, ``what`` where None: the key holds every input of ``fn`` that the
     tree's own key does not); where not, why_not says by how much (naming ``what``)."""
     return _agrees(checked, fn, reference, probes, what, key)
+
+
+def agrees_on(tree, fn, reference, probes, what: str) -> bool:
+    """:func:`agrees` for a function of ``tree``, a compiled tree this thread built (the names checked
+    on it are its own): False for a tree it does not hold."""
+    for _, built in _CACHE.trees.values():
+        for held, checked in built.values():
+            if held is tree:
+                return _agrees(checked, fn, reference, probes, what)
+    return False
 
 
 def refuse(reason: str) -> None:

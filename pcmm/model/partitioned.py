@@ -28,10 +28,14 @@ NEWTON_TOL = 1e-13
 SINGULAR_COND = 1e9
 #: the largest change (rad or m) the warm start of a loop's Newton solve is extrapolated by
 PREDICT_MAX = 0.05
-#: whether the method "DOP853" (what "auto" gives a configuration with closed loops) is stepped by the
-#: compiled segment loop over the compiled loop (pcmm/model/_segment_loop.hpp with scipy's tableau: the
-#: same step-size control as pcmm.ode.dop853.DOP853, in C++), where the loop is compiled; off: pcmm's
-#: DOP853 steps it in Python over the same compiled right-hand side (the reference the tests compare with)
+# the whole constraint Jacobian has lost its rank where its smallest singular value is at most this
+# fraction of its largest: a change point or a dead centre (at_degenerate_partition, _refuse_singular_read)
+RANK_LOST = 1e-6
+#: whether the compiled segment loop (pcmm/model/_segment_loop.hpp) steps a configuration with closed loops
+#: over its compiled loop: "auto"'s DOP853 (pcmm.ode.integrators.AUTO_DOP853, scipy's tableau and step-size
+#: control in C++) and DOP853F; off: pcmm's DOP853 (or the Fortran DOP853F) steps it in Python over the
+#: same compiled right-hand side, the reference the tests compare with.  The method "DOP853" named in a
+#: scene is always the Python stepping
 STEP_LOOPS_COMPILED = True
 _thread_id = threading.get_ident
 
@@ -121,14 +125,6 @@ class PartitionedCoordinates:
         if len(set(self.drives.index)) != self.drives.size:
             return "a coordinate driven twice"
         return None
-
-    @property
-    def compiled_scipy_steps(self) -> bool:
-        """Whether the compiled segment loop steps these coordinates as scipy's DOP853 (what
-        :func:`pcmm.ode.integrators.method_for` gives a configuration with loops): closed loops whose
-        right-hand side is compiled (:data:`STEP_LOOPS_COMPILED`), not a segment being re-read."""
-        return (STEP_LOOPS_COMPILED and bool(self.closure.size) and self._loop_refused is None
-                and self._trail is None and compiled.enabled())
 
     @property
     def max_residual(self) -> float:
@@ -589,8 +585,7 @@ class PartitionedCoordinates:
             near = (t0, self._seed_q, None)
         elif _max_abs((t - near[0]) * near[2]) <= PREDICT_MAX:
             return None
-        tc, qc, rates = self._continued(t, qI, near)
-        start = qc + (t - tc) * rates
+        start = self._continued(t, qI, near)
         return start if _max_abs(q - start) > PREDICT_MAX else None
 
     def _continued(self, t, qI, near):
@@ -599,16 +594,17 @@ class PartitionedCoordinates:
         ``s -> (t_r + s (t - t_r), q_I,r + s (qI - q_I,r))``, s in [0, 1]: each piece is predicted
         along the path's tangent (``dq_D/ds`` from ``Phi_q dq/ds + Phi_t dt/ds = 0``) by at most
         PREDICT_MAX and corrected by Newton; a piece whose correction is not small against its
-        prediction is halved (it left the branch it started on).  Returns ``(t_c, q_c, q'_c)`` from
-        which carrying to ``t`` moves no coordinate by more than PREDICT_MAX (the rates are the
-        tangent per unit time), the same branch as ``near``.  Where the pieces shrink to nothing
+        prediction is halved (it left the branch it started on).  Returns the coordinates at ``t``
+        on the branch of ``near``, the determinant's sign checked all the way (it once stopped
+        PREDICT_MAX short of ``t`` and carried the rest along the tangent: a parallelogram read
+        3.4e-3 past its change point came back on the anti-parallelogram, its rates off by 1 and
+        3, tests/test_loop_branch.py).  Where the pieces shrink to nothing
         (at or next to a singular posture, where the branches meet) it raises: the reader cannot
         tell which branch the run was on; so it does where the dependent block's determinant changes
         sign along the way (the path crosses a singular posture: a change point, where the branches
         cross, which no accepted segment does: its partition's guard stops the run first)."""
         tr, q, _ = near
-        loop = "the loop of cut joint" + ("s " if len(self.closure.specs) > 1 else " ") + ", ".join(
-            f"'{c.name}'" for c in self.closure.specs)
+        loop = self._loop_name()
         sign = None
         dt = t - tr
         dI = np.asarray(qI, float) - q[self.I]
@@ -626,16 +622,18 @@ class PartitionedCoordinates:
                     "(its dependent block's determinant changes sign): beyond it the assembly branch "
                     "is not determined; pcmm will not guess it")
             sign = det if det != 0 else sign
+            if s == 1.0:  # at the read, its determinant's sign checked
+                return qc
             tangent = np.zeros(self.nv)
             tangent[self.I] = dI
             try:
                 tangent[self.D] = solve(Jp[:, self.D], -(Jp[:, self.I] @ dI + self._phi_t(tc) * dt))
             except np.linalg.LinAlgError:
                 tangent = None
-            if tangent is not None and _max_abs((1.0 - s) * tangent) <= PREDICT_MAX:
-                return tc, qc, tangent / dt
             size = _max_abs(tangent) if tangent is not None else math.inf
             h = min(h * 2.0, 1.0 - s, PREDICT_MAX / size if math.isfinite(size) else 0.0)
+            if 1.0 - s - h < 1e-6 * h:  # what would be left: the rest of the way
+                h = 1.0 - s
             while True:
                 if not (h * size >= 1e-9 and math.isfinite(size)):
                     raise SimulationError(
@@ -651,7 +649,35 @@ class PartitionedCoordinates:
                 if q1 is not None and _max_abs(q1 - guess) <= 0.2 * h * size + 1e-12:
                     break
                 h *= 0.5
-            s, qc = s + h, q1
+            s, qc = (1.0 if h == 1.0 - s else s + h), q1
+
+    def _loop_name(self) -> str:
+        """The loop named by its cut joints, for a message: "the loop of cut joint 'C'"."""
+        return "the loop of cut joint" + ("s " if len(self.closure.specs) > 1 else " ") + ", ".join(
+            f"'{c.name}'" for c in self.closure.specs)
+
+    def _refuse_singular_read(self, t, Jp):
+        """A segment reader (:meth:`restored`) must not return a solution at a singular posture of the
+        loop, where the whole constraint Jacobian ``Jp`` has lost its rank (:data:`RANK_LOST`, the run's
+        own test in :meth:`at_degenerate_partition`): a change point or a dead centre, where the
+        assembly branches meet.  There the dependent rates are not determined and the Newton solve of
+        the positions stalls short of the meeting point (a parallelogram read at its change point,
+        theta = pi to the last bit: 5.4e-7 off, its rates (2, -1.5, 0.5) for the run's (2, -2, 2));
+        an accepted segment never holds such a posture (the run stops there), so a read that lands on
+        one is asked for an instant the run did not reach on this branch.  Raises, naming the time and
+        the cut joints.  The SVD runs only where the dependent block's scaled determinant allows a lost
+        rank: it is at most m^(m/2) times the Jacobian's smallest-to-largest singular value ratio."""
+        m = Jp.shape[0]
+        if not m or abs(self._scaled_det(Jp)) > m ** (m / 2) * RANK_LOST:
+            return
+        s = np.linalg.svd(Jp, compute_uv=False)
+        if s[-1] > RANK_LOST * s[0]:
+            return
+        raise SimulationError(
+            f"configuration '{self.cfg.name}': re-reading a recorded segment at t = {t:.9g} s, {self._loop_name()} "
+            f"is at a singular posture (constraint Jacobian singular values {s[0]:.3g} ... {s[-1]:.3g}): at a "
+            "change point or dead centre its assembly branches meet and its rates are not determined; pcmm "
+            "will not guess them")
 
     def _follow(self, t):
         """While a segment is re-read (:meth:`restored` with its steps): the solution at the
@@ -689,7 +715,7 @@ class PartitionedCoordinates:
         at a singular posture (a dead centre, a change point) and the run stops."""
         Jq = self._position_rows(t, q)
         s = np.linalg.svd(Jq, compute_uv=False)
-        if s[-1] <= 1e-6 * s[0] or np.array_equal(self._best_dependent(Jq), self.D):
+        if s[-1] <= RANK_LOST * s[0] or np.array_equal(self._best_dependent(Jq), self.D):
             # rank lost, or no partition does better than the one that degenerated
             raise SimulationError(
                 f"configuration '{self.cfg.name}': the loop reaches a singular posture at t = {t:.9g} s "
@@ -855,6 +881,8 @@ class PartitionedCoordinates:
         if branch is not None:  # a re-read segment's long step: the run's branch (as the Python path)
             q, v = self._unpack(t, y, guess=branch)
             loop.remember(t, y, q, self._recent[-1][2], self._last_Jp)
+        elif status == 0 and self._reader:  # the Python solves above check their own
+            self._refuse_singular_read(t, self._last_Jp)
         if trail is not None:  # keep the solution at an accepted step of the segment (unpack)
             ts, ys = trail
             k = int(np.searchsorted(ts, t, side="left"))
@@ -871,6 +899,8 @@ class PartitionedCoordinates:
             branch = self._off_branch(t, y[:k], q)
             if branch is not None:
                 q, Jq, Jp = self._solve_dependent(t, y[:k], branch)
+        if self._reader:
+            self._refuse_singular_read(t, Jp)
         self._qD = q
         self._last_Jp = Jp
         # the state's second half is the independent coordinates' rates q'_I (a planar joint's
@@ -942,21 +972,28 @@ class PartitionedCoordinates:
         return self.unpack(t, np.concatenate([q[self.I], self.cfg.qdot(q, v)[self.I]]))
 
     def rows(self, t, q, v):
-        """(Phi_q, bias) of every constraint at (q, v): ``Phi_q a + bias = 0``."""
-        got = self._reader_kkt(t, q, v)
-        if got is not None:
-            return got[2], got[3]
+        """(Phi_q, bias) of every constraint at (q, v): ``Phi_q a + bias = 0`` (a segment reader's
+        compiled loop builds them without its KKT solve: the flight audit's power solves for the
+        multipliers itself, :func:`pcmm.run.audit.power`)."""
+        loop = self._reader_loop()
+        if loop is not None:
+            return loop.rows(t, q, v)
         _, Jq, bias = self._phi(t, q, need_bias=True, v=v)
         return Jq, bias
 
-    def _reader_kkt(self, t, q, v):
-        """``(a, lam, Phi_q, bias)`` at an assembled (q, v) by a segment reader's compiled loop
-        (:meth:`restored`: the audit's powers, the lazy series, a hold's rows); None otherwise.  The
-        run's own coordinates keep the Python evaluation here: its callers (a reaction guard, the
-        contact forces) read the frame placements it leaves on the configuration's data."""
+    def _reader_loop(self):
+        """A segment reader's compiled loop (:meth:`restored`: the audit's powers, the lazy series, a
+        hold's rows); None otherwise.  The run's own coordinates keep the Python evaluation of their
+        rows and accelerations: its callers (a reaction guard, the contact forces) read the frame
+        placements it leaves on the configuration's data."""
         if not self._reader or self._loop_refused is not None:
             return None
-        loop = self._compiled_loop()
+        return self._compiled_loop()
+
+    def _reader_kkt(self, t, q, v):
+        """``(a, lam, Phi_q, bias)`` at an assembled (q, v) by a segment reader's compiled loop
+        (:meth:`_reader_loop`); None otherwise, or where its KKT solve hands back to Python."""
+        loop = self._reader_loop()
         return None if loop is None else loop.kkt(t, q, v)
 
     def time_rows(self):
@@ -1054,6 +1091,8 @@ def _segment_loop(coords: PartitionedCoordinates, *args, **options):
     integrator then steps in Python)."""
     if not coords.closure.size:
         return _drive_segment_loop(coords, *args, **options)
+    if not STEP_LOOPS_COMPILED:
+        raise ValueError("closed loops are stepped in Python (partitioned.STEP_LOOPS_COMPILED)")
     loop = coords._held_loop()
     if loop is None and coords._trail is None and coords._loop_refused is None:
         coords._compiled_loop()

@@ -226,11 +226,50 @@ class _Stepper:
                        event, nfev, n - 1, status, message, dense)
 
 
+#: the compiled locator, ``[locate, enabled]`` where a higher layer registered it (pcmm.model.compiled:
+#: pcmm/model/_locate.hpp, this module's :func:`_locate` in C++): ``enabled()`` says whether it may run now
+COMPILED_LOCATE: list = []
+
+
+def _polynomial(sol):
+    """``(t_old, h, cont)``: the step's dense output as Hairer's ``contd8`` coefficients (8 x ny, the
+    polynomial :class:`_Contd8` evaluates), for DOP853's own dense outputs (the compiled loop's, and
+    scipy's ``y_old`` and ``F``, which are the same polynomial evaluated in the same order); else None."""
+    cls = type(sol)
+    if cls is _Contd8:
+        return sol.t_old, sol.h, sol.cont
+    if cls is DenseStep:
+        cont = getattr(sol, "contd8", None)
+        if cont is None:
+            F = sol.F
+            if F.ndim != 2 or F.shape[0] != 7:
+                return None
+            cont = np.empty((8, F.shape[1]))
+            cont[0] = sol.y_old
+            cont[1:] = F
+            sol.contd8 = cont
+        return sol.t_old, sol.h, cont
+    return None
+
+
 def _locate(e, sol, t_a, t_b, g_a, tol):
     """First crossing of ``e`` in its direction on the dense output ``sol`` over [t_a, t_b], or
     None.  The guard is sampled on a grid; where no sample crosses, the sample closest to a
     crossing is refined by a bounded search for the extremum between its neighbours, so a graze
-    shorter than the grid spacing is still found."""
+    shorter than the grid spacing is still found.  A guard linear in the state (``Guard.linear``)
+    on DOP853's dense output is located by the same algorithm in C++ (:data:`COMPILED_LOCATE`),
+    with the same bits."""
+    linear = getattr(e, "linear", None)
+    if linear is not None and COMPILED_LOCATE and COMPILED_LOCATE[1]():
+        poly = _polynomial(sol)
+        if poly is not None and len(linear[0]) <= poly[2].shape[1]:
+            return COMPILED_LOCATE[0](poly[0], poly[1], poly[2], t_a, t_b, g_a, tol, e.direction, *linear)
+    return _locate_python(e, sol, t_a, t_b, g_a, tol)
+
+
+def _locate_python(e, sol, t_a, t_b, g_a, tol):
+    """:func:`_locate` in Python: the reference, and every guard or dense output the compiled
+    locator does not take."""
     n = 16
     grid = np.linspace(t_a, t_b, n + 1)
     ys = sol(grid)  # every dense output here takes an array of times: one call, (ny, n + 1)
@@ -395,8 +434,11 @@ class ScipyMethod:
 
     fixed_step = False
 
-    def __init__(self, name: str):
+    def __init__(self, name: str, compiled_steps: bool = False):
         self.name = name
+        # DOP853 only: stepped by a compiled segment loop with scipy's tableau where the right-hand
+        # side has one (what "auto" gives a configuration with drives: method_for), else as always
+        self.compiled_steps = compiled_steps
 
     @property
     def cls(self):
@@ -406,7 +448,7 @@ class ScipyMethod:
         return DOP853 if self.name == "DOP853" else getattr(si, self.name)
 
     def integrate(self, fun, t0, y0, t_bound, events, opts, keep_dense=False) -> Segment:
-        if self.name == "DOP853" and (COMPILED_SCIPY_STEPS or _steps_compiled(fun)):  # a compiled loop stepping as this class does
+        if self.name == "DOP853" and (self.compiled_steps or COMPILED_SCIPY_STEPS):  # a compiled loop stepping as this class does
             loop, progress = _segment_loop(fun, t0, y0, t_bound, events, opts, 0.0, tableau=packed_tableau(),
                                            keep_dense=keep_dense)
             if loop is not None:
@@ -456,6 +498,7 @@ def _drive_loop(loop, progress, st, dense, failure, counted, name, from_row):
     accepted the step (``take_dense()``, one row each: ``from_row(row, n)`` is its interpolant)."""
     events, needs_f = st.events, _needs_derivative(st.events)
     keeping = st.kept is not None and hasattr(loop, "take_dense")
+    stale = False  # steps recorded since the scanner last saw one: its guard values are not the last step's
     try:
         while True:
             try:
@@ -473,12 +516,13 @@ def _drive_loop(loop, progress, st, dense, failure, counted, name, from_row):
                 kept = []
             if len(steps):
                 _record_steps(st, steps, kept[:len(steps)] if kept else None)
+                stale = True
             if code == 1:
                 t_old, t_new, y_new, f_new = loop.candidate()
                 y_old = st.ys[-1]
-                if len(steps) and events:  # the guards at the step's start, as accept leaves them
-                    st.g = [e(t_old, y_old) for e in events]
-                    st.rates = [_rate(e, t_old, y_old, None, t_new - t_old) for e in events]
+                if stale and events:  # the guards at the step's start, as accept leaves them
+                    st.g, st.rates = _guards_at_start(loop, events, st, t_old, y_old, t_new)
+                stale = False
                 lazy = _lazy(dense)
                 keep = kept[len(steps)] if len(kept) == len(steps) + 1 else _KeptStages(None, lazy)
                 hit = st.accept(t_old, y_old, t_new, y_new, f_new if needs_f else None, lazy, keep)
@@ -499,6 +543,31 @@ def _drive_loop(loop, progress, st, dense, failure, counted, name, from_row):
                 return None, message
     finally:
         counted.n += loop.counts()[0]
+
+
+def _guards_at_start(loop, events, st, t_old, y_old, t_new):
+    """The guards' values and rates at the start ``(t_old, y_old)`` of a compiled loop's candidate
+    step, as :meth:`_Stepper.accept` would have left them at the step before: a guard read from the
+    state (affine) asked again; a guard on a holding force (``holding``: no rate of its own, its
+    rate a forward difference along the derivative there, over the step that ended there) as the
+    loop scanned it (``candidate_start``), or where the loop could not solve it, again in Python."""
+    g, r = [], []
+    start = None
+    for j, e in enumerate(events):
+        if getattr(e, "holding", None) is None:
+            g.append(e(t_old, y_old))
+            r.append(_rate(e, t_old, y_old, None, t_new - t_old))
+            continue
+        if start is None:
+            start = loop.candidate_start()
+        g0, r0 = float(start[0][j]), float(start[1][j])
+        if not (math.isfinite(g0) and math.isfinite(r0)):
+            h = t_old - st.ts[-2] if len(st.ts) > 1 else t_new - t_old
+            g0 = e(t_old, y_old)
+            r0 = _rate(e, t_old, y_old, st.fun(t_old, y_old), h)
+        g.append(g0)
+        r.append(r0)
+    return g, r
 
 
 class _lazy:
@@ -687,9 +756,11 @@ def t_bound_reached(st) -> bool:
 #: 256 evaluations between two reports of the run loop's wrapper)
 _PROGRESS_STEPS = 21
 
-#: Whether scipy's DOP853 (the method "DOP853", what "auto" gives a configuration with loops or
-#: drives) may be stepped by a compiled segment loop (pcmm/model/_segment_loop.hpp with scipy's
-#: tableau).  Off: its steps cannot be numpy's to the bit.  At rtol 1e-10 the error estimate of a
+#: Whether the method "DOP853" (scipy's, stepped by pcmm: what a scene asking for it by name gets) may
+#: be stepped by a compiled segment loop (pcmm/model/_segment_loop.hpp with scipy's tableau).  Off:
+#: its steps cannot be numpy's to the bit, and the method named stays the reference.  ("auto" gives
+#: a configuration with drives or loops scipy's DOP853 stepped by that loop where it has one:
+#: :data:`AUTO_DOP853`.)  At rtol 1e-10 the error estimate of a
 #: step is a sum of stages that nearly cancel (three_bar_cycle's second step: stages of 160 rad/s^2
 #: summing to 9e-12, which numpy's BLAS dot product and an in-order sum round 1.6e-14 apart: 0.2 %),
 #: so the summation order moves the next step size (by 0.05 % there): examples/three_bar_cycle.toml's
@@ -706,14 +777,6 @@ COMPILED_SCIPY_STEPS = False
 #: ``make(owner, t0, y0, t_bound, rtol, atol, max_step, max_steps, beta, C, ct, d, direction,
 #: every_step, power=..., tableau=...)`` (the last two only where given).
 SEGMENT_LOOPS: dict = {}
-
-
-def _steps_compiled(fun) -> bool:
-    """Whether the owner of ``fun`` has its compiled segment loop step the method "DOP853" (scipy's
-    stepping) although :data:`COMPILED_SCIPY_STEPS` is off: its ``compiled_scipy_steps`` (closed loops,
-    whose compiled right-hand side is the Python one's to round-off, not to the bit, already)."""
-    fun = getattr(fun, "__wrapped__", fun)
-    return bool(getattr(getattr(fun, "__self__", None), "compiled_scipy_steps", False))
 
 
 def _segment_loop(fun, t0, y0, t_bound, events, opts, beta, tableau=None, keep_dense=False):
@@ -740,23 +803,32 @@ def _segment_loop(fun, t0, y0, t_bound, events, opts, beta, tableau=None, keep_d
     y0 = np.array(y0, float)
     ny = y0.size
     affine = [getattr(e, "affine", None) for e in events]
+    holding = [getattr(e, "holding", None) for e in events]
     # a closed loop's guards on its solution (Guard.loop_scan), which its compiled loop scans itself
-    solved = [getattr(e, "loop_scan", None) if a is None else None for e, a in zip(events, affine)]
+    solved = [getattr(e, "loop_scan", None) if a is None and h is None else None
+              for e, a, h in zip(events, affine, holding)]
     # a progress bar (the run loop's wrapper) is fed every _PROGRESS_STEPS steps, as the wrapper's
-    # own count of evaluations did: then every step comes back to Python
-    every_step = (progress is not None or any(a is None and s is None for a, s in zip(affine, solved))
-                  or not all(getattr(e, "rate_from_state", False) for e in events))
+    # own count of evaluations did: then every step comes back to Python.  The loop scans a guard
+    # affine in the state with its rate read from the state, a guard on a compiled holding force, and
+    # a closed loop's guard on its solution with its rate read from the state
+    every_step = (progress is not None or not all(
+        ((a is not None or s is not None) and getattr(e, "rate_from_state", False)) or h is not None
+        for e, a, h, s in zip(events, affine, holding, solved)))
     if any(s is not None for s in solved) and not every_step:
         options["solved"] = [(i, 0, np.asarray(s[1], float), float(s[2]), float(s[3])) if s[0] == "coordinate"
                              else (i, 1, None, 0.0, 0.0) for i, s in enumerate(solved) if s is not None]
-        affine = [(None, 0.0, 0.0) if a is None else a for a in affine]  # their rows: unused
     if every_step:
         C, ct, d, direction = np.zeros((0, ny)), np.zeros(0), np.zeros(0), np.zeros(0)
     else:
-        C = np.array([np.zeros(ny) if c is None else np.asarray(c, float) for c, _, _ in affine]).reshape(len(events), ny)
-        ct = np.array([a[1] for a in affine], float)
-        d = np.array([a[2] for a in affine], float)
+        C = np.zeros((len(events), ny))
+        for j, a in enumerate(affine):
+            if a is not None and a[0] is not None:  # c over the state's first entries (Guard.affine)
+                C[j, :len(a[0])] = a[0]
+        ct = np.array([0.0 if a is None else a[1] for a in affine], float)
+        d = np.array([0.0 if a is None else a[2] for a in affine], float)
         direction = np.array([e.direction for e in events], float)
+        if any(h is not None for h in holding):
+            options["holding"] = [(j, *h) for j, h in enumerate(holding) if h is not None]
     max_step = opts.max_step if np.isfinite(opts.max_step) else 0.0
     args = (owner, float(t0), y0, float(t_bound), float(opts.rtol), float(opts.atol), float(max_step),
             int(opts.max_steps), float(beta), C, ct, d, direction, every_step)
@@ -870,6 +942,14 @@ INTEGRATORS["DOP853F"] = FortranDOP853()
 INTEGRATORS["RK4"] = FixedStepRK4()
 assert tuple(INTEGRATORS) == INTEGRATOR_NAMES, "pcmm.ode.methods names every integrator of the registry"
 
+#: what "auto" gives a configuration with drives or loops: scipy's DOP853 (its tableau, error norm and
+#: step-size control), stepped by the compiled segment loop where the right-hand side has one (drives
+#: without a loop), else by pcmm.ode.dop853 in Python.  Its steps are the Python ones round-off apart
+#: (the error estimate's sums in another order), not Hairer's DOP853F (another step-size control: the
+#: event times of three_bar_cycle then move by the tolerance's size, 2.3e-8 s, not 2.3e-9 s);
+#: docs/performance.md, "Drives without loops".
+AUTO_DOP853 = ScipyMethod("DOP853", compiled_steps=True)
+
 # "auto": per configuration, the cheaper method at equal accuracy (docs/benchmarks/work_precision.md).
 # On a tree the right-hand side is one aba, and scipy's Python step loop would cost more than it:
 # Hairer's Fortran DOP853 is about 2x faster there, with event times as accurate (Example 1 at rtol
@@ -880,6 +960,6 @@ assert tuple(INTEGRATORS) == INTEGRATOR_NAMES, "pcmm.ode.methods names every int
 def method_for(name: str, constrained: bool):
     """The integrator a configuration uses under the run's ``method`` setting."""
     if name == AUTO:
-        return INTEGRATORS["DOP853" if constrained else "DOP853F"]
+        return AUTO_DOP853 if constrained else INTEGRATORS["DOP853F"]
     return INTEGRATORS[name]
 

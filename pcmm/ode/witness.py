@@ -46,8 +46,19 @@ class Guard:
     #: event grid reads it (:func:`pcmm.ode.integrators._locate`)
     many: Callable[[np.ndarray, np.ndarray], list | None] | None = None
     # (c, ct, d) where the value is affine in the state, g = c . y + ct t + d exactly (c None: no
-    # state term), so its rate along the flow is c . y' + ct: a compiled segment loop scans it itself
+    # state term; c shorter than the state: its first len(c) entries), so its rate along the flow is
+    # c . y' + ct: a compiled segment loop scans it itself
     affine: tuple | None = None
+    #: optional: the value and the rate as linear forms of the state, ``(c, ct, d, r, rt, rearm, unfired)``:
+    #: g = c . y + ct t + d and g' = r . y + rt over the first ``len(c)`` components of y (float64
+    #: arrays), exactly as ``value`` and ``rate`` compute them; ``rearm``: read as a re-armed guard
+    #: (held at ``-direction unfired`` until its rate approaches the fired side).  The compiled
+    #: locator reads it (:func:`pcmm.ode.integrators._locate`, pcmm/model/_locate.hpp)
+    linear: tuple | None = None
+    # (compiled holding forces, index, offset) where the value is that compiled evaluator's holding force
+    # ``index`` at the state minus ``offset`` (pcmm.events.holding.guard_value), with no rate of its own:
+    # a compiled segment loop scans it itself (its rate by pcmm.ode.integrators._rate's forward difference)
+    holding: tuple | None = None
     # a closed loop's guard read from the loop's solution (q, q') at the state, which a compiled segment
     # loop over the loop scans itself: ("coordinate", c, d, unfired): c . q + d, rate c . q' (unfired > 0:
     # re-armed after a bounce, held at that distance on its unfired side until it approaches); ("singularity",):
@@ -65,6 +76,8 @@ class Guard:
         """This guard read on the first ``n`` components of a longer state (an integrated
         quantity appended to it: a flight's work, a contact law's impulse), its rate too."""
         value, rate, many = self.value, self.rate, self.many
-        return replace(self, value=lambda t, y: value(t, y[:n]), affine=None,
+        # still affine (c . y over the state's first len(c) entries: a compiled loop reads it with zeros
+        # beside), and a holding guard reads the state's first entries itself (its compiled state map)
+        return replace(self, value=lambda t, y: value(t, y[:n]),
                        rate=None if rate is None else (lambda t, y, f: rate(t, y[:n], None if f is None else f[:n])),
                        many=None if many is None else (lambda ts, ys: many(ts, ys[:n])))

@@ -55,10 +55,22 @@ def transition(run: RunState, guard) -> bool:
     tr = guard.transition
     run.phase = None
     t0 = time.perf_counter()
-    residual = guard_residual(run.cfg, tr, run.t, run.y) if tr.guard.type in ("coordinate", "gap") else None
+    residual = _residual(run, guard) if tr.guard.type in ("coordinate", "gap") else None
     out = TRANSITIONS[tr.type](run.ctx, run.cfg, tr, run.t, run.q, run.v)
     run.stats["wall_s"] += time.perf_counter() - t0
     return transform(run, tr, out, residual)
+
+
+def _residual(run: RunState, guard) -> float:
+    """How far the located state lies from the fired guard's value (:func:`guard_residual`): a
+    joint coordinate's guard that is an entry of the state reads it there (``Guard.linear``, a unit
+    row: y[p] + d, which is y[p] - value to the bit) without building the guard again."""
+    linear = getattr(guard, "linear", None)
+    if linear is not None:
+        hot = linear[0].nonzero()[0]
+        if len(hot) == 1 and linear[0][hot[0]] == 1.0 and linear[1] == 0.0:
+            return float(run.y[hot[0]] + linear[2])
+    return guard_residual(run.cfg, guard.transition, run.t, run.y)
 
 
 def release_merge(run: RunState, guard) -> bool:

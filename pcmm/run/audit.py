@@ -32,6 +32,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..model.configuration import Configuration
+from ..model import compiled
 from ..model.constraints import constrained_accelerations
 from .dense import dense_states
 
@@ -82,12 +83,37 @@ def flight_work(cfg: Configuration, coords, t, y, stepping, q_start, kept=None) 
 
 
 def drive_powers(cfg: Configuration, coords, times, states) -> np.ndarray | None:
-    """:func:`power` at every node ``(times, states)``, to the bit, where the states need no Newton
-    solve and the rows depend on time alone (drives without a loop): the coordinates of every
+    """:func:`power` at every node ``(times, states)`` where the states need no Newton solve and the
+    rows depend on time alone (drives without a loop): the same force elements and the same solve
+    for the drives' multipliers at each node, in one compiled call where the configuration's drives
+    are compiled (``Tree.drive_powers``: its own KKT solve at each node, not the integrator's
+    appended power; checked against :func:`python_drive_powers` at probe nodes), to round-off;
+    else :func:`python_drive_powers`, to the bit.  None otherwise (loops, a planar joint), and for
+    a tree (no rows: :func:`power` is one product there)."""
+    timed = coords.time_rows()
+    if timed is None or not timed[0].shape[0]:
+        return None
+    fast = _compiled_drive_powers(cfg, coords)
+    if fast is not None:
+        return fast(np.asarray(times, float), np.asarray(states, float)[:coords.ny])
+    return python_drive_powers(cfg, coords, times, states)
+
+
+def _compiled_drive_powers(cfg: Configuration, coords):
+    """The compiled ``drive_powers(times, states)`` of ``coords``'s drives, or None."""
+    tree = getattr(coords, "_compiled_drives", lambda: None)()
+    if tree is None or not hasattr(tree, "drive_powers") or coords.ny < 2:
+        return None
+    probes = [(np.array([0.37 * (j + 1), 0.5 + 0.41 * j]), np.stack([y, y[::-1]], axis=1))
+              for j, y in enumerate(compiled._probe_states(coords.ny // 2))]
+    reference = lambda t, y: python_drive_powers(cfg, coords, t, y)  # noqa: E731
+    return tree.drive_powers if compiled.agrees_on(tree, tree.drive_powers, reference, probes, "drive powers") else None
+
+
+def python_drive_powers(cfg: Configuration, coords, times, states) -> np.ndarray | None:
+    """:func:`power` at every node, to the bit, for drives without a loop: the coordinates of every
     node unpacked at once (``coords.unpack_many``), the rows built once (``coords.time_rows``),
-    then the same force elements and the same solve for the drives' multipliers at each node.
-    None otherwise (loops, a planar joint), and for a tree (no rows: :func:`power` is one
-    product there)."""
+    then the same force elements and the same solve for the drives' multipliers at each node."""
     timed = coords.time_rows()
     if timed is None or not timed[0].shape[0]:
         return None

@@ -181,7 +181,7 @@ def integrate_segment(run: RunState, progress):
     loop's partition degenerated mid-step (recorded up to there; ``run`` moved on to it)."""
     cfg, t = run.cfg, run.t
     y0 = cfg.coords.pack(t, run.q, run.v)
-    guards = _guards(run.scene, cfg, run.holds, t, run.phase, run.bounced, run.fired)
+    guards = _guards(run.scene, cfg, run.holds, t, run.phase, run.bounced, run.fired, run.kept_guards)
     # a flight between two impacts at the same contact: its energy is audited (pcmm.run.audit)
     flight = run.bounced is not None and run.phase is None and y0.size > 0
     run.bounced = None
@@ -317,6 +317,8 @@ def _finish(run: RunState, completed: bool) -> None:
     stats["derived_configurations"] = mech.derived
     # which evaluations each configuration ran: "compiled", or "python" and why (pcmm.compiled)
     stats["evaluations"] = {name: mech[name].coords.evaluations for name in mech.built}
+    # and the holding forces of each configuration's locks: "compiled", or "python" and why (pcmm.events.holding)
+    stats["holding_evaluations"] = dict(run.holds.evaluations)
     if run.store is not None and not completed:  # a stopped run's store ends here
         run.store.end(run.traj)
 
@@ -393,20 +395,35 @@ def _known_motion(cfg: Configuration, t, y0, guards, opts) -> Segment:
         raise
 
 
-def _guards(scene: Scene, cfg: Configuration, holds: Holds, t: float, phase, bounced, fired=()) -> list:
+def _guards(scene: Scene, cfg: Configuration, holds: Holds, t: float, phase, bounced, fired=(), kept=None) -> list:
     """Every guard watched in ``cfg`` from ``t``: its transitions' (the one that just bounced
     re-armed), one per merge held by compression only, and a loop's partition guard.  A time
     guard ``at = T`` is one instant of the run: once its transition has fired it is not watched
-    again (re-entered at T itself it would fire again, for ever)."""
-    out = []
-    for tr in scene.transitions_from(cfg.name):
-        if phase is not None and tr is phase.tr:
-            continue
-        if tr.guard.type == "time" and tr.guard.at is not None and tr.name in fired:
-            continue
-        g = make_guard(cfg, tr, rearm=tr is bounced, context=holds if tr.guard.type == "reaction" else t)
-        if g is not None:
-            out.append(g)
+    again (re-entered at T itself it would fire again, for ever).
+
+    ``kept`` (a list, the run's): the transitions' guards of the last call and what they were
+    built for.  Where every transition of ``cfg`` watches a coordinate or a gap (functions of the
+    state alone, not of ``t``, the holds or the events so far), a call for the same configuration,
+    the same bounced stop and the same angle offsets (they move the measures:
+    :meth:`Configuration.continue_angles`) takes those guards again: a sequence of bounces at one
+    stop builds them once."""
+    key = (cfg, bounced, cfg.angle_offsets)
+    if kept and phase is None and kept[0][0] is cfg and kept[0][1] is bounced and kept[0][2] == key[2]:
+        out = list(kept[1])
+    else:
+        out = []
+        reusable = phase is None
+        for tr in scene.transitions_from(cfg.name):
+            reusable = reusable and tr.guard.type in ("coordinate", "gap")
+            if phase is not None and tr is phase.tr:
+                continue
+            if tr.guard.type == "time" and tr.guard.at is not None and tr.name in fired:
+                continue
+            g = make_guard(cfg, tr, rearm=tr is bounced, context=holds if tr.guard.type == "reaction" else t)
+            if g is not None:
+                out.append(g)
+        if kept is not None:
+            kept[:] = [key, tuple(out)] if reusable else []
     out += holds.unmerge_guards(cfg)
     out += cfg.coords.guards()  # the coordinates' own: a loop's partition guard
     return out

@@ -9,6 +9,7 @@ moment of a locked stretch depended on how far the run went on).
 """
 from __future__ import annotations
 
+import dataclasses
 import functools
 import time
 
@@ -159,6 +160,9 @@ def _same(a, b) -> bool:
         return isinstance(a, np.ndarray) and isinstance(b, np.ndarray) and a.shape == b.shape and bool(np.all(a == b))
     if isinstance(a, (int, float, str)) and isinstance(b, (int, float, str)):
         return a == b
+    if dataclasses.is_dataclass(a) and type(a) is type(b) and not isinstance(a, type):
+        # (the holds' Applied: a record of values, its reference configuration compared as the same object)
+        return all(_same(getattr(a, f.name), getattr(b, f.name)) for f in dataclasses.fields(a))
     return False  # anything else: the same object only
 
 
