@@ -36,19 +36,14 @@ from ..model.configuration import Configuration
 from .contact import contact_point, contact_state, impact_kind, joint_stop_row, normal_row
 from .cutting import cut
 from .friction import AmbiguousImpact, FrictionalImpulse, routh
-from .impulse_compiled import CompiledImpulse, compiled_impulse, disagreement, refuse
+from .impulse_compiled import NO_IMPULSE, CompiledImpulse, compiled_impulse, disagreement, refuse
 from ..errors import SimulationError
 from ..model.pinocchio_helpers import cholesky, frame_jacobian, mass_matrix
 from ..model.rows import solve
 from ..scene.spec import ContactSpec
 
-#: No impulse along the contact's normal where the denominator of Eqs. 29 and 42, J W_eff J^T (the
-#: inverse of the mass the contact meets), is at most this fraction of tr(W_eff): the normal is then
-#: orthogonal to every motion the tree and its drives allow.  One rule for the Python and the compiled
-#: solve (pcmm/model/_impulse.hpp takes it when its plan is built, and hands such a contact back here
-#: for the message).  A ratio, so it also refuses a contact on a link 1e14 times heavier than the
-#: tree's lightest coordinate (docs/limits.md).
-NO_IMPULSE = 1e-14
+#: NO_IMPULSE: the one rule of both solves for 'no impulse along the normal' (defined beside the
+#: compiled plan, which this module imports)
 
 
 @dataclass

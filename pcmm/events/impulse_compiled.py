@@ -31,6 +31,15 @@ from ..model import compiled
 from ..model.configuration import Configuration
 from .cutting import forbidden_motions
 
+#: No impulse along the contact's normal where the denominator of Eqs. 29 and 42, J W_eff J^T (the
+#: inverse of the mass the contact meets), is at most this fraction of tr(W_eff): the normal is then
+#: orthogonal to every motion the tree and its drives allow.  One rule for the Python solve
+#: (pcmm.events.impulse, which imports it from here) and the compiled one (pcmm/model/_impulse.hpp
+#: takes it when its plan is built, and hands such a contact back to the Python solve for the
+#: message).  A ratio, so it also refuses a contact on a link 1e14 times heavier than the tree's
+#: lightest coordinate (docs/limits.md).
+NO_IMPULSE = 1e-14
+
 #: |compiled - Python| <= AGREEMENT * (1 + scale) at the first impact of each plan, scale the
 #: largest magnitude of the quantity's kind (velocities, impulses, energies)
 AGREEMENT = 1e-9
@@ -149,7 +158,6 @@ def _build(cfg: Configuration, plan) -> tuple[CompiledImpulse | None, str | None
     if built is None:
         return None, compiled.why_not()
     tree, index, _ = built
-    from .impulse import NO_IMPULSE  # the Python solve's rule (that module imports this one)
     try:
         fast = compiled._tree_dynamics.ImpulsePlan(
             tree, kind, stop_v, float(contact.stop_sign) if plan.stop else 1.0,
