@@ -105,6 +105,22 @@ def test_a_four_bar_striking_its_stop_is_stepped_in_cpp(tmp_path, monkeypatch):
     _within_nudge(fast, slow, nudged, monkeypatch)
 
 
+@needs_extension
+def test_a_slider_crank_striking_its_stop_is_stepped_in_cpp(tmp_path, monkeypatch):
+    """A torque-driven slider-crank whose slider strikes a stop on its guide and bounces (the guard on the
+    slider's coordinate, a dependent one: read from the loop's solution): stepped by the compiled loop,
+    the same events as pcmm's DOP853 stepping in Python, within that run's one-ulp sensitivity."""
+    path = builders.slider_crank_stop(tmp_path, e=0.5, t_end=1.5)
+    spy = _Spy(monkeypatch)
+    fast = _run(path, True, monkeypatch)
+    made = spy.over_loops()
+    assert made and any(options.get("solved") for options, _ in made)
+    slow = _run(path, False, monkeypatch)
+    assert len(fast.events) == len(slow.events) == 4
+    _within_nudge(fast, slow, _nudged(tmp_path, path, "[initial.v]\nA = 0.0\n", "[initial.v]\nA = 2.220446049250313e-16\n"),
+                  monkeypatch)
+
+
 #: each example's initial rate nudged by one machine epsilon (tests/test_compiled_loops.py: the same)
 NUDGES = {"double_folded.toml": ("v = { D = 0.0 }", "v = { D = 2.220446049250313e-16 }"),
           "double_folded_cycle.toml": ("v = { D = 0.0 }", "v = { D = 2.220446049250313e-16 }"),
