@@ -62,3 +62,21 @@ def test_auto_steps_drives_in_the_compiled_loop(scene, tmp_path, monkeypatch):
     moved = max(np.max(np.abs(c.q[-1] - b.q[-1])), np.max(np.abs(c.v[-1] - b.v[-1])))
     state = max(np.max(np.abs(a.q[-1] - b.q[-1])), np.max(np.abs(a.v[-1] - b.v[-1])))
     assert state <= max(10 * moved, 1e-10), (state, moved)
+
+
+def test_the_loops_scipy_dense_output_is_dense_steps_to_the_bit():
+    """The compiled loop's steps keep scipy's dense output (DenseStep's F rows); its evaluation at one
+    time (integrators._ScipyDense: Horner on Python floats) gives DenseStep's bits, at drawn steps and
+    times, the steps' ends included; an array of times is DenseStep's own."""
+    from pcmm.ode.dop853 import DenseStep
+    rng = np.random.default_rng(853)
+    for _ in range(200):
+        n = int(rng.integers(1, 7))
+        t_old = float(rng.uniform(-5, 5))
+        t_new = t_old + float(10.0 ** rng.uniform(-9, 0))
+        y_old, F = rng.standard_normal(n) * 10.0 ** rng.uniform(-3, 3), rng.standard_normal((7, n))
+        fast, ref = integrators._ScipyDense(t_old, t_new, y_old, F), DenseStep(t_old, t_new, y_old, F)
+        for t in [t_old, t_new, *rng.uniform(t_old, t_new, 5), np.float64(t_new)]:
+            assert fast(t).tobytes() == ref(t).tobytes(), (t, fast(t), ref(t))
+        ts = rng.uniform(t_old, t_new, 4)
+        assert fast(ts).tobytes() == ref(ts).tobytes()

@@ -36,21 +36,28 @@ CYCLE = EXAMPLES / "three_bar_cycle.toml"
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def locked_pendulum(folder: Path, preload: float = 0.02, t_end: float = 2.2, method: str = "auto") -> Path:
+def locked_pendulum(folder: Path, preload: float = 0.02, t_end: float = 2.2, method: str = "auto",
+                    release_at: float | None = None) -> Path:
     """Two bars on J1 (the frame, at the origin) and J2 (link 1's tip, 0.4 m), gravity, released from
     horizontal at rest with J2 0.05 rad off its pin at J2 = 0.  A spring at J2 (tau = preload - 0.5
     q2 - 0.002 q2') presses link 2 onto the pin: it strikes it (e = 0.7), the bounces accumulate, the
     pin merges (configuration 'locked', J2 locked) and holds by compression only: it lets go when the
-    moment it must apply turns tensile, twice within 2.2 s (0.418 s and 2.006 s)."""
+    moment it must apply turns tensile, twice within 2.2 s (0.418 s and 2.006 s).  ``release_at``: the
+    pin holds for good (unmerge = false) and a release 'let go' watches its holding force instead (a
+    reaction guard), firing when it drops to that value."""
     urdf = robot_xml("dp", link_xml("frame"), joint_xml("J1", "revolute", "frame", "link1"), bar_xml("link1", 0.4, 0.5),
                      joint_xml("J2", "revolute", "link1", "link2", xyz=(0.4, 0.0)), bar_xml("link2", 0.3, 0.3))
     tr = stop("pin", "open", 0.7, {"type": "coordinate", "measure": {"joint": "J2"}, "value": 0.0,
                                    "direction": "increasing"},
-              {"joint": "J2", "arm": 0.15}, merge_to="locked", cut=["J2"], unmerge=True)
+              {"joint": "J2", "arm": 0.15}, merge_to="locked", cut=["J2"], unmerge=release_at is None)
+    transitions = [tr]
+    if release_at is not None:
+        transitions.append({"name": "let go", "type": "release", "from": "locked", "to": "open",
+                            "guard": {"type": "reaction", "of": "pin", "value": release_at, "direction": "decreasing"}})
     spring = {"name": "spring J2", "type": "linear", "on": {"joint": "J2"}, "measure": {"joint": "J2"},
               "value": preload, "k": 0.5, "c": 0.002, "configurations": ["open"]}
     doc = scene_doc({"open": "dp.urdf", "locked": {"from": "open", "lock": ["J2"]}}, {"J1": 0.0, "J2": -0.05},
-                    {"J1": 0.0, "J2": 0.0}, t_end=t_end, forces=[spring], transitions=[tr],
+                    {"J1": 0.0, "J2": 0.0}, t_end=t_end, forces=[spring], transitions=transitions,
                     solver={"method": method, "rtol": 1e-10, "atol": 1e-12}, name="locked_pendulum")
     return write_scene(folder, doc, {"dp.urdf": urdf})
 
@@ -125,9 +132,10 @@ def _compare(fast, ref, nudged):
     return gap, own
 
 
-@pytest.mark.parametrize("method", ["auto", "DOP853F"])
+@pytest.mark.parametrize("method", ["auto", "DOP853F", "reaction"])
 def test_pendulum_releases_at_the_python_times(method, monkeypatch, tmp_path):
-    path = locked_pendulum(tmp_path, method=method)
+    path = (locked_pendulum(tmp_path, release_at=-0.05) if method == "reaction" else
+            locked_pendulum(tmp_path, method=method))
     fast = _run(path)
     with monkeypatch.context() as m:
         _python_holding(m)
@@ -136,7 +144,10 @@ def test_pendulum_releases_at_the_python_times(method, monkeypatch, tmp_path):
         _nudged_holding(m)
         nudged = _run(path)
     releases = [e["t"] for e in ref.events if e.get("kind") == "release"]
-    assert len(releases) == 2 and abs(releases[0] - 0.418) < 1e-3 and abs(releases[1] - 2.006) < 1e-3
+    if method == "reaction":  # let go a little after the force turned tensile
+        assert len(releases) == 2 and 0.418 < releases[0] < 0.5 and 2.006 < releases[1] < 2.1, releases
+    else:
+        assert len(releases) == 2 and abs(releases[0] - 0.418) < 1e-3 and abs(releases[1] - 2.006) < 1e-3
     gap, own = _compare(fast, ref, nudged)
     assert gap <= max(10 * own, 1e-12), (gap, own)
     assert set(fast.stats["holding_evaluations"].values()) == {"compiled"}

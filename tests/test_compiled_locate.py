@@ -152,7 +152,7 @@ def test_a_time_guard_and_a_tree_row():
     assert ref is not None and fast == ref
 
 
-def _events(path, compiled_locate: bool, monkeypatch):
+def _events(path, compiled_locate: bool, monkeypatch, t_end=None):
     """The run's events and the number of calls of the compiled locator (the Python one alone where
     ``compiled_locate`` is false: no dense output is handed to the compiled one)."""
     calls = []
@@ -165,7 +165,8 @@ def _events(path, compiled_locate: bool, monkeypatch):
     monkeypatch.setattr(integrators, "COMPILED_LOCATE", [counted, lambda: True])
     if not compiled_locate:
         monkeypatch.setattr(integrators, "_polynomial", lambda sol: None)
-    traj = pcmm.simulate(pcmm.load_scene(path))
+    scene = pcmm.load_scene(path)
+    traj = pcmm.simulate(scene, pcmm.RunOptions(t_end=t_end)) if t_end is not None else pcmm.simulate(scene)
     return [(ev["t"], ev["name"], ev["to"]) for ev in traj.events], len(calls)
 
 
@@ -182,4 +183,15 @@ def test_whole_runs_have_the_python_locators_events(tmp_path, monkeypatch, build
     ref, n_ref = _events(path, False, monkeypatch)
     assert n_fast >= 2 and n_ref == 0
     assert len(fast) >= 2
+    assert fast == ref
+
+
+def test_three_bar_cycle_has_the_python_locators_events(monkeypatch):
+    """The benchmark scene (drives: the compiled loop with scipy's tableau, its stop guards re-armed
+    after each bounce) to 2.5 s: every event at the Python locator's time, to the bit."""
+    from builders import EXAMPLES
+    path = EXAMPLES / "three_bar_cycle.toml"
+    fast, n_fast = _events(path, True, monkeypatch, t_end=2.5)
+    ref, n_ref = _events(path, False, monkeypatch, t_end=2.5)
+    assert n_fast > 100 and n_ref == 0 and len(fast) > 100
     assert fast == ref

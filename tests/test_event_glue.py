@@ -189,3 +189,40 @@ def test_segments_under_the_same_holds_share_one_context():
                    a.forces, a.acting, a.springs)
     assert recording._same(a, twin)
     assert not recording._same(a, Applied(a.reference, {**a.frozen, "ny": -1}, a.forces, a.acting, a.springs))
+
+
+def test_same_compares_values_as_a_context_needs():
+    """recording._same, asked at every segment: arrays element by element (-0.0 equals 0.0, NaN
+    never equals), dicts by keys and values, a list never equals a tuple, numbers and texts by
+    value, a dataclass field by field, anything else by identity."""
+    from dataclasses import dataclass
+
+    from pcmm.run.recording import _same
+
+    @dataclass
+    class Rec:
+        a: object
+        b: object
+    marker = object()
+    cases = [
+        (np.array([0.0, 1.0]), np.array([-0.0, 1.0]), True),
+        (np.array([np.nan]), np.array([np.nan]), False),
+        (np.array([1, 2]), np.array([[1, 2]]), False),
+        (np.array([1, 2]), [1, 2], False),
+        ({"I": np.array([0, 2]), "ny": 4}, {"I": np.array([0, 2]), "ny": 4}, True),
+        ({"I": np.array([0, 2]), "ny": 4}, {"I": np.array([0, 2]), "ny": 5}, False),
+        ({"a": 1}, {"b": 1}, False),
+        ([1, (2.0, "x")], [1, (2.0, "x")], True),
+        ([1, 2], (1, 2), False),
+        ([1, 2], [1, 2, 3], False),
+        (1, 1.0, True),
+        ("x", "y", False),
+        (Rec(marker, {"k": np.array([1.0])}), Rec(marker, {"k": np.array([1.0])}), True),
+        (Rec(marker, 1), Rec(object(), 1), False),
+        (marker, marker, True),
+        (object(), object(), False),
+        (Rec, Rec, True),
+    ]
+    for a, b, want in cases:
+        assert _same(a, b) is want, (a, b)
+        assert _same(b, a) is want, (b, a)

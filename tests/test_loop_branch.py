@@ -19,7 +19,7 @@ import pytest
 
 import pcmm
 from pcmm.errors import SimulationError
-from pcmm.model import compiled
+from pcmm.model import compiled, partitioned
 
 
 def _assert_path(mode):
@@ -42,6 +42,12 @@ def test_a_run_stopped_at_its_change_point_is_read_on_its_own_branch(tmp_path, m
     """Driven into theta = pi the run stops (singular posture); every sample of every segment of the
     partial run, at its steps and resampled on the dense output, is on the parallelogram branch."""
     monkeypatch.setenv(compiled.ENV, mode)
+    # stepped by pcmm's DOP853 in Python: this start's run must reach the change point on its branch, and
+    # near it the loop's Newton solves may land whole turns away (q_D - q_A = 2 pi k) on either stepping, for
+    # some starts (Python-stepped: 9 of 30 starts in 0.31..1.19 rad); the compiled stepping's steps (coasting:
+    # round-off decides them) meet that at 0.5 rad (docs/performance.md, "Loops stepped by the compiled
+    # segment loop")
+    monkeypatch.setattr(partitioned, "STEP_LOOPS_COMPILED", False)
     compiled.forget_trees()
     path = builders.parallelogram(tmp_path, 0.5, 2.0, t_end=2.0)
     with pytest.raises(SimulationError, match="singular") as stop:

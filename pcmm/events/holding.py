@@ -449,8 +449,12 @@ def _compiled_evaluator(cfg, ref, J, m, labels, mine, theirs, held, ref_forces, 
            held.tobytes(), cfg.nv, None if own is None else (own.Q0.tobytes(), own.KD.tobytes()))
     nv = cfg.nv
     probes = [(0.37 * (j + 1), y[:nv], y[nv:]) for j, y in enumerate(compiled._probe_states(nv))]
-    if not compiled.agrees(checked, fast.forces, lambda t, q, v: np.array(list(python(t, q, v).values())), probes,
-                           "holding forces", key=key + ("forces",)):
+    try:
+        same = compiled.agrees(checked, fast.forces, lambda t, q, v: np.array(list(python(t, q, v).values())), probes,
+                               "holding forces", key=key + ("forces",))
+    except (np.linalg.LinAlgError, SimulationError, ArithmeticError) as exc:  # the Python solve fails at a probe
+        return None, f"not compiled: the Python holding forces could not be solved at a probe state ({exc})"
+    if not same:
         return None, compiled.why_not() or "it disagrees with the Python holding forces"
 
     def forces(t, q, v):
@@ -466,7 +470,11 @@ def _compiled_evaluator(cfg, ref, J, m, labels, mine, theirs, held, ref_forces, 
         k = len(free)
         unpack = cfg.coords.unpack
         states = [(0.37 * (j + 1), y) for j, y in enumerate(compiled._probe_states(max(k, 1)))] if k else []
-        if k and compiled.agrees(checked, fast.at_state, lambda t, y: np.array(list(python(t, *unpack(t, y)).values())),
-                                 states, "holding forces at the state", key=key + ("state", tuple(free), tuple(driven))):
-            forces.at_state = fast
+        try:
+            if k and compiled.agrees(checked, fast.at_state,
+                                     lambda t, y: np.array(list(python(t, *unpack(t, y)).values())), states,
+                                     "holding forces at the state", key=key + ("state", tuple(free), tuple(driven))):
+                forces.at_state = fast
+        except (np.linalg.LinAlgError, SimulationError, ArithmeticError):
+            pass  # the guards read (t, q, v) then: compiled, not scanned by the loop
     return forces, None

@@ -31,6 +31,12 @@ PREDICT_MAX = 0.05
 # the whole constraint Jacobian has lost its rank where its smallest singular value is at most this
 # fraction of its largest: a change point or a dead centre (at_degenerate_partition, _refuse_singular_read)
 RANK_LOST = 1e-6
+#: whether the compiled segment loop (pcmm/model/_segment_loop.hpp) steps a configuration with closed loops
+#: over its compiled loop: "auto"'s DOP853 (pcmm.ode.integrators.AUTO_DOP853, scipy's tableau and step-size
+#: control in C++) and DOP853F; off: pcmm's DOP853 (or the Fortran DOP853F) steps it in Python over the
+#: same compiled right-hand side, the reference the tests compare with.  The method "DOP853" named in a
+#: scene is always the Python stepping
+STEP_LOOPS_COMPILED = True
 _thread_id = threading.get_ident
 
 
@@ -170,6 +176,7 @@ class PartitionedCoordinates:
             self._refuse_loop(why)
             return None
         self._loop_held = (threading.get_ident(), forces)
+        compiled._register_segment_loop(PartitionedCoordinates, _segment_loop)
         return self._loop
 
     def _refuse_loop(self, why: str) -> None:
@@ -248,7 +255,7 @@ class PartitionedCoordinates:
                                    self._python_rhs, self._python_rhs_with_power)
         self._compiled = (me, forces, tree)
         if tree is not None:
-            compiled._register_segment_loop(PartitionedCoordinates, _drive_segment_loop)
+            compiled._register_segment_loop(PartitionedCoordinates, _segment_loop)
         return tree
 
     def forces_changed(self):
@@ -834,7 +841,8 @@ class PartitionedCoordinates:
             ahead, behind = (self._scaled_det(self._position_rows(t, q + s * eps * qd)) for s in (1.0, -1.0))
             return (ahead - behind) / (2 * eps)
         return Guard(f"configuration '{self.cfg.name}': the loop's partition of its coordinates degenerates",
-                     g, 0, "repartition", rate=rate, rate_from_state=True)
+                     g, 0, "repartition", rate=rate, rate_from_state=True,
+                     loop_scan=("singularity",) if self.closure.size else None)
 
     def _held_loop(self):
         """The compiled loop where it is ready on this thread for these force elements and no
@@ -1091,6 +1099,26 @@ class PartitionedCoordinates:
         power = float(self.forces.generalized(q, v) @ v - lam @ self._phi_t(t))
         qd = self.cfg.qdot(q, v)
         return np.concatenate([qd[self.I], self.cfg.qddot(q, v, a)[self.I], [power]])
+
+
+def _segment_loop(coords: PartitionedCoordinates, *args, **options):
+    """The compiled segment loop of these coordinates (registered for
+    :data:`pcmm.ode.integrators.SEGMENT_LOOPS`): over the compiled loop (pcmm/model/_loops.hpp) with
+    closed loops, each call it declines taken by the Python evaluation (``_python_rhs``, as :meth:`rhs`
+    does), or over the compiled tree of drives without a loop; a ValueError where there is none (the
+    integrator then steps in Python)."""
+    if not coords.closure.size:
+        return _drive_segment_loop(coords, *args, **options)
+    if not STEP_LOOPS_COMPILED:
+        raise ValueError("closed loops are stepped in Python (partitioned.STEP_LOOPS_COMPILED)")
+    loop = coords._held_loop()
+    if loop is None and coords._trail is None and coords._loop_refused is None:
+        coords._compiled_loop()
+        loop = coords._held_loop()
+    if loop is None:
+        raise ValueError(f"no compiled loop: {coords._loop_refused or compiled.why_not() or 'a segment re-read'}")
+    fallback = coords._python_rhs_with_power if options.get("power") else coords._python_rhs
+    return compiled.segment_loop(loop, *args, fallback=fallback, **options)
 
 
 def _drive_segment_loop(coords: PartitionedCoordinates, *args, **options):

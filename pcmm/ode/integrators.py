@@ -484,8 +484,8 @@ class ScipyMethod:
             if code == -3:
                 return f"{self.name} failed: {TOO_SMALL_STEP}"
             raise SimulationError(FortranDOP853._failure(code, st, opts))
-        return _drive_loop(loop, progress, st, lambda: DenseStep(*loop.dense()), failure, counted, "DOP853",
-                           lambda row, n: DenseStep(row[0], row[1], row[2:2 + n], row[2 + n:].reshape(7, n)))
+        return _drive_loop(loop, progress, st, lambda: _ScipyDense(*loop.dense()), failure, counted, "DOP853",
+                           lambda row, n: _ScipyDense(row[0], row[1], row[2:2 + n], row[2 + n:].reshape(7, n)))
 
 
 def _drive_loop(loop, progress, st, dense, failure, counted, name, from_row):
@@ -501,7 +501,14 @@ def _drive_loop(loop, progress, st, dense, failure, counted, name, from_row):
     stale = False  # steps recorded since the scanner last saw one: its guard values are not the last step's
     try:
         while True:
-            code = loop.run()
+            try:
+                code = loop.run()
+            except BaseException:  # a call the loop handed to Python raised there: the steps before it stand
+                steps, rows = loop.take(), loop.take_dense() if keeping else ()
+                if len(steps):
+                    kept = [_Ready(from_row(row, (row.size - 2) // 8)) for row in rows]
+                    _record_steps(st, steps, kept if len(kept) == len(steps) else None)
+                raise
             steps = loop.take()
             rows = loop.take_dense() if keeping else ()
             kept = [_Ready(from_row(row, (row.size - 2) // 8)) for row in rows]  # one per step accepted
@@ -797,12 +804,19 @@ def _segment_loop(fun, t0, y0, t_bound, events, opts, beta, tableau=None, keep_d
     ny = y0.size
     affine = [getattr(e, "affine", None) for e in events]
     holding = [getattr(e, "holding", None) for e in events]
+    # a closed loop's guards on its solution (Guard.loop_scan), which its compiled loop scans itself
+    solved = [getattr(e, "loop_scan", None) if a is None and h is None else None
+              for e, a, h in zip(events, affine, holding)]
     # a progress bar (the run loop's wrapper) is fed every _PROGRESS_STEPS steps, as the wrapper's
     # own count of evaluations did: then every step comes back to Python.  The loop scans a guard
-    # affine in the state with its rate read from the state, and a guard on a compiled holding force
+    # affine in the state with its rate read from the state, a guard on a compiled holding force, and
+    # a closed loop's guard on its solution with its rate read from the state
     every_step = (progress is not None or not all(
-        (a is not None and getattr(e, "rate_from_state", False)) or h is not None
-        for e, a, h in zip(events, affine, holding)))
+        ((a is not None or s is not None) and getattr(e, "rate_from_state", False)) or h is not None
+        for e, a, h, s in zip(events, affine, holding, solved)))
+    if any(s is not None for s in solved) and not every_step:
+        options["solved"] = [(i, 0, np.asarray(s[1], float), float(s[2]), float(s[3])) if s[0] == "coordinate"
+                             else (i, 1, None, 0.0, 0.0) for i, s in enumerate(solved) if s is not None]
     if every_step:
         C, ct, d, direction = np.zeros((0, ny)), np.zeros(0), np.zeros(0), np.zeros(0)
     else:
@@ -846,6 +860,32 @@ def _record_steps(st, steps, kept=None) -> None:
     st.count += len(steps)
     if st.kept is not None:
         st.kept.extend([None] * len(steps) if kept is None else kept)
+
+
+class _ScipyDense(DenseStep):
+    """scipy's DOP853 dense output of a step the compiled loop took (:class:`pcmm.ode.dop853.DenseStep`),
+    with the same bits; at one time (what a root finder asks, several times per event) its Horner sums
+    component by component on Python floats, the very operations ``DenseStep`` does on arrays (a
+    quarter of its cost at a few components)."""
+
+    __slots__ = ("_rows", "_start")
+
+    def __call__(self, t):
+        if np.ndim(t) != 0:
+            return super().__call__(t)
+        rows = getattr(self, "_rows", None)
+        if rows is None:
+            rows = self._rows = [f.tolist() for f in self.F[::-1]]
+            self._start = self.y_old.tolist()
+        x = (float(t) - float(self.t_old)) / float(self.h)  # as DenseStep's, on floats
+        x1 = 1 - x
+        out = []
+        for j, y0 in enumerate(self._start):
+            acc = 0.0
+            for i, f in enumerate(rows):  # y += f, then y *= x or (1 - x), alternately
+                acc = (acc + f[j]) * (x if i % 2 == 0 else x1)
+            out.append(acc + y0)
+        return np.array(out, dtype=self.y_old.dtype)
 
 
 class _Contd8:

@@ -149,21 +149,41 @@ class SegmentContext:
 
 
 def _same(a, b) -> bool:
-    """Values equal, arrays element by element (a frozen partition, the holds' force elements)."""
+    """Values equal, arrays element by element (a frozen partition, the holds' force elements).
+    (Asked at every segment, for the context it may share with the one before: loops, not
+    generators, and the array's own reduction, not numpy's wrappers.)"""
     if a is b:
         return True
-    if isinstance(a, dict) and isinstance(b, dict):
-        return a.keys() == b.keys() and all(_same(a[k], b[k]) for k in a)
-    if isinstance(a, (tuple, list)) and isinstance(b, (tuple, list)):
-        return type(a) is type(b) and len(a) == len(b) and all(_same(x, y) for x, y in zip(a, b))
     if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
-        return isinstance(a, np.ndarray) and isinstance(b, np.ndarray) and a.shape == b.shape and bool(np.all(a == b))
+        return isinstance(a, np.ndarray) and isinstance(b, np.ndarray) and a.shape == b.shape and bool((a == b).all())
+    if isinstance(a, dict) and isinstance(b, dict):
+        if a.keys() != b.keys():
+            return False
+        for k in a:
+            if not _same(a[k], b[k]):
+                return False
+        return True
+    if isinstance(a, (tuple, list)) and isinstance(b, (tuple, list)):
+        if type(a) is not type(b) or len(a) != len(b):
+            return False
+        for x, y in zip(a, b):
+            if not _same(x, y):
+                return False
+        return True
     if isinstance(a, (int, float, str)) and isinstance(b, (int, float, str)):
         return a == b
-    if dataclasses.is_dataclass(a) and type(a) is type(b) and not isinstance(a, type):
+    if type(a) is type(b) and dataclasses.is_dataclass(a) and not isinstance(a, type):
         # (the holds' Applied: a record of values, its reference configuration compared as the same object)
-        return all(_same(getattr(a, f.name), getattr(b, f.name)) for f in dataclasses.fields(a))
+        for name in _field_names(type(a)):
+            if not _same(getattr(a, name), getattr(b, name)):
+                return False
+        return True
     return False  # anything else: the same object only
+
+
+@functools.lru_cache(maxsize=None)
+def _field_names(cls) -> tuple:
+    return tuple(f.name for f in dataclasses.fields(cls))
 
 
 def _same_holds(a: Holds, b: Holds) -> bool:
