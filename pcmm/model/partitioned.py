@@ -984,7 +984,15 @@ class PartitionedCoordinates:
 
     def project(self, t, q, v, prefer_independent=()):
         """Assemble (q, v) onto the constraints keeping the independent coordinates
-        (a new partition is chosen at q, preferring ``prefer_independent``)."""
+        (a new partition is chosen at q, preferring ``prefer_independent``).
+
+        Drives without a loop need neither a new partition nor a solve: the dependent coordinates
+        are the driven ones whatever the posture (:meth:`partition`), and the projection is
+        :meth:`_prescribed` of ``[q_I, q'_I]`` itself (``q_D = f(t)``, ``q'_D = f'(t)``), the same
+        bits :meth:`unpack` gives, without its dispatch and cache (a bounce's entry, at every impact)."""
+        if self.D is not None and not self.closure.size and len(set(self.drives.index)) == self.drives.size:
+            self.seed(q)
+            return self._prescribed(t, np.concatenate([q[self.I], self.cfg.qdot(q, v)[self.I]]))
         self.partition(t, q, prefer_independent)
         self.seed(q)
         return self.unpack(t, np.concatenate([q[self.I], self.cfg.qdot(q, v)[self.I]]))
