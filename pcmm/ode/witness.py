@@ -59,6 +59,11 @@ class Guard:
     # ``index`` at the state minus ``offset`` (pcmm.events.holding.guard_value), with no rate of its own:
     # a compiled segment loop scans it itself (its rate by pcmm.ode.integrators._rate's forward difference)
     holding: tuple | None = None
+    # a closed loop's guard read from the loop's solution (q, q') at the state, which a compiled segment
+    # loop over the loop scans itself: ("coordinate", c, d, unfired): c . q + d, rate c . q' (unfired > 0:
+    # re-armed after a bounce, held at that distance on its unfired side until it approaches); ("singularity",):
+    # the scaled determinant of the partition's dependent block (PartitionedCoordinates.singularity_guard)
+    loop_scan: tuple | None = None
 
     def __post_init__(self):
         if self.action not in ACTIONS:
