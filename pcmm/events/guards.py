@@ -254,6 +254,7 @@ def make_guard(cfg: Configuration, tr: TransitionSpec, rearm: bool = False, cont
     if linear is not None:
         linear = (*linear, bool(rearm), UNFIRED)
     holding = getattr(raw, "holding", None) if tr.guard.when is None and not rearm else None
+    loop_scan = _loop_scan(cfg, tr, rearm) if tr.guard.when is None else None
     if rearm:
         def value(t, y):
             val = raw(t, y)
@@ -279,7 +280,7 @@ def make_guard(cfg: Configuration, tr: TransitionSpec, rearm: bool = False, cont
                 return [val if direction * r > 0.0 else -direction * max(-direction * val, UNFIRED)
                         for val, r in zip(got[0].tolist(), got[1].tolist())]
     return Guard(_describe(tr), value, direction, "transition", tr, rate, rate is not None, many=many,
-                 affine=affine, linear=linear, holding=holding)
+                 affine=affine, linear=linear, holding=holding, loop_scan=loop_scan)
 
 
 def _affine(cfg: Configuration, tr: TransitionSpec, context=None):
@@ -292,6 +293,18 @@ def _affine(cfg: Configuration, tr: TransitionSpec, context=None):
         row, offset = cfg.measure_row(g.measure)
         return np.concatenate([np.asarray(row, float), np.zeros(cfg.nv)]), 0.0, -(g.value - offset)
     return None
+
+
+def _loop_scan(cfg: Configuration, tr: TransitionSpec, rearm: bool):
+    """``("coordinate", row, d, unfired)`` where the guard is a joint coordinate's (or a link or
+    relative angle's) in a closed loop: its value ``row . q + d`` on the loop's solution ``q`` at the
+    state and its rate ``row . q'`` (:func:`_coordinate`), re-armed (``unfired = UNFIRED``) or plain
+    (0), which a compiled segment loop over the loop scans itself (:attr:`Guard.loop_scan`); else None."""
+    closure = getattr(cfg.coords, "closure", None)
+    if tr.guard.type != "coordinate" or closure is None or not closure.size or cfg.has_planar:
+        return None
+    row, offset = cfg.measure_row(tr.guard.measure)
+    return "coordinate", np.asarray(row, float), -(tr.guard.value - offset), UNFIRED if rearm else 0.0
 
 
 def guard_residual(cfg: Configuration, tr: TransitionSpec, t, y) -> float:

@@ -583,6 +583,30 @@ PyObject *loop_remember(Loop *self, PyObject *args) {
   Py_RETURN_NONE;
 }
 
+namespace loops {
+
+// the right-hand side at (t, y = [q_I, q'_I(, W)]) into dy: [q'_I, q''_I(, P)] (PartitionedCoordinates.rhs,
+// rhs_with_power); false where Python must take the call over (the unpack or the KKT solve declined)
+bool evaluate(Tree *tree, State &s, double t, const double *y, double *dy, bool power) {
+  const int k = (int)s.I.size();
+  VectorXd start;
+  if (unpack(tree, s, t, y, start) != OK || !accelerations(tree, s, t, s.cq, s.cv)) return false;
+  const Data &data = *tree->data;
+  for (int i = 0; i < k; ++i) {
+    dy[i] = s.cv[s.I[i]];
+    dy[k + i] = data.ddq[s.I[i]];
+  }
+  if (power) {  // tau.v - lam.Phi_t, Phi_t = [0 (the loops: scleronomic), -f']
+    double tv = 0.0, lp = 0.0;
+    for (int i = 0; i < s.nv; ++i) tv += s.tau[i] * s.cv[i];
+    for (int r = 0; r < s.m; ++r) lp += data.lambda_c[r] * (r < s.nc ? -0.0 : -s.f1[r - s.nc]);
+    dy[2 * k] = tv - lp;
+  }
+  return true;
+}
+
+}  // namespace loops
+
 // rhs(t, y) -> [q'_I, q''_I]; rhs_with_power(t, [y, W]) -> [q'_I, q''_I, P]; None where Python must
 // take the call over (its unpack then answers from this one's cache, or decides the failure)
 PyObject *loop_call(Loop *self, PyObject *const *args, Py_ssize_t nargs, bool power) {
@@ -597,24 +621,17 @@ PyObject *loop_call(Loop *self, PyObject *const *args, Py_ssize_t nargs, bool po
   const int k = (int)s.I.size(), n = 2 * k + (power ? 1 : 0);
   PyArrayObject *y = vector_arg(args[1], n, "y", "state");
   if (!y) return nullptr;
-  VectorXd start;
-  const loops::Status st = loops::unpack(self->tree, s, t, (const double *)PyArray_DATA(y), start);
-  Py_DECREF(y);
-  if (st != loops::OK || !loops::accelerations(self->tree, s, t, s.cq, s.cv)) Py_RETURN_NONE;
   npy_intp dims = n;
   PyArrayObject *out = (PyArrayObject *)PyArray_SimpleNew(1, &dims, NPY_DOUBLE);
-  if (!out) return nullptr;
-  double *dy = (double *)PyArray_DATA(out);
-  const Data &data = *self->tree->data;
-  for (int i = 0; i < k; ++i) {
-    dy[i] = s.cv[s.I[i]];
-    dy[k + i] = data.ddq[s.I[i]];
+  if (!out) {
+    Py_DECREF(y);
+    return nullptr;
   }
-  if (power) {  // tau.v - lam.Phi_t, Phi_t = [0 (the loops: scleronomic), -f']
-    double tv = 0.0, lp = 0.0;
-    for (int i = 0; i < s.nv; ++i) tv += s.tau[i] * s.cv[i];
-    for (int r = 0; r < s.m; ++r) lp += data.lambda_c[r] * (r < s.nc ? -0.0 : -s.f1[r - s.nc]);
-    dy[2 * k] = tv - lp;
+  const bool ok = loops::evaluate(self->tree, s, t, (const double *)PyArray_DATA(y), (double *)PyArray_DATA(out), power);
+  Py_DECREF(y);
+  if (!ok) {
+    Py_DECREF(out);
+    Py_RETURN_NONE;
   }
   return (PyObject *)out;
 }
@@ -647,6 +664,27 @@ PyObject *loop_last(Loop *self, PyObject *) {
   return Py_BuildValue("dNN", r.t, new_vector(r.q), new_vector(r.rates));
 }
 
+namespace loops {
+
+// the time derivative of the scaled determinant of the dependent block along q' at (t, q): central
+// differences of the rows at q +- eps q', eps = 1e-7 / max(1, max|q'|) (the singularity guard's rate,
+// PartitionedCoordinates.singularity_guard); the scratch rows (s.phi, s.Jq) are overwritten
+double det_rate(Tree *tree, State &s, double t, const Eigen::Ref<const VectorXd> &q, const Eigen::Ref<const VectorXd> &qd) {
+  double top = qd.size() ? std::fabs(qd[0]) : 0.0;
+  for (int i = 0; i < s.nv; ++i) top = std::isnan(qd[i]) || std::isnan(top) ? std::nan("") : std::max(top, std::fabs(qd[i]));
+  const double eps = 1e-7 / std::max(1.0, top);
+  double det[2];
+  for (int side = 0; side < 2; ++side) {
+    const double step = (side == 0 ? 1.0 : -1.0) * eps;
+    const VectorXd at = q + step * qd;
+    rows(tree, s, t, at);
+    det[side] = scaled_det(s, s.Jq);
+  }
+  return (det[0] - det[1]) / (2 * eps);
+}
+
+}  // namespace loops
+
 // det_rate(t, q, q') -> the time derivative of the scaled determinant of the dependent block along q', by
 // central differences of the rows at q +- eps q', eps = 1e-7 / max(1, max|q'|) (the singularity guard's
 // rate, PartitionedCoordinates.singularity_guard)
@@ -667,19 +705,10 @@ PyObject *loop_det_rate(Loop *self, PyObject *const *args, Py_ssize_t nargs) {
     return nullptr;
   }
   const Eigen::Map<const VectorXd> q((const double *)PyArray_DATA(q_o), s.nv), qd((const double *)PyArray_DATA(qd_o), s.nv);
-  double top = qd.size() ? std::fabs(qd[0]) : 0.0;
-  for (int i = 0; i < s.nv; ++i) top = std::isnan(qd[i]) || std::isnan(top) ? std::nan("") : std::max(top, std::fabs(qd[i]));
-  const double eps = 1e-7 / std::max(1.0, top);
-  double det[2];
-  for (int side = 0; side < 2; ++side) {
-    const double step = (side == 0 ? 1.0 : -1.0) * eps;
-    const VectorXd at = q + step * qd;
-    loops::rows(self->tree, s, t, at);
-    det[side] = loops::scaled_det(s, s.Jq);
-  }
+  const double rate = loops::det_rate(self->tree, s, t, q, qd);
   Py_DECREF(q_o);
   Py_DECREF(qd_o);
-  return PyFloat_FromDouble((det[0] - det[1]) / (2 * eps));
+  return PyFloat_FromDouble(rate);
 }
 
 // the arguments (t, q, v) of kkt and rows: a time and an assembled state of the loop's nv coordinates;
@@ -782,4 +811,45 @@ int add_loop_type(PyObject *m) {
     return -1;
   }
   return 0;
+}
+
+// -- the compiled segment loop's access to a Loop (_segment_loop.hpp declares these): it steps a
+// closed-loop configuration over loops::evaluate and scans its guards on the Loop's solutions
+
+// the Loop `obj` is, seeded (nullptr, with the error set, where it is not a seeded Loop)
+Loop *segment_loop_owner(PyObject *obj) {
+  if (!PyObject_TypeCheck(obj, &LoopType)) {
+    PyErr_SetString(PyExc_TypeError, "SegmentLoop: a Tree or a Loop");
+    return nullptr;
+  }
+  return loop_ready((Loop *)obj) ? (Loop *)obj : nullptr;
+}
+
+Tree *segment_loop_tree(Loop *self) { return self->tree; }
+
+// the state's size, 2 len(I), and the coordinates' number
+int segment_loop_size(Loop *self) { return 2 * (int)self->s->I.size(); }
+int segment_loop_nv(Loop *self) { return self->s->nv; }
+
+bool segment_loop_evaluate(Loop *self, double t, const double *y, double *dy, bool power) {
+  return loops::evaluate(self->tree, *self->s, t, y, dy, power);
+}
+
+// the solution (q, q') at (t, y), the Loop's last unpack (its cache where it is that state); false where the
+// unpack declines (Python decides there)
+bool segment_loop_solved(Loop *self, double t, const double *y, const double **q, const double **qd) {
+  VectorXd start;
+  if (loops::unpack(self->tree, *self->s, t, y, start) != loops::OK) return false;
+  *q = self->s->cq.data();
+  *qd = self->s->cv.data();
+  return true;
+}
+
+// the singularity guard at the last solution: its value, the dependent block's scaled determinant (of the
+// Jacobian PartitionedCoordinates.unpack leaves, _last_Jp), and its rate (det_rate along q')
+double segment_loop_scaled_det(Loop *self) { return loops::scaled_det(*self->s, self->s->cJ); }
+
+double segment_loop_det_rate(Loop *self, double t) {
+  const VectorXd q = self->s->cq, qd = self->s->cv;
+  return loops::det_rate(self->tree, *self->s, t, q, qd);
 }

@@ -37,6 +37,27 @@
 // "auto"; its dense output is then scipy's (dense() returns the F rows of its DenseStep).  The
 // right-hand side is the tree's (evaluate: with drives y = [q_I, v_I], at the stage's time), or
 // with `power` rhs_with_power's (a flight's state with its work appended).
+//
+// A closed-loop configuration (owner a Loop, _loops.hpp) is stepped over the Loop's evaluation
+// (loops::evaluate: the Newton solve, the rates, the KKT accelerations), C++ calling C++.  Where the
+// Loop declines an evaluation (its Newton solve fails, a conditioning check fires, a block is singular,
+// the KKT solve fails, a spring has zero length) that one call is Python's: `fallback(t, y)`, the
+// configuration's Python evaluation (which asks the Loop again and decides: a new partition, an error,
+// or its own solve from the Loop's warm start).  What it raises stops the loop where it stands: the
+// step is not accepted, run() raises it, and the accepted steps before it are take()n as usual.
+// Its guards on the solved coordinates (a joint coordinate's c.q + d, rate c.q', plain or re-armed
+// after a bounce) and its partition's singularity guard (the dependent block's scaled determinant) are
+// scanned here too ("solved" guards), on the Loop's solution at each accepted step's end.
+
+struct Loop;  // _loops.hpp
+Loop *segment_loop_owner(PyObject *obj);
+Tree *segment_loop_tree(Loop *self);
+int segment_loop_size(Loop *self);
+int segment_loop_nv(Loop *self);
+bool segment_loop_evaluate(Loop *self, double t, const double *y, double *dy, bool power);
+bool segment_loop_solved(Loop *self, double t, const double *y, const double **q, const double **qd);
+double segment_loop_scaled_det(Loop *self);
+double segment_loop_det_rate(Loop *self, double t);
 
 namespace dop853 {
 // the tableau, as in dop853.f
@@ -146,15 +167,72 @@ struct SegmentLoop {
   std::vector<double> *record;  // accepted steps not yet taken: (t, y) rows
   bool keep_dense, dense_charged;  // keep_dense: dense_record filled; dense_charged: dense()'s evaluations counted
   std::vector<double> *dense_record;  // keep_dense: each accepted step's dense() rows, (2 + 8 n) each
+  // a closed loop: the Loop stepped (a reference held; tree is its tree), the Python evaluation of a call
+  // it declines, how many it declined, and what the fallback raised (failed: run() raises it)
+  Loop *loop;
+  PyObject *fallback, *exc_type, *exc_value, *exc_tb;
+  long nfallback;
+  bool failed, dense_dropped;
+  // each guard's kind (-1 affine; SOLVED_COORDINATE: c.q + d on the Loop's solution, c a row of
+  // guard_row; SOLVED_SINGULARITY: the dependent block's scaled determinant), re-armed guards' UNFIRED
+  // (0: plain), and the scale of each value's terms (what "near zero" is measured against)
+  std::vector<int> *guard_kind;
+  std::vector<double> *guard_row, *guard_unfired, *g_scale;
+  int nv;  // a loop's coordinates (the rows of its solved guards)
   std::vector<HoldingGuard> *holding;  // guards on holding forces, scanned with their compiled solve
   std::vector<double> *g_start, *r_start, *probe;  // a candidate's start values and rates; scratch
 };
 
 namespace {
 
+enum { SOLVED_COORDINATE = 0, SOLVED_SINGULARITY = 1 };
+constexpr int FAILED = -10;  // run(): the fallback raised (run() raises it)
+
+// a call the Loop declined, taken by the Python evaluation (with the GIL): false where that raised (kept
+// in s->exc_*, s->failed set)
+bool fall_back(SegmentLoop *s, double t, const double *y, double *dy) {
+  ++s->nfallback;
+  PyGILState_STATE gil = PyGILState_Ensure();
+  npy_intp n = s->n;
+  bool ok = false;
+  PyObject *yv = PyArray_SimpleNew(1, &n, NPY_DOUBLE);
+  if (yv) {
+    std::memcpy(PyArray_DATA((PyArrayObject *)yv), y, n * sizeof(double));
+    PyObject *out = PyObject_CallFunction(s->fallback, "dO", t, yv);
+    Py_DECREF(yv);
+    if (out) {
+      PyArrayObject *a = (PyArrayObject *)PyArray_FROMANY(out, NPY_DOUBLE, 1, 1, NPY_ARRAY_IN_ARRAY);
+      Py_DECREF(out);
+      if (a && PyArray_DIM(a, 0) == n) {
+        std::memcpy(dy, PyArray_DATA(a), n * sizeof(double));
+        ok = true;
+      } else if (a) {
+        PyErr_Format(PyExc_ValueError, "SegmentLoop: the fallback returned %zd values for a state of %zd",
+                     (Py_ssize_t)PyArray_DIM(a, 0), (Py_ssize_t)n);
+      }
+      Py_XDECREF(a);
+    }
+  }
+  if (!ok) {
+    s->failed = true;
+    PyErr_Fetch(&s->exc_type, &s->exc_value, &s->exc_tb);
+    std::fill(dy, dy + s->n, 0.0);
+  }
+  PyGILState_Release(gil);
+  return ok;
+}
+
 void fcn(SegmentLoop *s, double t, const double *y, double *dy) {
-  evaluate(s->tree, t, y, dy, s->power);
   ++s->nfcn;
+  if (!s->loop) {
+    evaluate(s->tree, t, y, dy, s->power);
+    return;
+  }
+  if (s->failed) {  // the loop stops at this step: its other stages are not evaluated
+    std::fill(dy, dy + s->n, 0.0);
+    return;
+  }
+  if (!segment_loop_evaluate(s->loop, t, y, dy, s->power)) fall_back(s, t, y, dy);
 }
 
 // hinit853: the initial step size guess (order 8)
@@ -181,6 +259,48 @@ double hinit(SegmentLoop *s) {
   const double h1 = der12 <= 1e-15 ? std::max(1.0e-6, std::fabs(h) * 1.0e-3) : std::pow(0.01 / der12, 1.0 / 8);
   h = std::min(std::min(100 * std::fabs(h), h1), s->hmax);
   return std::copysign(h, s->posneg);
+}
+
+// the solved guards at (t, y) into g, r (NaN where the Loop declines to solve there: a candidate step)
+void solved_guard_values(SegmentLoop *s, double t, const double *y, double *g, double *r) {
+  const double *q = nullptr, *qd = nullptr;
+  const bool solved = segment_loop_solved(s->loop, t, y, &q, &qd);
+  for (int j = 0; j < s->m; ++j) {
+    const int kind = (*s->guard_kind)[j];
+    if (kind < 0) continue;
+    if (!solved) {
+      g[j] = r[j] = (*s->g_scale)[j] = std::nan("");
+      continue;
+    }
+    double value, rate, scale;
+    if (kind == SOLVED_COORDINATE) {  // pcmm.events.guards._coordinate: row . q - target, row . q'
+      const double *c = s->guard_row->data() + (size_t)j * s->nv;
+      double cq = 0.0, cqd = 0.0;
+      scale = std::fabs((*s->guard_d)[j]);
+      for (int i = 0; i < s->nv; ++i) {
+        cq += c[i] * q[i];
+        cqd += c[i] * qd[i];
+        scale += std::fabs(c[i] * q[i]);
+      }
+      value = cq + (*s->guard_d)[j];
+      rate = cqd;
+    } else {  // PartitionedCoordinates.singularity_guard: at most 1 in magnitude
+      value = segment_loop_scaled_det(s->loop);
+      rate = segment_loop_det_rate(s->loop, t);
+      scale = 1.0;
+    }
+    const double unfired = (*s->guard_unfired)[j], direction = (*s->guard_dir)[j];
+    if (unfired > 0) {  // re-armed after a bounce (pcmm.events.guards.make_guard, rearm)
+      if (!(direction * rate > 0.0)) {
+        const double held = -direction * std::max(-direction * value, unfired);
+        if (!(-direction * value > unfired)) rate = 0.0;
+        value = held;
+      }
+    }
+    g[j] = value;
+    r[j] = rate;
+    (*s->g_scale)[j] = scale;
+  }
 }
 
 // the guards' values g and rates r at (t, y) with derivative f, after a step of size h; false where a
@@ -210,17 +330,21 @@ bool guard_values(SegmentLoop *s, double t, const double *y, const double *f, do
     rj = ((lam[hg.index] - hg.offset) - gj) / d;
   }
   for (int j = 0; j < s->m; ++j) {
+    if ((*s->guard_kind)[j] >= 0) continue;  // solved_guard_values
     if (!s->holding->empty() && std::any_of(s->holding->begin(), s->holding->end(), [j](const HoldingGuard &hg) { return hg.j == j; }))
       continue;
     const double *c = s->guard_c->data() + (size_t)j * n;
-    double cy = 0.0, cf = 0.0;
+    double cy = 0.0, cf = 0.0, scale = std::fabs((*s->guard_d)[j]) + std::fabs((*s->guard_ct)[j] * t);
     for (int i = 0; i < n; ++i) {
       cy += c[i] * y[i];
       cf += c[i] * f[i];
+      scale += std::fabs(c[i] * y[i]);
     }
     g[j] = cy + (*s->guard_d)[j] + (*s->guard_ct)[j] * t;
     r[j] = cf + (*s->guard_ct)[j];
+    (*s->g_scale)[j] = scale;
   }
+  if (s->loop) solved_guard_values(s, t, y, g, r);
   return ok;
 }
 
@@ -281,28 +405,46 @@ void keep_dense_output(SegmentLoop *s) {
   }
   s->dense_charged = false;
   s->nfcn = counted;
+  if (s->failed) {  // a stage the Loop declined whose fallback raised: this step's dense output is not
+    // kept (the run forms it again where it needs it, and then meets the same error as the Python route)
+    const size_t width = 2 + (size_t)8 * n;  // either stepping's row
+    s->dense_record->resize(s->dense_record->size() - width);
+    s->dense_ready = false;
+    s->dense_dropped = true;
+    s->failed = false;
+    PyGILState_STATE gil = PyGILState_Ensure();
+    Py_CLEAR(s->exc_type);
+    Py_CLEAR(s->exc_value);
+    Py_CLEAR(s->exc_tb);
+    PyGILState_Release(gil);
+  }
 }
 
 // after the accepted step from x to xph (state s->y, derivative s->k1): is it a candidate (1), or
 // recorded, with t_bound reached (0), a pause due (2), or the loop to go on (-1)?
 int settle(SegmentLoop *s, double x, double xph) {
   const int n = s->n;
-  if (s->keep_dense) keep_dense_output(s);
   const double *y = s->y, *k1 = s->k1;
-  bool candidate = s->every_step;
+  // the guards at the step's end first: a loop's solved guards read the Loop's solution there, which the
+  // dense output's stages below move
+  bool scanned = true;  // false: a holding force could not be solved (Python decides the step)
+  if (s->m) scanned = guard_values(s, xph, y, k1, s->g_new->data(), s->r_new->data(), xph - x);
+  s->dense_dropped = false;
+  if (s->keep_dense) keep_dense_output(s);
+  bool candidate = s->every_step || s->dense_dropped || !scanned;
   bool finite = true;
   for (int i = 0; i < n; ++i) finite = finite && std::isfinite(y[i]);
   if (!finite || std::fabs(xph - x) < 64 * 2.220446049250313e-16 * std::max(1.0, std::fabs(xph))) candidate = true;
   if (s->m) {
     *s->g_start = *s->g_old;  // the step's start, as Python's scanner keeps it (candidate_start)
     *s->r_start = *s->r_old;
-    if (!guard_values(s, xph, y, k1, s->g_new->data(), s->r_new->data(), xph - x)) candidate = true;
     for (int j = 0; j < s->m && !candidate; ++j) {
       const double *c = s->guard_c->data() + (size_t)j * n;
       double scale = std::fabs((*s->guard_d)[j]) + std::fabs((*s->guard_ct)[j] * xph);
       for (int i = 0; i < n; ++i) scale += std::fabs(c[i] * y[i]);
       for (const HoldingGuard &hg : *s->holding)
         if (hg.j == j) scale = std::fabs(hg.offset) + std::fabs((*s->g_new)[j] + hg.offset);
+      if ((*s->guard_kind)[j] >= 0) scale = (*s->g_scale)[j];  // a loop's solved guard: its own terms
       const double g0 = (*s->g_old)[j], d0 = (*s->r_old)[j], g1 = (*s->g_new)[j], d1 = (*s->r_new)[j];
       if (!std::isfinite(g0) || !std::isfinite(d0) || !std::isfinite(g1) || !std::isfinite(d1)) candidate = true;
       else candidate = may_fire(g0, d0, g1, d1, xph - x, (*s->guard_dir)[j], 1e-12 * scale);
@@ -402,6 +544,7 @@ int rk_advance(SegmentLoop *s) {
         ynew[i] = y[i] + h * sum;
       }
       fcn(s, t + h, ynew, K + (size_t)rk_stages * n);
+      if (s->failed) return FAILED;  // the step is not taken: run() raises what the fallback raised
       // the error norm (pcmm.ode.dop853._error_norm)
       const double *e5 = rk_E5(s), *e3 = rk_E3(s);
       double sum5 = 0.0, sum3 = 0.0;
@@ -530,6 +673,7 @@ int advance(SegmentLoop *s) {
              er12 * k3[i];
       err += (erri / sk) * (erri / sk);
     }
+    if (s->failed) return FAILED;  // the step is not taken: run() raises what the fallback raised
     double deno = err + 0.01 * err2;
     if (deno <= 0.0) deno = 1.0;
     err = std::fabs(h) * err * std::sqrt(1.0 / (n * deno));
@@ -542,6 +686,7 @@ int advance(SegmentLoop *s) {
       s->facold = std::max(err, 1.0e-4);
       ++s->naccpt;
       fcn(s, xph, k5, k4);
+      if (s->failed) return FAILED;
       // stiffness detection
       if (s->naccpt % nstiff == 0 || s->iasti > 0) {
         double stnum = 0.0, stden = 0.0;
@@ -641,6 +786,35 @@ void dense_coefficients(SegmentLoop *s) {
   s->dense_ready = true;
 }
 
+// solved: ((index, kind, row or None, d, unfired), ...) into the guard kinds (pcmm.ode.integrators._segment_loop)
+int read_solved(SegmentLoop *s, PyObject *obj) {
+  PyObject *seq = PySequence_Fast(obj, "solved: a sequence of (index, kind, row, d, unfired)");
+  if (!seq) return -1;
+  for (Py_ssize_t k = 0; k < PySequence_Fast_GET_SIZE(seq); ++k) {
+    int j, kind;
+    PyObject *row_o;
+    double d, unfired;
+    if (!PyArg_ParseTuple(PySequence_Fast_GET_ITEM(seq, k), "iiOdd", &j, &kind, &row_o, &d, &unfired)) {
+      Py_DECREF(seq);
+      return -1;
+    }
+    if (j < 0 || j >= s->m || (kind != SOLVED_COORDINATE && kind != SOLVED_SINGULARITY)) {
+      PyErr_Format(PyExc_ValueError, "solved: guard %d of %d, kind %d", j, s->m, kind);
+      Py_DECREF(seq);
+      return -1;
+    }
+    if (kind == SOLVED_COORDINATE && read_doubles(row_o, s->guard_row->data() + (size_t)j * s->nv, s->nv, "solved row")) {
+      Py_DECREF(seq);
+      return -1;
+    }
+    (*s->guard_kind)[j] = kind;
+    (*s->guard_d)[j] = d;
+    (*s->guard_unfired)[j] = unfired;
+  }
+  Py_DECREF(seq);
+  return 0;
+}
+
 // holding: a sequence of (guard j, HoldingForces, index, offset); 0, or -1 with the error set
 int read_holding_guards(SegmentLoop *s, PyObject *obj, int n) {
   PyObject *seq = PySequence_Fast(obj, "holding: a sequence of (guard, HoldingForces, index, offset)");
@@ -674,36 +848,69 @@ PyObject *new_vector(const double *x, npy_intp n) {
   return out;
 }
 
-// SegmentLoop(tree, t0, y0, t_bound, rtol, atol, max_step, nmax, beta, C (m x n), ct (m), d (m),
-//             direction (m), every_step, *, power=False, tableau=None, keep_dense=False): `power` integrates
-//             rhs_with_power (a tree with drives), `tableau` (scipy's, packed) steps as scipy's DOP853,
-//             `keep_dense` keeps every accepted step's dense output (take_dense())
+// SegmentLoop(owner, t0, y0, t_bound, rtol, atol, max_step, nmax, beta, C (m x n), ct (m), d (m),
+//             direction (m), every_step, *, power=False, tableau=None, keep_dense=False, fallback=None,
+//             solved=()): the owner a Tree, or a seeded Loop (a closed loop: `fallback(t, y)` is the Python
+//             evaluation of a call it declines, required); `power` integrates rhs_with_power (a tree with drives, a
+//             loop), `tableau` (scipy's, packed) steps as scipy's DOP853, `keep_dense` keeps every accepted
+//             step's dense output (take_dense()); `solved`: a loop's guards scanned on its solutions, each
+//             (index of the guard, kind (0 coordinate, 1 singularity), row (nv: c.q; None for 1), d, unfired (0: plain))
 PyObject *loop_new(PyTypeObject *type, PyObject *args, PyObject *kwargs) {
-  PyObject *tree_o, *y0_o, *c_o, *ct_o, *d_o, *dir_o, *tab_o = Py_None;
+  PyObject *tree_o, *y0_o, *c_o, *ct_o, *d_o, *dir_o, *tab_o = Py_None, *fallback_o = Py_None, *solved_o = nullptr;
   double t0, t_bound, rtol, atol, max_step, beta;
   long nmax;
   int every_step, power = 0, keep_dense = 0;
   PyObject *holding_o = Py_None;
   static const char *keywords[] = {"", "", "", "", "", "", "", "", "", "", "", "", "", "", "power", "tableau",
-                                   "keep_dense", "holding", nullptr};
-  if (!PyArg_ParseTupleAndKeywords(args, kwargs, "O!dOddddldOOOOp|$pOpO", (char **)keywords, &TreeType, &tree_o, &t0,
+                                   "keep_dense", "fallback", "solved", "holding", nullptr};
+  if (!PyArg_ParseTupleAndKeywords(args, kwargs, "OdOddddldOOOOp|$pOpOOO", (char **)keywords, &tree_o, &t0,
                                    &y0_o, &t_bound, &rtol, &atol, &max_step, &nmax, &beta, &c_o, &ct_o, &d_o, &dir_o,
-                                   &every_step, &power, &tab_o, &keep_dense, &holding_o))
+                                   &every_step, &power, &tab_o, &keep_dense, &fallback_o, &solved_o, &holding_o))
     return nullptr;
-  Tree *tree = (Tree *)tree_o;
+  Loop *owner_loop = nullptr;
+  Tree *tree;
+  int n;
+  if (PyObject_TypeCheck(tree_o, &TreeType)) {
+    tree = (Tree *)tree_o;
+    n = tree->ny + (power ? 1 : 0);
+    if (solved_o && solved_o != Py_None && PySequence_Size(solved_o) != 0) {
+      PyErr_SetString(PyExc_ValueError, "SegmentLoop: solved guards need a Loop");
+      return nullptr;
+    }
+  } else {
+    owner_loop = segment_loop_owner(tree_o);
+    if (!owner_loop) return nullptr;
+    if (!PyCallable_Check(fallback_o)) {
+      PyErr_SetString(PyExc_TypeError, "SegmentLoop: a Loop needs fallback(t, y), the Python evaluation");
+      return nullptr;
+    }
+    tree = segment_loop_tree(owner_loop);
+    n = segment_loop_size(owner_loop) + (power ? 1 : 0);
+  }
   if (!tree->ready) {
     PyErr_SetString(PyExc_RuntimeError, "the tree is not finalized");
     return nullptr;
   }
-  const int n = tree->ny + (power ? 1 : 0);
   PyArrayObject *ct = (PyArrayObject *)PyArray_FROMANY(ct_o, NPY_DOUBLE, 1, 1, NPY_ARRAY_IN_ARRAY);
   if (!ct) return nullptr;
   const int m = (int)PyArray_DIM(ct, 0);
   Py_DECREF(ct);
   SegmentLoop *s = (SegmentLoop *)type->tp_alloc(type, 0);
   if (!s) return nullptr;
-  Py_INCREF(tree_o);
+  Py_INCREF((PyObject *)tree);
   s->tree = tree;
+  s->loop = owner_loop;
+  Py_XINCREF((PyObject *)owner_loop);
+  s->fallback = owner_loop ? fallback_o : nullptr;
+  Py_XINCREF(s->fallback);
+  s->exc_type = s->exc_value = s->exc_tb = nullptr;
+  s->nfallback = 0;
+  s->failed = s->dense_dropped = false;
+  s->nv = owner_loop ? segment_loop_nv(owner_loop) : 0;
+  s->guard_kind = new std::vector<int>(m, -1);
+  s->guard_row = new std::vector<double>((size_t)m * s->nv, 0.0);
+  s->guard_unfired = new std::vector<double>(m, 0.0);
+  s->g_scale = new std::vector<double>(m, 0.0);
   s->n = n;
   s->m = m;
   s->work = new std::vector<double>((size_t)n * 25, 0.0);
@@ -751,6 +958,10 @@ PyObject *loop_new(PyTypeObject *type, PyObject *args, PyObject *kwargs) {
     Py_DECREF(s);
     return nullptr;
   }
+  if (solved_o && solved_o != Py_None && read_solved(s, solved_o)) {
+    Py_DECREF(s);
+    return nullptr;
+  }
   if (!(rtol > 0) || !(atol > 0) || !(beta >= 0 && beta <= 0.2) || nmax <= 0) {
     PyErr_SetString(PyExc_ValueError, "SegmentLoop: rtol and atol must be > 0, 0 <= beta <= 0.2, nmax > 0");
     Py_DECREF(s);
@@ -785,11 +996,28 @@ PyObject *loop_new(PyTypeObject *type, PyObject *args, PyObject *kwargs) {
   }
   // at the start, as pcmm.ode.integrators._Stepper forms them (a rate's step size 1e-6 there)
   if (m) guard_values(s, t0, s->y, s->k1, s->g_old->data(), s->r_old->data(), 1e-6);
+  if (s->failed) {  // the first evaluations fell back and failed: Python steps this segment (and meets it)
+    PyErr_Restore(s->exc_type, s->exc_value, s->exc_tb);
+    s->exc_type = s->exc_value = s->exc_tb = nullptr;
+    PyErr_Clear();
+    PyErr_SetString(PyExc_RuntimeError, "SegmentLoop: an evaluation at the segment's start fell back to Python and failed");
+    Py_DECREF(s);
+    return nullptr;
+  }
   return (PyObject *)s;
 }
 
 void loop_dealloc(SegmentLoop *s) {
   Py_XDECREF((PyObject *)s->tree);
+  Py_XDECREF((PyObject *)s->loop);
+  Py_XDECREF(s->fallback);
+  Py_XDECREF(s->exc_type);
+  Py_XDECREF(s->exc_value);
+  Py_XDECREF(s->exc_tb);
+  delete s->guard_kind;
+  delete s->guard_row;
+  delete s->guard_unfired;
+  delete s->g_scale;
   delete s->work;
   delete s->guard_c;
   delete s->guard_ct;
@@ -814,12 +1042,25 @@ void loop_dealloc(SegmentLoop *s) {
   Py_TYPE(s)->tp_free((PyObject *)s);
 }
 
+// what the fallback raised, raised (nullptr); the loop stays stopped
+PyObject *raise_fallback(SegmentLoop *s) {
+  if (!s->exc_type) {
+    PyErr_SetString(PyExc_RuntimeError, "SegmentLoop: stopped by a failed fallback");
+    return nullptr;
+  }
+  PyErr_Restore(s->exc_type, s->exc_value, s->exc_tb);
+  s->exc_type = s->exc_value = s->exc_tb = nullptr;
+  return nullptr;
+}
+
 // run() -> code: 0 reached t_bound, 1 a candidate step (candidate(), dense()), 2 a pause (run again),
 // -2/-3/-4 Hairer's failures
 PyObject *loop_run(SegmentLoop *s, PyObject *) {
   int code;
   Py_BEGIN_ALLOW_THREADS code = s->rk ? rk_advance(s) : advance(s);
-  Py_END_ALLOW_THREADS return PyLong_FromLong(code);
+  Py_END_ALLOW_THREADS
+  if (code == FAILED) return raise_fallback(s);
+  return PyLong_FromLong(code);
 }
 
 // take() -> (k, 1 + n) array: the accepted steps (t, y) recorded since the last take()
@@ -850,6 +1091,7 @@ PyObject *loop_dense(SegmentLoop *s, PyObject *) {
   s->dense_charged = true;
   if (s->rk) {
     if (!s->dense_ready) rk_dense(s);
+    if (s->failed) return raise_fallback(s);
     const npy_intp dims[2] = {7, s->n};
     PyObject *out = PyArray_SimpleNew(2, dims, NPY_DOUBLE);
     if (!out) return nullptr;
@@ -857,6 +1099,7 @@ PyObject *loop_dense(SegmentLoop *s, PyObject *) {
     return Py_BuildValue("ddNN", s->xold, s->x, new_vector(s->yold, s->n), out);
   }
   if (!s->dense_ready) dense_coefficients(s);
+  if (s->failed) return raise_fallback(s);
   const npy_intp dims[2] = {8, s->n};
   PyObject *out = PyArray_SimpleNew(2, dims, NPY_DOUBLE);
   if (!out) return nullptr;
@@ -877,6 +1120,9 @@ PyObject *loop_take_dense(SegmentLoop *s, PyObject *) {
   return out;
 }
 
+// fallbacks() -> how many evaluations the Loop declined (each taken by the Python evaluation)
+PyObject *loop_fallbacks(SegmentLoop *s, PyObject *) { return PyLong_FromLong(s->nfallback); }
+
 // counts() -> (evaluations, steps, accepted, rejected)
 PyObject *loop_counts(SegmentLoop *s, PyObject *) {
   return Py_BuildValue("llll", s->nfcn, s->nstep, s->naccpt, s->nrejct);
@@ -888,6 +1134,7 @@ PyMethodDef loop_methods[] = {
     {"candidate", (PyCFunction)loop_candidate, METH_NOARGS, "candidate() -> (t_old, t_new, y_new, f_new)"},
     {"dense", (PyCFunction)loop_dense, METH_NOARGS, "dense() -> (t_old, h, contd8 coefficients (8, n))"},
     {"counts", (PyCFunction)loop_counts, METH_NOARGS, "counts() -> (evaluations, steps, accepted, rejected)"},
+    {"fallbacks", (PyCFunction)loop_fallbacks, METH_NOARGS, "fallbacks() -> the evaluations a Loop declined (Python took them)"},
     {"candidate_start", (PyCFunction)loop_candidate_start, METH_NOARGS,
      "candidate_start() -> (g, r): the guards' values and rates at the candidate step's start"},
     {"take_dense", (PyCFunction)loop_take_dense, METH_NOARGS,

@@ -31,6 +31,12 @@ PREDICT_MAX = 0.05
 # the whole constraint Jacobian has lost its rank where its smallest singular value is at most this
 # fraction of its largest: a change point or a dead centre (at_degenerate_partition, _refuse_singular_read)
 RANK_LOST = 1e-6
+#: whether the compiled segment loop (pcmm/model/_segment_loop.hpp) steps a configuration with closed loops
+#: over its compiled loop: "auto"'s DOP853 (pcmm.ode.integrators.AUTO_DOP853, scipy's tableau and step-size
+#: control in C++) and DOP853F; off: pcmm's DOP853 (or the Fortran DOP853F) steps it in Python over the
+#: same compiled right-hand side, the reference the tests compare with.  The method "DOP853" named in a
+#: scene is always the Python stepping
+STEP_LOOPS_COMPILED = True
 _thread_id = threading.get_ident
 
 
@@ -170,6 +176,7 @@ class PartitionedCoordinates:
             self._refuse_loop(why)
             return None
         self._loop_held = (threading.get_ident(), forces)
+        compiled._register_segment_loop(PartitionedCoordinates, _segment_loop)
         return self._loop
 
     def _refuse_loop(self, why: str) -> None:
@@ -248,7 +255,7 @@ class PartitionedCoordinates:
                                    self._python_rhs, self._python_rhs_with_power)
         self._compiled = (me, forces, tree)
         if tree is not None:
-            compiled._register_segment_loop(PartitionedCoordinates, _drive_segment_loop)
+            compiled._register_segment_loop(PartitionedCoordinates, _segment_loop)
         return tree
 
     def forces_changed(self):
@@ -568,18 +575,27 @@ class PartitionedCoordinates:
         more than PREDICT_MAX): the warm start continued from that step along the way (:meth:`_continued`) when
         ``q`` lies farther than PREDICT_MAX from it — ``q`` is then on another assembly branch, or
         an angle 2 pi away, not the run's — else None (``q`` stands, to the last bit)."""
+        near = self._long_step(t, q)
+        if near is None:
+            return None
+        start = self._continued(t, qI, near)
+        return start if _max_abs(q - start) > PREDICT_MAX else None
+
+    def _long_step(self, t, q=None):
+        """In a re-read segment, the solution ``(t_r, q_r, q'_r)`` a read at ``t`` is continued from
+        (:meth:`_continued`) when the read lies across a long step from it: the step before ``t``
+        carried to ``t`` along its rates would move a coordinate by more than PREDICT_MAX; or ``t``
+        is in the segment's first step, solved from its start, and its solution ``q`` (None: not
+        solved) lies more than PREDICT_MAX from that start.  None otherwise."""
         if self._trail is None or not self.closure.size:
             return None
         near = self._follow(t)
         if near is None:  # the segment's first step: from its start, the seed
             t0 = self._trail[0][0]
-            if not t > t0 or _max_abs(q - self._seed_q) <= PREDICT_MAX:
+            if not t > t0 or (q is not None and _max_abs(q - self._seed_q) <= PREDICT_MAX):
                 return None
-            near = (t0, self._seed_q, None)
-        elif _max_abs((t - near[0]) * near[2]) <= PREDICT_MAX:
-            return None
-        start = self._continued(t, qI, near)
-        return start if _max_abs(q - start) > PREDICT_MAX else None
+            return t0, self._seed_q, None
+        return None if _max_abs((t - near[0]) * near[2]) <= PREDICT_MAX else near
 
     def _continued(self, t, qI, near):
         """Continuation of the dependent coordinates from a solution ``near = (t_r, q_r, q'_r)`` to
@@ -825,7 +841,8 @@ class PartitionedCoordinates:
             ahead, behind = (self._scaled_det(self._position_rows(t, q + s * eps * qd)) for s in (1.0, -1.0))
             return (ahead - behind) / (2 * eps)
         return Guard(f"configuration '{self.cfg.name}': the loop's partition of its coordinates degenerates",
-                     g, 0, "repartition", rate=rate, rate_from_state=True)
+                     g, 0, "repartition", rate=rate, rate_from_state=True,
+                     loop_scan=("singularity",) if self.closure.size else None)
 
     def _held_loop(self):
         """The compiled loop where it is ready on this thread for these force elements and no
@@ -886,7 +903,16 @@ class PartitionedCoordinates:
         if not self.closure.size:
             return self._prescribed(t, y)
         k = len(self.I)
-        q, Jq, Jp = self._solve_dependent(t, y[:k], self._guess(t) if guess is None else guess)
+        try:
+            q, Jq, Jp = self._solve_dependent(t, y[:k], self._guess(t) if guess is None else guess)
+        except SimulationError:
+            # a re-read across a long step whose Newton solve fails from its warm start: the
+            # continuation from the step before finds the run's branch, or says why there is none
+            # (a singular posture on the way), naming the instant and the cut joints
+            near = self._long_step(t)
+            if near is None:
+                raise
+            q, Jq, Jp = self._solve_dependent(t, y[:k], self._continued(t, y[:k], near))
         if guess is None:  # a re-read segment's long step: the run's branch, not the one Newton found
             branch = self._off_branch(t, y[:k], q)
             if branch is not None:
@@ -958,7 +984,15 @@ class PartitionedCoordinates:
 
     def project(self, t, q, v, prefer_independent=()):
         """Assemble (q, v) onto the constraints keeping the independent coordinates
-        (a new partition is chosen at q, preferring ``prefer_independent``)."""
+        (a new partition is chosen at q, preferring ``prefer_independent``).
+
+        Drives without a loop need neither a new partition nor a solve: the dependent coordinates
+        are the driven ones whatever the posture (:meth:`partition`), and the projection is
+        :meth:`_prescribed` of ``[q_I, q'_I]`` itself (``q_D = f(t)``, ``q'_D = f'(t)``), the same
+        bits :meth:`unpack` gives, without its dispatch and cache (a bounce's entry, at every impact)."""
+        if self.D is not None and not self.closure.size and len(set(self.drives.index)) == self.drives.size:
+            self.seed(q)
+            return self._prescribed(t, np.concatenate([q[self.I], self.cfg.qdot(q, v)[self.I]]))
         self.partition(t, q, prefer_independent)
         self.seed(q)
         return self.unpack(t, np.concatenate([q[self.I], self.cfg.qdot(q, v)[self.I]]))
@@ -1073,6 +1107,26 @@ class PartitionedCoordinates:
         power = float(self.forces.generalized(q, v) @ v - lam @ self._phi_t(t))
         qd = self.cfg.qdot(q, v)
         return np.concatenate([qd[self.I], self.cfg.qddot(q, v, a)[self.I], [power]])
+
+
+def _segment_loop(coords: PartitionedCoordinates, *args, **options):
+    """The compiled segment loop of these coordinates (registered for
+    :data:`pcmm.ode.integrators.SEGMENT_LOOPS`): over the compiled loop (pcmm/model/_loops.hpp) with
+    closed loops, each call it declines taken by the Python evaluation (``_python_rhs``, as :meth:`rhs`
+    does), or over the compiled tree of drives without a loop; a ValueError where there is none (the
+    integrator then steps in Python)."""
+    if not coords.closure.size:
+        return _drive_segment_loop(coords, *args, **options)
+    if not STEP_LOOPS_COMPILED:
+        raise ValueError("closed loops are stepped in Python (partitioned.STEP_LOOPS_COMPILED)")
+    loop = coords._held_loop()
+    if loop is None and coords._trail is None and coords._loop_refused is None:
+        coords._compiled_loop()
+        loop = coords._held_loop()
+    if loop is None:
+        raise ValueError(f"no compiled loop: {coords._loop_refused or compiled.why_not() or 'a segment re-read'}")
+    fallback = coords._python_rhs_with_power if options.get("power") else coords._python_rhs
+    return compiled.segment_loop(loop, *args, fallback=fallback, **options)
 
 
 def _drive_segment_loop(coords: PartitionedCoordinates, *args, **options):

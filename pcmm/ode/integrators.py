@@ -238,7 +238,7 @@ def _polynomial(sol):
     cls = type(sol)
     if cls is _Contd8:
         return sol.t_old, sol.h, sol.cont
-    if cls is DenseStep:
+    if cls is DenseStep or cls is _ScipyDense:  # (the compiled loop's scipy tableau: DenseStep's own bits)
         cont = getattr(sol, "contd8", None)
         if cont is None:
             F = sol.F
@@ -501,7 +501,14 @@ def _drive_loop(loop, progress, st, dense, failure, counted, name, from_row):
     stale = False  # steps recorded since the scanner last saw one: its guard values are not the last step's
     try:
         while True:
-            code = loop.run()
+            try:
+                code = loop.run()
+            except BaseException:  # a call the loop handed to Python raised there: the steps before it stand
+                steps, rows = loop.take(), loop.take_dense() if keeping else ()
+                if len(steps):
+                    kept = [_Ready(from_row(row, (row.size - 2) // 8)) for row in rows]
+                    _record_steps(st, steps, kept if len(kept) == len(steps) else None)
+                raise
             steps = loop.take()
             rows = loop.take_dense() if keeping else ()
             kept = [_Ready(from_row(row, (row.size - 2) // 8)) for row in rows]  # one per step accepted
@@ -797,12 +804,19 @@ def _segment_loop(fun, t0, y0, t_bound, events, opts, beta, tableau=None, keep_d
     ny = y0.size
     affine = [getattr(e, "affine", None) for e in events]
     holding = [getattr(e, "holding", None) for e in events]
+    # a closed loop's guards on its solution (Guard.loop_scan), which its compiled loop scans itself
+    solved = [getattr(e, "loop_scan", None) if a is None and h is None else None
+              for e, a, h in zip(events, affine, holding)]
     # a progress bar (the run loop's wrapper) is fed every _PROGRESS_STEPS steps, as the wrapper's
     # own count of evaluations did: then every step comes back to Python.  The loop scans a guard
-    # affine in the state with its rate read from the state, and a guard on a compiled holding force
+    # affine in the state with its rate read from the state, a guard on a compiled holding force, and
+    # a closed loop's guard on its solution with its rate read from the state
     every_step = (progress is not None or not all(
-        (a is not None and getattr(e, "rate_from_state", False)) or h is not None
-        for e, a, h in zip(events, affine, holding)))
+        ((a is not None or s is not None) and getattr(e, "rate_from_state", False)) or h is not None
+        for e, a, h, s in zip(events, affine, holding, solved)))
+    if any(s is not None for s in solved) and not every_step:
+        options["solved"] = [(i, 0, np.asarray(s[1], float), float(s[2]), float(s[3])) if s[0] == "coordinate"
+                             else (i, 1, None, 0.0, 0.0) for i, s in enumerate(solved) if s is not None]
     if every_step:
         C, ct, d, direction = np.zeros((0, ny)), np.zeros(0), np.zeros(0), np.zeros(0)
     else:

@@ -226,6 +226,11 @@ def _write_chunk(run: RunState) -> None:
     held.reraise()
 
 
+#: segments that end in a new partition before their first step, at the same instant this many times
+#: running, stop the run (it would repeat for ever)
+_STALLED_REPARTITIONS = 16
+
+
 def _integrate(run: RunState, fun, stepping, y0, guards, pending, keep_dense=False) -> Segment | None:
     """One segment from ``run.t``: simultaneous (a contact already closed), integrated, or a known
     motion (no free coordinate).  Its steps and time count in the stats, also when it fails.
@@ -245,6 +250,17 @@ def _integrate(run: RunState, fun, stepping, y0, guards, pending, keep_dense=Fal
             seg = _known_motion(cfg, t, y0, guards, opts)
     except Repartition as exc:  # a loop's dependent block degenerated: new partition, go on
         seg = exc.segment
+        held = t  # the instant, whatever partition each attempt chose
+        last = getattr(run, "_repartitioned", None)
+        repeats = last[1] + 1 if seg.t.size == 1 and last is not None and last[0] == held else 0
+        if repeats >= _STALLED_REPARTITIONS:  # new partitions again and again at one instant: for ever
+            raise SimulationError(
+                f"configuration '{cfg.name}': at t = {t:.9g} s the loop's partition of its coordinates "
+                f"degenerates within the integrator's first trial step (at t = {exc.args[0] if exc.args else t:.9g} s), "
+                f"{_STALLED_REPARTITIONS} times running, whatever partition is chosen at t: the posture is next to a change point or dead centre, "
+                "where no partition holds across the step; a smaller solver.max_step lets the integrator "
+                "approach it (pcmm then stops at the singular posture, or passes it where the motion is determined)") from None
+        run._repartitioned = (held, repeats) if seg.t.size == 1 else None
         _record(run.traj, cfg, seg, run.offsets, run.q, run.holds, stepping)
         run.t = float(seg.t[-1])
         run.q, run.v = cfg.coords.unpack(run.t, seg.y[:, -1])
