@@ -218,3 +218,24 @@ def test_the_event_records_impulse_is_its_normal_impulse_along_the_normal(scene,
         if "joint" in imp:
             assert imp["normal"] == imp["moment"] / imp["arm"] and imp["moment"] != 0.0
         assert imp["vector"] == [float(np.float64(imp["normal"]) * n[0]) + 0.0, float(np.float64(imp["normal"]) * n[1]) + 0.0]
+
+
+def test_signed_zeros_come_out_as_each_steps_interpolant_gives_them():
+    """A component whose coefficients and start are all -0.0 or 0.0 (a state entry at rest): the at-once
+    evaluation's zeros carry the signs the step's own interpolant gives (DenseStep starts from +0.0
+    zeros), for both forms."""
+    t = np.array([0.5, 0.7, 1.1])
+    y = np.zeros((3, 3))
+    F = np.zeros((7, 3))
+    F[:, 0], F[:, 2] = -0.0, np.linspace(-1.0, 1.0, 7)
+    F[2, 1] = -0.0
+    y_old = np.array([-0.0, -0.0, 0.25])
+    cont = np.vstack([y_old, F])
+    for sols, negative in (([DenseStep(t[0], t[1], y_old, F), DenseStep(t[1], t[2], -y_old, -F)], False),
+                           ([_Contd8(t[0], t[1] - t[0], cont), _Contd8(t[1], t[2] - t[1], -cont)], True)):
+        times = np.array([0.55, 0.6, 0.65, 0.8, 1.0])
+        got = dense.dense_states(t, y, times, (None, None, None), [_Kept(s) for s in sols])
+        want = _reference(t, y, sols, times)
+        assert got.tobytes() == want.tobytes()
+        # the all -0.0 component on the first step: DenseStep's zeros give +0.0, contd8's sums keep -0.0
+        assert (got[0, :3] == 0.0).all() and np.signbit(got[0, :3]).all() == negative

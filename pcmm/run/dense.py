@@ -103,13 +103,13 @@ def _polynomial_states(formed: dict, steps: list, k_in, times_in) -> np.ndarray 
     if kind is DenseStep:
         y_old, F = gathered  # (ny,), (7, ny) or, gathered, (m, ny), (m, 7, ny)
         F = F if F.ndim == 2 else F.transpose(1, 0, 2)  # F[j]: the j-th coefficient, (ny,) or (m, ny)
-        y = np.zeros((times_in.shape[0], y_old.shape[-1]))
-        for i in range(7):  # Horner's scheme in x and (1 - x), alternately, as DenseStep
+        # Horner's scheme in x and (1 - x), alternately, as DenseStep: its zeros plus the last
+        # coefficient is that coefficient plus 0.0 (a -0.0 turned +0.0 alike), then times x
+        x1 = 1 - x
+        y = (F[6] + 0.0) * x
+        for i in range(1, 7):
             y += F[6 - i]
-            if i % 2 == 0:
-                y *= x
-            else:
-                y *= 1 - x
+            y *= x if i % 2 == 0 else x1
         y += y_old
         return y.T
     (c,) = gathered
