@@ -263,7 +263,9 @@ def _integrate(run: RunState, fun, stepping, y0, guards, pending, keep_dense=Fal
         run._repartitioned = (held, repeats) if seg.t.size == 1 else None
         _record(run.traj, cfg, seg, run.offsets, run.q, run.holds, stepping)
         run.t = float(seg.t[-1])
-        run.q, run.v = cfg.coords.unpack(run.t, seg.y[:, -1])
+        # on the run's branch, followed from the segment's start (the abandoned step's warm starts may lie
+        # across the change point that ended it: PartitionedCoordinates.at_last_step)
+        run.q, run.v = cfg.coords.at_last_step(seg.t, seg.y, run.q)
         return None
     except (SimulationError, KeyboardInterrupt) as exc:
         if getattr(exc, "segment", None) is not None:  # the steps the failing segment took count
