@@ -332,23 +332,6 @@ class PartitionedCoordinates:
             reader._reached = {0: None}  # the start: seed's q_start
         yield reader
 
-    def at_last_step(self, ts, ys, q_start):
-        """``(q, v)`` at the last accepted step of a segment (steps ``(ts, ys)``, started from the
-        assembled ``q_start``) that ended in a new partition (:class:`~pcmm.errors.Repartition`):
-        followed along the segment's steps from its start (:meth:`restored`, :meth:`_follow`,
-        :meth:`_continued`), the run's own assembly branch, not solved from the warm starts.  The
-        step that was abandoned left those anywhere along its trial stages and its guards' samples
-        (it may reach across the change point that ended it), and the last 8 of them pushed the
-        accepted step's own solution out: solved from the nearest, up to 1.2 rad off (a coasting
-        parallelogram's step across its change point), Newton landed on another assembly (the
-        crank 12 rad off, tests/test_loop_turns.py) and the next segment started there.  A segment
-        of one step (none accepted) is its start."""
-        t, y = float(ts[-1]), np.asarray(ys)[:, -1]
-        if len(ts) == 1 or not self.closure.size:
-            return self.unpack(t, y)
-        with self.restored(self.frozen_state(), q_start, steps=(ts, ys)) as reader:
-            return reader.unpack(t, y[:reader.ny])
-
     def fresh_rhs(self):
         """The right-hand side (a method: it reads the calling thread's data at every call)."""
         return self.rhs
