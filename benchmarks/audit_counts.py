@@ -2,7 +2,10 @@
 right-hand side with the work appended (``rhs_with_power``: the flights' own steps, and before the
 audit reused their dense outputs, every step taken again for it), the Newton unpacks
 (``PartitionedCoordinates.unpack``, and ``_unpack``: those a Newton solve in Python answers, not a
-cache), and the CPU time inside the audit (``FlightAudit.flight``, or
+cache), the calls for a segment reader's compiled KKT solve (``_reader_kkt``, which solves where the
+reader has a compiled loop: before Loop.rows the audit's power asked for one at every quadrature node
+only to keep its rows, then solved again in Python; a tree without that method prints none), and
+the CPU time inside the audit (``FlightAudit.flight``, or
 ``FlightAudit.finish`` in trees that measured the flights when the run ended), of one run, warm.
 
     python benchmarks/audit_counts.py [SCENE]   (default examples/double_folded.toml)
@@ -31,7 +34,7 @@ def main(argv=None) -> int:
     path = Path(argv[0]) if argv else Path(pcmm.__file__).resolve().parents[1] / "examples" / "double_folded.toml"
     scene = pcmm.load_scene(path)
     pcmm.simulate(scene)  # warm
-    counts = {"rhs_with_power": 0, "unpack": 0, "_unpack": 0, "audit_s": 0.0}
+    counts = {"rhs_with_power": 0, "unpack": 0, "_unpack": 0, "_reader_kkt": 0, "audit_s": 0.0}
     cls = partitioned.PartitionedCoordinates
 
     def counted(name):
@@ -53,11 +56,16 @@ def main(argv=None) -> int:
                 counts["audit_s"] += time.process_time() - t0
         return call
     cls.rhs_with_power, cls.unpack, cls._unpack = counted("rhs_with_power"), counted("unpack"), counted("_unpack")
+    readers = hasattr(cls, "_reader_kkt")
+    if readers:
+        cls._reader_kkt = counted("_reader_kkt")
     part = "finish" if hasattr(audit.FlightAudit, "finish") else "flight"
     setattr(audit.FlightAudit, part, timed(getattr(audit.FlightAudit, part)))
     traj = pcmm.simulate(scene)
     print(f"{pcmm.__file__}: {path.name}: {len(traj.events)} events; rhs_with_power {counts['rhs_with_power']}, "
-          f"unpack {counts['unpack']} (Newton solves in Python, _unpack: {counts['_unpack']}), audit ({part}) {1e3 * counts['audit_s']:.0f} ms CPU")
+          f"unpack {counts['unpack']} (Newton solves in Python, _unpack: {counts['_unpack']}), "
+          + (f"reader KKT calls (_reader_kkt) {counts['_reader_kkt']}, " if readers else "")
+          + f"audit ({part}) {1e3 * counts['audit_s']:.0f} ms CPU")
     return 0
 
 

@@ -9,7 +9,9 @@ once counted. Each call is counted in the innermost of the parts below that it r
 location (``integrators._locate``), the re-arm (``loop._guards``, ``loop._pending``), the transition's
 handler and what it calls (the guard residual, the stop's normal speed, the contacts closed with it,
 the impulse, the held points' check, the event record, the switch with its entry), ``transform``'s
-event-log append, progress check and flight audit. Prints the mean per event of each part.
+event-log append, progress check and flight audit (``FlightAudit.event``); and, between two events,
+the flight's energy audit (``FlightAudit.flight``) and the segment's recording (``loop._record``).
+Prints the mean per event of each part.
 """
 from __future__ import annotations
 
@@ -39,6 +41,8 @@ PARTS = {  # part: the (owner, attribute) whose calls it counts
     "event log": [(event_log.EventLog, "append")],
     "progress check": [(actions, "check_progress")],
     "audit": [(audit.FlightAudit, "event")],
+    "flight audit": [(audit.FlightAudit, "flight")],
+    "recording": [(loop, "_record")],
 }
 
 

@@ -1,5 +1,5 @@
 """One rule for "no impulse along the contact's normal" in the Python and the compiled impulse solve
-(pcmm.events.impulse.NO_IMPULSE, handed to pcmm/model/_impulse.hpp's plan): J W_eff J^T at most
+(pcmm.events.impulse_compiled.NO_IMPULSE, handed to pcmm/model/_impulse.hpp's plan): J W_eff J^T at most
 1e-14 of tr(W_eff).  Before, the compiled solve handed every contact below 1e-10 to the Python solve,
 which took it down to 1e-14.
 
@@ -16,7 +16,8 @@ from builders import Bar, base_doc, chain_urdf, stop, write_scene
 import pcmm
 from pcmm.errors import SimulationError
 from pcmm.events import impulse_compiled
-from pcmm.events.impulse import NO_IMPULSE, _plan, solve_impulse, solve_impulse_python
+from pcmm.events.impulse import _plan, solve_impulse, solve_impulse_python
+from pcmm.events.impulse_compiled import NO_IMPULSE
 from pcmm.model import compiled
 from pcmm.model.mechanism import Mechanism
 

@@ -162,3 +162,24 @@ def test_a_read_just_past_the_change_point_is_refused(tmp_path, monkeypatch, mod
                          "singular posture")
         with pytest.raises(SimulationError, match=said):
             reader.unpack(ts[2], ys[:, 2])
+
+
+@pytest.mark.parametrize("mode", ["0", "1"])
+def test_a_long_first_step_onto_the_change_point_is_refused_naming_the_loop(tmp_path, monkeypatch, mode):
+    """A segment's first step from theta = 0.5 to theta = pi exactly: the Newton solve from the
+    segment's start does not converge there; the continuation from the start is what answers, and
+    the reader names the instant and the loop's cut joint (before: "the loop cannot be closed ... a
+    pcmm defect: please report it", from the failed solve)."""
+    monkeypatch.setenv(compiled.ENV, mode)
+    from pcmm.model.mechanism import Mechanism
+    path = builders.parallelogram(tmp_path, 0.5, 2.0)
+    coords = Mechanism(pcmm.load_scene(path))["c"].coords
+    q0, v0 = np.array([0.5, -0.5, 0.5]), np.array([2.0, -2.0, 2.0])
+    y0 = coords.pack(0.0, q0, v0)
+    q1 = np.array([np.pi, -np.pi, np.pi])
+    ts, ys = np.array([0.0, (np.pi - 0.5) / 2.0]), np.array([y0, [q1[coords.I[0]], y0[1]]]).T
+    with coords.restored(coords.frozen_state(), q0, steps=(ts, ys)) as reader:
+        said = re.escape(f"re-reading a recorded segment at t = {ts[1]:.9g} s, the loop of cut joint 'C' ")
+        with pytest.raises(SimulationError, match=said) as error:
+            reader.unpack(ts[1], ys[:, 1])
+    assert "pcmm defect" not in str(error.value)

@@ -4,6 +4,7 @@ target through :func:`enter`, so none can skip the check.
 """
 from __future__ import annotations
 
+import weakref
 from dataclasses import dataclass
 
 import numpy as np
@@ -49,7 +50,10 @@ def enter(src: Configuration, dst: Configuration, t: float, q: np.ndarray, v: np
     exception the scene asks for (a run without impact, the paper's comparison): the locked
     joints' velocities are dropped and the rest assembled, as its event reports.
     """
-    q_map, v_map, dropped = map_state(src, dst, q, v, known)
+    if src is dst:  # a bounce: every joint maps onto itself (map_state's copies; the projection below makes its own)
+        q_map, v_map, dropped = q, v, {}
+    else:
+        q_map, v_map, dropped = map_state(src, dst, q, v, known)
     scale = max(1.0, float(np.abs(v).max())) if len(v) else 1.0  # (the method: numpy's np.max wrappers cost more than the reduction)
     if not reset:
         moving = {n: w for n, w in dropped.items() if abs(w) > VELOCITY_ROUNDOFF * scale}
@@ -68,14 +72,36 @@ def enter(src: Configuration, dst: Configuration, t: float, q: np.ndarray, v: np
                                  "(check the fixed joint's origin in the merged configuration)"])
     residual = 0.0
     if len(dst.coords.labels) and not reset:
-        Jq, _ = dst.coords.rows(t, q_new, v_new)
+        Jq, Jq_scale = _jacobian(dst, t, q_new, v_new)
         # v_new satisfies every row (the projection solved them), so Phi_q v_map + Phi_t = Phi_q (v_map - v_new)
         rows = Jq @ (v_map - v_new)
-        tol = VELOCITY_ROUNDOFF * scale * max(1.0, float(np.abs(Jq).max()))
+        tol = VELOCITY_ROUNDOFF * scale * Jq_scale
         residual = float(np.abs(rows).max())
         if residual > tol:
             raise SimulationError(_violated(src, dst, t, what, rows, tol, v_map, v_new))
     return Entry(q_new, v_new, dropped, offsets, residual)
+
+
+#: {coordinates: (Phi_q, max(1, max |Phi_q|))} of coordinates whose rows depend on time alone (``time_rows``)
+_TIME_ROWS: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+
+
+def _jacobian(dst: Configuration, t, q, v) -> tuple[np.ndarray, float]:
+    """``(Phi_q, max(1, max |Phi_q|))`` of ``dst``'s rows at (q, v).  Where they depend on time alone
+    (drives without a loop: ``time_rows``, the same array ``rows`` gives) they are kept for the
+    coordinates (read-only): a bounce's entry neither evaluates the drives nor forms them again."""
+    coords = dst.coords
+    kept = _TIME_ROWS.get(coords)
+    if kept is not None:
+        return kept
+    timed = getattr(coords, "time_rows", None)
+    timed = timed() if timed is not None else None
+    Jq = timed[0] if timed is not None else coords.rows(t, q, v)[0]
+    out = (Jq, max(1.0, float(np.abs(Jq).max())))
+    if timed is not None:
+        Jq.flags.writeable = False
+        _TIME_ROWS[coords] = out
+    return out
 
 
 def _violated(src, dst, t, what, rows, tol, v_map, v_new) -> list[str]:

@@ -111,6 +111,8 @@ def check_held_points_push(cfg: Configuration, q, imp: Impulse, where: str) -> N
     if not getattr(cfg.coords, "constrained", False) or not imp.constraint_impulses:
         return
     closure = cfg.coords.closure
+    if all(s.normal is None for s in closure.specs):  # no point held by compression only (drives alone, say)
+        return
     cfg.kinematics(q)
     forces = [imp.constraint_impulses.get(s.name) for s in closure.specs]
     scale = max([abs(imp.P)] + [float(np.hypot(F[0], F[1])) for F in forces if F is not None])

@@ -105,18 +105,21 @@ def event_dict(cfg: Configuration, tr: TransitionSpec, t, *, transition, to, res
     """One event of the summary (the schema lives here only): ``vn``, ``v`` and ``ke`` are
     (before, after) pairs, velocities in ``cfg``'s coordinates; ``extra`` adds keys."""
     v_before, v_after = v
-    impulse = {"normal": float(P), "vector": [float(P * c) + 0.0 for c in normal[:2]]}
-    if "friction" in extra:  # a frictional point contact: P_n n + P_t t
+    n_xy = [float(normal[0]), float(normal[1])]  # (a float's products are numpy's: the same bits)
+    if tr.contact is not None and tr.contact.joint is not None:
+        impulse = joint_stop_impulse(cfg, tr.contact, P, n_xy)
+    elif "friction" in extra:  # a frictional point contact: P_n n + P_t t
         Pt, tangent = extra["friction"]["impulse"]["tangential"], extra["tangent"]
         impulse = {"normal": float(P), "tangential": float(Pt),
                    "vector": [float(P * c + Pt * s) + 0.0 for c, s in zip(normal[:2], tangent)]}
-    if tr.contact is not None and tr.contact.joint is not None:
-        impulse = joint_stop_impulse(cfg, tr.contact, P, normal)
+    else:
+        P = float(P)
+        impulse = {"normal": P, "vector": [P * n_xy[0] + 0.0, P * n_xy[1] + 0.0]}
     return {
         "t": float(t), "name": tr.name, "kind": impact_kind(cfg, tr.contact), "transition": transition,
         "from": cfg.name, "to": to, "restitution": restitution, "merge": merge, "impact": impact,
         "impulse": impulse,
-        "normal": [float(normal[0]), float(normal[1])], "contact_point": [float(point[0]), float(point[1])],
+        "normal": n_xy, "contact_point": [float(point[0]), float(point[1])],
         "normal_velocity": {"before": float(vn[0]), "after": float(vn[1])},
         "omega_before": by_link(cfg, v_before), "omega_after": by_link(cfg, v_after),
         "v_before": cfg.by_joint(v_before),
@@ -134,10 +137,9 @@ def joint_stop_impulse(cfg: Configuration, contact, P, normal) -> dict:
     if cfg.spec.info.joints[contact.joint].type == "prismatic":
         return {"normal": float(P), "vector": [float(P * c) + 0.0 for c in normal[:2]], "joint": contact.joint}
     at_arm = P / contact.arm if contact.arm else None
-    out = {"joint": contact.joint, "moment": float(P), "arm": contact.arm,
-           "normal": float(P if at_arm is None else at_arm)}
-    out["vector"] = [float(out["normal"] * c) + 0.0 for c in normal[:2]] if at_arm is not None else None
-    return out
+    normal_P = float(P if at_arm is None else at_arm)
+    return {"joint": contact.joint, "moment": float(P), "arm": contact.arm, "normal": normal_P,
+            "vector": None if at_arm is None else [normal_P * float(normal[0]) + 0.0, normal_P * float(normal[1]) + 0.0]}
 
 
 def event_record(cfg: Configuration, tr: TransitionSpec, t, target: str, merge: bool, imp: Impulse,

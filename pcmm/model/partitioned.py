@@ -612,18 +612,27 @@ class PartitionedCoordinates:
         more than PREDICT_MAX): the warm start continued from that step along the way (:meth:`_continued`) when
         ``q`` lies farther than PREDICT_MAX from it — ``q`` is then on another assembly branch, or
         an angle 2 pi away, not the run's — else None (``q`` stands, to the last bit)."""
+        near = self._long_step(t, q)
+        if near is None:
+            return None
+        start = self._continued(t, qI, near)
+        return start if _max_abs(q - start) > PREDICT_MAX else None
+
+    def _long_step(self, t, q=None):
+        """In a re-read segment, the solution ``(t_r, q_r, q'_r)`` a read at ``t`` is continued from
+        (:meth:`_continued`) when the read lies across a long step from it: the step before ``t``
+        carried to ``t`` along its rates would move a coordinate by more than PREDICT_MAX; or ``t``
+        is in the segment's first step, solved from its start, and its solution ``q`` (None: not
+        solved) lies more than PREDICT_MAX from that start.  None otherwise."""
         if self._trail is None or not self.closure.size:
             return None
         near = self._follow(t)
         if near is None:  # the segment's first step: from its start, the seed
             t0 = self._trail[0][0]
-            if not t > t0 or _max_abs(q - self._seed_q) <= PREDICT_MAX:
+            if not t > t0 or (q is not None and _max_abs(q - self._seed_q) <= PREDICT_MAX):
                 return None
-            near = (t0, self._seed_q, None)
-        elif _max_abs((t - near[0]) * near[2]) <= PREDICT_MAX:
-            return None
-        start = self._continued(t, qI, near)
-        return start if _max_abs(q - start) > PREDICT_MAX else None
+            return t0, self._seed_q, None
+        return None if _max_abs((t - near[0]) * near[2]) <= PREDICT_MAX else near
 
     def _continued(self, t, qI, near):
         """Continuation of the dependent coordinates from a solution ``near = (t_r, q_r, q'_r)`` to
@@ -931,7 +940,16 @@ class PartitionedCoordinates:
         if not self.closure.size:
             return self._prescribed(t, y)
         k = len(self.I)
-        q, Jq, Jp = self._solve_dependent(t, y[:k], self._guess(t) if guess is None else guess)
+        try:
+            q, Jq, Jp = self._solve_dependent(t, y[:k], self._guess(t) if guess is None else guess)
+        except SimulationError:
+            # a re-read across a long step whose Newton solve fails from its warm start: the
+            # continuation from the step before finds the run's branch, or says why there is none
+            # (a singular posture on the way), naming the instant and the cut joints
+            near = self._long_step(t)
+            if near is None:
+                raise
+            q, Jq, Jp = self._solve_dependent(t, y[:k], self._continued(t, y[:k], near))
         if guess is None:  # a re-read segment's long step: the run's branch, not the one Newton found
             branch = self._off_branch(t, y[:k], q)
             if branch is not None:
@@ -1003,7 +1021,15 @@ class PartitionedCoordinates:
 
     def project(self, t, q, v, prefer_independent=()):
         """Assemble (q, v) onto the constraints keeping the independent coordinates
-        (a new partition is chosen at q, preferring ``prefer_independent``)."""
+        (a new partition is chosen at q, preferring ``prefer_independent``).
+
+        Drives without a loop need neither a new partition nor a solve: the dependent coordinates
+        are the driven ones whatever the posture (:meth:`partition`), and the projection is
+        :meth:`_prescribed` of ``[q_I, q'_I]`` itself (``q_D = f(t)``, ``q'_D = f'(t)``), the same
+        bits :meth:`unpack` gives, without its dispatch and cache (a bounce's entry, at every impact)."""
+        if self.D is not None and not self.closure.size and len(set(self.drives.index)) == self.drives.size:
+            self.seed(q)
+            return self._prescribed(t, np.concatenate([q[self.I], self.cfg.qdot(q, v)[self.I]]))
         self.partition(t, q, prefer_independent)
         self.seed(q)
         return self.unpack(t, np.concatenate([q[self.I], self.cfg.qdot(q, v)[self.I]]))

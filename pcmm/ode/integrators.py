@@ -238,7 +238,7 @@ def _polynomial(sol):
     cls = type(sol)
     if cls is _Contd8:
         return sol.t_old, sol.h, sol.cont
-    if cls is DenseStep:
+    if cls is DenseStep or cls is _ScipyDense:  # (the compiled loop's scipy tableau: DenseStep's own bits)
         cont = getattr(sol, "contd8", None)
         if cont is None:
             F = sol.F

@@ -22,7 +22,7 @@ compiled segment loop then scans without calling back into Python.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Any, Callable
 
 import numpy as np
@@ -77,7 +77,12 @@ class Guard:
         quantity appended to it: a flight's work, a contact law's impulse), its rate too."""
         value, rate, many = self.value, self.rate, self.many
         # still affine (c . y over the state's first len(c) entries: a compiled loop reads it with zeros
-        # beside), and a holding guard reads the state's first entries itself (its compiled state map)
-        return replace(self, value=lambda t, y: value(t, y[:n]),
-                       rate=None if rate is None else (lambda t, y, f: rate(t, y[:n], None if f is None else f[:n])),
-                       many=None if many is None else (lambda ts, ys: many(ts, ys[:n])))
+        # beside), and a holding guard reads the state's first entries itself (its compiled state map).
+        # Every other field as it is: a copy of the fields, not dataclasses.replace (which rebuilds the
+        # guard through __init__ and its check, at every flight's every guard)
+        out = object.__new__(Guard)
+        out.__dict__.update(self.__dict__)
+        out.value = lambda t, y: value(t, y[:n])
+        out.rate = None if rate is None else (lambda t, y, f: rate(t, y[:n], None if f is None else f[:n]))
+        out.many = None if many is None else (lambda ts, ys: many(ts, ys[:n]))
+        return out

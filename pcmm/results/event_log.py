@@ -202,6 +202,12 @@ class EventLog(RecordSequence):
         for e in events:
             self.append(e)
 
+    def __getstate__(self) -> dict:
+        """Pickled without the generated readers of :attr:`_flat` (code made by exec has no
+        importable name; a process pool pickles a run's result): the copy makes its own, from
+        :func:`_flattener`, at its next append."""
+        return {**self.__dict__, "_flat": []}
+
     def append(self, event) -> None:
         """Keep ``event`` (encoded now: later changes to the dict are not seen)."""
         if self._n == len(self._index) * BLOCK:

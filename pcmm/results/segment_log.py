@@ -65,16 +65,18 @@ class SegmentLog(RecordSequence):
         self._records: dict[int, object] = {}  # the segments read so far (same object every time)
 
     # ---- growing --------------------------------------------------------------------------
-    def context_id(self, configuration: str, names: dict, context) -> int:
+    def context_id(self, configuration: str, names: dict, context, keep=None) -> int:
         """The id of ``context`` (the latest one of ``configuration`` when equal to it); the name
-        lists are kept once per configuration and set of names, whatever the context."""
+        lists are kept once per configuration and set of names, whatever the context.  ``keep``:
+        ``context -> the context kept`` where it is new (a context may refer to what the run
+        changes later, and be compared as it is: only a kept one needs its own copy)."""
         names = self._names.setdefault((configuration, *(tuple(v) for v in names.values())), names)
         k = self._last.get(configuration)
         if k is not None:
             conf, known_names, known = self._contexts[k]
             if known_names is names and known == context:
                 return k
-        self._contexts.append((configuration, names, context))
+        self._contexts.append((configuration, names, context if keep is None else keep(context)))
         self._last[configuration] = len(self._contexts) - 1
         return len(self._contexts) - 1
 

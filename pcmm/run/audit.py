@@ -25,7 +25,9 @@ or an integration that does not conserve what it should shows here; the guard's 
 Each flight is measured when it ends, and what only the audit needed (its steps' stages) is then
 dropped: a long bouncing run does not hold its flights until it ends.  The measuring reads the
 segment through a reader (:meth:`Coordinates.restored`: a copy, warm-started on its own), so the
-run's coordinates and their warm starts are left as they were.
+run's coordinates and their warm starts are left as they were; where nothing would touch them (drives
+without a loop, every step's dense output kept: :func:`run_work`) it reads the run's own, which are
+the segment's until the next event.
 """
 from __future__ import annotations
 
@@ -38,6 +40,7 @@ from .dense import dense_states
 
 RESOLVED_KINETIC = 1e-6  # flights with less rebound energy than this x the first are round-off dominated
 GAUSS_NODES, GAUSS_WEIGHTS = np.polynomial.legendre.leggauss(4)
+_NODES_1 = GAUSS_NODES + 1  # each step's nodes at t_k + h (x + 1), h its half size
 
 
 def mechanical_energy(cfg: Configuration, q, v) -> float:
@@ -68,9 +71,7 @@ def flight_work(cfg: Configuration, coords, t, y, stepping, q_start, kept=None) 
     t = np.asarray(t, float)
     if len(t) < 2 or not (len(coords.labels) or coords.forces.names):
         return 0.0  # no step; or no force element and no constraint row: no force but gravity does work
-    h = np.diff(t) / 2
-    times = (t[:-1, None] + h[:, None] * (GAUSS_NODES[None, :] + 1)).ravel()
-    weights = (h[:, None] * GAUSS_WEIGHTS[None, :]).ravel()
+    times, weights = _nodes(t)
     fun, method, opts = stepping
     if getattr(fun, "__self__", None) is cfg.coords:  # rhs or rhs_with_power: the reader's own
         fun = getattr(coords, fun.__name__)
@@ -80,6 +81,43 @@ def flight_work(cfg: Configuration, coords, t, y, stepping, q_start, kept=None) 
         coords.seed(q_start)
         values = np.array([power(cfg, coords, ti, *coords.unpack(ti, states[:, i])) for i, ti in enumerate(times)])
     return float(weights @ values)
+
+
+def _nodes(t) -> tuple[np.ndarray, np.ndarray]:
+    """The Gauss-Legendre nodes and weights of every step of ``t``, step after step."""
+    h = ((t[1:] - t[:-1]) / 2)[:, None]  # (what np.diff forms)
+    return (t[:-1, None] + h * _NODES_1).ravel(), (h * GAUSS_WEIGHTS).ravel()
+
+
+class _RightHandSideAsked(Exception):
+    """A step's dense output was not kept whole: forming it takes the right-hand side."""
+
+
+def _no_right_hand_side(t, y):
+    raise _RightHandSideAsked
+
+
+def run_work(cfg: Configuration, t, y, stepping, kept) -> float | None:
+    """:func:`flight_work` read on the run's own coordinates, where no reader is needed: the rows
+    depend on time alone (drives without a loop: no Newton solve, no warm start; the nodes'
+    coordinates by ``unpack_many``, which leaves the warm starts alone) and every step's dense
+    output was kept formed (none is taken again: the run's right-hand side is never evaluated).
+    The same operations on the same values as on a reader of the segment (its partition and
+    force elements are the run's until the next event); None where a reader is needed."""
+    coords = cfg.coords
+    timed = coords.time_rows()
+    if kept is None or timed is None or not timed[0].shape[0]:
+        return None
+    t = np.asarray(t, float)
+    if len(t) < 2:
+        return 0.0
+    times, weights = _nodes(t)
+    try:
+        states = dense_states(t, y, times, (_no_right_hand_side, *stepping[1:]), kept)[:coords.ny]
+    except _RightHandSideAsked:
+        return None
+    values = drive_powers(cfg, coords, times, states)
+    return None if values is None else float(weights @ values)
 
 
 def drive_powers(cfg: Configuration, coords, times, states) -> np.ndarray | None:
@@ -191,8 +229,10 @@ class FlightAudit:
         energy_start, kinetic_start = start
         energy_end = mechanical_energy(cfg, q_end, v_end)
         t, y, q_start = steps()
-        with cfg.coords.restored(cfg.coords.frozen_state(), q_start, (t, y), cfg.forces) as reader:
-            work = flight_work(cfg, reader, t, y, stepping, q_start, kept)
+        work = run_work(cfg, t, y, stepping, kept)
+        if work is None:
+            with cfg.coords.restored(cfg.coords.frozen_state(), q_start, (t, y), cfg.forces) as reader:
+                work = flight_work(cfg, reader, t, y, stepping, q_start, kept)
         residual = abs(energy_end - energy_start - work)
         m["flights"] += 1
         m["flight_energy_residual_max"] = max(m["flight_energy_residual_max"], residual)

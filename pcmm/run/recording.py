@@ -46,7 +46,8 @@ def record_samples(traj: Trajectory, cfg: Configuration, seg, offsets, q_start, 
     coords = cfg.coords
     t, y_full = np.asarray(seg.t, float), np.asarray(seg.y, float)
     held = holds.labels()
-    context = SegmentContext(cfg, coords.frozen_state(), dict(offsets), holds.snapshot(),
+    # the run's own offsets and locks, compared as they are now; a context the log keeps gets copies
+    context = SegmentContext(cfg, coords.frozen_state(), offsets, holds,
                              holds.applied(cfg) if held else None, cfg.forces, stepping,
                              own_rhs=stepping[0] is coords.rhs,  # a tree's rhs: a closure over these forces
                              n_state=coords.ny)  # the partition's state size (a flight's y has one more row)
@@ -59,8 +60,9 @@ def record_samples(traj: Trajectory, cfg: Configuration, seg, offsets, q_start, 
     q_start = np.array(q_start, float)
     log = filling(traj)
     if isinstance(log, SegmentLog):
-        log.add(log.context_id(cfg.name, names, context), t, y_full, q_start)
+        log.add(log.context_id(cfg.name, names, context, SegmentContext.kept), t, y_full, q_start)
     else:  # one copy of the name lists per configuration, as the log keeps them
+        context = context.kept()
         names = traj.shared_names.setdefault((cfg.name, *(tuple(v) for v in names.values())), names)
         t, y_full = t.copy(), y_full.copy()
         traj.segments.append(SegmentRecord.deferred(
@@ -108,10 +110,16 @@ class SegmentContext:
                 and self.forces is other.forces and _same(self.frozen, other.frozen)
                 and self.offsets == other.offsets and _same_holds(self.holds, other.holds)
                 and _same(self.applied, other.applied)
-                and len(self.stepping) == len(other.stepping)
-                and all(a is b or (callable(a) and a == b) for a, b in zip(self.stepping, other.stepping)))
+                and _same_stepping(self.stepping, other.stepping))
 
     __hash__ = None
+
+    def kept(self) -> "SegmentContext":
+        """This context with copies of what the run changes later (its angle offsets, its locks:
+        :meth:`Holds.snapshot`), as a recorded segment keeps it; made only where the log keeps a new
+        context, which the run's own offsets and locks are compared as they are (``==``)."""
+        self.offsets, self.holds = dict(self.offsets), self.holds.snapshot()
+        return self
 
     def _reading(self, t, y, q_start, work):
         """Run ``work(reader)`` on a reader of the segment's coordinates (its partition, anchors,
@@ -154,15 +162,21 @@ def _same(a, b) -> bool:
     generators, and the array's own reduction, not numpy's wrappers.)"""
     if a is b:
         return True
-    if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
-        return isinstance(a, np.ndarray) and isinstance(b, np.ndarray) and a.shape == b.shape and bool((a == b).all())
-    if isinstance(a, dict) and isinstance(b, dict):
+    if isinstance(a, dict) and isinstance(b, dict):  # (the frozen partitions: first)
         if a.keys() != b.keys():
             return False
         for k in a:
             if not _same(a[k], b[k]):
                 return False
         return True
+    if isinstance(a, (int, float, str)) and isinstance(b, (int, float, str)):
+        return a == b
+    if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
+        if not (isinstance(a, np.ndarray) and isinstance(b, np.ndarray) and a.shape == b.shape):
+            return False
+        if a.dtype == b.dtype and a.dtype.kind in "biu":  # integers (a partition's indices): equal values, equal bytes
+            return a.tobytes() == b.tobytes()
+        return bool((a == b).all())
     if isinstance(a, (tuple, list)) and isinstance(b, (tuple, list)):
         if type(a) is not type(b) or len(a) != len(b):
             return False
@@ -170,8 +184,6 @@ def _same(a, b) -> bool:
             if not _same(x, y):
                 return False
         return True
-    if isinstance(a, (int, float, str)) and isinstance(b, (int, float, str)):
-        return a == b
     if type(a) is type(b) and dataclasses.is_dataclass(a) and not isinstance(a, type):
         # (the holds' Applied: a record of values, its reference configuration compared as the same object)
         for name in _field_names(type(a)):
@@ -186,9 +198,24 @@ def _field_names(cls) -> tuple:
     return tuple(f.name for f in dataclasses.fields(cls))
 
 
+def _same_stepping(a: tuple, b: tuple) -> bool:
+    """The same ``(fun, method, opts)``: each the same object, or an equal callable (a bound method)."""
+    if len(a) != len(b):
+        return False
+    for x, y in zip(a, b):
+        if x is not y and not (callable(x) and x == y):
+            return False
+    return True
+
+
 def _same_holds(a: Holds, b: Holds) -> bool:
     """The same locks in force (the snapshots share everything else with the run's Holds)."""
-    return len(a.items) == len(b.items) and all(x is y for x, y in zip(a.items, b.items))
+    if len(a.items) != len(b.items):
+        return False
+    for x, y in zip(a.items, b.items):
+        if x is not y:
+            return False
+    return True
 
 
 def with_holds(cfg: Configuration, holds: Holds, t, series: dict, applied=None) -> dict:
