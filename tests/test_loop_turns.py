@@ -77,7 +77,13 @@ CASES = [
     (_start(28), "1", False), # 1.160: another assembly, 44 rad off
     (0.4, "0", False),        # all in Python: another assembly from t = 1.086 s, the crank 12 rad off
     (_start(20), "0", False), # 0.917: another assembly from t = 0.27 s
+    (_start(12), "0", False), # 0.674: its series could not be read (a recorded step passes the change point)
+    (_start(26), "0", False), # 1.099: nor these (a read at the singular posture)
 ]
+# Each part of the fix is needed by some of these: without the compiled solve's whole turns 0.5, 0.705 (auto)
+# and 1.160 (Python-stepped) fail; without the Python solve's, 0.674 and 1.099 (all in Python); without the
+# new partition's start read along its segment (run/loop.py _at_last_step), 0.705 and 0.917 (auto), 0.4 and
+# 0.917 (all in Python).
 
 
 @pytest.mark.parametrize(("theta0", "mode", "stepped"), CASES)
