@@ -7,8 +7,9 @@
 //   1. the warm start: the recent solution nearest in time (the first of equals, the last 8 kept),
 //      carried to t along its own rates unless that moves a coordinate by more than PREDICT_MAX;
 //      the seed where there is none (_guess);
-//   2. Newton on the dependent coordinates, q_D -= Phi_q[:, D]^-1 Phi, until max|Phi| < NEWTON_TOL,
-//      then one more correction with the Jacobian at hand (_solve_dependent);
+//   2. Newton on the dependent coordinates, q_D -= Phi_q[:, D]^-1 Phi, each iterate's revolute
+//      dependent angles moved by whole turns to within pi of the warm start (turns), until
+//      max|Phi| < NEWTON_TOL, then one more correction with the Jacobian at hand (_solve_dependent);
 //   3. the dependent rates from Phi_q q' = -Phi_t (_unpack);
 //   4. the accelerations of the KKT system [M Phi_q^T; Phi_q 0] (paper Eq. 1 with the constraint
 //      rows) by pinocchio::forwardDynamics, the rows and their bias from one kinematics pass at the
@@ -58,6 +59,9 @@ struct State {
   RowMatrixXd cJ;
   double max_residual = 0.0;
   bool checking = true;
+  // the coordinates the closure rows see only through cos and sin: revolute joints not driven (set_turns;
+  // PartitionedCoordinates._turns); empty: none
+  std::vector<char> turns;
   // scratch
   double ft = std::nan("");  // the time f, f1, f2 are at
   VectorXd f, f1, f2, phi, tau;
@@ -205,10 +209,27 @@ VectorXd guess(const State &s, double t, const Recent *trail = nullptr) {
   return carried(*near, t);
 }
 
+constexpr double TWO_PI = 6.283185307179586;  // 2 * math.pi
+
+// q's revolute dependent angles moved by whole turns to within pi of the warm start (PartitionedCoordinates.
+// _nearest_turns, the same operations): the closure rows (pcmm.model.rows: p_b - p_a, and the angle row
+// through atan2) are periodic in a revolute angle, so a Newton step near a singular block (a change point)
+// that lands 2 pi k away closes the loop at the same posture; the series must not jump by those turns.
+// A driven angle (its row q_j - f(t) is not periodic) and a prismatic coordinate are left alone.
+inline void nearest_turns(const State &s, const VectorXd &start, VectorXd &q) {
+  if (s.turns.empty()) return;
+  for (const int j : s.D) {
+    if (!s.turns[j]) continue;
+    const double d = q[j] - start[j];
+    if (d > M_PI || d < -M_PI) q[j] -= TWO_PI * std::nearbyint(d / TWO_PI);
+  }
+}
+
 // Newton on the dependent coordinates from q (q_I set): PartitionedCoordinates._solve_dependent.
 // Leaves the Jacobian at the last iterate before the polishing correction in s.Jq.
 Status solve_dependent(Tree *tree, State &s, double t, VectorXd &q) {
   VectorXd dx;
+  const VectorXd start = s.turns.empty() ? VectorXd() : q;
   bool broke = false;
   for (int it = 0; it < 30; ++it) {
     rows(tree, s, t, q);
@@ -225,6 +246,7 @@ Status solve_dependent(Tree *tree, State &s, double t, VectorXd &q) {
       break;
     }
     for (size_t j = 0; j < s.D.size(); ++j) q[s.D[j]] -= dx[j];
+    nearest_turns(s, start, q);
   }
   (void)broke;
   rows(tree, s, t, q);
@@ -771,6 +793,16 @@ PyObject *loop_set_checking(Loop *self, PyObject *arg) {
   Py_RETURN_NONE;
 }
 
+// set_turns(indices): the coordinates whose Newton iterates are kept within pi of the warm start (nearest_turns)
+PyObject *loop_set_turns(Loop *self, PyObject *arg) {
+  loops::State &s = *self->s;
+  std::vector<int> idx;
+  if (!read_indices(arg, idx, s.nv, "turns")) return nullptr;
+  s.turns.assign(idx.empty() ? 0 : s.nv, 0);
+  for (const int j : idx) s.turns[j] = 1;
+  Py_RETURN_NONE;
+}
+
 PyMethodDef loop_object_methods[] = {
     {"set_tree", (PyCFunction)loop_set_tree, METH_VARARGS,
      "set_tree(tree, springs): the calling thread's tree (scratch data) and point springs"},
@@ -791,6 +823,8 @@ PyMethodDef loop_object_methods[] = {
     {"last", (PyCFunction)loop_last, METH_NOARGS, "last() -> (t, q, q') of the last solution kept"},
     {"max_residual", (PyCFunction)loop_max_residual, METH_NOARGS, "the largest residual a Newton solve accepted"},
     {"set_checking", (PyCFunction)loop_set_checking, METH_O, "set_checking(on): the conditioning check"},
+    {"set_turns", (PyCFunction)loop_set_turns, METH_O,
+     "set_turns(indices): revolute coordinates (not driven) kept within pi of the warm start by whole turns"},
     {nullptr, nullptr, 0, nullptr}};
 
 PyTypeObject LoopType = {PyVarObject_HEAD_INIT(nullptr, 0)};

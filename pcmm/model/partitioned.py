@@ -25,6 +25,7 @@ from ..errors import Repartition, SimulationError
 from ..ode.witness import Guard
 
 NEWTON_TOL = 1e-13
+TWO_PI = 2 * math.pi
 SINGULAR_COND = 1e9
 #: the largest change (rad or m) the warm start of a loop's Newton solve is extrapolated by
 PREDICT_MAX = 0.05
@@ -38,6 +39,24 @@ RANK_LOST = 1e-6
 #: scene is always the Python stepping
 STEP_LOOPS_COMPILED = True
 _thread_id = threading.get_ident
+
+
+def _nearest_turns(q, start, turns) -> None:
+    """Moves ``q``'s angles ``turns`` (revolute dependent coordinates, not driven) by whole turns to
+    within pi of the warm start ``start``, in place.  The closure constraints Phi(q) = 0 (the cut
+    joints' rows, pcmm.model.rows: p_b - p_a, and the angle row through atan2) see a revolute angle
+    only through its cosine and sine, so q and q + 2 pi k are one posture; but a Newton step near a
+    singular dependent block (a change point, where det Phi_q[:, D] -> 0) can be huge, and without
+    this it converged 2 pi k away from the warm start (a parallelogram's rocker angle minus its
+    crank's 1.2e5 rad: the recorded series jumped, tests/test_loop_turns.py).  Applied to every
+    iterate, it changes no posture the solve reaches and no iterate that stays within pi of the
+    start (to the last bit).  A prismatic coordinate is not periodic, nor a driven angle (its row
+    q_j - f(t)): they are never moved.  A solution on another assembly branch is not a whole turn
+    away; this does not hide it.  The compiled loop does the same (pcmm/model/_loops.hpp, nearest_turns)."""
+    for j in turns:
+        d = q[j] - start[j]
+        if d > math.pi or d < -math.pi:
+            q[j] -= TWO_PI * round(d / TWO_PI)
 
 
 class PartitionedCoordinates:
@@ -78,6 +97,13 @@ class PartitionedCoordinates:
         self._max_residual = 0.0  # largest loop residual a Newton solve accepted in Python (max_residual)
         self._segment_forces = None  # a reader's own force elements (restored); None: the configuration's
         self._driven = np.array(drives.index, dtype=int)
+        # the coordinates the closure rows see only through cos and sin (_nearest_turns): revolute joints,
+        # not driven (a drive's row q_j - f(t) is not periodic)
+        self._turns = np.zeros(self.nv, bool)
+        for name in cfg.joint_names:
+            if cfg.spec.info.joints[name].type == "revolute":
+                self._turns[cfg.joint_slice[name].start] = True
+        self._turns[self._driven] = False
         self._drive_rows = np.zeros((drives.size, self.nv))
         self._drive_rows[np.arange(drives.size), self._driven] = 1.0
         self._no_rows, self._no_jacobian = np.zeros(0), np.zeros((0, self.nv))  # no loop rows
@@ -167,6 +193,7 @@ class PartitionedCoordinates:
         (tree, checked), springs = built
         if self._loop is None:
             self._loop = compiled.loop(tree, self.drives.index, self.drives._derivs, springs)
+            self._loop.set_turns(self.turns)
             self._loop.seed(self._seed_q, self.I, self.D)
             self._loop.set_checking(self._checking)
         else:
@@ -206,6 +233,7 @@ class PartitionedCoordinates:
         reference.checking = False
         reference.seed(self._seed_q)
         scratch = compiled.loop(tree, self.drives.index, self.drives._derivs, springs)
+        scratch.set_turns(self.turns)
         scratch.seed(self._seed_q, self.I, self.D)
         scratch.set_checking(False)
 
@@ -440,6 +468,7 @@ class PartitionedCoordinates:
         q = guess.copy()
         q[self.I] = qI
         position = self.cfg.position_jacobian
+        turns = [int(j) for j in self.D if self._turns[j]]
         for _ in range(30):
             phi, Jq, _ = self._phi(t, q)
             Jp = position(q, Jq)
@@ -457,6 +486,8 @@ class PartitionedCoordinates:
                 q[self.D] -= solve(Jp[:, self.D], phi)
             except np.linalg.LinAlgError:
                 break
+            if turns:
+                _nearest_turns(q, guess, turns)
         phi, Jq, _ = self._phi(t, q)
         Jp = position(q, Jq)
         if np.max(np.abs(phi)) < 1e-9:
@@ -483,6 +514,12 @@ class PartitionedCoordinates:
                     "from the assembly (a pcmm defect: please report it with the scene)"))
         err.at = t  # the instant of the failing solve (a trial instant of a step, for the run loop)
         raise err
+
+    @property
+    def turns(self) -> list[int]:
+        """The coordinates whose Newton iterates are kept within pi of the warm start by whole turns
+        (:func:`_nearest_turns`): revolute joints, not driven."""
+        return [int(j) for j in np.flatnonzero(self._turns)]
 
     @staticmethod
     def _cond(J) -> float:

@@ -231,6 +231,23 @@ def _write_chunk(run: RunState) -> None:
 _STALLED_REPARTITIONS = 16
 
 
+def _at_last_step(coords, seg: Segment, q_start):
+    """``(q, v)`` at the last accepted step of a segment that ended in a new partition
+    (:class:`~pcmm.errors.Repartition`), started from the assembled ``q_start``: followed along the
+    segment's steps from its start by a reader of it (``restored``, as its series are read), on the
+    run's own assembly branch, not solved from the loop's warm starts.  The step that was abandoned
+    left those anywhere along its trial stages and its guards' samples, up to across the change point
+    that ended it, and the last 8 of them pushed the accepted step's own solution out: solved from the
+    nearest, 1.2 rad off (a coasting parallelogram's step across its change point), Newton landed on
+    another assembly (the crank 12 rad off) and the next segment started there
+    (tests/test_loop_turns.py).  A segment of one step (none accepted) is its start, solved as before."""
+    t = float(seg.t[-1])
+    if seg.t.size == 1:
+        return coords.unpack(t, seg.y[:, -1])
+    with coords.restored(coords.frozen_state(), q_start, steps=(seg.t, seg.y)) as reader:
+        return reader.unpack(t, seg.y[:coords.ny, -1])
+
+
 def _integrate(run: RunState, fun, stepping, y0, guards, pending, keep_dense=False) -> Segment | None:
     """One segment from ``run.t``: simultaneous (a contact already closed), integrated, or a known
     motion (no free coordinate).  Its steps and time count in the stats, also when it fails.
@@ -263,7 +280,7 @@ def _integrate(run: RunState, fun, stepping, y0, guards, pending, keep_dense=Fal
         run._repartitioned = (held, repeats) if seg.t.size == 1 else None
         _record(run.traj, cfg, seg, run.offsets, run.q, run.holds, stepping)
         run.t = float(seg.t[-1])
-        run.q, run.v = cfg.coords.unpack(run.t, seg.y[:, -1])
+        run.q, run.v = _at_last_step(cfg.coords, seg, run.q)
         return None
     except (SimulationError, KeyboardInterrupt) as exc:
         if getattr(exc, "segment", None) is not None:  # the steps the failing segment took count
