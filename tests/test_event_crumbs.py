@@ -5,14 +5,19 @@ flights), and do the work they skip only where it is needed.
 * The flight audit's compiled drive powers are checked against Python's once per compiled tree; the
   probe states of that check are made only where it runs (``compiled.agrees_on`` with a function
   for its probes), not at every flight.
+* ``PartitionedCoordinates.pack`` keeps the partition of drives without a loop once chosen (the
+  driven coordinates are the dependent ones whatever the posture), as ``project`` does.
 """
 from __future__ import annotations
 
 import json
 from pathlib import Path
 
+import numpy as np
+
 import pcmm
 from pcmm.model import compiled
+from pcmm.model.partitioned import PartitionedCoordinates
 from pcmm.run import audit
 
 CYCLE = Path(__file__).resolve().parents[1] / "examples" / "three_bar_cycle.toml"
@@ -60,3 +65,33 @@ def test_the_drive_power_check_made_lazily_is_the_same_run_to_the_bit(monkeypatc
                         real(tree, fn, ref, probes() if callable(probes) else probes, what))
     eager = _cycle()
     _same_run(lazy, eager)
+
+
+def _pack_choosing_again(self, t, q, v):
+    """``pack`` as before the cut: the partition chosen at every segment's start."""
+    self.partition(t, q)
+    self.seed(q)
+    return np.concatenate([q[self.I], self.cfg.qdot(q, v)[self.I]])
+
+
+def test_pack_chooses_the_partition_of_drives_without_a_loop_once(monkeypatch):
+    """Segments by the hundred, every one packed on drives without a loop, and the partition chosen
+    at most once per configuration's coordinates (each entered many times)."""
+    chosen, packed = [], []
+    real_partition, real_pack = PartitionedCoordinates.partition, PartitionedCoordinates.pack
+    monkeypatch.setattr(PartitionedCoordinates, "partition", lambda self, *a, **k: chosen.append(id(self)) or
+                        real_partition(self, *a, **k))
+    monkeypatch.setattr(PartitionedCoordinates, "pack", lambda self, *a: packed.append(
+        (id(self), bool(self.closure.size))) or real_pack(self, *a))
+    traj = _cycle()
+    assert len(traj.segments) > 100 and len(packed) >= len(traj.segments)
+    assert not any(loop for _, loop in packed)
+    owners = {o for o, _ in packed}
+    assert len(chosen) == len(set(chosen)) <= len(owners) <= 4  # at most once each (before the cut: per segment)
+
+
+def test_pack_keeping_the_partition_is_the_same_run_to_the_bit(monkeypatch):
+    kept = _cycle()
+    monkeypatch.setattr(PartitionedCoordinates, "pack", _pack_choosing_again)
+    chosen_again = _cycle()
+    _same_run(kept, chosen_again)

@@ -713,8 +713,13 @@ class PartitionedCoordinates:
 
     def pack(self, t, q, v):
         """State vector at an assembled (q, v); the partition is re-chosen here,
-        at the start of every segment, so it follows the posture."""
-        self.partition(t, q)
+        at the start of every segment, so it follows the posture.
+
+        Drives without a loop keep theirs: the dependent coordinates are the driven ones whatever
+        the posture (:meth:`partition`), so once chosen it is not chosen again (the same values,
+        as :meth:`project` does; at every segment's start)."""
+        if self.D is None or self.closure.size or len(set(self.drives.index)) != self.drives.size:
+            self.partition(t, q)
         self.seed(q)
         return np.concatenate([q[self.I], self.cfg.qdot(q, v)[self.I]])
 
