@@ -7,6 +7,8 @@ flights), and do the work they skip only where it is needed.
   for its probes), not at every flight.
 * ``PartitionedCoordinates.pack`` keeps the partition of drives without a loop once chosen (the
   driven coordinates are the dependent ones whatever the posture), as ``project`` does.
+* ``PartitionedCoordinates.time_rows`` forms its constant Jacobian once per coordinates (read-only)
+  and hands the drives' bias as a method, not a concatenation and a closure at every call.
 """
 from __future__ import annotations
 
@@ -14,6 +16,8 @@ import json
 from pathlib import Path
 
 import numpy as np
+import pytest
+from builders import driven_cart_pendulum
 
 import pcmm
 from pcmm.model import compiled
@@ -95,3 +99,51 @@ def test_pack_keeping_the_partition_is_the_same_run_to_the_bit(monkeypatch):
     monkeypatch.setattr(PartitionedCoordinates, "pack", _pack_choosing_again)
     chosen_again = _cycle()
     _same_run(kept, chosen_again)
+
+
+def _time_rows_formed_at_every_call(self):
+    """``time_rows`` as before the cut."""
+    if self.closure.size:
+        return None
+    Jq = np.concatenate((self._no_jacobian, self._drive_rows)) if self.drives.size else self._no_jacobian
+    if not self.drives.size:
+        return Jq, lambda t: self._no_rows
+    return Jq, lambda t: np.concatenate((self._no_rows, -self.drives.values(t)[2]))
+
+
+@pytest.mark.parametrize("scene", ["three_bar_cycle", "driven cart pendulum"])
+def test_time_rows_are_formed_once_and_are_the_rows_to_the_bit(scene, tmp_path):
+    """Each configuration (the cycle's four, theta1 = pi t: no bias; the cart's two, a cubic drive:
+    ``-f''(t)`` not zero): the same read-only Phi_q at every call, and ``(Phi_q, bias_of(t))`` equal
+    to ``rows(t, q, v)`` to the bit at states and times of its own, and to the route before the cut."""
+    from pcmm.model.mechanism import Mechanism
+    scene = pcmm.load_scene(CYCLE if scene == "three_bar_cycle" else driven_cart_pendulum(tmp_path, e=0.8))
+    mech = Mechanism(scene)
+    rng = np.random.default_rng(26)
+    source = mech[next(n for n, c in scene.configurations.items() if c.derivation is None)]
+    cfgs = [mech.enter(name, source, rng.uniform(-1, 1, source.nv)) for name in scene.configurations]
+    assert len({id(c.coords) for c in cfgs}) == len(cfgs) >= 2
+    biased = 0
+    for cfg in cfgs:
+        coords = cfg.coords
+        timed = coords.time_rows()
+        assert timed is not None  # drives without a loop
+        Jq, bias_of = timed
+        assert coords.time_rows()[0] is Jq and not Jq.flags.writeable
+        old_Jq, old_bias = _time_rows_formed_at_every_call(coords)
+        assert Jq.tobytes() == old_Jq.tobytes() and Jq.shape == old_Jq.shape
+        for t in rng.uniform(0.0, 7.5, 5):
+            q, v = rng.uniform(-3, 3, cfg.nv), rng.uniform(-3, 3, cfg.nv)
+            rows_J, rows_b = coords.rows(t, q, v)
+            b = bias_of(t)
+            assert rows_J.tobytes() == Jq.tobytes() and rows_b.tobytes() == b.tobytes() == old_bias(t).tobytes()
+            assert b.dtype == rows_b.dtype and b.shape == rows_b.shape
+            biased += bool(np.any(b != 0.0))
+    assert biased or scene.name == "three_bar_cycle"  # the cart's: a bias that could differ
+
+
+def test_time_rows_formed_once_is_the_same_run_to_the_bit(monkeypatch):
+    once = _cycle()
+    monkeypatch.setattr(PartitionedCoordinates, "time_rows", _time_rows_formed_at_every_call)
+    every_call = _cycle()
+    _same_run(once, every_call)
