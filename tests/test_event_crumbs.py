@@ -9,10 +9,18 @@ flights), and do the work they skip only where it is needed.
   driven coordinates are the dependent ones whatever the posture), as ``project`` does.
 * ``PartitionedCoordinates.time_rows`` forms its constant Jacobian once per coordinates (read-only)
   and hands the drives' bias as a method, not a concatenation and a closure at every call.
+* ``signals.deferred``, which every recorded segment passes, is a plain class's enter and exit on the
+  signals' numbers, not a generator's context manager on ``signal``'s enum members: a Ctrl-C while a
+  segment is recorded still waits until it is kept.
 """
 from __future__ import annotations
 
+import _signal
+import contextlib
 import json
+import os
+import signal
+import time
 from pathlib import Path
 
 import numpy as np
@@ -147,3 +155,53 @@ def test_time_rows_formed_once_is_the_same_run_to_the_bit(monkeypatch):
     monkeypatch.setattr(PartitionedCoordinates, "time_rows", _time_rows_formed_at_every_call)
     every_call = _cycle()
     _same_run(once, every_call)
+
+
+@contextlib.contextmanager
+def _deferred_as_before():
+    """``signals.deferred`` before the cut (a generator's context manager, ``signal``'s look-ups)."""
+    from pcmm import signals
+    held = signals._Held()
+    old = {}
+    if signals._main_thread():
+        for sig in signals._signals(signals._NAMES):
+            with contextlib.suppress(ValueError, OSError):
+                old[sig] = _signal.signal(sig, held)
+    try:
+        yield held
+    finally:
+        for sig, handler in old.items():
+            _signal.signal(sig, handler)
+
+
+def test_deferred_as_a_class_is_the_same_run_to_the_bit(monkeypatch):
+    from pcmm.run import recording
+    now = _cycle()
+    monkeypatch.setattr(recording, "deferred", _deferred_as_before)
+    before = _cycle()
+    _same_run(now, before)
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
+def test_a_signal_while_a_segment_of_the_cycle_is_recorded_waits_until_it_is_kept(signum, monkeypatch):
+    """The 40th segment's recording receives the signal: the run stops once that segment is kept, its
+    partial ends with it (40 segments, the last one's end), and the handler before is back."""
+    from pcmm.run import recording
+    from pcmm.signals import as_interrupts
+    real, state = recording.record_samples, {"n": 0, "t": None}
+
+    def record(traj, cfg, seg, *rest):
+        state["n"] += 1
+        if state["n"] == 40:
+            state["t"] = float(seg.t[-1])
+            os.kill(os.getpid(), signum)
+            time.sleep(0.02)  # the handler runs meanwhile (held, not raised)
+        return real(traj, cfg, seg, *rest)
+    monkeypatch.setattr(recording, "record_samples", record)
+    before = _signal.getsignal(signal.SIGINT), _signal.getsignal(signal.SIGTERM)
+    with as_interrupts(), pytest.raises(pcmm.SimulationError) as info:
+        pcmm.simulate(pcmm.load_scene(CYCLE), OPTS)
+    assert (_signal.getsignal(signal.SIGINT), _signal.getsignal(signal.SIGTERM)) == before
+    partial = info.value.partial
+    assert state["n"] == 40 and len(partial.segments) == 40
+    assert partial.segments[-1].t[-1] == state["t"] and partial.t[-1] == state["t"]
