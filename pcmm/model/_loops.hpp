@@ -50,6 +50,10 @@ struct State {
   std::vector<std::vector<double>> c0, c1, c2;  // f, f', f'' coefficients, low order first
   std::vector<int> I, D;
   std::vector<Recent> recent;  // oldest first
+  // the compiled segment loop's accepted state: the solution at its last accepted step's end (or its
+  // segment's start), the only warm start a rejected step's retry keeps (segment_loop_rejected)
+  bool anchored = false;
+  Recent anchor;
   VectorXd seed;
   // the last unpack: (t, y) -> (q, v, rates, Phi_q)
   bool cached = false;
@@ -517,6 +521,7 @@ PyObject *loop_seed(Loop *self, PyObject *args) {
   s.D = D;
   s.recent.clear();
   s.cached = false;
+  s.anchored = false;
   Py_RETURN_NONE;
 }
 
@@ -877,6 +882,30 @@ bool segment_loop_solved(Loop *self, double t, const double *y, const double **q
   *q = self->s->cq.data();
   *qd = self->s->cv.data();
   return true;
+}
+
+// the compiled segment loop's accepted state (t, y): its solution (the Loop's cache, where the step's last
+// evaluation was there) kept as the warm start a rejected step goes back to; false where the unpack
+// declines (a rejection then keeps the warm starts as they are)
+bool segment_loop_anchor(Loop *self, double t, const double *y) {
+  loops::State &s = *self->s;
+  VectorXd start;
+  s.anchored = loops::unpack(self->tree, s, t, y, start) == loops::OK;
+  if (s.anchored) s.anchor = loops::Recent{t, s.cq, s.cv};
+  return s.anchored;
+}
+
+// a step of the compiled segment loop was rejected: its stages' solutions are not warm starts for its
+// retry, the accepted state's solution is.  A trial step that runs past a change point solves its late
+// stages on the other assembly (the Newton start is the previous stage's solution, farther than PREDICT_MAX
+// away); with the last 8 kept and 13 stages to a step, those solutions were all the retry found, nearest
+// in time: its stages then followed the other assembly (smoothly: the retry was accepted), and a coasting
+// parallelogram's crank changed speed by 6 % (benchmarks/change_point_survey.py, tests/test_loop_turns.py)
+void segment_loop_rejected(Loop *self) {
+  loops::State &s = *self->s;
+  if (!s.anchored) return;
+  s.recent.assign(1, s.anchor);
+  s.cached = false;
 }
 
 // the singularity guard at the last solution: its value, the dependent block's scaled determinant (of the
