@@ -10,9 +10,8 @@ huge: on main the solve converged to the right posture 2 pi k away (theta_D - th
 at 0.5 rad under "auto"), and the recorded angle series jumped.  Every recorded sample is checked:
 consecutive samples (across segment boundaries too, where no time passes) differ by no more than
 the rates allow over their spacing, |dq| <= 1.5 max|v| dt + 1e-9, and the posture is the
-parallelogram's (theta_D = theta_A, theta_B = -theta_A) to 1e-9, never 2 pi k off it.  (The crank's
-rate is not checked: the compiled stepping's runs gain speed near the change point, 2 -> 2.16 rad/s
-at 0.5 rad, as on main; docs/performance.md.)
+parallelogram's (theta_D = theta_A, theta_B = -theta_A) to 1e-9, never 2 pi k off it.  The crank's
+rate is checked where the compiled stepping changed it (test_a_coasting_parallelogram_keeps_its_speed_...).
 """
 from __future__ import annotations
 
