@@ -281,7 +281,7 @@ bool anchor(State &s, double t, const double *y, int n) {
 // a stepper rejected a trial step: its stages' solutions are not warm starts for its retry, the accepted
 // state's solution is.  A trial step that runs past a change point solves its late stages on the other
 // assembly (each Newton start the previous stage's solution, farther than PREDICT_MAX away); with the
-// last 8 kept and 13 evaluations to a DOP853 step, those were all the retry found, nearest in time: its
+// last 8 kept and 12 evaluations to a DOP853 step, those were all the retry found, nearest in time: its
 // stages then followed the other assembly (smoothly: the retry was accepted), and a coasting
 // parallelogram's crank changed speed by 6 % (benchmarks/change_point_survey.py, tests/test_loop_turns.py)
 void rejected(State &s) {

@@ -602,7 +602,7 @@ class PartitionedCoordinates:
         """The stepping rejected a trial step: its stages' solutions are no warm starts for its retry,
         the accepted state's is (the compiled segment loop does the same, _loops.hpp ``rejected``).
         Past a change point those stages lie on the other assembly; with the last 8 solutions kept and
-        13 evaluations to a DOP853 step they were all the retry found (docs/performance.md)."""
+        12 evaluations to a DOP853 step they were all the retry found (docs/performance.md)."""
         loop = self._held_loop()
         if loop is not None:
             loop.rejected()
