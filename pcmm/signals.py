@@ -23,6 +23,8 @@ import signal
 import threading
 
 _NAMES = ("SIGINT", "SIGTERM", "SIGHUP")
+#: their numbers on this platform (plain ints of the C module: what :func:`deferred` installs on)
+_NUMBERS = tuple(getattr(_signal, n) for n in _NAMES if hasattr(_signal, n))
 
 
 class Terminated(KeyboardInterrupt):
@@ -83,12 +85,31 @@ def as_interrupts():
 
 
 class _Held:
+    """Signals held back: a handler that notes each one; as a context manager (:func:`deferred`)
+    it holds them while the block runs."""
+
     def __init__(self):
         self.received: list[int] = []
         self.old: dict = {}
 
     def __call__(self, signum, frame):
         self.received.append(signum)
+
+    def __enter__(self) -> "_Held":
+        if _main_thread():  # every recorded segment passes here: the C module's calls (see _signals)
+            old = self.old
+            for sig in _NUMBERS:
+                try:
+                    if _signal.getsignal(sig) != _signal.SIG_IGN:  # ignored on purpose: left so
+                        old[sig] = _signal.signal(sig, self)
+                except (ValueError, OSError):
+                    pass
+        return self
+
+    def __exit__(self, *exc) -> None:
+        for sig, handler in self.old.items():
+            _signal.signal(sig, handler)
+        self.old = {}
 
     def reraise(self) -> None:
         """Raise the first signal held back, as it would have been raised (if any arrived)."""
@@ -116,21 +137,12 @@ def release(held: _Held) -> None:
     held.old = {}
 
 
-@contextlib.contextmanager
-def deferred():
+def deferred() -> _Held:
     """Hold interrupts back while the block runs; yields a record whose ``received`` lists the
-    signals that arrived (the caller decides what they mean once the block is done)."""
-    held = _Held()
-    old = {}
-    if _main_thread():  # every recorded segment passes here: the C module's calls (see _signals)
-        for sig in _signals(_NAMES):
-            with contextlib.suppress(ValueError, OSError):
-                old[sig] = _signal.signal(sig, held)
-    try:
-        yield held
-    finally:
-        for sig, handler in old.items():
-            _signal.signal(sig, handler)
+    signals that arrived (the caller decides what they mean once the block is done).  A plain
+    class's ``__enter__``/``__exit__`` on the signals' numbers (:data:`_NUMBERS`), not a generator's
+    context manager on ``signal``'s enum members: every recorded segment passes here."""
+    return _Held()
 
 
 __all__ = ["Terminated", "as_interrupts", "deferred", "describe", "exit_status", "hold", "release"]

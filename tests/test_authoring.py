@@ -154,15 +154,16 @@ def _four_bar(tmp_path, q: str, branch: str | None = '{ between = ["coupler", "r
 
 
 def test_rough_guess_is_not_solved_to_an_angle_far_away(tmp_path):
-    """Trap: a rough guess was solved silently to an angle 4 pi away (here Newton alone lands
-    180 rad away); the assembled angles are now within pi of the guess, with a warning that
-    the posture moved, and they are the closed form's."""
+    """Trap: a rough guess was solved silently to an angle 4 pi away (Newton alone landed
+    180 rad away, before each Newton update took whole turns off the dependent angles); the
+    assembled angles are within pi of the guess, with a warning that the posture moved, and
+    they close the loop."""
     guess = 'q = { J1 = "90 deg", J2 = 0.094573, J3 = 3.60370957 }'
     path = _four_bar(tmp_path, guess, branch=None)
     scene = pcmm.load_scene(path)
     cfg = Mechanism(scene)["open"]
     raw, _ = cfg.coords.project(0.0, np.array([math.pi / 2, 0.094573, 3.60370957]), np.zeros(3), [0])
-    assert np.max(np.abs(raw[1:] - [0.094573, 3.60370957])) > 4 * math.pi  # the trap
+    assert np.max(np.abs(raw[1:] - [0.094573, 3.60370957])) <= math.pi  # the trap, closed: whole turns are taken off every Newton update (partitioned._nearest_turns)
     q, _, notes = assemble(scene, cfg)
     assert np.all(np.abs(q[1:] - [0.094573, 3.60370957]) <= math.pi)
     note = next(n for n in notes if "assembled away from the given values" in n)

@@ -11,6 +11,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 import builders
@@ -282,3 +283,21 @@ def test_failure_at_a_trial_step_reports_the_true_stop_time(tmp_path, monkeypatc
                   [a * math.cos(A) + b * math.cos(A + B), b * math.cos(A + B), -c * math.cos(D)]])
     cond = float(re.search(r"condition number (\S+), a regular posture", text).group(1))
     assert cond == pytest.approx(np.linalg.cond(J), rel=5e-3)
+
+
+def test_a_measure_that_starts_on_its_value_to_round_off_did_not_cross_it():
+    """A release maps the state onto the value of a stop guard to round-off, on either side by
+    the route that mapped it (1.1e-16 past it under the compiled loop stepping, 0 under Python's):
+    leaving from there against the guard's direction is no crossing against it, and a hair past
+    the value is not past it.  A real crossing from 1e-9 away still is."""
+    from types import SimpleNamespace
+    from pcmm.run.approach import _crossed_against, _past
+    value = 0.34198728609555523
+    tr = SimpleNamespace(guard=SimpleNamespace(value=value, direction=1.0))
+    t = np.array([0.9, 0.91, 0.92])
+    owner = np.zeros(3, int)
+    on = np.array([np.nextafter(value, 1.0), value - 0.01, value - 0.02])
+    assert _crossed_against(tr, t, on, owner) is None and not _past(tr, float(on[0]))
+    off = np.array([value + 1e-9, value - 0.01, value - 0.02])
+    assert _crossed_against(tr, t, off, owner) == pytest.approx(0.9 + 0.01 * 1e-9 / (1e-9 + 0.01), abs=1e-15)
+    assert _past(tr, value + 1e-9)

@@ -349,7 +349,9 @@ def agrees(checked: set, fn, reference, probes, what: str, key=None) -> bool:
 
 def agrees_on(tree, fn, reference, probes, what: str) -> bool:
     """:func:`agrees` for a function of ``tree``, a compiled tree this thread built (the names checked
-    on it are its own): False for a tree it does not hold."""
+    on it are its own): False for a tree it does not hold.  ``probes`` may be a function that makes
+    them, called only where the check runs (not once ``what`` is checked on the tree: a caller asking
+    at every flight builds no probe states)."""
     for _, built in _CACHE.trees.values():
         for held, checked in built.values():
             if held is tree:
@@ -446,12 +448,15 @@ def _rebuild(model: pin.Model):
 
 
 def _agrees(checked: set, fn, reference, probes, what: str, key=None) -> bool:
-    """``fn`` and ``reference`` at the probe arguments, output by output, to round-off; once per
-    compiled tree and function (``checked`` remembers ``key``, ``what`` where None)."""
+    """``fn`` and ``reference`` at the probe arguments (``probes``, or ``probes()`` where it is a
+    function), output by output, to round-off; once per compiled tree and function (``checked``
+    remembers ``key``, ``what`` where None)."""
     key = what if key is None else key
     if key in checked:
         _last_reason.clear()
         return True
+    if callable(probes):
+        probes = probes()
     for args in probes:
         with np.errstate(all="ignore"):
             expected = reference(*args)

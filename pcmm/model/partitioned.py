@@ -108,6 +108,7 @@ class PartitionedCoordinates:
         self._drive_rows = np.zeros((drives.size, self.nv))
         self._drive_rows[np.arange(drives.size), self._driven] = 1.0
         self._no_rows, self._no_jacobian = np.zeros(0), np.zeros((0, self.nv))  # no loop rows
+        self._time_jacobian = None  # Phi_q of drives without a loop, formed once (time_rows)
         self._drive_columns_of: dict = {}  # {id(model): (model, the driven joints' columns)} (equality)
         # revolute cut joints' rows in one compiled call where that is the same function (pcmm.compiled)
         if not closure.specs:
@@ -777,8 +778,13 @@ class PartitionedCoordinates:
 
     def pack(self, t, q, v):
         """State vector at an assembled (q, v); the partition is re-chosen here,
-        at the start of every segment, so it follows the posture."""
-        self.partition(t, q)
+        at the start of every segment, so it follows the posture.
+
+        Drives without a loop keep theirs: the dependent coordinates are the driven ones whatever
+        the posture (:meth:`partition`), so once chosen it is not chosen again (the same values,
+        as :meth:`project` does; at every segment's start)."""
+        if self.D is None or self.closure.size or len(set(self.drives.index)) != self.drives.size:
+            self.partition(t, q)
         self.seed(q)
         return np.concatenate([q[self.I], self.cfg.qdot(q, v)[self.I]])
 
@@ -1092,10 +1098,21 @@ class PartitionedCoordinates:
         a loop (its rows depend on the posture)."""
         if self.closure.size:
             return None
-        Jq = np.concatenate((self._no_jacobian, self._drive_rows)) if self.drives.size else self._no_jacobian
-        if not self.drives.size:
-            return Jq, lambda t: self._no_rows
-        return Jq, lambda t: np.concatenate((self._no_rows, -self.drives.values(t)[2]))
+        Jq = self._time_jacobian
+        if Jq is None:  # formed once per coordinates (a reader's copy shares it): read-only
+            Jq = np.concatenate((self._no_jacobian, self._drive_rows)) if self.drives.size else self._no_jacobian
+            Jq.flags.writeable = False
+            self._time_jacobian = Jq
+        return Jq, (self._drive_bias if self.drives.size else self._no_bias)
+
+    def _drive_bias(self, t):
+        """The drive rows' bias at ``t``, ``-f''(t)`` (the rows of drives without a loop: :meth:`time_rows`;
+        the values :meth:`rows` gives, a new array)."""
+        return -self.drives.values(t)[2]
+
+    def _no_bias(self, t):
+        """No rows, no bias (:meth:`time_rows` of coordinates without drives or loops)."""
+        return self._no_rows
 
     def accelerations(self, t, q, v, extra=None):
         """(a, lam): ``M a + h = Q + extra + Phi_q^T lam`` with ``Phi_q a + bias = 0``."""

@@ -95,6 +95,7 @@ def _crossed_against(tr, t: np.ndarray, g: np.ndarray, owner: np.ndarray) -> flo
     (between two samples of one segment, interpolated), or None: a guard written "decreasing"
     whose angle went up through its value did not fire, and that is what the user must hear."""
     side = np.sign(g - tr.guard.value)
+    side[np.abs(g - tr.guard.value) <= _round_off(tr)] = 0  # a sample on the value is on neither side
     cross = np.flatnonzero(np.isfinite(g[:-1]) & np.isfinite(g[1:]) & (owner[:-1] == owner[1:])
                            & (side[:-1] != 0) & (side[1:] == -side[:-1]) & (side[1:] == -tr.guard.direction))
     if not cross.size:
@@ -153,10 +154,18 @@ def _reaction_approach(tr, segs: list[SegmentRecord], traj: Trajectory) -> dict 
             "last_fired": max(fired) if fired else None, "past": _past(tr, float(g[i]))}
 
 
+def _round_off(tr) -> float:
+    """How far from the guard's value a measure is still on it: a few ulps of the value.  A state
+    mapped onto a new configuration (a release at a stop) lands on the value to round-off, on
+    either side by the route that mapped it; from there a departure against the guard's direction
+    is no crossing against it, and a hair past the value is not past it."""
+    return 16.0 * np.finfo(float).eps * max(1.0, abs(float(tr.guard.value)))
+
+
 def _past(tr, closest: float) -> bool:
     """Was the guard, where nearest its value, already on the side it fires to?  (It stayed past
     its value: a guard fires on a crossing in its direction, which never came.)"""
-    return bool(tr.guard.direction * (closest - tr.guard.value) > 0)
+    return bool(tr.guard.direction * (closest - tr.guard.value) > _round_off(tr))
 
 
 def describe(records: list[dict]) -> str:

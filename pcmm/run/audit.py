@@ -142,10 +142,17 @@ def _compiled_drive_powers(cfg: Configuration, coords):
     tree = getattr(coords, "_compiled_drives", lambda: None)()
     if tree is None or not hasattr(tree, "drive_powers") or coords.ny < 2:
         return None
-    probes = [(np.array([0.37 * (j + 1), 0.5 + 0.41 * j]), np.stack([y, y[::-1]], axis=1))
-              for j, y in enumerate(compiled._probe_states(coords.ny // 2))]
     reference = lambda t, y: python_drive_powers(cfg, coords, t, y)  # noqa: E731
-    return tree.drive_powers if compiled.agrees_on(tree, tree.drive_powers, reference, probes, "drive powers") else None
+    # the probes are made only where the check runs: once per tree, not at every flight
+    return tree.drive_powers if compiled.agrees_on(tree, tree.drive_powers, reference,
+                                                   lambda: _drive_power_probes(coords.ny),
+                                                   "drive powers") else None
+
+
+def _drive_power_probes(ny: int) -> list:
+    """Probe arguments ``(times, states)`` of ``drive_powers``: two nodes each, a state and its reverse."""
+    return [(np.array([0.37 * (j + 1), 0.5 + 0.41 * j]), np.stack([y, y[::-1]], axis=1))
+            for j, y in enumerate(compiled._probe_states(ny // 2))]
 
 
 def python_drive_powers(cfg: Configuration, coords, times, states) -> np.ndarray | None:
