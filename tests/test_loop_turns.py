@@ -118,12 +118,9 @@ def test_nearest_turns_moves_only_the_named_angles_by_whole_turns():
 
 
 # the starts where the compiled stepping ("auto") changed the crank's speed on main (survey, 8 of 30):
-# 0.8866 rad by 0.119 rad/s from t = 0.800 s, 0.5224 by 0.077 from 1.06 s, 0.7045 by 0.074; and where the
-# Python stepping jumped to the other assembly (0.401 all in Python; 0.7045 over the compiled loop, at
-# t = 0.98 s): each a rejected step's retry warm-started from that step's stages, past the change point
-# (docs/performance.md).  Not here: 0.7045 stepped in Python over the compiled loop and 0.401 all in Python,
-# whose last accepted step (0.013 and 0.001 rad before the change point) is now solved on the other
-# assembly (docs/limits.md)
+# 0.8866 rad by 0.119 rad/s from t = 0.800 s, 0.5224 by 0.077 from 1.06 s, 0.7045 by 0.074: a rejected
+# step's retry warm-started from that step's stages, past the change point, on the other assembly
+# (docs/performance.md); and two of them stepped in Python over the compiled loop (which kept their speed)
 @pytest.mark.parametrize(("theta0", "mode", "stepped"), [
     (_start(19), "1", True), (_start(7), "1", True), (_start(13), "1", True),
     (_start(19), "1", False), (_start(7), "1", False)])

@@ -87,7 +87,6 @@ class PartitionedCoordinates:
         self.ny = 0  # 2 len(I), set with the partition (pack, project)
         self._qD = None
         self._recent: list[tuple[float, np.ndarray]] = []
-        self._anchor = None  # the solution at the stepping's last accepted state (step_accepted)
         # a re-read segment's accepted steps (t, y) and the solutions reached along them, by step
         # (restored, _follow); None while integrating
         self._trail = None
@@ -576,7 +575,6 @@ class PartitionedCoordinates:
         """Start the Newton solve of the dependent coordinates from ``q``."""
         self._qD = q.copy()
         self._recent = []
-        self._anchor = None
         self._cache = None
         self._seed_q = self._qD
         self._loop_held = None  # checked again (a new partition is checked once)
@@ -585,31 +583,6 @@ class PartitionedCoordinates:
                 self._loop.seed(q, self.I, self.D)
             else:  # redundant rows: the Python evaluation says so (_scaled_det)
                 self._refuse_loop(f"{self.m} constraint rows for {len(self.D)} dependent coordinates")
-
-    def step_accepted(self, t, y) -> None:
-        """The stepping (pcmm.ode.dop853.DOP853) accepted the state ``(t, y)``: where the last solve
-        is that state (the step's last evaluation) its solution is kept as the warm start a rejected
-        step's retry goes back to (:meth:`step_rejected`); otherwise none is (no solve here)."""
-        y = y[:self.ny]  # a flight's state has its work appended
-        loop = self._held_loop()
-        if loop is not None:
-            loop.anchor(t, y)
-            return
-        cache = self._cache
-        held = cache is not None and cache[0] == t and np.array_equal(cache[1], y) and self._recent
-        self._anchor = self._recent[-1] if held and self._recent[-1][0] == t else None
-
-    def step_rejected(self) -> None:
-        """The stepping rejected a trial step: its stages' solutions are no warm starts for its retry,
-        the accepted state's is (the compiled segment loop does the same, _loops.hpp ``rejected``).
-        Past a change point those stages lie on the other assembly; with the last 8 solutions kept and
-        12 evaluations to a DOP853 step they were all the retry found (docs/performance.md)."""
-        loop = self._held_loop()
-        if loop is not None:
-            loop.rejected()
-        elif self._anchor is not None:
-            self._recent = [self._anchor]
-            self._cache = None
 
     def _guess(self, t):
         """The warm start for a solve at ``t``: the recent solution nearest in time, carried to

@@ -158,11 +158,7 @@ class DOP853:
     step per :meth:`step` (``None`` or the failure's message), :meth:`dense_output` its
     interpolant."""
 
-    def __init__(self, fun, t0, y0, t_bound, max_step=np.inf, rtol=1e-3, atol=1e-6, first_step=None,
-                 accepted=None, rejected=None):
-        # accepted(t, y): each accepted state (the start too), after its last evaluation; rejected(): each
-        # rejected trial step, before its retry (a closed loop's warm starts: PartitionedCoordinates)
-        self._accepted, self._rejected = accepted, rejected
+    def __init__(self, fun, t0, y0, t_bound, max_step=np.inf, rtol=1e-3, atol=1e-6, first_step=None):
         self.tab = tab = _tableau()
         y0 = np.asarray(y0).astype(float, copy=False)
         if y0.ndim != 1:
@@ -181,8 +177,6 @@ class DOP853:
             rtol = np.maximum(rtol, 100 * EPS)
         self.rtol, self.atol = rtol, np.asarray(atol)
         self.f = self.fun(t0, y0)
-        if accepted is not None:
-            accepted(t0, y0)
         if first_step is None:
             self.h_abs = _initial_step(self.fun, t0, y0, t_bound, max_step, self.f, self.direction, self.rtol,
                                        self.atol)
@@ -239,12 +233,8 @@ class DOP853:
                 break
             h_abs *= max(MIN_FACTOR, SAFETY * error_norm ** tab.error_exponent)
             rejected = True
-            if self._rejected is not None:
-                self._rejected()
         self.h_previous, self.y_old = h, y
         self.t, self.y, self.h_abs, self.f = t_new, y_new, h_abs, f_new
-        if self._accepted is not None:
-            self._accepted(t_new, y_new)
         return None
 
     def dense_output(self):

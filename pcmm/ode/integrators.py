@@ -457,15 +457,9 @@ class ScipyMethod:
         needs_f = _needs_derivative(events)
         stages = keep_dense and self.cls is DOP853  # pcmm's own DOP853 hands its stages out
 
-        # a closed loop's coordinates told of accepted and rejected steps (pcmm's DOP853: a rejected step's
-        # retry solves from the accepted state, PartitionedCoordinates.step_rejected)
-        owner = getattr(getattr(fun, "__wrapped__", fun), "__self__", None)
-        hooks = ({"accepted": owner.step_accepted, "rejected": owner.step_rejected}
-                 if self.cls is DOP853 and hasattr(owner, "step_rejected") else {})
-
         def steps(counted, f0, st):
             solver = self.cls(counted, t0, np.array(y0, float), t_bound, rtol=opts.rtol, atol=opts.atol,
-                              max_step=opts.max_step, **hooks)
+                              max_step=opts.max_step)
             while solver.status == "running":
                 t_old, y_old = solver.t, solver.y.copy()
                 message = solver.step()
