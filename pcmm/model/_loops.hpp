@@ -706,7 +706,8 @@ PyObject *loop_holds(Loop *self, PyObject *const *args, Py_ssize_t nargs) {
 }
 
 // anchor(t, y) -> whether the last unpack is (t, y), the state a stepper accepted: its solution is then the
-// warm start a rejected step's retry goes back to (rejected()); pcmm.ode.dop853.DOP853 over this loop
+// warm start a rejected step's retry goes back to (rejected()): the compiled segment loop's rule, for a
+// stepper in Python (none uses it: docs/performance.md, "Loops stepped by the compiled segment loop")
 PyObject *loop_anchor(Loop *self, PyObject *const *args, Py_ssize_t nargs) {
   if (nargs != 2) {
     PyErr_SetString(PyExc_TypeError, "anchor(t, y) takes two arguments");
