@@ -19,7 +19,7 @@ import pytest
 
 import pcmm
 from pcmm.errors import SimulationError
-from pcmm.model import compiled, partitioned
+from pcmm.model import compiled
 
 
 def _assert_path(mode):
@@ -42,10 +42,9 @@ def test_a_run_stopped_at_its_change_point_is_read_on_its_own_branch(tmp_path, m
     """Driven into theta = pi the run stops (singular posture); every sample of every segment of the
     partial run, at its steps and resampled on the dense output, is on the parallelogram branch."""
     monkeypatch.setenv(compiled.ENV, mode)
-    # stepped by pcmm's DOP853 in Python: the check below reads the crank's rate (theta0 + omega t), and the
-    # compiled stepping's run from 0.5 rad gains speed near the change point (2 -> 2.16 rad/s from t = 0.964 s,
-    # as on main; its angles no longer jump: tests/test_loop_turns.py; docs/performance.md)
-    monkeypatch.setattr(partitioned, "STEP_LOOPS_COMPILED", False)
+    # with the extension, stepped by the compiled segment loop ("auto"): the check below reads the crank's
+    # rate (theta0 + omega t), which it changed near the change point (2 -> 2.16 rad/s from t = 0.964 s) until
+    # a rejected step's retry started its solves from the accepted state (tests/test_loop_turns.py)
     compiled.forget_trees()
     path = builders.parallelogram(tmp_path, 0.5, 2.0, t_end=2.0)
     with pytest.raises(SimulationError, match="singular") as stop:

@@ -175,10 +175,11 @@ def test_a_declined_evaluation_is_taken_by_python(tmp_path, monkeypatch):
     with a message naming it.  (Coasting, the step-size control reads round-off only, so the two routes'
     steps part from the second step on, as the Python route's own do for a start 1e-8 rad away: the
     outcome is compared, not the instants.)  Before the stop at a stalled partition (run/loop.py), the
-    compiled route repeated a new partition at t = 1.3106 s for ever.  From 0.45 rad: from 0.5 rad the
-    compiled route met its declined evaluations only after a Newton solve had landed 6328 turns away,
-    which no longer happens (tests/test_loop_turns.py), and its run now stops without one."""
-    theta0 = 0.45
+    compiled route repeated a new partition at t = 1.3106 s for ever.  From 0.6741 rad (one declined
+    evaluation): from 0.45 and 0.5 rad the compiled run now declines none (a rejected step's retry starts its
+    solves from the accepted state, tests/test_loop_turns.py; a new partition restarts from the run's own
+    solution)."""
+    theta0 = 0.6741
     path = builders.parallelogram(tmp_path, theta0, 2.0, t_end=2.0)
     change_point = (np.pi - theta0) / 2.0  # theta = pi
     spy = _Spy(monkeypatch)

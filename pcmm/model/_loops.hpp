@@ -50,6 +50,10 @@ struct State {
   std::vector<std::vector<double>> c0, c1, c2;  // f, f', f'' coefficients, low order first
   std::vector<int> I, D;
   std::vector<Recent> recent;  // oldest first
+  // the compiled segment loop's accepted state: the solution at its last accepted step's end (or its
+  // segment's start), the only warm start a rejected step's retry keeps (segment_loop_rejected)
+  bool anchored = false;
+  Recent anchor;
   VectorXd seed;
   // the last unpack: (t, y) -> (q, v, rates, Phi_q)
   bool cached = false;
@@ -263,6 +267,27 @@ bool same_state(const State &s, double t, const double *y, int n) {
   for (int i = 0; i < n; ++i)
     if (s.cy[i] != y[i]) return false;
   return true;
+}
+
+// a stepper accepted the state (t, y): where the last unpack is that state (the step's last evaluation),
+// its solution is kept as the warm start a rejected step's retry goes back to (rejected); false otherwise
+// (no solve here: a rejection then keeps the warm starts as they are)
+bool anchor(State &s, double t, const double *y, int n) {
+  s.anchored = same_state(s, t, y, n);
+  if (s.anchored) s.anchor = Recent{t, s.cq, s.cv};
+  return s.anchored;
+}
+
+// a stepper rejected a trial step: its stages' solutions are not warm starts for its retry, the accepted
+// state's solution is.  A trial step that runs past a change point solves its late stages on the other
+// assembly (each Newton start the previous stage's solution, farther than PREDICT_MAX away); with the
+// last 8 kept and 12 evaluations to a DOP853 step, those were all the retry found, nearest in time: its
+// stages then followed the other assembly (smoothly: the retry was accepted), and a coasting
+// parallelogram's crank changed speed by 6 % (benchmarks/change_point_survey.py, tests/test_loop_turns.py)
+void rejected(State &s) {
+  if (!s.anchored) return;
+  s.recent.assign(1, s.anchor);
+  s.cached = false;
 }
 
 void remember(State &s, double t, const double *y, int n, const VectorXd &q, const VectorXd &rates) {
@@ -517,6 +542,7 @@ PyObject *loop_seed(Loop *self, PyObject *args) {
   s.D = D;
   s.recent.clear();
   s.cached = false;
+  s.anchored = false;
   Py_RETURN_NONE;
 }
 
@@ -679,6 +705,28 @@ PyObject *loop_holds(Loop *self, PyObject *const *args, Py_ssize_t nargs) {
   return PyBool_FromLong(held);
 }
 
+// anchor(t, y) -> whether the last unpack is (t, y), the state a stepper accepted: its solution is then the
+// warm start a rejected step's retry goes back to (rejected()): the compiled segment loop's rule, for a
+// stepper in Python (none uses it: docs/performance.md, "Loops stepped by the compiled segment loop")
+PyObject *loop_anchor(Loop *self, PyObject *const *args, Py_ssize_t nargs) {
+  if (nargs != 2) {
+    PyErr_SetString(PyExc_TypeError, "anchor(t, y) takes two arguments");
+    return nullptr;
+  }
+  const double t = PyFloat_AsDouble(args[0]);
+  if (t == -1.0 && PyErr_Occurred()) return nullptr;
+  PyArrayObject *y = vector_arg(args[1], 2 * (int)self->s->I.size(), "y", "state");
+  if (!y) return nullptr;
+  const bool kept = loops::anchor(*self->s, t, (const double *)PyArray_DATA(y), 2 * (int)self->s->I.size());
+  Py_DECREF(y);
+  return PyBool_FromLong(kept);
+}
+
+PyObject *loop_rejected(Loop *self, PyObject *) {
+  loops::rejected(*self->s);
+  Py_RETURN_NONE;
+}
+
 // last() -> (t, q, q') of the last solution kept (a re-read segment keeps it at its step), or None
 PyObject *loop_last(Loop *self, PyObject *) {
   if (self->s->recent.empty()) Py_RETURN_NONE;
@@ -821,6 +869,10 @@ PyMethodDef loop_object_methods[] = {
     {"det_rate", (PyCFunction)(void (*)(void))loop_det_rate, METH_FASTCALL,
      "det_rate(t, q, qdot) -> d/dt of the dependent block's scaled determinant (central differences)"},
     {"last", (PyCFunction)loop_last, METH_NOARGS, "last() -> (t, q, q') of the last solution kept"},
+    {"anchor", (PyCFunction)(void (*)(void))loop_anchor, METH_FASTCALL,
+     "anchor(t, y) -> whether (t, y) is the last unpack: its solution the warm start after a rejected step"},
+    {"rejected", (PyCFunction)loop_rejected, METH_NOARGS,
+     "rejected(): a trial step was rejected: the anchored solution is the only warm start kept"},
     {"max_residual", (PyCFunction)loop_max_residual, METH_NOARGS, "the largest residual a Newton solve accepted"},
     {"set_checking", (PyCFunction)loop_set_checking, METH_O, "set_checking(on): the conditioning check"},
     {"set_turns", (PyCFunction)loop_set_turns, METH_O,
@@ -878,6 +930,13 @@ bool segment_loop_solved(Loop *self, double t, const double *y, const double **q
   *qd = self->s->cv.data();
   return true;
 }
+
+// the compiled segment loop's accepted state and rejected steps (loops::anchor, loops::rejected)
+bool segment_loop_anchor(Loop *self, double t, const double *y) {
+  return loops::anchor(*self->s, t, y, 2 * (int)self->s->I.size());
+}
+
+void segment_loop_rejected(Loop *self) { loops::rejected(*self->s); }
 
 // the singularity guard at the last solution: its value, the dependent block's scaled determinant (of the
 // Jacobian PartitionedCoordinates.unpack leaves, _last_Jp), and its rate (det_rate along q')

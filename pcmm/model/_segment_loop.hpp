@@ -56,6 +56,8 @@ int segment_loop_size(Loop *self);
 int segment_loop_nv(Loop *self);
 bool segment_loop_evaluate(Loop *self, double t, const double *y, double *dy, bool power);
 bool segment_loop_solved(Loop *self, double t, const double *y, const double **q, const double **qd);
+bool segment_loop_anchor(Loop *self, double t, const double *y);
+void segment_loop_rejected(Loop *self);
 double segment_loop_scaled_det(Loop *self);
 double segment_loop_det_rate(Loop *self, double t);
 
@@ -572,6 +574,7 @@ int rk_advance(SegmentLoop *s) {
       }
       h_abs *= std::max(min_factor, safety * std::pow(error_norm, exponent));
       rejected = true;
+      if (s->loop) segment_loop_rejected(s->loop);  // its retry starts its solves from the accepted state
       ++s->nrejct;
     }
     ++s->naccpt;
@@ -579,6 +582,7 @@ int rk_advance(SegmentLoop *s) {
     std::copy(s->k1, s->k1 + n, s->k1old);
     std::copy(ynew, ynew + n, y);
     std::copy(K + (size_t)rk_stages * n, K + (size_t)(rk_stages + 1) * n, s->k1);
+    if (s->loop) segment_loop_anchor(s->loop, t_new, y);  // the last stage's solution (the Loop's cache)
     s->xold = t;
     s->x = t_new;
     s->hstep = h;
@@ -709,6 +713,7 @@ int advance(SegmentLoop *s) {
       std::copy(k1, k1 + n, s->k1old);
       std::copy(k4, k4 + n, k1);
       std::copy(k5, k5 + n, y);
+      if (s->loop) segment_loop_anchor(s->loop, xph, y);  // the evaluation just made (the Loop's cache)
       s->xold = x;
       s->x = xph;
       s->hstep = h;
@@ -732,6 +737,7 @@ int advance(SegmentLoop *s) {
       (void)fac11;
       hnew = h / std::min(s->facc1, s->facc1 / safe);
       s->reject = true;
+      if (s->loop) segment_loop_rejected(s->loop);  // its retry starts its solves from the accepted state
       if (s->naccpt >= 1) ++s->nrejct;
       s->last = false;
       s->h = hnew;
@@ -986,6 +992,7 @@ PyObject *loop_new(PyTypeObject *type, PyObject *args, PyObject *kwargs) {
   s->reject = s->last = s->done = s->dense_ready = false;
   s->xold = t0;
   fcn(s, t0, s->y, s->k1);
+  if (s->loop) segment_loop_anchor(s->loop, t0, s->y);  // the segment's start: a first step's retry goes back to it
   if (s->rk) {  // scipy's settings: rtol at least 100 eps (it warns), max_step inf where not given
     s->rtol = std::max(rtol, 100 * dop853::uround);
     s->rk_max_step = std::isfinite(max_step) && max_step > 0 ? max_step : INFINITY;
