@@ -51,8 +51,10 @@ def closest_approach(scene: Scene, cfg: Configuration, traj: Trajectory) -> list
     watched = [tr for tr in scene.transitions_from(cfg.name) if tr.guard.type in ("coordinate", "gap")]
     reactions = [tr for tr in scene.transitions_from(cfg.name) if tr.guard.type == "reaction"]
     timers = [tr for tr in scene.transitions_from(cfg.name) if tr.guard.type == "time" and tr.guard.at is not None]
-    segs = [s for s in traj.segments if s.configuration == cfg.name]
-    if not segs or not (watched or reactions or timers):
+    if not (watched or reactions or timers):
+        return []
+    segs = _segments_in(traj, cfg.name, watched if not (reactions or timers) else None)
+    if not segs:
         return []
     out = [r for r in (_timer_missed(tr, segs, traj) for tr in timers) if r is not None]
     out += [r for r in (_reaction_approach(tr, segs, traj) for tr in reactions) if r is not None]
@@ -88,6 +90,29 @@ def closest_approach(scene: Scene, cfg: Configuration, traj: Trajectory) -> list
                     "past": _past(tr, gi),
                     "crossed_against": _crossed_against(tr, t, g, owner)})
     return out
+
+
+def _segments_in(traj: Trajectory, name: str, watched) -> list[SegmentRecord]:
+    """The run's segments in configuration ``name``.  Where only ``watched`` guards are asked about
+    and each has fired, only the segments since the earliest of their last firings matter (a
+    guard's approach is read since it last fired): they are taken from the end, so that a stored
+    run of a million bounces reads its last segments, not all of them into memory at once."""
+    segments = traj.segments
+    if watched:
+        names, last = {tr.name for tr in watched}, {}
+        for e in traj.events:
+            if e.get("name") in names:
+                last[e["name"]] = e.get("t_end") or e["t"]
+        if len(last) == len(names):
+            since, tail = min(last.values()), []
+            for k in range(len(segments) - 1, -1, -1):
+                seg = segments[k]
+                if seg.configuration == name:
+                    tail.append(seg)
+                if float(seg.t[0]) <= since:
+                    break
+            return tail[::-1]
+    return [s for s in segments if s.configuration == name]
 
 
 def _crossed_against(tr, t: np.ndarray, g: np.ndarray, owner: np.ndarray) -> float | None:
