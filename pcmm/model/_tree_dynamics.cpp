@@ -462,8 +462,11 @@ inline double horner(const std::vector<double> &c, double t) {
 // appended, dy[2k]) at t, y = [q_I, v_I] (y[2k], the work, is not read): the Python evaluation's
 // steps in its order (PartitionedCoordinates._prescribed, ForceField.generalized = Q0 - K q - Dv v,
 // constrained_accelerations, rhs_with_power's power tau.v - lam.Phi_t with Phi_t = -f')
-void evaluate_drives(Tree *self, double t, const double *y, double *dy, bool power) {
-  DriveLaws &d = *self->drives;
+// The drives' KKT system at t for the free coordinates' state y[i * stride] (positions i < k, rates
+// k <= i < 2k): the drive values f, f', the bias gamma = -f'', the prescribed and free q and v, and
+// the force elements' tau = Q0 - K q - D v, as the Python evaluation forms them (in its order), for
+// forwardDynamics with the drive rows.  The right-hand side and the audit's drive powers both read it.
+void load_drives(Tree *self, DriveLaws &d, double t, const double *y, npy_intp stride) {
   const int nv = self->nv, k = (int)d.free.size(), nd = (int)d.driven.size();
   for (int j = 0; j < nd; ++j) {
     d.f[j] = horner(d.c0[j], t);
@@ -472,8 +475,8 @@ void evaluate_drives(Tree *self, double t, const double *y, double *dy, bool pow
     d.gamma[j] = -d.f2[j];
   }
   for (int i = 0; i < k; ++i) {
-    d.q[d.free[i]] = y[i];
-    d.v[d.free[i]] = y[k + i];
+    d.q[d.free[i]] = y[(npy_intp)i * stride];
+    d.v[d.free[i]] = y[(npy_intp)(k + i) * stride];
   }
   for (int j = 0; j < nd; ++j) {
     d.q[d.driven[j]] = d.f[j];
@@ -487,6 +490,12 @@ void evaluate_drives(Tree *self, double t, const double *y, double *dy, bool pow
     else d.dv[ij.first] += kd * d.v[ij.second - nv];
   }
   for (int i = 0; i < nv; ++i) d.tau[i] = (*self->q0_force)[i] - d.kq[i] - d.dv[i];
+}
+
+void evaluate_drives(Tree *self, double t, const double *y, double *dy, bool power) {
+  DriveLaws &d = *self->drives;
+  const int nv = self->nv, k = (int)d.free.size(), nd = (int)d.driven.size();
+  load_drives(self, d, t, y, 1);
   pinocchio::forwardDynamics(*self->model, *self->data, d.q, d.v, d.tau, d.J, d.gamma, 0.0);
   const VectorXd &a = self->data->ddq;
   for (int i = 0; i < k; ++i) {
@@ -530,33 +539,13 @@ PyObject *tree_drive_powers(Tree *self, PyObject *args) {
     return nullptr;
   }
   DriveLaws &d = *self->drives;
-  const int nv = self->nv, k = (int)d.free.size(), nd = (int)d.driven.size();
+  const int nv = self->nv, nd = (int)d.driven.size();
   const double *ts = (const double *)PyArray_DATA(times), *ys = (const double *)PyArray_DATA(states);
   double *po = (double *)PyArray_DATA(out);
   bool ok = true;
   for (npy_intp c = 0; c < n && ok; ++c) {
     const double t = ts[c];
-    for (int j = 0; j < nd; ++j) {
-      d.f[j] = horner(d.c0[j], t);
-      d.f1[j] = horner(d.c1[j], t);
-      d.gamma[j] = -horner(d.c2[j], t);
-    }
-    for (int i = 0; i < k; ++i) {
-      d.q[d.free[i]] = ys[(npy_intp)i * n + c];
-      d.v[d.free[i]] = ys[(npy_intp)(k + i) * n + c];
-    }
-    for (int j = 0; j < nd; ++j) {
-      d.q[d.driven[j]] = d.f[j];
-      d.v[d.driven[j]] = d.f1[j];
-    }
-    d.kq.setZero();
-    d.dv.setZero();
-    for (const auto &ij : *self->kd_nonzero) {
-      const double kd = (*self->kd)(ij.first, ij.second);
-      if (ij.second < nv) d.kq[ij.first] += kd * d.q[ij.second];
-      else d.dv[ij.first] += kd * d.v[ij.second - nv];
-    }
-    for (int i = 0; i < nv; ++i) d.tau[i] = (*self->q0_force)[i] - d.kq[i] - d.dv[i];
+    load_drives(self, d, t, ys + c, n);
     try {
       pinocchio::forwardDynamics(*self->model, *self->data, d.q, d.v, d.tau, d.J, d.gamma, 0.0);
     } catch (const std::exception &exc) {
