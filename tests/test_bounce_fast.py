@@ -1,0 +1,139 @@
+"""A bounce's fast path (issue 26, item 2): the record formed from the impulse's arrays, the entry and
+the re-arm of a bounce into its own configuration give the run of the general route to the bit, and
+the per-bounce physics checks still catch a wrong bounce."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+import builders
+import pcmm
+from pcmm.errors import SimulationError
+from pcmm.events import records, transitions
+
+
+def _general_record(cfg, tr, t, imp, q):
+    return records.event_record(cfg, tr, t, cfg.name, False, imp, q=q)
+
+
+def _events(traj) -> list[str]:
+    """Every event as the text of its dict: keys, order, types and numbers (repr: to the bit)."""
+    return [repr(dict(e)) for e in traj.events]
+
+
+def _pendulum(tmp_path):
+    # a bar released horizontal onto a stop on the frame 0.3 rad below (a stable point contact,
+    # e = 0.85): about 90 bounces, then the merge
+    return pcmm.load_scene(builders.pendulum(tmp_path, 0.85, qs=-0.3, t_end=3.0))
+
+
+def _counting(monkeypatch):
+    """Count the bounces whose record is kept as its numbers."""
+    kept = []
+    fast = records.bounce_record
+
+    def counted(*args):
+        out = fast(*args)
+        kept.append(isinstance(out, records.BounceRecord))
+        return out
+    monkeypatch.setattr(transitions, "bounce_record", counted)
+    return kept
+
+
+def test_a_bounce_record_is_the_general_record_to_the_bit(tmp_path, monkeypatch):
+    scene = _pendulum(tmp_path)
+    kept = _counting(monkeypatch)
+    fast = pcmm.simulate(scene)
+    bounces = sum(e["transition"] == "stop" and not e["merge"] for e in fast.events)
+    assert bounces >= 80 and sum(kept) == bounces - 1  # the first bounce builds (and checks) the plan
+    monkeypatch.setattr(transitions, "bounce_record", _general_record)
+    general = pcmm.simulate(scene)
+    assert _events(fast) == _events(general)
+    assert fast.events == general.events
+    # the log keeps the numbers in one table either way
+    assert [t.n for t in fast.events._tables] == [t.n for t in general.events._tables]
+    rows = [np.vstack(t.blocks)[:t.n] for t in fast.events._tables]
+    rows_general = [np.vstack(t.blocks)[:t.n] for t in general.events._tables]
+    assert all(a.tobytes() == b.tobytes() for a, b in zip(rows, rows_general))
+
+
+def test_a_bounce_record_reads_as_its_dict(tmp_path, monkeypatch):
+    scene = _pendulum(tmp_path)
+    outs = []
+    handle = transitions.TRANSITIONS["stop"]
+
+    def keep(*args):
+        out = handle(*args)
+        outs.append(out.event)
+        return out
+    monkeypatch.setitem(transitions.TRANSITIONS, "stop", keep)
+    traj = pcmm.simulate(scene)
+    rec = next(e for e in outs if isinstance(e, records.BounceRecord))
+    whole = rec.record()
+    assert dict(rec) == whole and list(rec) == list(whole) and len(rec) == len(whole)
+    i = outs.index(rec)
+    assert traj.events[i] == whole
+    assert rec["t"] == whole["t"] and type(rec["t"]) is float
+    assert rec["name"] == "stop" and rec["impact"] is True and rec["merge"] is False
+    assert rec["restitution"] == 0.85 and rec["kinetic_energy_after"] == whole["kinetic_energy_after"]
+    assert rec.get("friction") is None and "cut_impulses" in rec
+    # Newton's law and the energy from the record's own numbers
+    vn = whole["normal_velocity"]
+    assert vn["after"] == pytest.approx(-0.85 * vn["before"], rel=1e-12)
+    assert whole["energy_dissipated"] > 0
+
+
+def test_three_bar_cycle_records_are_the_general_ones(monkeypatch):
+    scene = pcmm.load_scene(builders.EXAMPLES / "three_bar_cycle.toml")
+    options = pcmm.RunOptions(t_end=1.5)
+    kept = _counting(monkeypatch)
+    fast = pcmm.simulate(scene, options)
+    assert sum(kept) > 80
+    monkeypatch.setattr(transitions, "bounce_record", _general_record)
+    general = pcmm.simulate(scene, options)
+    assert _events(fast) == _events(general)
+
+
+def test_a_record_plan_whose_numbers_differ_is_refused(tmp_path, monkeypatch):
+    """The plan is checked at the stop's first bounce against the general record: one number off by
+    one ulp refuses it for good, with its reason, and every record is then the general one."""
+    scene = _pendulum(tmp_path)
+    numbers = records._bounce_numbers
+
+    def off_by_an_ulp(*args):
+        out = numbers(*args)
+        out[5] = math.nextafter(out[5], math.inf)
+        return out
+    monkeypatch.setattr(records, "_bounce_numbers", off_by_an_ulp)
+    records.BOUNCE_RECORD_REFUSED.clear()
+    kept = _counting(monkeypatch)
+    traj = pcmm.simulate(scene)
+    assert not any(kept)
+    assert records.BOUNCE_RECORD_REFUSED == {("c1", "stop"): "its numbers differ from the general record's"}
+    monkeypatch.setattr(transitions, "bounce_record", _general_record)
+    assert _events(traj) == _events(pcmm.simulate(scene))
+
+
+def test_a_bounce_with_a_wrong_restitution_is_caught(tmp_path, monkeypatch):
+    """A bounce whose velocity follows another restitution than its stop's (a planted defect in the
+    impulse the bounce goes on with) stops the run, naming Newton's law, the stop and the instant."""
+    scene = _pendulum(tmp_path)
+    solve = transitions.solve_impulse
+    calls = []
+
+    def wrong_e(cfg, t, q, v, contact, restitution, cut, name=None):
+        calls.append(t)
+        if len(calls) < 3:
+            return solve(cfg, t, q, v, contact, restitution, cut, name=name)
+        imp = solve(cfg, t, q, v, contact, 0.9 * restitution, cut, name=name)
+        imp.restitution = restitution  # the record would claim the stop's own
+        return imp
+    monkeypatch.setattr(transitions, "solve_impulse", wrong_e)
+    with pytest.raises(SimulationError) as err:
+        pcmm.simulate(scene)
+    text = str(err.value)
+    assert "restitution law" in text and "'stop'" in text and f"t = {calls[2]:.9g} s" in text
+    # the law's own numbers: vn+ = -0.9 e vn- instead of -e vn-
+    assert "e = 0.85" in text
