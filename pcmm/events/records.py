@@ -226,18 +226,31 @@ def _filled(template, numbers: list, pos: list):
 class RecordPlan:
     """What every bounce at one stop of one configuration shares in its event record: the keys, the
     texts, the flags and the None (``template``: the first bounce's record, built and checked the
-    general way), and where the top-level values sit among the numbers."""
+    general way), where the top-level values sit among the numbers, and the constants of its numbers:
+    the stop's kind (``"prismatic"``, ``"revolute"``, ``"point"``), the point the momenta are taken
+    about, the root joints with their (fixed) points, which contact impulse the frame applies."""
 
-    __slots__ = ("tr", "template", "top", "root_points", "why")
+    __slots__ = ("cfg", "tr", "template", "top", "why", "stop", "about", "roots", "frame_contact")
 
-    def __init__(self, tr, template: dict, root_points: list):
-        self.tr, self.template, self.root_points, self.why = tr, template, root_points, None
+    def __init__(self, cfg: Configuration, tr, template: dict):
+        self.cfg, self.tr, self.template, self.why = cfg, tr, template, None
         self.top = {}
         at = 0
         for key, value in template.items():
             n = len(record_numbers([value]))
             self.top[key] = at if n == 1 and type(value) is not dict and type(value) is not list else None
             at += n
+        joint = tr.contact.joint
+        self.stop = "point" if joint is None else cfg.spec.info.joints[joint].type == "prismatic" and "prismatic" \
+            or "revolute"
+        o = about_point(cfg)
+        self.about = (o[0], o[1])  # (numpy floats: momentum_record's operations on them)
+        self.roots: list = []  # [(joint, [x, y])] of the joints on the frame (external_impulses')
+        self.frame_contact = None  # the contact impulse on b (0) or on a (1) the frame applies, if any
+        if cfg.root == tr.contact.a and cfg.root != tr.contact.b:
+            self.frame_contact = 0
+        elif cfg.root == tr.contact.b and cfg.root != tr.contact.a:
+            self.frame_contact = 1
 
 
 class BounceRecord(Mapping):
@@ -294,18 +307,18 @@ def bounce_record(cfg: Configuration, tr: TransitionSpec, t, imp: Impulse, q):
     key = (cfg.name, tr.name)
     plans = cfg.impulse_models.setdefault("bounce_records", {})
     plan = plans.get(key)
-    if plan is not None and plan.tr is tr and plan.template["from"] == cfg.name:
+    if plan is not None and plan.tr is tr and plan.cfg is cfg:
         if plan.why is None:
             check_energy(tr, t, (imp.ke_before, imp.ke_after), imp.drive_work)
             return BounceRecord(plan, _bounce_numbers(plan, cfg, tr, t, imp))
         return event_record(cfg, tr, t, cfg.name, False, imp, q=q)
     record = event_record(cfg, tr, t, cfg.name, False, imp, q=q)
-    plan = RecordPlan(tr, record, [])
-    plans[key] = plan
+    plan = plans[key] = RecordPlan(cfg, tr, record)
     plan.why = _unplanned(cfg, imp, record)
     if plan.why is None:
-        plan.root_points = [ext["point"] for name, ext in record["external_impulses"].items()
-                            if name.startswith("joint ")]
+        model = cfg.model
+        names = [model.names[jid] for jid in range(1, model.njoints) if model.parents[jid] == 0]
+        plan.roots = [(name, record["external_impulses"][f"joint {name}"]["point"]) for name in names]
         got, want = _bounce_numbers(plan, cfg, tr, t, imp), record_numbers(record)
         if len(got) != len(want) or any(_bits(a) != _bits(b) for a, b in zip(got, want)):
             plan.why = "its numbers differ from the general record's"
@@ -341,22 +354,22 @@ def _bounce_numbers(plan: RecordPlan, cfg: Configuration, tr: TransitionSpec, t,
     """The numbers of :func:`event_record`'s record of a bounce, in its order, by the same operations
     (:func:`event_dict`, :func:`joint_stop_impulse`, :func:`momentum_record`,
     :func:`pcmm.events.momentum.external_impulses`)."""
-    P, normal, contact = imp.P, imp.normal, tr.contact
+    P, normal = imp.P, imp.normal
     n0, n1 = float(normal[0]), float(normal[1])
     out = [float(t), imp.restitution]
-    if contact.joint is not None:  # joint_stop_impulse
-        if cfg.spec.info.joints[contact.joint].type == "prismatic":
-            out += [float(P), float(P * n0) + 0.0, float(P * n1) + 0.0]
-        else:
-            arm = contact.arm
-            at_arm = P / arm if arm else None
-            normal_P = float(P if at_arm is None else at_arm)
-            out.append(float(P))
-            if arm is not None:
-                out.append(arm)
-            out.append(normal_P)
-            if at_arm is not None:
-                out += [normal_P * n0 + 0.0, normal_P * n1 + 0.0]
+    stop = plan.stop
+    if stop == "revolute":  # joint_stop_impulse
+        arm = tr.contact.arm
+        at_arm = P / arm if arm else None
+        normal_P = float(P if at_arm is None else at_arm)
+        out.append(float(P))
+        if arm is not None:
+            out.append(arm)
+        out.append(normal_P)
+        if at_arm is not None:
+            out += [normal_P * n0 + 0.0, normal_P * n1 + 0.0]
+    elif stop == "prismatic":
+        out += [float(P), float(P * n0) + 0.0, float(P * n1) + 0.0]
     else:
         P = float(P)
         out += [P, P * n0 + 0.0, P * n1 + 0.0]
@@ -372,23 +385,19 @@ def _bounce_numbers(plan: RecordPlan, cfg: Configuration, tr: TransitionSpec, t,
         out += x
     ke0, ke1 = imp.ke_before, imp.ke_after
     out += [float(ke0), float(ke1), float(ke1 - ke0)]
-    o = about_point(cfg)  # momentum_record's, from the momenta at the origin
+    o0, o1 = plan.about  # momentum_record's, from the momenta about the origin
     m = imp.momenta
-    out += [float(o[0]), float(o[1]), float(m[0]), float(m[1]), float(m[3]), float(m[4]),
-            m[2] - float(o[0] * m[1] - o[1] * m[0]), m[5] - float(o[0] * m[4] - o[1] * m[3])]
+    out += [float(o0), float(o1), float(m[0]), float(m[1]), float(m[3]), float(m[4]),
+            m[2] - float(o0 * m[1] - o1 * m[0]), m[5] - float(o0 * m[4] - o1 * m[3])]
     for x in imp.cut_impulses.values():
         out += x
     for x in imp.constraint_impulses.values():
         out += x
     out += [imp.drive_work, imp.energy_dissipated]
-    model, points = cfg.model, plan.root_points  # external_impulses: the root joints' (fixed) points
-    k = 0
-    for jid in range(1, model.njoints):
-        if model.parents[jid] == 0:
-            out += points[k]
-            out += joints[model.names[jid]]
-            k += 1
-    for (link, p, F, mz), (other, *_) in zip(imp.contact_impulses, imp.contact_impulses[::-1]):
-        if other == cfg.root and link != cfg.root:
-            out += [float(p[0]), float(p[1]), float(F[0]), float(F[1]), float(mz)]
+    for name, p in plan.roots:  # external_impulses
+        out += p
+        out += joints[name]
+    if plan.frame_contact is not None:
+        _, p, F, mz = imp.contact_impulses[plan.frame_contact]
+        out += [float(p[0]), float(p[1]), float(F[0]), float(F[1]), float(mz)]
     return out

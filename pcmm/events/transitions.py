@@ -134,8 +134,8 @@ def check_restitution(tr: TransitionSpec, t, imp: Impulse) -> None:
     if imp.friction is not None or imp.restitution is None:
         return
     off = abs(imp.vn_after + imp.restitution * imp.vn_before)
-    scale = max(abs(imp.vn_before), VELOCITY_ROUNDOFF * max(1.0, float(np.abs(imp.v_before).max(initial=0.0))))
-    if off <= RESTITUTION_ROUNDOFF * scale:
+    if off <= RESTITUTION_ROUNDOFF * abs(imp.vn_before) or off <= RESTITUTION_ROUNDOFF * VELOCITY_ROUNDOFF * max(
+            1.0, float(np.abs(imp.v_before).max(initial=0.0))):
         return
     raise SimulationError(
         f"t = {t:.9g} s, transition '{tr.name}': the bounce breaks Newton's restitution law (Eq. 21): normal "
