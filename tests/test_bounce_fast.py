@@ -137,3 +137,31 @@ def test_a_bounce_with_a_wrong_restitution_is_caught(tmp_path, monkeypatch):
     assert "restitution law" in text and "'stop'" in text and f"t = {calls[2]:.9g} s" in text
     # the law's own numbers: vn+ = -0.9 e vn- instead of -e vn-
     assert "e = 0.85" in text
+
+
+def test_a_bounce_re_arms_with_the_merges_guards_it_had(monkeypatch):
+    """Bouncing in a configuration that holds a merge by compression only (three_bar_cycle's
+    'O2_locked' and 'O3_locked'): the merge's guard is built once per stay, and the run is the one
+    whose every re-arm builds it again, to the bit."""
+    from pcmm.events import holding
+    from pcmm.run import loop
+    scene = pcmm.load_scene(builders.EXAMPLES / "three_bar_cycle.toml")
+    options = pcmm.RunOptions(t_end=1.5)
+    built, calls = holding.Holds.unmerge_guards, []
+
+    def counted(self, cfg):
+        calls.append(cfg.name)
+        return built(self, cfg)
+    monkeypatch.setattr(holding.Holds, "unmerge_guards", counted)
+    kept = pcmm.simulate(scene, options)
+    stays = 1 + sum(a["from"] != a["to"] for a in kept.events)
+    assert len(calls) <= stays < len(kept.events) / 10
+    monkeypatch.setattr(loop, "_unmerge_guards", lambda cfg, holds, phase, kept: holds.unmerge_guards(cfg))
+    calls.clear()
+    rebuilt = pcmm.simulate(scene, options)
+    assert len(calls) > len(kept.events)
+    assert _events(kept) == _events(rebuilt)
+    assert kept.stats["macro_impacts"] == rebuilt.stats["macro_impacts"]
+    seg_a, seg_b = kept.segments[-1], rebuilt.segments[-1]
+    assert seg_a.t.tobytes() == seg_b.t.tobytes() and seg_a.q.tobytes() == seg_b.q.tobytes()
+    assert seg_a.v.tobytes() == seg_b.v.tobytes()
