@@ -45,7 +45,7 @@ from .contact import contact_state, normal_speed
 from .contact_faults import POSE_TOL, contact_findings
 from .records import BounceRecord, bounce_record, by_link, event_record
 from .guards import guard_value
-from .entry import VELOCITY_ROUNDOFF, Entry, enter, joints_from_poses, map_state, pose_mismatches  # noqa: F401 - re-exported
+from .entry import VELOCITY_ROUNDOFF, Entry, enter, enter_bounce, joints_from_poses, map_state, pose_mismatches  # noqa: F401 - re-exported
 from .impulse import Impulse, no_impulse, solve_impulse
 from .pins import check_held_points_push, pin_strike
 from .simultaneous import closed_with, simultaneous_impact
@@ -273,7 +273,8 @@ def handle_stop(ctx: Context, cfg: Configuration, tr: StopSpec, t, q, v) -> Outc
     check_held_points_push(cfg, q, imp, f"t = {t:.9g} s, transition '{tr.name}'")
     check_restitution(tr, t, imp)
     record = bounce_record(cfg, tr, t, imp, q)  # event_record's, as its numbers where the impulse has them
-    q_new, v_new, _, _ = switch(cfg, cfg, t, q, imp.v_after, what=f"bounce at '{tr.name}'")
+    # no switch: the configuration stays; the state after the impulse (Eq. 43) projected and checked
+    q_new, v_new = enter_bounce(cfg, t, q, imp.v_after, what=f"bounce at '{tr.name}'")
     return Outcome(cfg.name, q_new, v_new, record, {})
 
 
