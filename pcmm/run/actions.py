@@ -164,13 +164,11 @@ def zero_time_cycle(events: list[dict], last: dict | None = None) -> str:
     n = len(events)
     # the two ends first: a run's event log builds each record it is asked for (pcmm.results.event_log),
     # and all the last ZERO_TIME_CYCLE of them at every event cost milliseconds
-    if n < ZERO_TIME_CYCLE:
-        return ""
+    if n < ZERO_TIME_CYCLE or (last is not None and last["from"] == last["to"]):
+        return ""  # (a bounce, the last of the tail, ends any cycle: below)
     time_of = getattr(events, "time", None)  # a compact log reads a time without building the record
     first = time_of(n - ZERO_TIME_CYCLE) if time_of is not None else events[n - ZERO_TIME_CYCLE]["t"]
-    if last is None:
-        last = events[n - 1]
-    if first != last["t"] or last["from"] == last["to"]:  # (a bounce in the tail ends the cycle: below)
+    if first != (events[n - 1] if last is None else last)["t"]:
         return ""
     tail = events[-ZERO_TIME_CYCLE:]
     if any(e["from"] == e["to"] for e in tail):
