@@ -230,15 +230,19 @@ class RecordPlan:
     the stop's kind (``"prismatic"``, ``"revolute"``, ``"point"``), the point the momenta are taken
     about, the root joints with their (fixed) points, which contact impulse the frame applies."""
 
-    __slots__ = ("cfg", "tr", "template", "top", "why", "stop", "about", "roots", "frame_contact")
+    __slots__ = ("cfg", "tr", "template", "top", "consts", "why", "stop", "about", "roots", "frame_contact")
 
     def __init__(self, cfg: Configuration, tr, template: dict):
         self.cfg, self.tr, self.template, self.why = cfg, tr, template, None
-        self.top = {}
+        self.top: dict = {}  # top-level float: its position among the numbers
+        self.consts: dict = {}  # top-level text, flag or None: itself
         at = 0
         for key, value in template.items():
             n = len(record_numbers([value]))
-            self.top[key] = at if n == 1 and type(value) is not dict and type(value) is not list else None
+            if isinstance(value, float):
+                self.top[key] = at
+            elif n == 0 and type(value) is not dict and type(value) is not list:
+                self.consts[key] = value
             at += n
         joint = tr.contact.joint
         self.stop = "point" if joint is None else cfg.spec.info.joints[joint].type == "prismatic" and "prismatic" \
@@ -274,14 +278,19 @@ class BounceRecord(Mapping):
         return self._record
 
     def __getitem__(self, key):
-        at = self.plan.top.get(key)
+        plan = self.plan
+        at = plan.top.get(key)
         if at is not None:
-            x = self.numbers[at]
-            return int(x) if type(self.plan.template[key]) is int else float(x)
-        value = self.plan.template[key]  # KeyError for a key the record lacks
-        if type(value) is dict or type(value) is list:
-            return self.record()[key]
-        return value
+            return float(self.numbers[at])
+        if key in plan.consts:
+            return plan.consts[key]
+        return self.record()[key]  # KeyError for a key the record lacks
+
+    def get(self, key, default=None):
+        return self[key] if key in self.plan.template else default
+
+    def __contains__(self, key) -> bool:
+        return key in self.plan.template
 
     def __iter__(self):
         return iter(self.plan.template)
