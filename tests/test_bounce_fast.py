@@ -12,6 +12,10 @@ import builders
 import pcmm
 from pcmm.errors import SimulationError
 from pcmm.events import records, transitions
+from pcmm.model import compiled
+
+# the record formed from the compiled impulse's arrays: where the compiled impulse runs
+needs_compiled = pytest.mark.skipif(not compiled.enabled(), reason="the compiled impulse does not run here")
 
 
 def _general_record(cfg, tr, t, imp, q):
@@ -42,6 +46,7 @@ def _counting(monkeypatch):
     return kept
 
 
+@needs_compiled
 def test_a_bounce_record_is_the_general_record_to_the_bit(tmp_path, monkeypatch):
     scene = _pendulum(tmp_path)
     kept = _counting(monkeypatch)
@@ -59,6 +64,7 @@ def test_a_bounce_record_is_the_general_record_to_the_bit(tmp_path, monkeypatch)
     assert all(a.tobytes() == b.tobytes() for a, b in zip(rows, rows_general))
 
 
+@needs_compiled
 def test_a_bounce_record_reads_as_its_dict(tmp_path, monkeypatch):
     scene = _pendulum(tmp_path)
     outs = []
@@ -85,6 +91,7 @@ def test_a_bounce_record_reads_as_its_dict(tmp_path, monkeypatch):
     assert whole["energy_dissipated"] > 0
 
 
+@needs_compiled
 def test_three_bar_cycle_records_are_the_general_ones(monkeypatch):
     scene = pcmm.load_scene(builders.EXAMPLES / "three_bar_cycle.toml")
     options = pcmm.RunOptions(t_end=1.5)
@@ -96,6 +103,7 @@ def test_three_bar_cycle_records_are_the_general_ones(monkeypatch):
     assert _events(fast) == _events(general)
 
 
+@needs_compiled
 def test_a_record_plan_whose_numbers_differ_is_refused(tmp_path, monkeypatch):
     """The plan is checked at the stop's first bounce against the general record: one number off by
     one ulp refuses it for good, with its reason, and every record is then the general one."""
@@ -165,3 +173,16 @@ def test_a_bounce_re_arms_with_the_merges_guards_it_had(monkeypatch):
     seg_a, seg_b = kept.segments[-1], rebuilt.segments[-1]
     assert seg_a.t.tobytes() == seg_b.t.tobytes() and seg_a.q.tobytes() == seg_b.q.tobytes()
     assert seg_a.v.tobytes() == seg_b.v.tobytes()
+
+
+def test_without_the_compiled_impulse_the_record_is_the_general_one(tmp_path, monkeypatch):
+    """PCMM_COMPILED=0: the impulse is the Python solve's (no momenta at hand), so every bounce keeps
+    the general record, and says why."""
+    monkeypatch.setenv("PCMM_COMPILED", "0")
+    scene = _pendulum(tmp_path)
+    records.BOUNCE_RECORD_REFUSED.clear()
+    kept = _counting(monkeypatch)
+    traj = pcmm.simulate(scene)
+    assert len(kept) > 80 and not any(kept)
+    assert records.BOUNCE_RECORD_REFUSED == {("c1", "stop"): "the impulse was not solved compiled (no momenta at hand)"}
+    assert all(type(e) is dict for e in traj.events)
