@@ -94,16 +94,17 @@ def enter_bounce(cfg: Configuration, t: float, q: np.ndarray, v: np.ndarray, wha
     ``cfg``'s constraints, every row of its loops and drives checked at the post-impact velocity, and
     the links' poses where the projection moved the posture; the same checks and the same state as
     ``enter(cfg, cfg, t, q, v)`` without the parts a bounce leaves empty (no joint dropped, no angle
-    offset).  Returns ``(q, v)``."""
+    offset).  Returns ``(q, v, the largest residual of the rows at the post-impact velocity)``."""
     q_new, v_new = cfg.coords.project(t, q, v)
     if q_new.tobytes() != q.tobytes():
         _, problems = pose_mismatches(cfg, cfg, q, q_new)
         if problems:
             raise SimulationError([f"t = {t:.9g} s, switching '{cfg.name}' -> '{cfg.name}': {p}" for p in problems]
                                   + ["the projection onto the configuration's constraints moved its links"])
+    residual = 0.0
     if len(cfg.coords.labels):
-        _velocity_rows(cfg, cfg, t, what, v, q_new, v_new, max(1.0, float(np.abs(v).max())) if len(v) else 1.0)
-    return q_new, v_new
+        residual = _velocity_rows(cfg, cfg, t, what, v, q_new, v_new, max(1.0, float(np.abs(v).max())) if len(v) else 1.0)
+    return q_new, v_new, residual
 
 
 #: {coordinates: (Phi_q, max(1, max |Phi_q|))} of coordinates whose rows depend on time alone (``time_rows``)

@@ -274,7 +274,7 @@ def handle_stop(ctx: Context, cfg: Configuration, tr: StopSpec, t, q, v) -> Outc
     check_restitution(tr, t, imp)
     record = bounce_record(cfg, tr, t, imp, q)  # event_record's, as its numbers where the impulse has them
     # no switch: the configuration stays; the state after the impulse (Eq. 43) projected and checked
-    q_new, v_new = enter_bounce(cfg, t, q, imp.v_after, what=f"bounce at '{tr.name}'")
+    q_new, v_new, _ = enter_bounce(cfg, t, q, imp.v_after, what=f"bounce at '{tr.name}'")
     return Outcome(cfg.name, q_new, v_new, record, {})
 
 
