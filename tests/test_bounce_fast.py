@@ -186,3 +186,53 @@ def test_without_the_compiled_impulse_the_record_is_the_general_one(tmp_path, mo
     assert len(kept) > 80 and not any(kept)
     assert records.BOUNCE_RECORD_REFUSED == {("c1", "stop"): "the impulse was not solved compiled (no momenta at hand)"}
     assert all(type(e) is dict for e in traj.events)
+
+
+def _planted_impulse(monkeypatch, plant, after: int = 3):
+    """From the ``after``-th impulse on, ``plant(imp)`` alters the solved impulse the bounce goes on with."""
+    solve = transitions.solve_impulse
+    calls = []
+
+    def planted(*args, **kw):
+        imp = solve(*args, **kw)
+        calls.append(args[1])
+        if len(calls) >= after:
+            plant(imp)
+        return imp
+    monkeypatch.setattr(transitions, "solve_impulse", planted)
+    return calls
+
+
+def test_a_bounce_that_creates_energy_is_caught(tmp_path, monkeypatch):
+    """The energy check runs on the fast record's route too: an impulse whose kinetic energy after
+    exceeds the one before (no drive to supply it) stops the run at that bounce."""
+    scene = _pendulum(tmp_path)
+
+    def more_energy(imp):
+        imp.ke_after = 1.5 * imp.ke_before
+    calls = _planted_impulse(monkeypatch, more_energy)
+    with pytest.raises(SimulationError) as err:
+        pcmm.simulate(scene)
+    text = str(err.value)
+    assert "would create energy" in text and "'stop'" in text and f"t = {calls[2]:.9g} s" in text
+
+
+def test_a_bounce_that_breaks_a_drive_is_caught():
+    """The entry of a bounce still checks every row at the post-impact velocity: three_bar_cycle's
+    crank O1 is driven (O1' = pi), and a bounce leaving it at pi + 1e-3 stops the run naming the
+    drive's row, by 1e-3 rad/s."""
+    scene = pcmm.load_scene(builders.EXAMPLES / "three_bar_cycle.toml")
+    mp = pytest.MonkeyPatch()
+    try:
+        def crank_off(imp):
+            imp.v_after = imp.v_after.copy()
+            imp.v_after[0] += 1e-3  # O1, the first coordinate
+        calls = _planted_impulse(mp, crank_off, after=5)
+        with pytest.raises(SimulationError) as err:
+            pcmm.simulate(scene, pcmm.RunOptions(t_end=1.0))
+    finally:
+        mp.undo()
+    text = str(err.value)
+    assert "'O1.drive' (the drive of joint O1) by" in text and f"t = {calls[4]:.9g} s" in text
+    by = float(text.split("'O1.drive' (the drive of joint O1) by ")[1].split()[0])
+    assert by == pytest.approx(1e-3, rel=1e-9)
