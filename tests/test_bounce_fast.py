@@ -59,6 +59,12 @@ def test_a_bounce_record_is_the_general_record_to_the_bit(tmp_path, monkeypatch)
     assert fast.events == general.events
     # the log keeps the numbers in one table either way
     assert [t.n for t in fast.events._tables] == [t.n for t in general.events._tables]
+    # the impulse-momentum balance of every bounce, from its record's momenta and external impulses
+    from pcmm.events.momentum import balance
+    for e in fast.events:
+        linear, angular = balance(e)
+        scale = max(abs(x) for x in e["momentum"]["linear_before"] + [e["momentum"]["angular_before"]])
+        assert np.abs(linear).max() <= 1e-12 * scale and abs(angular) <= 1e-12 * scale
     rows = [np.vstack(t.blocks)[:t.n] for t in fast.events._tables]
     rows_general = [np.vstack(t.blocks)[:t.n] for t in general.events._tables]
     assert all(a.tobytes() == b.tobytes() for a, b in zip(rows, rows_general))
