@@ -66,10 +66,12 @@ class Context:
 
     def tolerances(self, tr: StopSpec) -> tuple[float, float]:
         """(speed, interval) for a stop: the run's explicit value, else the transition's, else the scene's."""
-        def pick(forced, own, default):
-            return forced if forced is not None else own if own is not None else default
-        return (pick(self.forced_speed, tr.accumulation_speed, self.accumulation_speed),
-                pick(self.forced_interval, tr.accumulation_interval, self.accumulation_interval))
+        speed, interval = self.forced_speed, self.forced_interval  # (asked at every bounce: no helper made per call)
+        if speed is None:
+            speed = tr.accumulation_speed if tr.accumulation_speed is not None else self.accumulation_speed
+        if interval is None:
+            interval = tr.accumulation_interval if tr.accumulation_interval is not None else self.accumulation_interval
+        return speed, interval
 
 
 @dataclass
