@@ -242,3 +242,37 @@ def test_a_bounce_that_breaks_a_drive_is_caught():
     assert "'O1.drive' (the drive of joint O1) by" in text and f"t = {calls[4]:.9g} s" in text
     by = float(text.split("'O1.drive' (the drive of joint O1) by ")[1].split()[0])
     assert by == pytest.approx(1e-3, rel=1e-9)
+
+
+def test_a_bounce_entry_reads_its_drive_rows_residual_as_the_product_gives():
+    """A bounce's entry in a tree whose rows are drives reads each row's residual off the driven
+    coordinate's rate (``entry._unit_columns``): the number ``max |Phi_q (v - v_new)|`` gives, to the bit,
+    on three_bar_cycle's bounces as they come and with the crank nudged by 2e-9 rad/s (above the
+    1e-9 floor the short route answers alone, below the tolerance 1e-9 x max|v| the general check
+    allows, max|v| >= pi here, so the run goes on)."""
+    from pcmm.events import entry
+    scene = pcmm.load_scene(builders.EXAMPLES / "three_bar_cycle.toml")
+    seen = []
+    fast = entry.enter_bounce
+
+    def compared(cfg, t, q, v, what="bounce"):
+        q_new, v_new, residual = fast(cfg, t, q, v, what)
+        Jq = cfg.coords.rows(t, q_new, v_new)[0]
+        seen.append((residual, float(np.abs(Jq @ (v - v_new)).max()), entry._unit_columns(cfg.coords)))
+        return q_new, v_new, residual
+    mp = pytest.MonkeyPatch()
+    try:
+        mp.setattr(transitions, "enter_bounce", compared)
+
+        def nudged(imp):
+            imp.v_after = imp.v_after.copy()
+            imp.v_after[0] += 2e-9  # O1, the driven crank
+        _planted_impulse(mp, nudged, after=40)
+        pcmm.simulate(scene, pcmm.RunOptions(t_end=1.5))
+    finally:
+        mp.undo()
+    assert len(seen) > 80 and all(cols == (0,) for _, _, cols in seen)
+    assert all(np.float64(a).tobytes() == np.float64(b).tobytes() for a, b, _ in seen)
+    residuals = [a for a, _, _ in seen]
+    first = next(i for i, a in enumerate(residuals) if a != 0.0)  # the first nudged bounce
+    assert first >= 30 and all(1.5e-9 < a < 2.5e-9 for a in residuals[first:])
