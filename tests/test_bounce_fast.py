@@ -276,3 +276,38 @@ def test_a_bounce_entry_reads_its_drive_rows_residual_as_the_product_gives():
     residuals = [a for a, _, _ in seen]
     first = next(i for i, a in enumerate(residuals) if a != 0.0)  # the first nudged bounce
     assert first >= 30 and all(1.5e-9 < a < 2.5e-9 for a in residuals[first:])
+
+
+def test_the_re_arm_reads_a_joint_stops_speed_off_the_state():
+    """``loop._pending`` reads a joint stop's normal speed off the state where the joint's rate is an
+    entry of it (``loop._stop_speed``) instead of unpacking the state: the same number as
+    ``normal_speed`` of the unpacked state at every re-arm of three_bar_cycle (a tree while 'open',
+    drives beside free coordinates after), and the run of the unpacking route, to the bit."""
+    from pcmm.events.contact import normal_speed
+    from pcmm.run import loop
+    scene = pcmm.load_scene(builders.EXAMPLES / "three_bar_cycle.toml")
+    options = pcmm.RunOptions(t_end=2.5)
+    pending, compared = loop._pending, []
+
+    def checked(cfg, guards, t, y0):
+        q, v = cfg.coords.unpack(t, y0)
+        for g in guards:
+            c = getattr(g.transition, "contact", None)
+            if g.action == "transition" and c is not None and c.joint is not None:
+                got = loop._stop_speed(cfg.coords, cfg, y0, c)
+                compared.append((cfg.name, got, normal_speed(cfg, q, v, c)))
+        return pending(cfg, guards, t, y0)
+    mp = pytest.MonkeyPatch()
+    try:
+        mp.setattr(loop, "_pending", checked)
+        fast = pcmm.simulate(scene, options)
+        mp.setattr(loop, "_pending", pending)
+        mp.setattr(loop, "_stop_speed", lambda *args: None)  # every speed from the unpacked state
+        general = pcmm.simulate(scene, options)
+    finally:
+        mp.undo()
+    assert {name for name, _, _ in compared} >= {"O2_locked", "O3_locked"}
+    assert len(compared) > 200 and [c for c in compared if c[1] is None or c[1] != c[2]] == []
+    assert _events(fast) == _events(general)
+    a, b = fast.segments[-1], general.segments[-1]
+    assert a.q.tobytes() == b.q.tobytes() and a.v.tobytes() == b.v.tobytes()

@@ -14,6 +14,7 @@ from __future__ import annotations
 import math
 import os
 import time
+import weakref
 from dataclasses import replace
 
 import numpy as np
@@ -527,8 +528,10 @@ def _pending(cfg: Configuration, guards, t, y0):
     """Index of a guard that is already at or past its crossing at the start of a segment
     while its contact still approaches: a contact that closed at the same instant as the
     impact just resolved; or a merge (or a pinned point) whose holding force is already tensile (it never held).  It is resolved now, before any integration (sequential impacts
-    in scene order); a step would never see it change sign."""
-    q, v = cfg.coords.unpack(t, y0)
+    in scene order); a step would never see it change sign.  The state is unpacked to ``(q, v)``
+    only where a contact's normal speed needs it (a joint stop whose rate is an entry of the state
+    reads it there: :func:`_stop_speed`)."""
+    state = None  # (q, v), when first needed
     for i, g in enumerate(guards):
         if g.action in ("unmerge", "lift-off") and g(t, y0) < 0:
             return i  # the merge or pin would have to pull from its first instant: the bodies separate now
@@ -541,14 +544,43 @@ def _pending(cfg: Configuration, guards, t, y0):
         at_value = 64 * EPS * max(1.0, abs(tr.guard.value))
         if value < -at_value or value > POSE_TOL:  # not at its crossing (far past it: entered from the other side)
             continue
-        vn = normal_speed(cfg, q, v, tr.contact)
+        vn = _stop_speed(cfg.coords, cfg, y0, tr.contact)
+        if vn is None:
+            if state is None:
+                state = cfg.coords.unpack(t, y0)
+            vn = normal_speed(cfg, *state, tr.contact)
         if vn < -1e-12:
             return i
-        if abs(vn) <= 1e-12 and _pushed_closed(cfg, t, q, v, tr.contact):
-            # at rest against the contact and pushed into it: it closes now (with no impulse),
-            # whichever side of the guard round-off left the state on
-            return i
+        if abs(vn) <= 1e-12:
+            if state is None:
+                state = cfg.coords.unpack(t, y0)
+            if _pushed_closed(cfg, t, *state, tr.contact):
+                # at rest against the contact and pushed into it: it closes now (with no impulse),
+                # whichever side of the guard round-off left the state on
+                return i
     return None
+
+
+#: {coordinates: {joint coordinate: where its rate sits in the state, or None}} (``state_entry``)
+_RATE_ENTRIES: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+
+
+def _stop_speed(coords, cfg: Configuration, y0, contact):
+    """A joint stop's normal speed ``-s v_j`` (:func:`normal_speed`'s ``J_n v``, the same number) read
+    off the state where the joint's rate is an entry of it (``coords.state_entry``: a tree's, or a free
+    coordinate beside drives without a loop; its rate is then its velocity); None otherwise."""
+    if contact.joint is None:
+        return None
+    j = cfg.joint_slice[contact.joint].start
+    entries = _RATE_ENTRIES.get(coords)
+    if entries is None:
+        entries = _RATE_ENTRIES[coords] = {}
+    if j not in entries:
+        at = getattr(coords, "state_entry", None)
+        at = at(j) if at is not None else None
+        entries[j] = None if at is None or cfg.joint_slice[contact.joint].stop - j != 1 else at[1]
+    r = entries[j]
+    return None if r is None else float(-contact.stop_sign * y0[r])
 
 
 def _pushed_closed(cfg: Configuration, t, q, v, contact) -> bool:
