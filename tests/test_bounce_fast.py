@@ -311,3 +311,62 @@ def test_the_re_arm_reads_a_joint_stops_speed_off_the_state():
     assert _events(fast) == _events(general)
     a, b = fast.segments[-1], general.segments[-1]
     assert a.q.tobytes() == b.q.tobytes() and a.v.tobytes() == b.v.tobytes()
+
+
+@needs_compiled
+def test_a_record_read_from_arrays_that_differ_from_the_impulses_dicts_is_refused(tmp_path, monkeypatch):
+    """The compiled impulse keeps its joints' impulses as the solve's array (``ArrayImpulse.arrays``)
+    and forms their dict when first read; the fast record reads the array, the general record the dict.
+    An array one ulp off the dict it gave (planted) is caught at the stop's first bounce: the plan is
+    refused, and every record is the general one, the run's of the general route to the bit."""
+    from pcmm.events import impulse
+    scene = _pendulum(tmp_path)
+    solve = impulse._compiled_solve
+
+    def planted(*args):
+        imp = solve(*args)
+        if imp is not None:
+            assert isinstance(imp, impulse.ArrayImpulse) and imp.joint_impulses  # the dict, formed now
+            cut, mu, joints = imp.arrays
+            joints = joints.copy()
+            joints[0, 0] = math.nextafter(joints[0, 0], math.inf)
+            imp.arrays = (cut, mu, joints)
+        return imp
+    monkeypatch.setattr(impulse, "_compiled_solve", planted)
+    records.BOUNCE_RECORD_REFUSED.clear()
+    kept = _counting(monkeypatch)
+    traj = pcmm.simulate(scene)
+    assert len(kept) > 80 and not any(kept)
+    assert records.BOUNCE_RECORD_REFUSED == {("c1", "stop"): "its numbers differ from the general record's"}
+    monkeypatch.setattr(impulse, "_compiled_solve", solve)
+    monkeypatch.setattr(transitions, "bounce_record", _general_record)
+    assert _events(traj) == _events(pcmm.simulate(scene))
+
+
+@needs_compiled
+def test_a_compiled_impulses_dicts_are_its_arrays():
+    """``ArrayImpulse``'s dicts formed when read: the names of the compiled plan over the rows of its
+    arrays, the drives' [0, 0, mu] (three_bar_cycle's crank), and the contact's impulses on b and a
+    equal and opposite (a revolute joint stop: moments -s P and s P)."""
+    from pcmm.events import impulse
+    scene = pcmm.load_scene(builders.EXAMPLES / "three_bar_cycle.toml")
+    got = []
+    mp = pytest.MonkeyPatch()
+    solve = impulse._compiled_solve
+    try:
+        mp.setattr(impulse, "_compiled_solve", lambda *a: got.append(solve(*a)) or got[-1])
+        pcmm.simulate(scene, pcmm.RunOptions(t_end=1.0))
+    finally:
+        mp.undo()
+    assert len(got) > 50
+    for imp in got:
+        cut, mu, joints = imp.arrays
+        fast = imp.solved[0]
+        assert list(imp.joint_impulses) == list(fast.joint_names) and fast.joint_names[0] == "O1"
+        assert [imp.joint_impulses[n] for n in fast.joint_names] == joints.tolist()
+        assert list(imp.cut_impulses.values()) == cut.tolist() and len(imp.cut_impulses) == 1
+        assert imp.constraint_rows == {"O1.drive": float(mu[0])}
+        assert imp.constraint_impulses == {"O1.drive": [0.0, 0.0, float(mu[0])]}
+        (_, pb, Fb, mb), (_, pa, Fa, ma) = imp.contact_impulses
+        assert mb == -ma and mb != 0.0 and list(Fb) == [0.0, 0.0] and list(Fa) == [0.0, 0.0]
+        assert abs(mb) == abs(imp.P)

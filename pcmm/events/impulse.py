@@ -207,28 +207,88 @@ def solve_impulse(cfg: Configuration, t: float, q: np.ndarray, v: np.ndarray, co
 
 def _compiled_solve(cfg: Configuration, plan: _Plan, fast: CompiledImpulse, q, v, restitution) -> Impulse | None:
     """The :class:`Impulse` of ``fast``'s compiled solve (pcmm/model/_impulse.hpp); None where it
-    takes no impulse along the normal (the Python solve then says why)."""
+    takes no impulse along the normal (the Python solve then says why).  An :class:`ArrayImpulse`:
+    the joints', cut joints' and rows' impulses are kept as the solve's arrays, their dicts formed
+    when first read (a bounce's record reads the arrays: :func:`pcmm.events.records.bounce_record`)."""
     got = fast.plan.solve(q, v, restitution)
     if got is None:
         return None
     v_after, (P, vn_before, vn_after, ke_before, ke_after, drive_work), n, point, pos_a, pos_b, mu, cut, joints, tau, \
         momenta = got
-    contact = plan.contact
-    out = Impulse(kind=plan.kind, restitution=restitution, normal=n, P=P, vn_before=vn_before, vn_after=vn_after,
-                  v_before=v.copy(), v_after=v_after, ke_before=ke_before, ke_after=ke_after, point=point,
-                  drive_work=drive_work, rnea_residual=tau, momenta=momenta)
-    out.cut_impulses = dict(zip(fast.cut_names, cut.tolist()))
-    out.constraint_rows = dict(zip(fast.drive_labels, mu.tolist()))
-    out.constraint_impulses = constraint_impulses(cfg, out.constraint_rows, []) if fast.drive_labels else {}
-    out.joint_impulses = dict(zip(fast.joint_names, joints.tolist()))
-    if not plan.stop:
-        out.contact_impulses = [(contact.b, pos_b, P * n, 0.0), (contact.a, pos_a, -P * n, 0.0)]
-    elif plan.prismatic:
-        out.contact_impulses = [(contact.b, pos_b, P * n, 0.0), (contact.a, pos_b, -P * n, 0.0)]
+    out = ArrayImpulse(kind=plan.kind, restitution=restitution, normal=n, P=P, vn_before=vn_before, vn_after=vn_after,
+                       v_before=v.copy(), v_after=v_after, ke_before=ke_before, ke_after=ke_after, point=point,
+                       drive_work=drive_work, rnea_residual=tau, momenta=momenta)
+    d = out.__dict__
+    for key in _FORMED:  # (the dataclass's empty defaults: formed from the arrays instead)
+        del d[key]
+    out.arrays = (cut, mu, joints)
+    out.solved = (fast, plan, pos_a, pos_b)
+    labels = fast.drive_labels
+    if not labels:
+        out.constraint_impulses = {}
+    elif _revolute_drives(cfg, labels):  # constraint_impulses' [0, 0, mu] of each drive (a revolute joint's)
+        out.constraint_impulses = {lab: [0.0, 0.0, m] for lab, m in zip(labels, mu.tolist())}
     else:
-        s_ = contact.stop_sign
-        out.contact_impulses = [(contact.b, pos_b, np.zeros(2), -s_ * P), (contact.a, pos_b, np.zeros(2), s_ * P)]
+        out.constraint_impulses = constraint_impulses(cfg, out.constraint_rows, [])
     return out
+
+
+def _revolute_drives(cfg: Configuration, labels: tuple[str, ...]) -> bool:
+    """Are the drives of ``labels`` (each "J.drive") all on revolute joints?  Decided once per model."""
+    key = ("revolute drives", labels)
+    kept = cfg.impulse_models.get(key)
+    if kept is None:
+        kept = cfg.impulse_models[key] = all(
+            cfg.spec.info.joints[lab[:-len(".drive")]].type != "prismatic" for lab in labels)
+    return kept
+
+
+def _contact_impulses(imp: "ArrayImpulse") -> list:
+    """The contact's impulses on b and on a, (link, world point, F, mz), of a compiled solve."""
+    _, plan, pos_a, pos_b = imp.solved
+    contact, P, n = plan.contact, imp.P, imp.normal
+    if not plan.stop:
+        return [(contact.b, pos_b, P * n, 0.0), (contact.a, pos_a, -P * n, 0.0)]
+    if plan.prismatic:
+        return [(contact.b, pos_b, P * n, 0.0), (contact.a, pos_b, -P * n, 0.0)]
+    s_ = contact.stop_sign
+    return [(contact.b, pos_b, np.zeros(2), -s_ * P), (contact.a, pos_b, np.zeros(2), s_ * P)]
+
+
+def _formed(name: str, form):
+    """A field of :class:`Impulse` formed by ``form(impulse)`` when first read (and kept; a value
+    set replaces it)."""
+    def get(self):
+        d = self.__dict__
+        got = d.get(name)
+        if got is None:
+            got = d[name] = form(self)
+        return got
+
+    def put(self, value):
+        self.__dict__[name] = value
+    return property(get, put)
+
+
+class ArrayImpulse(Impulse):
+    """The :class:`Impulse` of a compiled solve (:func:`_compiled_solve`): its cut joints', drive rows'
+    and joints' impulses are the solve's arrays ``arrays = (cut, mu, joints)`` (one row [fx, fy, mz] per
+    cut joint and per joint, in ``solved[0]``'s ``cut_names`` and ``joint_names`` order; one multiplier
+    per drive row), and ``cut_impulses``, ``constraint_rows``, ``joint_impulses`` and
+    ``contact_impulses`` are formed from them when first read: the same dicts and numbers."""
+
+    arrays: tuple
+    solved: tuple  # (CompiledImpulse, _Plan, a's contact point, b's)
+    cut_impulses = _formed("_cut_impulses", lambda self: dict(zip(self.solved[0].cut_names, self.arrays[0].tolist())))
+    constraint_rows = _formed("_constraint_rows",
+                              lambda self: dict(zip(self.solved[0].drive_labels, self.arrays[1].tolist())))
+    joint_impulses = _formed("_joint_impulses",
+                             lambda self: dict(zip(self.solved[0].joint_names, self.arrays[2].tolist())))
+    contact_impulses = _formed("_contact_impulses", _contact_impulses)
+
+
+#: the fields of :class:`ArrayImpulse` formed when first read (stored under a leading underscore)
+_FORMED = ("_cut_impulses", "_constraint_rows", "_joint_impulses", "_contact_impulses")
 
 
 def solve_impulse_python(cfg: Configuration, t: float, q: np.ndarray, v: np.ndarray, contact: ContactSpec,

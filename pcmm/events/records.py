@@ -230,7 +230,7 @@ class RecordPlan:
     the stop's kind (``"prismatic"``, ``"revolute"``, ``"point"``), the point the momenta are taken
     about, the root joints with their (fixed) points, which contact impulse the frame applies."""
 
-    __slots__ = ("cfg", "tr", "template", "top", "consts", "why", "stop", "about", "roots", "frame_contact")
+    __slots__ = ("cfg", "tr", "template", "top", "consts", "why", "stop", "about", "roots", "root_rows", "frame_contact")
 
     def __init__(self, cfg: Configuration, tr, template: dict):
         self.cfg, self.tr, self.template, self.why = cfg, tr, template, None
@@ -250,6 +250,7 @@ class RecordPlan:
         o = about_point(cfg)
         self.about = (o[0], o[1])  # (numpy floats: momentum_record's operations on them)
         self.roots: list = []  # [(joint, [x, y])] of the joints on the frame (external_impulses')
+        self.root_rows = None  # their rows in a compiled solve's joint array (ArrayImpulse.arrays)
         self.frame_contact = None  # the contact impulse on b (0) or on a (1) the frame applies, if any
         if cfg.root == tr.contact.a and cfg.root != tr.contact.b:
             self.frame_contact = 0
@@ -328,6 +329,9 @@ def bounce_record(cfg: Configuration, tr: TransitionSpec, t, imp: Impulse, q):
         model = cfg.model
         names = [model.names[jid] for jid in range(1, model.njoints) if model.parents[jid] == 0]
         plan.roots = [(name, record["external_impulses"][f"joint {name}"]["point"]) for name in names]
+        solved = getattr(imp, "solved", None)  # a compiled solve's: the roots' rows in its joint array
+        if solved is not None:
+            plan.root_rows = tuple(solved[0].joint_names.index(name) for name in names)
         got, want = _bounce_numbers(plan, cfg, tr, t, imp), record_numbers(record)
         if len(got) != len(want) or any(_bits(a) != _bits(b) for a, b in zip(got, want)):
             plan.why = "its numbers differ from the general record's"
@@ -389,24 +393,41 @@ def _bounce_numbers(plan: RecordPlan, cfg: Configuration, tr: TransitionSpec, t,
     out += (A @ v_after).tolist()
     out += np.asarray(v_before, float).tolist()
     out += np.asarray(v_after, float).tolist()
-    joints = imp.joint_impulses
-    for x in joints.values():
-        out += x
+    arrays = getattr(imp, "arrays", None)  # a compiled solve's (ArrayImpulse): its dicts' numbers, in their order
+    if arrays is not None:
+        rows = arrays[2].tolist()  # [fx, fy, mz] per joint
+        for x in rows:
+            out += x
+    else:
+        joints = imp.joint_impulses
+        for x in joints.values():
+            out += x
     ke0, ke1 = imp.ke_before, imp.ke_after
     out += [float(ke0), float(ke1), float(ke1 - ke0)]
     o0, o1 = plan.about  # momentum_record's, from the momenta about the origin
     m = imp.momenta
     out += [float(o0), float(o1), float(m[0]), float(m[1]), float(m[3]), float(m[4]),
             m[2] - float(o0 * m[1] - o1 * m[0]), m[5] - float(o0 * m[4] - o1 * m[3])]
-    for x in imp.cut_impulses.values():
-        out += x
+    if arrays is not None:
+        for x in arrays[0].tolist():
+            out += x
+    else:
+        for x in imp.cut_impulses.values():
+            out += x
     for x in imp.constraint_impulses.values():
         out += x
     out += [imp.drive_work, imp.energy_dissipated]
-    for name, p in plan.roots:  # external_impulses
-        out += p
-        out += joints[name]
+    if arrays is not None and plan.root_rows is not None:
+        for (_, p), k in zip(plan.roots, plan.root_rows):  # external_impulses
+            out += p
+            out += rows[k]
+    else:
+        joints = imp.joint_impulses
+        for name, p in plan.roots:  # external_impulses
+            out += p
+            out += joints[name]
     if plan.frame_contact is not None:
         _, p, F, mz = imp.contact_impulses[plan.frame_contact]
         out += [float(p[0]), float(p[1]), float(F[0]), float(F[1]), float(mz)]
     return out
+
