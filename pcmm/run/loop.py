@@ -576,8 +576,7 @@ def _stop_speed(coords, cfg: Configuration, y0, contact):
     if entries is None:
         entries = _RATE_ENTRIES[coords] = {}
     if j not in entries:
-        at = getattr(coords, "state_entry", None)
-        at = at(j) if at is not None else None
+        at = coords.state_entry(j)
         entries[j] = None if at is None or cfg.joint_slice[contact.joint].stop - j != 1 else at[1]
     r = entries[j]
     return None if r is None else float(-contact.stop_sign * y0[r])
