@@ -219,8 +219,7 @@ def _compiled_solve(cfg: Configuration, plan: _Plan, fast: CompiledImpulse, q, v
                        v_before=v.copy(), v_after=v_after, ke_before=ke_before, ke_after=ke_after, point=point,
                        drive_work=drive_work, rnea_residual=tau, momenta=momenta)
     d = out.__dict__
-    for key in _FORMED:  # (the dataclass's empty defaults: formed from the arrays instead)
-        del d[key]
+    del d["cut_impulses"], d["constraint_rows"], d["joint_impulses"], d["contact_impulses"]  # (_FORMED: when read)
     out.arrays = (cut, mu, joints)
     out.solved = (fast, plan, pos_a, pos_b)
     labels = fast.drive_labels
@@ -255,40 +254,32 @@ def _contact_impulses(imp: "ArrayImpulse") -> list:
     return [(contact.b, pos_b, np.zeros(2), -s_ * P), (contact.a, pos_b, np.zeros(2), s_ * P)]
 
 
-def _formed(name: str, form):
-    """A field of :class:`Impulse` formed by ``form(impulse)`` when first read (and kept; a value
-    set replaces it)."""
-    def get(self):
-        d = self.__dict__
-        got = d.get(name)
-        if got is None:
-            got = d[name] = form(self)
-        return got
-
-    def put(self, value):
-        self.__dict__[name] = value
-    return property(get, put)
-
-
 class ArrayImpulse(Impulse):
     """The :class:`Impulse` of a compiled solve (:func:`_compiled_solve`): its cut joints', drive rows'
     and joints' impulses are the solve's arrays ``arrays = (cut, mu, joints)`` (one row [fx, fy, mz] per
     cut joint and per joint, in ``solved[0]``'s ``cut_names`` and ``joint_names`` order; one multiplier
     per drive row), and ``cut_impulses``, ``constraint_rows``, ``joint_impulses`` and
-    ``contact_impulses`` are formed from them when first read: the same dicts and numbers."""
+    ``contact_impulses`` are formed from them when first read (then kept, or replaced when set): the
+    same dicts and numbers."""
 
     arrays: tuple
     solved: tuple  # (CompiledImpulse, _Plan, a's contact point, b's)
-    cut_impulses = _formed("_cut_impulses", lambda self: dict(zip(self.solved[0].cut_names, self.arrays[0].tolist())))
-    constraint_rows = _formed("_constraint_rows",
-                              lambda self: dict(zip(self.solved[0].drive_labels, self.arrays[1].tolist())))
-    joint_impulses = _formed("_joint_impulses",
-                             lambda self: dict(zip(self.solved[0].joint_names, self.arrays[2].tolist())))
-    contact_impulses = _formed("_contact_impulses", _contact_impulses)
+
+    def __getattr__(self, name: str):  # only for a name the instance lacks: one of _FORMED, not yet formed
+        form = _FORMED.get(name)
+        if form is None:
+            raise AttributeError(f"'{type(self).__name__}' object has no attribute '{name}'")
+        value = self.__dict__[name] = form(self)
+        return value
 
 
-#: the fields of :class:`ArrayImpulse` formed when first read (stored under a leading underscore)
-_FORMED = ("_cut_impulses", "_constraint_rows", "_joint_impulses", "_contact_impulses")
+#: the fields of :class:`ArrayImpulse` formed when first read: {field: how, from the impulse}
+_FORMED = {
+    "cut_impulses": lambda imp: dict(zip(imp.solved[0].cut_names, imp.arrays[0].tolist())),
+    "constraint_rows": lambda imp: dict(zip(imp.solved[0].drive_labels, imp.arrays[1].tolist())),
+    "joint_impulses": lambda imp: dict(zip(imp.solved[0].joint_names, imp.arrays[2].tolist())),
+    "contact_impulses": _contact_impulses,
+}
 
 
 def solve_impulse_python(cfg: Configuration, t: float, q: np.ndarray, v: np.ndarray, contact: ContactSpec,
