@@ -129,13 +129,23 @@ def _crossed(g_old, g_new, direction) -> bool:
     return (direction >= 0 and up) or (direction <= 0 and down)
 
 
-def _rate(e, t, y, f, h):
+def _rate(e, t, y, f, h, g=None):
     """The guard's time derivative along the flow: its own ``rate`` where it has one,
-    else a forward difference."""
+    else a forward difference.  ``g``: the guard's value at ``(t, y)`` where the caller has it and
+    the value is a function of ``(t, y)`` alone (:func:`_pure_value`): the difference starts from it
+    (the same bits as asking the guard again)."""
     if getattr(e, "rate", None) is not None:
         return e.rate(t, y, f)
     d = max(1e-7 * abs(h), 1e-12 * max(1.0, abs(t)))
-    return (e(t + d, y + d * f) - e(t, y)) / d
+    return (e(t + d, y + d * f) - (e(t, y) if g is None else g)) / d
+
+
+def _pure_value(e) -> bool:
+    """Is the guard's value a function of ``(t, y)`` alone, so that a value already computed may
+    stand for asking it again?  A guard on a compiled holding force (``holding``: the compiled solve
+    at the state, pcmm.events.holding.guard_value); not a guard read through a loop's Newton solve,
+    whose last bits follow its warm start (the previous call's solution)."""
+    return getattr(e, "holding", None) is not None
 
 
 def _hermite_dips(g0, d0, g1, d1, h, direction) -> bool:
@@ -174,7 +184,13 @@ class _Stepper:
         self.kept = [] if keep_dense else None  # each accepted step's dense output (Segment.dense)
         self.ts, self.ys = [t0], [np.array(y0, float)]
         self.g = [e(t0, self.ys[0]) for e in events]
-        self.rates = [_rate(e, t0, self.ys[0], f0, 1e-6) for e in events] if events else []
+        # per guard, read once (not at every step): the value already computed at a step's end stands
+        # for asking the guard again in its forward difference (_pure_value), and whether its rate is
+        # read at all without the state's derivative
+        self._pure = [_pure_value(e) for e in events]
+        self._from_state = [bool(getattr(e, "rate_from_state", False)) for e in events]
+        self.rates = [_rate(e, t0, self.ys[0], f0, 1e-6, g if pure else None)
+                      for e, g, pure in zip(events, self.g, self._pure)] if events else []
         self.count = 0
         self.max_steps = opts.max_steps  # read once: opts may resolve attributes through a fallback
 
@@ -194,9 +210,10 @@ class _Stepper:
             raise SimulationError(_step_collapsed(h, t_new))
         hit = None
         if self.events:
-            g_new = [e(t_new, y_new) for e in self.events]
-            r_new = [_rate(e, t_new, y_new, f_new, h)
-                     if f_new is not None or getattr(e, "rate_from_state", False) else None for e in self.events]
+            g_new = [e(t_new, y_new) for e in self.events]  # every value first, then the rates (a loop's
+            # guards solve from the previous call's solution: the order of the calls is part of the bits)
+            r_new = [_rate(e, t_new, y_new, f_new, h, g if pure else None) if f_new is not None or from_state else None
+                     for e, g, pure, from_state in zip(self.events, g_new, self._pure, self._from_state)]
             for i, e in enumerate(self.events):
                 if _crossed(self.g[i], g_new[i], e.direction) or (
                         r_new[i] is not None and self.rates[i] is not None
