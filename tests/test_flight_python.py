@@ -41,3 +41,104 @@ def test_a_pure_guard_value_is_asked_once_per_step_end():
         want = ((1.07 + d * 0.7 - 0.3 * (0.1 + d)) - (1.07 - 0.3 * 0.1)) / d
         assert st.rates[0] == want and math.isclose(want, 0.7 - 0.3, rel_tol=1e-6)  # d = 1e-8: round-off / d
         assert st.g[0] == 1.07 - 0.3 * 0.1
+
+
+# -- the flight audit reads the compiled loop's rows ------------------------------------------------------
+
+def _flights(path, monkeypatch, corrupt=None):
+    """The run of ``path`` and every audited flight's (t, y, kept) as the audit got them; ``corrupt``:
+    a change applied to the audit's measurement (the test's own fault)."""
+    from pcmm.run import audit
+    seen = []
+    real = audit.run_work
+
+    def run_work(cfg, t, y, stepping, kept):
+        seen.append((np.array(t), np.array(y), kept))
+        return real(cfg, t, y, stepping, kept)
+    with monkeypatch.context() as m:
+        m.setattr(audit, "run_work", run_work)
+        if corrupt is not None:
+            corrupt(m, audit)
+        run = pcmm.simulate(pcmm.load_scene(path))
+    return run, seen
+
+
+def _scenes(tmp_path):
+    from builders import driven_cart_pendulum, pendulum
+    return {"contd8": pendulum(tmp_path / "p", e=0.5, k=3.0, rest_angle=-2.0, merge=False, t_end=1.4,
+                               spring_configurations=["c1"]),  # a tree: DOP853F, contd8 rows
+            "scipy": driven_cart_pendulum(tmp_path / "c")}  # drives under auto: scipy's DOP853 rows
+
+
+import pcmm  # noqa: E402
+import pytest  # noqa: E402
+from pcmm.run import dense  # noqa: E402
+from pcmm.model import compiled  # noqa: E402
+
+needs_loop = pytest.mark.skipif(not compiled.enabled(), reason="the compiled segment loop does not run here")
+
+
+@needs_loop
+@pytest.mark.parametrize("form", ["contd8", "scipy"])
+def test_flight_rows_give_the_interpolants_states_to_the_bit(form, tmp_path, monkeypatch):
+    """Each audited flight keeps the loop's rows (no interpolant formed): the states at its Gauss nodes
+    read off the rows, on numpy arrays or on Python floats, are those of every step's interpolant formed
+    from its row (dense_states), bit for bit; a node on a step's end is left to dense_states."""
+    (tmp_path / "p").mkdir(), (tmp_path / "c").mkdir()
+    path = _scenes(tmp_path)[form]
+    run, seen = _flights(path, monkeypatch)
+    want_form = integrators.contd8_row_dense if form == "contd8" else integrators.scipy_row_dense
+    flights = [(t, y, kept) for t, y, kept in seen if kept and len(t) > 1]
+    assert len(flights) >= 4 and all(type(e) is integrators._Row and e.form is want_form for _, _, ks in flights for e in ks)
+    assert max(len(t) for t, _, _ in flights) > 2  # a flight of several steps
+    width = flights[0][2][0].row.shape[0]
+    assert min(4 * (len(t) - 1) for t, _, _ in flights) * (width - 2) // 8 <= dense._FLOAT_SIZE  # on floats
+    for t, y, kept in flights:
+        times = (t[:-1, None] + ((t[1:] - t[:-1]) / 2)[:, None] * (np.array([0.1, 0.7, 1.3, 1.9]))).ravel()
+        k_of = np.arange(times.shape[0]) // 4
+        formed = [(lambda s: lambda fun: s)(e(None)) for e in kept]  # each step's interpolant, as formed before
+        want = dense.dense_states(t, y, times, (None, None, None), formed)
+        floats = dense.states_on_rows(t, y, times, k_of, kept)
+        arrays = dense._row_states(kept, k_of, times)
+        assert floats.tobytes() == want.tobytes() and arrays.tobytes() == want.tobytes()
+        assert dense.states_on_rows(t, y, times, k_of, kept, 1)[:1].tobytes() == want[:1].tobytes()
+        on_end = times.copy()
+        on_end[1] = t[1]
+        assert dense.states_on_rows(t, y, on_end, k_of, kept) is None
+    # and every node state is on the recorded motion: the interpolant at a step's end is that end's state
+    t, y, kept = flights[-1]
+    ends = dense._row_states(kept, np.arange(len(t) - 1), t[1:] * (1 - 1e-16))
+    np.testing.assert_allclose(ends, y[:, 1:], rtol=0, atol=1e-9)
+
+
+@needs_loop
+def test_the_audit_still_catches_a_wrong_drive_power_or_a_wrong_flight_state(tmp_path, monkeypatch):
+    """The cart pendulum's drive does work in every flight.  Its audit balances each flight to round-off;
+    a drive power off by 1e-4 of itself, or node velocities read 1e-5 off the flight (the rows read wrong),
+    shows in the residual by orders of magnitude: the audit still measures, it is not bypassed."""
+    from builders import driven_cart_pendulum
+    path = driven_cart_pendulum(tmp_path)
+    clean, seen = _flights(path, monkeypatch)
+    assert any(kept for _, _, kept in seen)
+
+    def wrong_power(m, audit):
+        real = audit.drive_powers
+        m.setattr(audit, "drive_powers", lambda *a: real(*a) * (1 + 1e-4))
+
+    def wrong_states(m, audit):
+        real = audit.states_on_rows
+
+        def shifted(*a, **k):
+            states = real(*a, **k)
+            if states is not None:
+                states = states.copy()
+                states[states.shape[0] // 2:] += 1e-5  # the velocities
+            return states
+        m.setattr(audit, "states_on_rows", shifted)
+    (m0,) = clean.stats["macro_impacts"]
+    assert m0["flights"] >= 3 and 0 < m0["flight_energy_residual_max"] < 1e-10 and m0["flight_energy_relative_max"] < 1e-9
+    for corrupt in (wrong_power, wrong_states):
+        run, _ = _flights(path, monkeypatch, corrupt)
+        (m1,) = run.stats["macro_impacts"]
+        assert [e["t"] for e in run.events] == [e["t"] for e in clean.events]  # the run itself untouched
+        assert m1["flight_energy_residual_max"] > 1e3 * m0["flight_energy_residual_max"], (corrupt.__name__, m1, m0)

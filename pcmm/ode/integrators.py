@@ -502,7 +502,7 @@ class ScipyMethod:
                 return f"{self.name} failed: {TOO_SMALL_STEP}"
             raise SimulationError(FortranDOP853._failure(code, st, opts))
         return _drive_loop(loop, progress, st, lambda: _ScipyDense(*loop.dense()), failure, counted, "DOP853",
-                           lambda row, n: _ScipyDense(row[0], row[1], row[2:2 + n], row[2 + n:].reshape(7, n)))
+                           scipy_row_dense)
 
 
 def _drive_loop(loop, progress, st, dense, failure, counted, name, from_row):
@@ -512,7 +512,8 @@ def _drive_loop(loop, progress, st, dense, failure, counted, name, from_row):
     every method's do, located on ``dense()``, the loop's own dense output of the step.  A failure
     code of the loop goes to ``failure(code)`` (which raises, or returns the failed segment's
     message).  Where the segment keeps its steps' dense outputs, the loop formed each as it
-    accepted the step (``take_dense()``, one row each: ``from_row(row, n)`` is its interpolant)."""
+    accepted the step (``take_dense()``, one row each: ``from_row(row, n)`` is its interpolant, kept
+    as the row, :class:`_Row`)."""
     events, needs_f = st.events, _needs_derivative(st.events)
     keeping = st.kept is not None and hasattr(loop, "take_dense")
     stale = False  # steps recorded since the scanner last saw one: its guard values are not the last step's
@@ -523,12 +524,12 @@ def _drive_loop(loop, progress, st, dense, failure, counted, name, from_row):
             except BaseException:  # a call the loop handed to Python raised there: the steps before it stand
                 steps, rows = loop.take(), loop.take_dense() if keeping else ()
                 if len(steps):
-                    kept = [_Ready(from_row(row, (row.size - 2) // 8)) for row in rows]
+                    kept = [_Row(row, from_row) for row in rows]
                     _record_steps(st, steps, kept if len(kept) == len(steps) else None)
                 raise
             steps = loop.take()
             rows = loop.take_dense() if keeping else ()
-            kept = [_Ready(from_row(row, (row.size - 2) // 8)) for row in rows]  # one per step accepted
+            kept = [_Row(row, from_row) for row in rows]  # one per step accepted, its interpolant formed when asked
             if len(kept) != len(steps) + (code == 1):
                 kept = []
             if len(steps):
@@ -618,16 +619,30 @@ class _KeptStages:
         return None if self.stages is None else self.stages.dense_output(fun)
 
 
-class _Ready:
-    """A step kept with the interpolant it already has (:attr:`Segment.dense`)."""
+def contd8_row_dense(row, n):
+    """The interpolant of a row ``(t_old, h, cont (8 n))`` of the compiled loop's ``take_dense()``."""
+    return _Contd8(row[0], row[1], row[2:].reshape(8, n))
 
-    __slots__ = ("sol",)
 
-    def __init__(self, sol):
-        self.sol = sol
+def scipy_row_dense(row, n):
+    """The interpolant of a row ``(t_old, t_new, y_old (n), F (7 n))`` of ``take_dense()`` where the loop
+    steps as scipy's DOP853."""
+    return _ScipyDense(row[0], row[1], row[2:2 + n], row[2 + n:].reshape(7, n))
+
+
+class _Row:
+    """A step the compiled loop took, kept as the row of its dense output that ``take_dense()`` handed
+    back (:attr:`Segment.dense`); ``form`` (:func:`contd8_row_dense` or :func:`scipy_row_dense`) makes
+    its interpolant when asked, and :func:`pcmm.run.dense.dense_states` reads a flight's rows in one
+    array without forming any."""
+
+    __slots__ = ("row", "form")
+
+    def __init__(self, row, form):
+        self.row, self.form = row, form
 
     def __call__(self, fun):
-        return self.sol
+        return self.form(self.row, (self.row.size - 2) // 8)
 
 
 class FortranDOP853:
@@ -727,7 +742,7 @@ class FortranDOP853:
             self._diagnose(counted, st, opts)
             raise SimulationError(self._failure(code, st, opts))
         return _drive_loop(loop, progress, st, lambda: _Contd8(*loop.dense()), failure, counted, "DOP853",
-                           lambda row, n: _Contd8(row[0], row[1], row[2:].reshape(8, n)))
+                           contd8_row_dense)
 
     @staticmethod
     def _diagnose(counted, st, opts, steps: int = 200) -> None:

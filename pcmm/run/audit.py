@@ -12,7 +12,8 @@ energy bookkeeping:
   state);
 * the work is a separate quadrature: 4-point Gauss-Legendre on every recorded step of the
   flight, the states at the nodes from the steps' dense output (:mod:`pcmm.run.dense`: each
-  step's interpolant as the integrator took it, its stages kept, not the step taken again), the
+  step's interpolant as the integrator took it, its stages or the compiled loop's row of coefficients
+  kept, not the step taken again), the
   power ``Q(q, v) . v`` of the force elements plus ``lam . Phi_q v`` of the drives' rows, solved
   at the nodes by a reader of the segment.  The work component the flight integrates with its
   state is not read.
@@ -36,11 +37,12 @@ import numpy as np
 from ..model.configuration import Configuration
 from ..model import compiled
 from ..model.constraints import constrained_accelerations
-from .dense import dense_states
+from .dense import dense_states, states_on_rows
 
 RESOLVED_KINETIC = 1e-6  # flights with less rebound energy than this x the first are round-off dominated
 GAUSS_NODES, GAUSS_WEIGHTS = np.polynomial.legendre.leggauss(4)
 _NODES_1 = GAUSS_NODES + 1  # each step's nodes at t_k + h (x + 1), h its half size
+_NODE_STEPS = np.arange(4 * 256) // GAUSS_NODES.shape[0]  # the step of each node of a flight's first 256 steps
 
 
 def mechanical_energy(cfg: Configuration, q, v) -> float:
@@ -112,10 +114,15 @@ def run_work(cfg: Configuration, t, y, stepping, kept) -> float | None:
     if len(t) < 2:
         return 0.0
     times, weights = _nodes(t)
-    try:
-        states = dense_states(t, y, times, (_no_right_hand_side, *stepping[1:]), kept)[:coords.ny]
-    except _RightHandSideAsked:
-        return None
+    # the compiled loop's rows, each node on its own step (4 a step, in order); else any kept dense outputs
+    states = states_on_rows(t, y, times, _NODE_STEPS[:times.shape[0]] if times.shape[0] <= _NODE_STEPS.shape[0]
+                            else np.arange(times.shape[0]) // GAUSS_NODES.shape[0], kept, coords.ny)
+    if states is None:
+        try:
+            states = dense_states(t, y, times, (_no_right_hand_side, *stepping[1:]), kept)
+        except _RightHandSideAsked:
+            return None
+    states = states[:coords.ny]
     values = drive_powers(cfg, coords, times, states)
     return None if values is None else float(weights @ values)
 
