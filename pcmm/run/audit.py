@@ -77,7 +77,10 @@ def flight_work(cfg: Configuration, coords, t, y, stepping, q_start, kept=None) 
     fun, method, opts = stepping
     if getattr(fun, "__self__", None) is cfg.coords:  # rhs or rhs_with_power: the reader's own
         fun = getattr(coords, fun.__name__)
-    states = dense_states(t, y, times, (fun, method, opts), kept)[:coords.ny]
+    states = _node_states(t, y, times, kept, coords.ny)
+    if states is None:
+        states = dense_states(t, y, times, (fun, method, opts), kept)
+    states = states[:coords.ny]
     values = drive_powers(cfg, coords, times, states)
     if values is None:
         coords.seed(q_start)
@@ -89,6 +92,15 @@ def _nodes(t) -> tuple[np.ndarray, np.ndarray]:
     """The Gauss-Legendre nodes and weights of every step of ``t``, step after step."""
     h = ((t[1:] - t[:-1]) / 2)[:, None]  # (what np.diff forms)
     return (t[:-1, None] + h * _NODES_1).ravel(), (h * GAUSS_WEIGHTS).ravel()
+
+
+def _node_states(t, y, times, kept, components):
+    """The states at the nodes ``times`` of :func:`_nodes` read off the compiled loop's rows (each node on
+    its own step, 4 a step, in order: :func:`pcmm.run.dense.states_on_rows`), or None (another dense output
+    kept, or none: :func:`pcmm.run.dense.dense_states`)."""
+    n = times.shape[0]
+    steps = _NODE_STEPS[:n] if n <= _NODE_STEPS.shape[0] else np.arange(n) // GAUSS_NODES.shape[0]
+    return states_on_rows(t, y, times, steps, kept, components)
 
 
 class _RightHandSideAsked(Exception):
@@ -114,9 +126,7 @@ def run_work(cfg: Configuration, t, y, stepping, kept) -> float | None:
     if len(t) < 2:
         return 0.0
     times, weights = _nodes(t)
-    # the compiled loop's rows, each node on its own step (4 a step, in order); else any kept dense outputs
-    states = states_on_rows(t, y, times, _NODE_STEPS[:times.shape[0]] if times.shape[0] <= _NODE_STEPS.shape[0]
-                            else np.arange(times.shape[0]) // GAUSS_NODES.shape[0], kept, coords.ny)
+    states = _node_states(t, y, times, kept, coords.ny)
     if states is None:
         try:
             states = dense_states(t, y, times, (_no_right_hand_side, *stepping[1:]), kept)
