@@ -189,6 +189,8 @@ class _Stepper:
         # read at all without the state's derivative
         self._pure = [_pure_value(e) for e in events]
         self._from_state = [bool(getattr(e, "rate_from_state", False)) for e in events]
+        self._own_rates = [getattr(e, "rate", None) for e in events]  # None: a forward difference (_rate)
+        self._directions = [e.direction for e in events]
         self.rates = [_rate(e, t0, self.ys[0], f0, 1e-6, g if pure else None)
                       for e, g, pure in zip(events, self.g, self._pure)] if events else []
         self.count = 0
@@ -209,18 +211,37 @@ class _Stepper:
         if self.count > 100 and 0 < abs(h) < 64 * EPS * max(1.0, abs(t_new)) and t_new != self.t_bound:
             raise SimulationError(_step_collapsed(h, t_new))
         hit = None
-        if self.events:
-            g_new = [e(t_new, y_new) for e in self.events]  # every value first, then the rates (a loop's
+        events = self.events
+        if events:
+            g_new = [e(t_new, y_new) for e in events]  # every value first, then the rates (a loop's
             # guards solve from the previous call's solution: the order of the calls is part of the bits)
-            r_new = [_rate(e, t_new, y_new, f_new, h, g if pure else None) if f_new is not None or from_state else None
-                     for e, g, pure, from_state in zip(self.events, g_new, self._pure, self._from_state)]
-            for i, e in enumerate(self.events):
-                if _crossed(self.g[i], g_new[i], e.direction) or (
-                        r_new[i] is not None and self.rates[i] is not None
-                        and _hermite_dips(self.g[i], self.rates[i], g_new[i], r_new[i], h, e.direction)):
-                    found = _locate(e, dense(), t_old, t_new, self.g[i], self.opts.event_tol)
-                    if found is not None and (hit is None or found < hit[1]):
-                        hit = (i, found)
+            if f_new is not None:
+                d = max(1e-7 * abs(h), 1e-12 * max(1.0, abs(t_new)))  # _rate's forward difference, once a step
+                forward = None
+                r_new = []
+                for e, g, pure, own in zip(events, g_new, self._pure, self._own_rates):
+                    if own is not None:
+                        r_new.append(own(t_new, y_new, f_new))
+                    else:  # (_rate: from the value just computed where it is a function of the state alone)
+                        if forward is None:
+                            forward = y_new + d * f_new
+                        r_new.append((e(t_new + d, forward) - (g if pure else e(t_new, y_new))) / d)
+            else:
+                r_new = [_rate(e, t_new, y_new, None, h, g if pure else None) if from_state else None
+                         for e, g, pure, from_state in zip(events, g_new, self._pure, self._from_state)]
+            g_old, r_old = self.g, self.rates
+            for i, direction in enumerate(self._directions):
+                g0, g1 = g_old[i], g_new[i]
+                # _crossed; else _hermite_dips where both ends' rates are known and its quick exits pass
+                if g0 != g1 and ((direction >= 0 and g0 <= 0 <= g1) or (direction <= 0 and g0 >= 0 >= g1)):
+                    pass
+                elif (r_new[i] is None or r_old[i] is None or (g0 > 0) != (g1 > 0) or g0 == 0 or g1 == 0
+                      or (g0 < 0 and direction < 0) or (g0 > 0 and direction > 0)
+                      or not _hermite_dips(g0, r_old[i], g1, r_new[i], h, direction)):
+                    continue
+                found = _locate(events[i], dense(), t_old, t_new, g0, self.opts.event_tol)
+                if found is not None and (hit is None or found < hit[1]):
+                    hit = (i, found)
             self.g, self.rates = g_new, r_new
         if self.kept is not None:
             self.kept.append(keep)
