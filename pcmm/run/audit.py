@@ -83,6 +83,8 @@ def flight_work(cfg: Configuration, coords, t, y, stepping, q_start, kept=None) 
     states = states[:coords.ny]
     values = drive_powers(cfg, coords, times, states)
     if values is None:
+        values = tree_powers(coords, times, states)
+    if values is None:
         coords.seed(q_start)
         values = np.array([power(cfg, coords, ti, *coords.unpack(ti, states[:, i])) for i, ti in enumerate(times)])
     return float(weights @ values)
@@ -152,6 +154,23 @@ def drive_powers(cfg: Configuration, coords, times, states) -> np.ndarray | None
     if fast is not None:
         return fast(np.asarray(times, float), np.asarray(states, float)[:coords.ny])
     return python_drive_powers(cfg, coords, times, states)
+
+
+def tree_powers(coords, times, states) -> np.ndarray | None:
+    """:func:`power` at every node where there is no constraint row and every force element is linear
+    (a tree's springs, dampers and constant torques: ``Q = Q0 - K q - Dv v``): all nodes at once, the
+    products over the nodes as matrix products, so each node's power is :func:`power`'s to round-off
+    (numpy's products sum in their own order: tests/test_flight_python.py bounds the difference), not
+    to the bit.  None otherwise (rows, point springs, coordinates without ``unpack_many``)."""
+    forces = coords.forces
+    if len(coords.labels) or getattr(forces, "points", True) is not None or not hasattr(forces, "Dv"):
+        return None
+    many = getattr(coords, "unpack_many", None)
+    got = many(times, states) if many is not None else None
+    if got is None:
+        return None
+    Q, V = got
+    return np.einsum("ij,ij->j", forces.Q0[:, None] - forces.K @ Q - forces.Dv @ V, V)
 
 
 def _compiled_drive_powers(cfg: Configuration, coords):
