@@ -179,3 +179,20 @@ def test_a_tree_flight_power_at_all_nodes_at_once_is_the_per_node_power_to_round
     assert m["flights"] >= 1 and m["flight_energy_relative_max"] < 1e-9
     # not taken where a row or a point spring is: those stay node by node
     assert audit.tree_powers(type("C", (), {"labels": ["row"], "forces": forces})(), times, states) is None
+
+
+def test_one_step_nodes_on_floats_are_the_array_nodes_to_the_bit():
+    """A flight of one step (most of a bouncing run's) has its Gauss nodes and weights formed on Python
+    floats: the same operations as the arrays' (t_k + h (x + 1), h w), the same bits, at step sizes
+    from 1e-14 s to 1 s and times from 1e-3 to 1e3 s."""
+    from pcmm.run import audit
+    rng = np.random.default_rng(3)
+    for _ in range(2000):
+        t0 = rng.uniform(-10, 10) * 10.0 ** rng.integers(-3, 3)
+        t = np.array([t0, t0 + abs(rng.standard_normal()) * 10.0 ** rng.integers(-14, 0)])
+        h = ((t[1:] - t[:-1]) / 2)[:, None]
+        want = (t[:-1, None] + h * (audit.GAUSS_NODES + 1)).ravel(), (h * audit.GAUSS_WEIGHTS).ravel()
+        got = audit._nodes(t)
+        assert got[0].tobytes() == want[0].tobytes() and got[1].tobytes() == want[1].tobytes()
+    nodes, weights = audit._nodes(np.array([0.0, 2.0]))
+    assert np.allclose(nodes, 1 + audit.GAUSS_NODES) and weights.sum() == pytest.approx(2.0, rel=1e-15)

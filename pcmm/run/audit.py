@@ -42,6 +42,7 @@ from .dense import dense_states, states_on_rows
 RESOLVED_KINETIC = 1e-6  # flights with less rebound energy than this x the first are round-off dominated
 GAUSS_NODES, GAUSS_WEIGHTS = np.polynomial.legendre.leggauss(4)
 _NODES_1 = GAUSS_NODES + 1  # each step's nodes at t_k + h (x + 1), h its half size
+_NODES_1_FLOATS, _WEIGHTS_FLOATS = _NODES_1.tolist(), GAUSS_WEIGHTS.tolist()
 _NODE_STEPS = np.arange(4 * 256) // GAUSS_NODES.shape[0]  # the step of each node of a flight's first 256 steps
 
 
@@ -92,6 +93,10 @@ def flight_work(cfg: Configuration, coords, t, y, stepping, q_start, kept=None) 
 
 def _nodes(t) -> tuple[np.ndarray, np.ndarray]:
     """The Gauss-Legendre nodes and weights of every step of ``t``, step after step."""
+    if t.shape[0] == 2:  # one step (most flights of a bouncing run): the same operations on Python floats
+        t0, t1 = t.tolist()
+        h = (t1 - t0) / 2
+        return np.array([t0 + h * x for x in _NODES_1_FLOATS]), np.array([h * w for w in _WEIGHTS_FLOATS])
     h = ((t[1:] - t[:-1]) / 2)[:, None]  # (what np.diff forms)
     return (t[:-1, None] + h * _NODES_1).ravel(), (h * GAUSS_WEIGHTS).ravel()
 
