@@ -186,13 +186,14 @@ class _Stepper:
         self.g = [e(t0, self.ys[0]) for e in events]
         # per guard, read once (not at every step): the value already computed at a step's end stands
         # for asking the guard again in its forward difference (_pure_value), and whether its rate is
-        # read at all without the state's derivative
-        self._pure = [_pure_value(e) for e in events]
-        self._from_state = [bool(getattr(e, "rate_from_state", False)) for e in events]
-        self._own_rates = [getattr(e, "rate", None) for e in events]  # None: a forward difference (_rate)
+        # read at all without the state's derivative:
+        # (the guard, its own rate or None: a forward difference (_rate), whether its value is a function of
+        # the state alone (_pure_value), whether its rate needs no derivative), and the guards' directions
+        self._scan = [(e, getattr(e, "rate", None), _pure_value(e), bool(getattr(e, "rate_from_state", False)))
+                      for e in events]
         self._directions = [e.direction for e in events]
         self.rates = [_rate(e, t0, self.ys[0], f0, 1e-6, g if pure else None)
-                      for e, g, pure in zip(events, self.g, self._pure)] if events else []
+                      for (e, _, pure, _), g in zip(self._scan, self.g)] if events else []
         self.count = 0
         self.max_steps = opts.max_steps  # read once: opts may resolve attributes through a fallback
 
@@ -219,25 +220,23 @@ class _Stepper:
                 d = max(1e-7 * abs(h), 1e-12 * max(1.0, abs(t_new)))  # _rate's forward difference, once a step
                 forward = None
                 r_new = []
-                for e, g, pure, own in zip(events, g_new, self._pure, self._own_rates):
+                for (e, own, pure, _), g in zip(self._scan, g_new):
                     if own is not None:
                         r_new.append(own(t_new, y_new, f_new))
                     else:  # (_rate: from the value just computed where it is a function of the state alone)
                         if forward is None:
                             forward = y_new + d * f_new
                         r_new.append((e(t_new + d, forward) - (g if pure else e(t_new, y_new))) / d)
-            else:
+            else:  # only the rates read from the state (_rate)
                 r_new = [_rate(e, t_new, y_new, None, h, g if pure else None) if from_state else None
-                         for e, g, pure, from_state in zip(events, g_new, self._pure, self._from_state)]
+                         for (e, _, pure, from_state), g in zip(self._scan, g_new)]
             g_old, r_old = self.g, self.rates
             for i, direction in enumerate(self._directions):
                 g0, g1 = g_old[i], g_new[i]
-                # _crossed; else _hermite_dips where both ends' rates are known and its quick exits pass
+                # _crossed (inline); else _hermite_dips where both ends' rates are known
                 if g0 != g1 and ((direction >= 0 and g0 <= 0 <= g1) or (direction <= 0 and g0 >= 0 >= g1)):
                     pass
-                elif (r_new[i] is None or r_old[i] is None or (g0 > 0) != (g1 > 0) or g0 == 0 or g1 == 0
-                      or (g0 < 0 and direction < 0) or (g0 > 0 and direction > 0)
-                      or not _hermite_dips(g0, r_old[i], g1, r_new[i], h, direction)):
+                elif r_new[i] is None or r_old[i] is None or not _hermite_dips(g0, r_old[i], g1, r_new[i], h, direction):
                     continue
                 found = _locate(events[i], dense(), t_old, t_new, g0, self.opts.event_tol)
                 if found is not None and (hit is None or found < hit[1]):
