@@ -196,3 +196,34 @@ def test_one_step_nodes_on_floats_are_the_array_nodes_to_the_bit():
         assert got[0].tobytes() == want[0].tobytes() and got[1].tobytes() == want[1].tobytes()
     nodes, weights = audit._nodes(np.array([0.0, 2.0]))
     assert np.allclose(nodes, 1 + audit.GAUSS_NODES) and weights.sum() == pytest.approx(2.0, rel=1e-15)
+
+
+@pytest.mark.parametrize("form", ["contd8", "scipy"])
+def test_rows_of_random_coefficients_give_the_interpolants_states_to_the_bit(form):
+    """Synthetic rows (random coefficients of 1 to 5 components, 1 to 6 steps, steps from 1e-9 s to
+    0.3 s at times up to 1e3 s): the states read off the rows, on floats and on arrays, are each step's
+    interpolant's (formed from its row), bit for bit, at 4 times strictly inside each step."""
+    rng = np.random.default_rng(11 if form == "contd8" else 12)
+    make = integrators.contd8_row_dense if form == "contd8" else integrators.scipy_row_dense
+    for _ in range(300):
+        n, steps = int(rng.integers(1, 6)), int(rng.integers(1, 7))
+        t = np.cumsum(np.concatenate([[rng.uniform(-1, 1) * 10.0 ** rng.integers(0, 4)],
+                                      10.0 ** rng.uniform(-9, -0.5, steps)]))
+        kept = []
+        for k in range(steps):
+            coefficients = rng.standard_normal(8 * n) * 10.0 ** rng.integers(-3, 3, 8 * n)
+            head = [t[k], t[k + 1] - t[k]] if form == "contd8" else [t[k], t[k + 1]]
+            kept.append(integrators._Row(np.concatenate([head, coefficients]), make))
+        y = rng.standard_normal((n, steps + 1))
+        x = np.sort(rng.uniform(0.01, 0.99, (steps, 4)), axis=1)
+        times = (t[:-1, None] + (t[1:] - t[:-1])[:, None] * x).ravel()
+        k_of = np.repeat(np.arange(steps), 4)
+        inside = (times > t[k_of]) & (times < t[k_of + 1])
+        times, k_of = times[inside], k_of[inside]
+        if not times.size:
+            continue
+        formed = [(lambda s: lambda fun: s)(e(None)) for e in kept]
+        want = np.stack([formed[k](None)(ti) for ti, k in zip(times, k_of)], axis=1)
+        floats = dense.states_on_rows(t, y, times, k_of, kept)
+        arrays = dense._row_states(kept, k_of, times)
+        assert floats.tobytes() == want.tobytes() and arrays.tobytes() == want.tobytes()
