@@ -896,7 +896,14 @@ class PartitionedCoordinates:
         return None
 
     def unpack(self, t, y):
-        loop = self._held_loop() or (self._compiled_loop() if self._loop_refused is None else None)
+        held = self._loop_held  # (_held_loop, inline: asked at every guard value, node and state of a run)
+        if held is not None and self._trail is None and held[0] == _thread_id() and held[1] is self.forces:
+            got = self._loop.unpack(t, y)
+            if got[0] == 0 and not self._reader:  # solved by the compiled loop: _compiled_unpack's common case
+                self._last_Jp = got[3]
+                return got[1], got[2]
+            return self._compiled_unpack(self._loop, t, y, got)
+        loop = self._compiled_loop() if self._loop_refused is None else None
         if loop is not None:
             return self._compiled_unpack(loop, t, y)
         cache = self._cache
@@ -913,15 +920,17 @@ class PartitionedCoordinates:
                 self._reached[k] = self._recent[-1]
         return out
 
-    def _compiled_unpack(self, loop, t, y):
+    def _compiled_unpack(self, loop, t, y, got=None):
         """:meth:`unpack` by the compiled loop (its warm starts, its cache); where it declines, the
         conditioning check decides (a new partition, or a singular posture), or the Python solve
-        from the compiled loop's warm start (its error, or a solution the loop then keeps)."""
+        from the compiled loop's warm start (its error, or a solution the loop then keeps).  ``got``:
+        what ``loop.unpack(t, y)`` returned, where :meth:`unpack` asked it already (no segment re-read)."""
         trail = self._trail
         if trail is not None and loop.holds(t, y):  # the last one solved: nothing to keep
             trail = None
         # a re-read segment: its steps' solutions are warm starts too (_guess, _follow)
-        status, q, v, Jp = loop.unpack(t, y) if trail is None else loop.unpack(t, y, self._follow(t))
+        status, q, v, Jp = got if got is not None else (
+            loop.unpack(t, y) if trail is None else loop.unpack(t, y, self._follow(t)))
         if status == 0:
             self._last_Jp = Jp
         else:
