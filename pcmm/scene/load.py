@@ -818,6 +818,37 @@ class _Builder:
         elif movable and config.info.joints[name].type not in MOVABLE:
             self.p.add(where, f"= {name!r}: joint is fixed in configuration '{config.name}'")
 
+    def _loops_keep_a_coordinate_per_row(self, scene: Scene, cfg: ConfigurationSpec) -> None:
+        """The initial assembly solves the loops' constraint rows for the coordinates that are neither
+        kept (``[initial] independent``) nor driven: fewer of those than rows is a loop that cannot close
+        whatever the values (the assembly would otherwise fail as a Newton solve that diverged)."""
+        rows = {cj.name: CUT_JOINT_TYPES[cj.type] for cj in cfg.cut_joints}
+        if not rows:
+            return
+        locked = set(cfg.derivation.lock) if cfg.derivation is not None else set()
+        joints = {n: j for n, j in cfg.info.joints.items() if j.type in MOVABLE and n not in locked}
+        total = sum(3 if j.type == "planar" else 1 for j in joints.values())
+        kept: dict[str, str] = {}  # coordinate -> why it is kept
+        for name in scene.independent:
+            joint, _, part = name.rpartition(".")
+            if name in joints:
+                kept[f"{name}.x" if joints[name].type == "planar" else name] = "independent"
+            elif joint in joints and part in ("x", "y", "theta"):
+                kept[name] = "independent"
+        for d in scene.drives:
+            if d.joint in joints and (d.configurations is None or cfg.name in d.configurations):
+                kept.setdefault(d.joint, f"driven by drives[{scene.drives.index(d)}]")
+        free = total - len(kept)
+        if sum(rows.values()) <= free:
+            return
+        where = "initial.independent" if scene.independent else "drives"
+        value = f"= {list(scene.independent)}: " if scene.independent else ""
+        self.p.add(where, f"{value}configuration '{cfg.name}' has {total} coordinates ({', '.join(joints)}) and "
+                   f"{len(kept)} are kept at t = 0 ({', '.join(f'{k}: {why}' for k, why in kept.items())}), which "
+                   f"leaves {free} to close its loops, whose cut joints have {sum(rows.values())} constraint rows "
+                   f"({', '.join(f'{n}: {r}' for n, r in rows.items())}): no posture satisfies them all; keep "
+                   f"fewer coordinates (a driven joint is kept by its drive: leave it out of independent)")
+
     def _check_coordinate(self, where, name, config):
         """A joint, or one coordinate of a planar joint ("P.x", "P.y", "P.theta")."""
         joint, _, part = name.rpartition(".")
@@ -929,6 +960,8 @@ class _Builder:
         for j in scene.independent:
             if init_cfg is not None:
                 self._check_coordinate("initial.independent", j, init_cfg)
+        if init_cfg is not None:
+            self._loops_keep_a_coordinate_per_row(scene, init_cfg)
         if scene.branch is not None and init_cfg is not None:
             self._check_measure("initial.branch", scene.branch.measure, init_cfg)
         for i, d in enumerate(scene.drives):

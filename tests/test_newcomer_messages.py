@@ -1,0 +1,51 @@
+"""Messages a new user met while writing the slider-crank press of tests/test_newcomer_mechanisms.py
+(task h-newcomer), each now naming the file, the field and the values at fault."""
+from __future__ import annotations
+
+import pytest
+
+import pcmm
+from test_newcomer_mechanisms import PRESS_TOML, PRESS_URDF
+
+
+def _press(tmp_path, old: str, new: str):
+    assert old in PRESS_TOML
+    (tmp_path / "press.urdf").write_text(PRESS_URDF)
+    path = tmp_path / "press.toml"
+    path.write_text(PRESS_TOML.replace(old, new, 1))
+    return path
+
+
+def test_a_drive_on_a_kept_loop_coordinate_is_named_at_load(tmp_path):
+    """The drive moved from the crank to the crank pin while [initial] independent still keeps the
+    crank (and the ram): 4 coordinates, 3 kept (crank, ram, and pin by its drive), 1 left for the 2
+    rows of the cut joint. Before, the assembly failed as a diverged Newton solve and called itself
+    "a pcmm defect: please report it"."""
+    path = _press(tmp_path, '[[drives]]\njoint = "crank"', '[[drives]]\njoint = "pin"')
+    with pytest.raises(pcmm.SceneError) as err:
+        pcmm.load_scene(path)
+    text = str(err.value)
+    assert f"{path}: initial.independent: = ['crank', 'ram']: configuration 'free' has 4 coordinates" in text
+    assert "crank: independent, ram: independent, pin: driven by drives[0]" in text
+    assert "leaves 1 to close its loops, whose cut joints have 2 constraint rows (wrist: 2)" in text
+    assert "pcmm defect" not in text
+
+
+def test_drives_alone_are_counted_and_named_at_drives(tmp_path):
+    """Without [initial] independent, drives on the crank and the crank pin keep 2 of the 4
+    coordinates, leaving 2 for the 2 rows: accepted at load. A third drive, on the slider, leaves 1:
+    refused, at `drives`."""
+    drive = '[[drives]]\njoint = "crank"'
+    pin = '[[drives]]\njoint = "pin"\ncoefficients = [2.6]\n\n'
+    slide = '[[drives]]\njoint = "slide"\ncoefficients = [0.22]\n\n'
+    path = _press(tmp_path, drive, pin + drive)
+    path.write_text(path.read_text().replace('independent = ["crank", "ram"]\n', ""))
+    assert len(pcmm.load_scene(path).drives) == 2
+    path = _press(tmp_path, drive, pin + slide + drive)
+    path.write_text(path.read_text().replace('independent = ["crank", "ram"]\n', ""))
+    with pytest.raises(pcmm.SceneError) as err:
+        pcmm.load_scene(path)
+    text = str(err.value)
+    assert f"{path}: drives: configuration 'free' has 4 coordinates (crank, pin, slide, ram)" in text
+    assert "pin: driven by drives[0], slide: driven by drives[1], crank: driven by drives[2]" in text
+    assert "leaves 1 to close its loops" in text
