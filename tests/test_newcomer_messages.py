@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 
 import pcmm
-from test_newcomer_mechanisms import PRESS_TOML, PRESS_URDF
+from test_newcomer_mechanisms import PAWL_TOML, PAWL_URDF, PRESS_TOML, PRESS_URDF
 
 
 def _press(tmp_path, old: str, new: str):
@@ -49,3 +49,24 @@ def test_drives_alone_are_counted_and_named_at_drives(tmp_path):
     assert f"{path}: drives: configuration 'free' has 4 coordinates (crank, pin, slide, ram)" in text
     assert "pin: driven by drives[0], slide: driven by drives[1], crank: driven by drives[2]" in text
     assert "leaves 1 to close its loops" in text
+
+
+@pytest.mark.parametrize("old, new, field, value", [
+    ("point_b = [0.2, 0.0]", "point_b = [0.2, 0.0, 0.0]", "contact.point_b", "= [0.2, 0.0, 0.0]: must be a list of 2"),
+    ("cut = []", 'cut = "pivot"', "cut", "= 'pivot': must be a list"),
+    ("contact = {", 'contact = "wall"\nunused = {', "contact", "= 'wall': must be a table"),
+])
+def test_a_bad_value_is_reported_once_not_also_as_missing(tmp_path, old, new, field, value):
+    """A pawl's contact point written with three numbers (or a cut, a contact of the wrong kind) was
+    reported twice: as the bad value it is, and again as "missing"."""
+    text = PAWL_TOML.replace(old, new, 1)
+    if "unused = {" in text:  # the rest of the contact's line, left as a key of its own below
+        text = text.replace("unused = {", "# {", 1)
+    (tmp_path / "pawl.urdf").write_text(PAWL_URDF)
+    path = tmp_path / "pawl.toml"
+    path.write_text(text)
+    with pytest.raises(pcmm.SceneError) as err:
+        pcmm.load_scene(path)
+    problems = err.value.problems
+    assert len(problems) == 1, problems
+    assert problems[0].startswith(f"{path}: transitions[0] (tip strikes wall).{field}: {value}")

@@ -121,7 +121,7 @@ GUARD_KEYS = [
           doc="coordinate (a measure), gap (a contact's gap), time, reaction (a lock's holding force)"),
     S.Key("when", "table", required=False,
           doc="coordinate and gap guards: { measure, above | below }: a crossing counts only on that side"),
-    S.Key("measure", "table", required=False, doc="coordinate guards: the measure watched, a table of the kind above"),
+    S.Key("measure", "table", required=False, doc="coordinate guards: the measure watched, { joint }, { link } or { between }"),
     S.Key("value", "number", required=False,
           doc="the guard fires when the measure, gap or holding force crosses this value"),
     S.Key("direction", "str", required=False, check=S.one_of(*_DIRECTIONS),
@@ -158,8 +158,8 @@ TRANSITION_KEYS = [
           doc="stop: the configuration the bodies merge into when the bounces accumulate"),
     S.Key("restitution", "number", required=False, check=S.unit_interval, doc="stop: Newton's coefficient e (required there)"),
     S.Key("cut", "list", required=False, check=S.names_list,
-          doc="latch and stop (required there): the metamorphic joint(s) cut to solve the impulse; [] if none"),
-    S.Key("guard", "table", doc="what fires the transition: a table of the kind below"),
+          doc="latch and stop, required there: the metamorphic joint(s) cut to solve the impulse; [] if none"),
+    S.Key("guard", "table", doc="what fires the transition: { type, ... }, the keys of a guard"),
     S.Key("contact", "table", required=False,
           doc="latch, stop and pin: the two points that strike (a pin: b's point is held), or a joint stop"),
     S.Key("accumulation_speed", "number", required=False, check=S.non_negative,
@@ -551,10 +551,10 @@ class _Builder:
             guard = self._guard(t["guard"], f"{where}.guard", kind)
             e = t["restitution"]
             if kind in ("latch", "stop"):
-                if t["contact"] is None:
+                if t["contact"] is None and "contact" not in raw:  # given but bad: said by check_table
                     self.p.add(f"{where}.contact", f"missing; a {kind} needs the contact that strikes: "
                                "{ a, point_a, b, point_b, normal } or a joint stop { joint, arm }")
-                if t["cut"] is None:
+                if t["cut"] is None and "cut" not in raw:
                     self.p.add(f"{where}.cut", "missing; the metamorphic joint(s) cut to solve the impulse, [] if none")
             if kind == "latch":
                 if t["to"] is None:
@@ -573,7 +573,7 @@ class _Builder:
                 if t["to"] is None:
                     self.p.add(f"{where}.to", "missing; a pin names the configuration whose cut joint holds the "
                                "struck point (point_a = \"entry\")")
-                if t["contact"] is None:
+                if t["contact"] is None and "contact" not in raw:
                     self.p.add(f"{where}.contact", "missing; a pin needs the point contact that strikes: "
                                "{ a, point_a, b, point_b, normal }")
                 for k in ("restitution", "merge_to", "unmerge", "law", "stiffness", "exponent",
@@ -694,7 +694,7 @@ class _Builder:
         points = [k for k in POINT_CONTACT if c[k] is not None]
         if c["joint"] is None:
             for k in POINT_CONTACT:
-                if c[k] is None:
+                if c[k] is None and not (isinstance(table, dict) and k in table):  # given but bad: said above
                     self.p.add(f"{where}.{k}", "missing; a contact names a, point_a, b, point_b and normal "
                                "(or is a joint stop: { joint, arm })")
             if c["arm"] is not None:
