@@ -18,37 +18,50 @@ def _press(tmp_path, old: str, new: str):
 
 def test_a_drive_on_a_kept_loop_coordinate_is_named_at_load(tmp_path):
     """The drive moved from the crank to the crank pin while [initial] independent still keeps the
-    crank (and the ram): 4 coordinates, 3 kept (crank, ram, and pin by its drive), 1 left for the 2
-    rows of the cut joint. Before, the assembly failed as a diverged Newton solve and called itself
+    crank (and the ram, which is in no loop): the loop involves crank, pin and slide, 2 of them kept
+    (crank, and pin by its drive), 1 left for the 2 rows of the cut joint. Before, the assembly failed as a diverged Newton solve and called itself
     "a pcmm defect: please report it"."""
     path = _press(tmp_path, '[[drives]]\njoint = "crank"', '[[drives]]\njoint = "pin"')
     with pytest.raises(pcmm.SceneError) as err:
         pcmm.load_scene(path)
     text = str(err.value)
-    assert f"{path}: initial.independent: = ['crank', 'ram']: configuration 'free' has 4 coordinates" in text
-    assert "crank: independent, ram: independent, pin: driven by drives[0]" in text
-    assert "leaves 1 to close its loops, whose cut joints have 2 constraint rows (wrist: 2)" in text
+    assert (f"{path}: initial.independent: = ['crank', 'ram']: the loops of configuration 'free' involve 3 "
+            "coordinates (crank, pin, slide), 2 of them kept at t = 0 (crank: independent, pin: driven by "
+            "drives[0]), which leaves 1 for the 2 constraint rows of its cut joints (wrist: 2)") in text
     assert "pcmm defect" not in text
 
 
 def test_drives_alone_are_counted_and_named_at_drives(tmp_path):
-    """Without [initial] independent, drives on the crank and the crank pin keep 2 of the 4
-    coordinates, leaving 2 for the 2 rows: accepted at load. A third drive, on the slider, leaves 1:
-    refused, at `drives`."""
+    """Without [initial] independent, drives on the crank and the crank pin keep 2 of the loop's 3
+    coordinates, leaving 1 for the 2 rows: refused, at `drives`. Two drives where one is on the ram,
+    in no loop, leave the loop its 2 coordinates: accepted."""
     drive = '[[drives]]\njoint = "crank"'
     pin = '[[drives]]\njoint = "pin"\ncoefficients = [2.6]\n\n'
-    slide = '[[drives]]\njoint = "slide"\ncoefficients = [0.22]\n\n'
-    path = _press(tmp_path, drive, pin + drive)
+    ram = '[[drives]]\njoint = "ram"\ncoefficients = [0.27]\nconfigurations = ["free"]\n\n'
+    path = _press(tmp_path, drive, ram + drive)
     path.write_text(path.read_text().replace('independent = ["crank", "ram"]\n', ""))
     assert len(pcmm.load_scene(path).drives) == 2
-    path = _press(tmp_path, drive, pin + slide + drive)
+    path = _press(tmp_path, drive, pin + drive)
     path.write_text(path.read_text().replace('independent = ["crank", "ram"]\n', ""))
     with pytest.raises(pcmm.SceneError) as err:
         pcmm.load_scene(path)
+    assert (f"{path}: drives: the loops of configuration 'free' involve 3 coordinates (crank, pin, slide), 2 of "
+            "them kept at t = 0 (pin: driven by drives[0], crank: driven by drives[1]), which leaves 1 for the 2 "
+            "constraint rows") in str(err.value)
+
+
+def test_kept_crank_and_slider_over_determine_the_loop(tmp_path):
+    """[initial] independent keeping both the crank and the slider of a slider-crank leaves the loop
+    the crank pin alone for its 2 rows. Before, the assembly blamed a singular posture or redundant
+    cut joints."""
+    path = _press(tmp_path, 'independent = ["crank", "ram"]', 'independent = ["crank", "slide"]')
+    with pytest.raises(pcmm.SceneError) as err:
+        pcmm.load_scene(path)
     text = str(err.value)
-    assert f"{path}: drives: configuration 'free' has 4 coordinates (crank, pin, slide, ram)" in text
-    assert "pin: driven by drives[0], slide: driven by drives[1], crank: driven by drives[2]" in text
-    assert "leaves 1 to close its loops" in text
+    assert (f"{path}: initial.independent: = ['crank', 'slide']: the loops of configuration 'free' involve 3 "
+            "coordinates (crank, pin, slide), 2 of them kept at t = 0 (crank: independent, slide: independent), "
+            "which leaves 1 for the 2 constraint rows of its cut joints (wrist: 2)") in text
+    assert "singular" not in text
 
 
 @pytest.mark.parametrize("old, new, field, value", [

@@ -819,14 +819,28 @@ class _Builder:
             self.p.add(where, f"= {name!r}: joint is fixed in configuration '{config.name}'")
 
     def _loops_keep_a_coordinate_per_row(self, scene: Scene, cfg: ConfigurationSpec) -> None:
-        """The initial assembly solves the loops' constraint rows for the coordinates that are neither
-        kept (``[initial] independent``) nor driven: fewer of those than rows is a loop that cannot close
-        whatever the values (the assembly would otherwise fail as a Newton solve that diverged)."""
+        """The initial assembly solves the loops' constraint rows for the coordinates they involve that
+        are neither kept (``[initial] independent``) nor driven: fewer of those than rows is a loop that
+        cannot close whatever the values (the assembly would otherwise fail as a Newton solve that
+        diverged, or as a singular posture).  A cut joint's rows involve the joints on the tree paths of
+        its two links that the paths do not share (a shared joint moves both links rigidly)."""
         rows = {cj.name: CUT_JOINT_TYPES[cj.type] for cj in cfg.cut_joints}
         if not rows:
             return
         locked = set(cfg.derivation.lock) if cfg.derivation is not None else set()
-        joints = {n: j for n, j in cfg.info.joints.items() if j.type in MOVABLE and n not in locked}
+        by_child = {j.child: j for j in cfg.info.joints.values()}
+
+        def path(link: str) -> set[str]:
+            out = set()
+            while link in by_child and len(out) <= len(by_child):
+                out.add(by_child[link].name)
+                link = by_child[link].parent
+            return out
+        involved: set[str] = set()
+        for cj in cfg.cut_joints:
+            involved |= path(cj.a) ^ path(cj.b)
+        joints = {n: j for n, j in cfg.info.joints.items()
+                  if n in involved and j.type in MOVABLE and n not in locked}
         total = sum(3 if j.type == "planar" else 1 for j in joints.values())
         kept: dict[str, str] = {}  # coordinate -> why it is kept
         for name in scene.independent:
@@ -843,9 +857,10 @@ class _Builder:
             return
         where = "initial.independent" if scene.independent else "drives"
         value = f"= {list(scene.independent)}: " if scene.independent else ""
-        self.p.add(where, f"{value}configuration '{cfg.name}' has {total} coordinates ({', '.join(joints)}) and "
-                   f"{len(kept)} are kept at t = 0 ({', '.join(f'{k}: {why}' for k, why in kept.items())}), which "
-                   f"leaves {free} to close its loops, whose cut joints have {sum(rows.values())} constraint rows "
+        self.p.add(where, f"{value}the loops of configuration '{cfg.name}' involve {total} coordinates "
+                   f"({', '.join(joints)}), {len(kept)} of them kept at t = 0 "
+                   f"({', '.join(f'{k}: {why}' for k, why in kept.items())}), which leaves {free} for the "
+                   f"{sum(rows.values())} constraint rows of its cut joints "
                    f"({', '.join(f'{n}: {r}' for n, r in rows.items())}): no posture satisfies them all; keep "
                    f"fewer coordinates (a driven joint is kept by its drive: leave it out of independent)")
 
