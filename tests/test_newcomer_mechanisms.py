@@ -12,6 +12,12 @@ as a user runs it and checked against numbers derived by hand.
 (A press whose slider itself strikes the stop cannot work: with the crank driven the loop has no
 free coordinate, so no impulse can change a velocity; pcmm stops at the strike. The ram on its
 spring is the freedom an impact needs.)
+
+The pawl's wall is oblique to the tip's path (30°). `pcmm check` and `pcmm run` refuse such a
+contact ("normal ... 30 deg off the direction in which joint 'pivot' moves the contact point") when
+they find the guard's posture, which from this horizontal start they do not (the gap is stationary
+there); the hand calculation below says the wall's normal is the right one. These tests run through
+`pcmm.simulate`, which makes no such check.
 """
 from __future__ import annotations
 
