@@ -9,9 +9,11 @@ here at once, each problem naming the file and the field:
   guard coordinate set; a loop: assembled with the guard as one more equation), every link the
   target configuration shares with the source sits where the source puts it;
 * **the contact at the guard value**: the two contact points meet (gap zero along the normal and
-  nothing across it), and the normal is the direction in which the pair's joint moves the contact
-  point: for a revolute pair, perpendicular to the lever from the joint axis to the contact point
-  (how far it is off, in degrees); it points from a towards b, so the guard's direction approaches;
+  nothing across it); for a frictionless contact on a pair joined by one joint, the normal is the
+  direction in which that joint moves the contact point (for a revolute pair, perpendicular to the
+  lever from the joint axis; how far it is off, in degrees): an error between two moving links, a
+  warning against a wall (:mod:`pcmm.events.contact_faults` says why); it points from a towards b,
+  so the guard's direction approaches;
 * **reach**: each guard value lies in the range its coordinate can reach (the URDF's joint limits;
   a loop that cannot close there), else a warning;
 * **units**: a guard on an angle (a revolute joint, a link's angle, the angle between two links)
@@ -167,7 +169,8 @@ def check_scene(scene: Scene, mechanism: Mechanism | None = None) -> CheckReport
                 continue
             report.postures[tr.name] = q
             report.warnings += [f"{here}.guard.value: = {tr.guard.value:.12g}: {w}" for w in _limits(cfg, q)]
-            report.problems += [f"{here}.{f.field}: {f.text}" for f in contact_findings(cfg, tr, q)]
+            for f in contact_findings(cfg, tr, q, warnings=True):
+                (report.warnings if f.warning else report.problems).append(f"{here}.{f.field}: {f.text}")
             target = tr.merge_to if tr.type == "stop" else tr.target
             if target is None or target not in scene.configurations:
                 continue

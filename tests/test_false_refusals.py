@@ -1,0 +1,73 @@
+"""Valid scenes that pcmm refused, and messages that blamed the wrong thing (issue 22, "no false
+failure"; met by a newcomer modelling a pawl and a press, task h-faults).
+
+The mechanism of most tests is a lever of my own (tests/builders.py: lever_on_wall): a uniform bar
+(m = 0.4 kg, L = 0.25 m, I_O = m L^2 / 3) on a pivot, released at rest, whose tip strikes a vertical
+frame wall x = L cos(theta_s) at theta_s = -40 deg. The wall's normal (1, 0) is 50 deg off the tip's
+path (0.643, 0.766), so every number below is derived by hand along that oblique normal."""
+from __future__ import annotations
+
+import math
+
+import pytest
+
+import builders
+import pcmm
+from builders import G, copy_example, example_text
+from pcmm.run.checks import check_scene
+
+M, L = 0.4, 0.25
+I_O = M * L ** 2 / 3
+THETA_S = math.radians(-40.0)
+E = 0.5
+
+
+def check(path):
+    return check_scene(pcmm.load_scene(path))
+
+
+def omega_at_wall(q0: float) -> float:
+    """|theta'| at the wall from rest at q0: I_O w^2 / 2 = m g (L/2) (sin q0 - sin theta_s)."""
+    return math.sqrt(2 * M * G * (L / 2) * (math.sin(q0) - math.sin(THETA_S)) / I_O)
+
+
+# ---- 1. an oblique normal on a one-coordinate pair ----------------------------------------------
+@pytest.mark.parametrize("q0", [-0.2, -0.5, -0.65])
+def test_oblique_wall_with_friction_passes_check_from_any_start(tmp_path, q0):
+    """With friction the normal is the wall's: it fixes the friction cone and Routh's process, so
+    an oblique wall is no fault. The newcomer's pawl was refused from -0.9 rad only (its guard
+    posture was found from there, not from 0): the answer must not depend on the start."""
+    report = check(builders.lever_on_wall(tmp_path, THETA_S, q0, friction=0.3))
+    assert report.problems == []
+    assert not [w for w in report.warnings if "contact.normal" in w]
+    assert report.postures["tip strikes wall"][0] == pytest.approx(THETA_S, abs=1e-12)
+
+
+def test_oblique_frictionless_wall_is_a_warning_and_its_impulse_is_the_walls(tmp_path):
+    """Frictionless, the normal's angle alpha = 50 deg changes no velocity: Newton's law along n
+    gives theta'+ = -e theta'-. The normal row is J_n = n . dx_tip/dtheta = L sin 40 deg, so the
+    wall's impulse is P_n = I_O (1 + e) w / (L sin 40 deg), 1/cos 50 deg = 1.556 times the
+    I_O (1 + e) w / L an impulse along the tip's path would take: a warning (55.6 % larger), not
+    a refusal, and the run reports exactly that P_n."""
+    path = builders.lever_on_wall(tmp_path, THETA_S, -0.3)
+    report = check(path)
+    assert report.problems == []
+    [w] = [w for w in report.warnings if "contact.normal" in w]
+    assert "is 50 deg off" in w and "55.6 % larger" in w and "Right for a frictionless wall" in w
+    run = pcmm.simulate(pcmm.load_scene(path))
+    first = run.events[0]
+    w_minus = omega_at_wall(-0.3)
+    p_wall = I_O * (1 + E) * w_minus / (L * math.sin(-THETA_S))
+    assert first["impulse"]["normal"] == pytest.approx(p_wall, rel=1e-9)
+    assert first["impulse"]["normal"] == pytest.approx(I_O * (1 + E) * w_minus / L / math.cos(math.radians(50)),
+                                                       rel=1e-9)
+    assert first["normal_velocity"]["after"] == pytest.approx(-E * first["normal_velocity"]["before"], rel=1e-9)
+
+
+def test_oblique_frictional_normal_between_two_moving_links_passes(tmp_path):
+    """The three-bar latch's normal tilted by atan 0.3 stays an error frictionless (the contact is
+    joint O3's own stop: tests/test_authoring.py), but with friction it is a surface, accepted."""
+    text = example_text().replace("normal = [0.0, 1.0]", "normal = [0.3, 1.0], friction = 0.5")
+    assert "friction = 0.5" in text
+    report = check(copy_example(tmp_path, scene_text=text))
+    assert report.problems == []
