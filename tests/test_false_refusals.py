@@ -32,7 +32,7 @@ def omega_at_wall(q0: float) -> float:
 
 
 # ---- 1. an oblique normal on a one-coordinate pair ----------------------------------------------
-@pytest.mark.parametrize("q0", [-0.2, -0.5, -0.65])
+@pytest.mark.parametrize("q0", [0.0, -0.2, -0.5, -0.65])
 def test_oblique_wall_with_friction_passes_check_from_any_start(tmp_path, q0):
     """With friction the normal is the wall's: it fixes the friction cone and Routh's process, so
     an oblique wall is no fault. The newcomer's pawl was refused from -0.9 rad only (its guard
@@ -71,3 +71,30 @@ def test_oblique_frictional_normal_between_two_moving_links_passes(tmp_path):
     assert "friction = 0.5" in text
     report = check(copy_example(tmp_path, scene_text=text))
     assert report.problems == []
+
+
+# ---- 2. the guard's posture from a start where the guard is stationary ------------------------------
+@pytest.mark.parametrize("q0", [0.0, -0.1, -0.6])
+def test_guard_posture_found_where_the_gap_is_stationary(tmp_path, q0):
+    """Level (q0 = 0) the tip's gap L cos q - L cos theta_s has zero slope: Newton made no step and
+    check warned "no posture reaches it ... may never fire" of a guard that fires; from -0.1 rad it
+    landed a turn away. The posture is theta_s = -40 deg (the nearer of +-40 deg, the lower from
+    level), where the run's first strike indeed comes."""
+    path = builders.lever_on_wall(tmp_path, THETA_S, q0, friction=0.3)
+    report = check(path)
+    assert report.problems == [] and report.warnings == []
+    assert report.postures["tip strikes wall"][0] == pytest.approx(THETA_S, abs=1e-12)
+
+
+def test_unreachable_guard_is_not_claimed_unreachable_only_not_found(tmp_path):
+    """A wall beyond the tip's reach (x = 1.2 L): no posture exists; check says none was found from
+    its starts, that either none exists or the solve could not tell, and never that the guard
+    cannot fire for certain. The closest residual is the gap's extreme: L - 1.2 L = -0.05 m."""
+    path = builders.lever_on_wall(tmp_path, THETA_S, -0.3, friction=0.3)
+    path.write_text(path.read_text().replace(repr(L * math.cos(THETA_S)), repr(1.2 * L)))
+    report = check(path)
+    assert report.problems == []
+    [w] = report.warnings
+    assert "guard.value: = 0: no posture reaching it with the guard there was found from 6 starts" in w
+    assert "closest residual 0.05" in w and "or the solve could not tell" in w
+    assert "no posture reaches it" not in w

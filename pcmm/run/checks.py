@@ -31,6 +31,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..model.assembly import _distance, _near, _revolute
 from ..model.configuration import Configuration
 from ..model.mechanism import Mechanism
 from ..errors import PcmmError
@@ -75,23 +76,62 @@ def _guard_row(cfg: Configuration, tr: TransitionSpec, q):
     return gap(q) - tr.guard.value, grad
 
 
-def guard_posture(cfg: Configuration, tr: TransitionSpec, q_start) -> tuple[np.ndarray, float]:
-    """The posture nearest ``q_start`` (minimum-norm Newton steps) with the guard at its value
-    and every loop closed; returns (q, largest residual), the residual ~1e-13 when reached."""
+#: quarter and eighth turns added, one revolute coordinate at a time, to the start of the guard's Newton
+#: solve: a start where the guard's gradient vanishes (a pendulum hanging level over a wall: the gap is
+#: stationary there) makes no step, and a start far from the posture may land a turn away
+START_SHIFTS = (0.25 * math.pi, -0.25 * math.pi, 0.5 * math.pi, -0.5 * math.pi, math.pi)
+
+
+def _newton(cfg: Configuration, tr: TransitionSpec, q_start, iterations: int) -> tuple[np.ndarray, float]:
+    """Minimum-norm Newton steps from ``q_start`` to the guard at its value with every loop closed;
+    (q, largest residual), the residual ~1e-13 when reached, inf when the steps blew up."""
     q = np.array(q_start, dtype=float)
     worst = math.inf
-    for _ in range(60):
+    for _ in range(iterations):
         phi, Jq = _closure(cfg, q)
         r, g = _guard_row(cfg, tr, q)
         res = np.append(phi, r)
         worst = float(np.max(np.abs(res)))
         if worst < NEWTON_TOL:
             break
-        step = np.linalg.lstsq(np.vstack([Jq, g]), -res, rcond=None)[0]
-        q = q + step
+        q = q + np.linalg.lstsq(np.vstack([Jq, g]), -res, rcond=None)[0]
         if not np.all(np.isfinite(q)):
-            return q_start, math.inf
+            return np.array(q_start, dtype=float), math.inf
     return q, worst
+
+
+def _outside_limits(cfg: Configuration, q) -> bool:
+    return any(not lo - 1e-12 <= float(q[cfg.joint_slice[n].start]) <= hi + 1e-12
+               for n, j in cfg.spec.info.joints.items()
+               if j.limits is not None and n in cfg.joint_slice and j.type in ("revolute", "prismatic")
+               for lo, hi in [j.limits])
+
+
+def guard_posture(cfg: Configuration, tr: TransitionSpec, q_start) -> tuple[np.ndarray, float]:
+    """The posture nearest ``q_start`` with the guard at its value and every loop closed; returns
+    (q, largest residual), the residual ~1e-13 when reached (else the smallest any start left).
+
+    Newton (minimum-norm steps) runs from ``q_start`` and from starts with one revolute coordinate
+    turned by :data:`START_SHIFTS`, as the assembly tries several (:func:`pcmm.model.assembly._candidates`);
+    of the postures reached, each revolute angle taken within pi of the start, the nearest to the start
+    within the URDF's joint limits wins (one outside them only when no other is found); of two as near,
+    the lower in gravity's potential, where a mechanism released at rest goes."""
+    q0 = np.array(q_start, dtype=float)
+    rev = np.flatnonzero(_revolute(cfg))
+    starts = [q0] + [q0 + shift * np.eye(cfg.nv)[i] for i in rev for shift in START_SHIFTS]
+    reached, closest = [], (q0, math.inf)
+    for k, start in enumerate(starts):
+        q, residual = _newton(cfg, tr, start, 60 if k == 0 else 30)
+        if residual < 1e-9:
+            q = _near(cfg, q, q0)
+            far = round(float(np.max(_distance(cfg, q, q0), initial=0.0)), 9)
+            reached.append((_outside_limits(cfg, q), far, cfg.gravity_energy(q), q, residual))
+        elif residual < closest[1]:
+            closest = (q, residual)
+    if not reached:
+        return closest
+    _, _, _, q, residual = min(reached, key=lambda c: c[:3])
+    return q, residual
 
 
 # ---- units -------------------------------------------------------------------------------------
@@ -162,10 +202,13 @@ def check_scene(scene: Scene, mechanism: Mechanism | None = None) -> CheckReport
                 report.warnings.append(f"{here}.guard.value: {degrees}")
             q, residual = guard_posture(cfg, tr, starts[name])
             if residual > 1e-9:
-                what = "the loop cannot close" if cfg.coords.constrained else "no posture reaches it"
+                what = "closing the loop" if cfg.coords.constrained else "reaching it"
+                tries = 1 + len(START_SHIFTS) * int(np.count_nonzero(_revolute(cfg)))
                 report.warnings.append(
-                    f"{here}.guard.value: = {tr.guard.value:.12g}: {what} with the guard there (closest "
-                    f"residual {residual:.3g}): the guard may never fire; check its value and direction")
+                    f"{here}.guard.value: = {tr.guard.value:.12g}: no posture {what} with the guard there was "
+                    f"found from {tries} starts near the initial posture (closest residual {residual:.3g}); "
+                    "either none exists and the guard never fires, or the solve could not tell (its "
+                    "contact and pose checks were skipped); check the guard's value and direction")
                 continue
             report.postures[tr.name] = q
             report.warnings += [f"{here}.guard.value: = {tr.guard.value:.12g}: {w}" for w in _limits(cfg, q)]
