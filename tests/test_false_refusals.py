@@ -98,3 +98,45 @@ def test_unreachable_guard_is_not_claimed_unreachable_only_not_found(tmp_path):
     assert "guard.value: = 0: no posture reaching it with the guard there was found from 6 starts" in w
     assert "closest residual 0.05" in w and "or the solve could not tell" in w
     assert "no posture reaches it" not in w
+
+
+# ---- 3. a driven mechanism with no free coordinate strikes a stop --------------------------------
+THETA0, OMEGA, THETA_STOP = -2.0, 4.0, -1.0
+
+
+def driven_slider_crank(folder):
+    """tests/builders.slider_crank_stop with its crank A driven at OMEGA (a [[drives]] row) instead
+    of its motor torque: 3 coordinates (A, B, P), the revolute cut joint C takes 2, the drive the
+    last. The slider reaches the stop when the crank reaches THETA_STOP, at t = 1/OMEGA = 0.25 s."""
+    import tomllib
+    path = builders.slider_crank_stop(folder, 0.5, theta0=THETA0, theta_stop=THETA_STOP)
+    doc = tomllib.loads(path.read_text())
+    del doc["forces"]
+    doc["initial"]["v"] = {"A": OMEGA}  # the other rates follow from the loop
+    doc["drives"] = [{"joint": "A", "coefficients": [THETA0, OMEGA]}]
+    path.write_text(builders.dump_toml(doc))
+    return path
+
+
+def test_check_warns_that_a_driven_loop_has_no_freedom_at_the_strike(tmp_path):
+    report = check(driven_slider_crank(tmp_path))
+    assert report.problems == []
+    [w] = report.warnings
+    assert "transitions[0] (stop).contact: at the guard's posture configuration 'free' has no free coordinate" in w
+    assert "(3 coordinates; its loops leave 1 and drives[0] ('A') prescribes it)" in w
+    assert "the run will stop at the strike" in w and "`torque` force" in w
+    # the same loop under a motor torque keeps its crank free: no warning
+    assert check(builders.slider_crank_stop(tmp_path / "torque", 0.5, theta0=THETA0, theta_stop=THETA_STOP)).warnings == []
+
+
+def test_run_names_the_drive_when_no_coordinate_is_free(tmp_path):
+    """The run stops at the strike, t = (THETA_STOP - THETA0) / OMEGA, blaming the drive, not the
+    contact normal and cut joints (which are right)."""
+    with pytest.raises(pcmm.SimulationError) as info:
+        pcmm.simulate(pcmm.load_scene(driven_slider_crank(tmp_path)))
+    text = info.value.text()
+    t = float(text.split("t = ", 1)[1].split(" s", 1)[0])
+    assert t == pytest.approx((THETA_STOP - THETA0) / OMEGA, abs=1e-9)
+    assert "cannot take an impulse along its normal" in text
+    assert "configuration 'free' has no free coordinate there: its loops and cut joints leave 1 and the drive on 'A'" in text
+    assert "check the contact normal and cut joints" not in text

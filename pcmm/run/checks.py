@@ -16,6 +16,10 @@ here at once, each problem naming the file and the field:
   so the guard's direction approaches;
 * **reach**: each guard value lies in the range its coordinate can reach (the URDF's joint limits;
   a loop that cannot close there), else a warning;
+* **freedom at an impact**: a contact whose configuration has no free coordinate at the guard's
+  posture (nv minus the rank of the loops' and drives' rows is 0: a driven slider-crank striking
+  with its slider) can take no impulse, and the run would stop at the strike: a warning naming the
+  drives;
 * **units**: a guard on an angle (a revolute joint, a link's angle, the angle between two links)
   whose value lies outside [-2 pi, 2 pi] was most likely written in degrees: a warning that
   gives the value in radians (``"-50 deg"``).
@@ -134,6 +138,29 @@ def guard_posture(cfg: Configuration, tr: TransitionSpec, q_start) -> tuple[np.n
     return q, residual
 
 
+# ---- freedom at an impact ----------------------------------------------------------------------
+def no_free_coordinate(scene: Scene, cfg: Configuration, q) -> str | None:
+    """The warning for an impact at ``q`` in a configuration whose rows (loops and drives) leave no
+    free coordinate: nv minus the rank of the velocity rows is 0, so no impulse can change a
+    velocity and the run stops at the strike; None when a coordinate is free."""
+    drives = getattr(cfg.coords, "drives", None)
+    joints = tuple(drives.joints) if drives is not None else ()
+    _, Jq = cfg.coords.loop_rows(q)
+    Jd = np.zeros((len(joints), cfg.nv))
+    Jd[np.arange(len(joints)), [cfg.joint_slice[j].start for j in joints]] = 1.0
+    rows = np.vstack([Jq, Jd])
+    if cfg.nv - (np.linalg.matrix_rank(rows) if rows.shape[0] else 0) > 0:
+        return None
+    loops = cfg.nv - (np.linalg.matrix_rank(Jq) if Jq.shape[0] else 0)
+    named = ", ".join(f"drives[{i}] ('{d.joint}')" for i, d in enumerate(scene.drives) if d.joint in joints)
+    why = (f"its loops leave {loops} and {named} prescribe{'s' if len(joints) == 1 else ''} "
+           f"{'it' if loops == 1 else 'them'}" if loops and joints else "its loops fix them all")
+    return (f"at the guard's posture configuration '{cfg.name}' has no free coordinate ({cfg.nv} coordinates; "
+            f"{why}): the impact cannot change a velocity and the run will stop at the strike. A driven joint "
+            "takes the freedom an impact needs: give the struck part a freedom of its own (e.g. on a spring), "
+            "or drive it by a motor torque (a `torque` force) instead of a drive")
+
+
 # ---- units -------------------------------------------------------------------------------------
 def is_angle(cfg: Configuration, tr: TransitionSpec) -> bool:
     """Does the guard measure an angle (rad): a revolute joint's coordinate, a link's angle, the
@@ -211,6 +238,8 @@ def check_scene(scene: Scene, mechanism: Mechanism | None = None) -> CheckReport
                     "contact and pose checks were skipped); check the guard's value and direction")
                 continue
             report.postures[tr.name] = q
+            if tr.contact is not None and (stuck := no_free_coordinate(scene, cfg, q)) is not None:
+                report.warnings.append(f"{here}.contact: {stuck}")
             report.warnings += [f"{here}.guard.value: = {tr.guard.value:.12g}: {w}" for w in _limits(cfg, q)]
             for f in contact_findings(cfg, tr, q, warnings=True):
                 (report.warnings if f.warning else report.problems).append(f"{here}.{f.field}: {f.text}")
