@@ -140,3 +140,36 @@ def test_run_names_the_drive_when_no_coordinate_is_free(tmp_path):
     assert "cannot take an impulse along its normal" in text
     assert "configuration 'free' has no free coordinate there: its loops and cut joints leave 1 and the drive on 'A'" in text
     assert "check the contact normal and cut joints" not in text
+
+
+# ---- 4. a pin on a one-freedom pendulum with finite friction -------------------------------------
+def test_pin_on_one_freedom_is_refused_as_redundant_not_as_slipping(tmp_path):
+    """Pinning the lever's tip adds two rows to one coordinate: the velocity after is unique (the
+    lever stops), the impulse's split between the pin and the pivot is not. Along the lever the
+    pivot can carry any part of it, so the tip's impulse may be any F with F . u fixed (u the tip's
+    path, 50 deg off the normal): with mu = 0.3 (16.7 deg) some F lies in the cone, and the
+    minimum-norm split's tan 50 deg = 1.19 says nothing. The run stops on the redundancy, as it
+    does with friction = "stick"."""
+    for friction in (0.3, "stick"):
+        path = builders.lever_on_wall(tmp_path / str(friction), THETA_S, -0.3, friction=friction, kind="pin")
+        with pytest.raises(pcmm.SimulationError) as info:
+            pcmm.simulate(pcmm.load_scene(path))
+        text = info.value.text()
+        assert "its 2 constraint rows cannot be solved for 1 dependent coordinates: the cut joints are redundant" in text
+        assert "would slip" not in text
+
+
+def test_friction_cone_over_every_split_by_hand():
+    """n = (0, 1), t = (1, 0), mu = 0.5; the impulse F = (1, 1) (|F_t| / F_n = 1) moved along K:
+    along n, F = (1, 1 + s) enters the cone for s >= 1; along t, (1 + s, 1) at s = -1. From
+    (1, 0) along (1, 0.1): F_n = 0.1 s > 0 needs s > 0, and then 1 + s > 0.05 s: never. No K: F
+    itself, outside with mu = 0.5, on the cone's edge with mu = 1."""
+    from pcmm.events.pins import _inside_cone
+    import numpy as np
+    n, t, F = np.array([0.0, 1.0]), np.array([1.0, 0.0]), np.array([1.0, 1.0])
+    assert _inside_cone(F, np.array([[0.0], [1.0]]), n, t, 0.5)
+    assert _inside_cone(F, np.array([[1.0], [0.0]]), n, t, 0.5)
+    assert not _inside_cone(np.array([1.0, 0.0]), np.array([[1.0], [0.1]]), n, t, 0.5)
+    assert not _inside_cone(F, np.zeros((2, 0)), n, t, 0.5)
+    assert _inside_cone(F, np.zeros((2, 0)), n, t, 1.0)
+    assert _inside_cone(F, np.eye(2), n, t, 0.0)  # any impulse: n itself, mu = 0
