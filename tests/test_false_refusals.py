@@ -173,3 +173,17 @@ def test_friction_cone_over_every_split_by_hand():
     assert not _inside_cone(F, np.zeros((2, 0)), n, t, 0.5)
     assert _inside_cone(F, np.zeros((2, 0)), n, t, 1.0)
     assert _inside_cone(F, np.eye(2), n, t, 0.0)  # any impulse: n itself, mu = 0
+
+
+# ---- 5. a flipped normal at the start ------------------------------------------------------------
+def test_flipped_normal_at_the_start_suggests_flipping_it(tmp_path):
+    """Normal (-1, 0): level, the tip is L - L cos 40 deg = 0.0585 m from the wall along -n, so the
+    gap reads -0.0585, past its value: the run refuses to start. The bodies are apart, along -n,
+    and the message says to flip the normal to [1, 0] (as well as the old advice)."""
+    path = builders.lever_on_wall(tmp_path, THETA_S, 0.0, friction=0.3, normal=(-1.0, 0.0))
+    with pytest.raises(pcmm.SimulationError) as info:
+        pcmm.simulate(pcmm.load_scene(path))
+    text = info.value.text()
+    apart = L - L * math.cos(THETA_S)
+    assert f"gap is {apart:.3g} past the value 0" in text and "start the bodies apart (initial.q)" in text
+    assert f"b's point {apart:.3g} m from a's along -n" in text and "flip contact.normal to [1, 0]" in text
