@@ -187,3 +187,26 @@ def test_flipped_normal_at_the_start_suggests_flipping_it(tmp_path):
     apart = L - L * math.cos(THETA_S)
     assert f"gap is {apart:.3g} past the value 0" in text and "start the bodies apart (initial.q)" in text
     assert f"b's point {apart:.3g} m from a's along -n" in text and "flip contact.normal to [1, 0]" in text
+
+
+# ---- the newcomer's own pawl: one verdict whatever the start -------------------------------------
+@pytest.mark.parametrize("q0", [0.0, -0.1, -0.9])
+def test_newcomer_pawl_passes_check_from_every_start(tmp_path, q0):
+    """The pawl of tests/test_newcomer_mechanisms.py (its strike checked there against Routh's
+    process by hand), started level, a little below, and at -0.9 rad (refused before): check finds
+    the strike's posture, theta_s = -60 deg, every time and reports nothing."""
+    from test_newcomer_mechanisms import PAWL_TOML, PAWL_URDF, THETA_S as PAWL_THETA_S
+    (tmp_path / "pawl.urdf").write_text(PAWL_URDF)
+    path = tmp_path / "pawl.toml"
+    path.write_text(PAWL_TOML.replace("q = { pivot = 0.0 }", f"q = {{ pivot = {q0!r} }}"))
+    assert f"pivot = {q0!r}" in path.read_text()
+    report = check(path)
+    assert report.problems == [] and report.warnings == []
+    assert report.postures["tip strikes wall"][0] == pytest.approx(PAWL_THETA_S, abs=1e-12)
+
+
+@pytest.mark.parametrize("q0", [0.0, -0.6])
+def test_frictionless_wall_verdict_does_not_depend_on_the_start(tmp_path, q0):
+    report = check(builders.lever_on_wall(tmp_path, THETA_S, q0))
+    assert report.problems == []
+    assert [w for w in report.warnings if "contact.normal" in w and "is 50 deg off" in w]
