@@ -210,3 +210,15 @@ def test_frictionless_wall_verdict_does_not_depend_on_the_start(tmp_path, q0):
     report = check(builders.lever_on_wall(tmp_path, THETA_S, q0))
     assert report.problems == []
     assert [w for w in report.warnings if "contact.normal" in w and "is 50 deg off" in w]
+
+
+def test_guard_posture_within_the_joint_limits_is_preferred(tmp_path):
+    """With the pivot limited to [-0.5, 1e6] rad the wall's -40 deg posture (-0.698 rad) lies
+    outside the joint's range: from level, where +-40 deg are equally near, check keeps +40 deg,
+    inside it, and so has no limit warning to give."""
+    path = builders.lever_on_wall(tmp_path, THETA_S, 0.0, friction=0.3)
+    urdf = tmp_path / "lever.urdf"
+    urdf.write_text(urdf.read_text().replace('lower="-1e6"', 'lower="-0.5"'))
+    report = check(path)
+    assert report.problems == [] and report.warnings == []
+    assert report.postures["tip strikes wall"][0] == pytest.approx(-THETA_S, abs=1e-12)
