@@ -13,11 +13,11 @@ as a user runs it and checked against numbers derived by hand.
 free coordinate, so no impulse can change a velocity; pcmm stops at the strike. The ram on its
 spring is the freedom an impact needs.)
 
-The pawl's wall is oblique to the tip's path (30°). `pcmm check` and `pcmm run` refuse such a
+The pawl's wall is oblique to the tip's path (30°). `pcmm check` and `pcmm run` refused such a
 contact ("normal ... 30 deg off the direction in which joint 'pivot' moves the contact point") when
-they find the guard's posture, which from this horizontal start they do not (the gap is stationary
-there); the hand calculation below says the wall's normal is the right one. These tests run through
-`pcmm.simulate`, which makes no such check.
+they found the guard's posture (not from this horizontal start, where the gap is stationary); the
+hand calculation below says the wall's normal is the right one, and with friction the check now
+accepts it from any start (tests/test_false_refusals.py). These tests run through `pcmm.simulate`.
 """
 from __future__ import annotations
 
