@@ -561,3 +561,29 @@ def assert_within_nudge(apart: dict, own: dict, reference: str = "the Python run
     for what, d in apart.items():
         bound = RUN_FLOORS[what] + 10 * np.maximum.accumulate(own[what])
         assert np.all(d <= bound), f"{what}: {d.max():.3g} apart, {reference} nudged {own[what].max():.3g}"
+
+
+def lever_on_wall(folder: Path, theta_s: float, q0: float, friction: float | str | None = None, e: float = 0.5,
+                  L: float = 0.25, m: float = 0.4, t_end: float = 0.4, kind: str = "stop", normal=(1.0, 0.0)) -> Path:
+    """A uniform bar (m, L) on revolute J1 at the origin, released at rest at angle ``q0`` (from +x),
+    swinging down until its tip strikes a vertical frame wall x = L cos(theta_s) at theta_s < 0: the
+    wall's normal (1, 0) is oblique to the tip's path, at 90 deg - |theta_s| from it.  A gap guard;
+    ``kind`` "stop" merges into 'seated' (J1 locked), "pin" pins the tip where it strikes; ``normal``
+    in the frame's axes (a flipped one: (-1, 0))."""
+    urdf = robot_xml("lever", link_xml("frame"), joint_xml("J1", "revolute", "frame", "link1"), bar_xml("link1", L, m))
+    contact = {"a": "frame", "point_a": [L * math.cos(theta_s), L * math.sin(theta_s)], "b": "link1",
+               "point_b": [L, 0.0], "normal": list(normal)}
+    if friction is not None:
+        contact["friction"] = friction
+    guard = {"type": "gap", "value": 0.0, "direction": "decreasing"}
+    configs = {"free": "lever.urdf", "seated": {"from": "free", "lock": ["J1"]}}
+    if kind == "stop":
+        tr = stop("tip strikes wall", "free", e, guard, contact, merge_to="seated")
+    else:
+        tr = {"name": "tip strikes wall", "type": "pin", "from": "free", "to": "pinned", "guard": guard,
+              "contact": contact}
+        cut = {"name": "tip", "type": "revolute", "a": "frame", "point_a": "entry", "b": "link1",
+               "point_b": [L, 0.0], "contact": {k: v for k, v in contact.items() if k in ("normal", "friction")}}
+        configs = {"free": "lever.urdf", "pinned": {"urdf": "lever.urdf", "cut_joints": [cut]}}
+    doc = base_doc("lever", "free", configs, {"J1": q0}, {"J1": 0.0}, t_end=t_end, transitions=[tr])
+    return write_scene(folder, doc, {"lever.urdf": urdf})

@@ -368,6 +368,6 @@ def test_a_compiled_impulses_dicts_are_its_arrays():
         assert list(imp.cut_impulses.values()) == cut.tolist() and len(imp.cut_impulses) == 1
         assert imp.constraint_rows == {"O1.drive": float(mu[0])}
         assert imp.constraint_impulses == {"O1.drive": [0.0, 0.0, float(mu[0])]}
-        (_, pb, Fb, mb), (_, pa, Fa, ma) = imp.contact_impulses
+        (_, _, Fb, mb), (_, _, Fa, ma) = imp.contact_impulses
         assert mb == -ma and mb != 0.0 and list(Fb) == [0.0, 0.0] and list(Fa) == [0.0, 0.0]
         assert abs(mb) == abs(imp.P)

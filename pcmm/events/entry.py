@@ -115,7 +115,7 @@ def enter_bounce(cfg: Configuration, t: float, q: np.ndarray, v: np.ndarray, wha
 
 #: {coordinates: the column of each row where every row of the coordinates is a unit row of time-only
 #: rows (drives without a loop: q_j - f(t) = 0), else ()}
-_UNIT_COLUMNS: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+_UNIT_COLUMNS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
 def _unit_columns(coords) -> tuple[int, ...]:

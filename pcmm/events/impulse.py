@@ -242,7 +242,7 @@ def _revolute_drives(cfg: Configuration, labels: tuple[str, ...]) -> bool:
     return kept
 
 
-def _contact_impulses(imp: "ArrayImpulse") -> list:
+def _contact_impulses(imp: ArrayImpulse) -> list:
     """The contact's impulses on b and on a, (link, world point, F, mz), of a compiled solve."""
     _, plan, pos_a, pos_b = imp.solved
     contact, P, n = plan.contact, imp.P, imp.normal
@@ -280,6 +280,30 @@ _FORMED = {
     "joint_impulses": lambda imp: dict(zip(imp.solved[0].joint_names, imp.arrays[2].tolist())),
     "contact_impulses": _contact_impulses,
 }
+
+
+def _no_impulse_cause(cfg: Configuration, G: np.ndarray, cut_joints) -> str:
+    """What to check when a contact takes no impulse: with every row of the configuration (its cut
+    joints, loops and drives: ``G``, drives last) no coordinate is free, and the drives are what
+    fix the last ones, then no impulse can change a velocity and the drives are named; else the
+    normal and the cut joints."""
+    drives = list(getattr(getattr(cfg.coords, "drives", None), "joints", ()))
+    nv = G.shape[1]
+    free = nv - (np.linalg.matrix_rank(G) if G.shape[0] else 0)
+    without = G[:G.shape[0] - len(drives)]
+    free_undriven = nv - (np.linalg.matrix_rank(without) if without.shape[0] else 0)
+    if free == 0 and drives and free_undriven > 0:
+        named = ", ".join(f"'{j}'" for j in drives)
+        return (f"configuration '{cfg.name}' has no free coordinate there: its loops and cut joints leave "
+                f"{free_undriven} and the drive{'s' if len(drives) > 1 else ''} on {named} prescribe"
+                f"{'' if len(drives) > 1 else 's'} {'them' if free_undriven > 1 else 'it'}, so no impulse can "
+                "change a velocity. A driven joint takes the freedom an impact needs: give the struck part a "
+                "freedom of its own (e.g. on a spring), or drive it by a motor torque (a `torque` force) instead of a "
+                "drive")
+    if free == 0:
+        return (f"configuration '{cfg.name}' has no free coordinate there (its cut joints and loops fix all "
+                f"{nv}), so no impulse can change a velocity; check the cut joints {list(cut_joints)} and loops")
+    return "check the contact normal and cut joints"
 
 
 def solve_impulse_python(cfg: Configuration, t: float, q: np.ndarray, v: np.ndarray, contact: ContactSpec,
@@ -337,7 +361,7 @@ def solve_impulse_python(cfg: Configuration, t: float, q: np.ndarray, v: np.ndar
             f"t = {t:.9g} s: the contact {contact.a}/{contact.b} cannot take an impulse along its normal "
             f"(the normal is orthogonal to every allowed motion: J W_eff J^T = {d:.3g}, "
             f"{d / reach_ if reach_ > 0 else 0.0:.3g} of what the contact's motion reaches; none at or below "
-            f"{NO_IMPULSE:g}); check the contact normal and cut joints")
+            f"{NO_IMPULSE:g}); " + _no_impulse_cause(cfg, G, cut_joints))
     fr = None
     if frictional:
         where = f"t = {t:.9g} s, " + (f"transition '{name}'" if name else f"contact {contact.a}/{contact.b}")

@@ -396,14 +396,19 @@ def check_start(scene: Scene, cfg: Configuration, t, q, v) -> None:
         past = tr.guard.direction * guard_residual(cfg, tr, t, y0)
         if not past > POSE_TOL * max(1.0, abs(tr.guard.value)):
             continue
-        _, _, vn, _ = contact_state(cfg, q, v, tr.contact)
+        _, gap, vn, _ = contact_state(cfg, q, v, tr.contact)
         if tr.guard.type == "gap" or vn < 0:
+            # along -n the gap is -gap: were the normal flipped, would the run start on the guard's near side?
+            flipped = tr.guard.type == "gap" and tr.guard.direction * (-gap - tr.guard.value) <= 0
+            flip = (f"; or, if they are apart already (b's point {abs(gap):.3g} m from a's along -n, on the side "
+                    f"opposite the normal), the normal points from b to a: flip contact.normal to "
+                    f"[{-tr.contact.normal[0] + 0.0:g}, {-tr.contact.normal[1] + 0.0:g}]" if flipped else "")
             raise SimulationError(
                 f"{scene.path}: transition '{tr.name}': the run starts on the far side of its guard "
                 f"({'gap' if tr.guard.type == 'gap' else str(tr.guard.measure)} is {past:.3g} past the "
                 f"value {tr.guard.value:g} in its direction) while the contact "
                 f"{'penetrates' if tr.guard.type == 'gap' else 'approaches'}: the bodies start inside the "
-                "stop, and the guard would never fire; start the bodies apart (initial.q)")
+                f"stop, and the guard would never fire; start the bodies apart (initial.q){flip}")
 
 
 KNOWN_MOTION_SAMPLES = 200  # samples of a locked or fully driven stay (at most, and at least 1 / step)
@@ -562,7 +567,7 @@ def _pending(cfg: Configuration, guards, t, y0):
 
 
 #: {coordinates: {joint coordinate: where its rate sits in the state, or None}} (``state_entry``)
-_RATE_ENTRIES: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+_RATE_ENTRIES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
 def _stop_speed(coords, cfg: Configuration, y0, contact):
