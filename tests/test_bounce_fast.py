@@ -91,6 +91,9 @@ def test_a_bounce_record_reads_as_its_dict(tmp_path, monkeypatch):
     assert rec["name"] == "stop" and rec["impact"] is True and rec["merge"] is False
     assert rec["restitution"] == 0.85 and rec["kinetic_energy_after"] == whole["kinetic_energy_after"]
     assert rec.get("friction") is None and "cut_impulses" in rec
+    for key in ("t", "kinetic_energy_after", "name", "merge", "restitution", "impulse", "momentum", "absent"):
+        got, want = rec.get(key, "default"), whole.get(key, "default")  # a number, a constant, a block, none
+        assert got == want and type(got) is type(want)
     # Newton's law and the energy from the record's own numbers
     vn = whole["normal_velocity"]
     assert vn["after"] == pytest.approx(-0.85 * vn["before"], rel=1e-12)

@@ -288,7 +288,13 @@ class BounceRecord(Mapping):
         return self.record()[key]  # KeyError for a key the record lacks
 
     def get(self, key, default=None):
-        return self[key] if key in self.plan.template else default
+        plan = self.plan  # (__getitem__'s reads, in one call: the run asks a bounce's record several times)
+        at = plan.top.get(key)
+        if at is not None:
+            return float(self.numbers[at])
+        if key in plan.consts:
+            return plan.consts[key]
+        return self.record()[key] if key in plan.template else default
 
     def __contains__(self, key) -> bool:
         return key in self.plan.template
