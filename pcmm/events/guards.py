@@ -17,6 +17,7 @@ import math
 
 import numpy as np
 
+from ..model import compiled
 from ..model.configuration import Configuration
 from .contact import contact_state, gap_rate
 from ..scene.spec import TransitionSpec
@@ -109,7 +110,27 @@ def _gap(cfg: Configuration, tr: TransitionSpec, ctx=None):
 
     def rate(t, y, f):
         return gap_rate(cfg, *unpack(t, y), tr.contact)
+    value.evaluator = _gap_evaluator(cfg, tr, value, rate)
     return value, rate
+
+
+#: whether a tree's point-contact gap guard is handed to the compiled evaluator (pcmm/model/_guard_eval.hpp:
+#: the compiled segment loop scans it, the compiled locator finds its crossing); off, it runs in Python
+#: (the reference the tests compare it with)
+COMPILED_GAPS = True
+
+
+def _gap_evaluator(cfg: Configuration, tr: TransitionSpec, value, rate):
+    """The compiled description of the gap guard ``value`` (rate ``rate``) where the configuration is a
+    tree whose state is ``[q, v]`` (no loop, drive or planar joint) and the contact is between two points
+    (not a joint stop); else None (the guard runs in Python)."""
+    contact = tr.contact
+    if (not COMPILED_GAPS or contact.joint is not None or cfg.coords.constrained or cfg.has_planar
+            or not compiled.enabled()):
+        return None
+    pa, pb = cfg.point(contact.a, contact.point_a), cfg.point(contact.b, contact.point_b)
+    return compiled.gap_guard(cfg.model, pa.frame_id, pb.frame_id, cfg.link_frame[contact.a], contact.normal,
+                              tr.guard.value, lambda t, y: (value(t, y), rate(t, y, None)))
 
 
 def _time(cfg: Configuration, tr: TransitionSpec, ctx=None):
@@ -245,6 +266,9 @@ def make_guard(cfg: Configuration, tr: TransitionSpec, rearm: bool = False, cont
             return None if got is None else got[0].tolist()
     affine = _affine(cfg, tr, context) if tr.guard.when is None and not rearm else None
     linear = getattr(raw, "linear", None) if tr.guard.when is None else None
+    evaluator = getattr(raw, "evaluator", None) if tr.guard.when is None else None
+    if evaluator is not None:  # read in C++ at a state (a contact gap), plain or re-armed as below
+        evaluator = (evaluator, bool(rearm), UNFIRED)
     if linear is None and tr.guard.when is None and raw_rate is not None:
         plain = affine if not rearm else _affine(cfg, tr, context)
         if plain is not None and plain[0] is not None:  # a tree's joint-angle guard: rate row @ v
@@ -280,7 +304,7 @@ def make_guard(cfg: Configuration, tr: TransitionSpec, rearm: bool = False, cont
                 return [val if direction * r > 0.0 else -direction * max(-direction * val, UNFIRED)
                         for val, r in zip(got[0].tolist(), got[1].tolist())]
     return Guard(_describe(tr), value, direction, "transition", tr, rate, rate is not None, many=many,
-                 affine=affine, linear=linear, holding=holding, loop_scan=loop_scan)
+                 affine=affine, linear=linear, holding=holding, loop_scan=loop_scan, evaluator=evaluator)
 
 
 def _affine(cfg: Configuration, tr: TransitionSpec, context=None):

@@ -1,0 +1,175 @@
+"""A tree's contact gap guard read in C++ (pcmm/model/_guard_eval.hpp): the compiled segment loop
+scans it and the compiled locator locates it, so a bouncing tree's flight comes back to Python only
+at the steps where the gap may close.  It must be the Python guard (pcmm.events.guards._gap: value
+and rate, plain and re-armed) at hypothesis-drawn states of drawn trees with drawn point contacts,
+and the runs it drives must be the runs with the Python guard (events to 1e-12 s, states to 1e-10)."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+import pcmm
+from pcmm.events import guards
+from pcmm.events.guards import UNFIRED, make_guard
+from pcmm.model import compiled
+from pcmm.model.mechanism import Mechanism
+from pcmm.ode import integrators
+
+from builders import EXAMPLES, Bar, G, ball, base_doc, chain_urdf, link_xml, robot_xml, stop, write_scene
+
+td = compiled._tree_dynamics
+pytestmark = pytest.mark.skipif(td is None or not hasattr(td, "guard_value") or not compiled.enabled(),
+                                reason=f"the compiled contact gap is not built or is off: {compiled.why_not()}")
+
+
+def _chain_scene(folder, bars, contact, q, v, e=0.8, t_end=1.0, g=G, solver=None):
+    """A chain (``bars``: joints J1..Jn, links link1..n) with one stop whose guard is the gap of
+    ``contact`` (decreasing), merging nowhere (each strike a bounce)."""
+    tr = stop("hit", "c1", e, {"type": "gap", "value": 0.0, "direction": "decreasing"}, contact)
+    doc = base_doc("gap_chain", "c1", {"c1": "chain.urdf"}, q, v, g=g, t_end=t_end, solver=solver, transitions=[tr])
+    return write_scene(folder, doc, {"chain.urdf": chain_urdf(bars)})
+
+
+def _two_link_hit(folder, t_end=2.0, e=0.7):
+    """Two bars on J1 (frame) and J2 (link 1's tip), gravity: link 2's tip strikes a point of link 1
+    (x = 0.2 along it) from above, the normal fixed in link 1 (it turns with it: the rate's w_a term)."""
+    bars = [Bar(0.5, 1.0), Bar(0.4, 0.6)]
+    contact = {"a": "link1", "point_a": [0.2, 0.0], "b": "link2", "point_b": [0.4, 0.0], "normal": [0.0, 1.0]}
+    return _chain_scene(folder, bars, contact, {"J1": 0.3, "J2": 2.2}, {"J1": 1.0, "J2": -2.0}, e=e, t_end=t_end)
+
+
+def _pendulum_floor(folder, t_end=2.0, e=0.9):
+    """A bar on J1 whose tip strikes a floor at y = -0.3 (a gap between the frame and the tip)."""
+    contact = {"a": "frame", "point_a": [0.0, -0.3], "b": "link1", "point_b": [0.6, 0.0], "normal": [0.0, 1.0]}
+    return _chain_scene(folder, [Bar(0.6, 1.5)], contact, {"J1": 0.2}, {"J1": 0.0}, e=e, t_end=t_end)
+
+
+def _runs(path, flag, monkeypatch, t_end=None):
+    monkeypatch.setattr(guards, "COMPILED_GAPS", flag)
+    scene = pcmm.load_scene(path)
+    return pcmm.simulate(scene, pcmm.RunOptions(t_end=t_end)) if t_end is not None else pcmm.simulate(scene)
+
+
+def _states(traj):
+    return np.concatenate([np.hstack([s.q, s.v]) for s in traj.segments])
+
+
+def _same_run(a, b, t_tol=1e-12, y_tol=1e-10):
+    assert [ev["name"] for ev in a.events] == [ev["name"] for ev in b.events]
+    ta, tb = np.array([ev["t"] for ev in a.events]), np.array([ev["t"] for ev in b.events])
+    assert np.max(np.abs(ta - tb), initial=0.0) <= t_tol
+    ya, yb = _states(a), _states(b)
+    assert ya.shape == yb.shape and a.t.shape == b.t.shape
+    assert np.max(np.abs(a.t - b.t)) <= t_tol
+    assert np.max(np.abs(ya - yb)) <= y_tol
+
+
+# ---- the guard at a state ---------------------------------------------------------------------
+JOINTS = st.sampled_from(["revolute", "revolute", "prismatic_x", "prismatic_y"])
+
+
+@st.composite
+def trees_with_contacts(draw):
+    """1-3 joints (revolute, or prismatic along x or y), bars of drawn lengths and yaws; a contact
+    between link a (the frame or a link) and a later link b, at drawn points with a drawn normal."""
+    n = draw(st.integers(1, 3))
+    bars = []
+    for _ in range(n):
+        kind = draw(JOINTS)
+        axis = {"revolute": (0.0, 0.0, 1.0), "prismatic_x": (1.0, 0.0, 0.0), "prismatic_y": (0.0, 1.0, 0.0)}[kind]
+        bars.append(Bar(draw(st.floats(0.2, 1.5)), draw(st.floats(0.3, 3.0)), yaw=draw(st.floats(-1.5, 1.5)),
+                        joint="revolute" if kind == "revolute" else "prismatic", axis=axis))
+    a = draw(st.integers(0, n - 1))
+    b = draw(st.integers(a + 1, n))
+    point = st.lists(st.floats(-1.0, 1.0), min_size=2, max_size=2)
+    angle = draw(st.floats(-math.pi, math.pi))
+    scale = draw(st.floats(0.5, 3.0))  # the normal need not be a unit vector: the guard normalises it
+    contact = {"a": "frame" if a == 0 else f"link{a}", "point_a": draw(point), "b": f"link{b}",
+               "point_b": draw(point), "normal": [scale * math.cos(angle), scale * math.sin(angle)]}
+    value = draw(st.floats(-0.2, 0.2))
+    states = draw(st.lists(st.lists(st.floats(-3.0, 3.0), min_size=2 * n, max_size=2 * n), min_size=1, max_size=4))
+    return bars, contact, value, states
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(trees_with_contacts())
+def test_the_compiled_gap_is_the_python_gap_at_drawn_states(tmp_path_factory, data):
+    """guard_value(description, y) against the Python guard's value and rate (contact_state and
+    gap_rate through Pinocchio's Python binding), at drawn states of drawn trees and contacts: the
+    same to round-off of the terms (1e-12 of the points' distances and speeds)."""
+    bars, contact, value, states = data
+    n = len(bars)
+    folder = tmp_path_factory.mktemp("gap")
+    tr = stop("hit", "c1", 0.5, {"type": "gap", "value": value, "direction": "decreasing"}, contact)
+    doc = base_doc("drawn", "c1", {"c1": "chain.urdf"}, {f"J{k}": 0.0 for k in range(1, n + 1)},
+                   {f"J{k}": 0.0 for k in range(1, n + 1)}, transitions=[tr])
+    scene = pcmm.load_scene(write_scene(folder, doc, {"chain.urdf": chain_urdf(bars)}))
+    cfg = Mechanism(scene)["c1"]
+    guard = make_guard(cfg, scene.transitions[0])
+    assert guard.evaluator is not None, compiled.why_not()
+    desc, rearm, _ = guard.evaluator
+    assert desc[0] == "gap" and not rearm
+    for y in states:
+        y = np.asarray(y, float)
+        got_value, got_rate = td.guard_value(desc, y)
+        size = 1.0 + float(np.sum(np.abs(y)))
+        assert got_value == pytest.approx(guard(0.0, y), abs=1e-12 * size)
+        assert got_rate == pytest.approx(guard.rate(0.0, y, None), abs=1e-12 * size * size)
+
+
+def test_only_a_trees_point_contact_is_compiled(tmp_path, monkeypatch):
+    """A tree's point contact is compiled (plain, and re-armed after a bounce); a configuration with a
+    planar joint and a cut joint keeps the Python guard; with COMPILED_GAPS off none is compiled."""
+    scene = pcmm.load_scene(ball(tmp_path / "b", 0.8))
+    cfg = Mechanism(scene)["free"]
+    assert make_guard(cfg, scene.transitions[0]).evaluator is not None
+    assert make_guard(cfg, scene.transitions[0], rearm=True).evaluator[1:] == (True, UNFIRED)
+    monkeypatch.setattr(guards, "COMPILED_GAPS", False)
+    assert make_guard(cfg, scene.transitions[0]).evaluator is None
+    monkeypatch.setattr(guards, "COMPILED_GAPS", True)
+    walking = pcmm.load_scene(EXAMPLES / "compass_gait.toml")  # a planar hip, a foot pinned by a cut joint
+    walker = Mechanism(walking)[walking.initial_configuration]
+    gaps = [tr for tr in walking.transitions if tr.guard.type == "gap" and tr.source == walker.name]
+    assert gaps and all(make_guard(walker, tr).evaluator is None for tr in gaps)
+
+
+# ---- the loop scans it, the locator locates it ----------------------------------------------------
+def test_a_bouncing_ball_hands_python_only_the_steps_near_a_bounce(tmp_path, monkeypatch):
+    """A ball bouncing 20 times (e = 1): with the compiled gap the loop hands Python a few steps per
+    bounce, not every step (before, a gap guard made every accepted step a candidate: 6.3 per bounce)."""
+    path = ball(tmp_path, 1.0, t_end=20 * 2 * math.sqrt(2 / G) - math.sqrt(2 / G) + 0.1)
+    accepted = []
+    real = integrators._Stepper.accept
+
+    def counting(self, *args, **kw):
+        accepted.append(args[2])
+        return real(self, *args, **kw)
+    monkeypatch.setattr(integrators._Stepper, "accept", counting)
+    compiled_run = _runs(path, True, monkeypatch)
+    handed = len(accepted)
+    accepted.clear()
+    python_run = _runs(path, False, monkeypatch)
+    assert len(compiled_run.events) == len(python_run.events) == 20
+    assert len(accepted) == python_run.stats["steps"]  # every step through the Python scanner
+    assert handed <= 3 * 20, (handed, len(accepted))
+    _same_run(compiled_run, python_run)
+
+
+@pytest.mark.parametrize("build", [
+    lambda p: ball(p, 0.9, t_end=3.0),                  # bounces, then accumulates and merges
+    lambda p: ball(p, 1.0, h=0.3, t_end=4.0),           # a prismatic joint, 36 bounces
+    _pendulum_floor,                                    # a revolute joint's tip on a floor
+    _two_link_hit,                                      # a mobile contact: the normal turns with link 1
+], ids=["ball_merges", "ball_elastic", "pendulum_floor", "two_link_mobile"])
+def test_runs_are_the_runs_with_the_python_gap(tmp_path, monkeypatch, build):
+    """The same events (names, order, times to 1e-12 s) and every recorded state to 1e-10 as with the
+    Python gap guard, and the compiled route taken (the steps handed to Python are fewer)."""
+    path = build(tmp_path)
+    compiled_run = _runs(path, True, monkeypatch)
+    python_run = _runs(path, False, monkeypatch)
+    assert len(python_run.events) >= 2
+    _same_run(compiled_run, python_run)
