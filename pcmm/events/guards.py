@@ -110,7 +110,19 @@ def _gap(cfg: Configuration, tr: TransitionSpec, ctx=None):
 
     def rate(t, y, f):
         return gap_rate(cfg, *unpack(t, y), tr.contact)
-    value.evaluator = _gap_evaluator(cfg, tr, value, rate)
+    desc = _gap_evaluator(cfg, tr, value, rate)
+    if desc is None:
+        return value, rate
+    # compiled: the same value and rate (checked at probe states) from one C++ call each, here too (the
+    # steps the segment loop hands back, the event's residual), not only in the compiled loop and locator
+    evaluate = compiled.guard_value
+
+    def value(t, y):
+        return evaluate(desc, y)[0]
+
+    def rate(t, y, f):
+        return evaluate(desc, y)[1]
+    value.evaluator = desc
     return value, rate
 
 

@@ -276,6 +276,11 @@ def gap_guard(model: pin.Model, frame_a: int, frame_b: int, frame_link: int, nor
     return desc
 
 
+def guard_value(desc: tuple, y) -> tuple[float, float]:
+    """(value, rate) at the state ``y`` of the guard a compiled description reads (:func:`gap_guard`)."""
+    return _tree_dynamics.guard_value(desc, y)
+
+
 def impulse_tree(model: pin.Model, frames) -> tuple | None:
     """(compiled tree of ``model`` with the frames ``frames`` of the Python model added, {Python frame:
     its frame in the tree}, the names of what was checked on it) for an impulse plan
