@@ -13,6 +13,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import pcmm
+from pcmm.errors import SimulationError
 from pcmm.events import guards
 from pcmm.events.guards import UNFIRED, make_guard
 from pcmm.model import compiled
@@ -58,14 +59,31 @@ def _states(traj):
     return np.concatenate([np.hstack([s.q, s.v]) for s in traj.segments])
 
 
-def _same_run(a, b, t_tol=1e-12, y_tol=1e-10):
-    assert [ev["name"] for ev in a.events] == [ev["name"] for ev in b.events]
-    ta, tb = np.array([ev["t"] for ev in a.events]), np.array([ev["t"] for ev in b.events])
+def _same_run(a, b, t_tol=1e-12, y_tol=1e-10, slowest=0.0):
+    """The same events (names; times to ``t_tol``; the velocities after each to ``y_tol``) and states (to
+    ``y_tol``) at the samples of the same time (to ``t_tol``) and at the end, up to the first strike slower
+    than ``slowest`` (m/s) in ``b``.  Where the gap's last bits differ (numpy's BLAS products against C++'s),
+    the restart state after a bounce does, and the step-size control (an error estimate that nearly cancels)
+    may place the next steps elsewhere: then only the samples of the same time are compared.  Where strikes
+    accumulate, each flight shorter than the one before, such a difference grows as the speeds fall, as any
+    one-ulp nudge of the state does (docs/performance.md: 1e-12 s is crossed near 2.5e-4 m/s)."""
+    slow = [k for k, ev in enumerate(b.events) if abs(ev["normal_velocity"]["before"]) < slowest]
+    k = slow[0] if slow else len(b.events)
+    ea, eb = list(a.events)[:k], list(b.events)[:k]
+    assert [ev["name"] for ev in ea] == [ev["name"] for ev in eb] and len(a.events) >= k
+    ta, tb = np.array([ev["t"] for ev in ea]), np.array([ev["t"] for ev in eb])
     assert np.max(np.abs(ta - tb), initial=0.0) <= t_tol
+    for x, y in zip(ea, eb):
+        assert np.allclose(list(x["v_after"].values()), list(y["v_after"].values()), rtol=0.0, atol=y_tol)
+    until = min(a.events[k]["t"], b.events[k]["t"]) if slow else math.inf
     ya, yb = _states(a), _states(b)
-    assert ya.shape == yb.shape and a.t.shape == b.t.shape
-    assert np.max(np.abs(a.t - b.t)) <= t_tol
-    assert np.max(np.abs(ya - yb)) <= y_tol
+    ka, kb = np.flatnonzero(a.t < until - 1e-9), np.flatnonzero(b.t < until - 1e-9)
+    same = [(i, j) for i, j in zip(ka, kb) if abs(a.t[i] - b.t[j]) <= t_tol]
+    assert len(same) >= 2
+    i, j = np.array(same).T
+    assert np.max(np.abs(ya[i] - yb[j])) <= y_tol
+    if not slow and a.status == b.status == "complete":
+        assert a.t[-1] == b.t[-1] and np.max(np.abs(ya[-1] - yb[-1])) <= y_tol
 
 
 # ---- the guard at a state ---------------------------------------------------------------------
@@ -173,3 +191,48 @@ def test_runs_are_the_runs_with_the_python_gap(tmp_path, monkeypatch, build):
     python_run = _runs(path, False, monkeypatch)
     assert len(python_run.events) >= 2
     _same_run(compiled_run, python_run)
+
+
+@st.composite
+def falling_trees(draw):
+    """1-2 joints (revolute, or prismatic along y) under gravity, the last link's tip (or a point on it)
+    striking a floor through the frame's point (0, -depth) whose normal leans by up to 0.4 rad, with a
+    drawn restitution; drawn initial coordinates and rates."""
+    n = draw(st.integers(1, 2))
+    bars = []
+    for _ in range(n):
+        prismatic = draw(st.booleans())
+        bars.append(Bar(draw(st.floats(0.3, 1.0)), draw(st.floats(0.5, 2.0)), yaw=draw(st.floats(-1.0, 1.0)),
+                        joint="prismatic" if prismatic else "revolute",
+                        axis=(0.0, 1.0, 0.0) if prismatic else (0.0, 0.0, 1.0)))
+    lean = draw(st.floats(-0.4, 0.4))
+    contact = {"a": "frame", "point_a": [0.0, -draw(st.floats(0.2, 1.5))], "b": f"link{n}",
+               "point_b": [draw(st.floats(0.1, 1.0)) * bars[-1].length, 0.0],
+               "normal": [-math.sin(lean), math.cos(lean)]}
+    q = {f"J{k}": draw(st.floats(-0.5, 0.5)) for k in range(1, n + 1)}
+    v = {f"J{k}": draw(st.floats(-1.0, 1.0)) for k in range(1, n + 1)}
+    return bars, contact, q, v, draw(st.floats(0.3, 1.0))
+
+
+@settings(max_examples=20, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(falling_trees())
+def test_drawn_trees_striking_a_floor_run_as_with_the_python_gap(tmp_path_factory, monkeypatch, drawn):
+    """Drawn trees falling onto a drawn floor, 1.5 s: the runs with the compiled gap are the runs with
+    the Python gap (events to 1e-12 s, states to 1e-10) up to the first strike slower than 1 mm/s, where
+    an accumulation begins (the run then ends in an error without a merge_to: its partial run)."""
+    bars, contact, q, v, e = drawn
+    path = _chain_scene(tmp_path_factory.mktemp("fall"), bars, contact, q, v, e=e, t_end=1.5)
+    scene = pcmm.load_scene(path)
+    cfg = Mechanism(scene)["c1"]
+    y0 = cfg.coords.pack(0.0, np.array(list(q.values())), np.array(list(v.values())))
+    guard = make_guard(cfg, scene.transitions[0])
+    if guard(0.0, y0) <= 1e-3:  # the tip starts on or below the floor: not a flight
+        return
+    outcomes = []
+    for flag in (True, False):
+        try:
+            outcomes.append(_runs(path, flag, monkeypatch))
+        except SimulationError as exc:  # the strikes accumulate (no merge_to): the run up to there
+            outcomes.append(exc.partial)
+    compiled_run, python_run = outcomes
+    _same_run(compiled_run, python_run, slowest=1e-3)
