@@ -14,6 +14,7 @@ from hypothesis import strategies as st
 
 import pcmm
 from pcmm.errors import SimulationError
+from pcmm.events import contact as contacts
 from pcmm.events import guards
 from pcmm.events.guards import UNFIRED, make_guard
 from pcmm.model import compiled
@@ -50,7 +51,7 @@ def _pendulum_floor(folder, t_end=2.0, e=0.9):
 
 
 def _runs(path, flag, monkeypatch, t_end=None):
-    monkeypatch.setattr(guards, "COMPILED_GAPS", flag)
+    monkeypatch.setattr(contacts, "COMPILED_CONTACTS", flag)
     scene = pcmm.load_scene(path)
     return pcmm.simulate(scene, pcmm.RunOptions(t_end=t_end)) if t_end is not None else pcmm.simulate(scene)
 
@@ -122,9 +123,10 @@ def trees_with_contacts(draw):
 @settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(trees_with_contacts())
 def test_the_compiled_gap_is_the_python_gap_at_drawn_states(tmp_path_factory, data):
-    """guard_value(description, y) against the Python guard's value and rate (contact_state and
-    gap_rate through Pinocchio's Python binding), at drawn states of drawn trees and contacts: the
-    same to round-off of the terms (1e-12 of the points' distances and speeds)."""
+    """guard_value(description, y) and normal_speed(description, y) against the Python contact's gap,
+    gap rate and normal speed (contact_state and gap_rate through Pinocchio's Python binding), at drawn
+    states of drawn trees and contacts: the same to round-off of the terms (1e-12 of the points'
+    distances and speeds); the guard and pcmm.events.contact.normal_speed read the compiled ones."""
     bars, contact, value, states = data
     n = len(bars)
     folder = tmp_path_factory.mktemp("gap")
@@ -141,20 +143,25 @@ def test_the_compiled_gap_is_the_python_gap_at_drawn_states(tmp_path_factory, da
         y = np.asarray(y, float)
         got_value, got_rate = td.guard_value(desc, y)
         size = 1.0 + float(np.sum(np.abs(y)))
-        assert got_value == pytest.approx(guard(0.0, y), abs=1e-12 * size)
-        assert got_rate == pytest.approx(guard.rate(0.0, y, None), abs=1e-12 * size * size)
+        q, v = y[:n], y[n:]
+        _, gap, vn, _ = contacts.contact_state(cfg, q, v, scene.transitions[0].contact)
+        assert got_value == pytest.approx(gap - value, abs=1e-12 * size)
+        assert got_rate == pytest.approx(contacts.gap_rate(cfg, q, v, scene.transitions[0].contact),
+                                         abs=1e-12 * size * size)
+        assert td.normal_speed(desc, y) == pytest.approx(vn, abs=1e-12 * size * size)
+        assert contacts.normal_speed(cfg, q, v, scene.transitions[0].contact) == td.normal_speed(desc, y)
 
 
 def test_only_a_trees_point_contact_is_compiled(tmp_path, monkeypatch):
     """A tree's point contact is compiled (plain, and re-armed after a bounce); a configuration with a
-    planar joint and a cut joint keeps the Python guard; with COMPILED_GAPS off none is compiled."""
+    planar joint and a cut joint keeps the Python guard; with COMPILED_CONTACTS off none is compiled."""
     scene = pcmm.load_scene(ball(tmp_path / "b", 0.8))
     cfg = Mechanism(scene)["free"]
     assert make_guard(cfg, scene.transitions[0]).evaluator is not None
     assert make_guard(cfg, scene.transitions[0], rearm=True).evaluator[1:] == (True, UNFIRED)
-    monkeypatch.setattr(guards, "COMPILED_GAPS", False)
+    monkeypatch.setattr(contacts, "COMPILED_CONTACTS", False)
     assert make_guard(cfg, scene.transitions[0]).evaluator is None
-    monkeypatch.setattr(guards, "COMPILED_GAPS", True)
+    monkeypatch.setattr(contacts, "COMPILED_CONTACTS", True)
     walking = pcmm.load_scene(EXAMPLES / "compass_gait.toml")  # a planar hip, a foot pinned by a cut joint
     walker = Mechanism(walking)[walking.initial_configuration]
     gaps = [tr for tr in walking.transitions if tr.guard.type == "gap" and tr.source == walker.name]
@@ -226,14 +233,14 @@ def test_drawn_trees_striking_a_floor_run_as_with_the_python_gap(tmp_path_factor
     """Drawn trees falling onto a drawn floor, 1.5 s: the run with the compiled gap is the run with the
     Python gap (events to 1e-12 s, velocities and states to 1e-10), or where the mechanism itself
     amplifies round-off more than that (a double pendulum whipping its tip at 37 rad/s, stacked sliders
-    whose strikes double a time difference at each), within ten times what a one-ulp nudge of the initial
-    coordinate does to the Python run; up to the first strike slower than 1 mm/s, where an accumulation
+    whose strikes double a time difference at each), within ten times what a nudge of the initial
+    coordinate by one ulp of max(1, |q|) does to the Python run; up to the first strike slower than 1 mm/s, where an accumulation
     begins (a run without merge_to then ends in an error: its partial run).  Measured on a leaning floor:
     the accumulation carries a 2e-16 s difference past 1e-12 s near 2.5e-4 m/s."""
     bars, contact, q, v, e = drawn
     folder = tmp_path_factory.mktemp("fall")
     path = _chain_scene(folder / "plain", bars, contact, q, v, e=e, t_end=1.5)
-    nudged = _chain_scene(folder / "nudged", bars, contact, {**q, "J1": math.nextafter(q["J1"], math.inf)}, v,
+    nudged = _chain_scene(folder / "nudged", bars, contact, {**q, "J1": q["J1"] + math.ulp(max(1.0, abs(q["J1"])))}, v,
                           e=e, t_end=1.5)
     scene = pcmm.load_scene(path)
     cfg = Mechanism(scene)["c1"]

@@ -19,7 +19,7 @@ import numpy as np
 
 from ..model import compiled
 from ..model.configuration import Configuration
-from .contact import contact_state, gap_rate
+from .contact import compiled_contact, contact_state, gap_rate
 from ..scene.spec import TransitionSpec
 from ..ode.witness import Guard
 from .holding import guard_value as holding_guard_value
@@ -110,7 +110,7 @@ def _gap(cfg: Configuration, tr: TransitionSpec, ctx=None):
 
     def rate(t, y, f):
         return gap_rate(cfg, *unpack(t, y), tr.contact)
-    desc = _gap_evaluator(cfg, tr, value, rate)
+    desc = compiled_contact(cfg, tr.contact, tr.guard.value)  # a tree's point contact: in C++
     if desc is None:
         return value, rate
     # compiled: the same value and rate (checked at probe states) from one C++ call each, here too (the
@@ -124,25 +124,6 @@ def _gap(cfg: Configuration, tr: TransitionSpec, ctx=None):
         return evaluate(desc, y)[1]
     value.evaluator = desc
     return value, rate
-
-
-#: whether a tree's point-contact gap guard is handed to the compiled evaluator (pcmm/model/_guard_eval.hpp:
-#: the compiled segment loop scans it, the compiled locator finds its crossing); off, it runs in Python
-#: (the reference the tests compare it with)
-COMPILED_GAPS = True
-
-
-def _gap_evaluator(cfg: Configuration, tr: TransitionSpec, value, rate):
-    """The compiled description of the gap guard ``value`` (rate ``rate``) where the configuration is a
-    tree whose state is ``[q, v]`` (no loop, drive or planar joint) and the contact is between two points
-    (not a joint stop); else None (the guard runs in Python)."""
-    contact = tr.contact
-    if (not COMPILED_GAPS or contact.joint is not None or cfg.coords.constrained or cfg.has_planar
-            or not compiled.enabled()):
-        return None
-    pa, pb = cfg.point(contact.a, contact.point_a), cfg.point(contact.b, contact.point_b)
-    return compiled.gap_guard(cfg.model, pa.frame_id, pb.frame_id, cfg.link_frame[contact.a], contact.normal,
-                              tr.guard.value, lambda t, y: (value(t, y), rate(t, y, None)))
 
 
 def _time(cfg: Configuration, tr: TransitionSpec, ctx=None):

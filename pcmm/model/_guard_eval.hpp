@@ -62,10 +62,14 @@ bool guard_eval_read(PyObject *desc, GuardEval &out) {
   return false;
 }
 
-// the guard's raw value and rate at the state y (its first 2 nv components); `scale` (may be null): the
-// size of the value's terms, what "near zero" is measured against
-inline void guard_eval(const GuardEval &g, const double *y, double &val, double &rate, double *scale) {
-  // GUARD_EVAL_GAP: pcmm.events.contact.contact_state and gap_rate, the products in numpy's order
+// a point contact's kinematics at the state y (its first 2 nv components): the unit normal n (fixed in
+// link a), r = p_b - p_a, u = v_b - v_a (world), link a's angular rate w_a; and the points (for a scale)
+struct GapKinematics {
+  double n0, n1, r0, r1, u0, u1, w_a, pa0, pa1, pb0, pb1;
+};
+
+inline void gap_kinematics(const GuardEval &g, const double *y, GapKinematics &k) {
+  // pcmm.events.contact.contact_state and gap_rate, the products in numpy's order
   const Model &model = *g.tree->model;
   Data &data = *g.tree->data;
   const Eigen::Map<const VectorXd> q(y, g.nv), v(y + g.nv, g.nv);
@@ -75,18 +79,31 @@ inline void guard_eval(const GuardEval &g, const double *y, double &val, double 
   const Eigen::Matrix3d &R = pinocchio::updateFramePlacement(model, data, (Model::FrameIndex)g.frame_link).rotation();
   double n0 = R(0, 0) * g.nx + R(0, 1) * g.ny, n1 = R(1, 0) * g.nx + R(1, 1) * g.ny;
   const double norm = std::sqrt(n0 * n0 + n1 * n1);
-  n0 /= norm;
-  n1 /= norm;
-  const double pa0 = Ma.translation()[0], pa1 = Ma.translation()[1], pb0 = Mb.translation()[0], pb1 = Mb.translation()[1];
-  const double r0 = pb0 - pa0, r1 = pb1 - pa1;
-  val = (n0 * r0 + n1 * r1) - g.value;
+  k.n0 = n0 / norm;
+  k.n1 = n1 / norm;
+  k.pa0 = Ma.translation()[0];
+  k.pa1 = Ma.translation()[1];
+  k.pb0 = Mb.translation()[0];
+  k.pb1 = Mb.translation()[1];
+  k.r0 = k.pb0 - k.pa0;
+  k.r1 = k.pb1 - k.pa1;
   const auto va = pinocchio::getFrameVelocity(model, data, (Model::FrameIndex)g.frame_a, pinocchio::LOCAL_WORLD_ALIGNED);
   const auto vb = pinocchio::getFrameVelocity(model, data, (Model::FrameIndex)g.frame_b, pinocchio::LOCAL_WORLD_ALIGNED);
-  const double w_a =
-      pinocchio::getFrameVelocity(model, data, (Model::FrameIndex)g.frame_link, pinocchio::LOCAL_WORLD_ALIGNED).angular()[2];
-  const double u0 = vb.linear()[0] - va.linear()[0], u1 = vb.linear()[1] - va.linear()[1];
-  rate = (n0 * u0 + n1 * u1) + w_a * (n0 * r1 - n1 * r0);
-  if (scale) *scale = std::fabs(n0 * pb0) + std::fabs(n1 * pb1) + std::fabs(n0 * pa0) + std::fabs(n1 * pa1) + std::fabs(g.value);
+  k.w_a = pinocchio::getFrameVelocity(model, data, (Model::FrameIndex)g.frame_link, pinocchio::LOCAL_WORLD_ALIGNED).angular()[2];
+  k.u0 = vb.linear()[0] - va.linear()[0];
+  k.u1 = vb.linear()[1] - va.linear()[1];
+}
+
+// the guard's raw value and rate at the state y (its first 2 nv components); `scale` (may be null): the
+// size of the value's terms, what "near zero" is measured against
+inline void guard_eval(const GuardEval &g, const double *y, double &val, double &rate, double *scale) {
+  GapKinematics k;  // GUARD_EVAL_GAP
+  gap_kinematics(g, y, k);
+  val = (k.n0 * k.r0 + k.n1 * k.r1) - g.value;
+  rate = (k.n0 * k.u0 + k.n1 * k.u1) + k.w_a * (k.n0 * k.r1 - k.n1 * k.r0);
+  if (scale)
+    *scale = std::fabs(k.n0 * k.pb0) + std::fabs(k.n1 * k.pb1) + std::fabs(k.n0 * k.pa0) + std::fabs(k.n1 * k.pa1) +
+             std::fabs(g.value);
 }
 
 // a re-armed guard (right after a bounce: pcmm.events.guards.make_guard, rearm) as it reads: held at
@@ -120,4 +137,32 @@ PyObject *guard_value_py(PyObject *, PyObject *const *args, Py_ssize_t nargs) {
   guard_eval(g, (const double *)PyArray_DATA(y), val, rate, nullptr);
   Py_DECREF(y);
   return Py_BuildValue("dd", val, rate);
+}
+
+// normal_speed(description, y) -> n . (v_b - v_a): a gap guard's contact's normal speed at the state y
+// (pcmm.events.contact.normal_speed: J_n v, negative while the points approach; the gap's rate without the
+// turn of the normal)
+PyObject *normal_speed_py(PyObject *, PyObject *const *args, Py_ssize_t nargs) {
+  if (nargs != 2) {
+    PyErr_SetString(PyExc_TypeError, "normal_speed(description, y) takes 2 arguments");
+    return nullptr;
+  }
+  GuardEval g;
+  if (!guard_eval_read(args[0], g)) return nullptr;
+  if (g.kind != GUARD_EVAL_GAP) {
+    PyErr_SetString(PyExc_ValueError, "normal_speed: the description is not a contact gap's");
+    return nullptr;
+  }
+  PyArrayObject *y = (PyArrayObject *)PyArray_FROMANY(args[1], NPY_DOUBLE, 1, 1, NPY_ARRAY_IN_ARRAY);
+  if (!y) return nullptr;
+  if (PyArray_DIM(y, 0) < 2 * g.nv) {
+    PyErr_Format(PyExc_ValueError, "normal_speed: the state has %zd entries, the contact reads %d",
+                 (Py_ssize_t)PyArray_DIM(y, 0), 2 * g.nv);
+    Py_DECREF(y);
+    return nullptr;
+  }
+  GapKinematics k;
+  gap_kinematics(g, (const double *)PyArray_DATA(y), k);
+  Py_DECREF(y);
+  return PyFloat_FromDouble(k.n0 * k.u0 + k.n1 * k.u1);
 }

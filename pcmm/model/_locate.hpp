@@ -334,6 +334,8 @@ PyMethodDef locate_methods[] = {
      "output, or None"},
     {"guard_value", (PyCFunction)(void (*)(void))guard_value_py, METH_FASTCALL,
      "guard_value(description, y) -> (value, rate) of a guard read by its description (_guard_eval.hpp)"},
+    {"normal_speed", (PyCFunction)(void (*)(void))normal_speed_py, METH_FASTCALL,
+     "normal_speed(description, y) -> n . (v_b - v_a) of a contact gap's description at the state y (_guard_eval.hpp)"},
     {nullptr, nullptr, 0, nullptr}};
 
 int add_locate(PyObject *m) { return PyModule_AddFunctions(m, locate_methods); }

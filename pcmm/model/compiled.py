@@ -242,7 +242,7 @@ def gap_tree(model: pin.Model):
     for the guards a compiled segment loop and locator read at a state (pcmm/model/_guard_eval.hpp: a
     contact gap, pcmm.events.guards); its Pinocchio Data is the scratch space of those evaluations alone.
     None where it cannot be built (why_not says)."""
-    if enabled() and not hasattr(_tree_dynamics, "guard_value"):  # an extension built before these guards
+    if enabled() and not hasattr(_tree_dynamics, "normal_speed"):  # an extension built before these guards
         _refuse("this build of pcmm.model._tree_dynamics has no compiled contact gap (built from older sources): "
                 "reinstall pcmm (pip install -e .) to rebuild it")
         return None
@@ -263,15 +263,15 @@ def gap_guard(model: pin.Model, frame_a: int, frame_b: int, frame_link: int, nor
     """The description of a point contact's gap guard for the compiled evaluator
     (``("gap", tree, frame_a, frame_b, frame_link, nx, ny, value)``, pcmm/model/_guard_eval.hpp): points a
     and b and link a's frame (frames of ``model``), the normal fixed in link a, the guard's value; checked
-    against ``reference(t, y) -> (value, rate)``, the Python guard at a tree's state ``[q, v]``, at probe
-    states (once per tree and contact).  None where it is not compiled or disagrees (why_not says)."""
+    against ``reference(t, y) -> (value, rate, normal speed)``, the Python guard and contact at a tree's state
+    ``[q, v]``, at probe states (once per tree and contact).  None where it is not compiled or disagrees (why_not says)."""
     entry = gap_tree(model)
     if entry is None:
         return None
     tree, checked = entry
     desc = ("gap", tree, int(frame_a), int(frame_b), int(frame_link), float(normal[0]), float(normal[1]), float(value))
-    if not _agrees(checked, lambda t, y: _tree_dynamics.guard_value(desc, y), reference,
-                   [(0.0, y) for y in _probe_states(model.nv)], "contact gap", key=("gap", *desc[2:])):
+    if not _agrees(checked, lambda t, y: (*_tree_dynamics.guard_value(desc, y), _tree_dynamics.normal_speed(desc, y)),
+                   reference, [(0.0, y) for y in _probe_states(model.nv)], "contact gap", key=("gap", *desc[2:])):
         return None
     return desc
 
@@ -279,6 +279,11 @@ def gap_guard(model: pin.Model, frame_a: int, frame_b: int, frame_link: int, nor
 def guard_value(desc: tuple, y) -> tuple[float, float]:
     """(value, rate) at the state ``y`` of the guard a compiled description reads (:func:`gap_guard`)."""
     return _tree_dynamics.guard_value(desc, y)
+
+
+def normal_speed(desc: tuple, y) -> float:
+    """The normal speed ``n . (v_b - v_a)`` at the state ``y`` of a contact gap's description (:func:`gap_guard`)."""
+    return _tree_dynamics.normal_speed(desc, y)
 
 
 def impulse_tree(model: pin.Model, frames) -> tuple | None:
