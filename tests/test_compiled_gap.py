@@ -266,3 +266,48 @@ def test_drawn_trees_striking_a_floor_run_as_with_the_python_gap(tmp_path_factor
     assert got[3] >= 2
     assert got[0] <= max(1e-12, 10 * spread[0])
     assert got[1] <= max(1e-10, 10 * spread[1]) and got[2] <= max(1e-10, 10 * spread[2])
+
+
+def test_a_loop_refuses_an_evaluator_that_does_not_read_its_state(tmp_path):
+    """The compiled segment loop takes an evaluated guard only over a tree of the evaluator's size (a
+    contact gap reads the state's q and v): another tree, or a guard index it does not have, is refused
+    with a message naming it (the integrators then hand every step to Python)."""
+    scene = pcmm.load_scene(ball(tmp_path, 0.8))
+    desc = make_guard(Mechanism(scene)["free"], scene.transitions[0]).evaluator[0]
+    two = td.Tree()  # two prismatic joints: not the ball's state
+    for j in (1, 2):
+        two.add_joint("JointModelPY", j - 1, np.eye(3), np.zeros(3), np.zeros(3), 0.0)
+        two.set_inertia(j, 1.0, np.zeros(3), 0.1 * np.eye(3))
+    two.finalize(np.array([0.0, -G, 0.0]), np.zeros(2), np.zeros((2, 4)))
+    guards_of_one = (np.zeros((1, 4)), np.zeros(1), np.zeros(1), -np.ones(1))
+    y0 = np.array([1.0, 1.0, 0.0, 0.0])
+    with pytest.raises(ValueError, match="does not read this tree's state"):
+        td.SegmentLoop(two, 0.0, y0, 1.0, 1e-10, 1e-12, 0.0, 1000, 0.04, *guards_of_one, False,
+                       evaluated=[(0, desc, 0.0)])
+    with pytest.raises(ValueError, match="guard 3 is not an unclaimed guard"):
+        td.SegmentLoop(two, 0.0, y0, 1.0, 1e-10, 1e-12, 0.0, 1000, 0.04, *guards_of_one, False,
+                       evaluated=[(3, desc, 0.0)])
+    with pytest.raises(ValueError, match="unknown kind 'spring'"):
+        td.guard_value(("spring", two), y0)
+
+
+def test_a_loop_that_refuses_the_evaluated_guards_gets_every_step_to_python(tmp_path, monkeypatch):
+    """Where a compiled loop refuses the evaluated guards (integrators._segment_loop), the segment is
+    still stepped by it with every step handed to the Python scanner: the same run."""
+    path = ball(tmp_path, 0.8, t_end=2.0)
+    python_run = _runs(path, False, monkeypatch)
+    refused, stepped = [], []
+    make = td.SegmentLoop
+
+    def refusing(*args, **options):  # every compiled loop is made by this type (registered per tree)
+        if "evaluated" in options:
+            refused.append(options["evaluated"])
+            raise ValueError("evaluated: not this loop's")
+        stepped.append(args[13])  # every_step
+        return make(*args, **options)
+    monkeypatch.setattr(td, "SegmentLoop", refusing)
+    # the registry the run fills with it is a copy, dropped after the test (later tests get the real type)
+    monkeypatch.setattr(integrators, "SEGMENT_LOOPS", dict(integrators.SEGMENT_LOOPS))
+    compiled_run = _runs(path, True, monkeypatch)
+    assert refused and len(stepped) == len(refused) and all(stepped)
+    _same_run(compiled_run, python_run)
