@@ -132,12 +132,13 @@ def test_guard_value_outside_joint_limits_warns(tmp_path):
 
 def test_unreachable_loop_guard_warns(tmp_path):
     """The four-bar's coupler-rocker angle stays within [-138, -76] deg (closed form): a latch
-    at -60 deg can never fire."""
+    at -60 deg can never fire. pcmm cannot prove that (it says none was found from its starts)."""
     write_template("fb", tmp_path, closed=True)
     path = tmp_path / "fb.toml"
     path.write_text(path.read_text().replace('value = "-90 deg"', 'value = "-60 deg"'))
     report = problems_of(path)
-    assert any("guard.value: = -1.04719755" in w and "the loop cannot close" in w for w in report.warnings)
+    assert any("guard.value: = -1.04719755" in w and "no posture closing the loop with the guard there was found" in w
+               and "the guard never fires" in w for w in report.warnings)
 
 
 # ---- closed-loop assembly ------------------------------------------------------------------------

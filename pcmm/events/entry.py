@@ -72,14 +72,73 @@ def enter(src: Configuration, dst: Configuration, t: float, q: np.ndarray, v: np
                                  "(check the fixed joint's origin in the merged configuration)"])
     residual = 0.0
     if len(dst.coords.labels) and not reset:
-        Jq, Jq_scale = _jacobian(dst, t, q_new, v_new)
-        # v_new satisfies every row (the projection solved them), so Phi_q v_map + Phi_t = Phi_q (v_map - v_new)
-        rows = Jq @ (v_map - v_new)
-        tol = VELOCITY_ROUNDOFF * scale * Jq_scale
-        residual = float(np.abs(rows).max())
-        if residual > tol:
-            raise SimulationError(_violated(src, dst, t, what, rows, tol, v_map, v_new))
+        residual = _velocity_rows(src, dst, t, what, v_map, q_new, v_new, scale)
     return Entry(q_new, v_new, dropped, offsets, residual)
+
+
+def _velocity_rows(src, dst, t, what, v_map, q_new, v_new, scale: float) -> float:
+    """The largest residual of ``dst``'s rows at the mapped velocity ``v_map`` (``scale``: max(1, |v|));
+    the run stops naming the rows it violates beyond round-off."""
+    Jq, Jq_scale = _jacobian(dst, t, q_new, v_new)
+    # v_new satisfies every row (the projection solved them), so Phi_q v_map + Phi_t = Phi_q (v_map - v_new)
+    rows = Jq @ (v_map - v_new)
+    tol = VELOCITY_ROUNDOFF * scale * Jq_scale
+    residual = float(np.abs(rows).max())
+    if residual > tol:
+        raise SimulationError(_violated(src, dst, t, what, rows, tol, v_map, v_new))
+    return residual
+
+
+def enter_bounce(cfg: Configuration, t: float, q: np.ndarray, v: np.ndarray, what: str = "bounce"):
+    """:func:`enter` of a bounce, ``cfg`` into itself after its impulse: ``(q, v)`` projected onto
+    ``cfg``'s constraints, every row of its loops and drives checked at the post-impact velocity, and
+    the links' poses where the projection moved the posture; the same checks and the same state as
+    ``enter(cfg, cfg, t, q, v)`` without the parts a bounce leaves empty (no joint dropped, no angle
+    offset).  Returns ``(q, v, the largest residual of the rows at the post-impact velocity)``."""
+    q_new, v_new = cfg.coords.project(t, q, v)
+    if q_new.tobytes() != q.tobytes():
+        _, problems = pose_mismatches(cfg, cfg, q, q_new)
+        if problems:
+            raise SimulationError([f"t = {t:.9g} s, switching '{cfg.name}' -> '{cfg.name}': {p}" for p in problems]
+                                  + ["the projection onto the configuration's constraints moved its links"])
+    residual = 0.0
+    if len(cfg.coords.labels):
+        columns = _unit_columns(cfg.coords)
+        if columns:  # drives without a loop: each row reads one coordinate's rate (Phi_q a unit row)
+            for c in columns:  # |Phi_q (v - v_new)| of that row, the same number as the product gives
+                residual = max(residual, abs(float(v[c]) - float(v_new[c])))
+            if residual <= VELOCITY_ROUNDOFF:  # below the least tolerance (scale and |Phi_q| are >= 1)
+                return q_new, v_new, residual
+        residual = _velocity_rows(cfg, cfg, t, what, v, q_new, v_new, max(1.0, float(np.abs(v).max())) if len(v) else 1.0)
+    return q_new, v_new, residual
+
+
+#: {coordinates: the column of each row where every row of the coordinates is a unit row of time-only
+#: rows (drives without a loop: q_j - f(t) = 0), else ()}
+_UNIT_COLUMNS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def _unit_columns(coords) -> tuple[int, ...]:
+    """The columns of ``coords``' rows where each is a unit row (``Phi_q = e_j^T``) depending on time
+    alone (:func:`_jacobian`'s ``time_rows``), so that ``Phi_q dv`` is ``dv[j]`` row by row to the bit
+    (the product's other terms are 0 x a finite number); () otherwise.  Decided once per coordinates."""
+    kept = _UNIT_COLUMNS.get(coords)
+    if kept is not None:
+        return kept
+    out: tuple = ()
+    timed = getattr(coords, "time_rows", None)
+    timed = timed() if timed is not None else None
+    if timed is not None and len(timed[0]):
+        columns = []
+        for row in np.asarray(timed[0]):
+            hot = np.flatnonzero(row)
+            if len(hot) != 1 or row[hot[0]] != 1.0:
+                columns = []
+                break
+            columns.append(int(hot[0]))
+        out = tuple(columns)
+    _UNIT_COLUMNS[coords] = out
+    return out
 
 
 #: {coordinates: (Phi_q, max(1, max |Phi_q|))} of coordinates whose rows depend on time alone (``time_rows``)

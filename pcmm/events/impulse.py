@@ -36,14 +36,15 @@ from ..model.configuration import Configuration
 from .contact import contact_point, contact_state, impact_kind, joint_stop_row, normal_row
 from .cutting import cut
 from .friction import AmbiguousImpact, FrictionalImpulse, routh
-from .impulse_compiled import NO_IMPULSE, CompiledImpulse, compiled_impulse, disagreement, refuse
+from .impulse_compiled import (NO_IMPULSE, CompiledImpulse, compiled_impulse, disagreement, reach, refuse,
+                               takes_no_impulse)
 from ..errors import SimulationError
 from ..model.pinocchio_helpers import cholesky, frame_jacobian, mass_matrix
 from ..model.rows import solve
 from ..scene.spec import ContactSpec
 
-#: NO_IMPULSE: the one rule of both solves for 'no impulse along the normal' (defined beside the
-#: compiled plan, which this module imports)
+#: NO_IMPULSE (:func:`takes_no_impulse`): the one rule of both solves for 'no impulse along the
+#: normal' (defined beside the compiled plan, which this module imports)
 
 
 @dataclass
@@ -206,28 +207,103 @@ def solve_impulse(cfg: Configuration, t: float, q: np.ndarray, v: np.ndarray, co
 
 def _compiled_solve(cfg: Configuration, plan: _Plan, fast: CompiledImpulse, q, v, restitution) -> Impulse | None:
     """The :class:`Impulse` of ``fast``'s compiled solve (pcmm/model/_impulse.hpp); None where it
-    takes no impulse along the normal (the Python solve then says why)."""
+    takes no impulse along the normal (the Python solve then says why).  An :class:`ArrayImpulse`:
+    the joints', cut joints' and rows' impulses are kept as the solve's arrays, their dicts formed
+    when first read (a bounce's record reads the arrays: :func:`pcmm.events.records.bounce_record`)."""
     got = fast.plan.solve(q, v, restitution)
     if got is None:
         return None
     v_after, (P, vn_before, vn_after, ke_before, ke_after, drive_work), n, point, pos_a, pos_b, mu, cut, joints, tau, \
         momenta = got
-    contact = plan.contact
-    out = Impulse(kind=plan.kind, restitution=restitution, normal=n, P=P, vn_before=vn_before, vn_after=vn_after,
-                  v_before=v.copy(), v_after=v_after, ke_before=ke_before, ke_after=ke_after, point=point,
-                  drive_work=drive_work, rnea_residual=tau, momenta=momenta)
-    out.cut_impulses = dict(zip(fast.cut_names, cut.tolist()))
-    out.constraint_rows = dict(zip(fast.drive_labels, mu.tolist()))
-    out.constraint_impulses = constraint_impulses(cfg, out.constraint_rows, []) if fast.drive_labels else {}
-    out.joint_impulses = dict(zip(fast.joint_names, joints.tolist()))
-    if not plan.stop:
-        out.contact_impulses = [(contact.b, pos_b, P * n, 0.0), (contact.a, pos_a, -P * n, 0.0)]
-    elif plan.prismatic:
-        out.contact_impulses = [(contact.b, pos_b, P * n, 0.0), (contact.a, pos_b, -P * n, 0.0)]
+    out = ArrayImpulse(kind=plan.kind, restitution=restitution, normal=n, P=P, vn_before=vn_before, vn_after=vn_after,
+                       v_before=v.copy(), v_after=v_after, ke_before=ke_before, ke_after=ke_after, point=point,
+                       drive_work=drive_work, rnea_residual=tau, momenta=momenta)
+    d = out.__dict__
+    del d["cut_impulses"], d["constraint_rows"], d["joint_impulses"], d["contact_impulses"]  # (_FORMED: when read)
+    out.arrays = (cut, mu, joints)
+    out.solved = (fast, plan, pos_a, pos_b)
+    labels = fast.drive_labels
+    if not labels:
+        out.constraint_impulses = {}
+    elif _revolute_drives(cfg, labels):  # constraint_impulses' [0, 0, mu] of each drive (a revolute joint's)
+        out.constraint_impulses = {lab: [0.0, 0.0, m] for lab, m in zip(labels, mu.tolist())}
     else:
-        s_ = contact.stop_sign
-        out.contact_impulses = [(contact.b, pos_b, np.zeros(2), -s_ * P), (contact.a, pos_b, np.zeros(2), s_ * P)]
+        out.constraint_impulses = constraint_impulses(cfg, out.constraint_rows, [])
     return out
+
+
+def _revolute_drives(cfg: Configuration, labels: tuple[str, ...]) -> bool:
+    """Are the drives of ``labels`` (each "J.drive") all on revolute joints?  Decided once per model."""
+    key = ("revolute drives", labels)
+    kept = cfg.impulse_models.get(key)
+    if kept is None:
+        kept = cfg.impulse_models[key] = all(
+            cfg.spec.info.joints[lab[:-len(".drive")]].type != "prismatic" for lab in labels)
+    return kept
+
+
+def _contact_impulses(imp: ArrayImpulse) -> list:
+    """The contact's impulses on b and on a, (link, world point, F, mz), of a compiled solve."""
+    _, plan, pos_a, pos_b = imp.solved
+    contact, P, n = plan.contact, imp.P, imp.normal
+    if not plan.stop:
+        return [(contact.b, pos_b, P * n, 0.0), (contact.a, pos_a, -P * n, 0.0)]
+    if plan.prismatic:
+        return [(contact.b, pos_b, P * n, 0.0), (contact.a, pos_b, -P * n, 0.0)]
+    s_ = contact.stop_sign
+    return [(contact.b, pos_b, np.zeros(2), -s_ * P), (contact.a, pos_b, np.zeros(2), s_ * P)]
+
+
+class ArrayImpulse(Impulse):
+    """The :class:`Impulse` of a compiled solve (:func:`_compiled_solve`): its cut joints', drive rows'
+    and joints' impulses are the solve's arrays ``arrays = (cut, mu, joints)`` (one row [fx, fy, mz] per
+    cut joint and per joint, in ``solved[0]``'s ``cut_names`` and ``joint_names`` order; one multiplier
+    per drive row), and ``cut_impulses``, ``constraint_rows``, ``joint_impulses`` and
+    ``contact_impulses`` are formed from them when first read (then kept, or replaced when set): the
+    same dicts and numbers."""
+
+    arrays: tuple
+    solved: tuple  # (CompiledImpulse, _Plan, a's contact point, b's)
+
+    def __getattr__(self, name: str):  # only for a name the instance lacks: one of _FORMED, not yet formed
+        form = _FORMED.get(name)
+        if form is None:
+            raise AttributeError(f"'{type(self).__name__}' object has no attribute '{name}'")
+        value = self.__dict__[name] = form(self)
+        return value
+
+
+#: the fields of :class:`ArrayImpulse` formed when first read: {field: how, from the impulse}
+_FORMED = {
+    "cut_impulses": lambda imp: dict(zip(imp.solved[0].cut_names, imp.arrays[0].tolist())),
+    "constraint_rows": lambda imp: dict(zip(imp.solved[0].drive_labels, imp.arrays[1].tolist())),
+    "joint_impulses": lambda imp: dict(zip(imp.solved[0].joint_names, imp.arrays[2].tolist())),
+    "contact_impulses": _contact_impulses,
+}
+
+
+def _no_impulse_cause(cfg: Configuration, G: np.ndarray, cut_joints) -> str:
+    """What to check when a contact takes no impulse: with every row of the configuration (its cut
+    joints, loops and drives: ``G``, drives last) no coordinate is free, and the drives are what
+    fix the last ones, then no impulse can change a velocity and the drives are named; else the
+    normal and the cut joints."""
+    drives = list(getattr(getattr(cfg.coords, "drives", None), "joints", ()))
+    nv = G.shape[1]
+    free = nv - (np.linalg.matrix_rank(G) if G.shape[0] else 0)
+    without = G[:G.shape[0] - len(drives)]
+    free_undriven = nv - (np.linalg.matrix_rank(without) if without.shape[0] else 0)
+    if free == 0 and drives and free_undriven > 0:
+        named = ", ".join(f"'{j}'" for j in drives)
+        return (f"configuration '{cfg.name}' has no free coordinate there: its loops and cut joints leave "
+                f"{free_undriven} and the drive{'s' if len(drives) > 1 else ''} on {named} prescribe"
+                f"{'' if len(drives) > 1 else 's'} {'them' if free_undriven > 1 else 'it'}, so no impulse can "
+                "change a velocity. A driven joint takes the freedom an impact needs: give the struck part a "
+                "freedom of its own (e.g. on a spring), or drive it by a motor torque (a `torque` force) instead of a "
+                "drive")
+    if free == 0:
+        return (f"configuration '{cfg.name}' has no free coordinate there (its cut joints and loops fix all "
+                f"{nv}), so no impulse can change a velocity; check the cut joints {list(cut_joints)} and loops")
+    return "check the contact normal and cut joints"
 
 
 def solve_impulse_python(cfg: Configuration, t: float, q: np.ndarray, v: np.ndarray, contact: ContactSpec,
@@ -277,10 +353,15 @@ def solve_impulse_python(cfg: Configuration, t: float, q: np.ndarray, v: np.ndar
         W_eff = W
     denom = J_n @ W_eff @ J_n.T  # Eq. 29 / 42 denominator: n^T J M_f^-1 J^T n
     d = float(denom[0, 0])
-    if not math.isfinite(d) or d <= NO_IMPULSE * float(W_eff.trace()):  # no impulse along n
+    M = cfg.mass_matrix(q)
+    R = (J_n if plan.stop else J_rel) @ cs.T  # the contact's relative motion, in the tree (NO_IMPULSE)
+    reach_ = reach(R @ solve(M, R.T))
+    if takes_no_impulse(d, reach_):  # no impulse along n
         raise SimulationError(
             f"t = {t:.9g} s: the contact {contact.a}/{contact.b} cannot take an impulse along its normal "
-            "(the normal is orthogonal to every allowed motion); check the contact normal and cut joints")
+            f"(the normal is orthogonal to every allowed motion: J W_eff J^T = {d:.3g}, "
+            f"{d / reach_ if reach_ > 0 else 0.0:.3g} of what the contact's motion reaches; none at or below "
+            f"{NO_IMPULSE:g}); " + _no_impulse_cause(cfg, G, cut_joints))
     fr = None
     if frictional:
         where = f"t = {t:.9g} s, " + (f"transition '{name}'" if name else f"contact {contact.a}/{contact.b}")
@@ -300,7 +381,6 @@ def solve_impulse_python(cfg: Configuration, t: float, q: np.ndarray, v: np.ndar
     if _norm(cs.T @ v_after - v_f_after) > 1e-8 * max(1.0, _norm(v_f_after)):
         raise SimulationError(f"t = {t:.9g} s: the cut system's post-impact velocity does not reassemble "
                               "the tree (internal error in joint cutting)")
-    M = cfg.mass_matrix(q)
     out = Impulse(
         kind=plan.kind, restitution=restitution, normal=n, P=float(P[-1]),
         vn_before=vn, vn_after=float((J_n @ v_f_after)[0]), v_before=v.copy(), v_after=v_after,

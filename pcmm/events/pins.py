@@ -36,7 +36,10 @@ stop the run instead, naming it (:func:`check_held_points_push`): their solves d
 
 The new pin's impulse (P_t, P_n) along the contact's tangent t = (n_y, -n_x) and normal must lie in
 its friction cone when a finite ``friction`` is given, else the strike would slip (the message gives
-the friction it needs, |P_t| / P_n).
+the friction it needs, |P_t| / P_n).  Where the target's rows are redundant (a pin on a pendulum: two
+rows for one coordinate) the velocity after is unique but the impulse's split among the rows is not:
+the cone is then tested over every split (:func:`_inside_cone`), not over the minimum-norm one, and
+a target that cannot hold the rows at all is refused by its entry ("the cut joints are redundant").
 """
 from __future__ import annotations
 
@@ -160,6 +163,37 @@ def impact_with_rows(M: np.ndarray, name: str, v: np.ndarray, A: np.ndarray, b: 
     return v + W @ A.T @ lam, lam, rank < A.shape[0]
 
 
+def _free_splits(A: np.ndarray, i: int) -> np.ndarray:
+    """The directions (2 x r) in which the impulse of the pin whose rows are ``i, i + 1`` of ``A``
+    may change without changing the velocity after: its rows of a basis of the null space of A^T
+    (``M (v+ - v-) = A^T lam`` fixes lam only up to that space when the rows are redundant)."""
+    U, sv, _ = np.linalg.svd(A)
+    rank = int(np.sum(sv > 1e-13 * max(sv.max(initial=0.0), 1e-300)))
+    return U[i:i + 2, rank:]
+
+
+def _inside_cone(F: np.ndarray, K: np.ndarray, n: np.ndarray, tang: np.ndarray, mu: float) -> bool:
+    """Whether some impulse F + K z (z free) lies in the friction cone |t . F| <= mu n . F: two
+    half-spaces g_k . z <= c_k, which meet unless g_2 = -alpha g_1 (alpha > 0) with c_1 + c_2 / alpha < 0
+    (or a zero g_k with c_k < 0). K with no columns: F itself, the impulse being unique."""
+    tol = 1e-12 * max(float(np.linalg.norm(F)), 1e-300)
+    kt, kn = tang @ K, n @ K
+    Ft, Fn = float(tang @ F), float(n @ F)
+    g = [kt - mu * kn, -kt - mu * kn]
+    c = [mu * Fn - Ft + tol, mu * Fn + Ft + tol]
+    scale = max(float(np.abs(K).max(initial=0.0)), 1e-300)
+    zero = [float(np.linalg.norm(gk)) <= 1e-12 * scale for gk in g]
+    if any(z and ck < 0 for z, ck in zip(zero, c)):
+        return False
+    if any(zero):
+        return True
+    cross = g[0] @ g[1] / (np.linalg.norm(g[0]) * np.linalg.norm(g[1]))
+    if cross > -1 + 1e-12:  # not anti-parallel: the half-spaces meet
+        return True
+    alpha = float(np.linalg.norm(g[1]) / np.linalg.norm(g[0]))
+    return c[0] + c[1] / alpha >= 0
+
+
 def pin_strike(ctx, cfg: Configuration, tr: PinSpec, t, q, v, target: str | None = None):
     """Pin b's point where it strikes, with every constraint of the target at once (module text):
     (target, q, v, event) of the run's outcome.  ``target``: the configuration entered, when not the
@@ -234,13 +268,13 @@ def pin_strike(ctx, cfg: Configuration, tr: PinSpec, t, q, v, target: str | None
         ok &= float(n @ F) >= -SIGN_TOL * scale
         tried.append("; ".join(text + [f"the new pin's normal impulse {float(n @ F):.6g} N s"]))
         if ok:
-            solutions.append((held, v_plus, lam, redundant))
+            solutions.append((held, v_plus, lam, redundant, A, kept))
     if len(solutions) != 1:
         raise SimulationError(
             [f"{where}: the strike with the closed contacts {[u[0].name for u in unilateral + both]} has "
              f"{'no' if not solutions else len(solutions)} consistent outcome(s) (a rigid-body impact that is "
              f"{'inconsistent' if not solutions else 'ambiguous'} here); the active sets tried:"] + tried)
-    held, v_plus, lam, redundant = solutions[0]
+    held, v_plus, lam, redundant, A, kept = solutions[0]
     lifted = [u[0].name for u, h in zip(both, held[len(unilateral):]) if not h]
     if lifted:  # a foot in double support that the strike would pull: it leaves at the strike
         released_into = _released_target(ctx.mechanism.scene, target, lifted)
@@ -260,10 +294,13 @@ def pin_strike(ctx, cfg: Configuration, tr: PinSpec, t, q, v, target: str | None
     F = lam[i_struck:i_struck + 2]
     P_n, P_t = float(n @ F), float(tang @ F)
     mu = tr.contact.friction if tr.contact.friction is not None else struck.friction
-    if mu is not None and not math.isinf(mu) and abs(P_t) > mu * P_n * (1 + 1e-12):
+    free = _free_splits(A, kept.index(i_struck)) if redundant else np.zeros((2, 0))
+    if mu is not None and not math.isinf(mu) and not _inside_cone(F, free, n, tang, mu):
+        split = (f"; the constraints of '{target}' are redundant, so the impulse's split among its cut joints is "
+                 "not unique, and no split puts it inside the cone" if redundant else "")
         raise SimulationError(f"{where}: the pinned point would slip: its impulse needs friction >= "
                               f"{abs(P_t) / P_n:.6g} (|P_t| / P_n, P_t = {P_t:.6g}, P_n = {P_n:.6g} N s) and the "
-                              f"contact has mu = {mu:g}; pcmm models no sliding contact")
+                              f"contact has mu = {mu:g}{split}; pcmm models no sliding contact")
     # entered like every switch: the target's constraints checked at the post-impact state (entry.enter)
     entry = enter(cfg, dst, t, q, v_plus, what=f"pin '{tr.name}'")
     q_new, v_new = entry.q, entry.v

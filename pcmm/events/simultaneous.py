@@ -39,6 +39,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .contact_faults import POSE_TOL
+
 SEPARATE, STICK, SLIDE_POS, SLIDE_NEG, HOLD = "separate", "stick", "slide+", "slide-", "hold"
 TOL = 1e-10  # relative: a residual, an impulse or a velocity this small (x its scale) counts as zero
 
@@ -133,16 +135,22 @@ def solve_contacts(D: np.ndarray, u: np.ndarray, e, mu) -> ContactsSolution:
 
 
 # ---- the impact of a configuration's closed contacts -------------------------------------------
+def joins_simultaneous(s) -> bool:
+    """Can the stop ``s`` close at once with another and share its impact (:func:`closed_with`)?  A
+    ``stop`` of a point contact resolved by an impulse without a cut; never a joint stop, which is
+    decided by the transition alone (a bounce at a joint stop asks nothing more)."""
+    return s.type == "stop" and s.contact is not None and s.contact.joint is None and not s.cut \
+        and getattr(s, "law", "impulse") == "impulse"
+
+
 def closed_with(cfg, tr, q) -> list:
     """The other ``stop`` transitions of ``cfg`` whose point contact is closed at ``q`` (gap within
     the pose tolerance) and that an impulse resolves without a cut: they take part in the impact
-    of ``tr`` (itself such a stop).  Empty when ``tr`` is not one."""
-    from .contact_faults import POSE_TOL
-
-    def eligible(s):
-        return s.type == "stop" and s.contact is not None and s.contact.joint is None and not s.cut \
-            and getattr(s, "law", "impulse") == "impulse"
-    others = [s for s in cfg.scene.transitions_from(cfg.name) if s is not tr and eligible(s)] if eligible(tr) else []
+    of ``tr`` (itself such a stop).  Empty when ``tr`` is not one (:func:`joins_simultaneous`),
+    answered from the transition alone."""
+    if not joins_simultaneous(tr):
+        return []
+    others = [s for s in cfg.scene.transitions_from(cfg.name) if s is not tr and joins_simultaneous(s)]
     if not others:
         return []
     cfg.kinematics(q)  # once: the gaps n . (p_b - p_a) read the placements

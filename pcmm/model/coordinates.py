@@ -28,7 +28,8 @@ class Coordinates(Protocol):
         segment; ``unpack(t, y) -> (q, v)`` is its inverse along the segment (for a loop it
         solves the dependent coordinates, so ``q`` holds the constraints to the Newton
         tolerance).  ``seed(q)`` gives ``unpack`` its first guess for a segment that
-        starts at ``q``.
+        starts at ``q``.  ``state_entry(j) -> (p, r)`` says where coordinate ``j`` and its rate
+        sit in ``y`` (``q_j = y[p]``, ``q'_j = y[r]``), None where they are not entries of it.
     Dynamics
         ``rhs(t, y) -> y'`` is the right-hand side the integrator calls; ``derivative(t,
         q, v, extra)`` is the same with an extra generalized force (a continuous contact
@@ -90,6 +91,8 @@ class Coordinates(Protocol):
     def unpack_many(self, ts: np.ndarray, ys: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None: ...
 
     def seed(self, q: np.ndarray) -> None: ...
+
+    def state_entry(self, j: int) -> tuple[int, int] | None: ...
 
     def frozen_state(self) -> dict: ...
 

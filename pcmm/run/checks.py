@@ -9,11 +9,17 @@ here at once, each problem naming the file and the field:
   guard coordinate set; a loop: assembled with the guard as one more equation), every link the
   target configuration shares with the source sits where the source puts it;
 * **the contact at the guard value**: the two contact points meet (gap zero along the normal and
-  nothing across it), and the normal is the direction in which the pair's joint moves the contact
-  point: for a revolute pair, perpendicular to the lever from the joint axis to the contact point
-  (how far it is off, in degrees); it points from a towards b, so the guard's direction approaches;
+  nothing across it); for a frictionless contact on a pair joined by one joint, the normal is the
+  direction in which that joint moves the contact point (for a revolute pair, perpendicular to the
+  lever from the joint axis; how far it is off, in degrees): an error between two moving links, a
+  warning against a wall (:mod:`pcmm.events.contact_faults` says why); it points from a towards b,
+  so the guard's direction approaches;
 * **reach**: each guard value lies in the range its coordinate can reach (the URDF's joint limits;
   a loop that cannot close there), else a warning;
+* **freedom at an impact**: a contact whose configuration has no free coordinate at the guard's
+  posture (nv minus the rank of the loops' and drives' rows is 0: a driven slider-crank striking
+  with its slider) can take no impulse, and the run would stop at the strike: a warning naming the
+  drives;
 * **units**: a guard on an angle (a revolute joint, a link's angle, the angle between two links)
   whose value lies outside [-2 pi, 2 pi] was most likely written in degrees: a warning that
   gives the value in radians (``"-50 deg"``).
@@ -29,6 +35,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..model.assembly import _distance, _near, _revolute
 from ..model.configuration import Configuration
 from ..model.mechanism import Mechanism
 from ..errors import PcmmError
@@ -73,23 +80,85 @@ def _guard_row(cfg: Configuration, tr: TransitionSpec, q):
     return gap(q) - tr.guard.value, grad
 
 
-def guard_posture(cfg: Configuration, tr: TransitionSpec, q_start) -> tuple[np.ndarray, float]:
-    """The posture nearest ``q_start`` (minimum-norm Newton steps) with the guard at its value
-    and every loop closed; returns (q, largest residual), the residual ~1e-13 when reached."""
+#: quarter and eighth turns added, one revolute coordinate at a time, to the start of the guard's Newton
+#: solve: a start where the guard's gradient vanishes (a pendulum hanging level over a wall: the gap is
+#: stationary there) makes no step, and a start far from the posture may land a turn away
+START_SHIFTS = (0.25 * math.pi, -0.25 * math.pi, 0.5 * math.pi, -0.5 * math.pi, math.pi)
+
+
+def _newton(cfg: Configuration, tr: TransitionSpec, q_start, iterations: int) -> tuple[np.ndarray, float]:
+    """Minimum-norm Newton steps from ``q_start`` to the guard at its value with every loop closed;
+    (q, largest residual), the residual ~1e-13 when reached, inf when the steps blew up."""
     q = np.array(q_start, dtype=float)
     worst = math.inf
-    for _ in range(60):
+    for _ in range(iterations):
         phi, Jq = _closure(cfg, q)
         r, g = _guard_row(cfg, tr, q)
         res = np.append(phi, r)
         worst = float(np.max(np.abs(res)))
         if worst < NEWTON_TOL:
             break
-        step = np.linalg.lstsq(np.vstack([Jq, g]), -res, rcond=None)[0]
-        q = q + step
+        q = q + np.linalg.lstsq(np.vstack([Jq, g]), -res, rcond=None)[0]
         if not np.all(np.isfinite(q)):
-            return q_start, math.inf
+            return np.array(q_start, dtype=float), math.inf
     return q, worst
+
+
+def _outside_limits(cfg: Configuration, q) -> bool:
+    return any(not lo - 1e-12 <= float(q[cfg.joint_slice[n].start]) <= hi + 1e-12
+               for n, j in cfg.spec.info.joints.items()
+               if j.limits is not None and n in cfg.joint_slice and j.type in ("revolute", "prismatic")
+               for lo, hi in [j.limits])
+
+
+def guard_posture(cfg: Configuration, tr: TransitionSpec, q_start) -> tuple[np.ndarray, float]:
+    """The posture nearest ``q_start`` with the guard at its value and every loop closed; returns
+    (q, largest residual), the residual ~1e-13 when reached (else the smallest any start left).
+
+    Newton (minimum-norm steps) runs from ``q_start`` and from starts with one revolute coordinate
+    turned by :data:`START_SHIFTS`, as the assembly tries several (:func:`pcmm.model.assembly._candidates`);
+    of the postures reached, each revolute angle taken within pi of the start, the nearest to the start
+    within the URDF's joint limits wins (one outside them only when no other is found); of two as near,
+    the lower in gravity's potential, where a mechanism released at rest goes."""
+    q0 = np.array(q_start, dtype=float)
+    rev = np.flatnonzero(_revolute(cfg))
+    starts = [q0] + [q0 + shift * np.eye(cfg.nv)[i] for i in rev for shift in START_SHIFTS]
+    reached, closest = [], (q0, math.inf)
+    for k, start in enumerate(starts):
+        q, residual = _newton(cfg, tr, start, 60 if k == 0 else 30)
+        if residual < 1e-9:
+            q = _near(cfg, q, q0)
+            far = round(float(np.max(_distance(cfg, q, q0), initial=0.0)), 9)
+            reached.append((_outside_limits(cfg, q), far, cfg.gravity_energy(q), q, residual))
+        elif residual < closest[1]:
+            closest = (q, residual)
+    if not reached:
+        return closest
+    _, _, _, q, residual = min(reached, key=lambda c: c[:3])
+    return q, residual
+
+
+# ---- freedom at an impact ----------------------------------------------------------------------
+def no_free_coordinate(scene: Scene, cfg: Configuration, q) -> str | None:
+    """The warning for an impact at ``q`` in a configuration whose rows (loops and drives) leave no
+    free coordinate: nv minus the rank of the velocity rows is 0, so no impulse can change a
+    velocity and the run stops at the strike; None when a coordinate is free."""
+    drives = getattr(cfg.coords, "drives", None)
+    joints = tuple(drives.joints) if drives is not None else ()
+    _, Jq = cfg.coords.loop_rows(q)
+    Jd = np.zeros((len(joints), cfg.nv))
+    Jd[np.arange(len(joints)), [cfg.joint_slice[j].start for j in joints]] = 1.0
+    rows = np.vstack([Jq, Jd])
+    if cfg.nv - (np.linalg.matrix_rank(rows) if rows.shape[0] else 0) > 0:
+        return None
+    loops = cfg.nv - (np.linalg.matrix_rank(Jq) if Jq.shape[0] else 0)
+    named = ", ".join(f"drives[{i}] ('{d.joint}')" for i, d in enumerate(scene.drives) if d.joint in joints)
+    why = (f"its loops leave {loops} and {named} prescribe{'s' if len(joints) == 1 else ''} "
+           f"{'it' if loops == 1 else 'them'}" if loops and joints else "its loops fix them all")
+    return (f"at the guard's posture configuration '{cfg.name}' has no free coordinate ({cfg.nv} coordinates; "
+            f"{why}): the impact cannot change a velocity and the run will stop at the strike. A driven joint "
+            "takes the freedom an impact needs: give the struck part a freedom of its own (e.g. on a spring), "
+            "or drive it by a motor torque (a `torque` force) instead of a drive")
 
 
 # ---- units -------------------------------------------------------------------------------------
@@ -160,14 +229,20 @@ def check_scene(scene: Scene, mechanism: Mechanism | None = None) -> CheckReport
                 report.warnings.append(f"{here}.guard.value: {degrees}")
             q, residual = guard_posture(cfg, tr, starts[name])
             if residual > 1e-9:
-                what = "the loop cannot close" if cfg.coords.constrained else "no posture reaches it"
+                what = "closing the loop" if cfg.coords.constrained else "reaching it"
+                tries = 1 + len(START_SHIFTS) * int(np.count_nonzero(_revolute(cfg)))
                 report.warnings.append(
-                    f"{here}.guard.value: = {tr.guard.value:.12g}: {what} with the guard there (closest "
-                    f"residual {residual:.3g}): the guard may never fire; check its value and direction")
+                    f"{here}.guard.value: = {tr.guard.value:.12g}: no posture {what} with the guard there was "
+                    f"found from {tries} starts near the initial posture (closest residual {residual:.3g}); "
+                    "either none exists and the guard never fires, or the solve could not tell (its "
+                    "contact and pose checks were skipped); check the guard's value and direction")
                 continue
             report.postures[tr.name] = q
+            if tr.contact is not None and (stuck := no_free_coordinate(scene, cfg, q)) is not None:
+                report.warnings.append(f"{here}.contact: {stuck}")
             report.warnings += [f"{here}.guard.value: = {tr.guard.value:.12g}: {w}" for w in _limits(cfg, q)]
-            report.problems += [f"{here}.{f.field}: {f.text}" for f in contact_findings(cfg, tr, q)]
+            for f in contact_findings(cfg, tr, q, warnings=True):
+                (report.warnings if f.warning else report.problems).append(f"{here}.{f.field}: {f.text}")
             target = tr.merge_to if tr.type == "stop" else tr.target
             if target is None or target not in scene.configurations:
                 continue

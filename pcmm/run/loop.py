@@ -14,6 +14,7 @@ from __future__ import annotations
 import math
 import os
 import time
+import weakref
 from dataclasses import replace
 
 import numpy as np
@@ -111,8 +112,8 @@ def simulate(scene: Scene | str | os.PathLike, options: RunOptions = RunOptions(
             if seg.event is None:
                 break
             run.t, run.y = float(seg.t[-1]), seg.y[:, -1]
-            run.q, run.v = run.cfg.coords.unpack(run.t, run.y)
             guard = guards[seg.event]
+            run.q, run.v = _at_event(run.cfg.coords, seg, guard, run.q)
             # what the guard fires (the paper's Fig. 3 boxes): one entry per kind
             switched = GUARD_ACTIONS[action_of(run, guard)](run, guard)
             if switched and run.t >= run.opts.t_end:
@@ -189,12 +190,12 @@ def integrate_segment(run: RunState, progress):
     fun = cfg.coords.rhs
     if run.phase is not None:  # the collision's impulse integrated with the state
         guards = [run.phase.end_guard()] + [g.on_state(y0.size) for g in guards]
-        y0, fun = np.append(y0, 0.0), run.phase.rhs()
+        y0, fun = _appended(y0), run.phase.rhs()
     elif flight:  # integrated with its work appended, as it always was: that component takes part in
         # the step-size control, and the accumulation's series were measured with it (the audit
         # itself measures the work by its own quadrature, pcmm.run.audit)
-        guards = [g.on_state(y0.size) for g in guards]
-        y0, fun = np.append(y0, 0.0), cfg.coords.rhs_with_power
+        guards = _on_state(guards, y0.size, run.kept_guards)
+        y0, fun = _appended(y0), cfg.coords.rhs_with_power
     stepping = run.stepping = (fun, method_for(run.opts.method, cfg.coords.constrained), run.opts)  # for dense resampling
     # a flight keeps each step's dense output as taken, for its audit (measured when it ends, then dropped)
     seg = _integrate(run, _reporting(fun, progress) if progress is not None else fun, stepping, y0, guards, pending,
@@ -262,6 +263,23 @@ def _at_last_step(coords, seg: Segment, q_start):
 #: how far the run's own solution at a segment's last step may be from its reader's and still be
 #: the same posture (the solves' disagreement near a degenerate block is about 1e-8)
 SAME_ASSEMBLY = 1e-6
+
+
+def _at_event(coords, seg: Segment, guard, q_start):
+    """``(q, v)`` where a segment ended at its guard: the run's own solution there; where the guard is
+    a loop's singularity guard (its partition degenerates, the next segment starts a new one), the
+    posture its reader follows along the segment (:func:`_at_last_step`) wherever the run's own lies on
+    another assembly.  The event was located by solves warm-started from the step's samples, up to
+    across the change point: at 0.613 rad (benchmarks/change_point_survey.py, "auto") they put the
+    event on the anti-parallelogram, (3.213, -3.177, 3.106) for (3.106, -3.106, 3.106), and the next
+    segment went on there (tests/test_loop_turns.py).  A reader that cannot follow the segment (a
+    singular posture on the way) leaves the run's own: the new partition decides there."""
+    if guard.action != "repartition" or getattr(guard, "payload", None) is not None or seg.t.size < 2:
+        return coords.unpack(float(seg.t[-1]), seg.y[:, -1])
+    try:
+        return _at_last_step(coords, seg, q_start)
+    except SimulationError:
+        return coords.unpack(float(seg.t[-1]), seg.y[:, -1])
 
 
 def _integrate(run: RunState, fun, stepping, y0, guards, pending, keep_dense=False) -> Segment | None:
@@ -378,14 +396,19 @@ def check_start(scene: Scene, cfg: Configuration, t, q, v) -> None:
         past = tr.guard.direction * guard_residual(cfg, tr, t, y0)
         if not past > POSE_TOL * max(1.0, abs(tr.guard.value)):
             continue
-        _, _, vn, _ = contact_state(cfg, q, v, tr.contact)
+        _, gap, vn, _ = contact_state(cfg, q, v, tr.contact)
         if tr.guard.type == "gap" or vn < 0:
+            # along -n the gap is -gap: were the normal flipped, would the run start on the guard's near side?
+            flipped = tr.guard.type == "gap" and tr.guard.direction * (-gap - tr.guard.value) <= 0
+            flip = (f"; or, if they are apart already (b's point {abs(gap):.3g} m from a's along -n, on the side "
+                    f"opposite the normal), the normal points from b to a: flip contact.normal to "
+                    f"[{-tr.contact.normal[0] + 0.0:g}, {-tr.contact.normal[1] + 0.0:g}]" if flipped else "")
             raise SimulationError(
                 f"{scene.path}: transition '{tr.name}': the run starts on the far side of its guard "
                 f"({'gap' if tr.guard.type == 'gap' else str(tr.guard.measure)} is {past:.3g} past the "
                 f"value {tr.guard.value:g} in its direction) while the contact "
                 f"{'penetrates' if tr.guard.type == 'gap' else 'approaches'}: the bodies start inside the "
-                "stop, and the guard would never fire; start the bodies apart (initial.q)")
+                f"stop, and the guard would never fire; start the bodies apart (initial.q){flip}")
 
 
 KNOWN_MOTION_SAMPLES = 200  # samples of a locked or fully driven stay (at most, and at least 1 / step)
@@ -439,9 +462,9 @@ def _guards(scene: Scene, cfg: Configuration, holds: Holds, t: float, phase, bou
     state alone, not of ``t``, the holds or the events so far), a call for the same configuration,
     the same bounced stop and the same angle offsets (they move the measures:
     :meth:`Configuration.continue_angles`) takes those guards again: a sequence of bounces at one
-    stop builds them once."""
+    stop builds them once; and the merges' guards likewise (:func:`_unmerge_guards`)."""
     key = (cfg, bounced, cfg.angle_offsets)
-    if kept and phase is None and kept[0][0] is cfg and kept[0][1] is bounced and kept[0][2] == key[2]:
+    if kept and kept[0] is not None and phase is None and kept[0][0] is cfg and kept[0][1] is bounced and kept[0][2] == key[2]:
         out = list(kept[1])
     else:
         out = []
@@ -456,9 +479,53 @@ def _guards(scene: Scene, cfg: Configuration, holds: Holds, t: float, phase, bou
             if g is not None:
                 out.append(g)
         if kept is not None:
-            kept[:] = [key, tuple(out)] if reusable else []
-    out += holds.unmerge_guards(cfg)
+            kept[:2] = [key, tuple(out)] if reusable else [None, ()]
+    out += _unmerge_guards(cfg, holds, phase, kept)
     out += cfg.coords.guards()  # the coordinates' own: a loop's partition guard
+    return out
+
+
+def _unmerge_guards(cfg: Configuration, holds: Holds, phase, kept) -> list:
+    """The guards of the merges held by compression only (:meth:`Holds.unmerge_guards`).  ``kept[2]``:
+    those of the last call and what they were built for: the configuration (the same object), its
+    angle offsets and the holds (the same ``Hold`` objects), outside a contact phase.  A call that
+    finds them all the same takes those guards again: the run has stayed in ``cfg`` since (a bounce
+    does not switch), so nothing their holding-force evaluator was built from has changed (the
+    reference configuration changes only when the run enters it, the holds only by a lock, a
+    release or a switch), and a sequence of bounces builds them once."""
+    if kept is None:
+        return holds.unmerge_guards(cfg)
+    items = holds.items
+    last = kept[2] if len(kept) > 2 else None
+    if (phase is None and last is not None and last[0] is cfg and last[1] == cfg.angle_offsets
+            and len(last[2]) == len(items) and all(a is b for a, b in zip(last[2], items))):
+        return list(last[3])
+    out = holds.unmerge_guards(cfg)
+    while len(kept) < 3:
+        kept.append(None)
+    kept[2] = (cfg, cfg.angle_offsets, tuple(items), tuple(out)) if phase is None else None
+    return out
+
+
+def _appended(y0: np.ndarray) -> np.ndarray:
+    """``y0`` with a 0.0 appended (``np.append(y0, 0.0)``'s values, without its ravel and dispatch)."""
+    y = np.empty(y0.size + 1)
+    y[:-1] = y0
+    y[-1] = 0.0
+    return y
+
+
+def _on_state(guards: list, n: int, kept: list) -> list:
+    """Each guard read on the first ``n`` components of the state (:meth:`Guard.on_state`).  ``kept[3]``:
+    the guards of the last call, ``n`` and their copies: where the guards are the same objects (a
+    sequence of bounces re-arming with the kept guards, :func:`_guards`) their copies are taken again."""
+    last = kept[3] if len(kept) > 3 else None
+    if last is not None and last[1] == n and len(last[0]) == len(guards) and all(a is b for a, b in zip(last[0], guards)):
+        return list(last[2])
+    out = [g.on_state(n) for g in guards]
+    while len(kept) < 4:
+        kept.append(None)
+    kept[3] = (tuple(guards), n, tuple(out))
     return out
 
 
@@ -466,8 +533,10 @@ def _pending(cfg: Configuration, guards, t, y0):
     """Index of a guard that is already at or past its crossing at the start of a segment
     while its contact still approaches: a contact that closed at the same instant as the
     impact just resolved; or a merge (or a pinned point) whose holding force is already tensile (it never held).  It is resolved now, before any integration (sequential impacts
-    in scene order); a step would never see it change sign."""
-    q, v = cfg.coords.unpack(t, y0)
+    in scene order); a step would never see it change sign.  The state is unpacked to ``(q, v)``
+    only where a contact's normal speed needs it (a joint stop whose rate is an entry of the state
+    reads it there: :func:`_stop_speed`)."""
+    state = None  # (q, v), when first needed
     for i, g in enumerate(guards):
         if g.action in ("unmerge", "lift-off") and g(t, y0) < 0:
             return i  # the merge or pin would have to pull from its first instant: the bodies separate now
@@ -480,14 +549,42 @@ def _pending(cfg: Configuration, guards, t, y0):
         at_value = 64 * EPS * max(1.0, abs(tr.guard.value))
         if value < -at_value or value > POSE_TOL:  # not at its crossing (far past it: entered from the other side)
             continue
-        vn = normal_speed(cfg, q, v, tr.contact)
+        vn = _stop_speed(cfg.coords, cfg, y0, tr.contact)
+        if vn is None:
+            if state is None:
+                state = cfg.coords.unpack(t, y0)
+            vn = normal_speed(cfg, *state, tr.contact)
         if vn < -1e-12:
             return i
-        if abs(vn) <= 1e-12 and _pushed_closed(cfg, t, q, v, tr.contact):
-            # at rest against the contact and pushed into it: it closes now (with no impulse),
-            # whichever side of the guard round-off left the state on
-            return i
+        if abs(vn) <= 1e-12:
+            if state is None:
+                state = cfg.coords.unpack(t, y0)
+            if _pushed_closed(cfg, t, *state, tr.contact):
+                # at rest against the contact and pushed into it: it closes now (with no impulse),
+                # whichever side of the guard round-off left the state on
+                return i
     return None
+
+
+#: {coordinates: {joint coordinate: where its rate sits in the state, or None}} (``state_entry``)
+_RATE_ENTRIES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def _stop_speed(coords, cfg: Configuration, y0, contact):
+    """A joint stop's normal speed ``-s v_j`` (:func:`normal_speed`'s ``J_n v``, the same number) read
+    off the state where the joint's rate is an entry of it (``coords.state_entry``: a tree's, or a free
+    coordinate beside drives without a loop; its rate is then its velocity); None otherwise."""
+    if contact.joint is None:
+        return None
+    j = cfg.joint_slice[contact.joint].start
+    entries = _RATE_ENTRIES.get(coords)
+    if entries is None:
+        entries = _RATE_ENTRIES[coords] = {}
+    if j not in entries:
+        at = coords.state_entry(j)
+        entries[j] = None if at is None or cfg.joint_slice[contact.joint].stop - j != 1 else at[1]
+    r = entries[j]
+    return None if r is None else float(-contact.stop_sign * y0[r])
 
 
 def _pushed_closed(cfg: Configuration, t, q, v, contact) -> bool:
