@@ -15,9 +15,13 @@ and the run loop all read the contact through this module.
 """
 from __future__ import annotations
 
+import threading
+import weakref
+
 import numpy as np
 import pinocchio as pin
 
+from ..model import compiled
 from ..model.configuration import Configuration
 from ..model.pinocchio_helpers import LWA, frame_jacobian
 from ..scene.spec import ContactSpec
@@ -72,12 +76,59 @@ def contact_state(cfg: Configuration, q, v, contact: ContactSpec):
 
 def normal_speed(cfg: Configuration, q, v, contact: ContactSpec) -> float:
     """``vn`` of :func:`contact_state` alone: for a joint stop the joint's own row times v
-    (the same product, without the kinematics pass the normal needs), else from the state."""
+    (the same product, without the kinematics pass the normal needs); a tree's point contact by
+    its compiled evaluation (:func:`compiled_contact`); else from the state."""
     if contact.joint is not None:
         Jn = np.zeros(cfg.nv)
         Jn[cfg.joint_slice[contact.joint].start] = -contact.stop_sign
         return float(Jn @ v)
+    desc = compiled_contact(cfg, contact)
+    if desc is not None:
+        return compiled.normal_speed(desc, np.concatenate((q, v)))
     return contact_state(cfg, q, v, contact)[2]
+
+
+#: whether a tree's point contact is evaluated in C++ (pcmm/model/_guard_eval.hpp): its gap guard (which
+#: the compiled segment loop then scans and the compiled locator locates, pcmm.events.guards) and its
+#: normal speed; off, they run through Pinocchio's Python binding (the reference the tests compare with)
+COMPILED_CONTACTS = True
+
+
+class _Described(threading.local):
+    """This thread's compiled descriptions (each holds a compiled tree whose Data is this thread's
+    scratch space): ``{configuration: {(contact, value): description or None}}``."""
+
+    def __init__(self):
+        self.by_cfg = weakref.WeakKeyDictionary()
+
+
+_DESCRIBED = _Described()
+
+
+def compiled_contact(cfg: Configuration, contact: ContactSpec, value: float = 0.0):
+    """The compiled description of the gap guard ``gap - value`` of ``contact`` (pcmm/model/_guard_eval.hpp,
+    :func:`pcmm.model.compiled.gap_guard`) where the configuration is a tree whose state is ``[q, v]`` (no
+    loop, drive or planar joint) and the contact is between two points (not a joint stop), checked against
+    :func:`contact_state`, :func:`gap_rate` and the normal speed at probe states; else None (Python runs)."""
+    if not COMPILED_CONTACTS or contact.joint is not None or not compiled.enabled():
+        return None
+    known = _DESCRIBED.by_cfg.setdefault(cfg, {})
+    key = (contact, float(value))
+    if key in known:
+        return known[key]
+    desc = None
+    if not cfg.coords.constrained and not cfg.has_planar:
+        unpack = cfg.coords.unpack
+
+        def reference(t, y):
+            q, v = unpack(t, y)
+            _, gap, vn, _ = contact_state(cfg, q, v, contact)
+            return gap - value, gap_rate(cfg, q, v, contact), vn
+        pa, pb = cfg.point(contact.a, contact.point_a), cfg.point(contact.b, contact.point_b)
+        desc = compiled.gap_guard(cfg.model, pa.frame_id, pb.frame_id, cfg.link_frame[contact.a], contact.normal,
+                                  value, reference)
+    known[key] = desc
+    return desc
 
 
 def gap_rate(cfg: Configuration, q, v, contact: ContactSpec) -> float:

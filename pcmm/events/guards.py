@@ -17,8 +17,9 @@ import math
 
 import numpy as np
 
+from ..model import compiled
 from ..model.configuration import Configuration
-from .contact import contact_state, gap_rate
+from .contact import compiled_contact, contact_state, gap_rate
 from ..scene.spec import TransitionSpec
 from ..ode.witness import Guard
 from .holding import guard_value as holding_guard_value
@@ -109,6 +110,19 @@ def _gap(cfg: Configuration, tr: TransitionSpec, ctx=None):
 
     def rate(t, y, f):
         return gap_rate(cfg, *unpack(t, y), tr.contact)
+    desc = compiled_contact(cfg, tr.contact, tr.guard.value)  # a tree's point contact: in C++
+    if desc is None:
+        return value, rate
+    # compiled: the same value and rate (checked at probe states) from one C++ call each, here too (the
+    # steps the segment loop hands back, the event's residual), not only in the compiled loop and locator
+    evaluate = compiled.guard_value
+
+    def value(t, y):
+        return evaluate(desc, y)[0]
+
+    def rate(t, y, f):
+        return evaluate(desc, y)[1]
+    value.evaluator = desc
     return value, rate
 
 
@@ -245,6 +259,9 @@ def make_guard(cfg: Configuration, tr: TransitionSpec, rearm: bool = False, cont
             return None if got is None else got[0].tolist()
     affine = _affine(cfg, tr, context) if tr.guard.when is None and not rearm else None
     linear = getattr(raw, "linear", None) if tr.guard.when is None else None
+    evaluator = getattr(raw, "evaluator", None) if tr.guard.when is None else None
+    if evaluator is not None:  # read in C++ at a state (a contact gap), plain or re-armed as below
+        evaluator = (evaluator, bool(rearm), UNFIRED)
     if linear is None and tr.guard.when is None and raw_rate is not None:
         plain = affine if not rearm else _affine(cfg, tr, context)
         if plain is not None and plain[0] is not None:  # a tree's joint-angle guard: rate row @ v
@@ -280,7 +297,7 @@ def make_guard(cfg: Configuration, tr: TransitionSpec, rearm: bool = False, cont
                 return [val if direction * r > 0.0 else -direction * max(-direction * val, UNFIRED)
                         for val, r in zip(got[0].tolist(), got[1].tolist())]
     return Guard(_describe(tr), value, direction, "transition", tr, rate, rate is not None, many=many,
-                 affine=affine, linear=linear, holding=holding, loop_scan=loop_scan)
+                 affine=affine, linear=linear, holding=holding, loop_scan=loop_scan, evaluator=evaluator)
 
 
 def _affine(cfg: Configuration, tr: TransitionSpec, context=None):

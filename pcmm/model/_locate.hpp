@@ -7,7 +7,8 @@
 // states are the Python dense outputs' to the bit (pcmm.ode.integrators._Contd8, pcmm.ode.dop853.DenseStep).
 // The guard is linear in the state: its value g = c . y + ct t + d and its rate g' = r . y + rt
 // (c, r over the first len(c) components of y), as the Guard's ``linear`` declares it: a joint
-// coordinate that is an entry of the state, a tree's joint-angle guard, a time guard.  A re-armed
+// coordinate that is an entry of the state, a tree's joint-angle guard, a time guard.  Or it is read
+// by a guard evaluator (_guard_eval.hpp, the Guard's ``evaluator``: a contact gap) at the dense state.  A re-armed
 // guard (right after a bounce, pcmm.events.guards.make_guard) reads -direction max(-direction g, UNFIRED)
 // until its rate approaches the fired side.
 //
@@ -22,6 +23,10 @@ struct LocateGuard {
   double ct, d, rt, direction;
   bool rearm;
   double unfired;
+  // a guard that is not linear in the state (_guard_eval.hpp: a contact gap), else null: its value and
+  // rate from the dense state (its first 2 eval->nv components, into `state`) instead of the rows
+  const GuardEval *eval = nullptr;
+  double *state = nullptr;
 };
 
 struct LocateDense {
@@ -33,6 +38,16 @@ struct LocateDense {
 // the guard's raw value and rate at time u on the dense output (only the components the rows read)
 inline void locate_raw(const LocateDense &dn, const LocateGuard &g, double u, double &val, double &rate) {
   const double s = (u - dn.t_old) / dn.h, s1 = 1.0 - s;
+  if (g.eval) {  // the dense state the guard reads, component by component as below, then the guard at it
+    const int ny = dn.ny;
+    for (int i = 0; i < 2 * g.eval->nv; ++i) {
+      const double *c = dn.cont + i;
+      const double par = c[4 * ny] + s * (c[5 * ny] + s1 * (c[6 * ny] + s * c[7 * ny]));
+      g.state[i] = c[0] + s * (c[ny] + s1 * (c[2 * ny] + s * (c[3 * ny] + s1 * par)));
+    }
+    guard_eval(*g.eval, g.state, val, rate, nullptr);
+    return;
+  }
   double dot_c = 0.0, dot_r = 0.0;
   for (int i = 0; i < g.n; ++i) {
     if (g.c[i] == 0.0 && g.r[i] == 0.0) continue;
@@ -277,10 +292,50 @@ PyObject *locate_py(PyObject *, PyObject *const *args, Py_ssize_t nargs) {
   return PyFloat_FromDouble(t);
 }
 
+// locate_guard(t_old, h, cont, t_a, t_b, g_a, tol, direction, description, rearm, unfired) -> t or None: the
+// same for a guard that is not linear in the state, read by its description (_guard_eval.hpp)
+PyObject *locate_guard_py(PyObject *, PyObject *const *args, Py_ssize_t nargs) {
+  if (nargs != 11) {
+    PyErr_SetString(PyExc_TypeError,
+                    "locate_guard(t_old, h, cont, t_a, t_b, g_a, tol, direction, description, rearm, unfired) takes 11 arguments");
+    return nullptr;
+  }
+  double num[11];
+  const int scalars[] = {0, 1, 3, 4, 5, 6, 7, 10};
+  for (int i : scalars) {
+    num[i] = PyFloat_AsDouble(args[i]);
+    if (num[i] == -1.0 && PyErr_Occurred()) return nullptr;
+  }
+  PyArrayObject *cont = locate_array(args[2], "the dense output's coefficients");
+  if (!cont) return nullptr;
+  GuardEval eval;
+  if (!guard_eval_read(args[8], eval)) return nullptr;
+  const int rearm = PyObject_IsTrue(args[9]);
+  if (rearm < 0) return nullptr;
+  if (PyArray_NDIM(cont) != 2 || PyArray_DIM(cont, 0) != 8 || 2 * eval.nv > PyArray_DIM(cont, 1)) {
+    PyErr_SetString(PyExc_ValueError, "locate_guard: the coefficients must be 8 x ny, ny at least the guard's state");
+    return nullptr;
+  }
+  std::vector<double> state(2 * (size_t)eval.nv);
+  LocateDense dn{(const double *)PyArray_DATA(cont), (int)PyArray_DIM(cont, 1), num[0], num[1]};
+  LocateGuard g{nullptr, nullptr, 0, 0.0, 0.0, 0.0, num[7], rearm != 0, num[10], &eval, state.data()};
+  double t;
+  if (!locate_first(dn, g, num[3], num[4], num[5], num[6], t)) Py_RETURN_NONE;
+  return PyFloat_FromDouble(t);
+}
+
 PyMethodDef locate_methods[] = {
     {"locate", (PyCFunction)(void (*)(void))locate_py, METH_FASTCALL,
      "locate(t_old, h, cont, t_a, t_b, g_a, tol, direction, c, ct, d, r, rt, rearm, unfired) -> the first crossing "
      "of a guard linear in the state on a step's contd8 dense output, or None (_locate.hpp)"},
+    {"locate_guard", (PyCFunction)(void (*)(void))locate_guard_py, METH_FASTCALL,
+     "locate_guard(t_old, h, cont, t_a, t_b, g_a, tol, direction, description, rearm, unfired) -> the first "
+     "crossing of a guard read by its description (a contact gap, _guard_eval.hpp) on a step's contd8 dense "
+     "output, or None"},
+    {"guard_value", (PyCFunction)(void (*)(void))guard_value_py, METH_FASTCALL,
+     "guard_value(description, y) -> (value, rate) of a guard read by its description (_guard_eval.hpp)"},
+    {"normal_speed", (PyCFunction)(void (*)(void))normal_speed_py, METH_FASTCALL,
+     "normal_speed(description, y) -> n . (v_b - v_a) of a contact gap's description at the state y (_guard_eval.hpp)"},
     {nullptr, nullptr, 0, nullptr}};
 
 int add_locate(PyObject *m) { return PyModule_AddFunctions(m, locate_methods); }

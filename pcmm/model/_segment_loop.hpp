@@ -48,6 +48,9 @@
 // Its guards on the solved coordinates (a joint coordinate's c.q + d, rate c.q', plain or re-armed
 // after a bounce) and its partition's singularity guard (the dependent block's scaled determinant) are
 // scanned here too ("solved" guards), on the Loop's solution at each accepted step's end.
+// A guard that is not linear in the state but has a compiled evaluator (_guard_eval.hpp: a tree's contact
+// gap, `evaluated`) is scanned here too: its value and exact rate at each accepted step's end, plain or
+// re-armed after a bounce, so a bouncing tree's flight comes back to Python only where a guard may fire.
 
 struct Loop;  // _loops.hpp
 Loop *segment_loop_owner(PyObject *obj);
@@ -184,11 +187,14 @@ struct SegmentLoop {
   int nv;  // a loop's coordinates (the rows of its solved guards)
   std::vector<HoldingGuard> *holding;  // guards on holding forces, scanned with their compiled solve
   std::vector<double> *g_start, *r_start, *probe;  // a candidate's start values and rates; scratch
+  // guards read by a compiled evaluator (kind EVALUATED): (guard j, its evaluator); their descriptions held
+  std::vector<std::pair<int, GuardEval>> *evaluated;
+  std::vector<PyObject *> *evaluated_held;
 };
 
 namespace {
 
-enum { SOLVED_COORDINATE = 0, SOLVED_SINGULARITY = 1 };
+enum { SOLVED_COORDINATE = 0, SOLVED_SINGULARITY = 1, EVALUATED = 2 };
 constexpr int FAILED = -10;  // run(): the fallback raised (run() raises it)
 
 // a call the Loop declined, taken by the Python evaluation (with the GIL): false where that raised (kept
@@ -270,7 +276,7 @@ void solved_guard_values(SegmentLoop *s, double t, const double *y, double *g, d
   const bool solved = segment_loop_solved(s->loop, t, y, &q, &qd);
   for (int j = 0; j < s->m; ++j) {
     const int kind = (*s->guard_kind)[j];
-    if (kind < 0) continue;
+    if (kind < 0 || kind == EVALUATED) continue;
     if (!solved) {
       g[j] = r[j] = (*s->g_scale)[j] = std::nan("");
       continue;
@@ -292,14 +298,7 @@ void solved_guard_values(SegmentLoop *s, double t, const double *y, double *g, d
       rate = segment_loop_det_rate(s->loop, t);
       scale = 1.0;
     }
-    const double unfired = (*s->guard_unfired)[j], direction = (*s->guard_dir)[j];
-    if (unfired > 0) {  // re-armed after a bounce (pcmm.events.guards.make_guard, rearm)
-      if (!(direction * rate > 0.0)) {
-        const double held = -direction * std::max(-direction * value, unfired);
-        if (!(-direction * value > unfired)) rate = 0.0;
-        value = held;
-      }
-    }
+    guard_rearmed((*s->guard_dir)[j], (*s->guard_unfired)[j], value, rate);  // re-armed after a bounce, or plain
     g[j] = value;
     r[j] = rate;
     (*s->g_scale)[j] = scale;
@@ -348,6 +347,15 @@ bool guard_values(SegmentLoop *s, double t, const double *y, const double *f, do
     (*s->g_scale)[j] = scale;
   }
   if (s->loop) solved_guard_values(s, t, y, g, r);
+  for (auto &je : *s->evaluated) {  // a contact gap: its value and exact rate at the state, re-armed or plain
+    const int j = je.first;
+    double value, rate, scale;
+    guard_eval(je.second, y, value, rate, &scale);
+    guard_rearmed((*s->guard_dir)[j], (*s->guard_unfired)[j], value, rate);
+    g[j] = value;
+    r[j] = rate;
+    (*s->g_scale)[j] = scale;
+  }
   return ok;
 }
 
@@ -822,6 +830,37 @@ int read_solved(SegmentLoop *s, PyObject *obj) {
   return 0;
 }
 
+// evaluated: a sequence of (guard j, description (_guard_eval.hpp), unfired (0: plain)), guards of a tree
+// without drives (a contact gap reads its q, v); 0, or -1 with the error set
+int read_evaluated_guards(SegmentLoop *s, PyObject *obj) {
+  PyObject *seq = PySequence_Fast(obj, "evaluated: a sequence of (guard, description, unfired)");
+  if (!seq) return -1;
+  for (Py_ssize_t k = 0; k < PySequence_Fast_GET_SIZE(seq); ++k) {
+    int j;
+    PyObject *desc;
+    double unfired;
+    GuardEval eval;
+    if (!PyArg_ParseTuple(PySequence_Fast_GET_ITEM(seq, k), "iOd", &j, &desc, &unfired) || !guard_eval_read(desc, eval)) {
+      Py_DECREF(seq);
+      return -1;
+    }
+    if (j < 0 || j >= s->m || (*s->guard_kind)[j] != -1 || s->loop || s->tree->drives || eval.nv != s->tree->nv ||
+        2 * eval.nv > s->n) {
+      PyErr_Format(PyExc_ValueError, "evaluated: guard %d is not an unclaimed guard of this loop, or its evaluator does "
+                   "not read this tree's state (a tree without drives or loops, %d coordinates)", j, s->tree->nv);
+      Py_DECREF(seq);
+      return -1;
+    }
+    Py_INCREF(desc);
+    s->evaluated_held->push_back(desc);
+    s->evaluated->emplace_back(j, eval);
+    (*s->guard_kind)[j] = EVALUATED;
+    (*s->guard_unfired)[j] = unfired;
+  }
+  Py_DECREF(seq);
+  return 0;
+}
+
 // holding: a sequence of (guard j, HoldingForces, index, offset); 0, or -1 with the error set
 int read_holding_guards(SegmentLoop *s, PyObject *obj, int n) {
   PyObject *seq = PySequence_Fast(obj, "holding: a sequence of (guard, HoldingForces, index, offset)");
@@ -861,18 +900,21 @@ PyObject *new_vector(const double *x, npy_intp n) {
 //             evaluation of a call it declines, required); `power` integrates rhs_with_power (a tree with drives, a
 //             loop), `tableau` (scipy's, packed) steps as scipy's DOP853, `keep_dense` keeps every accepted
 //             step's dense output (take_dense()); `solved`: a loop's guards scanned on its solutions, each
-//             (index of the guard, kind (0 coordinate, 1 singularity), row (nv: c.q; None for 1), d, unfired (0: plain))
+//             (index of the guard, kind (0 coordinate, 1 singularity), row (nv: c.q; None for 1), d, unfired (0: plain));
+//             `evaluated`: guards read by a compiled evaluator (a tree's contact gap), each (index of the guard,
+//             description (_guard_eval.hpp), unfired (0: plain))
 PyObject *loop_new(PyTypeObject *type, PyObject *args, PyObject *kwargs) {
   PyObject *tree_o, *y0_o, *c_o, *ct_o, *d_o, *dir_o, *tab_o = Py_None, *fallback_o = Py_None, *solved_o = nullptr;
   double t0, t_bound, rtol, atol, max_step, beta;
   long nmax;
   int every_step, power = 0, keep_dense = 0;
-  PyObject *holding_o = Py_None;
+  PyObject *holding_o = Py_None, *evaluated_o = Py_None;
   static const char *keywords[] = {"", "", "", "", "", "", "", "", "", "", "", "", "", "", "power", "tableau",
-                                   "keep_dense", "fallback", "solved", "holding", nullptr};
-  if (!PyArg_ParseTupleAndKeywords(args, kwargs, "OdOddddldOOOOp|$pOpOOO", (char **)keywords, &tree_o, &t0,
+                                   "keep_dense", "fallback", "solved", "holding", "evaluated", nullptr};
+  if (!PyArg_ParseTupleAndKeywords(args, kwargs, "OdOddddldOOOOp|$pOpOOOO", (char **)keywords, &tree_o, &t0,
                                    &y0_o, &t_bound, &rtol, &atol, &max_step, &nmax, &beta, &c_o, &ct_o, &d_o, &dir_o,
-                                   &every_step, &power, &tab_o, &keep_dense, &fallback_o, &solved_o, &holding_o))
+                                   &every_step, &power, &tab_o, &keep_dense, &fallback_o, &solved_o, &holding_o,
+                                   &evaluated_o))
     return nullptr;
   Loop *owner_loop = nullptr;
   Tree *tree;
@@ -943,6 +985,8 @@ PyObject *loop_new(PyTypeObject *type, PyObject *args, PyObject *kwargs) {
   s->g_start = new std::vector<double>(m);
   s->r_start = new std::vector<double>(m);
   s->probe = new std::vector<double>(n);
+  s->evaluated = new std::vector<std::pair<int, GuardEval>>();
+  s->evaluated_held = new std::vector<PyObject *>();
   if (holding_o != Py_None && read_holding_guards(s, holding_o, n)) {
     Py_DECREF(s);
     return nullptr;
@@ -966,6 +1010,10 @@ PyObject *loop_new(PyTypeObject *type, PyObject *args, PyObject *kwargs) {
     return nullptr;
   }
   if (solved_o && solved_o != Py_None && read_solved(s, solved_o)) {
+    Py_DECREF(s);
+    return nullptr;
+  }
+  if (evaluated_o != Py_None && read_evaluated_guards(s, evaluated_o)) {
     Py_DECREF(s);
     return nullptr;
   }
@@ -1043,6 +1091,10 @@ void loop_dealloc(SegmentLoop *s) {
   delete s->g_start;
   delete s->r_start;
   delete s->probe;
+  if (s->evaluated_held)
+    for (PyObject *desc : *s->evaluated_held) Py_XDECREF(desc);
+  delete s->evaluated_held;
+  delete s->evaluated;
   delete s->tab;
   delete s->stages;
   delete s->F;

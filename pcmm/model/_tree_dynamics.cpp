@@ -773,6 +773,7 @@ PyMethodDef tree_methods[] = {
 
 PyTypeObject TreeType = {PyVarObject_HEAD_INIT(nullptr, 0)};
 
+#include "_guard_eval.hpp"  // guards not linear in the state, evaluated in C++ (a contact gap)
 #include "_holding.hpp"  // the holding forces of the locks in force (pcmm.events.holding)
 #include "_segment_loop.hpp"
 #include "_loops.hpp"

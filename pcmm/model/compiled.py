@@ -157,8 +157,8 @@ def _register_segment_loop(owner: type | None = None, make: Callable | None = No
     says; it ends in :func:`segment_loop`)."""
     locate = getattr(_tree_dynamics, "locate", None)
     if locate is not None:  # the event locator (_locate.hpp), for every configuration's guards from now on
-        from ..ode.integrators import COMPILED_LOCATE
-        COMPILED_LOCATE[:] = [locate, enabled]
+        from ..ode.integrators import COMPILED_LOCATE  # (and of a guard read by its evaluator: a contact gap)
+        COMPILED_LOCATE[:] = [locate, enabled, getattr(_tree_dynamics, "locate_guard", None)]
     loop = getattr(_tree_dynamics, "SegmentLoop", None)
     if loop is not None:
         from ..ode.integrators import SEGMENT_LOOPS
@@ -235,6 +235,55 @@ def holding_forces(model: pin.Model, Q0: np.ndarray, KD: np.ndarray, J: np.ndarr
         _refuse(f"the compiled holding forces refused the configuration: {exc}")
         return None
     return fast, checked
+
+
+def gap_tree(model: pin.Model):
+    """(compiled tree holding every frame of ``model`` at its own index, the names of what was checked on it)
+    for the guards a compiled segment loop and locator read at a state (pcmm/model/_guard_eval.hpp: a
+    contact gap, pcmm.events.guards); its Pinocchio Data is the scratch space of those evaluations alone.
+    None where it cannot be built (why_not says)."""
+    if enabled() and not hasattr(_tree_dynamics, "normal_speed"):  # an extension built before these guards
+        _refuse("this build of pcmm.model._tree_dynamics has no compiled contact gap (built from older sources): "
+                "reinstall pcmm (pip install -e .) to rebuild it")
+        return None
+    nframes, nv = len(model.frames), model.nv
+
+    def build(tree):
+        for f in range(1, nframes):  # frame 0 is the universe in both: frame f of the model is frame f here
+            frame = model.frames[f]
+            got = tree.add_frame(int(frame.parentJoint), frame.placement.rotation, frame.placement.translation)
+            if got != f:
+                raise ValueError(f"frame {frame.name!r} came out as frame {got}")
+        tree.finalize(np.zeros(3), np.zeros(nv), np.zeros((nv, 2 * nv)))
+    return _tree(model, ("frames", nframes), build)
+
+
+def gap_guard(model: pin.Model, frame_a: int, frame_b: int, frame_link: int, normal, value: float,
+              reference: Callable) -> tuple | None:
+    """The description of a point contact's gap guard for the compiled evaluator
+    (``("gap", tree, frame_a, frame_b, frame_link, nx, ny, value)``, pcmm/model/_guard_eval.hpp): points a
+    and b and link a's frame (frames of ``model``), the normal fixed in link a, the guard's value; checked
+    against ``reference(t, y) -> (value, rate, normal speed)``, the Python guard and contact at a tree's state
+    ``[q, v]``, at probe states (once per tree and contact).  None where it is not compiled or disagrees (why_not says)."""
+    entry = gap_tree(model)
+    if entry is None:
+        return None
+    tree, checked = entry
+    desc = ("gap", tree, int(frame_a), int(frame_b), int(frame_link), float(normal[0]), float(normal[1]), float(value))
+    if not _agrees(checked, lambda t, y: (*_tree_dynamics.guard_value(desc, y), _tree_dynamics.normal_speed(desc, y)),
+                   reference, [(0.0, y) for y in _probe_states(model.nv)], "contact gap", key=("gap", *desc[2:])):
+        return None
+    return desc
+
+
+def guard_value(desc: tuple, y) -> tuple[float, float]:
+    """(value, rate) at the state ``y`` of the guard a compiled description reads (:func:`gap_guard`)."""
+    return _tree_dynamics.guard_value(desc, y)
+
+
+def normal_speed(desc: tuple, y) -> float:
+    """The normal speed ``n . (v_b - v_a)`` at the state ``y`` of a contact gap's description (:func:`gap_guard`)."""
+    return _tree_dynamics.normal_speed(desc, y)
 
 
 def impulse_tree(model: pin.Model, frames) -> tuple | None:

@@ -295,12 +295,18 @@ def _locate(e, sol, t_a, t_b, g_a, tol):
     crossing is refined by a bounded search for the extremum between its neighbours, so a graze
     shorter than the grid spacing is still found.  A guard linear in the state (``Guard.linear``)
     on DOP853's dense output is located by the same algorithm in C++ (:data:`COMPILED_LOCATE`),
-    with the same bits."""
+    with the same bits; so is a guard read by a compiled evaluator (``Guard.evaluator``: a tree's
+    contact gap, its value and rate evaluated in C++ at the same dense states)."""
     linear = getattr(e, "linear", None)
     if linear is not None and COMPILED_LOCATE and COMPILED_LOCATE[1]():
         poly = _polynomial(sol)
         if poly is not None and len(linear[0]) <= poly[2].shape[1]:
             return COMPILED_LOCATE[0](poly[0], poly[1], poly[2], t_a, t_b, g_a, tol, e.direction, *linear)
+    evaluator = getattr(e, "evaluator", None)  # read at the dense state by a compiled evaluator: a contact gap
+    if evaluator is not None and len(COMPILED_LOCATE) > 2 and COMPILED_LOCATE[2] is not None and COMPILED_LOCATE[1]():
+        poly = _polynomial(sol)
+        if poly is not None:
+            return COMPILED_LOCATE[2](poly[0], poly[1], poly[2], t_a, t_b, g_a, tol, e.direction, *evaluator)
     return _locate_python(e, sol, t_a, t_b, g_a, tol)
 
 
@@ -871,13 +877,16 @@ def _segment_loop(fun, t0, y0, t_bound, events, opts, beta, tableau=None, keep_d
     # a closed loop's guards on its solution (Guard.loop_scan), which its compiled loop scans itself
     solved = [getattr(e, "loop_scan", None) if a is None and h is None else None
               for e, a, h in zip(events, affine, holding)]
+    # guards read at the state by a compiled evaluator (Guard.evaluator: a tree's contact gap)
+    evaluated = [getattr(e, "evaluator", None) if a is None and h is None and s is None else None
+                 for e, a, h, s in zip(events, affine, holding, solved)]
     # a progress bar (the run loop's wrapper) is fed every _PROGRESS_STEPS steps, as the wrapper's
     # own count of evaluations did: then every step comes back to Python.  The loop scans a guard
     # affine in the state with its rate read from the state, a guard on a compiled holding force, and
     # a closed loop's guard on its solution with its rate read from the state
     every_step = (progress is not None or not all(
-        ((a is not None or s is not None) and getattr(e, "rate_from_state", False)) or h is not None
-        for e, a, h, s in zip(events, affine, holding, solved)))
+        ((a is not None or s is not None or v is not None) and getattr(e, "rate_from_state", False)) or h is not None
+        for e, a, h, s, v in zip(events, affine, holding, solved, evaluated)))
     if any(s is not None for s in solved) and not every_step:
         options["solved"] = [(i, 0, np.asarray(s[1], float), float(s[2]), float(s[3])) if s[0] == "coordinate"
                              else (i, 1, None, 0.0, 0.0) for i, s in enumerate(solved) if s is not None]
@@ -893,6 +902,9 @@ def _segment_loop(fun, t0, y0, t_bound, events, opts, beta, tableau=None, keep_d
         direction = np.array([e.direction for e in events], float)
         if any(h is not None for h in holding):
             options["holding"] = [(j, *h) for j, h in enumerate(holding) if h is not None]
+        if any(v is not None for v in evaluated):
+            options["evaluated"] = [(j, v[0], float(v[2]) if v[1] else 0.0) for j, v in enumerate(evaluated)
+                                    if v is not None]
     max_step = opts.max_step if np.isfinite(opts.max_step) else 0.0
     args = (owner, float(t0), y0, float(t_bound), float(opts.rtol), float(opts.atol), float(max_step),
             int(opts.max_steps), float(beta), C, ct, d, direction, every_step)
@@ -904,7 +916,15 @@ def _segment_loop(fun, t0, y0, t_bound, events, opts, beta, tableau=None, keep_d
                 raise
             loop = make(*args, **options)
     except (ValueError, TypeError, RuntimeError):  # a state that is not the tree's: Python steps it
-        return None, None
+        if "evaluated" not in options:
+            return None, None
+        # the evaluated guards are not this loop's to scan (not a plain tree's state): every step to Python
+        options.pop("evaluated")
+        options.pop("holding", None)
+        try:
+            loop = make(*args[:9], np.zeros((0, ny)), np.zeros(0), np.zeros(0), np.zeros(0), True, **options)
+        except (ValueError, TypeError, RuntimeError):
+            return None, None
     return loop, progress
 
 

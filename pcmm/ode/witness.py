@@ -64,6 +64,11 @@ class Guard:
     # re-armed after a bounce, held at that distance on its unfired side until it approaches); ("singularity",):
     # the scaled determinant of the partition's dependent block (PartitionedCoordinates.singularity_guard)
     loop_scan: tuple | None = None
+    #: optional: ``(description, rearm, unfired)`` where a compiled evaluator reads the value and the rate at
+    #: a state (pcmm/model/_guard_eval.hpp: a tree's contact gap, ``("gap", ...)``), as ``value`` and ``rate``
+    #: compute them (checked at probe states), re-armed or plain as ``linear``'s: a compiled segment loop scans
+    #: it and the compiled locator locates it (:func:`pcmm.ode.integrators._locate`)
+    evaluator: tuple | None = None
 
     def __post_init__(self):
         if self.action not in ACTIONS:
