@@ -184,8 +184,8 @@ def solve_impulse(cfg: Configuration, t: float, q: np.ndarray, v: np.ndarray, co
     with ``friction`` takes a two-dimensional impulse (Routh's process).  ``name`` (the
     transition) goes into the messages.
 
-    Compiled where the contact's plan takes it (:mod:`pcmm.events.impulse_compiled`: a tree whose
-    rows are drives, a joint stop or a frictionless point contact), checked against
+    Compiled where the contact's plan takes it (:mod:`pcmm.events.impulse_compiled`: rows of revolute
+    loop cut joints and drives, a joint stop or a frictionless point contact), checked against
     :func:`solve_impulse_python` at the plan's first impact; else that Python solve."""
     plan = _plan(cfg, contact, cut_joints)
     fast = compiled_impulse(cfg, plan)
@@ -211,14 +211,20 @@ def _compiled_solve(cfg: Configuration, plan: _Plan, fast: CompiledImpulse, q, v
     if got is None:
         return None
     v_after, (P, vn_before, vn_after, ke_before, ke_after, drive_work), n, point, pos_a, pos_b, mu, cut, joints, tau, \
-        momenta = got
+        momenta, loop_points = got
     contact = plan.contact
     out = Impulse(kind=plan.kind, restitution=restitution, normal=n, P=P, vn_before=vn_before, vn_after=vn_after,
                   v_before=v.copy(), v_after=v_after, ke_before=ke_before, ke_after=ke_after, point=point,
                   drive_work=drive_work, rnea_residual=tau, momenta=momenta)
     out.cut_impulses = dict(zip(fast.cut_names, cut.tolist()))
-    out.constraint_rows = dict(zip(fast.drive_labels, mu.tolist()))
-    out.constraint_impulses = constraint_impulses(cfg, out.constraint_rows, []) if fast.drive_labels else {}
+    out.constraint_rows = dict(zip(fast.row_labels, mu.tolist()))
+    loop = []  # each loop cut joint's impulse on b at its point, the opposite on a (loop_point_impulses' form)
+    for k, s in enumerate(fast.loop_cuts):
+        F = mu[2 * k:2 * k + 2]
+        loop += [(s.b, loop_points[k, 2:], F, 0.0), (s.a, loop_points[k, :2], -F, -0.0)]
+    out.constraint_impulses = constraint_impulses(cfg, out.constraint_rows, loop) if fast.row_labels else {}
+    for name in plan.cut_loops:  # on b from a, world axes, like a tree joint's cut impulse
+        out.cut_impulses[name] = list(out.constraint_impulses[name])
     out.joint_impulses = dict(zip(fast.joint_names, joints.tolist()))
     if not plan.stop:
         out.contact_impulses = [(contact.b, pos_b, P * n, 0.0), (contact.a, pos_a, -P * n, 0.0)]
