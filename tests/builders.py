@@ -497,3 +497,67 @@ def driven_cart_pendulum(folder: Path, coefficients=(0.1, 0.2, 0.9, -0.4), e: fl
                    t_end=t_end, solver=solver, transitions=[tr], forces=list(forces),
                    drives=[{"joint": "X", "coefficients": [float(c) for c in coefficients]}])
     return write_scene(folder, doc, {"cart.urdf": urdf})
+
+
+# ---- a run against its reference, within the reference's own round-off sensitivity --------------------------
+# Two routes to one run (compiled and Python stepping, compiled and Python impulse) differ in round-off,
+# which a run amplifies through its events.  The bound is the reference's own sensitivity: the same
+# reference nudged by one ulp (its initial rate: nudged_scene; its post-impact velocities:
+# nudge_impulses), and the other route within ten times what that nudge moves.
+def nudged_scene(folder: Path, path: Path, old: str, new: str) -> Path:
+    """A copy of the scene ``path`` in ``folder`` with the text ``old`` (an initial rate) replaced once by
+    ``new`` (the same rate one ulp off), its URDF paths made absolute."""
+    text = path.read_text().replace('"../urdf/', f'"{URDF_DIR}/')
+    assert old in text, old
+    out = folder / ("nudged_" + path.name)
+    out.write_text(text.replace(old, new, 1))
+    return out
+
+
+#: each loop example's initial rate nudged by one machine epsilon (nudged_scene's old and new text)
+EXAMPLE_NUDGES = {"double_folded.toml": ("v = { D = 0.0 }", "v = { D = 2.220446049250313e-16 }"),
+                  "double_folded_cycle.toml": ("v = { D = 0.0 }", "v = { D = 2.220446049250313e-16 }"),
+                  "andrews.toml": ("v = { beta = 0.0,", "v = { beta = 2.220446049250313e-16,")}
+
+
+def nudge_impulses(m) -> None:
+    """Inside the monkeypatch context ``m``: every post-impact velocity of the Python impulse solve
+    (pcmm.events.impulse.solve_impulse_python) comes out one ulp larger."""
+    from pcmm.events import impulse
+    python = impulse.solve_impulse_python
+
+    def nudged(*args, **kwargs):
+        out = python(*args, **kwargs)
+        out.v_after = out.v_after * (1.0 + 2.0 ** -52)
+        return out
+    m.setattr(impulse, "solve_impulse_python", nudged)
+
+
+def run_differences(a, b) -> dict:
+    """{quantity: its differences in time order} between the runs ``a`` and ``b``: each event's time,
+    each segment's end time, q and v (the same events by name and kind, and the same configurations,
+    asserted first)."""
+    assert [(e["name"], e.get("kind")) for e in a.events] == [(e["name"], e.get("kind")) for e in b.events]
+    assert [s.configuration for s in a.segments] == [s.configuration for s in b.segments]
+    pairs = list(zip(a.segments, b.segments))
+    return {"event times": np.array([abs(x["t"] - y["t"]) for x, y in zip(a.events, b.events)]),
+            "segment ends": np.array([abs(x.t[-1] - y.t[-1]) for x, y in pairs]),
+            "q": np.array([float(np.max(np.abs(x.q[-1] - y.q[-1]))) for x, y in pairs]),
+            "v": np.array([float(np.max(np.abs(x.v[-1] - y.v[-1]))) for x, y in pairs])}
+
+
+#: run_differences' floors: what two routes of one run may differ by without a nudged reference
+RUN_FLOORS = {"event times": 1e-12, "segment ends": 1e-12, "q": 1e-10, "v": 1e-10}
+
+
+def within_floors(apart: dict) -> bool:
+    """Whether :func:`run_differences` ``apart`` are all within :data:`RUN_FLOORS`."""
+    return all(d.max(initial=0) <= RUN_FLOORS[what] for what, d in apart.items())
+
+
+def assert_within_nudge(apart: dict, own: dict, reference: str = "the Python run") -> None:
+    """Each of :func:`run_differences` ``apart`` within its floor plus ten times what the nudged reference
+    moved (``own``, its differences from the reference) up to that point in time."""
+    for what, d in apart.items():
+        bound = RUN_FLOORS[what] + 10 * np.maximum.accumulate(own[what])
+        assert np.all(d <= bound), f"{what}: {d.max():.3g} apart, {reference} nudged {own[what].max():.3g}"

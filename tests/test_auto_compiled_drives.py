@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from builders import EXAMPLES, driven_cart_pendulum
+from builders import EXAMPLES, driven_cart_pendulum, nudge_impulses
 
 import pcmm
 import pcmm.events.impulse as impulse
@@ -25,13 +25,7 @@ def _run(path, monkeypatch, method, nudge=False, loops=None):
     with monkeypatch.context() as m:
         m.setattr(impulse, "compiled_impulse", lambda cfg, plan: None)
         if nudge:
-            python = impulse.solve_impulse_python
-
-            def nudged(*args, **kwargs):
-                out = python(*args, **kwargs)
-                out.v_after = out.v_after * (1.0 + 2.0 ** -52)
-                return out
-            m.setattr(impulse, "solve_impulse_python", nudged)
+            nudge_impulses(m)
         if loops is not None:
             real = integrators._segment_loop
 

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from builders import Bar, base_doc, chain_urdf, stop, write_scene
+from builders import Bar, base_doc, chain_urdf, nudge_impulses, stop, write_scene
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -195,13 +195,7 @@ def _run(scene, monkeypatch, mode: str):
         if mode != "compiled":
             m.setattr(impulse, "compiled_impulse", lambda cfg, plan: None)
         if mode == "nudged":
-            python = impulse.solve_impulse_python
-
-            def nudged(*args, **kwargs):
-                out = python(*args, **kwargs)
-                out.v_after = out.v_after * (1.0 + 2.0 ** -52)
-                return out
-            m.setattr(impulse, "solve_impulse_python", nudged)
+            nudge_impulses(m)
         return pcmm.simulate(scene)
 
 

@@ -115,25 +115,6 @@ def test_a_drawn_four_bar_at_random_states(tmp_path):
         assert _compare_at_random_states(scene, starts, rng) < 1e-10
 
 
-T_EVENT, STATE = 1e-12, 1e-10
-#: each scene's initial rate nudged by one machine epsilon: the reference against itself (its own
-#: round-off sensitivity; tests/test_compiled_properties.py: the same bound)
-NUDGES = {"double_folded.toml": ("v = { D = 0.0 }", "v = { D = 2.220446049250313e-16 }"),
-          "double_folded_cycle.toml": ("v = { D = 0.0 }", "v = { D = 2.220446049250313e-16 }"),
-          "andrews.toml": ("v = { beta = 0.0,", "v = { beta = 2.220446049250313e-16,")}
-
-
-def _differences(a, b) -> dict:
-    """{quantity: its differences in time order}: each event's time, each segment's end time, q and v."""
-    assert [e["name"] for e in a.events] == [e["name"] for e in b.events]
-    assert [s.configuration for s in a.segments] == [s.configuration for s in b.segments]
-    pairs = list(zip(a.segments, b.segments))
-    return {"event times": np.array([abs(x["t"] - y["t"]) for x, y in zip(a.events, b.events)]),
-            "segment ends": np.array([abs(x.t[-1] - y.t[-1]) for x, y in pairs]),
-            "q": np.array([float(np.max(np.abs(x.q[-1] - y.q[-1]))) for x, y in pairs]),
-            "v": np.array([float(np.max(np.abs(x.v[-1] - y.v[-1]))) for x, y in pairs])}
-
-
 @pytest.mark.slow  # each example run whole, compiled and in Python (double_folded_cycle: 19.5 s)
 @needs_extension
 @pytest.mark.parametrize("name", ["double_folded.toml", "double_folded_cycle.toml", "andrews.toml"])
@@ -149,20 +130,14 @@ def test_whole_runs_are_the_python_runs(tmp_path, monkeypatch, name):
             assert said == "compiled", (cfg, said)
     monkeypatch.setenv(compiled.ENV, "0")
     slow = pcmm.simulate(pcmm.load_scene(EXAMPLES / name))
-    apart = _differences(fast, slow)
-    floors = {"event times": T_EVENT, "segment ends": T_EVENT, "q": STATE, "v": STATE}
-    if all(d.max(initial=0) <= floors[what] for what, d in apart.items()):
+    apart = builders.run_differences(fast, slow)
+    if builders.within_floors(apart):
         return
-    old, new = NUDGES[name]
-    text = (EXAMPLES / name).read_text().replace('"../urdf/', f'"{ROOT / "urdf"}/')
-    assert old in text
-    path = tmp_path / name
-    path.write_text(text.replace(old, new))
-    nudged = pcmm.simulate(pcmm.load_scene(path))
-    own = _differences(nudged, slow)
-    for what, d in apart.items():
-        bound = floors[what] + 10 * np.maximum.accumulate(own[what])
-        assert np.all(d <= bound), f"{what}: {d.max():.3g} apart, the Python run nudged {own[what].max():.3g}"
+    # each scene's initial rate nudged by one machine epsilon: the reference against itself (its own
+    # round-off sensitivity; tests/test_compiled_properties.py: the same bound)
+    nudged = pcmm.simulate(pcmm.load_scene(builders.nudged_scene(tmp_path, EXAMPLES / name,
+                                                                 *builders.EXAMPLE_NUDGES[name])))
+    builders.assert_within_nudge(apart, builders.run_differences(nudged, slow))
 
 
 @needs_extension
@@ -287,10 +262,11 @@ def test_the_series_of_a_run_stopped_at_a_singular_posture_read(tmp_path, monkey
     # stepped by pcmm's DOP853 in Python (the case needs its steps: coasting, the step-size control reads
     # round-off, and the compiled loop's steps stop elsewhere near the change point without the repeated
     # instant this case is about, tests/test_loop_stepping.py; its angles no longer jump there either,
-    # tests/test_loop_turns.py).  From 0.4 rad: from 0.5 the Python-stepped run stopped with the repeated
-    # instant only after its Newton solves had landed whole turns away; it now stops without one
+    # tests/test_loop_turns.py).  From 0.68 rad: from 0.5 the Python-stepped run stopped with the repeated
+    # instant only after its Newton solves had landed whole turns away; from 0.4 it stops without one since
+    # the segment after the singularity guard starts on the run's assembly (run/loop.py _at_event)
     monkeypatch.setattr(partitioned, "STEP_LOOPS_COMPILED", False)
-    path = builders.parallelogram(tmp_path, 0.4, 2.0, t_end=2.0)
+    path = builders.parallelogram(tmp_path, 0.68, 2.0, t_end=2.0)
     with pytest.raises(SimulationError, match="singular") as stop:
         pcmm.simulate(pcmm.load_scene(path))
     partial = stop.value.partial

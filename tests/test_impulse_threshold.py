@@ -1,13 +1,20 @@
 """One rule for "no impulse along the contact's normal" in the Python and the compiled impulse solve
 (pcmm.events.impulse_compiled.NO_IMPULSE, handed to pcmm/model/_impulse.hpp's plan): J W_eff J^T at most
-1e-14 of tr(W_eff).  Before, the compiled solve handed every contact below 1e-10 to the Python solve,
-which took it down to 1e-14.
+1e-14 of the contact's reach, the largest inverse mass its relative motion meets in the tree without
+constraint rows.  Before, the rule was a fraction of tr(W_eff), which the tree's other inertias set:
+it refused a well-defined impulse on a link carrying a light pinned link.
 
 The mechanism: a stop on J1 of a two-link chain whose second link hangs on J2 by its centroid, with
-a tiny inertia I2.  The stop's denominator is 1 / (I1 + m2 l^2) while tr(W_eff) grows as 1 / I2, so
-I2 sets the ratio.  Closed form (a frictionless pin at link 2's centroid passes no moment to it):
-w1 -> -e w1, the link's absolute rate w1 + w2 is kept, the stop's moment is (1 + e) |w1| (I1 + m2 l^2)."""
+a tiny inertia I2.  The stop's denominator is 1 / (I1 + m2 l^2) while tr(W_eff) grows as 1 / I2.
+Closed form (a frictionless pin at link 2's centroid passes no moment to it): w1 -> -e w1, the link's
+absolute rate w1 + w2 is kept, the stop's moment is (1 + e) |w1| (I1 + m2 l^2).
+
+Still refused, by both solves: a contact whose row lies in the span of the constraint rows (a stop on
+a driven joint: J W_eff J^T = 0 but for round-off) and a point contact whose normal is orthogonal to
+the motion of its points (a pendulum's tip struck along the bar: J = 0 but for round-off)."""
 from __future__ import annotations
+
+import math
 
 import numpy as np
 import pytest
@@ -71,23 +78,85 @@ def test_a_ratio_between_the_old_thresholds_is_the_compiled_solve(tmp_path, monk
 
 
 @needs_extension
-@pytest.mark.parametrize("factor", [4.0, 0.25])
-def test_the_compiled_and_the_python_solve_refuse_on_the_same_side_of_the_rule(tmp_path, monkeypatch, factor):
-    """A ratio 4 times NO_IMPULSE: both solve it, to the closed form; 4 times below: the compiled plan
-    hands it back (None) and the Python solve says the contact takes no impulse along its normal."""
+@pytest.mark.parametrize("I2", [1e-16, 1e-20])
+def test_a_stop_on_a_link_carrying_a_light_pinned_link_takes_its_impulse(tmp_path, monkeypatch, I2):
+    """The ratio J W_eff J^T / tr(W_eff) is I2 / I1_J (3e-16, 3e-20), below the old 1e-14: both solves
+    refused the stop ("cannot take an impulse along its normal").  Its reach is the stop's own 1 / I1_J:
+    both solve it, to the closed form."""
     monkeypatch.setenv(compiled.ENV, "1")
-    I2 = factor * NO_IMPULSE * I1_J  # the ratio is I2 / I1_J to first order
-    assert _ratio(I2) == pytest.approx(factor * NO_IMPULSE, rel=1e-6)
+    assert _ratio(I2) < NO_IMPULSE / 10  # what the old rule compared with NO_IMPULSE
     cfg, contact = _stop(tmp_path, I2)
-    fast = impulse_compiled.compiled_impulse(cfg, _plan(cfg, contact, ()))
-    assert fast is not None
+    plan = _plan(cfg, contact, ())
+    fast = impulse_compiled.compiled_impulse(cfg, plan)
+    assert fast is not None, impulse_compiled.reason(cfg, plan)
     got = fast.plan.solve(Q, V, E)
-    if factor > 1:
-        assert got is not None
-        _assert_closed_form(got[0], got[1][0])
-        python = solve_impulse_python(cfg, 0.0, Q, V, contact, E, ())
-        _assert_closed_form(python.v_after, python.P)
+    assert got is not None  # before: None (handed to the Python solve, which refused)
+    _assert_closed_form(got[0], got[1][0])
+    python = solve_impulse_python(cfg, 0.0, Q, V, contact, E, ())
+    _assert_closed_form(python.v_after, python.P)
+    out = solve_impulse(cfg, 0.0, Q, V, contact, E, ())  # the first impact: checked against the Python solve
+    assert fast.checked and impulse_compiled.reasons(cfg) == {"joint stop J1 (cut none)": "compiled"}
+    _assert_closed_form(out.v_after, out.P)
+
+
+@pytest.mark.parametrize("route", ["compiled", "python"])
+def test_a_run_through_the_light_links_stop(tmp_path, monkeypatch, route):
+    """The whole run, I2 = 1e-16, no gravity: link 1 turns at -1 rad/s from J1 = 0 into the stop at
+    -0.2 rad (t = 0.2 s) and leaves it at e = 0.5 rad/s; the stop's moment 1.5 * I1_J.  Before: the
+    run stopped at the stop with "cannot take an impulse along its normal"."""
+    monkeypatch.setenv(compiled.ENV, "1" if route == "compiled" else "0")
+    compiled.forget_trees()
+    _stop(tmp_path, 1e-16)  # writes the scene
+    run = pcmm.simulate(pcmm.load_scene(tmp_path / "scene.toml"))
+    assert run.status == "complete" and len(run.events) == 1
+    ev = run.events[0]
+    assert ev["t"] == pytest.approx(0.2, abs=1e-9)
+    assert ev["impulse"]["normal"] == pytest.approx((1 + E) * 1.0 * I1_J, rel=1e-9)
+    assert ev["v_after"]["J1"] == pytest.approx(E * 1.0, rel=1e-9)
+    assert ev["v_after"]["J1"] + ev["v_after"]["J2"] == pytest.approx(-1.0 + 0.3, rel=1e-9)
+
+
+def _driven_stop(tmp_path):
+    """The chain of :func:`_stop` (I2 = 0.01) with J1 driven at -1 rad/s and the stop on J1."""
+    urdf = chain_urdf([Bar(0.5, 2.0, com=(0.25, 0.0), izz=0.05), Bar(0.1, 1.0, com=(0.0, 0.0), izz=0.01)])
+    tr = stop("hit", "c", E, {"type": "coordinate", "measure": {"joint": "J1"}, "value": -0.2,
+                              "direction": "decreasing"}, {"joint": "J1"})
+    doc = base_doc("driven", "c", {"c": "c.urdf"}, {"J1": 0.0, "J2": 0.0}, {"J1": -1.0, "J2": 0.3}, g=0.0,
+                   t_end=0.3, transitions=[tr], drives=[{"joint": "J1", "coefficients": [0.0, -1.0]}])
+    scene = pcmm.load_scene(write_scene(tmp_path, doc, {"c.urdf": urdf}))
+    return Mechanism(scene)["c"], scene.transitions[0].contact
+
+
+def _radial_contact(tmp_path):
+    """A pendulum (bar of 0.6 m on J1) whose tip meets a point of the frame with the normal along the
+    bar: the tip moves across the normal, J = n . (w x r) = 0 but for round-off (the angle 0.3 rad
+    makes it round-off, not an exact zero)."""
+    L, qs = 0.6, 0.3
+    tip = [L * math.cos(qs), L * math.sin(qs)]
+    tr = stop("hit", "c", E, {"type": "coordinate", "measure": {"joint": "J1"}, "value": qs,
+                              "direction": "decreasing"},
+              {"a": "frame", "point_a": tip, "b": "link1", "point_b": [L, 0.0],
+               "normal": [math.cos(qs), math.sin(qs)]})
+    doc = base_doc("radial", "c", {"c": "p.urdf"}, {"J1": 0.5}, {"J1": -1.0}, g=0.0, t_end=0.3, transitions=[tr])
+    scene = pcmm.load_scene(write_scene(tmp_path, doc, {"p.urdf": chain_urdf([Bar(L, 1.5)])}))
+    return Mechanism(scene)["c"], scene.transitions[0].contact, np.array([qs])
+
+
+@needs_extension
+@pytest.mark.parametrize("case", ["driven joint's stop", "normal along the bar"])
+def test_a_contact_without_an_impulse_along_its_normal_is_refused_by_both_solves(tmp_path, monkeypatch, case):
+    """The denominator is round-off, far below 1e-14 of the contact's reach (checked here by hand: the
+    driven stop's J W_eff J^T is 0, the radial contact's row is 0): the compiled plan hands it back (None)
+    and the Python solve says the contact takes no impulse along its normal."""
+    monkeypatch.setenv(compiled.ENV, "1")
+    if case == "driven joint's stop":
+        cfg, contact = _driven_stop(tmp_path)
+        q, v = Q, np.array([-1.0, 0.3])
     else:
-        assert got is None
-        with pytest.raises(SimulationError, match="cannot take an impulse along its normal"):
-            solve_impulse_python(cfg, 0.0, Q, V, contact, E, ())
+        cfg, contact, q = _radial_contact(tmp_path)
+        v = np.array([-1.0])
+    fast = impulse_compiled.compiled_impulse(cfg, _plan(cfg, contact, ()))
+    assert fast is not None, impulse_compiled.reason(cfg, _plan(cfg, contact, ()))
+    assert fast.plan.solve(q, v, E) is None
+    with pytest.raises(SimulationError, match="cannot take an impulse along its normal"):
+        solve_impulse_python(cfg, 0.0, q, v, contact, E, ())

@@ -24,9 +24,6 @@ needs_extension = pytest.mark.skipif(
     not compiled.enabled() or not hasattr(getattr(compiled._tree_dynamics, "SegmentLoop", None), "fallbacks"),
     reason=f"the compiled loop stepping is not here: {compiled.why_not() or 'an extension built before it'}")
 
-T_EVENT, STATE = 1e-12, 1e-10
-
-
 class _Spy:
     """The compiled segment loops a run makes (compiled.segment_loop), by owner kind, and the fallbacks
     each took."""
@@ -50,38 +47,16 @@ def _run(path, stepped: bool, monkeypatch, **options):
     return pcmm.simulate(pcmm.load_scene(path), pcmm.RunOptions(**options))
 
 
-def _differences(a, b) -> dict:
-    """{quantity: its differences in time order}: each event's time, each segment's end time, q and v
-    (the same events in number, order and kind asserted first)."""
-    assert [(e["name"], e.get("kind")) for e in a.events] == [(e["name"], e.get("kind")) for e in b.events]
-    assert [s.configuration for s in a.segments] == [s.configuration for s in b.segments]
-    pairs = list(zip(a.segments, b.segments))
-    return {"event times": np.array([abs(x["t"] - y["t"]) for x, y in zip(a.events, b.events)]),
-            "segment ends": np.array([abs(x.t[-1] - y.t[-1]) for x, y in pairs]),
-            "q": np.array([float(np.max(np.abs(x.q[-1] - y.q[-1]))) for x, y in pairs]),
-            "v": np.array([float(np.max(np.abs(x.v[-1] - y.v[-1]))) for x, y in pairs])}
-
-
 def _within_nudge(fast, slow, nudged_path, monkeypatch, **options):
-    """fast and slow within 1e-12 s / 1e-10, or within ten times what the Python-stepped run itself
-    moves when its initial rate is nudged by one ulp (``nudged_path``), event by event."""
-    apart = _differences(fast, slow)
-    floors = {"event times": T_EVENT, "segment ends": T_EVENT, "q": STATE, "v": STATE}
-    if all(d.max(initial=0) <= floors[what] for what, d in apart.items()):
+    """fast and slow within 1e-12 s / 1e-10 (builders.RUN_FLOORS), or within ten times what the
+    Python-stepped run itself moves when its initial rate is nudged by one ulp (``nudged_path``), event
+    by event."""
+    apart = builders.run_differences(fast, slow)
+    if builders.within_floors(apart):
         return apart
-    own = _differences(_run(nudged_path, False, monkeypatch, **options), slow)
-    for what, d in apart.items():
-        bound = floors[what] + 10 * np.maximum.accumulate(own[what])
-        assert np.all(d <= bound), f"{what}: {d.max():.3g} apart, the Python-stepped run nudged {own[what].max():.3g}"
+    own = builders.run_differences(_run(nudged_path, False, monkeypatch, **options), slow)
+    builders.assert_within_nudge(apart, own, "the Python-stepped run")
     return apart
-
-
-def _nudged(tmp_path, path, old, new):
-    text = path.read_text().replace('"../urdf/', f'"{ROOT / "urdf"}/')
-    assert old in text, old
-    out = tmp_path / ("nudged_" + path.name)
-    out.write_text(text.replace(old, new, 1))
-    return out
 
 
 @needs_extension
@@ -101,7 +76,7 @@ def test_a_four_bar_striking_its_stop_is_stepped_in_cpp(tmp_path, monkeypatch):
     spy.loops.clear()
     slow = _run(path, False, monkeypatch)
     assert not spy.over_loops()
-    nudged = _nudged(tmp_path, path, "[initial.v]\nA = 0.0\n", "[initial.v]\nA = 2.220446049250313e-16\n")
+    nudged = builders.nudged_scene(tmp_path, path, "[initial.v]\nA = 0.0\n", "[initial.v]\nA = 2.220446049250313e-16\n")
     _within_nudge(fast, slow, nudged, monkeypatch)
 
 
@@ -117,14 +92,8 @@ def test_a_slider_crank_striking_its_stop_is_stepped_in_cpp(tmp_path, monkeypatc
     assert made and any(options.get("solved") for options, _ in made)
     slow = _run(path, False, monkeypatch)
     assert len(fast.events) == len(slow.events) == 4
-    _within_nudge(fast, slow, _nudged(tmp_path, path, "[initial.v]\nA = 0.0\n", "[initial.v]\nA = 2.220446049250313e-16\n"),
+    _within_nudge(fast, slow, builders.nudged_scene(tmp_path, path, "[initial.v]\nA = 0.0\n", "[initial.v]\nA = 2.220446049250313e-16\n"),
                   monkeypatch)
-
-
-#: each example's initial rate nudged by one machine epsilon (tests/test_compiled_loops.py: the same)
-NUDGES = {"double_folded.toml": ("v = { D = 0.0 }", "v = { D = 2.220446049250313e-16 }"),
-          "double_folded_cycle.toml": ("v = { D = 0.0 }", "v = { D = 2.220446049250313e-16 }"),
-          "andrews.toml": ("v = { beta = 0.0,", "v = { beta = 2.220446049250313e-16,")}
 
 
 @needs_extension
@@ -145,7 +114,7 @@ def test_the_examples_are_the_python_stepped_runs(tmp_path, monkeypatch, name, e
     slow = _run(path, False, monkeypatch, method="auto")
     assert not spy.over_loops()
     assert len(fast.events) == len(slow.events) == events
-    apart = _within_nudge(fast, slow, _nudged(tmp_path, path, *NUDGES[name]), monkeypatch, method="auto")
+    apart = _within_nudge(fast, slow, builders.nudged_scene(tmp_path, path, *builders.EXAMPLE_NUDGES[name]), monkeypatch, method="auto")
     if not events:  # one segment to the end: its final state
         assert apart["q"].max() < 1e-8 and apart["v"].max() < 1e-7
 

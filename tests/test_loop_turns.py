@@ -144,3 +144,25 @@ def test_a_coasting_parallelogram_keeps_its_speed_up_to_its_change_point(tmp_pat
     assert abs(abs(v[worst, 0]) - 2.0) <= 1e-6, f"the crank's rate is {v[worst, 0]!r} rad/s at t = {t[worst]:.9g} s"
     np.testing.assert_allclose(q[:, 0], theta0 + 2.0 * t, rtol=0, atol=1e-6)
     _assert_continuous_on_its_branch(run, theta0)
+
+
+# the starts whose run went past, or jumped at, the change point on main (survey): under "auto" 0.583
+# and 0.613 rad had a step accepted across it - the step's guards were read again at its start
+# (integrators._guards_at_start), solved from the step's stages, past the change point, on the other
+# assembly, (3.155, -3.148, 3.135) for (3.135, -3.135, 3.135), where the singularity guard has the end's
+# sign - and their series could not be read ("passes a singular posture"); with the start read on the
+# accepted state's solution, 0.613's event was located on the other assembly by solves warm-started
+# from past the change point, and the next segment started there (3.213, -3.177, 3.106) for (3.106,
+# -3.106, 3.106).  Stepped in Python over the compiled loop, 0.705 and 1.19 rad jumped to the other
+# assembly the same way at a new partition's event before it (t = 0.980 and 0.945 s): the next segment
+# started on the located event's solution, on the other assembly (run/loop.py _at_event).
+@pytest.mark.parametrize(("k", "stepped"), [(9, True), (10, True), (13, False), (29, False)])
+def test_a_run_stops_before_its_change_point_on_its_branch(tmp_path, monkeypatch, k, stepped):
+    """The run stops before its change point (never past it, within 0.1 rad of it), every recorded
+    sample on the parallelogram branch and on the closed form theta0 + omega t."""
+    theta0 = _start(k)
+    run = _stopped_run(tmp_path, monkeypatch, theta0, "1", stepped)
+    _assert_continuous_on_its_branch(run, theta0)
+    t, q, _ = _samples(run)
+    np.testing.assert_allclose(q[:, 0], theta0 + 2.0 * t, rtol=0, atol=1e-6)
+    assert math.pi - 0.1 < q[-1, 0] < math.pi, f"the run stopped at theta = {q[-1, 0]!r}"

@@ -36,14 +36,15 @@ from ..model.configuration import Configuration
 from .contact import contact_point, contact_state, impact_kind, joint_stop_row, normal_row
 from .cutting import cut
 from .friction import AmbiguousImpact, FrictionalImpulse, routh
-from .impulse_compiled import NO_IMPULSE, CompiledImpulse, compiled_impulse, disagreement, refuse
+from .impulse_compiled import (NO_IMPULSE, CompiledImpulse, compiled_impulse, disagreement, reach, refuse,
+                               takes_no_impulse)
 from ..errors import SimulationError
 from ..model.pinocchio_helpers import cholesky, frame_jacobian, mass_matrix
 from ..model.rows import solve
 from ..scene.spec import ContactSpec
 
-#: NO_IMPULSE: the one rule of both solves for 'no impulse along the normal' (defined beside the
-#: compiled plan, which this module imports)
+#: NO_IMPULSE (:func:`takes_no_impulse`): the one rule of both solves for 'no impulse along the
+#: normal' (defined beside the compiled plan, which this module imports)
 
 
 @dataclass
@@ -283,10 +284,15 @@ def solve_impulse_python(cfg: Configuration, t: float, q: np.ndarray, v: np.ndar
         W_eff = W
     denom = J_n @ W_eff @ J_n.T  # Eq. 29 / 42 denominator: n^T J M_f^-1 J^T n
     d = float(denom[0, 0])
-    if not math.isfinite(d) or d <= NO_IMPULSE * float(W_eff.trace()):  # no impulse along n
+    M = cfg.mass_matrix(q)
+    R = (J_n if plan.stop else J_rel) @ cs.T  # the contact's relative motion, in the tree (NO_IMPULSE)
+    reach_ = reach(R @ solve(M, R.T))
+    if takes_no_impulse(d, reach_):  # no impulse along n
         raise SimulationError(
             f"t = {t:.9g} s: the contact {contact.a}/{contact.b} cannot take an impulse along its normal "
-            "(the normal is orthogonal to every allowed motion); check the contact normal and cut joints")
+            f"(the normal is orthogonal to every allowed motion: J W_eff J^T = {d:.3g}, "
+            f"{d / reach_ if reach_ > 0 else 0.0:.3g} of what the contact's motion reaches; none at or below "
+            f"{NO_IMPULSE:g}); check the contact normal and cut joints")
     fr = None
     if frictional:
         where = f"t = {t:.9g} s, " + (f"transition '{name}'" if name else f"contact {contact.a}/{contact.b}")
@@ -306,7 +312,6 @@ def solve_impulse_python(cfg: Configuration, t: float, q: np.ndarray, v: np.ndar
     if _norm(cs.T @ v_after - v_f_after) > 1e-8 * max(1.0, _norm(v_f_after)):
         raise SimulationError(f"t = {t:.9g} s: the cut system's post-impact velocity does not reassemble "
                               "the tree (internal error in joint cutting)")
-    M = cfg.mass_matrix(q)
     out = Impulse(
         kind=plan.kind, restitution=restitution, normal=n, P=float(P[-1]),
         vn_before=vn, vn_after=float((J_n @ v_f_after)[0]), v_before=v.copy(), v_after=v_after,

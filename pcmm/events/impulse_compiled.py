@@ -25,6 +25,7 @@ equal contact, cut and rows on the same model, checked already.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -34,13 +35,36 @@ from ..model.configuration import Configuration
 from .cutting import forbidden_motions
 
 #: No impulse along the contact's normal where the denominator of Eqs. 29 and 42, J W_eff J^T (the
-#: inverse of the mass the contact meets), is at most this fraction of tr(W_eff): the normal is then
-#: orthogonal to every motion the tree and its drives allow.  One rule for the Python solve
-#: (pcmm.events.impulse, which imports it from here) and the compiled one (pcmm/model/_impulse.hpp
-#: takes it when its plan is built, and hands such a contact back to the Python solve for the
-#: message).  A ratio, so it also refuses a contact on a link 1e14 times heavier than the tree's
-#: lightest coordinate (docs/limits.md).
+#: inverse of the mass the contact meets along n, its constraint rows holding), is at most this
+#: fraction of the contact's reach: the largest inverse mass its relative motion meets in the tree
+#: without constraint rows, the largest eigenvalue of R M^-1 R^T (:func:`reach`; R the rows of the
+#: contact's relative motion in the tree: a point contact's two rows of p_b' - p_a', a joint stop's
+#: own row).  A row in the span of the constraint rows (a stop on a driven joint) has J W_eff J^T =
+#: 0 up to a round-off of some 1e-16 of J M^-1 J^T; a normal orthogonal to every motion of the points
+#: has J (and J W_eff J^T) 0 up to some 1e-16 of R (1e-32 of the reach).  Both are refused; a contact
+#: is taken while the part of its row that moves is more than 1e-7 of the row (its square 1e-14).  The
+#: rule compares the row with what the row itself reaches, never with the tree's other inertias:
+#: the earlier rule, a fraction of tr(W_eff), refused a stop on a link carrying a pinned link of
+#: inertia 1e-16 kg m^2 (tr(W_eff) ~ 1e16 from that link alone), whose impulse is well defined.
+#: One rule for the Python solve (pcmm.events.impulse, which imports it from here) and the compiled
+#: one (pcmm/model/_impulse.hpp takes it when its plan is built, and hands such a contact back to the
+#: Python solve for the message).
 NO_IMPULSE = 1e-14
+
+
+def reach(K: np.ndarray) -> float:
+    """The largest eigenvalue of the 1 x 1 or 2 x 2 symmetric ``K = R M^-1 R^T`` (a closed form: the
+    same operations as pcmm/model/_impulse.hpp's)."""
+    if K.shape[0] == 1:
+        return float(K[0, 0])
+    a, b, c = float(K[0, 0]), 0.5 * (float(K[0, 1]) + float(K[1, 0])), float(K[1, 1])
+    return 0.5 * (a + c) + math.hypot(0.5 * (a - c), b)
+
+
+def takes_no_impulse(d: float, reach_: float) -> bool:
+    """Whether a contact whose denominator (Eqs. 29, 42) is ``d`` and whose :func:`reach` is
+    ``reach_`` takes no impulse along its normal (:data:`NO_IMPULSE`)."""
+    return not (math.isfinite(d) and d > NO_IMPULSE * reach_)
 
 #: |compiled - Python| <= AGREEMENT * (1 + scale) at the first impact of each plan, scale the
 #: largest magnitude of the quantity's kind (velocities, impulses, energies)

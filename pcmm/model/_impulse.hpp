@@ -44,11 +44,12 @@ struct ImpulseCore {
   std::vector<int> drives;  // the drive rows' velocity columns, in the order of the rows' labels
   int nc = 0;  // the loop rows (2 per revolute cut joint: the tree's pairs), before the drives' rows
   std::vector<std::pair<Model::JointIndex, Eigen::MatrixXd>> cuts;  // (joint, N: 3 x k forbidden motions, planar)
-  // no impulse along n where J W_eff J^T <= no_impulse tr(W_eff): the Python solve's own rule
-  // (pcmm.events.impulse.NO_IMPULSE, given at construction), which then says why
+  // no impulse along n where J W_eff J^T <= no_impulse times the contact's reach (the largest inverse
+  // mass its relative motion meets without the drive rows): the Python solve's own rule
+  // (pcmm.events.impulse_compiled.NO_IMPULSE, given at construction), which then says why
   double no_impulse = 0.0;
   // scratch, sized once
-  Eigen::MatrixXd M, W, W_eff, WAt, S, Ja, Jb, Jpa, Jpb;
+  Eigen::MatrixXd M, W, W_eff, WAt, S, Ja, Jb, Jpa, Jpb, R;
   RowMatrixXd A;  // the constraint rows (loops, then drives): with loops only
   Eigen::RowVectorXd J;
   VectorXd zero, dv, x;
@@ -262,9 +263,20 @@ PyObject *impulse_plan_solve(ImpulsePlan *self, PyObject *const *args, Py_ssize_
   }
   c.x = c.W_eff * c.J.transpose();
   const double d = c.J.dot(c.x);  // Eqs. 29, 42: the denominator J W_eff J^T
-  // a singular S (redundant rows: the loop at a change point) or no impulse along n: the Python solve
+  // the contact's reach (pcmm.events.impulse_compiled.reach): the largest eigenvalue of R W R^T, R its
+  // relative motion in the tree (a point contact: the two rows of p_b' - p_a'; a stop: its row J)
+  double reach;
+  if (c.kind == 2) {
+    c.R = c.Jpb.topRows(2) - c.Jpa.topRows(2);
+    const Eigen::Matrix2d K = c.R * c.W * c.R.transpose();
+    const double a = K(0, 0), b = 0.5 * (K(0, 1) + K(1, 0)), cc = K(1, 1);
+    reach = 0.5 * (a + cc) + std::hypot(0.5 * (a - cc), b);
+  } else {
+    reach = c.J.dot(c.W * c.J.transpose());
+  }
+  // no impulse along n, or a singular S (redundant rows: a loop at a change point): the Python solve
   // decides and says why
-  if (!std::isfinite(d) || !(d > c.no_impulse * c.W_eff.trace()) || (m && s_llt.info() != Eigen::Success)) {
+  if (!std::isfinite(d) || !(d > c.no_impulse * reach) || (m && s_llt.info() != Eigen::Success)) {
     Py_DECREF(q_a);
     Py_DECREF(v_a);
     Py_RETURN_NONE;  // no impulse along n (or nearly none): the Python solve decides and says why

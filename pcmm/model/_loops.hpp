@@ -54,6 +54,10 @@ struct State {
   // segment's start), the only warm start a rejected step's retry keeps (segment_loop_rejected)
   bool anchored = false;
   Recent anchor;
+  // the anchor the last anchor() replaced: the solution at the accepted state the last accepted step
+  // started from (start_again: a candidate step handed to Python re-reads its guards there)
+  bool anchored_before = false;
+  Recent before;
   VectorXd seed;
   // the last unpack: (t, y) -> (q, v, rates, Phi_q)
   bool cached = false;
@@ -273,6 +277,8 @@ bool same_state(const State &s, double t, const double *y, int n) {
 // its solution is kept as the warm start a rejected step's retry goes back to (rejected); false otherwise
 // (no solve here: a rejection then keeps the warm starts as they are)
 bool anchor(State &s, double t, const double *y, int n) {
+  s.anchored_before = s.anchored;
+  if (s.anchored) s.before = s.anchor;
   s.anchored = same_state(s, t, y, n);
   if (s.anchored) s.anchor = Recent{t, s.cq, s.cv};
   return s.anchored;
@@ -325,6 +331,30 @@ Status unpack(Tree *tree, State &s, double t, const double *y, VectorXd &start, 
   remember(s, t, y, 2 * k, q, rates);
   return OK;
 }
+
+// a candidate step handed to Python (the compiled segment loop's, accepted from (t, y), its end anchored):
+// its guards are read again at its start, solved from the recent warm starts, which are its stages'
+// solutions.  A step run past a change point solved its late stages on the other assembly, and the
+// start solved from them landed there too (a parallelogram at 3.135 rad: (3.155, -3.148, 3.135) for
+// (3.135, -3.135, 3.135)), where the singularity guard has the end's sign: the step was accepted across
+// the change point.  Where that solution is another posture than the accepted state's own (more than
+// AGAIN_APART apart), the warm starts go back to the accepted state's solution alone, as a rejected
+// step's retry's do (rejected), and the start is solved again from it; where it is the same posture
+// (the common case) nothing changes.  Returns whether the warm starts went back.
+constexpr double AGAIN_APART = 1e-6;  // PartitionedCoordinates' "another posture" (a new partition's restart)
+bool start_again(Tree *tree, State &s, double t, const double *y) {
+  if (!s.anchored_before || s.before.t != t) return false;
+  VectorXd start;
+  if (unpack(tree, s, t, y, start, nullptr) != OK) return false;
+  double apart = 0.0;
+  for (int i = 0; i < (int)s.cq.size(); ++i) apart = std::max(apart, std::fabs(s.cq[i] - s.before.q[i]));
+  if (!(apart > AGAIN_APART)) return false;
+  s.recent.assign(1, s.before);
+  s.cached = false;
+  unpack(tree, s, t, y, start, nullptr);  // the start from it (a status other than OK: Python's solve decides)
+  return true;
+}
+
 
 // the rows Phi_q at an assembled (q, v) and their bias (Phi_q a + bias = 0) into s.J, s.gamma, with no
 // solve: the cut joints' points at velocity v and zero acceleration (their classical acceleration is
@@ -542,7 +572,7 @@ PyObject *loop_seed(Loop *self, PyObject *args) {
   s.D = D;
   s.recent.clear();
   s.cached = false;
-  s.anchored = false;
+  s.anchored = s.anchored_before = false;
   Py_RETURN_NONE;
 }
 
@@ -937,6 +967,10 @@ bool segment_loop_anchor(Loop *self, double t, const double *y) {
 }
 
 void segment_loop_rejected(Loop *self) { loops::rejected(*self->s); }
+
+bool segment_loop_start_again(Loop *self, double t, const double *y) {
+  return loops::start_again(self->tree, *self->s, t, y);
+}
 
 // the singularity guard at the last solution: its value, the dependent block's scaled determinant (of the
 // Jacobian PartitionedCoordinates.unpack leaves, _last_Jp), and its rate (det_rate along q')

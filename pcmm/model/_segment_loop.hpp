@@ -58,6 +58,7 @@ bool segment_loop_evaluate(Loop *self, double t, const double *y, double *dy, bo
 bool segment_loop_solved(Loop *self, double t, const double *y, const double **q, const double **qd);
 bool segment_loop_anchor(Loop *self, double t, const double *y);
 void segment_loop_rejected(Loop *self);
+bool segment_loop_start_again(Loop *self, double t, const double *y);
 double segment_loop_scaled_det(Loop *self);
 double segment_loop_det_rate(Loop *self, double t);
 
@@ -1086,6 +1087,12 @@ PyObject *loop_candidate_start(SegmentLoop *s, PyObject *) {
   return Py_BuildValue("NN", new_vector(s->g_start->data(), s->m), new_vector(s->r_start->data(), s->m));
 }
 
+// start_again() -> whether a Loop's warm starts went back to the solution at the candidate step's start,
+// the accepted state (loops::start_again: its stages' solutions had put that start on another posture)
+PyObject *loop_start_again(SegmentLoop *s, PyObject *) {
+  return PyBool_FromLong(s->loop && segment_loop_start_again(s->loop, s->xold, s->yold));
+}
+
 // candidate() -> (t_old, t_new, y_new, f_new): the last accepted step
 PyObject *loop_candidate(SegmentLoop *s, PyObject *) {
   return Py_BuildValue("ddNN", s->xold, s->x, new_vector(s->y, s->n), new_vector(s->k1, s->n));
@@ -1144,6 +1151,8 @@ PyMethodDef loop_methods[] = {
     {"fallbacks", (PyCFunction)loop_fallbacks, METH_NOARGS, "fallbacks() -> the evaluations a Loop declined (Python took them)"},
     {"candidate_start", (PyCFunction)loop_candidate_start, METH_NOARGS,
      "candidate_start() -> (g, r): the guards' values and rates at the candidate step's start"},
+    {"start_again", (PyCFunction)loop_start_again, METH_NOARGS,
+     "start_again() -> whether a Loop's warm starts went back to the accepted state at the candidate's start"},
     {"take_dense", (PyCFunction)loop_take_dense, METH_NOARGS,
      "take_dense() -> with keep_dense, the dense() of each step accepted since the last take_dense, one row each"},
     {nullptr, nullptr, 0, nullptr}};

@@ -550,9 +550,21 @@ def _guards_at_start(loop, events, st, t_old, y_old, t_new):
     step, as :meth:`_Stepper.accept` would have left them at the step before: a guard read from the
     state (affine) asked again; a guard on a holding force (``holding``: no rate of its own, its
     rate a forward difference along the derivative there, over the step that ended there) as the
-    loop scanned it (``candidate_start``), or where the loop could not solve it, again in Python."""
+    loop scanned it (``candidate_start``), or where the loop could not solve it, again in Python.
+
+    A closed loop's guards are read at the start from the loop's solution there, which the loop's
+    solves warm-start from the recent ones: the candidate step's stages.  A step run past a change
+    point solved its late stages on the other assembly, and the start solved from them landed there
+    too, where the singularity guard has the end's sign: the step was accepted across the change
+    point (docs/limits.md).  ``start_again`` first puts the loop's warm starts back on the accepted
+    state's own solution wherever its stages put the start on another posture (pcmm/model/_loops.hpp:
+    start_again; elsewhere nothing changes), so the start is read, and the event located, on the
+    run's assembly."""
     g, r = [], []
     start = None
+    again = getattr(loop, "start_again", None)  # (an extension built before it: not there)
+    if again is not None and any(getattr(e, "loop_scan", None) for e in events):
+        again()
     for j, e in enumerate(events):
         if getattr(e, "holding", None) is None:
             g.append(e(t_old, y_old))

@@ -111,8 +111,8 @@ def simulate(scene: Scene | str | os.PathLike, options: RunOptions = RunOptions(
             if seg.event is None:
                 break
             run.t, run.y = float(seg.t[-1]), seg.y[:, -1]
-            run.q, run.v = run.cfg.coords.unpack(run.t, run.y)
             guard = guards[seg.event]
+            run.q, run.v = _at_event(run.cfg.coords, seg, guard, run.q)
             # what the guard fires (the paper's Fig. 3 boxes): one entry per kind
             switched = GUARD_ACTIONS[action_of(run, guard)](run, guard)
             if switched and run.t >= run.opts.t_end:
@@ -262,6 +262,23 @@ def _at_last_step(coords, seg: Segment, q_start):
 #: how far the run's own solution at a segment's last step may be from its reader's and still be
 #: the same posture (the solves' disagreement near a degenerate block is about 1e-8)
 SAME_ASSEMBLY = 1e-6
+
+
+def _at_event(coords, seg: Segment, guard, q_start):
+    """``(q, v)`` where a segment ended at its guard: the run's own solution there; where the guard is
+    a loop's singularity guard (its partition degenerates, the next segment starts a new one), the
+    posture its reader follows along the segment (:func:`_at_last_step`) wherever the run's own lies on
+    another assembly.  The event was located by solves warm-started from the step's samples, up to
+    across the change point: at 0.613 rad (benchmarks/change_point_survey.py, "auto") they put the
+    event on the anti-parallelogram, (3.213, -3.177, 3.106) for (3.106, -3.106, 3.106), and the next
+    segment went on there (tests/test_loop_turns.py).  A reader that cannot follow the segment (a
+    singular posture on the way) leaves the run's own: the new partition decides there."""
+    if guard.action != "repartition" or getattr(guard, "payload", None) is not None or seg.t.size < 2:
+        return coords.unpack(float(seg.t[-1]), seg.y[:, -1])
+    try:
+        return _at_last_step(coords, seg, q_start)
+    except SimulationError:
+        return coords.unpack(float(seg.t[-1]), seg.y[:, -1])
 
 
 def _integrate(run: RunState, fun, stepping, y0, guards, pending, keep_dense=False) -> Segment | None:
