@@ -22,8 +22,10 @@ def test_a_bounce_sequence_reuses_the_holding_evaluator(monkeypatch):
         return fast
     monkeypatch.setattr(holding.Holds, "evaluator", counted)
     run = pcmm.simulate(pcmm.load_scene(EXAMPLES / "three_bar_cycle.toml"), pcmm.RunOptions(t_end=1.5))
-    assert run.stats["impacts"] > 50 and len(calls) > 50
+    assert run.stats["impacts"] > 50 and len(calls) >= 2
     for (key, fast), (key2, fast2) in pairwise(calls):
         same = len(key) == len(key2) and all(a is b for a, b in zip(key, key2))
         assert (fast2 is fast) == same  # reused exactly while the configuration and holds are the same
-    assert len({id(fast) for _, fast in calls}) < len(calls) / 5
+        # and asked again only where they changed: a bounce re-arms with the merges' guards it had
+        # (pcmm.run.loop._unmerge_guards), without asking for the evaluator at all
+        assert not same

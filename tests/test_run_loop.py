@@ -326,17 +326,25 @@ def test_flight_audit_catches_a_restart_shifted_off_the_impact(tmp_path, monkeyp
 def test_every_switch_enters_its_configuration_through_the_checked_entry(tmp_path, monkeypatch):
     """Issue 22.2: the constraint check lives in entry.enter, and every transition kind
     reaches the next configuration through it: a latch and a timed release of the four-bar,
-    and a ball's bounces and its merge, one checked entry per event."""
+    and a ball's bounces and its merge, one checked entry per event (a bounce's is
+    entry.enter_bounce: the same checks, into its own configuration)."""
     from pcmm.events import entry, pins, transitions
     calls = []
-    real = entry.enter
+    real, real_bounce = entry.enter, entry.enter_bounce
 
     def counting(src, dst, t, *args, **kw):
         entry = real(src, dst, t, *args, **kw)
         calls.append((t, src.name, dst.name, entry.velocity_residual))
         return entry
+
+    def counting_bounce(cfg, t, *args, **kw):
+        q, v, residual = real_bounce(cfg, t, *args, **kw)
+        calls.append((t, cfg.name, cfg.name, residual))
+        return q, v, residual
     for module in (entry, transitions, pins):  # every module that enters a configuration
         monkeypatch.setattr(module, "enter", counting)
+        if hasattr(module, "enter_bounce"):
+            monkeypatch.setattr(module, "enter_bounce", counting_bounce)
     latch = pcmm.simulate(pcmm.load_scene(builders.four_bar_latch(tmp_path / "fb", t_end=1.0)))
     ball = pcmm.simulate(pcmm.load_scene(builders.ball(tmp_path / "ball", 0.5, h=0.3, t_end=2.0)),
                          pcmm.RunOptions(accumulation_speed=1e-2))

@@ -72,14 +72,39 @@ def enter(src: Configuration, dst: Configuration, t: float, q: np.ndarray, v: np
                                  "(check the fixed joint's origin in the merged configuration)"])
     residual = 0.0
     if len(dst.coords.labels) and not reset:
-        Jq, Jq_scale = _jacobian(dst, t, q_new, v_new)
-        # v_new satisfies every row (the projection solved them), so Phi_q v_map + Phi_t = Phi_q (v_map - v_new)
-        rows = Jq @ (v_map - v_new)
-        tol = VELOCITY_ROUNDOFF * scale * Jq_scale
-        residual = float(np.abs(rows).max())
-        if residual > tol:
-            raise SimulationError(_violated(src, dst, t, what, rows, tol, v_map, v_new))
+        residual = _velocity_rows(src, dst, t, what, v_map, q_new, v_new, scale)
     return Entry(q_new, v_new, dropped, offsets, residual)
+
+
+def _velocity_rows(src, dst, t, what, v_map, q_new, v_new, scale: float) -> float:
+    """The largest residual of ``dst``'s rows at the mapped velocity ``v_map`` (``scale``: max(1, |v|));
+    the run stops naming the rows it violates beyond round-off."""
+    Jq, Jq_scale = _jacobian(dst, t, q_new, v_new)
+    # v_new satisfies every row (the projection solved them), so Phi_q v_map + Phi_t = Phi_q (v_map - v_new)
+    rows = Jq @ (v_map - v_new)
+    tol = VELOCITY_ROUNDOFF * scale * Jq_scale
+    residual = float(np.abs(rows).max())
+    if residual > tol:
+        raise SimulationError(_violated(src, dst, t, what, rows, tol, v_map, v_new))
+    return residual
+
+
+def enter_bounce(cfg: Configuration, t: float, q: np.ndarray, v: np.ndarray, what: str = "bounce"):
+    """:func:`enter` of a bounce, ``cfg`` into itself after its impulse: ``(q, v)`` projected onto
+    ``cfg``'s constraints, every row of its loops and drives checked at the post-impact velocity, and
+    the links' poses where the projection moved the posture; the same checks and the same state as
+    ``enter(cfg, cfg, t, q, v)`` without the parts a bounce leaves empty (no joint dropped, no angle
+    offset).  Returns ``(q, v, the largest residual of the rows at the post-impact velocity)``."""
+    q_new, v_new = cfg.coords.project(t, q, v)
+    if q_new.tobytes() != q.tobytes():
+        _, problems = pose_mismatches(cfg, cfg, q, q_new)
+        if problems:
+            raise SimulationError([f"t = {t:.9g} s, switching '{cfg.name}' -> '{cfg.name}': {p}" for p in problems]
+                                  + ["the projection onto the configuration's constraints moved its links"])
+    residual = 0.0
+    if len(cfg.coords.labels):
+        residual = _velocity_rows(cfg, cfg, t, what, v, q_new, v_new, max(1.0, float(np.abs(v).max())) if len(v) else 1.0)
+    return q_new, v_new, residual
 
 
 #: {coordinates: (Phi_q, max(1, max |Phi_q|))} of coordinates whose rows depend on time alone (``time_rows``)

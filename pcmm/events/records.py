@@ -8,15 +8,18 @@ kinematics, and nothing is computed twice.
 """
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import TypedDict
 
 import math
+
+import numpy as np
 
 from ..model.configuration import Configuration
 from ..errors import SimulationError
 from .contact import impact_kind
 from .impulse import Impulse
-from .momentum import external_impulses, momentum_record
+from .momentum import about_point, external_impulses, momentum_record
 from ..scene.spec import TransitionSpec
 
 
@@ -182,3 +185,228 @@ def check_energy(tr: TransitionSpec, t, ke, drive_work) -> None:
         f"t = {t:.9g} s, transition '{tr.name}': the impact would create energy (kinetic energy "
         f"{ke[0]:.6g} -> {ke[1]:.6g} J, drive work {drive_work:.6g} J): the masses and inertias span more "
         "than floating point resolves, or are absurd; check the URDFs' <mass> and <inertia> values")
+
+
+# ---- a bounce's record as its numbers ------------------------------------------------------------
+def record_numbers(record) -> list:
+    """Every number of ``record`` (a float or an int, not a flag), depth first in its keys' and
+    items' order: the order in which a run's event log keeps them (:mod:`pcmm.results.event_log`)."""
+    out: list = []
+
+    def walk(x):
+        kind = type(x)
+        if kind is dict:
+            for y in x.values():
+                walk(y)
+        elif kind is list or kind is tuple:
+            for y in x:
+                walk(y)
+        elif kind is float or kind is int or isinstance(x, (float, np.floating)):
+            out.append(x)
+    walk(record)
+    return out
+
+
+def _filled(template, numbers: list, pos: list):
+    """``template`` with its numbers replaced, in :func:`record_numbers`' order, by ``numbers``
+    from ``pos[0]`` on (each number keeping its template's type: float or int)."""
+    kind = type(template)
+    if kind is dict:
+        return {k: _filled(y, numbers, pos) for k, y in template.items()}
+    if kind is list or kind is tuple:
+        items = [_filled(y, numbers, pos) for y in template]
+        return items if kind is list else tuple(items)
+    if kind is float or kind is int or isinstance(template, (float, np.floating)):
+        x = numbers[pos[0]]
+        pos[0] += 1
+        return int(x) if kind is int else float(x)
+    return template
+
+
+class RecordPlan:
+    """What every bounce at one stop of one configuration shares in its event record: the keys, the
+    texts, the flags and the None (``template``: the first bounce's record, built and checked the
+    general way), where the top-level values sit among the numbers, and the constants of its numbers:
+    the stop's kind (``"prismatic"``, ``"revolute"``, ``"point"``), the point the momenta are taken
+    about, the root joints with their (fixed) points, which contact impulse the frame applies."""
+
+    __slots__ = ("cfg", "tr", "template", "top", "consts", "why", "stop", "about", "roots", "frame_contact")
+
+    def __init__(self, cfg: Configuration, tr, template: dict):
+        self.cfg, self.tr, self.template, self.why = cfg, tr, template, None
+        self.top: dict = {}  # top-level float: its position among the numbers
+        self.consts: dict = {}  # top-level text, flag or None: itself
+        at = 0
+        for key, value in template.items():
+            n = len(record_numbers([value]))
+            if isinstance(value, float):
+                self.top[key] = at
+            elif n == 0 and type(value) is not dict and type(value) is not list:
+                self.consts[key] = value
+            at += n
+        joint = tr.contact.joint
+        self.stop = "point" if joint is None else cfg.spec.info.joints[joint].type == "prismatic" and "prismatic" \
+            or "revolute"
+        o = about_point(cfg)
+        self.about = (o[0], o[1])  # (numpy floats: momentum_record's operations on them)
+        self.roots: list = []  # [(joint, [x, y])] of the joints on the frame (external_impulses')
+        self.frame_contact = None  # the contact impulse on b (0) or on a (1) the frame applies, if any
+        if cfg.root == tr.contact.a and cfg.root != tr.contact.b:
+            self.frame_contact = 0
+        elif cfg.root == tr.contact.b and cfg.root != tr.contact.a:
+            self.frame_contact = 1
+
+
+class BounceRecord(Mapping):
+    """A bounce's event record (:class:`EventRecord`) kept as its numbers over its plan's template:
+    a read-only mapping with the record's keys and values.  A top-level key reads its number (or its
+    template's constant) directly; any other builds the whole record once.  A run's event log appends
+    it as its numbers (``log_row``), without the dict."""
+
+    __slots__ = ("plan", "numbers", "_record")
+
+    def __init__(self, plan: RecordPlan, numbers: list):
+        self.plan, self.numbers, self._record = plan, numbers, None
+
+    def log_row(self):
+        """(template, numbers): the record's layout, by a record of it, and its numbers in order."""
+        return self.plan.template, self.numbers
+
+    def record(self) -> dict:
+        if self._record is None:
+            self._record = _filled(self.plan.template, self.numbers, [0])
+        return self._record
+
+    def __getitem__(self, key):
+        plan = self.plan
+        at = plan.top.get(key)
+        if at is not None:
+            return float(self.numbers[at])
+        if key in plan.consts:
+            return plan.consts[key]
+        return self.record()[key]  # KeyError for a key the record lacks
+
+    def get(self, key, default=None):
+        return self[key] if key in self.plan.template else default
+
+    def __contains__(self, key) -> bool:
+        return key in self.plan.template
+
+    def __iter__(self):
+        return iter(self.plan.template)
+
+    def __len__(self) -> int:
+        return len(self.plan.template)
+
+    def __repr__(self) -> str:
+        return repr(self.record())
+
+
+#: why a stop's bounces take the general record: {(configuration, transition): reason}
+BOUNCE_RECORD_REFUSED: dict = {}
+
+
+def bounce_record(cfg: Configuration, tr: TransitionSpec, t, imp: Impulse, q):
+    """The record of a bounce (``event_record(cfg, tr, t, cfg.name, False, imp, q=q)``) as its
+    numbers, formed from the impulse's arrays without the record's dicts: the same numbers, to the
+    bit, in the order the record holds them.  Taken where the impulse was solved compiled (its momenta
+    at hand), without friction, in a configuration without planar joints or loops whose root joints
+    are revolute; checked at the stop's first bounce against the general record (the plan is refused
+    for good, and the general record kept, where any number differs).  Elsewhere the general record."""
+    key = (cfg.name, tr.name)
+    plans = cfg.impulse_models.setdefault("bounce_records", {})
+    plan = plans.get(key)
+    if plan is not None and plan.tr is tr and plan.cfg is cfg:
+        if plan.why is None:
+            check_energy(tr, t, (imp.ke_before, imp.ke_after), imp.drive_work)
+            return BounceRecord(plan, _bounce_numbers(plan, cfg, tr, t, imp))
+        return event_record(cfg, tr, t, cfg.name, False, imp, q=q)
+    record = event_record(cfg, tr, t, cfg.name, False, imp, q=q)
+    plan = plans[key] = RecordPlan(cfg, tr, record)
+    plan.why = _unplanned(cfg, imp, record)
+    if plan.why is None:
+        model = cfg.model
+        names = [model.names[jid] for jid in range(1, model.njoints) if model.parents[jid] == 0]
+        plan.roots = [(name, record["external_impulses"][f"joint {name}"]["point"]) for name in names]
+        got, want = _bounce_numbers(plan, cfg, tr, t, imp), record_numbers(record)
+        if len(got) != len(want) or any(_bits(a) != _bits(b) for a, b in zip(got, want)):
+            plan.why = "its numbers differ from the general record's"
+    if plan.why is not None:
+        BOUNCE_RECORD_REFUSED[key] = plan.why
+    return record
+
+
+def _bits(x) -> tuple:
+    return (type(x) is int, np.float64(x).tobytes())
+
+
+def _unplanned(cfg: Configuration, imp: Impulse, record: dict) -> str | None:
+    """Why a bounce's record cannot be formed from its impulse's arrays (None: it can)."""
+    if imp.momenta is None:
+        return "the impulse was not solved compiled (no momenta at hand)"
+    if imp.friction is not None:
+        return "a frictional contact"
+    if cfg._planar or len(cfg.joint_names) != cfg.nv:
+        return "a planar joint"
+    if getattr(cfg.coords, "constrained", False) and cfg.coords.closure.specs:
+        return "a closed loop"
+    model = cfg.model
+    for jid in range(1, model.njoints):
+        if model.parents[jid] == 0 and cfg.spec.info.joints[model.names[jid]].type not in ("revolute", "continuous"):
+            return f"root joint '{model.names[jid]}' is not revolute (its position moves with q)"
+    if set(record) - set(EventRecord.__annotations__) - {"momentum", "external_impulses", "kinetic_energy_change"}:
+        return "a record with keys of its own"
+    return None
+
+
+def _bounce_numbers(plan: RecordPlan, cfg: Configuration, tr: TransitionSpec, t, imp: Impulse) -> list:
+    """The numbers of :func:`event_record`'s record of a bounce, in its order, by the same operations
+    (:func:`event_dict`, :func:`joint_stop_impulse`, :func:`momentum_record`,
+    :func:`pcmm.events.momentum.external_impulses`)."""
+    P, normal = imp.P, imp.normal
+    n0, n1 = float(normal[0]), float(normal[1])
+    out = [float(t), imp.restitution]
+    stop = plan.stop
+    if stop == "revolute":  # joint_stop_impulse
+        arm = tr.contact.arm
+        at_arm = P / arm if arm else None
+        normal_P = float(P if at_arm is None else at_arm)
+        out.append(float(P))
+        if arm is not None:
+            out.append(arm)
+        out.append(normal_P)
+        if at_arm is not None:
+            out += [normal_P * n0 + 0.0, normal_P * n1 + 0.0]
+    elif stop == "prismatic":
+        out += [float(P), float(P * n0) + 0.0, float(P * n1) + 0.0]
+    else:
+        P = float(P)
+        out += [P, P * n0 + 0.0, P * n1 + 0.0]
+    point, A = imp.point, cfg.A
+    v_before, v_after = imp.v_before, imp.v_after
+    out += [n0, n1, float(point[0]), float(point[1]), float(imp.vn_before), float(imp.vn_after)]
+    out += (A @ v_before).tolist()
+    out += (A @ v_after).tolist()
+    out += np.asarray(v_before, float).tolist()
+    out += np.asarray(v_after, float).tolist()
+    joints = imp.joint_impulses
+    for x in joints.values():
+        out += x
+    ke0, ke1 = imp.ke_before, imp.ke_after
+    out += [float(ke0), float(ke1), float(ke1 - ke0)]
+    o0, o1 = plan.about  # momentum_record's, from the momenta about the origin
+    m = imp.momenta
+    out += [float(o0), float(o1), float(m[0]), float(m[1]), float(m[3]), float(m[4]),
+            m[2] - float(o0 * m[1] - o1 * m[0]), m[5] - float(o0 * m[4] - o1 * m[3])]
+    for x in imp.cut_impulses.values():
+        out += x
+    for x in imp.constraint_impulses.values():
+        out += x
+    out += [imp.drive_work, imp.energy_dissipated]
+    for name, p in plan.roots:  # external_impulses
+        out += p
+        out += joints[name]
+    if plan.frame_contact is not None:
+        _, p, F, mz = imp.contact_impulses[plan.frame_contact]
+        out += [float(p[0]), float(p[1]), float(F[0]), float(F[1]), float(mz)]
+    return out

@@ -43,9 +43,9 @@ from ..model.pinocchio_helpers import LWA
 from ..errors import SimulationError
 from .contact import contact_state, normal_speed
 from .contact_faults import POSE_TOL, contact_findings
-from .records import by_link, event_record
+from .records import BounceRecord, bounce_record, by_link, event_record
 from .guards import guard_value
-from .entry import VELOCITY_ROUNDOFF, Entry, enter, joints_from_poses, map_state, pose_mismatches  # noqa: F401 - re-exported
+from .entry import VELOCITY_ROUNDOFF, Entry, enter, enter_bounce, joints_from_poses, map_state, pose_mismatches  # noqa: F401 - re-exported
 from .impulse import Impulse, no_impulse, solve_impulse
 from .pins import check_held_points_push, pin_strike
 from .simultaneous import closed_with, simultaneous_impact
@@ -66,10 +66,12 @@ class Context:
 
     def tolerances(self, tr: StopSpec) -> tuple[float, float]:
         """(speed, interval) for a stop: the run's explicit value, else the transition's, else the scene's."""
-        def pick(forced, own, default):
-            return forced if forced is not None else own if own is not None else default
-        return (pick(self.forced_speed, tr.accumulation_speed, self.accumulation_speed),
-                pick(self.forced_interval, tr.accumulation_interval, self.accumulation_interval))
+        speed, interval = self.forced_speed, self.forced_interval  # (asked at every bounce: no helper made per call)
+        if speed is None:
+            speed = tr.accumulation_speed if tr.accumulation_speed is not None else self.accumulation_speed
+        if interval is None:
+            interval = tr.accumulation_interval if tr.accumulation_interval is not None else self.accumulation_interval
+        return speed, interval
 
 
 @dataclass
@@ -77,7 +79,7 @@ class Outcome:
     configuration: str
     q: np.ndarray
     v: np.ndarray
-    event: dict
+    event: dict | BounceRecord  # a bounce's record may be kept as its numbers (read-only)
     angle_offsets: dict[str, float]
     locks: str | None = None  # the switch locked joints: "latch" or "merge" (a stop's accumulation)
 
@@ -121,6 +123,26 @@ def check_latch_compressive(tr: TransitionSpec, t, imp: Impulse, v) -> None:
             f"along the declared normal ({n[0]:g}, {n[1]:g}) in link '{tr.contact.a}''s frame; normal "
             f"velocity {imp.vn_before:.3g} m/s, separating): the normal must point from link a "
             f"('{tr.contact.a}') towards link b ('{tr.contact.b}'); flip its sign")
+
+
+#: Newton's law at a bounce holds "to round-off" within this x |vn-| (the examples: below 5e-16)
+RESTITUTION_ROUNDOFF = 1e-9
+
+
+def check_restitution(tr: TransitionSpec, t, imp: Impulse) -> None:
+    """A bounce obeys Newton's restitution law along its normal (Eq. 21): vn+ = -e vn-, to
+    round-off, with vn+ the normal speed of the velocity the run goes on with (``imp.v_after``, not
+    the law's formula).  A frictional contact's law is Routh's process (:mod:`pcmm.events.friction`)."""
+    if imp.friction is not None or imp.restitution is None:
+        return
+    off = abs(imp.vn_after + imp.restitution * imp.vn_before)
+    if off <= RESTITUTION_ROUNDOFF * abs(imp.vn_before) or off <= RESTITUTION_ROUNDOFF * VELOCITY_ROUNDOFF * max(
+            1.0, float(np.abs(imp.v_before).max(initial=0.0))):
+        return
+    raise SimulationError(
+        f"t = {t:.9g} s, transition '{tr.name}': the bounce breaks Newton's restitution law (Eq. 21): normal "
+        f"velocity {imp.vn_before:.9g} m/s before and {imp.vn_after:.9g} after, where e = {imp.restitution:g} "
+        f"gives {-imp.restitution * imp.vn_before:.9g} (off by {off:.3g}); the impulse solve is wrong here")
 
 
 def _contact_faults(cfg: Configuration, tr: TransitionSpec, q, otherwise: str) -> list[str]:
@@ -251,8 +273,10 @@ def handle_stop(ctx: Context, cfg: Configuration, tr: StopSpec, t, q, v) -> Outc
                 "merge_to configuration so the run can continue with the bodies merged")
         return _merge(ctx, cfg, tr, tr.merge_to, t, q, v, "stop")
     check_held_points_push(cfg, q, imp, f"t = {t:.9g} s, transition '{tr.name}'")
-    record = event_record(cfg, tr, t, cfg.name, False, imp, q=q)
-    q_new, v_new, _, _ = switch(cfg, cfg, t, q, imp.v_after, what=f"bounce at '{tr.name}'")
+    check_restitution(tr, t, imp)
+    record = bounce_record(cfg, tr, t, imp, q)  # event_record's, as its numbers where the impulse has them
+    # no switch: the configuration stays; the state after the impulse (Eq. 43) projected and checked
+    q_new, v_new, _ = enter_bounce(cfg, t, q, imp.v_after, what=f"bounce at '{tr.name}'")
     return Outcome(cfg.name, q_new, v_new, record, {})
 
 

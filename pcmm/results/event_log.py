@@ -197,6 +197,7 @@ class EventLog(RecordSequence):
         self._n = 0
         self._aside: list = []
         self._flat: list = []  # (table index, flattener) of the layouts last appended, the latest first
+        self._templates: dict = {}  # id(template) -> (template, table index) of records given as numbers
         # the records last read by index (the same dict while kept here; changed, written back when dropped)
         self._read: dict[int, dict] = {}
         for e in events:
@@ -206,7 +207,7 @@ class EventLog(RecordSequence):
         """Pickled without the generated readers of :attr:`_flat` (code made by exec has no
         importable name; a process pool pickles a run's result): the copy makes its own, from
         :func:`_flattener`, at its next append."""
-        return {**self.__dict__, "_flat": []}
+        return {**self.__dict__, "_flat": [], "_templates": {}}
 
     def append(self, event) -> None:
         """Keep ``event`` (encoded now: later changes to the dict are not seen)."""
@@ -216,6 +217,14 @@ class EventLog(RecordSequence):
         self._encode(self._n - 1, event)
 
     def _encode(self, i: int, event) -> None:
+        log_row = getattr(event, "log_row", None)
+        if log_row is not None:  # a record given as its numbers over a record of its layout
+            k, numbers = self._row_of(*log_row())
+            if k is not None:
+                row = self._tables[k].append(numbers)
+                self._index[i // BLOCK][i % BLOCK] = (k, row)
+                return
+            event = event.record()
         for k, flat in self._flat:  # a layout seen lately: its generated reader (_flattener)
             numbers = flat(event)
             if numbers is not None:
@@ -232,6 +241,27 @@ class EventLog(RecordSequence):
                 self._flat = [(k, flat)] + [f for f in self._flat if f[0] != k][:FLATTENERS - 1]
         row = self._tables[k].append(numbers)
         self._index[i // BLOCK][i % BLOCK] = (k, row)
+
+    def _row_of(self, template, numbers):
+        """(table, numbers) of a record given as ``numbers`` (in the order :func:`_layout` reads them)
+        over ``template``, a record of its layout: the template's layout is found once (kept by
+        identity, with it); (None, None) where that layout keeps values aside or has another width."""
+        templates = self.__dict__.setdefault("_templates", {})  # (a log pickled before it had them)
+        known = templates.get(id(template))
+        if known is None or known[0] is not template:
+            width: list = []
+            aside: list = []
+            layout = _layout(template, width, aside)
+            k = None
+            if not aside:
+                k = self._by_layout.get(layout)
+                if k is None:
+                    k = self._by_layout[layout] = len(self._tables)
+                    self._tables.append(_Table(layout, len(width)))
+            known = templates[id(template)] = (template, k, len(width))
+        if known[1] is None or len(numbers) != known[2]:
+            return None, None
+        return known[1], numbers
 
     def extend(self, events) -> None:
         for e in events:

@@ -125,6 +125,11 @@ def transform(run: RunState, tr, out: Outcome, guard_residual: float | None) -> 
         run.bounced = tr
     run.audit.event(run.cfg, run.q, out.event, run.bounced is not None, guard_residual)
     nxt = run.mech[out.configuration]
+    if nxt is run.cfg and out.locks is None:
+        # a bounce (or a strike) that stays in its configuration: its angle offsets and holds are
+        # those it had (continue_angles and follow were done on entering it); only the state changes
+        run.q, run.v = out.q, out.v
+        return True
     nxt.continue_angles(run.offsets)  # measures (springs, guards) continue the series' angles
     if out.locks is not None:
         run.holds.lock(run.cfg, nxt, tr, run.q, merge=out.locks == "merge")
@@ -159,8 +164,8 @@ def zero_time_cycle(events: list[dict], last: dict | None = None) -> str:
     n = len(events)
     # the two ends first: a run's event log builds each record it is asked for (pcmm.results.event_log),
     # and all the last ZERO_TIME_CYCLE of them at every event cost milliseconds
-    if n < ZERO_TIME_CYCLE:
-        return ""
+    if n < ZERO_TIME_CYCLE or (last is not None and last["from"] == last["to"]):
+        return ""  # (a bounce, the last of the tail, ends any cycle: below)
     time_of = getattr(events, "time", None)  # a compact log reads a time without building the record
     first = time_of(n - ZERO_TIME_CYCLE) if time_of is not None else events[n - ZERO_TIME_CYCLE]["t"]
     if first != (events[n - 1] if last is None else last)["t"]:

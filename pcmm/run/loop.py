@@ -189,12 +189,12 @@ def integrate_segment(run: RunState, progress):
     fun = cfg.coords.rhs
     if run.phase is not None:  # the collision's impulse integrated with the state
         guards = [run.phase.end_guard()] + [g.on_state(y0.size) for g in guards]
-        y0, fun = np.append(y0, 0.0), run.phase.rhs()
+        y0, fun = _appended(y0), run.phase.rhs()
     elif flight:  # integrated with its work appended, as it always was: that component takes part in
         # the step-size control, and the accumulation's series were measured with it (the audit
         # itself measures the work by its own quadrature, pcmm.run.audit)
-        guards = [g.on_state(y0.size) for g in guards]
-        y0, fun = np.append(y0, 0.0), cfg.coords.rhs_with_power
+        guards = _on_state(guards, y0.size, run.kept_guards)
+        y0, fun = _appended(y0), cfg.coords.rhs_with_power
     stepping = run.stepping = (fun, method_for(run.opts.method, cfg.coords.constrained), run.opts)  # for dense resampling
     # a flight keeps each step's dense output as taken, for its audit (measured when it ends, then dropped)
     seg = _integrate(run, _reporting(fun, progress) if progress is not None else fun, stepping, y0, guards, pending,
@@ -456,9 +456,9 @@ def _guards(scene: Scene, cfg: Configuration, holds: Holds, t: float, phase, bou
     state alone, not of ``t``, the holds or the events so far), a call for the same configuration,
     the same bounced stop and the same angle offsets (they move the measures:
     :meth:`Configuration.continue_angles`) takes those guards again: a sequence of bounces at one
-    stop builds them once."""
+    stop builds them once; and the merges' guards likewise (:func:`_unmerge_guards`)."""
     key = (cfg, bounced, cfg.angle_offsets)
-    if kept and phase is None and kept[0][0] is cfg and kept[0][1] is bounced and kept[0][2] == key[2]:
+    if kept and kept[0] is not None and phase is None and kept[0][0] is cfg and kept[0][1] is bounced and kept[0][2] == key[2]:
         out = list(kept[1])
     else:
         out = []
@@ -473,9 +473,53 @@ def _guards(scene: Scene, cfg: Configuration, holds: Holds, t: float, phase, bou
             if g is not None:
                 out.append(g)
         if kept is not None:
-            kept[:] = [key, tuple(out)] if reusable else []
-    out += holds.unmerge_guards(cfg)
+            kept[:2] = [key, tuple(out)] if reusable else [None, ()]
+    out += _unmerge_guards(cfg, holds, phase, kept)
     out += cfg.coords.guards()  # the coordinates' own: a loop's partition guard
+    return out
+
+
+def _unmerge_guards(cfg: Configuration, holds: Holds, phase, kept) -> list:
+    """The guards of the merges held by compression only (:meth:`Holds.unmerge_guards`).  ``kept[2]``:
+    those of the last call and what they were built for: the configuration (the same object), its
+    angle offsets and the holds (the same ``Hold`` objects), outside a contact phase.  A call that
+    finds them all the same takes those guards again: the run has stayed in ``cfg`` since (a bounce
+    does not switch), so nothing their holding-force evaluator was built from has changed (the
+    reference configuration changes only when the run enters it, the holds only by a lock, a
+    release or a switch), and a sequence of bounces builds them once."""
+    if kept is None:
+        return holds.unmerge_guards(cfg)
+    items = holds.items
+    last = kept[2] if len(kept) > 2 else None
+    if (phase is None and last is not None and last[0] is cfg and last[1] == cfg.angle_offsets
+            and len(last[2]) == len(items) and all(a is b for a, b in zip(last[2], items))):
+        return list(last[3])
+    out = holds.unmerge_guards(cfg)
+    while len(kept) < 3:
+        kept.append(None)
+    kept[2] = (cfg, cfg.angle_offsets, tuple(items), tuple(out)) if phase is None else None
+    return out
+
+
+def _appended(y0: np.ndarray) -> np.ndarray:
+    """``y0`` with a 0.0 appended (``np.append(y0, 0.0)``'s values, without its ravel and dispatch)."""
+    y = np.empty(y0.size + 1)
+    y[:-1] = y0
+    y[-1] = 0.0
+    return y
+
+
+def _on_state(guards: list, n: int, kept: list) -> list:
+    """Each guard read on the first ``n`` components of the state (:meth:`Guard.on_state`).  ``kept[3]``:
+    the guards of the last call, ``n`` and their copies: where the guards are the same objects (a
+    sequence of bounces re-arming with the kept guards, :func:`_guards`) their copies are taken again."""
+    last = kept[3] if len(kept) > 3 else None
+    if last is not None and last[1] == n and len(last[0]) == len(guards) and all(a is b for a, b in zip(last[0], guards)):
+        return list(last[2])
+    out = [g.on_state(n) for g in guards]
+    while len(kept) < 4:
+        kept.append(None)
+    kept[3] = (tuple(guards), n, tuple(out))
     return out
 
 
