@@ -17,10 +17,11 @@ import pytest
 from builders import bar_xml, base_doc, joint_xml, link_xml, robot_xml, stop, write_scene
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
-from test_compiled_impulse import _assert_same, _momenta_match, _newton, _run
+from test_compiled_impulse import REL, _assert_same, _momenta_match, _newton, _run
 
 import pcmm
 from pcmm.events import impulse, transitions
+from pcmm.events.contact import contact_state
 from pcmm.events.impulse_compiled import compiled_impulse, reason, reasons
 from pcmm.model import compiled
 from pcmm.model.mechanism import Mechanism
@@ -47,6 +48,18 @@ def _rows_keep(cfg, q, imp):
     _, Jq = cfg.coords.loop_rows(q)
     dv = imp.v_after - imp.v_before
     assert np.max(np.abs(Jq @ dv)) <= 1e-12 * max(1.0, float(np.max(np.abs(Jq))) * float(np.max(np.abs(dv))))
+
+
+def _amplification(cfg, q, v, contact, ref, e) -> float:
+    """How much the loop and drive rows amplify round-off in the impulse: J M^-1 J^T (the inverse mass
+    the contact's row meets without rows) over J W_eff J^T = -(1 + e) vn- / P (with them), at least 1.
+    Both solves form W_eff = W - W A^T S^-1 A W; where the rows leave the contact little motion (a
+    pendulum tip whose crank is driven, grazing along its normal) the difference cancels to that
+    ratio (a drawn case: 2e3, the two solves 1.02e-12 of the speeds apart)."""
+    Jn = contact_state(cfg, q, v, contact)[3]
+    free = float(Jn @ np.linalg.solve(cfg.mass_matrix(q), Jn))
+    held = -(1.0 + e) * ref.vn_before / ref.P
+    return max(1.0, free / held)
 
 
 def _captured(scene_path, monkeypatch):
@@ -174,12 +187,17 @@ def _pendulum_four_bar(folder: Path, a, b, c, d, p, masses, contact: str, drive:
 
 
 def _assembled(a, b, c, d, theta, branch):
-    """(A, B, D) closing the four-bar at crank angle theta, or None where it does not close."""
+    """(A, B, D) closing the four-bar at crank angle theta, or None where it does not close or lies near
+    a singular posture (the transmission angle at C, between coupler and rocker, within 18 degrees of 0
+    or pi: the loop rows lose rank there)."""
     bx, by = a * math.cos(theta), a * math.sin(theta)
     rx, ry = d - bx, -by
     r = math.hypot(rx, ry)
+    if not r > 1e-6:
+        return None
     cos_ = (b * b + r * r - c * c) / (2 * b * r)
-    if not (r > 1e-6 and -0.95 < cos_ < 0.95):  # away from the dead centres
+    transmission = (b * b + c * c - r * r) / (2 * b * c)
+    if not (-0.95 < cos_ < 0.95 and -0.95 < transmission < 0.95):
         return None
     phi = math.atan2(ry, rx) + branch * math.acos(cos_)
     cx, cy = bx + b * math.cos(phi), by + b * math.sin(phi)
@@ -189,7 +207,7 @@ def _assembled(a, b, c, d, theta, branch):
 lengths = st.floats(0.1, 0.6)
 
 
-@settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.filter_too_much])
 @given(geometry=st.tuples(st.floats(0.05, 0.3), lengths, lengths, lengths, lengths),
        masses=st.tuples(*[st.floats(0.05, 5.0)] * 4), contact=st.sampled_from(["stop E", "stop D", "point"]),
        drive=st.booleans(), cut_loop=st.booleans(), e=st.floats(0.0, 1.0), data=st.data())
@@ -198,7 +216,8 @@ def test_drawn_loops_agree_with_the_python_solve(geometry, masses, contact, driv
     without a drive on the crank, the loop's cut joint C cut with the struck joint or not, at drawn
     assembled states approaching the stop: the two solves agree to 1e-12 of their scale, both obey
     Newton's law and keep the loop closed in velocity."""
-    assume(not (drive and contact == "stop D"))  # the rocker is then held by the loop and the drive
+    if drive and contact == "stop D":  # the rocker is then held by the loop and the drive: no impulse
+        contact = "stop E"
     a, b, c, d, p = geometry
     posture = _assembled(a, b, c, d, data.draw(st.floats(-math.pi, math.pi), label="theta"),
                          data.draw(st.sampled_from([-1, 1]), label="branch"))
@@ -219,12 +238,16 @@ def test_drawn_loops_agree_with_the_python_solve(geometry, masses, contact, driv
     v = np.zeros(4)
     v[iA] = data.draw(st.floats(-3.0, 3.0), label="A'")
     v[iE] = data.draw(st.floats(-3.0, 3.0), label="E'")
+    assume(max(abs(v[iA]), abs(v[iE])) > 1e-3)  # (no subnormal speeds)
     v[dep] = np.linalg.solve(Jq[:, dep], -(Jq[:, [iA, iE]] @ v[[iA, iE]]))
+    vn = contact_state(cfg, q, v, tr.contact)[2]
+    if vn > 0:  # approaching the stop: the motion reversed
+        v, vn = -v, -vn
+    assume(vn < -1e-3 * float(np.max(np.abs(v))))
     J = impulse._plan(cfg, tr.contact, tuple(tr.cut))
     got, ref = _both(cfg, 0.2, q, v, tr.contact, e, tr.cut)
-    assume(ref.vn_before < -1e-3 * float(np.max(np.abs(v))))  # approaching the stop
     assert J.cut_loops == (("C",) if cut_loop else ())
-    _assert_same(got, ref)
+    _assert_same(got, ref, REL * _amplification(cfg, q, v, tr.contact, ref, e))
     _momenta_match(cfg, q, got)
     for imp in (got, ref):
         _newton(imp, e)
