@@ -179,6 +179,21 @@ def test_the_scene_reference_names_every_key():
     assert "in [0, 1]" in text and "`point_spring`" in text
 
 
+def test_every_scene_key_says_what_it_means():
+    """A new user reading the generated tables met 39 keys with an empty "meaning" cell (a
+    transition's from, to, merge_to, restitution, a guard's direction, a contact's points, ...):
+    every key of every table the loader validates with carries its doc, and each row of the
+    generated reference ends with a non-empty meaning."""
+    from pcmm.scene import load as L
+    tables = {name: getattr(L, name) for name in dir(L) if name.endswith("_KEYS")}
+    assert len(tables) >= 12
+    silent = [f"{table}.{key.name}" for table, keys in tables.items() for key in keys if not key.doc.strip()]
+    assert not silent, f"keys without a doc: {silent}"
+    rows = [line for line in _hook().scene_keys().splitlines()
+            if line.startswith("| `") and line.count("|") == 6]
+    assert rows and all(line.rsplit("|", 2)[1].strip() for line in rows)
+
+
 def test_the_cli_reference_names_every_flag():
     import argparse
     from pcmm.cli import build_parser

@@ -39,6 +39,7 @@ RANK_LOST = 1e-6
 #: scene is always the Python stepping
 STEP_LOOPS_COMPILED = True
 _thread_id = threading.get_ident
+_ASK = object()  # an argument not given: the callee finds it itself
 
 
 def _conditioned(JD: np.ndarray) -> bool:
@@ -630,7 +631,7 @@ class PartitionedCoordinates:
         # start past a branch point): beyond PREDICT_MAX the nearest solution is the start
         return q + step if _max_abs(step) <= PREDICT_MAX else q
 
-    def _off_branch(self, t, qI, q):
+    def _off_branch(self, t, qI, q, near=_ASK):
         """In a re-read segment, where the solution ``q`` at ``t`` (independent coordinates ``qI``)
         was solved across a long step (carrying the step before ``t`` to ``t`` along its rates
         would move a coordinate by more than PREDICT_MAX, so the Newton solve started from the step
@@ -638,13 +639,13 @@ class PartitionedCoordinates:
         more than PREDICT_MAX): the warm start continued from that step along the way (:meth:`_continued`) when
         ``q`` lies farther than PREDICT_MAX from it — ``q`` is then on another assembly branch, or
         an angle 2 pi away, not the run's — else None (``q`` stands, to the last bit)."""
-        near = self._long_step(t, q)
+        near = self._long_step(t, q, near)
         if near is None:
             return None
         start = self._continued(t, qI, near)
         return start if _max_abs(q - start) > PREDICT_MAX else None
 
-    def _long_step(self, t, q=None):
+    def _long_step(self, t, q=None, near=_ASK):
         """In a re-read segment, the solution ``(t_r, q_r, q'_r)`` a read at ``t`` is continued from
         (:meth:`_continued`) when the read lies across a long step from it: the step before ``t``
         carried to ``t`` along its rates would move a coordinate by more than PREDICT_MAX; or ``t``
@@ -652,7 +653,8 @@ class PartitionedCoordinates:
         solved) lies more than PREDICT_MAX from that start.  None otherwise."""
         if self._trail is None or not self.closure.size:
             return None
-        near = self._follow(t)
+        if near is _ASK:  # (else: the caller's _follow(t), asked just before)
+            near = self._follow(t)
         if near is None:  # the segment's first step: from its start, the seed
             t0 = self._trail[0][0]
             if not t > t0 or (q is not None and _max_abs(q - self._seed_q) <= PREDICT_MAX):
@@ -763,7 +765,7 @@ class PartitionedCoordinates:
         ts, ys = self._trail
         # the last step strictly before t: where t is a step (the one being solved), the one before it,
         # also where the segment repeats that instant (a stopped run's last step, recorded twice)
-        k = int(np.searchsorted(ts, t, side="left")) - 1
+        k = int(ts.searchsorted(t, "left")) - 1
         k = min(k, len(ts) - 1)
         if k <= 0:
             return None
@@ -921,7 +923,14 @@ class PartitionedCoordinates:
         return None
 
     def unpack(self, t, y):
-        loop = self._held_loop() or (self._compiled_loop() if self._loop_refused is None else None)
+        held = self._loop_held  # (_held_loop, inline: asked at every guard value, node and state of a run)
+        if held is not None and self._trail is None and held[0] == _thread_id() and held[1] is self.forces:
+            got = self._loop.unpack(t, y)
+            if got[0] == 0 and not self._reader:  # solved by the compiled loop: _compiled_unpack's common case
+                self._last_Jp = got[3]
+                return got[1], got[2]
+            return self._compiled_unpack(self._loop, t, y, got)
+        loop = self._compiled_loop() if self._loop_refused is None else None
         if loop is not None:
             return self._compiled_unpack(loop, t, y)
         cache = self._cache
@@ -933,20 +942,23 @@ class PartitionedCoordinates:
         self._cache = (t, y.copy(), out)
         if self._trail is not None:  # a re-read segment: keep the solutions at its accepted steps
             ts, ys = self._trail
-            k = int(np.searchsorted(ts, t, side="left"))
+            k = int(ts.searchsorted(t, "left"))
             if k < len(ts) and ts[k] == t and k not in self._reached and np.array_equal(ys[:, k], y):
                 self._reached[k] = self._recent[-1]
         return out
 
-    def _compiled_unpack(self, loop, t, y):
+    def _compiled_unpack(self, loop, t, y, got=None):
         """:meth:`unpack` by the compiled loop (its warm starts, its cache); where it declines, the
         conditioning check decides (a new partition, or a singular posture), or the Python solve
-        from the compiled loop's warm start (its error, or a solution the loop then keeps)."""
+        from the compiled loop's warm start (its error, or a solution the loop then keeps).  ``got``:
+        what ``loop.unpack(t, y)`` returned, where :meth:`unpack` asked it already (no segment re-read)."""
         trail = self._trail
         if trail is not None and loop.holds(t, y):  # the last one solved: nothing to keep
             trail = None
         # a re-read segment: its steps' solutions are warm starts too (_guess, _follow)
-        status, q, v, Jp = loop.unpack(t, y) if trail is None else loop.unpack(t, y, self._follow(t))
+        near = self._follow(t) if trail is not None and got is None else None
+        status, q, v, Jp = got if got is not None else (
+            loop.unpack(t, y) if trail is None else loop.unpack(t, y, near))
         if status == 0:
             self._last_Jp = Jp
         else:
@@ -954,7 +966,8 @@ class PartitionedCoordinates:
                 self._check_conditioning(t, Jp)  # raises (the compiled check fired: a round-off apart otherwise)
             q, v = self._unpack(t, y, guess=q)
             loop.remember(t, y, q, self._recent[-1][2], self._last_Jp)
-        branch = self._off_branch(t, y[:len(self.I)], q) if trail is not None else None
+        # (the step before t, as _follow found it above: solving at t registers no step before it)
+        branch = self._off_branch(t, y[:len(self.I)], q, near) if trail is not None else None
         if branch is not None:  # a re-read segment's long step: the run's branch (as the Python path)
             q, v = self._unpack(t, y, guess=branch)
             loop.remember(t, y, q, self._recent[-1][2], self._last_Jp)
@@ -962,7 +975,7 @@ class PartitionedCoordinates:
             self._refuse_singular_read(t, self._last_Jp)
         if trail is not None:  # keep the solution at an accepted step of the segment (unpack)
             ts, ys = trail
-            k = int(np.searchsorted(ts, t, side="left"))
+            k = int(ts.searchsorted(t, "left"))
             if k < len(ts) and ts[k] == t and k not in self._reached and np.array_equal(ys[:, k], y):
                 self._reached[k] = loop.last()
         return q, v

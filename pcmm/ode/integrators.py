@@ -129,13 +129,23 @@ def _crossed(g_old, g_new, direction) -> bool:
     return (direction >= 0 and up) or (direction <= 0 and down)
 
 
-def _rate(e, t, y, f, h):
+def _rate(e, t, y, f, h, g=None):
     """The guard's time derivative along the flow: its own ``rate`` where it has one,
-    else a forward difference."""
+    else a forward difference.  ``g``: the guard's value at ``(t, y)`` where the caller has it and
+    the value is a function of ``(t, y)`` alone (:func:`_pure_value`): the difference starts from it
+    (the same bits as asking the guard again)."""
     if getattr(e, "rate", None) is not None:
         return e.rate(t, y, f)
     d = max(1e-7 * abs(h), 1e-12 * max(1.0, abs(t)))
-    return (e(t + d, y + d * f) - e(t, y)) / d
+    return (e(t + d, y + d * f) - (e(t, y) if g is None else g)) / d
+
+
+def _pure_value(e) -> bool:
+    """Is the guard's value a function of ``(t, y)`` alone, so that a value already computed may
+    stand for asking it again?  A guard on a compiled holding force (``holding``: the compiled solve
+    at the state, pcmm.events.holding.guard_value); not a guard read through a loop's Newton solve,
+    whose last bits follow its warm start (the previous call's solution)."""
+    return getattr(e, "holding", None) is not None
 
 
 def _hermite_dips(g0, d0, g1, d1, h, direction) -> bool:
@@ -174,7 +184,16 @@ class _Stepper:
         self.kept = [] if keep_dense else None  # each accepted step's dense output (Segment.dense)
         self.ts, self.ys = [t0], [np.array(y0, float)]
         self.g = [e(t0, self.ys[0]) for e in events]
-        self.rates = [_rate(e, t0, self.ys[0], f0, 1e-6) for e in events] if events else []
+        # per guard, read once (not at every step): the value already computed at a step's end stands
+        # for asking the guard again in its forward difference (_pure_value), and whether its rate is
+        # read at all without the state's derivative:
+        # (the guard, its own rate or None: a forward difference (_rate), whether its value is a function of
+        # the state alone (_pure_value), whether its rate needs no derivative), and the guards' directions
+        self._scan = [(e, getattr(e, "rate", None), _pure_value(e), bool(getattr(e, "rate_from_state", False)))
+                      for e in events]
+        self._directions = [e.direction for e in events]
+        self.rates = [_rate(e, t0, self.ys[0], f0, 1e-6, g if pure else None)
+                      for (e, _, pure, _), g in zip(self._scan, self.g)] if events else []
         self.count = 0
         self.max_steps = opts.max_steps  # read once: opts may resolve attributes through a fallback
 
@@ -193,17 +212,35 @@ class _Stepper:
         if self.count > 100 and 0 < abs(h) < 64 * EPS * max(1.0, abs(t_new)) and t_new != self.t_bound:
             raise SimulationError(_step_collapsed(h, t_new))
         hit = None
-        if self.events:
-            g_new = [e(t_new, y_new) for e in self.events]
-            r_new = [_rate(e, t_new, y_new, f_new, h)
-                     if f_new is not None or getattr(e, "rate_from_state", False) else None for e in self.events]
-            for i, e in enumerate(self.events):
-                if _crossed(self.g[i], g_new[i], e.direction) or (
-                        r_new[i] is not None and self.rates[i] is not None
-                        and _hermite_dips(self.g[i], self.rates[i], g_new[i], r_new[i], h, e.direction)):
-                    found = _locate(e, dense(), t_old, t_new, self.g[i], self.opts.event_tol)
-                    if found is not None and (hit is None or found < hit[1]):
-                        hit = (i, found)
+        events = self.events
+        if events:
+            g_new = [e(t_new, y_new) for e in events]  # every value first, then the rates (a loop's
+            # guards solve from the previous call's solution: the order of the calls is part of the bits)
+            if f_new is not None:
+                d = max(1e-7 * abs(h), 1e-12 * max(1.0, abs(t_new)))  # _rate's forward difference, once a step
+                forward = None
+                r_new = []
+                for (e, own, pure, _), g in zip(self._scan, g_new):
+                    if own is not None:
+                        r_new.append(own(t_new, y_new, f_new))
+                    else:  # (_rate: from the value just computed where it is a function of the state alone)
+                        if forward is None:
+                            forward = y_new + d * f_new
+                        r_new.append((e(t_new + d, forward) - (g if pure else e(t_new, y_new))) / d)
+            else:  # only the rates read from the state (_rate)
+                r_new = [_rate(e, t_new, y_new, None, h, g if pure else None) if from_state else None
+                         for (e, _, pure, from_state), g in zip(self._scan, g_new)]
+            g_old, r_old = self.g, self.rates
+            for i, direction in enumerate(self._directions):
+                g0, g1 = g_old[i], g_new[i]
+                # _crossed (inline); else _hermite_dips where both ends' rates are known
+                if g0 != g1 and ((direction >= 0 and g0 <= 0 <= g1) or (direction <= 0 and g0 >= 0 >= g1)):
+                    pass
+                elif r_new[i] is None or r_old[i] is None or not _hermite_dips(g0, r_old[i], g1, r_new[i], h, direction):
+                    continue
+                found = _locate(events[i], dense(), t_old, t_new, g0, self.opts.event_tol)
+                if found is not None and (hit is None or found < hit[1]):
+                    hit = (i, found)
             self.g, self.rates = g_new, r_new
         if self.kept is not None:
             self.kept.append(keep)
@@ -485,7 +522,7 @@ class ScipyMethod:
                 return f"{self.name} failed: {TOO_SMALL_STEP}"
             raise SimulationError(FortranDOP853._failure(code, st, opts))
         return _drive_loop(loop, progress, st, lambda: _ScipyDense(*loop.dense()), failure, counted, "DOP853",
-                           lambda row, n: _ScipyDense(row[0], row[1], row[2:2 + n], row[2 + n:].reshape(7, n)))
+                           scipy_row_dense)
 
 
 def _drive_loop(loop, progress, st, dense, failure, counted, name, from_row):
@@ -495,7 +532,8 @@ def _drive_loop(loop, progress, st, dense, failure, counted, name, from_row):
     every method's do, located on ``dense()``, the loop's own dense output of the step.  A failure
     code of the loop goes to ``failure(code)`` (which raises, or returns the failed segment's
     message).  Where the segment keeps its steps' dense outputs, the loop formed each as it
-    accepted the step (``take_dense()``, one row each: ``from_row(row, n)`` is its interpolant)."""
+    accepted the step (``take_dense()``, one row each: ``from_row(row, n)`` is its interpolant, kept
+    as the row, :class:`_Row`)."""
     events, needs_f = st.events, _needs_derivative(st.events)
     keeping = st.kept is not None and hasattr(loop, "take_dense")
     stale = False  # steps recorded since the scanner last saw one: its guard values are not the last step's
@@ -506,12 +544,12 @@ def _drive_loop(loop, progress, st, dense, failure, counted, name, from_row):
             except BaseException:  # a call the loop handed to Python raised there: the steps before it stand
                 steps, rows = loop.take(), loop.take_dense() if keeping else ()
                 if len(steps):
-                    kept = [_Ready(from_row(row, (row.size - 2) // 8)) for row in rows]
+                    kept = [_Row(row, from_row) for row in rows]
                     _record_steps(st, steps, kept if len(kept) == len(steps) else None)
                 raise
             steps = loop.take()
             rows = loop.take_dense() if keeping else ()
-            kept = [_Ready(from_row(row, (row.size - 2) // 8)) for row in rows]  # one per step accepted
+            kept = [_Row(row, from_row) for row in rows]  # one per step accepted, its interpolant formed when asked
             if len(kept) != len(steps) + (code == 1):
                 kept = []
             if len(steps):
@@ -613,16 +651,30 @@ class _KeptStages:
         return None if self.stages is None else self.stages.dense_output(fun)
 
 
-class _Ready:
-    """A step kept with the interpolant it already has (:attr:`Segment.dense`)."""
+def contd8_row_dense(row, n):
+    """The interpolant of a row ``(t_old, h, cont (8 n))`` of the compiled loop's ``take_dense()``."""
+    return _Contd8(row[0], row[1], row[2:].reshape(8, n))
 
-    __slots__ = ("sol",)
 
-    def __init__(self, sol):
-        self.sol = sol
+def scipy_row_dense(row, n):
+    """The interpolant of a row ``(t_old, t_new, y_old (n), F (7 n))`` of ``take_dense()`` where the loop
+    steps as scipy's DOP853."""
+    return _ScipyDense(row[0], row[1], row[2:2 + n], row[2 + n:].reshape(7, n))
+
+
+class _Row:
+    """A step the compiled loop took, kept as the row of its dense output that ``take_dense()`` handed
+    back (:attr:`Segment.dense`); ``form`` (:func:`contd8_row_dense` or :func:`scipy_row_dense`) makes
+    its interpolant when asked, and :func:`pcmm.run.dense.dense_states` reads a flight's rows in one
+    array without forming any."""
+
+    __slots__ = ("row", "form")
+
+    def __init__(self, row, form):
+        self.row, self.form = row, form
 
     def __call__(self, fun):
-        return self.sol
+        return self.form(self.row, (self.row.size - 2) // 8)
 
 
 class FortranDOP853:
@@ -722,7 +774,7 @@ class FortranDOP853:
             self._diagnose(counted, st, opts)
             raise SimulationError(self._failure(code, st, opts))
         return _drive_loop(loop, progress, st, lambda: _Contd8(*loop.dense()), failure, counted, "DOP853",
-                           lambda row, n: _Contd8(row[0], row[1], row[2:].reshape(8, n)))
+                           contd8_row_dense)
 
     @staticmethod
     def _diagnose(counted, st, opts, steps: int = 200) -> None:

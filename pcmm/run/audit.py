@@ -12,7 +12,8 @@ energy bookkeeping:
   state);
 * the work is a separate quadrature: 4-point Gauss-Legendre on every recorded step of the
   flight, the states at the nodes from the steps' dense output (:mod:`pcmm.run.dense`: each
-  step's interpolant as the integrator took it, its stages kept, not the step taken again), the
+  step's interpolant as the integrator took it, its stages or the compiled loop's row of coefficients
+  kept, not the step taken again), the
   power ``Q(q, v) . v`` of the force elements plus ``lam . Phi_q v`` of the drives' rows, solved
   at the nodes by a reader of the segment.  The work component the flight integrates with its
   state is not read.
@@ -36,11 +37,13 @@ import numpy as np
 from ..model.configuration import Configuration
 from ..model import compiled
 from ..model.constraints import constrained_accelerations
-from .dense import dense_states
+from .dense import dense_states, states_on_rows
 
 RESOLVED_KINETIC = 1e-6  # flights with less rebound energy than this x the first are round-off dominated
 GAUSS_NODES, GAUSS_WEIGHTS = np.polynomial.legendre.leggauss(4)
 _NODES_1 = GAUSS_NODES + 1  # each step's nodes at t_k + h (x + 1), h its half size
+_NODES_1_FLOATS, _WEIGHTS_FLOATS = _NODES_1.tolist(), GAUSS_WEIGHTS.tolist()
+_NODE_STEPS = np.arange(4 * 256) // GAUSS_NODES.shape[0]  # the step of each node of a flight's first 256 steps
 
 
 def mechanical_energy(cfg: Configuration, q, v) -> float:
@@ -75,8 +78,13 @@ def flight_work(cfg: Configuration, coords, t, y, stepping, q_start, kept=None) 
     fun, method, opts = stepping
     if getattr(fun, "__self__", None) is cfg.coords:  # rhs or rhs_with_power: the reader's own
         fun = getattr(coords, fun.__name__)
-    states = dense_states(t, y, times, (fun, method, opts), kept)[:coords.ny]
+    states = _node_states(t, y, times, kept, coords.ny)
+    if states is None:
+        states = dense_states(t, y, times, (fun, method, opts), kept)
+    states = states[:coords.ny]
     values = drive_powers(cfg, coords, times, states)
+    if values is None:
+        values = tree_powers(coords, times, states)
     if values is None:
         coords.seed(q_start)
         values = np.array([power(cfg, coords, ti, *coords.unpack(ti, states[:, i])) for i, ti in enumerate(times)])
@@ -85,8 +93,21 @@ def flight_work(cfg: Configuration, coords, t, y, stepping, q_start, kept=None) 
 
 def _nodes(t) -> tuple[np.ndarray, np.ndarray]:
     """The Gauss-Legendre nodes and weights of every step of ``t``, step after step."""
+    if t.shape[0] == 2:  # one step (most flights of a bouncing run): the same operations on Python floats
+        t0, t1 = t.tolist()
+        h = (t1 - t0) / 2
+        return np.array([t0 + h * x for x in _NODES_1_FLOATS]), np.array([h * w for w in _WEIGHTS_FLOATS])
     h = ((t[1:] - t[:-1]) / 2)[:, None]  # (what np.diff forms)
     return (t[:-1, None] + h * _NODES_1).ravel(), (h * GAUSS_WEIGHTS).ravel()
+
+
+def _node_states(t, y, times, kept, components):
+    """The states at the nodes ``times`` of :func:`_nodes` read off the compiled loop's rows (each node on
+    its own step, 4 a step, in order: :func:`pcmm.run.dense.states_on_rows`), or None (another dense output
+    kept, or none: :func:`pcmm.run.dense.dense_states`)."""
+    n = times.shape[0]
+    steps = _NODE_STEPS[:n] if n <= _NODE_STEPS.shape[0] else np.arange(n) // GAUSS_NODES.shape[0]
+    return states_on_rows(t, y, times, steps, kept, components)
 
 
 class _RightHandSideAsked(Exception):
@@ -112,10 +133,13 @@ def run_work(cfg: Configuration, t, y, stepping, kept) -> float | None:
     if len(t) < 2:
         return 0.0
     times, weights = _nodes(t)
-    try:
-        states = dense_states(t, y, times, (_no_right_hand_side, *stepping[1:]), kept)[:coords.ny]
-    except _RightHandSideAsked:
-        return None
+    states = _node_states(t, y, times, kept, coords.ny)
+    if states is None:
+        try:
+            states = dense_states(t, y, times, (_no_right_hand_side, *stepping[1:]), kept)
+        except _RightHandSideAsked:
+            return None
+    states = states[:coords.ny]
     values = drive_powers(cfg, coords, times, states)
     return None if values is None else float(weights @ values)
 
@@ -135,6 +159,23 @@ def drive_powers(cfg: Configuration, coords, times, states) -> np.ndarray | None
     if fast is not None:
         return fast(np.asarray(times, float), np.asarray(states, float)[:coords.ny])
     return python_drive_powers(cfg, coords, times, states)
+
+
+def tree_powers(coords, times, states) -> np.ndarray | None:
+    """:func:`power` at every node where there is no constraint row and every force element is linear
+    (a tree's springs, dampers and constant torques: ``Q = Q0 - K q - Dv v``): all nodes at once, the
+    products over the nodes as matrix products, so each node's power is :func:`power`'s to round-off
+    (numpy's products sum in their own order: tests/test_flight_python.py bounds the difference), not
+    to the bit.  None otherwise (rows, point springs, coordinates without ``unpack_many``)."""
+    forces = coords.forces
+    if len(coords.labels) or getattr(forces, "points", True) is not None or not hasattr(forces, "Dv"):
+        return None
+    many = getattr(coords, "unpack_many", None)
+    got = many(times, states) if many is not None else None
+    if got is None:
+        return None
+    Q, V = got
+    return np.einsum("ij,ij->j", forces.Q0[:, None] - forces.K @ Q - forces.Dv @ V, V)
 
 
 def _compiled_drive_powers(cfg: Configuration, coords):

@@ -9,14 +9,17 @@ integrator took it (``kept``, :attr:`pcmm.ode.integrators.Segment.dense`): then 
 again, and where every step asked for is DOP853's polynomial of one form (the compiled loop's
 ``contd8`` coefficients, or scipy's ``y_old, F``) the states at every time are evaluated at once,
 each time on its own step's coefficients with that form's operations in their order (the same
-bits as calling each step's interpolant: :func:`_polynomial_states`).
+bits as calling each step's interpolant: :func:`_polynomial_states`).  The compiled loop hands its
+steps' dense outputs back as rows of coefficients, kept as rows (no interpolant formed): a flight's
+nodes are read off them at once (:func:`states_on_rows`; a short flight on Python floats, the same
+operations), with the same bits.
 """
 from __future__ import annotations
 
 import numpy as np
 
 from ..ode.dop853 import DenseStep
-from ..ode.integrators import _Contd8, _ScipyDense
+from ..ode.integrators import _Contd8, _Row, _ScipyDense, contd8_row_dense, scipy_row_dense
 
 
 def dense_states(t, y, times, stepping, kept=None) -> np.ndarray:
@@ -49,6 +52,13 @@ def dense_states(t, y, times, stepping, kept=None) -> np.ndarray:
         k_in, times_in = k_of[inside], times[inside]
     else:
         inside, k_in, times_in = None, k_of, times
+    if kept is not None:  # the compiled loop's rows: every time read off them at once, no interpolant formed
+        states = _row_states(kept, k_in, times_in)
+        if states is not None:
+            if inside is None:
+                return states
+            out[:, inside] = states
+            return out
     fun = stepping[0]
     steps = sorted(set(k_in.tolist()))  # each step's interpolant formed once, in the order of the steps
     formed = {k: kept[k](fun) for k in steps if kept[k] is not None} if kept is not None else {}
@@ -59,6 +69,114 @@ def dense_states(t, y, times, stepping, kept=None) -> np.ndarray:
         return states
     out[:, inside] = states
     return out
+
+
+def states_on_rows(t, y, times, k_of, kept, components=None) -> np.ndarray | None:
+    """:func:`dense_states` where the caller knows each time's step ``k_of`` (the step that holds it:
+    ``t[k] <= time <= t[k + 1]``, as the flight audit's Gauss nodes lie) and every step of ``kept`` is
+    a row of the compiled loop (:class:`~pcmm.ode.integrators._Row`); None otherwise, and where a time
+    falls on a recorded step's end (a step shorter than its time's round-off: :func:`dense_states`
+    reads that end's state).  The same bits as :func:`dense_states`; ``components``: at least the first
+    so many components of the state (the rest may be left out)."""
+    if kept is None or y.shape[0] == 0 or not len(kept):
+        return None
+    form = _rows_form(kept)
+    if form is None:
+        return None
+    n = (kept[0].row.shape[0] - 2) // 8
+    if times.shape[0] * n > _FLOAT_SIZE:
+        states = _row_states(kept, k_of, times)
+        return None if ((times == t[k_of]) | (times == t[k_of + 1])).any() else states
+    # a short flight (the most, in a bouncing run): on Python floats, the very operations the arrays do,
+    # each step's coefficients read out once per component (the first `components`)
+    m = n if components is None else min(components, n)
+    tl, out, last, coefficients = t.tolist(), [], None, None
+    for ti, k in zip(times.tolist(), k_of.tolist()):
+        if ti == tl[k] or ti == tl[k + 1]:
+            return None
+        if k != last:
+            row, last = kept[k].row.tolist(), k
+            if form is scipy_row_dense:  # per component: y_old, then F[6], F[5], ..., F[0]
+                coefficients = [(row[2 + j], row[2 + n + 6 * n + j::-n][:7]) for j in range(m)]
+                t_old, h = row[0], row[1] - row[0]  # DenseStep's h = t - t_old
+            else:  # _Contd8: per component its 8 coefficients
+                coefficients = [row[2 + j::n] for j in range(m)]
+                t_old, h = row[0], row[1]
+        x = (ti - t_old) / h
+        if form is scipy_row_dense:  # DenseStep: y = 0; y += F[6 - i], y *= x or (1 - x) alternately; y += y_old
+            x1 = 1 - x
+            factors = (x, x1, x, x1, x, x1, x)
+            state = []
+            for y0, fs in coefficients:
+                acc = 0.0
+                for f, a in zip(fs, factors):
+                    acc = (acc + f) * a
+                state.append(acc + y0)
+        else:
+            s1 = 1.0 - x
+            state = [c[0] + x * (c[1] + s1 * (c[2] + x * (c[3] + s1 * (c[4] + x * (c[5] + s1 * (c[6] + x * c[7]))))))
+                     for c in coefficients]
+        out.append(state)
+    return np.array(out).T
+
+
+#: times x components up to which :func:`states_on_rows` evaluates on Python floats (numpy's call per
+#: operation costs more below)
+_FLOAT_SIZE = 64
+
+
+def _rows_form(kept):
+    """The form shared by every step of ``kept`` where each is a row of the compiled loop of one width
+    (:class:`~pcmm.ode.integrators._Row`), else None."""
+    first = kept[0]
+    if type(first) is not _Row:
+        return None
+    form, width = first.form, first.row.shape[0]
+    for e in kept:
+        if type(e) is not _Row or e.form is not form or e.row.shape[0] != width:
+            return None
+    return form if form is scipy_row_dense or form is contd8_row_dense else None
+
+
+def _row_states(kept, k_in, times_in) -> np.ndarray | None:
+    """The states at ``times_in`` (each on step ``k_in``) where every step of ``kept`` is a row of the
+    compiled loop's dense outputs of one form (:class:`~pcmm.ode.integrators._Row`), or None: the rows
+    stacked, each time's own row gathered, then the form's evaluation as :func:`_polynomial_states`
+    does it (the same coefficients, the same operations in their order: the same bits), with none of
+    the steps' interpolants formed."""
+    form = _rows_form(kept)
+    if form is None:
+        return None
+    n = (kept[0].row.shape[0] - 2) // 8
+    rows = np.array([e.row for e in kept])[k_in]  # (times, width): each time's step
+    t_old = rows[:, 0]
+    if form is scipy_row_dense:  # (t_old, t_new, y_old, F): DenseStep's h = t - t_old
+        return _dense_step_states(times_in, t_old, rows[:, 1] - t_old, rows[:, 2:2 + n],
+                                  rows[:, 2 + n:].reshape(-1, 7, n).transpose(1, 0, 2))
+    return _contd8_states(times_in, t_old, rows[:, 1], rows[:, 2:].reshape(-1, 8, n))  # (t_old, h, cont)
+
+
+def _dense_step_states(times_in, t_old, h, y_old, F) -> np.ndarray:
+    """scipy's DOP853 polynomial (:meth:`DenseStep.__call__`) at ``times_in``: ``y_old`` (ny,) or (m, ny),
+    ``F`` (7, ny) or (7, m, ny) (``F[j]`` the j-th coefficient), ``t_old``, ``h`` scalars or (m,).
+    Horner's scheme in x and (1 - x), alternately, as DenseStep: its zeros plus the last coefficient
+    is that coefficient plus 0.0 (a -0.0 turned +0.0 alike), then times x."""
+    x = ((times_in - t_old) / h)[:, None]
+    x1 = 1 - x
+    y = (F[6] + 0.0) * x
+    for i in range(1, 7):
+        y += F[6 - i]
+        y *= x if i % 2 == 0 else x1
+    y += y_old
+    return y.T
+
+
+def _contd8_states(times_in, t_old, h, c) -> np.ndarray:
+    """Hairer's contd8 polynomial (:meth:`_Contd8.__call__`) at ``times_in``: ``c`` (m or 1, 8, ny)."""
+    x = ((times_in - t_old) / h)[:, None]
+    s1 = 1.0 - x
+    par = c[:, 4] + x * (c[:, 5] + s1 * (c[:, 6] + x * c[:, 7]))
+    return (c[:, 0] + x * (c[:, 1] + s1 * (c[:, 2] + x * (c[:, 3] + s1 * par)))).T
 
 
 def _polynomial_states(formed: dict, steps: list, k_in, times_in) -> np.ndarray | None:
@@ -99,24 +217,12 @@ def _polynomial_states(formed: dict, steps: list, k_in, times_in) -> np.ndarray 
                     return None
                 stacked[i] = c[j]
             gathered.append(stacked[pos])
-    x = ((times_in - t_old) / h)[:, None]
     if kind is DenseStep:
         y_old, F = gathered  # (ny,), (7, ny) or, gathered, (m, ny), (m, 7, ny)
         F = F if F.ndim == 2 else F.transpose(1, 0, 2)  # F[j]: the j-th coefficient, (ny,) or (m, ny)
-        # Horner's scheme in x and (1 - x), alternately, as DenseStep: its zeros plus the last
-        # coefficient is that coefficient plus 0.0 (a -0.0 turned +0.0 alike), then times x
-        x1 = 1 - x
-        y = (F[6] + 0.0) * x
-        for i in range(1, 7):
-            y += F[6 - i]
-            y *= x if i % 2 == 0 else x1
-        y += y_old
-        return y.T
+        return _dense_step_states(times_in, t_old, h, y_old, F)
     (c,) = gathered
-    c = c if c.ndim == 3 else c[None]  # (m or 1, 8, ny)
-    s1 = 1.0 - x
-    par = c[:, 4] + x * (c[:, 5] + s1 * (c[:, 6] + x * c[:, 7]))
-    return (c[:, 0] + x * (c[:, 1] + s1 * (c[:, 2] + x * (c[:, 3] + s1 * par)))).T
+    return _contd8_states(times_in, t_old, h, c if c.ndim == 3 else c[None])  # (m or 1, 8, ny)
 
 
 def _form(sol):

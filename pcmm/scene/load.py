@@ -43,7 +43,7 @@ CUT_JOINT_TYPES = {"revolute": 2, "prismatic": 2, "weld": 3}
 
 SCENE_KEYS = [
     S.Key("name", "str", doc="a short name for the scene"),
-    S.Key("description", "str", required=False, default=""),
+    S.Key("description", "str", required=False, default="", doc="free text describing the mechanism"),
     S.Key("gravity", "list", check=S.vector(2), doc="[gx, gy] in m/s^2, e.g. [0.0, -9.81]"),
     S.Key("t_end", "number", check=S.positive, doc="end time of the run in s"),
     S.Key("initial_configuration", "str", doc="name of a [configurations.NAME] table"),
@@ -55,11 +55,12 @@ CONFIG_KEYS = [
     S.Key("from", "str", required=False, doc="a derived configuration: the configuration whose joints it locks"),
     S.Key("lock", "list|table", required=False,
           doc="[joints] locked at their values when the run enters, or {joint = value}"),
-    S.Key("cut_joints", "list", required=False, default=[]),
+    S.Key("cut_joints", "list", required=False, default=[],
+          doc="closed loops: the joints cut from the URDF tree, each a table (see the cut_joints entries)"),
 ]
 CUT_JOINT_KEYS = [
-    S.Key("name", "str"),
-    S.Key("type", "str", check=S.one_of(*CUT_JOINT_TYPES)),
+    S.Key("name", "str", doc="the cut joint's name (its constraint force is the series NAME.x, NAME.y, ...)"),
+    S.Key("type", "str", check=S.one_of(*CUT_JOINT_TYPES), doc="revolute and prismatic: 2 constraint rows, weld: 3"),
     S.Key("a", "str", doc="link on one side of the cut"),
     S.Key("point_a", "list|str", check=S.point_or_entry,
           doc="[x, y] in link a's frame, or \"entry\": where b's point is when the configuration is entered"),
@@ -87,39 +88,44 @@ INITIAL_KEYS = [
               "angle, wrapped into (-pi, pi], has that sign"),
 ]
 MEASURE_KEYS = [
-    S.Key("joint", "str", required=False),
-    S.Key("link", "str", required=False),
-    S.Key("between", "list", required=False, check=S.names_list),
+    S.Key("joint", "str", required=False, doc="a joint's coordinate (rad or m)"),
+    S.Key("link", "str", required=False, doc="a link's absolute angle in rad"),
+    S.Key("between", "list", required=False, check=S.names_list, doc="[A, B]: the relative angle theta_B - theta_A in rad"),
 ]
 FORCE_KEYS = [
-    S.Key("name", "str"),
-    S.Key("type", "str", check=S.one_of(*FORCE_TYPES)),
+    S.Key("name", "str", doc="the element's name (its force is reported over time under it)"),
+    S.Key("type", "str", check=S.one_of(*FORCE_TYPES),
+          doc="f = value - k (x - rest) - c x'; each type requires and allows the keys of the table below"),
     S.Key("on", "table", required=False, doc="{joint = NAME} or {link = NAME}"),
     S.Key("a", "str", required=False, doc="point_spring: the link carrying point_a"),
     S.Key("point_a", "list", required=False, check=S.vector(2), doc="point_spring: [x, y] in link a's frame"),
     S.Key("b", "str", required=False, doc="point_spring: the link (or the frame) carrying point_b"),
     S.Key("point_b", "list", required=False, check=S.vector(2), doc="point_spring: [x, y] in link b's frame"),
     S.Key("measure", "table", required=False, doc="{joint = NAME}, {link = NAME} or {between = [A, B]}"),
-    S.Key("value", "number", required=False, default=0.0),
+    S.Key("value", "number", required=False, default=0.0, doc="constant force (N) or moment (N m)"),
     S.Key("k", "number", required=False, default=0.0, check=S.non_negative,
           doc="stiffness >= 0 (a negative spring is an energy source: model it as a torque)"),
-    S.Key("rest", "number", required=False, default=0.0),
+    S.Key("rest", "number", required=False, default=0.0, doc="the measure's value (rad or m) where the spring is relaxed"),
     S.Key("c", "number", required=False, default=0.0, check=S.non_negative,
           doc="damping >= 0 (a negative damper feeds energy in)"),
-    S.Key("configurations", "list", required=False, check=S.names_list),
+    S.Key("configurations", "list", required=False, check=S.names_list,
+          doc="the configurations it acts in (default: every one)"),
 ]
 WHEN_KEYS = [
     S.Key("measure", "table", doc="{joint = NAME}, {link = NAME} or {between = [A, B]}"),
-    S.Key("above", "number", required=False), S.Key("below", "number", required=False),
+    S.Key("above", "number", required=False, doc="the crossing counts only with the measure above this value"),
+    S.Key("below", "number", required=False, doc="the crossing counts only with the measure below this value"),
 ]
 GUARD_KEYS = [
-    S.Key("type", "str", check=S.one_of(*GUARD_TYPES)),
+    S.Key("type", "str", check=S.one_of(*GUARD_TYPES),
+          doc="coordinate (a measure), gap (a contact's gap), time, reaction (a lock's holding force)"),
     S.Key("when", "table", required=False,
           doc="coordinate and gap guards: { measure, above | below }: a crossing counts only on that side"),
-    S.Key("measure", "table", required=False),
+    S.Key("measure", "table", required=False, doc="coordinate guards: the measure watched, { joint }, { link } or { between }"),
     S.Key("value", "number", required=False,
           doc="the guard fires when the measure, gap or holding force crosses this value"),
-    S.Key("direction", "str", required=False, check=S.one_of(*_DIRECTIONS)),
+    S.Key("direction", "str", required=False, check=S.one_of(*_DIRECTIONS),
+          doc="coordinate, gap and reaction guards: the sense of the crossing that fires"),
     S.Key("at", "number", required=False, check=S.non_negative, doc="time guard: the instant in s"),
     S.Key("every", "number", required=False, check=S.positive, doc="time guard: the period in s"),
     S.Key("start", "number", required=False, default=0.0, doc="time guard with every: the first instant in s"),
@@ -127,8 +133,10 @@ GUARD_KEYS = [
           doc="reaction guard: the locked joint, or the stop transition whose merge it watches"),
 ]
 CONTACT_KEYS = [
-    S.Key("a", "str", required=False), S.Key("point_a", "list", required=False, check=S.vector(2)),
-    S.Key("b", "str", required=False), S.Key("point_b", "list", required=False, check=S.vector(2)),
+    S.Key("a", "str", required=False, doc="point contact: the link (or the frame) carrying point_a"),
+    S.Key("point_a", "list", required=False, check=S.vector(2), doc="point contact: [x, y] in link a's frame"),
+    S.Key("b", "str", required=False, doc="point contact: the link whose point_b strikes"),
+    S.Key("point_b", "list", required=False, check=S.vector(2), doc="point contact: [x, y] in link b's frame"),
     S.Key("normal", "list", required=False, check=S.nonzero_vector(2),
           doc="[nx, ny] in link a's frame, from a towards b"),
     S.Key("joint", "str", required=False, doc="a joint stop: the joint whose coordinate strikes the stop"),
@@ -141,18 +149,23 @@ CONTACT_KEYS = [
 ]
 POINT_CONTACT = ("a", "point_a", "b", "point_b", "normal")
 TRANSITION_KEYS = [
-    S.Key("name", "str"),
-    S.Key("type", "str", check=S.one_of(*TRANSITION_TYPES)),
-    S.Key("from", "str"),
-    S.Key("to", "str", required=False),
-    S.Key("merge_to", "str", required=False),
-    S.Key("restitution", "number", required=False, check=S.unit_interval),
+    S.Key("name", "str", doc="the transition's name, as its events and holding force (NAME.hold) are named"),
+    S.Key("type", "str", check=S.one_of(*TRANSITION_TYPES),
+          doc="latch (locks on contact), stop (bounces with restitution), release (frees), pin (a point held where it strikes)"),
+    S.Key("from", "str", doc="the configuration the guard is watched in"),
+    S.Key("to", "str", required=False, doc="latch, release and pin: the configuration the run goes on in (required there)"),
+    S.Key("merge_to", "str", required=False,
+          doc="stop: the configuration the bodies merge into when the bounces accumulate"),
+    S.Key("restitution", "number", required=False, check=S.unit_interval, doc="stop: Newton's coefficient e (required there)"),
     S.Key("cut", "list", required=False, check=S.names_list,
-          doc="metamorphic joint(s) cut to solve the impulse; [] if none (latch and stop)"),
-    S.Key("guard", "table"),
-    S.Key("contact", "table", required=False, doc="latch and stop: the two points that strike, or a joint stop"),
-    S.Key("accumulation_speed", "number", required=False, check=S.non_negative),
-    S.Key("accumulation_interval", "number", required=False, check=S.non_negative),
+          doc="latch and stop, required there: the metamorphic joint(s) cut to solve the impulse; [] if none"),
+    S.Key("guard", "table", doc="what fires the transition: { type, ... }, the keys of a guard"),
+    S.Key("contact", "table", required=False,
+          doc="latch, stop and pin: the two points that strike (a pin: b's point is held), or a joint stop"),
+    S.Key("accumulation_speed", "number", required=False, check=S.non_negative,
+          doc="stop: overrides [solver] accumulation_speed for this stop"),
+    S.Key("accumulation_interval", "number", required=False, check=S.non_negative,
+          doc="stop: overrides [solver] accumulation_interval for this stop"),
     S.Key("law", "str", required=False, default="impulse",
           check=S.one_of("impulse", "hunt_crossley", "lankarani_nikravesh", "flores"),
           doc="how the impact is resolved: the instantaneous impulse or a continuous contact-force law"),
@@ -162,16 +175,19 @@ TRANSITION_KEYS = [
           doc="stop only: undo the merge when the holding force turns tensile (default: solver.unmerge)"),
 ]
 DRIVE_KEYS = [
-    S.Key("joint", "str"),
+    S.Key("joint", "str", doc="the driven joint: its coordinate is prescribed, and its velocity comes from the drive"),
     S.Key("coefficients", "list", check=S.numbers_list, doc="q(t) = c0 + c1 t + c2 t^2 + ..."),
-    S.Key("configurations", "list", required=False, check=S.names_list),
+    S.Key("configurations", "list", required=False, check=S.names_list,
+          doc="the configurations it drives in (default: every one)"),
 ]
 TOP_KEYS = [
-    S.Key("scene", "table"), S.Key("solver", "table", required=False, default={}),
-    S.Key("configurations", "table"), S.Key("initial", "table"),
-    S.Key("forces", "list", required=False, default=[]),
-    S.Key("transitions", "list", required=False, default=[]),
-    S.Key("drives", "list", required=False, default=[]),
+    S.Key("scene", "table", doc="[scene]: name, gravity, t_end, the initial configuration"),
+    S.Key("solver", "table", required=False, default={}, doc="[solver]: the integrator's settings"),
+    S.Key("configurations", "table", doc="one [configurations.NAME] table per configuration"),
+    S.Key("initial", "table", doc="[initial]: the state at t = 0"),
+    S.Key("forces", "list", required=False, default=[], doc="[[forces]]: the force elements"),
+    S.Key("transitions", "list", required=False, default=[], doc="[[transitions]]: guards and what they fire"),
+    S.Key("drives", "list", required=False, default=[], doc="[[drives]]: prescribed coordinates"),
 ]
 
 
@@ -535,10 +551,10 @@ class _Builder:
             guard = self._guard(t["guard"], f"{where}.guard", kind)
             e = t["restitution"]
             if kind in ("latch", "stop"):
-                if t["contact"] is None:
+                if t["contact"] is None and "contact" not in raw:  # given but bad: said by check_table
                     self.p.add(f"{where}.contact", f"missing; a {kind} needs the contact that strikes: "
                                "{ a, point_a, b, point_b, normal } or a joint stop { joint, arm }")
-                if t["cut"] is None:
+                if t["cut"] is None and "cut" not in raw:
                     self.p.add(f"{where}.cut", "missing; the metamorphic joint(s) cut to solve the impulse, [] if none")
             if kind == "latch":
                 if t["to"] is None:
@@ -557,7 +573,7 @@ class _Builder:
                 if t["to"] is None:
                     self.p.add(f"{where}.to", "missing; a pin names the configuration whose cut joint holds the "
                                "struck point (point_a = \"entry\")")
-                if t["contact"] is None:
+                if t["contact"] is None and "contact" not in raw:
                     self.p.add(f"{where}.contact", "missing; a pin needs the point contact that strikes: "
                                "{ a, point_a, b, point_b, normal }")
                 for k in ("restitution", "merge_to", "unmerge", "law", "stiffness", "exponent",
@@ -678,7 +694,7 @@ class _Builder:
         points = [k for k in POINT_CONTACT if c[k] is not None]
         if c["joint"] is None:
             for k in POINT_CONTACT:
-                if c[k] is None:
+                if c[k] is None and not (isinstance(table, dict) and k in table):  # given but bad: said above
                     self.p.add(f"{where}.{k}", "missing; a contact names a, point_a, b, point_b and normal "
                                "(or is a joint stop: { joint, arm })")
             if c["arm"] is not None:
@@ -802,6 +818,52 @@ class _Builder:
         elif movable and config.info.joints[name].type not in MOVABLE:
             self.p.add(where, f"= {name!r}: joint is fixed in configuration '{config.name}'")
 
+    def _loops_keep_a_coordinate_per_row(self, scene: Scene, cfg: ConfigurationSpec) -> None:
+        """The initial assembly solves the loops' constraint rows for the coordinates they involve that
+        are neither kept (``[initial] independent``) nor driven: fewer of those than rows is a loop that
+        cannot close whatever the values (the assembly would otherwise fail as a Newton solve that
+        diverged, or as a singular posture).  A cut joint's rows involve the joints on the tree paths of
+        its two links that the paths do not share (a shared joint moves both links rigidly)."""
+        rows = {cj.name: CUT_JOINT_TYPES[cj.type] for cj in cfg.cut_joints}
+        if not rows:
+            return
+        locked = set(cfg.derivation.lock) if cfg.derivation is not None else set()
+        by_child = {j.child: j for j in cfg.info.joints.values()}
+
+        def path(link: str) -> set[str]:
+            out = set()
+            while link in by_child and len(out) <= len(by_child):
+                out.add(by_child[link].name)
+                link = by_child[link].parent
+            return out
+        involved: set[str] = set()
+        for cj in cfg.cut_joints:
+            involved |= path(cj.a) ^ path(cj.b)
+        joints = {n: j for n, j in cfg.info.joints.items()
+                  if n in involved and j.type in MOVABLE and n not in locked}
+        total = sum(3 if j.type == "planar" else 1 for j in joints.values())
+        kept: dict[str, str] = {}  # coordinate -> why it is kept
+        for name in scene.independent:
+            joint, _, part = name.rpartition(".")
+            if name in joints:
+                kept[f"{name}.x" if joints[name].type == "planar" else name] = "independent"
+            elif joint in joints and part in ("x", "y", "theta"):
+                kept[name] = "independent"
+        for d in scene.drives:
+            if d.joint in joints and (d.configurations is None or cfg.name in d.configurations):
+                kept.setdefault(d.joint, f"driven by drives[{scene.drives.index(d)}]")
+        free = total - len(kept)
+        if sum(rows.values()) <= free:
+            return
+        where = "initial.independent" if scene.independent else "drives"
+        value = f"= {list(scene.independent)}: " if scene.independent else ""
+        self.p.add(where, f"{value}the loops of configuration '{cfg.name}' involve {total} coordinates "
+                   f"({', '.join(joints)}), {len(kept)} of them kept at t = 0 "
+                   f"({', '.join(f'{k}: {why}' for k, why in kept.items())}), which leaves {free} for the "
+                   f"{sum(rows.values())} constraint rows of its cut joints "
+                   f"({', '.join(f'{n}: {r}' for n, r in rows.items())}): no posture satisfies them all; keep "
+                   f"fewer coordinates (a driven joint is kept by its drive: leave it out of independent)")
+
     def _check_coordinate(self, where, name, config):
         """A joint, or one coordinate of a planar joint ("P.x", "P.y", "P.theta")."""
         joint, _, part = name.rpartition(".")
@@ -913,6 +975,8 @@ class _Builder:
         for j in scene.independent:
             if init_cfg is not None:
                 self._check_coordinate("initial.independent", j, init_cfg)
+        if init_cfg is not None:
+            self._loops_keep_a_coordinate_per_row(scene, init_cfg)
         if scene.branch is not None and init_cfg is not None:
             self._check_measure("initial.branch", scene.branch.measure, init_cfg)
         for i, d in enumerate(scene.drives):
