@@ -51,6 +51,11 @@
 // A guard that is not linear in the state but has a compiled evaluator (_guard_eval.hpp: a tree's contact
 // gap, `evaluated`) is scanned here too: its value and exact rate at each accepted step's end, plain or
 // re-armed after a bounce, so a bouncing tree's flight comes back to Python only where a guard may fire.
+// A guard linear in the state with its rate read from the state (Guard.linear: g = c.y + ct t + d, its
+// rate r.y + rt, `linear`) is scanned here too, plain or re-armed after a bounce (guard_rearmed): a joint
+// stop's coordinate guard on a driven configuration, whose free coordinate and its rate are entries of
+// the state (the coordinates are constrained there, so the guard is not `affine`), and a tree's re-armed
+// joint-angle guard; so a driven configuration's flight after a bounce does not hand every step to Python.
 
 struct Loop;  // _loops.hpp
 Loop *segment_loop_owner(PyObject *obj);
@@ -190,11 +195,13 @@ struct SegmentLoop {
   // guards read by a compiled evaluator (kind EVALUATED): (guard j, its evaluator); their descriptions held
   std::vector<std::pair<int, GuardEval>> *evaluated;
   std::vector<PyObject *> *evaluated_held;
+  // guards linear in the state (kind LINEAR): value c.y + ct t + d (c the row of guard_c), rate r.y + rt
+  std::vector<double> *guard_r, *guard_rt;
 };
 
 namespace {
 
-enum { SOLVED_COORDINATE = 0, SOLVED_SINGULARITY = 1, EVALUATED = 2 };
+enum { SOLVED_COORDINATE = 0, SOLVED_SINGULARITY = 1, EVALUATED = 2, LINEAR = 3 };
 constexpr int FAILED = -10;  // run(): the fallback raised (run() raises it)
 
 // a call the Loop declined, taken by the Python evaluation (with the GIL): false where that raised (kept
@@ -276,7 +283,7 @@ void solved_guard_values(SegmentLoop *s, double t, const double *y, double *g, d
   const bool solved = segment_loop_solved(s->loop, t, y, &q, &qd);
   for (int j = 0; j < s->m; ++j) {
     const int kind = (*s->guard_kind)[j];
-    if (kind < 0 || kind == EVALUATED) continue;
+    if (kind < 0 || kind == EVALUATED || kind == LINEAR) continue;
     if (!solved) {
       g[j] = r[j] = (*s->g_scale)[j] = std::nan("");
       continue;
@@ -351,6 +358,23 @@ bool guard_values(SegmentLoop *s, double t, const double *y, const double *f, do
     const int j = je.first;
     double value, rate, scale;
     guard_eval(je.second, y, value, rate, &scale);
+    guard_rearmed((*s->guard_dir)[j], (*s->guard_unfired)[j], value, rate);
+    g[j] = value;
+    r[j] = rate;
+    (*s->g_scale)[j] = scale;
+  }
+  for (int j = 0; j < s->m; ++j) {  // linear in the state, its rate read from the state (Guard.linear)
+    if ((*s->guard_kind)[j] != LINEAR) continue;
+    const double *c = s->guard_c->data() + (size_t)j * n, *rr = s->guard_r->data() + (size_t)j * n;
+    double cy = 0.0, ry = 0.0, scale = std::fabs((*s->guard_d)[j]) + std::fabs((*s->guard_ct)[j] * t);
+    for (int i = 0; i < n; ++i) {
+      if (c[i] != 0.0) {
+        cy += c[i] * y[i];
+        scale += std::fabs(c[i] * y[i]);
+      }
+      if (rr[i] != 0.0) ry += rr[i] * y[i];
+    }
+    double value = cy + (*s->guard_ct)[j] * t + (*s->guard_d)[j], rate = ry + (*s->guard_rt)[j];
     guard_rearmed((*s->guard_dir)[j], (*s->guard_unfired)[j], value, rate);
     g[j] = value;
     r[j] = rate;
@@ -861,6 +885,56 @@ int read_evaluated_guards(SegmentLoop *s, PyObject *obj) {
   return 0;
 }
 
+// a row of at most n numbers into out (n entries, the rest zeros); 0, or -1 with the error set
+int read_row(PyObject *obj, double *out, int n, const char *what, int j) {
+  PyArrayObject *a = (PyArrayObject *)PyArray_FROMANY(obj, NPY_DOUBLE, 1, 1, NPY_ARRAY_IN_ARRAY);
+  if (!a) return -1;
+  const npy_intp k = PyArray_DIM(a, 0);
+  if (k > n) {
+    PyErr_Format(PyExc_ValueError, "linear: guard %d's %s row has %zd entries, the state %d", j, what, (Py_ssize_t)k, n);
+    Py_DECREF(a);
+    return -1;
+  }
+  std::fill(out, out + n, 0.0);
+  std::memcpy(out, PyArray_DATA(a), (size_t)k * sizeof(double));
+  Py_DECREF(a);
+  return 0;
+}
+
+// linear: a sequence of (guard j, c, ct, d, r, rt, unfired (0: plain)), guards linear in the state (Guard.linear:
+// value c.y + ct t + d, rate r.y + rt over the state's first len(c), len(r) entries); 0, or -1 with the error set
+int read_linear_guards(SegmentLoop *s, PyObject *obj) {
+  PyObject *seq = PySequence_Fast(obj, "linear: a sequence of (guard, c, ct, d, r, rt, unfired)");
+  if (!seq) return -1;
+  for (Py_ssize_t k = 0; k < PySequence_Fast_GET_SIZE(seq); ++k) {
+    int j;
+    PyObject *c_o, *r_o;
+    double ct, d, rt, unfired;
+    if (!PyArg_ParseTuple(PySequence_Fast_GET_ITEM(seq, k), "iOddOdd", &j, &c_o, &ct, &d, &r_o, &rt, &unfired)) {
+      Py_DECREF(seq);
+      return -1;
+    }
+    if (j < 0 || j >= s->m || (*s->guard_kind)[j] != -1 ||
+        std::any_of(s->holding->begin(), s->holding->end(), [j](const HoldingGuard &hg) { return hg.j == j; })) {
+      PyErr_Format(PyExc_ValueError, "linear: guard %d is not an unclaimed guard of this loop (%d guards)", j, s->m);
+      Py_DECREF(seq);
+      return -1;
+    }
+    if (read_row(c_o, s->guard_c->data() + (size_t)j * s->n, s->n, "value", j) ||
+        read_row(r_o, s->guard_r->data() + (size_t)j * s->n, s->n, "rate", j)) {
+      Py_DECREF(seq);
+      return -1;
+    }
+    (*s->guard_ct)[j] = ct;
+    (*s->guard_d)[j] = d;
+    (*s->guard_rt)[j] = rt;
+    (*s->guard_kind)[j] = LINEAR;
+    (*s->guard_unfired)[j] = unfired;
+  }
+  Py_DECREF(seq);
+  return 0;
+}
+
 // holding: a sequence of (guard j, HoldingForces, index, offset); 0, or -1 with the error set
 int read_holding_guards(SegmentLoop *s, PyObject *obj, int n) {
   PyObject *seq = PySequence_Fast(obj, "holding: a sequence of (guard, HoldingForces, index, offset)");
@@ -902,19 +976,20 @@ PyObject *new_vector(const double *x, npy_intp n) {
 //             step's dense output (take_dense()); `solved`: a loop's guards scanned on its solutions, each
 //             (index of the guard, kind (0 coordinate, 1 singularity), row (nv: c.q; None for 1), d, unfired (0: plain));
 //             `evaluated`: guards read by a compiled evaluator (a tree's contact gap), each (index of the guard,
-//             description (_guard_eval.hpp), unfired (0: plain))
+//             description (_guard_eval.hpp), unfired (0: plain)); `linear`: guards linear in the state with
+//             their rates read from it, each (index of the guard, c, ct, d, r, rt, unfired (0: plain))
 PyObject *loop_new(PyTypeObject *type, PyObject *args, PyObject *kwargs) {
   PyObject *tree_o, *y0_o, *c_o, *ct_o, *d_o, *dir_o, *tab_o = Py_None, *fallback_o = Py_None, *solved_o = nullptr;
   double t0, t_bound, rtol, atol, max_step, beta;
   long nmax;
   int every_step, power = 0, keep_dense = 0;
-  PyObject *holding_o = Py_None, *evaluated_o = Py_None;
+  PyObject *holding_o = Py_None, *evaluated_o = Py_None, *linear_o = Py_None;
   static const char *keywords[] = {"", "", "", "", "", "", "", "", "", "", "", "", "", "", "power", "tableau",
-                                   "keep_dense", "fallback", "solved", "holding", "evaluated", nullptr};
-  if (!PyArg_ParseTupleAndKeywords(args, kwargs, "OdOddddldOOOOp|$pOpOOOO", (char **)keywords, &tree_o, &t0,
+                                   "keep_dense", "fallback", "solved", "holding", "evaluated", "linear", nullptr};
+  if (!PyArg_ParseTupleAndKeywords(args, kwargs, "OdOddddldOOOOp|$pOpOOOOO", (char **)keywords, &tree_o, &t0,
                                    &y0_o, &t_bound, &rtol, &atol, &max_step, &nmax, &beta, &c_o, &ct_o, &d_o, &dir_o,
                                    &every_step, &power, &tab_o, &keep_dense, &fallback_o, &solved_o, &holding_o,
-                                   &evaluated_o))
+                                   &evaluated_o, &linear_o))
     return nullptr;
   Loop *owner_loop = nullptr;
   Tree *tree;
@@ -987,6 +1062,8 @@ PyObject *loop_new(PyTypeObject *type, PyObject *args, PyObject *kwargs) {
   s->probe = new std::vector<double>(n);
   s->evaluated = new std::vector<std::pair<int, GuardEval>>();
   s->evaluated_held = new std::vector<PyObject *>();
+  s->guard_r = new std::vector<double>((size_t)m * n, 0.0);
+  s->guard_rt = new std::vector<double>(m, 0.0);
   if (holding_o != Py_None && read_holding_guards(s, holding_o, n)) {
     Py_DECREF(s);
     return nullptr;
@@ -1014,6 +1091,10 @@ PyObject *loop_new(PyTypeObject *type, PyObject *args, PyObject *kwargs) {
     return nullptr;
   }
   if (evaluated_o != Py_None && read_evaluated_guards(s, evaluated_o)) {
+    Py_DECREF(s);
+    return nullptr;
+  }
+  if (linear_o != Py_None && read_linear_guards(s, linear_o)) {
     Py_DECREF(s);
     return nullptr;
   }
@@ -1095,6 +1176,8 @@ void loop_dealloc(SegmentLoop *s) {
     for (PyObject *desc : *s->evaluated_held) Py_XDECREF(desc);
   delete s->evaluated_held;
   delete s->evaluated;
+  delete s->guard_r;
+  delete s->guard_rt;
   delete s->tab;
   delete s->stages;
   delete s->F;

@@ -880,13 +880,18 @@ def _segment_loop(fun, t0, y0, t_bound, events, opts, beta, tableau=None, keep_d
     # guards read at the state by a compiled evaluator (Guard.evaluator: a tree's contact gap)
     evaluated = [getattr(e, "evaluator", None) if a is None and h is None and s is None else None
                  for e, a, h, s in zip(events, affine, holding, solved)]
+    # guards linear in the state, their rates read from it (Guard.linear: a driven configuration's joint
+    # stop, whose coordinate and rate are state entries; a tree's re-armed joint-angle guard), plain or
+    # re-armed after a bounce, which the loop scans as Python reads them
+    linear = [_linear_scan(e, ny) if a is None and h is None and s is None and v is None else None
+              for e, a, h, s, v in zip(events, affine, holding, solved, evaluated)]
     # a progress bar (the run loop's wrapper) is fed every _PROGRESS_STEPS steps, as the wrapper's
     # own count of evaluations did: then every step comes back to Python.  The loop scans a guard
     # affine in the state with its rate read from the state, a guard on a compiled holding force, and
-    # a closed loop's guard on its solution with its rate read from the state
+    # a closed loop's guard on its solution with its rate read from the state, a guard linear in the state
     every_step = (progress is not None or not all(
-        ((a is not None or s is not None or v is not None) and getattr(e, "rate_from_state", False)) or h is not None
-        for e, a, h, s, v in zip(events, affine, holding, solved, evaluated)))
+        ((a is not None or s is not None or v is not None or w is not None) and getattr(e, "rate_from_state", False))
+        or h is not None for e, a, h, s, v, w in zip(events, affine, holding, solved, evaluated, linear)))
     if any(s is not None for s in solved) and not every_step:
         options["solved"] = [(i, 0, np.asarray(s[1], float), float(s[2]), float(s[3])) if s[0] == "coordinate"
                              else (i, 1, None, 0.0, 0.0) for i, s in enumerate(solved) if s is not None]
@@ -905,6 +910,8 @@ def _segment_loop(fun, t0, y0, t_bound, events, opts, beta, tableau=None, keep_d
         if any(v is not None for v in evaluated):
             options["evaluated"] = [(j, v[0], float(v[2]) if v[1] else 0.0) for j, v in enumerate(evaluated)
                                     if v is not None]
+        if any(w is not None for w in linear):
+            options["linear"] = [(j, *w) for j, w in enumerate(linear) if w is not None]
     max_step = opts.max_step if np.isfinite(opts.max_step) else 0.0
     args = (owner, float(t0), y0, float(t_bound), float(opts.rtol), float(opts.atol), float(max_step),
             int(opts.max_steps), float(beta), C, ct, d, direction, every_step)
@@ -916,16 +923,32 @@ def _segment_loop(fun, t0, y0, t_bound, events, opts, beta, tableau=None, keep_d
                 raise
             loop = make(*args, **options)
     except (ValueError, TypeError, RuntimeError):  # a state that is not the tree's: Python steps it
-        if "evaluated" not in options:
+        if "evaluated" not in options and "linear" not in options:
             return None, None
-        # the evaluated guards are not this loop's to scan (not a plain tree's state): every step to Python
-        options.pop("evaluated")
+        # the evaluated or linear guards are not this loop's to scan (not a plain tree's state, an extension
+        # built before `linear`): every step to Python
+        options.pop("evaluated", None)
+        options.pop("linear", None)
         options.pop("holding", None)
         try:
             loop = make(*args[:9], np.zeros((0, ny)), np.zeros(0), np.zeros(0), np.zeros(0), True, **options)
         except (ValueError, TypeError, RuntimeError):
             return None, None
     return loop, progress
+
+
+def _linear_scan(e, ny):
+    """``(c, ct, d, r, rt, unfired)`` for a compiled segment loop's scan of a guard linear in the state
+    (:attr:`Guard.linear`: value ``c . y + ct t + d``, rate ``r . y + rt``, re-armed with ``unfired`` > 0
+    or plain with 0) whose rows fit a state of ``ny`` entries; else None."""
+    lin = getattr(e, "linear", None)
+    if lin is None:
+        return None
+    c, ct, d, r, rt, rearm, unfired = lin
+    c, r = np.asarray(c, float), np.asarray(r, float)
+    if c.size > ny or r.size > ny:
+        return None
+    return c, float(ct), float(d), r, float(rt), float(unfired) if rearm else 0.0
 
 
 def _record_steps(st, steps, kept=None) -> None:
