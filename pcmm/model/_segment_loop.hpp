@@ -197,6 +197,9 @@ struct SegmentLoop {
   std::vector<PyObject *> *evaluated_held;
   // guards linear in the state (kind LINEAR): value c.y + ct t + d (c the row of guard_c), rate r.y + rt
   std::vector<double> *guard_r, *guard_rt;
+  // per guard: a LINEAR guard whose value and rate are state entries (unit rows, no time terms), so its
+  // values here are Python's to the bit (y[p] - target, y[r]: pcmm.events.guards._coordinate)
+  std::vector<char> *guard_exact;
 };
 
 namespace {
@@ -385,8 +388,11 @@ bool guard_values(SegmentLoop *s, double t, const double *y, const double *f, do
 
 // may guard j fire in a step from (g0, d0) to (g1, d1) over h?  pcmm.ode.integrators' _crossed and
 // _hermite_dips with margins: a value within `near` of zero counts, a dip within 40 % (not 20 %)
-bool may_fire(double g0, double d0, double g1, double d1, double h, double direction, double near) {
-  if (std::fabs(g1) <= near || std::fabs(g0) <= near) return true;
+// (`held_start`: g0 is a re-armed guard's held value and d0 = 0, exactly Python's: no margin on g0's
+// nearness to zero nor below x = 0, see settle)
+bool may_fire(double g0, double d0, double g1, double d1, double h, double direction, double near,
+              bool held_start = false) {
+  if (std::fabs(g1) <= near || (!held_start && std::fabs(g0) <= near)) return true;
   if ((g0 < 0) != (g1 < 0)) return direction == 0 || (direction > 0) == (g1 > 0);
   if ((g0 < 0 && direction < 0) || (g0 > 0 && direction > 0)) return false;
   const double c = d0 * h, b = 3 * (g1 - g0) - (2 * d0 + d1) * h, a = 2 * (g0 - g1) + (d0 + d1) * h;
@@ -401,9 +407,12 @@ bool may_fire(double g0, double d0, double g1, double d1, double h, double direc
     xs[nx++] = (-b - rt) / (3 * a);
     xs[nx++] = (-b + rt) / (3 * a);
   }
+  // a held start (d0 = 0 exactly, so c = 0): one extremum is the start itself, x = 0, which Python's
+  // _hermite_dips does not count (0 < x < 1) and which is always "near" g0 here: not counted either
+  const double lo = held_start ? 0.0 : -0.01;
   for (int k = 0; k < nx; ++k) {
     const double x = xs[k];
-    if (x > -0.01 && x < 1.01) {
+    if (x > lo && x < 1.01) {
       const double g = ((a * x + b) * x + c) * x + g0;
       if ((g0 < 0 && g >= 0) || (g0 > 0 && g <= 0) || std::fabs(g) < 0.4 * std::max(std::fabs(g0), std::fabs(g1)))
         return true;
@@ -481,8 +490,13 @@ int settle(SegmentLoop *s, double x, double xph) {
         if (hg.j == j) scale = std::fabs(hg.offset) + std::fabs((*s->g_new)[j] + hg.offset);
       if ((*s->guard_kind)[j] >= 0) scale = (*s->g_scale)[j];  // a loop's solved guard: its own terms
       const double g0 = (*s->g_old)[j], d0 = (*s->r_old)[j], g1 = (*s->g_new)[j], d1 = (*s->r_new)[j];
+      // a flight's first step from its restart state, where a re-armed guard is held at -direction UNFIRED
+      // (rate 0): Python's scanner flags the step only for a sign change or a Hermite dip (g0 is never 0), so
+      // where the values are Python's to the bit (guard_exact) g0's nearness to zero is no reason to
+      const double dir = (*s->guard_dir)[j], unfired = (*s->guard_unfired)[j];
+      const bool held_start = (*s->guard_exact)[j] && unfired > 0 && g0 == -dir * unfired && d0 == 0.0;
       if (!std::isfinite(g0) || !std::isfinite(d0) || !std::isfinite(g1) || !std::isfinite(d1)) candidate = true;
-      else candidate = may_fire(g0, d0, g1, d1, xph - x, (*s->guard_dir)[j], 1e-12 * scale);
+      else candidate = may_fire(g0, d0, g1, d1, xph - x, dir, 1e-12 * scale, held_start);
     }
     std::swap(s->g_old, s->g_new);
     std::swap(s->r_old, s->r_new);
@@ -930,6 +944,16 @@ int read_linear_guards(SegmentLoop *s, PyObject *obj) {
     (*s->guard_rt)[j] = rt;
     (*s->guard_kind)[j] = LINEAR;
     (*s->guard_unfired)[j] = unfired;
+    const auto unit = [](const double *row, int n) {
+      int ones = 0;
+      for (int i = 0; i < n; ++i) {
+        if (row[i] == 1.0) ++ones;
+        else if (row[i] != 0.0) return false;
+      }
+      return ones == 1;
+    };
+    (*s->guard_exact)[j] = ct == 0.0 && rt == 0.0 && unit(s->guard_c->data() + (size_t)j * s->n, s->n) &&
+                           unit(s->guard_r->data() + (size_t)j * s->n, s->n);
   }
   Py_DECREF(seq);
   return 0;
@@ -1064,6 +1088,7 @@ PyObject *loop_new(PyTypeObject *type, PyObject *args, PyObject *kwargs) {
   s->evaluated_held = new std::vector<PyObject *>();
   s->guard_r = new std::vector<double>((size_t)m * n, 0.0);
   s->guard_rt = new std::vector<double>(m, 0.0);
+  s->guard_exact = new std::vector<char>(m, 0);
   if (holding_o != Py_None && read_holding_guards(s, holding_o, n)) {
     Py_DECREF(s);
     return nullptr;
@@ -1178,6 +1203,7 @@ void loop_dealloc(SegmentLoop *s) {
   delete s->evaluated;
   delete s->guard_r;
   delete s->guard_rt;
+  delete s->guard_exact;
   delete s->tab;
   delete s->stages;
   delete s->F;
