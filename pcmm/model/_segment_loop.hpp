@@ -388,11 +388,12 @@ bool guard_values(SegmentLoop *s, double t, const double *y, const double *f, do
 
 // may guard j fire in a step from (g0, d0) to (g1, d1) over h?  pcmm.ode.integrators' _crossed and
 // _hermite_dips with margins: a value within `near` of zero counts, a dip within 40 % (not 20 %)
-// (`held_start`: g0 is a re-armed guard's held value and d0 = 0, exactly Python's: no margin on g0's
-// nearness to zero nor below x = 0, see settle)
+// (`exact`: the values and rates are Python's to the bit, see settle: an end at zero counts, as in _crossed,
+// a near-zero one does not; and where d0 = 0 no extremum at or below x = 0, as in _hermite_dips)
 bool may_fire(double g0, double d0, double g1, double d1, double h, double direction, double near,
-              bool held_start = false) {
-  if (std::fabs(g1) <= near || (!held_start && std::fabs(g0) <= near)) return true;
+              bool exact = false) {
+  if (exact) near = 0.0;
+  if (std::fabs(g1) <= near || std::fabs(g0) <= near) return true;
   if ((g0 < 0) != (g1 < 0)) return direction == 0 || (direction > 0) == (g1 > 0);
   if ((g0 < 0 && direction < 0) || (g0 > 0 && direction > 0)) return false;
   const double c = d0 * h, b = 3 * (g1 - g0) - (2 * d0 + d1) * h, a = 2 * (g0 - g1) + (d0 + d1) * h;
@@ -407,9 +408,9 @@ bool may_fire(double g0, double d0, double g1, double d1, double h, double direc
     xs[nx++] = (-b - rt) / (3 * a);
     xs[nx++] = (-b + rt) / (3 * a);
   }
-  // a held start (d0 = 0 exactly, so c = 0): one extremum is the start itself, x = 0, which Python's
-  // _hermite_dips does not count (0 < x < 1) and which is always "near" g0 here: not counted either
-  const double lo = held_start ? 0.0 : -0.01;
+  // d0 = 0 exactly (c = 0: disc = b b, its root |b|): one extremum is the start itself, exactly x = 0, which
+  // Python's _hermite_dips does not count (0 < x < 1), and which is always "near" g0
+  const double lo = exact && d0 == 0.0 ? 0.0 : -0.01;
   for (int k = 0; k < nx; ++k) {
     const double x = xs[k];
     if (x > lo && x < 1.01) {
@@ -490,13 +491,13 @@ int settle(SegmentLoop *s, double x, double xph) {
         if (hg.j == j) scale = std::fabs(hg.offset) + std::fabs((*s->g_new)[j] + hg.offset);
       if ((*s->guard_kind)[j] >= 0) scale = (*s->g_scale)[j];  // a loop's solved guard: its own terms
       const double g0 = (*s->g_old)[j], d0 = (*s->r_old)[j], g1 = (*s->g_new)[j], d1 = (*s->r_new)[j];
-      // a flight's first step from its restart state, where a re-armed guard is held at -direction UNFIRED
-      // (rate 0): Python's scanner flags the step only for a sign change or a Hermite dip (g0 is never 0), so
-      // where the values are Python's to the bit (guard_exact) g0's nearness to zero is no reason to
-      const double dir = (*s->guard_dir)[j], unfired = (*s->guard_unfired)[j];
-      const bool held_start = (*s->guard_exact)[j] && unfired > 0 && g0 == -dir * unfired && d0 == 0.0;
+      // a guard whose values and rates here are Python's to the bit (guard_exact: a state entry's joint stop)
+      // needs no margin for round-off: Python's scanner flags a step only for an end at zero, a sign change
+      // or a Hermite dip, so the restart state of a flight (the stop a hair away, or a re-armed guard held at
+      // -direction UNFIRED with rate 0) is no reason to hand its first step back
+      const bool exact = (*s->guard_kind)[j] == LINEAR && (*s->guard_exact)[j];
       if (!std::isfinite(g0) || !std::isfinite(d0) || !std::isfinite(g1) || !std::isfinite(d1)) candidate = true;
-      else candidate = may_fire(g0, d0, g1, d1, xph - x, dir, 1e-12 * scale, held_start);
+      else candidate = may_fire(g0, d0, g1, d1, xph - x, (*s->guard_dir)[j], 1e-12 * scale, exact);
     }
     std::swap(s->g_old, s->g_new);
     std::swap(s->r_old, s->r_new);
