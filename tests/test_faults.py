@@ -28,6 +28,7 @@ import suite_checks
 import builders
 import pcmm
 from pcmm.cli import main as cli_main
+from pcmm.signals import Terminated
 
 ROOT = Path(__file__).resolve().parents[1]
 PY = sys.executable
@@ -183,6 +184,26 @@ def test_partial_stats_count_the_interrupted_segment(tmp_path):
     partial = info.value.partial
     assert partial.stats["steps"] == steps_from_samples(partial)
     assert info.value.exit_code == 130
+
+
+def test_a_signal_in_the_first_segment_before_any_sample_keeps_an_empty_partial(tmp_path, capsys, monkeypatch):
+    """SIGTERM inside simulate's loop before the first segment is recorded (the first segment's
+    compiled set-up, slow on a loaded machine: CI saw it 3.4 s into a run): the run keeps its
+    partial result, empty and marked partial, with exit status 143, as a signal before simulate
+    does; it used to raise the failure with nothing written (no --out, no --summary)."""
+    loop = importlib.import_module("pcmm.run.loop")  # (imported here: run alone, no test before loaded it)
+
+    def integrate_segment(run, progress):
+        raise Terminated(signal.SIGTERM)  # what pcmm.signals.as_interrupts raises on SIGTERM
+    monkeypatch.setattr(loop, "integrate_segment", integrate_segment)
+    scene = builders.ball(tmp_path / "scene", 0.5, t_end=0.2)
+    rc, _, err = cli(["run", scene, "--out", tmp_path / "t.npz", "--summary", tmp_path / "s.json", "--quiet"], capsys)
+    assert rc == 143, (rc, err)
+    traj = pcmm.Trajectory.load(tmp_path / "t.npz")
+    assert traj.status == "partial" and "SIGTERM" in traj.message and not traj.segments
+    summary = json.loads((tmp_path / "s.json").read_text())
+    assert summary["status"] == "partial" and summary["message"] == traj.message
+    assert "the partial trajectory is saved in" in err
 
 
 def test_a_second_ctrl_c_while_the_partial_is_recorded_loses_nothing(tmp_path, monkeypatch):

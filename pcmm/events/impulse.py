@@ -185,8 +185,8 @@ def solve_impulse(cfg: Configuration, t: float, q: np.ndarray, v: np.ndarray, co
     with ``friction`` takes a two-dimensional impulse (Routh's process).  ``name`` (the
     transition) goes into the messages.
 
-    Compiled where the contact's plan takes it (:mod:`pcmm.events.impulse_compiled`: a tree whose
-    rows are drives, a joint stop or a frictionless point contact), checked against
+    Compiled where the contact's plan takes it (:mod:`pcmm.events.impulse_compiled`: rows of revolute
+    loop cut joints and drives, a joint stop or a frictionless point contact), checked against
     :func:`solve_impulse_python` at the plan's first impact; else that Python solve."""
     plan = _plan(cfg, contact, cut_joints)
     fast = compiled_impulse(cfg, plan)
@@ -214,7 +214,7 @@ def _compiled_solve(cfg: Configuration, plan: _Plan, fast: CompiledImpulse, q, v
     if got is None:
         return None
     v_after, (P, vn_before, vn_after, ke_before, ke_after, drive_work), n, point, pos_a, pos_b, mu, cut, joints, tau, \
-        momenta = got
+        momenta, loop_points = got
     out = ArrayImpulse(kind=plan.kind, restitution=restitution, normal=n, P=P, vn_before=vn_before, vn_after=vn_after,
                        v_before=v.copy(), v_after=v_after, ke_before=ke_before, ke_after=ke_after, point=point,
                        drive_work=drive_work, rnea_residual=tau, momenta=momenta)
@@ -222,8 +222,16 @@ def _compiled_solve(cfg: Configuration, plan: _Plan, fast: CompiledImpulse, q, v
     del d["cut_impulses"], d["constraint_rows"], d["joint_impulses"], d["contact_impulses"]  # (_FORMED: when read)
     out.arrays = (cut, mu, joints)
     out.solved = (fast, plan, pos_a, pos_b)
-    labels = fast.drive_labels
-    if not labels:
+    labels = fast.row_labels
+    if fast.loop_cuts:  # each loop cut joint's impulse on b at its point, the opposite on a (loop_point_impulses' form)
+        loop = []
+        for k, s in enumerate(fast.loop_cuts):
+            F = mu[2 * k:2 * k + 2]
+            loop += [(s.b, loop_points[k, 2:], F, 0.0), (s.a, loop_points[k, :2], -F, -0.0)]
+        out.constraint_impulses = constraint_impulses(cfg, out.constraint_rows, loop)
+        for name in plan.cut_loops:  # on b from a, world axes, like a tree joint's cut impulse
+            out.cut_impulses[name] = list(out.constraint_impulses[name])
+    elif not labels:
         out.constraint_impulses = {}
     elif _revolute_drives(cfg, labels):  # constraint_impulses' [0, 0, mu] of each drive (a revolute joint's)
         out.constraint_impulses = {lab: [0.0, 0.0, m] for lab, m in zip(labels, mu.tolist())}
@@ -276,7 +284,7 @@ class ArrayImpulse(Impulse):
 #: the fields of :class:`ArrayImpulse` formed when first read: {field: how, from the impulse}
 _FORMED = {
     "cut_impulses": lambda imp: dict(zip(imp.solved[0].cut_names, imp.arrays[0].tolist())),
-    "constraint_rows": lambda imp: dict(zip(imp.solved[0].drive_labels, imp.arrays[1].tolist())),
+    "constraint_rows": lambda imp: dict(zip(imp.solved[0].row_labels, imp.arrays[1].tolist())),
     "joint_impulses": lambda imp: dict(zip(imp.solved[0].joint_names, imp.arrays[2].tolist())),
     "contact_impulses": _contact_impulses,
 }

@@ -10,10 +10,12 @@ by the drive rows, and the cut joint's impulsive reaction from the impulse the j
 equation).  Same numbers to round-off, not to the bit.
 
 Taken: a joint stop (revolute or prismatic) or a frictionless point contact - stops, latches,
-stop-merges - in a tree configuration (no planar joint, no armature) whose rows are drives on
-revolute joints that are not cut.  Left to the Python solve, with the reason kept (:func:`reason`): closed
-loops, friction, planar joints, a driven cut joint, ``PCMM_COMPILED=0``, an extension without
-it.  Contacts closed at once (:mod:`pcmm.events.simultaneous`) and pin strikes never come here.
+stop-merges - in a configuration (no planar joint, no armature) whose rows are revolute cut joints'
+(closed loops: their closure rows Phi_q among the constraint rows, Eqs. 12 and 25) and drives on
+revolute joints that are not cut.  Left to the Python solve, with the reason kept (:func:`reason`):
+prismatic and weld cut joints, friction, planar joints, a driven cut joint, ``PCMM_COMPILED=0``, an
+extension without it.  Contacts closed at once (:mod:`pcmm.events.simultaneous`) and pin strikes never
+come here.
 
 Each plan is checked once against the Python solve, at its first impact
 (:func:`pcmm.events.impulse.solve_impulse`): velocities, impulses and energies to
@@ -74,9 +76,10 @@ class CompiledImpulse:
     """A contact's compiled plan and the names its results are read with."""
 
     plan: object  # pcmm.model._tree_dynamics.ImpulsePlan
-    drive_labels: tuple[str, ...]  # the drive rows' labels, in the plan's order (all of cfg.coords.labels)
+    row_labels: tuple[str, ...]  # the constraint rows' labels, in the plan's order: all of cfg.coords.labels
     cut_names: tuple[str, ...]  # the tree joints cut, in the plan's order
     joint_names: tuple[str, ...]  # every joint of the tree, in Pinocchio's order (RNEA's rows)
+    loop_cuts: tuple = ()  # the loop cut joints' specs, in the order of the plan's pairs (their impulses)
     checked: bool = False  # agreed with the Python solve at an impact
 
 
@@ -145,14 +148,16 @@ def _build(cfg: Configuration, plan) -> tuple[CompiledImpulse | None, str | None
     contact = plan.contact
     if plan.frictional:
         return None, "a frictional point contact (Routh's process) is solved in Python"
-    if plan.cut_loops:
-        return None, f"cut loop joints {plan.cut_loops}: solved in Python"
     if cfg.has_planar:
         return None, "a planar joint (nq != nv) in the tree: solved in Python"
     labels = tuple(cfg.coords.labels)
-    if any(not lab.endswith(".drive") for lab in labels):
-        return None, "closed loops (loop rows among the constraints): solved in Python"
-    drives = tuple(lab[:-len(".drive")] for lab in labels)
+    loop_cuts = cfg.coords.cut_joint_frames() if getattr(cfg.coords, "constrained", False) else ()
+    if any(s.type != "revolute" for s, _, _ in loop_cuts):
+        return None, "prismatic or weld loop cut joints: solved in Python"
+    loop_labels = tuple(lab for s, _, _ in loop_cuts for lab in (f"{s.name}.fx", f"{s.name}.fy"))
+    if labels[:len(loop_labels)] != loop_labels or any(not lab.endswith(".drive") for lab in labels[len(loop_labels):]):
+        return None, f"constraint rows {list(labels)}: not the loops' then the drives' rows; solved in Python"
+    drives = tuple(lab[:-len(".drive")] for lab in labels[len(loop_labels):])
     if set(drives) & set(plan.cut_joints):
         return None, "a driven joint is cut: solved in Python"
     if any(cfg.spec.info.joints[j].type == "prismatic" for j in drives):  # its impulse's axis is read from the pose
@@ -178,7 +183,7 @@ def _build(cfg: Configuration, plan) -> tuple[CompiledImpulse | None, str | None
         vec = np.array([float(contact.normal[0]), float(contact.normal[1]), 0.0])
     if vec.shape != (3,):
         return None, f"the contact's axis {vec.tolist()} is not three numbers: solved in Python"
-    built = compiled.impulse_tree(model, frames)
+    built = compiled.impulse_tree(model, frames, [(fa, fb) for _, fa, fb in loop_cuts])
     if built is None:
         return None, compiled.why_not()
     tree, index, _ = built
@@ -190,7 +195,8 @@ def _build(cfg: Configuration, plan) -> tuple[CompiledImpulse | None, str | None
             [cfg.joint_slice[j].start for j in drives], cuts, NO_IMPULSE)
     except (TypeError, ValueError) as exc:
         return None, f"the compiled impulse plan could not be built: {exc}"
-    return CompiledImpulse(fast, labels, tuple(plan.cut_joints), tuple(cfg.joint_names)), None
+    return CompiledImpulse(fast, labels, tuple(plan.cut_joints), tuple(cfg.joint_names),
+                           tuple(s for s, _, _ in loop_cuts)), None
 
 
 def disagreement(fast, reference) -> str | None:

@@ -19,10 +19,19 @@
 // Mathematically the same numbers as the Python solve; the same to round-off in floating point
 // (tests/test_compiled_impulse.py compares the two on every impulse of three_bar_cycle and on drawn chains).
 //
+// Closed loops: a configuration with revolute cut joints (the tree's pairs, Eq. 12's closure rows
+// p_b - p_a = 0) puts their velocity rows Phi_q (closure_rows: J_pb - J_pa, world x and y) first in A,
+// the drives' unit rows after them, in the order of the configuration's row labels.  Through T the
+// cut system's loop rows are the tree's own, so the same restriction holds:
+//   W_eff = W - W A^T (A W A^T)^-1 A W,  mu = -(A W A^T)^-1 A W J^T P  (the KKT/Schur solve of Eq. 25),
+// the loop rows' multipliers the cut joints' impulses on b (world axes, at b's point; the opposite on a
+// at a's point), which are external forces of the RNEA pass like the contact's, as in the Python
+// solve (pcmm.events.impulse.loop_point_impulses, tests/test_compiled_impulse_loops.py).
+//
 // Taken: joint stops (revolute, prismatic) and frictionless point contacts (stops, latches, merges)
-// in a tree whose only rows are drives on uncut joints.  Everything else (loops, friction, planar
-// joints, simultaneous contacts) stays with the Python solve, which pcmm.events.impulse_compiled
-// decides before building a plan.
+// in a tree or a configuration with revolute cut joints whose other rows are drives on uncut joints.
+// Everything else (prismatic and weld cut joints, friction, planar joints, simultaneous contacts)
+// stays with the Python solve, which pcmm.events.impulse_compiled decides before building a plan.
 
 struct ImpulseCore {
   int kind = 0;  // 0: revolute joint stop, 1: prismatic joint stop, 2: point contact
@@ -33,6 +42,7 @@ struct ImpulseCore {
   Model::FrameIndex frame_a = 0, frame_b = 0;  // link frames (this plan's tree)
   Model::FrameIndex point_a = 0, point_b = 0;  // point contacts: the contact points' frames
   std::vector<int> drives;  // the drive rows' velocity columns, in the order of the rows' labels
+  int nc = 0;  // the loop rows (2 per revolute cut joint: the tree's pairs), before the drives' rows
   std::vector<std::pair<Model::JointIndex, Eigen::MatrixXd>> cuts;  // (joint, N: 3 x k forbidden motions, planar)
   // no impulse along n where J W_eff J^T <= no_impulse times the contact's reach (the largest inverse
   // mass its relative motion meets without the drive rows): the Python solve's own rule
@@ -40,6 +50,7 @@ struct ImpulseCore {
   double no_impulse = 0.0;
   // scratch, sized once
   Eigen::MatrixXd M, W, W_eff, WAt, S, Ja, Jb, Jpa, Jpb, R;
+  RowMatrixXd A;  // the constraint rows (loops, then drives): with loops only
   Eigen::RowVectorXd J;
   VectorXd zero, dv, x;
   std::vector<pinocchio::Force> fext;
@@ -117,12 +128,17 @@ PyObject *impulse_plan_new(PyTypeObject *type, PyObject *args, PyObject *) {
     delete core;
     return nullptr;
   }
-  const int nd = (int)core->drives.size();
+  core->nc = 2 * (int)tree->pairs->size();
+  const int nd = (int)core->drives.size(), m = core->nc + nd;
   core->M.resize(nv, nv);
   core->W.resize(nv, nv);
   core->W_eff.resize(nv, nv);
-  core->WAt.resize(nv, nd);
-  core->S.resize(nd, nd);
+  core->WAt.resize(nv, m);
+  core->S.resize(m, m);
+  if (core->nc) {
+    core->A.setZero(m, nv);
+    for (int k = 0; k < nd; ++k) core->A(core->nc + k, core->drives[k]) = 1.0;
+  }
   for (auto *m : {&core->Ja, &core->Jb, &core->Jpa, &core->Jpb}) m->setZero(6, nv);
   core->J.resize(nv);
   core->zero = VectorXd::Zero(nv);
@@ -153,8 +169,9 @@ inline PyObject *impulse_vector(const double *x, npy_intp n) {
 }
 
 // solve(q, v, e) -> (v_after, (P, vn_before, vn_after, ke_before, ke_after, drive_work), normal (2),
-// point (2), pos_a (2), pos_b (2), mu (drive rows), cut (k x 3), joints (njoints - 1 x 3), residual (nv),
-// (Lx, Ly, H0 before, Lx, Ly, H0 after): the momenta about the world origin);
+// point (2), pos_a (2), pos_b (2), mu (loop rows, then drive rows), cut (k x 3), joints (njoints - 1 x 3),
+// residual (nv), (Lx, Ly, H0 before, Lx, Ly, H0 after): the momenta about the world origin, the loop cut
+// joints' points (pairs x 4: a's x, y, then b's x, y));
 // None where the contact takes no impulse along its normal (the Python solve says why)
 PyObject *impulse_plan_solve(ImpulsePlan *self, PyObject *const *args, Py_ssize_t nargs) {
   if (nargs != 3) {
@@ -164,7 +181,7 @@ PyObject *impulse_plan_solve(ImpulsePlan *self, PyObject *const *args, Py_ssize_
   const Model &model = *self->tree->model;
   Data &data = *self->tree->data;
   ImpulseCore &c = *self->core;
-  const int nv = model.nv, nd = (int)c.drives.size();
+  const int nv = model.nv, nd = (int)c.drives.size(), nc = c.nc, m = nc + nd;
   const double e = PyFloat_AsDouble(args[2]);
   if (e == -1.0 && PyErr_Occurred()) return nullptr;
   PyArrayObject *q_a = vector_arg(args[0], nv, "q", "coordinate vector");
@@ -221,7 +238,7 @@ PyObject *impulse_plan_solve(ImpulsePlan *self, PyObject *const *args, Py_ssize_
     pos_b = data.oMf[c.point_b].translation().head<2>();
     point = pos_b;
   }
-  // W = M^-1; W_eff, the inverse of the paper's M_f (Eq. 25), restricted by the drive rows
+  // W = M^-1; W_eff, the inverse of the paper's M_f (Eq. 25), restricted by the loop and drive rows
   Eigen::LLT<Eigen::MatrixXd> llt(c.M);
   if (llt.info() != Eigen::Success) {
     Py_DECREF(q_a);
@@ -231,7 +248,13 @@ PyObject *impulse_plan_solve(ImpulsePlan *self, PyObject *const *args, Py_ssize_
   c.W = llt.solve(Eigen::MatrixXd::Identity(nv, nv));
   c.W_eff = c.W;
   Eigen::LLT<Eigen::MatrixXd> s_llt;
-  if (nd) {
+  if (nc) {  // the loops' rows Phi_q at q (Eq. 12), from the Jacobians above; then S = A W A^T (Schur)
+    closure_rows(self->tree, c.A.data());
+    c.WAt.noalias() = c.W * c.A.transpose();
+    c.S.noalias() = c.A * c.WAt;
+    s_llt.compute(c.S);
+    c.W_eff -= c.WAt * s_llt.solve(c.WAt.transpose());
+  } else if (nd) {  // unit rows: W A^T and A W A^T are W's columns and entries
     for (int k = 0; k < nd; ++k) c.WAt.col(k) = c.W.col(c.drives[k]);
     for (int i = 0; i < nd; ++i)
       for (int k = 0; k < nd; ++k) c.S(i, k) = c.W(c.drives[i], c.drives[k]);
@@ -251,7 +274,9 @@ PyObject *impulse_plan_solve(ImpulsePlan *self, PyObject *const *args, Py_ssize_
   } else {
     reach = c.J.dot(c.W * c.J.transpose());
   }
-  if (!std::isfinite(d) || !(d > c.no_impulse * reach) || (nd && s_llt.info() != Eigen::Success)) {
+  // no impulse along n, or a singular S (redundant rows: a loop at a change point): the Python solve
+  // decides and says why
+  if (!std::isfinite(d) || !(d > c.no_impulse * reach) || (m && s_llt.info() != Eigen::Success)) {
     Py_DECREF(q_a);
     Py_DECREF(v_a);
     Py_RETURN_NONE;  // no impulse along n (or nearly none): the Python solve decides and says why
@@ -267,11 +292,11 @@ PyObject *impulse_plan_solve(ImpulsePlan *self, PyObject *const *args, Py_ssize_
   }
   Eigen::Map<VectorXd> va((double *)PyArray_DATA(v_after), nv);
   va = v + c.dv;  // Eqs. 30, 43
-  VectorXd mu(nd);
+  VectorXd mu(m);
   double drive_work = 0.0;
-  if (nd) {
-    mu = -s_llt.solve(c.WAt.transpose() * c.J.transpose()) * P;  // the drives' impulses
-    for (int k = 0; k < nd; ++k) drive_work += mu[k] * v[c.drives[k]];
+  if (m) {
+    mu = -s_llt.solve(c.WAt.transpose() * c.J.transpose()) * P;  // the loops' and drives' impulses
+    for (int k = 0; k < nd; ++k) drive_work += mu[nc + k] * v[c.drives[k]];
   }
   const double vn_after = c.J.dot(va);
   const double ke_before = 0.5 * v.dot(c.M * v), ke_after = 0.5 * va.dot(c.M * va);
@@ -290,6 +315,22 @@ PyObject *impulse_plan_solve(ImpulsePlan *self, PyObject *const *args, Py_ssize_
     const Eigen::Vector2d F = P * n;
     load(c.frame_b, pos_b, F[0], F[1], 0.0);
     load(c.frame_a, c.kind == 1 ? pos_b : pos_a, -F[0], -F[1], 0.0);
+  }
+  // each loop cut joint's impulse (mu's rows fx, fy): on b at its point, the opposite on a at its point
+  const npy_intp pdims[2] = {(npy_intp)nc / 2, 4};
+  PyArrayObject *points = (PyArrayObject *)PyArray_SimpleNew(2, pdims, NPY_DOUBLE);
+  if (points) {
+    double *po = (double *)PyArray_DATA(points);
+    for (int k = 0; k < nc / 2; ++k) {
+      const auto fa = (*self->tree->pairs)[k].first, fb = (*self->tree->pairs)[k].second;
+      const Eigen::Vector2d pa = data.oMf[fa].translation().head<2>(), pb = data.oMf[fb].translation().head<2>();
+      load(fb, pb, mu[2 * k], mu[2 * k + 1], 0.0);
+      load(fa, pa, -mu[2 * k], -mu[2 * k + 1], -0.0);
+      po[4 * k] = pa[0];
+      po[4 * k + 1] = pa[1];
+      po[4 * k + 2] = pb[0];
+      po[4 * k + 3] = pb[1];
+    }
   }
   pinocchio::rnea(model, data, q, c.zero, c.dv, c.fext);
   const VectorXd tau = data.tau;  // the generalized residual (the drives' impulses), before data is reused
@@ -329,23 +370,25 @@ PyObject *impulse_plan_solve(ImpulsePlan *self, PyObject *const *args, Py_ssize_
   }
   Py_DECREF(q_a);
   Py_DECREF(v_a);
-  if (!joints || !cut) {
+  if (!joints || !cut || !points) {
     Py_XDECREF(joints);
     Py_XDECREF(cut);
+    Py_XDECREF(points);
     Py_DECREF(v_after);
     return nullptr;
   }
-  return Py_BuildValue("N(dddddd)NNNNNNNN(dddddd)", v_after, P, vn_before, vn_after, ke_before, ke_after, drive_work,
+  return Py_BuildValue("N(dddddd)NNNNNNNN(dddddd)N", v_after, P, vn_before, vn_after, ke_before, ke_after, drive_work,
                        impulse_vector(n.data(), 2), impulse_vector(point.data(), 2), impulse_vector(pos_a.data(), 2),
-                       impulse_vector(pos_b.data(), 2), impulse_vector(mu.data(), nd), cut, joints,
+                       impulse_vector(pos_b.data(), 2), impulse_vector(mu.data(), m), cut, joints,
                        impulse_vector(tau.data(), nv), momenta[0], momenta[1], momenta[2], momenta[3], momenta[4],
-                       momenta[5]);
+                       momenta[5], points);
 }
 
 PyMethodDef impulse_plan_methods[] = {
     {"solve", (PyCFunction)(void (*)(void))impulse_plan_solve, METH_FASTCALL,
      "solve(q, v, e) -> (v_after, (P, vn_before, vn_after, ke_before, ke_after, drive_work), normal, point, pos_a, "
-     "pos_b, mu, cut, joints, residual, momenta about the origin before and after), or None"},
+     "pos_b, mu, cut, joints, residual, momenta about the origin before and after, the loop cut joints' points), "
+     "or None"},
     {nullptr, nullptr, 0, nullptr}};
 
 PyTypeObject ImpulsePlanType = {PyVarObject_HEAD_INIT(nullptr, 0)};

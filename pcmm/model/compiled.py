@@ -287,12 +287,15 @@ def normal_speed(desc: tuple, y) -> float:
     return _tree_dynamics.normal_speed(desc, y)
 
 
-def impulse_tree(model: pin.Model, frames) -> tuple | None:
+def impulse_tree(model: pin.Model, frames, pairs=()) -> tuple | None:
     """(compiled tree of ``model`` with the frames ``frames`` of the Python model added, {Python frame:
     its frame in the tree}, the names of what was checked on it) for an impulse plan
     (:mod:`pcmm.events.impulse_compiled`): zero gravity and no force element (the impulse's joint
-    impulses are RNEA's at zero velocity and gravity); or None (why_not says).  Its joints, inertias and frames are the model's numbers; the impulse plan
-    itself is checked against the Python solve at its first impact."""
+    impulses are RNEA's at zero velocity and gravity); or None (why_not says).  ``pairs``: the loops'
+    revolute cut joints as (frame of point a, frame of point b) of the Python model (their frames are
+    added too), whose closure rows the plan puts among its constraint rows.  Its joints, inertias and
+    frames are the model's numbers; the impulse plan itself is checked against the Python solve at its
+    first impact."""
     if enabled() and not hasattr(_tree_dynamics, "ImpulsePlan"):  # an extension built before impulses were
         _refuse("this build of pcmm.model._tree_dynamics has no compiled impulse (built from older sources): "
                 "reinstall pcmm (pip install -e .) to rebuild it")
@@ -300,7 +303,8 @@ def impulse_tree(model: pin.Model, frames) -> tuple | None:
     if np.any(np.asarray(model.armature) != 0):  # the cut system the Python solve forms has none
         _refuse("a joint with armature: the cut system of the Python impulse solve carries none")
         return None
-    frames = tuple(sorted({int(f) for f in frames}))
+    pairs = tuple((int(a), int(b)) for a, b in pairs)
+    frames = tuple(sorted({int(f) for f in frames} | {f for pair in pairs for f in pair}))
     index = {f: k + 1 for k, f in enumerate(frames)}  # frame 0 is the universe; add_frame numbers on from it
     nv = model.nv
 
@@ -310,8 +314,10 @@ def impulse_tree(model: pin.Model, frames) -> tuple | None:
             got = tree.add_frame(int(frame.parentJoint), frame.placement.rotation, frame.placement.translation)
             if got != index[f]:
                 raise ValueError(f"frame {model.frames[f].name!r} came out as frame {got}")
+        for a, b in pairs:
+            tree.add_pair(index[a], index[b])
         tree.finalize(np.zeros(3), np.zeros(nv), np.zeros((nv, 2 * nv)))
-    entry = _tree(model, ("impulse", frames), build)
+    entry = _tree(model, ("impulse", frames, pairs) if pairs else ("impulse", frames), build)
     if entry is None:
         return None
     return entry[0], index, entry[1]

@@ -42,6 +42,24 @@ _thread_id = threading.get_ident
 _ASK = object()  # an argument not given: the callee finds it itself
 
 
+def _conditioned(JD: np.ndarray) -> bool:
+    """``cond_2(JD) <= SINGULAR_COND`` shown without an SVD: ``||JD||_F ||JD^-1||_F`` bounds the
+    2-norm condition number from above, and the inverse of a loop's small block is one LAPACK call
+    where numpy's ``cond`` wraps an SVD (a partition at every segment's start and every switch).
+    False: not shown (singular, not finite, or the bound too loose); the SVD then decides and its
+    number goes into the message."""
+    n = JD.shape[0]
+    if n == 0 or JD.shape[1] != n:
+        return False
+    try:
+        inv = solve(JD, np.eye(n))
+    except np.linalg.LinAlgError:
+        return False
+    flat, iflat = JD.ravel(), inv.ravel()
+    bound = math.sqrt(float(flat @ flat)) * math.sqrt(float(iflat @ iflat))
+    return math.isfinite(bound) and bound <= SINGULAR_COND
+
+
 def _nearest_turns(q, start, turns) -> None:
     """Moves ``q``'s angles ``turns`` (revolute dependent coordinates, not driven) by whole turns to
     within pi of the warm start ``start``, in place.  The closure constraints Phi(q) = 0 (the cut
@@ -76,6 +94,7 @@ class PartitionedCoordinates:
         self._loop_held = None  # (thread, force elements) the loop's tree is checked for
         self._loop_refused = "not decided yet"  # why the loop is not compiled (None: it may be): below
         self._seed_q, self._seed_t = None, 0.0  # the last seed and the time of the last partition
+        self._projected = None  # (t, bytes of q) project() assembled after its partition (partition)
         self._reader = False  # a segment reader (restored): its rows and accelerations compiled too
         self.cfg = cfg
         self.closure = closure
@@ -442,12 +461,18 @@ class PartitionedCoordinates:
             self.I = np.array([i for i in range(self.nv) if i not in self.D], dtype=int)
             self.ny = 2 * len(self.I)
             return
+        projected, self._projected = self._projected, None
+        if projected is not None and not prefer_independent and projected[0] == t and projected[1] == q.tobytes():
+            return  # the posture project() just assembled, partitioned there: the same choice (see project)
         self._seed_t = t
         Jq = self._position_rows(t, q)
         self.D = self._best_dependent(Jq, keep=prefer_independent)
-        self.I = np.array([i for i in range(self.nv) if i not in self.D], dtype=int)
+        dependent = set(self.D.tolist())
+        self.I = np.array([i for i in range(self.nv) if i not in dependent], dtype=int)
         self.ny = 2 * len(self.I)
         JD = Jq[:, self.D]
+        if _conditioned(JD):
+            return
         cond = np.linalg.cond(JD) if JD.size else 1.0
         if not np.isfinite(cond) or cond > SINGULAR_COND:
             raise SimulationError(
@@ -889,6 +914,13 @@ class PartitionedCoordinates:
                      g, 0, "repartition", rate=rate, rate_from_state=True,
                      loop_scan=("singularity",) if self.closure.size else None)
 
+    def solving_loop(self):
+        """The compiled Loop whose unpack :meth:`unpack` calls now (ready on this thread for these force
+        elements, no segment re-read), or None: what a compiled guard evaluator solves the loop with
+        (pcmm.events.guards: a loop's joint-coordinate guard located in C++ on the same solves).  Not a
+        segment reader's (its solves check the posture they read: _refuse_singular_read)."""
+        return None if self._reader else self._held_loop()
+
     def _held_loop(self):
         """The compiled loop where it is ready on this thread for these force elements and no
         segment is re-read (the common case, asked at every evaluation), else None."""
@@ -1051,7 +1083,13 @@ class PartitionedCoordinates:
             return self._prescribed(t, np.concatenate([q[self.I], self.cfg.qdot(q, v)[self.I]]))
         self.partition(t, q, prefer_independent)
         self.seed(q)
-        return self.unpack(t, np.concatenate([q[self.I], self.cfg.qdot(q, v)[self.I]]))
+        q_new, v_new = self.unpack(t, np.concatenate([q[self.I], self.cfg.qdot(q, v)[self.I]]))
+        if not prefer_independent:
+            # the next segment's pack() at this instant and this assembled posture keeps the partition just
+            # chosen at q instead of choosing it again: q_new is q moved onto the rows by the Newton solve
+            # (round-off), and the choice is the same there (a switch's entry then costs one partition, not two)
+            self._projected = (t, q_new.tobytes())
+        return q_new, v_new
 
     def rows(self, t, q, v):
         """(Phi_q, bias) of every constraint at (q, v): ``Phi_q a + bias = 0`` (a segment reader's

@@ -343,6 +343,7 @@ def _interrupted(run: RunState, exc: KeyboardInterrupt) -> SimulationError:
     traj.status, traj.message = "partial", f"{run.scene.path}: {describe(exc)} at t = {_t_last(traj):.6g} s"
     err = SimulationError(traj.message, partial=traj)
     err.exit_code = exit_status(exc)
+    err.interrupted = True  # stopped, not failed: the CLI keeps the partial even before its first sample
     return err
 
 
