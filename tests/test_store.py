@@ -178,3 +178,31 @@ def test_a_chunk_header_is_its_json_in_utf8_and_older_string_headers_still_read(
     assert arrays["header"].nbytes == 4 * len(text)
     np.savez(path, **arrays)
     _same_record(first, pcmm.Trajectory.load(folder))
+
+
+def test_a_stored_run_reads_no_chunk_back_while_it_goes_on(tmp_path, monkeypatch):
+    """A ball (e = 1) bouncing 150 times, stored in chunks of at most 20 segments or events: no
+    chunk file is opened while the run goes on (the zero-time-cycle check's last 64 events come
+    from the writer's window, the chunk counts from the writer) until the run ends, and the record and summary are
+    those of the run kept in memory.  Before the window, every chunk was opened once more when
+    written (its counts read back from its header), and the check read the last chunk back."""
+    from pcmm.results import store
+    from pcmm.run.actions import ZERO_TIME_CYCLE
+    assert store.RECENT >= ZERO_TIME_CYCLE
+    scene = pcmm.load_scene(builders.ball(tmp_path, 1.0, merge=False))
+    opts = pcmm.RunOptions(t_end=150.0 * PERIOD)
+    kept = pcmm.simulate(scene, opts)
+    opened = []
+    real_open = store._open
+    monkeypatch.setattr(store, "_open", lambda path: opened.append(path.name) or real_open(path))
+    writer = StoreWriter(tmp_path / "store", chunk_samples=10**9, chunk_records=20)
+    real_end = writer.end
+    monkeypatch.setattr(writer, "end", lambda traj: opened.append("end") or real_end(traj))
+    stored = pcmm.simulate(scene, opts, store=writer)
+    assert opened[0] == "end"  # (the end's stats read the whole run once more: closest approach, holding)
+    opened.clear()
+    assert len(kept.events) == 150 and len(list((tmp_path / "store").glob("chunk-*.npz"))) >= 8
+    assert stored.events[-ZERO_TIME_CYCLE:] == kept.events[-ZERO_TIME_CYCLE:] and opened == []
+    assert stored.events.time(-1) == kept.events[-1]["t"] and opened == []
+    _same_record(kept, stored)
+    assert _summary_text(stored) == _summary_text(kept)

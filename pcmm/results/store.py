@@ -42,6 +42,10 @@ SERIES = ("t", "q", "v", "theta", "omega", "xy", "kinetic", "potential", "forces
 NAMES = ("coordinates", "links", "force_names", "constraint_labels")
 CHUNK_SAMPLES = 50_000  # a chunk is written once the pending segments hold this many samples
 CHUNK_RECORDS = 2_000  # ... or this many segments or events
+#: the last events (and segments) of the chunks written that a run keeps in memory: what its own
+#: checks read back of its past -- the zero-time-cycle check reads the last 64 events
+#: (pcmm.run.actions.ZERO_TIME_CYCLE) -- so that no chunk is read again while the run goes on
+RECENT = 64
 
 
 def chunk_path(folder: Path, k: int) -> Path:
@@ -71,6 +75,11 @@ def _header_array(header: dict) -> np.ndarray:
     a character (UTF-32), and the events' JSON is most of a chunk (a bouncing ball's 2,000 events:
     9.4 MB that way, 2.4 MB this)."""
     return np.frombuffer(_dumps(header).encode(), dtype=np.uint8)
+
+
+def _open(path: Path):
+    """A chunk file opened for reading (every read of a chunk goes through here)."""
+    return np.load(path, allow_pickle=False)
 
 
 def _read_header(z) -> dict:
@@ -108,7 +117,7 @@ class _Chunk:
     """A chunk read back: its segments' records and its events."""
 
     def __init__(self, path: Path):
-        with np.load(path, allow_pickle=False) as z:
+        with _open(path) as z:
             header = _read_header(z)
             if header.get("format") != FORMAT:
                 raise ValueError(f"{path.name}: format {header.get('format')!r}, expected {FORMAT}")
@@ -125,8 +134,9 @@ class _Chunk:
 
 
 class StoreReader:
-    """The chunks of a store folder: counts read once (from every chunk's header), records read one
-    chunk at a time."""
+    """The chunks of a store folder: counts read once (from every chunk's header, or given by the
+    writer of a chunk), records read one chunk at a time -- but for the last :data:`RECENT` segments
+    and events of those written by the run itself (``recent``), kept in memory."""
 
     def __init__(self, folder: Path):
         self.folder = folder
@@ -135,6 +145,8 @@ class StoreReader:
         self.event_counts: list[int] = []
         self.starts = {"segments": [0], "events": [0]}  # cumulative counts: where each chunk starts
         self._cached: tuple[int, _Chunk] | None = None
+        # which ("segments" or "events") -> (the index of the first kept, the records kept)
+        self.recent: dict[str, tuple[int, list]] = {}
         self.refresh()
 
     def refresh(self) -> None:
@@ -143,13 +155,35 @@ class StoreReader:
             path = chunk_path(self.folder, len(self.paths))
             if not path.is_file():
                 return
-            with np.load(path, allow_pickle=False) as z:
+            with _open(path) as z:
                 header = _read_header(z)
-            self.paths.append(path)
-            self.segment_counts.append(len(header["segments"]))
-            self.event_counts.append(len(header["events"]))
-            self.starts["segments"].append(self.starts["segments"][-1] + self.segment_counts[-1])
-            self.starts["events"].append(self.starts["events"][-1] + self.event_counts[-1])
+            self.add(path, len(header["segments"]), len(header["events"]))
+
+    def add(self, path: Path, segments: int, events: int) -> None:
+        """Chunk ``path`` holds the next ``segments`` and ``events``."""
+        self.paths.append(path)
+        self.segment_counts.append(segments)
+        self.event_counts.append(events)
+        self.starts["segments"].append(self.starts["segments"][-1] + segments)
+        self.starts["events"].append(self.starts["events"][-1] + events)
+
+    def written(self, path: Path, segments: list, events: list) -> None:
+        """The run wrote chunk ``path`` of ``segments`` and ``events`` (records): counted without
+        reading it back, its last :data:`RECENT` of each kept."""
+        for which, records in (("segments", segments), ("events", events)):
+            end = self.starts[which][-1] + len(records)
+            _, kept = self.recent.get(which, (end, []))
+            kept = (kept + list(records[-RECENT:]))[-RECENT:]
+            self.recent[which] = (end - len(kept), kept)
+        self.add(path, len(segments), len(events))
+
+    def record(self, which: str, i: int):
+        """Record ``i`` of those written (``which``: "segments" or "events")."""
+        first, kept = self.recent.get(which, (0, ()))
+        if first <= i < first + len(kept):
+            return kept[i - first]
+        k = bisect.bisect_right(self.starts[which], i) - 1
+        return getattr(self.chunk(k), which)[i - self.starts[which][k]]
 
     def chunk(self, k: int) -> _Chunk:
         if self._cached is None or self._cached[0] != k:
@@ -175,8 +209,15 @@ class _Stored(RecordSequence):
         starts = self.reader.starts[self.which]
         if i >= starts[-1]:  # not yet written (a run's latest: what it reads while it goes on)
             return self.tail[i - starts[-1]]
-        k = bisect.bisect_right(starts, i) - 1
-        return getattr(self.reader.chunk(k), self.which)[i - starts[k]]
+        return self.reader.record(self.which, i)
+
+    def time(self, i: int) -> float:
+        """Event ``i``'s ``"t"`` (:meth:`EventLog.time` where it is not yet written)."""
+        i = self._position(i, self.which[:-1])
+        written = self.reader.starts[self.which][-1]
+        if i >= written and hasattr(self.tail, "time"):
+            return self.tail.time(i - written)
+        return self._get(i)["t"]
 
     def __getitem__(self, i):
         if isinstance(i, slice):
@@ -253,9 +294,11 @@ class StoreWriter:
         from it, and goes on filling empty logs (``more``) or none."""
         segs, events = self.pending(traj)
         if len(segs) or len(events):
-            write_chunk(chunk_path(self.folder, self.chunks), list(segs), list(events))
+            path = chunk_path(self.folder, self.chunks)
+            segs, events = list(segs), list(events)
+            write_chunk(path, segs, events)
             self.chunks += 1
-            self.reader.refresh()
+            self.reader.written(path, segs, events)  # not read back
         traj.segments = _Stored(self.reader, "segments", SegmentLog() if more else ())
         traj.events = _Stored(self.reader, "events", EventLog() if more else ())
 
