@@ -157,10 +157,11 @@ def test_pcmm_run_store_stopped_keeps_its_partial_in_the_store_not_a_second_file
 
 
 def test_a_chunk_header_is_its_json_in_utf8_and_older_string_headers_still_read(tmp_path):
-    """A chunk's header (segments, groups, events: JSON) is kept as its UTF-8 bytes, one byte a
-    character of this ASCII JSON: a numpy string array, as before, holds 4 (UTF-32), and the
-    events' JSON is most of a chunk (a bouncing ball: ~1.2 kB of JSON an event, 2,000 events a
-    chunk).  A chunk written the old way (the same JSON as a numpy string) reads the same."""
+    """A chunk's header (segments, groups, the events' count: JSON) and its events (JSON) are kept
+    as UTF-8 bytes, one byte a character of this ASCII JSON: a numpy string array, as before, holds
+    4 (UTF-32), and the events' JSON is most of a chunk (a bouncing ball: ~1.2 kB of JSON an event,
+    2,000 events a chunk).  A chunk written the old way (the events in the header, all of it a
+    numpy string) reads the same."""
     scene = pcmm.load_scene(builders.ball(tmp_path, 1.0, merge=False))
     folder = tmp_path / "store"
     pcmm.simulate(scene, pcmm.RunOptions(t_end=6.5 * PERIOD), store=StoreWriter(folder, chunk_records=4))
@@ -170,11 +171,16 @@ def test_a_chunk_header_is_its_json_in_utf8_and_older_string_headers_still_read(
         arrays = {k: z[k] for k in z.files}
     text = arrays["header"].tobytes().decode("utf-8")
     header = json.loads(text)
+    events_text = arrays.pop("events").tobytes().decode("utf-8")
+    events = json.loads(events_text)
     assert arrays["header"].dtype == np.uint8 and arrays["header"].nbytes == len(text) == len(text.encode("ascii"))
+    assert len(events_text) == len(events_text.encode("ascii"))
     # the fall and 3 flights, and the 3 impacts between them (the 4th segment's is the next chunk's)
-    assert len(header["segments"]) == 4 and len(header["events"]) == 3
-    assert [e["t"] for e in header["events"]] == [e["t"] for e in list(first.events)[:3]]
-    arrays["header"] = np.array(text)  # the old way: 4 bytes a character
+    assert len(header["segments"]) == 4 and header["event_count"] == len(events) == 3 and "events" not in header
+    assert [e["t"] for e in events] == [e["t"] for e in list(first.events)[:3]]
+    del header["event_count"]
+    text = json.dumps({**header, "events": events})
+    arrays["header"] = np.array(text)  # the old way: 4 bytes a character, the events in it
     assert arrays["header"].nbytes == 4 * len(text)
     np.savez(path, **arrays)
     _same_record(first, pcmm.Trajectory.load(folder))
@@ -206,3 +212,17 @@ def test_a_stored_run_reads_no_chunk_back_while_it_goes_on(tmp_path, monkeypatch
     assert stored.events.time(-1) == kept.events[-1]["t"] and opened == []
     _same_record(kept, stored)
     assert _summary_text(stored) == _summary_text(kept)
+
+
+def test_a_pass_over_a_stored_runs_segments_decodes_none_of_its_events(tmp_path):
+    """Reading a stored run's segments (a summary's holding extremes, a plot) leaves each chunk's
+    events as their bytes; asking for the events decodes them, the same as the run's."""
+    scene = pcmm.load_scene(builders.ball(tmp_path, 1.0, merge=False))
+    kept = pcmm.simulate(scene, pcmm.RunOptions(t_end=10.0 * PERIOD))
+    pcmm.simulate(scene, pcmm.RunOptions(t_end=10.0 * PERIOD), store=StoreWriter(tmp_path / "store", chunk_records=4))
+    back = pcmm.Trajectory.load(tmp_path / "store")
+    reader = back.segments.reader
+    for k in range(len(reader.paths)):
+        assert [s.t[0] for s in reader.chunk(k).segments]
+        assert isinstance(reader.chunk(k)._events, np.ndarray)
+    assert len(reader.paths) >= 3 and len(kept.events) == 10 and list(back.events) == list(kept.events)

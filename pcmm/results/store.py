@@ -20,7 +20,10 @@ reads as a partial run up to its last chunk.
 A chunk's segments are grouped by their name lists (configuration, coordinates, links, force
 elements, constraint rows): each group's series are concatenated (``g<k>_<series>``), and the
 header (the array ``header``, JSON as UTF-8 bytes; a numpy string in chunks written before) lists
-the segments in order with their group and samples, the groups' names, and the chunk's events.
+the segments in order with their group and samples, the groups' names, and the number of the
+chunk's events; the events are the array ``events``, their JSON as UTF-8 bytes, read only when
+they are asked for (a pass over a run's segments reads none: in chunks written before, the
+events are the header's ``events``).
 """
 from __future__ import annotations
 
@@ -70,7 +73,7 @@ def write_json(path: Path, obj) -> None:
     atomic_write(path, lambda f: f.write(_dumps(obj)), force=True)
 
 
-def _header_array(header: dict) -> np.ndarray:
+def _json_array(header) -> np.ndarray:
     """A chunk's header as the bytes of its JSON in UTF-8: a numpy string array would hold 4 bytes
     a character (UTF-32), and the events' JSON is most of a chunk (a bouncing ball's 2,000 events:
     9.4 MB that way, 2.4 MB this)."""
@@ -100,10 +103,10 @@ def write_chunk(path: Path, segments: list, events: list) -> None:
         for a in SERIES:
             bucket[a].append(np.asarray(getattr(s, a), float))
         metas.append([k, int(len(s.t))])
-    header = {"format": FORMAT, "segments": metas, "events": list(events),
+    header = {"format": FORMAT, "segments": metas, "event_count": len(events),
               "groups": [{"configuration": conf, **{n: list(v) for n, v in zip(NAMES, names)}}
                          for conf, names in groups]}
-    arrays = {"header": _header_array(header)}
+    arrays = {"header": _json_array(header), "events": _json_array(list(events))}
     for k, bucket in parts.items():
         for a, pieces in bucket.items():
             arrays[f"g{k}_{a}"] = np.concatenate(pieces)
@@ -122,6 +125,7 @@ class _Chunk:
             if header.get("format") != FORMAT:
                 raise ValueError(f"{path.name}: format {header.get('format')!r}, expected {FORMAT}")
             arrays = {name: np.asarray(z[name]) for name in z.files if name != "header"}
+        self._events = header.get("events", arrays.pop("events", None))  # (the header's: chunks written before)
         groups = header["groups"]
         at = [0] * len(groups)
         self.segments = []
@@ -130,7 +134,13 @@ class _Chunk:
             at[k] += n
             self.segments.append(SegmentRecord(configuration=g["configuration"], **{m: g[m] for m in NAMES},
                                                **{a: arrays[f"g{k}_{a}"][a0:a0 + n] for a in SERIES}))
-        self.events = header["events"]
+
+    @property
+    def events(self) -> list:
+        """The chunk's events (their JSON decoded when first asked for)."""
+        if isinstance(self._events, np.ndarray):
+            self._events = json.loads(self._events.tobytes().decode())
+        return self._events
 
 
 class StoreReader:
@@ -157,7 +167,8 @@ class StoreReader:
                 return
             with _open(path) as z:
                 header = _read_header(z)
-            self.add(path, len(header["segments"]), len(header["events"]))
+            events = header["event_count"] if "event_count" in header else len(header["events"])
+            self.add(path, len(header["segments"]), events)
 
     def add(self, path: Path, segments: int, events: int) -> None:
         """Chunk ``path`` holds the next ``segments`` and ``events``."""
