@@ -40,3 +40,21 @@ def test_each_record_reads_back_equal_with_the_same_types_and_as_the_general_rea
         general = event_log._build(table.layout, table.row(int(row)), 0, log._aside)[0]
         assert general == got and types(general) == types(got)
     assert list(log) == records and log[1]["x"][3] == 3.0 / 7.0
+
+
+def test_a_log_taken_to_its_columns_and_back_reads_the_same_records_and_grows():
+    """columns() -> from_columns() (the layouts through JSON, as a store chunk keeps them): the
+    same records, 600 of them (past two BLOCKs of 256), a record read by index and changed before
+    is written back, and the log grows afterwards as any log."""
+    import json
+    records = [dict(rec, t=float(i)) if isinstance(rec, dict) else rec
+               for i in range(200) for rec in _records()]
+    log = EventLog(records)
+    log[4]["t"] = -1.0  # the run's record, changed after it was read (kept by index)
+    records[4] = dict(records[4], t=-1.0)
+    layouts, rows, index, aside = log.columns()
+    back = EventLog.from_columns(json.loads(json.dumps(layouts)), rows, index, json.loads(json.dumps(aside)))
+    assert len(back) == 600 and list(back) == records and back[-1] == records[-1]
+    back.append({"t": 1.0, "x": [1.0] * 50, 3: "an int key", "flag": True})
+    back.append({"t": 2.0, "new": "layout"})
+    assert back[600]["x"] == [1.0] * 50 and back[601] == {"t": 2.0, "new": "layout"} and list(back)[:600] == records

@@ -354,6 +354,42 @@ class EventLog(RecordSequence):
     def __repr__(self) -> str:
         return repr(list(self))
 
+    def columns(self) -> tuple[list, list[np.ndarray], np.ndarray, list]:
+        """The log as its columns: (the layouts, in JSON's terms: nested lists; each layout's rows, a
+        float64 array of them; the (layout, row) of every event, an int64 array; the values kept
+        aside) -- what :meth:`from_columns` takes back.  Records read by index and changed since are
+        written back first."""
+        for i, record in list(self._read.items()):
+            if record != self._event(i):
+                self._encode(i, record)
+        rows = [np.concatenate(t.blocks)[:t.n] if t.blocks else np.empty((0, t.width)) for t in self._tables]
+        index = np.concatenate(self._index)[:self._n] if self._index else np.empty((0, 2), np.int64)
+        return [t.layout for t in self._tables], rows, index, list(self._aside)
+
+    @classmethod
+    def from_columns(cls, layouts: list, rows: list[np.ndarray], index: np.ndarray, aside: list) -> EventLog:
+        """The log of :meth:`columns` (its layouts as tuples again, or as read back from JSON)."""
+        def hashable(node):
+            return tuple(hashable(x) for x in node) if isinstance(node, (list, tuple)) else node
+
+        def blocks(a: np.ndarray, dtype) -> list[np.ndarray]:  # BLOCK rows each, as appended
+            out = []
+            for j in range(0, len(a), BLOCK):
+                block = np.empty((BLOCK, a.shape[1]), dtype)
+                block[:len(a) - j] = a[j:j + BLOCK]
+                out.append(block)
+            return out
+        log = cls()
+        for layout, table_rows in zip(layouts, rows):
+            layout = hashable(layout)
+            table = _Table(layout, table_rows.shape[1])
+            table.blocks, table.n = blocks(table_rows, float), len(table_rows)
+            log._by_layout.setdefault(layout, len(log._tables))
+            log._tables.append(table)
+        log._index, log._n = blocks(np.asarray(index).reshape(-1, 2), np.int64), len(index)
+        log._aside = list(aside)
+        return log
+
     def nbytes(self) -> int:
         """Bytes of the number tables and the index (the layouts and the values kept aside not counted)."""
         return sum(b.nbytes for t in self._tables for b in t.blocks) + sum(b.nbytes for b in self._index)
