@@ -21,9 +21,12 @@ A chunk's segments are grouped by their name lists (configuration, coordinates, 
 elements, constraint rows): each group's series are concatenated (``g<k>_<series>``), and the
 header (the array ``header``, JSON as UTF-8 bytes; a numpy string in chunks written before) lists
 the segments in order with their group and samples, the groups' names, and the number of the
-chunk's events; the events are the array ``events``, their JSON as UTF-8 bytes, read only when
-they are asked for (a pass over a run's segments reads none: in chunks written before, the
-events are the header's ``events``).
+chunk's events.  The events are kept as the run's :class:`~pcmm.results.event_log.EventLog`
+keeps them: ``event_layouts`` (JSON as UTF-8 bytes: each layout of record, and the values kept
+aside), ``event_rows<j>`` (float64, the numbers of the events of layout ``j``, a row each) and
+``event_index`` (int64, the layout and row of each event) -- no event is turned into a dict to be
+written, and they are read only when asked for (a pass over a run's segments reads none).  Chunks
+written before keep them as JSON: the array ``events``, or the header's ``events``.
 """
 from __future__ import annotations
 
@@ -91,8 +94,9 @@ def _read_header(z) -> dict:
     return json.loads(a.tobytes().decode() if a.dtype == np.uint8 else str(a[()]))
 
 
-def write_chunk(path: Path, segments: list, events: list) -> None:
-    """One chunk: ``segments`` (records; their series are read now) and ``events`` (dicts)."""
+def write_chunk(path: Path, segments: list, events) -> None:
+    """One chunk: ``segments`` (records; their series are read now) and ``events`` (an
+    :class:`EventLog`, or dicts)."""
     groups: dict[tuple, int] = {}
     parts: dict[int, dict[str, list]] = {}
     metas = []
@@ -106,7 +110,9 @@ def write_chunk(path: Path, segments: list, events: list) -> None:
     header = {"format": FORMAT, "segments": metas, "event_count": len(events),
               "groups": [{"configuration": conf, **{n: list(v) for n, v in zip(NAMES, names)}}
                          for conf, names in groups]}
-    arrays = {"header": _json_array(header), "events": _json_array(list(events))}
+    layouts, rows, index, aside = (events if isinstance(events, EventLog) else EventLog(events)).columns()
+    arrays = {"header": _json_array(header), "event_layouts": _json_array({"layouts": layouts, "aside": aside}),
+              "event_index": index, **{f"event_rows{j}": r for j, r in enumerate(rows)}}
     for k, bucket in parts.items():
         for a, pieces in bucket.items():
             arrays[f"g{k}_{a}"] = np.concatenate(pieces)
@@ -125,7 +131,10 @@ class _Chunk:
             if header.get("format") != FORMAT:
                 raise ValueError(f"{path.name}: format {header.get('format')!r}, expected {FORMAT}")
             arrays = {name: np.asarray(z[name]) for name in z.files if name != "header"}
-        self._events = header.get("events", arrays.pop("events", None))  # (the header's: chunks written before)
+        if "event_index" in arrays:
+            self._events = {name: arrays.pop(name) for name in list(arrays) if name.startswith("event_")}
+        else:  # chunks written before: the events' JSON, in an array or the header
+            self._events = header.get("events", arrays.pop("events", None))
         groups = header["groups"]
         at = [0] * len(groups)
         self.segments = []
@@ -136,10 +145,15 @@ class _Chunk:
                                                **{a: arrays[f"g{k}_{a}"][a0:a0 + n] for a in SERIES}))
 
     @property
-    def events(self) -> list:
-        """The chunk's events (their JSON decoded when first asked for)."""
-        if isinstance(self._events, np.ndarray):
-            self._events = json.loads(self._events.tobytes().decode())
+    def events(self):
+        """The chunk's events (an :class:`EventLog`, made when first asked for)."""
+        kept = self._events
+        if isinstance(kept, dict):
+            head = json.loads(kept["event_layouts"].tobytes().decode())
+            rows = [kept[f"event_rows{j}"] for j in range(len(head["layouts"]))]
+            self._events = EventLog.from_columns(head["layouts"], rows, kept["event_index"], head["aside"])
+        elif isinstance(kept, np.ndarray):
+            self._events = json.loads(kept.tobytes().decode())
         return self._events
 
 
@@ -306,7 +320,7 @@ class StoreWriter:
         segs, events = self.pending(traj)
         if len(segs) or len(events):
             path = chunk_path(self.folder, self.chunks)
-            segs, events = list(segs), list(events)
+            segs = list(segs)
             write_chunk(path, segs, events)
             self.chunks += 1
             self.reader.written(path, segs, events)  # not read back
