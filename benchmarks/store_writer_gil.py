@@ -50,11 +50,11 @@ def main() -> None:
             traj = pcmm.simulate(scene, pcmm.RunOptions(t_end=args.t_end))
             stop = threading.Event()
 
-            def work(segs=list(traj.segments), events=list(traj.events), stop=stop):
+            def work(segs: list, events: list, stop: threading.Event) -> None:
                 write_chunk(Path(tmp) / "b.npz", segs, events)
                 stop.set()
             t = time.perf_counter()
-            th = threading.Thread(target=work)
+            th = threading.Thread(target=work, args=(list(traj.segments), list(traj.events), stop))
             th.start()
             both = _spin(stop)
             th.join()

@@ -11,10 +11,10 @@ import sys
 import time
 from pathlib import Path
 
+import builders
 import numpy as np
 import pytest
 
-import builders
 import pcmm
 import pcmm.cli
 from pcmm.errors import SimulationError, UsageError
