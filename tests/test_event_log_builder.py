@@ -58,3 +58,29 @@ def test_a_log_taken_to_its_columns_and_back_reads_the_same_records_and_grows():
     back.append({"t": 1.0, "x": [1.0] * 50, 3: "an int key", "flag": True})
     back.append({"t": 2.0, "new": "layout"})
     assert back[600]["x"] == [1.0] * 50 and back[601] == {"t": 2.0, "new": "layout"} and list(back)[:600] == records
+
+
+def test_an_interrupt_inside_append_leaves_the_log_as_it_was(monkeypatch):
+    """Ctrl-C (or SIGTERM, an interrupt in pcmm.cli) landing inside ``EventLog.append``: the event
+    is not counted, every event before it reads back, and the next append works.  The log used to
+    count the event before encoding it, so a signal mid-encoding left an index row of garbage and
+    the partial run's record died with IndexError (clean-clone CI, test_fs_signals_at_random_moments)."""
+    from pcmm.results import event_log
+    log = event_log.EventLog([{"t": 0.5, "name": "floor", "impulse": {"normal": 2.0, "vector": [0.0, 2.0]}}])
+    real = event_log._Table.append
+
+    def interrupted(self, numbers):
+        raise KeyboardInterrupt
+    for event in ({"t": 1.0, "name": "floor", "impulse": {"normal": 1.0, "vector": [0.0, 1.0]}},
+                  {"t": 1.5, "name": "wall", "P": 3.0}):  # a layout seen before, and a new one
+        monkeypatch.setattr(event_log._Table, "append", interrupted)
+        try:
+            log.append(event)
+        except KeyboardInterrupt:
+            pass
+        monkeypatch.setattr(event_log._Table, "append", real)
+        assert len(log) == 1 and log[-1]["t"] == 0.5 and [e["t"] for e in log] == [0.5]
+    log.append({"t": 2.0, "name": "wall", "P": 4.0})
+    log.append({"t": 2.5, "name": "floor", "impulse": {"normal": 0.5, "vector": [0.0, 0.5]}})
+    assert [(e["t"], e["name"]) for e in log] == [(0.5, "floor"), (2.0, "wall"), (2.5, "floor")]
+    assert log[1]["P"] == 4.0 and log[2]["impulse"]["vector"] == [0.0, 0.5]

@@ -244,8 +244,8 @@ class EventLog(RecordSequence):
         """Keep ``event`` (encoded now: later changes to the dict are not seen)."""
         if self._n == len(self._index) * BLOCK:
             self._index.append(np.empty((BLOCK, 2), np.int64))
-        self._n += 1
-        self._encode(self._n - 1, event)
+        self._encode(self._n, event)
+        self._n += 1  # counted once kept whole: a Ctrl-C inside _encode leaves the log as it was
 
     def _encode(self, i: int, event) -> None:
         log_row = getattr(event, "log_row", None)
@@ -265,13 +265,19 @@ class EventLog(RecordSequence):
             layout = _layout(event, numbers, self._aside)
             k = self._by_layout.get(layout)
             if k is None:
-                k = self._by_layout[layout] = len(self._tables)
-                self._tables.append(_Table(layout, len(numbers)))
+                k = self._new_table(layout, len(numbers))
             flat = _flattener(layout)
             if flat is not None:
                 self._flat = [(k, flat)] + [f for f in self._flat if f[0] != k][:FLATTENERS - 1]
         row = self._tables[k].append(numbers)
         self._index[i // BLOCK][i % BLOCK] = (k, row)
+
+    def _new_table(self, layout, width: int) -> int:
+        """A table for a layout first seen: made, then found by its layout (an interrupt between the
+        two leaves an unused table, never a layout that points past the tables)."""
+        self._tables.append(_Table(layout, width))
+        k = self._by_layout[layout] = len(self._tables) - 1
+        return k
 
     def _row_of(self, template, numbers):
         """(table, numbers) of a record given as ``numbers`` (in the order :func:`_layout` reads them)
@@ -287,8 +293,7 @@ class EventLog(RecordSequence):
             if not aside:
                 k = self._by_layout.get(layout)
                 if k is None:
-                    k = self._by_layout[layout] = len(self._tables)
-                    self._tables.append(_Table(layout, len(width)))
+                    k = self._new_table(layout, len(width))
             known = templates[id(template)] = (template, k, len(width))
         if known[1] is None or len(numbers) != known[2]:
             return None, None
