@@ -587,3 +587,16 @@ def lever_on_wall(folder: Path, theta_s: float, q0: float, friction: float | str
         configs = {"free": "lever.urdf", "pinned": {"urdf": "lever.urdf", "cut_joints": [cut]}}
     doc = base_doc("lever", "free", configs, {"J1": q0}, {"J1": 0.0}, t_end=t_end, transitions=[tr])
     return write_scene(folder, doc, {"lever.urdf": urdf})
+
+
+def compiled_and_python_impulses(cfg, t, q, v, contact, e, cut):
+    """(compiled, Python) impulses of one contact at one state (pcmm.events.impulse): the compiled
+    plan must be taken and must solve; the Python solve is the reference it is held to."""
+    from pcmm.events import impulse
+    from pcmm.events.impulse_compiled import compiled_impulse, reason
+    plan = impulse._plan(cfg, contact, tuple(cut))
+    fast = compiled_impulse(cfg, plan)
+    assert fast is not None, reason(cfg, plan)
+    got = impulse._compiled_solve(cfg, plan, fast, q, v, e)
+    assert got is not None
+    return got, impulse.solve_impulse_python(cfg, t, q, v, contact, e, tuple(cut))

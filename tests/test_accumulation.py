@@ -107,10 +107,10 @@ def _old_shifted_make_guard(shift=1e-12):
             if not state["armed"] and val * d < -shift:
                 state["armed"] = True
             return val if state["armed"] else val - state["offset"]
-        # the raw guard's other evaluations (an event grid's values, its affine, linear and compiled
+        # the raw guard's other evaluations (an event grid's values, its affine, linear, evaluated and compiled
         # scans) read it unshifted: without them the run evaluates the planted guard through value
         others = {f.name: None for f in dataclasses.fields(g_raw)
-                  if f.name in ("many", "affine", "linear", "holding", "loop_scan")}
+                  if f.name in ("many", "affine", "linear", "holding", "loop_scan", "evaluator")}
         return dataclasses.replace(g_raw, value=value, **others)
     return make_guard
 

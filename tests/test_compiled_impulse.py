@@ -12,7 +12,15 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from builders import Bar, base_doc, chain_urdf, nudge_impulses, stop, write_scene
+from builders import (
+    Bar,
+    base_doc,
+    chain_urdf,
+    compiled_and_python_impulses,
+    nudge_impulses,
+    stop,
+    write_scene,
+)
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -29,14 +37,7 @@ pytestmark = pytest.mark.skipif(not compiled.enabled() or not hasattr(compiled._
                                 reason="the compiled impulse is not built here")
 
 
-def _both(cfg, t, q, v, contact, e, cut):
-    """(compiled, Python) impulses at one state; the compiled one must be taken."""
-    plan = impulse._plan(cfg, contact, tuple(cut))
-    fast = compiled_impulse(cfg, plan)
-    assert fast is not None, reason(cfg, plan)
-    got = impulse._compiled_solve(cfg, plan, fast, q, v, e)
-    assert got is not None
-    return got, impulse.solve_impulse_python(cfg, t, q, v, contact, e, tuple(cut))
+_both = compiled_and_python_impulses  # (compiled, Python) impulses at one state
 
 
 def _assert_same(a, b, rel=REL):

@@ -14,7 +14,16 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from builders import bar_xml, base_doc, joint_xml, link_xml, robot_xml, stop, write_scene
+from builders import (
+    bar_xml,
+    base_doc,
+    compiled_and_python_impulses,
+    joint_xml,
+    link_xml,
+    robot_xml,
+    stop,
+    write_scene,
+)
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 from test_compiled_impulse import REL, _assert_same, _momenta_match, _newton, _run
@@ -33,14 +42,7 @@ pytestmark = pytest.mark.skipif(not compiled.enabled() or not hasattr(compiled._
                                 reason="the compiled impulse is not built here")
 
 
-def _both(cfg, t, q, v, contact, e, cut):
-    """(compiled, Python) impulses at one state; the compiled one must be taken."""
-    plan = impulse._plan(cfg, contact, tuple(cut))
-    fast = compiled_impulse(cfg, plan)
-    assert fast is not None, reason(cfg, plan)
-    got = impulse._compiled_solve(cfg, plan, fast, q, v, e)
-    assert got is not None
-    return got, impulse.solve_impulse_python(cfg, t, q, v, contact, e, tuple(cut))
+_both = compiled_and_python_impulses  # (compiled, Python) impulses at one state
 
 
 def _rows_keep(cfg, q, imp):

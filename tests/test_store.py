@@ -11,10 +11,10 @@ import sys
 import time
 from pathlib import Path
 
+import builders
 import numpy as np
 import pytest
 
-import builders
 import pcmm
 import pcmm.cli
 from pcmm.errors import SimulationError, UsageError
@@ -157,10 +157,11 @@ def test_pcmm_run_store_stopped_keeps_its_partial_in_the_store_not_a_second_file
 
 
 def test_a_chunk_header_is_its_json_in_utf8_and_older_string_headers_still_read(tmp_path):
-    """A chunk's header (segments, groups, events: JSON) is kept as its UTF-8 bytes, one byte a
-    character of this ASCII JSON: a numpy string array, as before, holds 4 (UTF-32), and the
-    events' JSON is most of a chunk (a bouncing ball: ~1.2 kB of JSON an event, 2,000 events a
-    chunk).  A chunk written the old way (the same JSON as a numpy string) reads the same."""
+    """A chunk's header (segments, groups, the events' count: JSON) is kept as UTF-8 bytes, one
+    byte a character of this ASCII JSON (a numpy string array holds 4, UTF-32), and its events as
+    the event log's columns: one float64 row of numbers an event (a bouncing ball's impact: no
+    JSON of it, ~1.2 kB an event before).  Chunks written the older ways read the same: the
+    events' JSON as UTF-8 bytes (the array ``events``), or in the header, all a numpy string."""
     scene = pcmm.load_scene(builders.ball(tmp_path, 1.0, merge=False))
     folder = tmp_path / "store"
     pcmm.simulate(scene, pcmm.RunOptions(t_end=6.5 * PERIOD), store=StoreWriter(folder, chunk_records=4))
@@ -172,9 +173,59 @@ def test_a_chunk_header_is_its_json_in_utf8_and_older_string_headers_still_read(
     header = json.loads(text)
     assert arrays["header"].dtype == np.uint8 and arrays["header"].nbytes == len(text) == len(text.encode("ascii"))
     # the fall and 3 flights, and the 3 impacts between them (the 4th segment's is the next chunk's)
-    assert len(header["segments"]) == 4 and len(header["events"]) == 3
-    assert [e["t"] for e in header["events"]] == [e["t"] for e in list(first.events)[:3]]
-    arrays["header"] = np.array(text)  # the old way: 4 bytes a character
-    assert arrays["header"].nbytes == 4 * len(text)
-    np.savez(path, **arrays)
+    assert len(header["segments"]) == 4 and header["event_count"] == 3 and "events" not in header
+    rows = [arrays[k] for k in arrays if k.startswith("event_rows")]
+    assert arrays["event_index"].shape == (3, 2) and len(rows) == 1 and rows[0].shape[0] == 3
+    assert list(rows[0][:, 0]) == [e["t"] for e in list(first.events)[:3]]  # an event's "t" leads its row
+    events = json.loads(json.dumps(list(first.events)[:3]))
+    old = {k: v for k, v in arrays.items() if not k.startswith("event_")}
+    np.savez(path, **old, events=np.frombuffer(json.dumps(events).encode(), np.uint8))  # the events' JSON
     _same_record(first, pcmm.Trajectory.load(folder))
+    del header["event_count"]
+    text = json.dumps({**header, "events": events})
+    old["header"] = np.array(text)  # the oldest way: 4 bytes a character, the events in it
+    assert old["header"].nbytes == 4 * len(text)
+    np.savez(path, **old)
+    _same_record(first, pcmm.Trajectory.load(folder))
+
+
+def test_a_stored_run_reads_no_chunk_back_while_it_goes_on(tmp_path, monkeypatch):
+    """A ball (e = 1) bouncing 150 times, stored in chunks of at most 20 segments or events: no
+    chunk file is opened while the run goes on (the zero-time-cycle check's last 64 events come
+    from the writer's window, the chunk counts from the writer) until the run ends, and the record and summary are
+    those of the run kept in memory.  Before the window, every chunk was opened once more when
+    written (its counts read back from its header), and the check read the last chunk back."""
+    from pcmm.results import store
+    from pcmm.run.actions import ZERO_TIME_CYCLE
+    assert store.RECENT >= ZERO_TIME_CYCLE
+    scene = pcmm.load_scene(builders.ball(tmp_path, 1.0, merge=False))
+    opts = pcmm.RunOptions(t_end=150.0 * PERIOD)
+    kept = pcmm.simulate(scene, opts)
+    opened = []
+    real_open = store._open
+    monkeypatch.setattr(store, "_open", lambda path: opened.append(path.name) or real_open(path))
+    writer = StoreWriter(tmp_path / "store", chunk_samples=10**9, chunk_records=20)
+    real_end = writer.end
+    monkeypatch.setattr(writer, "end", lambda traj: opened.append("end") or real_end(traj))
+    stored = pcmm.simulate(scene, opts, store=writer)
+    assert opened[0] == "end"  # (the end's stats read the whole run once more: closest approach, holding)
+    opened.clear()
+    assert len(kept.events) == 150 and len(list((tmp_path / "store").glob("chunk-*.npz"))) >= 8
+    assert stored.events[-ZERO_TIME_CYCLE:] == kept.events[-ZERO_TIME_CYCLE:] and opened == []
+    assert stored.events.time(-1) == kept.events[-1]["t"] and opened == []
+    _same_record(kept, stored)
+    assert _summary_text(stored) == _summary_text(kept)
+
+
+def test_a_pass_over_a_stored_runs_segments_decodes_none_of_its_events(tmp_path):
+    """Reading a stored run's segments (a summary's holding extremes, a plot) leaves each chunk's
+    events as their arrays; asking for the events decodes them, the same as the run's."""
+    scene = pcmm.load_scene(builders.ball(tmp_path, 1.0, merge=False))
+    kept = pcmm.simulate(scene, pcmm.RunOptions(t_end=10.0 * PERIOD))
+    pcmm.simulate(scene, pcmm.RunOptions(t_end=10.0 * PERIOD), store=StoreWriter(tmp_path / "store", chunk_records=4))
+    back = pcmm.Trajectory.load(tmp_path / "store")
+    reader = back.segments.reader
+    for k in range(len(reader.paths)):
+        assert [s.t[0] for s in reader.chunk(k).segments]
+        assert isinstance(reader.chunk(k)._events, dict)  # the arrays, not yet a log
+    assert len(reader.paths) >= 3 and len(kept.events) == 10 and list(back.events) == list(kept.events)

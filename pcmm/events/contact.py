@@ -112,8 +112,11 @@ def compiled_contact(cfg: Configuration, contact: ContactSpec, value: float = 0.
     :func:`contact_state`, :func:`gap_rate` and the normal speed at probe states; else None (Python runs)."""
     if not COMPILED_CONTACTS or contact.joint is not None or not compiled.enabled():
         return None
-    known = _DESCRIBED.by_cfg.setdefault(cfg, {})
-    key = (contact, float(value))
+    by_cfg = _DESCRIBED.by_cfg
+    known = by_cfg.get(cfg)
+    if known is None:
+        known = by_cfg[cfg] = {}
+    key = (contact, value)
     if key in known:
         return known[key]
     desc = None

@@ -46,6 +46,7 @@ def _coordinate(cfg: Configuration, tr: TransitionSpec, ctx=None):
         q, _ = unpack(t, y)
         return row @ q - target
     value.many = _coordinate_many(cfg, row, target)
+    value.evaluator = _loop_evaluator(cfg, row, target)
     if not cfg.coords.constrained and not cfg.has_planar:
         nv = cfg.nv
 
@@ -55,6 +56,30 @@ def _coordinate(cfg: Configuration, tr: TransitionSpec, ctx=None):
         def rate(t, y, f):
             return row @ cfg.qdot(*unpack(t, y))
     return value, rate
+
+
+#: whether a closed loop's joint-coordinate guard is located by the compiled locator on the compiled Loop's
+#: solutions (pcmm/model/_guard_eval.hpp, kind "loop"); off, in Python (the reference the tests compare it with)
+COMPILED_LOOP_GUARDS = True
+
+
+def _loop_evaluator(cfg: Configuration, row: np.ndarray, target: float):
+    """Where ``row`` is one joint coordinate j of a configuration with closed loops (a unit row, no planar
+    joint): a function giving the guard's compiled description at locate time, ``("loop", loop, j,
+    target)`` with the Loop that solves the configuration then (its value ``q_j - target`` and rate ``q'_j``
+    on that Loop's unpack, the call ``value`` makes), or None where no compiled Loop solves it now
+    (PartitionedCoordinates.solving_loop); else None (the guard is located in Python)."""
+    coords = cfg.coords
+    hot = np.flatnonzero(row)
+    if (not COMPILED_LOOP_GUARDS or len(hot) != 1 or row[hot[0]] != 1.0 or cfg.has_planar
+            or not getattr(coords, "constrained", False) or not coords.closure.size or not compiled.enabled()):
+        return None
+    j, target = int(hot[0]), float(target)
+
+    def describe():
+        loop = coords.solving_loop() if COMPILED_LOOP_GUARDS else None
+        return None if loop is None else ("loop", loop, j, target)
+    return describe
 
 
 def _unit(i: int, n: int) -> np.ndarray:

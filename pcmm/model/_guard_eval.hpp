@@ -12,10 +12,23 @@
 //   frame are frames of `tree` (a compiled Tree holding every frame of the configuration's model:
 //   pcmm.model.compiled.gap_tree), its Data scratch space; the state is a tree's y = [q, v, ...].
 //
-// A new kind (h-loops: a loop's solved coordinate) adds its tag, its fields and its case in
-// guard_eval_read and guard_eval; the loop and the locator call guard_eval alone.
+// * ("loop", loop, j, target): a joint coordinate of a configuration with closed loops (pcmm.events.guards.
+//   _coordinate on PartitionedCoordinates), g = q_j - target on the loop's solution at (t, y = [q_I, q'_I]) and
+//   its rate q'_j.  The solution is the Loop's own unpack (_loops.hpp: its warm starts, its cache), the very
+//   call the Python guard makes through PartitionedCoordinates.unpack, so the locator makes the same solves
+//   in the same order as pcmm.ode.integrators._locate_python, with the same bits.  It needs the time: read
+//   by guard_eval_at only (the compiled segment loop scans a loop's guards as its "solved" guards).
+//
+// A new kind adds its tag, its fields and its case in guard_eval_read and guard_eval(_at); the loop and the
+// locator call guard_eval(_at) alone.
 
-enum GuardEvalKind { GUARD_EVAL_GAP = 0 };
+enum GuardEvalKind { GUARD_EVAL_GAP = 0, GUARD_EVAL_LOOP = 1 };
+
+struct Loop;  // _loops.hpp (included after this file): a closed loop's compiled right-hand side and solutions
+Loop *segment_loop_owner(PyObject *obj);
+int segment_loop_size(Loop *self);
+int segment_loop_nv(Loop *self);
+bool segment_loop_solved(Loop *self, double t, const double *y, const double **q, const double **qd);
 
 struct GuardEval {
   int kind;
@@ -23,7 +36,9 @@ struct GuardEval {
   Tree *tree;
   int nv;           // reads the state's first 2 nv components
   long frame_a, frame_b, frame_link;
-  double nx, ny, value;
+  double nx, ny, value;  // value: the guard's target (a gap's, a loop coordinate's)
+  Loop *loop = nullptr;  // GUARD_EVAL_LOOP: the Loop solving the configuration, and the coordinate j read
+  long index = 0;
 };
 
 // the description `desc` read into `out` (its tree borrowed from desc); false with the error set
@@ -56,6 +71,24 @@ bool guard_eval_read(PyObject *desc, GuardEval &out) {
     out.owner = tree_o;
     out.tree = tree;
     out.nv = tree->nv;
+    return true;
+  }
+  if (std::strcmp(kind, "loop") == 0) {
+    PyObject *loop_o;
+    const char *tag;
+    if (!PyArg_ParseTuple(desc, "sOld", &tag, &loop_o, &out.index, &out.value)) return false;
+    Loop *loop = segment_loop_owner(loop_o);  // a seeded Loop, else the error set
+    if (!loop) return false;
+    if (out.index < 0 || out.index >= segment_loop_nv(loop)) {
+      PyErr_Format(PyExc_ValueError, "a loop guard's coordinate %ld is not one of its loop's %d", out.index,
+                   segment_loop_nv(loop));
+      return false;
+    }
+    out.kind = GUARD_EVAL_LOOP;
+    out.owner = loop_o;
+    out.tree = nullptr;
+    out.loop = loop;
+    out.nv = segment_loop_size(loop) / 2;  // y = [q_I, q'_I]
     return true;
   }
   PyErr_Format(PyExc_ValueError, "a guard's description: unknown kind '%s'", kind);
@@ -106,6 +139,25 @@ inline void guard_eval(const GuardEval &g, const double *y, double &val, double 
              std::fabs(g.value);
 }
 
+// the guard's raw value and rate at (t, y): guard_eval, or a loop's coordinate on the Loop's solution there
+// (its unpack: a Newton solve from its warm start, or its cache); false where the Loop declines to solve
+// (a conditioning check fired, a failed solve: Python decides, and val, rate are NaN)
+inline bool guard_eval_at(const GuardEval &g, double t, const double *y, double &val, double &rate, double *scale) {
+  if (g.kind != GUARD_EVAL_LOOP) {
+    guard_eval(g, y, val, rate, scale);
+    return true;
+  }
+  const double *q = nullptr, *qd = nullptr;
+  if (!segment_loop_solved(g.loop, t, y, &q, &qd)) {
+    val = rate = std::nan("");
+    return false;
+  }
+  val = q[g.index] - g.value;  // pcmm.events.guards._coordinate: row . q - target, row a unit row
+  rate = qd[g.index];
+  if (scale) *scale = std::fabs(q[g.index]) + std::fabs(g.value);
+  return true;
+}
+
 // a re-armed guard (right after a bounce: pcmm.events.guards.make_guard, rearm) as it reads: held at
 // -direction max(-direction value, unfired) on its unfired side, its rate 0 there, until its rate
 // approaches the fired side; unfired <= 0: the plain guard
@@ -116,12 +168,18 @@ inline void guard_rearmed(double direction, double unfired, double &val, double 
   val = held;
 }
 
-// guard_value(description, y) -> (value, rate): the guard's raw value and rate at the state y (the
-// agreement check against the Python guard, pcmm.model.compiled.gap_tree, and the tests)
+// guard_value(description, y[, t]) -> (value, rate): the guard's raw value and rate at the state y (at time t:
+// a loop's guard; the agreement check against the Python guard, pcmm.model.compiled.gap_tree, and the
+// tests); None where the loop declines to solve there
 PyObject *guard_value_py(PyObject *, PyObject *const *args, Py_ssize_t nargs) {
-  if (nargs != 2) {
-    PyErr_SetString(PyExc_TypeError, "guard_value(description, y) takes 2 arguments");
+  if (nargs != 2 && nargs != 3) {
+    PyErr_SetString(PyExc_TypeError, "guard_value(description, y[, t]) takes 2 or 3 arguments");
     return nullptr;
+  }
+  double t = 0.0;
+  if (nargs == 3) {
+    t = PyFloat_AsDouble(args[2]);
+    if (t == -1.0 && PyErr_Occurred()) return nullptr;
   }
   GuardEval g;
   if (!guard_eval_read(args[0], g)) return nullptr;
@@ -134,8 +192,9 @@ PyObject *guard_value_py(PyObject *, PyObject *const *args, Py_ssize_t nargs) {
     return nullptr;
   }
   double val, rate;
-  guard_eval(g, (const double *)PyArray_DATA(y), val, rate, nullptr);
+  const bool solved = guard_eval_at(g, t, (const double *)PyArray_DATA(y), val, rate, nullptr);
   Py_DECREF(y);
+  if (!solved) Py_RETURN_NONE;
   return Py_BuildValue("dd", val, rate);
 }
 

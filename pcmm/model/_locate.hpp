@@ -27,6 +27,9 @@ struct LocateGuard {
   // rate from the dense state (its first 2 eval->nv components, into `state`) instead of the rows
   const GuardEval *eval = nullptr;
   double *state = nullptr;
+  // set where the evaluator could not read the guard (a loop's Loop declined to solve): the location is
+  // then Python's (its values NaN from there on, without more solves)
+  bool *failed = nullptr;
 };
 
 struct LocateDense {
@@ -45,7 +48,11 @@ inline void locate_raw(const LocateDense &dn, const LocateGuard &g, double u, do
       const double par = c[4 * ny] + s * (c[5 * ny] + s1 * (c[6 * ny] + s * c[7 * ny]));
       g.state[i] = c[0] + s * (c[ny] + s1 * (c[2 * ny] + s * (c[3 * ny] + s1 * par)));
     }
-    guard_eval(*g.eval, g.state, val, rate, nullptr);
+    if (g.failed && *g.failed) {
+      val = rate = std::nan("");
+      return;
+    }
+    if (!guard_eval_at(*g.eval, u, g.state, val, rate, nullptr) && g.failed) *g.failed = true;
     return;
   }
   double dot_c = 0.0, dot_r = 0.0;
@@ -293,7 +300,8 @@ PyObject *locate_py(PyObject *, PyObject *const *args, Py_ssize_t nargs) {
 }
 
 // locate_guard(t_old, h, cont, t_a, t_b, g_a, tol, direction, description, rearm, unfired) -> t or None: the
-// same for a guard that is not linear in the state, read by its description (_guard_eval.hpp)
+// same for a guard that is not linear in the state, read by its description (_guard_eval.hpp); NotImplemented
+// where the description could not be read at some instant (a loop's Loop declined to solve: Python locates)
 PyObject *locate_guard_py(PyObject *, PyObject *const *args, Py_ssize_t nargs) {
   if (nargs != 11) {
     PyErr_SetString(PyExc_TypeError,
@@ -318,9 +326,12 @@ PyObject *locate_guard_py(PyObject *, PyObject *const *args, Py_ssize_t nargs) {
   }
   std::vector<double> state(2 * (size_t)eval.nv);
   LocateDense dn{(const double *)PyArray_DATA(cont), (int)PyArray_DIM(cont, 1), num[0], num[1]};
-  LocateGuard g{nullptr, nullptr, 0, 0.0, 0.0, 0.0, num[7], rearm != 0, num[10], &eval, state.data()};
+  bool failed = false;
+  LocateGuard g{nullptr, nullptr, 0, 0.0, 0.0, 0.0, num[7], rearm != 0, num[10], &eval, state.data(), &failed};
   double t;
-  if (!locate_first(dn, g, num[3], num[4], num[5], num[6], t)) Py_RETURN_NONE;
+  const bool found = locate_first(dn, g, num[3], num[4], num[5], num[6], t);
+  if (failed) Py_RETURN_NOTIMPLEMENTED;
+  if (!found) Py_RETURN_NONE;
   return PyFloat_FromDouble(t);
 }
 
@@ -330,10 +341,11 @@ PyMethodDef locate_methods[] = {
      "of a guard linear in the state on a step's contd8 dense output, or None (_locate.hpp)"},
     {"locate_guard", (PyCFunction)(void (*)(void))locate_guard_py, METH_FASTCALL,
      "locate_guard(t_old, h, cont, t_a, t_b, g_a, tol, direction, description, rearm, unfired) -> the first "
-     "crossing of a guard read by its description (a contact gap, _guard_eval.hpp) on a step's contd8 dense "
-     "output, or None"},
+     "crossing of a guard read by its description (a contact gap, a loop's coordinate: _guard_eval.hpp) on a "
+     "step's contd8 dense output, or None; NotImplemented where a loop declined to solve (Python locates)"},
     {"guard_value", (PyCFunction)(void (*)(void))guard_value_py, METH_FASTCALL,
-     "guard_value(description, y) -> (value, rate) of a guard read by its description (_guard_eval.hpp)"},
+     "guard_value(description, y[, t]) -> (value, rate) of a guard read by its description (_guard_eval.hpp), or "
+     "None where a loop declines to solve"},
     {"normal_speed", (PyCFunction)(void (*)(void))normal_speed_py, METH_FASTCALL,
      "normal_speed(description, y) -> n . (v_b - v_a) of a contact gap's description at the state y (_guard_eval.hpp)"},
     {nullptr, nullptr, 0, nullptr}};

@@ -157,7 +157,8 @@ def _register_segment_loop(owner: type | None = None, make: Callable | None = No
     says; it ends in :func:`segment_loop`)."""
     locate = getattr(_tree_dynamics, "locate", None)
     if locate is not None:  # the event locator (_locate.hpp), for every configuration's guards from now on
-        from ..ode.integrators import COMPILED_LOCATE  # (and of a guard read by its evaluator: a contact gap)
+        from ..ode.integrators import COMPILED_LOCATE
+        # (and of a guard read by its evaluator: a contact gap, _guard_eval.hpp)
         COMPILED_LOCATE[:] = [locate, enabled, getattr(_tree_dynamics, "locate_guard", None)]
     loop = getattr(_tree_dynamics, "SegmentLoop", None)
     if loop is not None:

@@ -914,6 +914,13 @@ class PartitionedCoordinates:
                      g, 0, "repartition", rate=rate, rate_from_state=True,
                      loop_scan=("singularity",) if self.closure.size else None)
 
+    def solving_loop(self):
+        """The compiled Loop whose unpack :meth:`unpack` calls now (ready on this thread for these force
+        elements, no segment re-read), or None: what a compiled guard evaluator solves the loop with
+        (pcmm.events.guards: a loop's joint-coordinate guard located in C++ on the same solves).  Not a
+        segment reader's (its solves check the posture they read: _refuse_singular_read)."""
+        return None if self._reader else self._held_loop()
+
     def _held_loop(self):
         """The compiled loop where it is ready on this thread for these force elements and no
         segment is re-read (the common case, asked at every evaluation), else None."""

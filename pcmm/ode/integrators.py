@@ -296,7 +296,8 @@ def _locate(e, sol, t_a, t_b, g_a, tol):
     shorter than the grid spacing is still found.  A guard linear in the state (``Guard.linear``)
     on DOP853's dense output is located by the same algorithm in C++ (:data:`COMPILED_LOCATE`),
     with the same bits; so is a guard read by a compiled evaluator (``Guard.evaluator``: a tree's
-    contact gap, its value and rate evaluated in C++ at the same dense states)."""
+    contact gap, its value and rate evaluated in C++ at the same dense states; a loop's joint
+    coordinate on the compiled Loop's solutions, the same solves in the same order)."""
     linear = getattr(e, "linear", None)
     if linear is not None and COMPILED_LOCATE and COMPILED_LOCATE[1]():
         poly = _polynomial(sol)
@@ -305,8 +306,12 @@ def _locate(e, sol, t_a, t_b, g_a, tol):
     evaluator = getattr(e, "evaluator", None)  # read at the dense state by a compiled evaluator: a contact gap
     if evaluator is not None and len(COMPILED_LOCATE) > 2 and COMPILED_LOCATE[2] is not None and COMPILED_LOCATE[1]():
         poly = _polynomial(sol)
-        if poly is not None:
-            return COMPILED_LOCATE[2](poly[0], poly[1], poly[2], t_a, t_b, g_a, tol, e.direction, *evaluator)
+        # a loop's coordinate: its description names the Loop solving the configuration now (None: Python)
+        desc = evaluator[0]() if callable(evaluator[0]) else evaluator[0]
+        if poly is not None and desc is not None:
+            got = COMPILED_LOCATE[2](poly[0], poly[1], poly[2], t_a, t_b, g_a, tol, e.direction, desc, *evaluator[1:])
+            if got is not NotImplemented:  # (the Loop declined a solve: Python locates, from the same warm starts)
+                return got
     return _locate_python(e, sol, t_a, t_b, g_a, tol)
 
 

@@ -160,6 +160,37 @@ def _build(layout, row, pos: int, aside: list):
     return (items if kind == "l" else tuple(items)), pos
 
 
+@functools.lru_cache(maxsize=256)  # per layout, for every log of the process
+def _builder(layout):
+    """``(row, aside) -> the record`` of ``layout`` from its numbers ``row`` (a list of floats):
+    what :func:`_build` returns, by straight-line code generated from the layout -- one dict or
+    list display per container, no call per value (a store writes, and a summary reads, every
+    event of a run: 75 calls of :func:`_build` for a bouncing ball's record)."""
+    consts: list = []
+    pos = [0]
+
+    def const(value) -> str:
+        consts.append(value)
+        return f"K[{len(consts) - 1}]"
+
+    def expr(node) -> str:
+        if node == _F or node == _I or node == _O:
+            i = pos[0]
+            pos[0] += 1
+            return f"r[{i}]" if node == _F else f"int(r[{i}])" if node == _I else f"A[int(r[{i}])]"
+        kind = node[0]
+        if kind == _C:
+            return const(node[1])
+        if kind == "d":
+            return "{" + ", ".join(f"{const(key)}: {expr(sub)}" for key, sub in zip(node[1], node[2])) + "}"
+        items = [expr(sub) for sub in node[1]]
+        return f"[{', '.join(items)}]" if kind == "l" else f"({', '.join(items)}{',' if len(items) == 1 else ''})"
+    body = expr(layout)
+    scope = {"K": tuple(consts)}
+    exec(f"def build(r, A):\n    return {body}\n", scope)  # noqa: S102 - code generated from a layout, no input text
+    return scope["build"]
+
+
 class _Table:
     """The rows of one layout: float64 blocks of BLOCK rows."""
 
@@ -213,8 +244,8 @@ class EventLog(RecordSequence):
         """Keep ``event`` (encoded now: later changes to the dict are not seen)."""
         if self._n == len(self._index) * BLOCK:
             self._index.append(np.empty((BLOCK, 2), np.int64))
-        self._n += 1
-        self._encode(self._n - 1, event)
+        self._encode(self._n, event)
+        self._n += 1  # counted once kept whole: a Ctrl-C inside _encode leaves the log as it was
 
     def _encode(self, i: int, event) -> None:
         log_row = getattr(event, "log_row", None)
@@ -234,13 +265,19 @@ class EventLog(RecordSequence):
             layout = _layout(event, numbers, self._aside)
             k = self._by_layout.get(layout)
             if k is None:
-                k = self._by_layout[layout] = len(self._tables)
-                self._tables.append(_Table(layout, len(numbers)))
+                k = self._new_table(layout, len(numbers))
             flat = _flattener(layout)
             if flat is not None:
                 self._flat = [(k, flat)] + [f for f in self._flat if f[0] != k][:FLATTENERS - 1]
         row = self._tables[k].append(numbers)
         self._index[i // BLOCK][i % BLOCK] = (k, row)
+
+    def _new_table(self, layout, width: int) -> int:
+        """A table for a layout first seen: made, then found by its layout (an interrupt between the
+        two leaves an unused table, never a layout that points past the tables)."""
+        self._tables.append(_Table(layout, width))
+        k = self._by_layout[layout] = len(self._tables) - 1
+        return k
 
     def _row_of(self, template, numbers):
         """(table, numbers) of a record given as ``numbers`` (in the order :func:`_layout` reads them)
@@ -256,8 +293,7 @@ class EventLog(RecordSequence):
             if not aside:
                 k = self._by_layout.get(layout)
                 if k is None:
-                    k = self._by_layout[layout] = len(self._tables)
-                    self._tables.append(_Table(layout, len(width)))
+                    k = self._new_table(layout, len(width))
             known = templates[id(template)] = (template, k, len(width))
         if known[1] is None or len(numbers) != known[2]:
             return None, None
@@ -270,7 +306,7 @@ class EventLog(RecordSequence):
     def _event(self, i: int):
         k, row = self._index[i // BLOCK][i % BLOCK]
         table = self._tables[k]
-        return _build(table.layout, table.row(int(row)), 0, self._aside)[0]
+        return _builder(table.layout)(table.row(int(row)).tolist(), self._aside)
 
     def __len__(self) -> int:
         return self._n
@@ -322,6 +358,42 @@ class EventLog(RecordSequence):
 
     def __repr__(self) -> str:
         return repr(list(self))
+
+    def columns(self) -> tuple[list, list[np.ndarray], np.ndarray, list]:
+        """The log as its columns: (the layouts, in JSON's terms: nested lists; each layout's rows, a
+        float64 array of them; the (layout, row) of every event, an int64 array; the values kept
+        aside) -- what :meth:`from_columns` takes back.  Records read by index and changed since are
+        written back first."""
+        for i, record in list(self._read.items()):
+            if record != self._event(i):
+                self._encode(i, record)
+        rows = [np.concatenate(t.blocks)[:t.n] if t.blocks else np.empty((0, t.width)) for t in self._tables]
+        index = np.concatenate(self._index)[:self._n] if self._index else np.empty((0, 2), np.int64)
+        return [t.layout for t in self._tables], rows, index, list(self._aside)
+
+    @classmethod
+    def from_columns(cls, layouts: list, rows: list[np.ndarray], index: np.ndarray, aside: list) -> EventLog:
+        """The log of :meth:`columns` (its layouts as tuples again, or as read back from JSON)."""
+        def hashable(node):
+            return tuple(hashable(x) for x in node) if isinstance(node, (list, tuple)) else node
+
+        def blocks(a: np.ndarray, dtype) -> list[np.ndarray]:  # BLOCK rows each, as appended
+            out = []
+            for j in range(0, len(a), BLOCK):
+                block = np.empty((BLOCK, a.shape[1]), dtype)
+                block[:len(a) - j] = a[j:j + BLOCK]
+                out.append(block)
+            return out
+        log = cls()
+        for layout, table_rows in zip(layouts, rows):
+            layout = hashable(layout)
+            table = _Table(layout, table_rows.shape[1])
+            table.blocks, table.n = blocks(table_rows, float), len(table_rows)
+            log._by_layout.setdefault(layout, len(log._tables))
+            log._tables.append(table)
+        log._index, log._n = blocks(np.asarray(index).reshape(-1, 2), np.int64), len(index)
+        log._aside = list(aside)
+        return log
 
     def nbytes(self) -> int:
         """Bytes of the number tables and the index (the layouts and the values kept aside not counted)."""

@@ -20,7 +20,13 @@ reads as a partial run up to its last chunk.
 A chunk's segments are grouped by their name lists (configuration, coordinates, links, force
 elements, constraint rows): each group's series are concatenated (``g<k>_<series>``), and the
 header (the array ``header``, JSON as UTF-8 bytes; a numpy string in chunks written before) lists
-the segments in order with their group and samples, the groups' names, and the chunk's events.
+the segments in order with their group and samples, the groups' names, and the number of the
+chunk's events.  The events are kept as the run's :class:`~pcmm.results.event_log.EventLog`
+keeps them: ``event_layouts`` (JSON as UTF-8 bytes: each layout of record, and the values kept
+aside), ``event_rows<j>`` (float64, the numbers of the events of layout ``j``, a row each) and
+``event_index`` (int64, the layout and row of each event) -- no event is turned into a dict to be
+written, and they are read only when asked for (a pass over a run's segments reads none).  Chunks
+written before keep them as JSON: the array ``events``, or the header's ``events``.
 """
 from __future__ import annotations
 
@@ -42,6 +48,10 @@ SERIES = ("t", "q", "v", "theta", "omega", "xy", "kinetic", "potential", "forces
 NAMES = ("coordinates", "links", "force_names", "constraint_labels")
 CHUNK_SAMPLES = 50_000  # a chunk is written once the pending segments hold this many samples
 CHUNK_RECORDS = 2_000  # ... or this many segments or events
+#: the last events (and segments) of the chunks written that a run keeps in memory: what its own
+#: checks read back of its past -- the zero-time-cycle check reads the last 64 events
+#: (pcmm.run.actions.ZERO_TIME_CYCLE) -- so that no chunk is read again while the run goes on
+RECENT = 64
 
 
 def chunk_path(folder: Path, k: int) -> Path:
@@ -66,11 +76,16 @@ def write_json(path: Path, obj) -> None:
     atomic_write(path, lambda f: f.write(_dumps(obj)), force=True)
 
 
-def _header_array(header: dict) -> np.ndarray:
+def _json_array(header) -> np.ndarray:
     """A chunk's header as the bytes of its JSON in UTF-8: a numpy string array would hold 4 bytes
     a character (UTF-32), and the events' JSON is most of a chunk (a bouncing ball's 2,000 events:
     9.4 MB that way, 2.4 MB this)."""
     return np.frombuffer(_dumps(header).encode(), dtype=np.uint8)
+
+
+def _open(path: Path):
+    """A chunk file opened for reading (every read of a chunk goes through here)."""
+    return np.load(path, allow_pickle=False)
 
 
 def _read_header(z) -> dict:
@@ -79,8 +94,9 @@ def _read_header(z) -> dict:
     return json.loads(a.tobytes().decode() if a.dtype == np.uint8 else str(a[()]))
 
 
-def write_chunk(path: Path, segments: list, events: list) -> None:
-    """One chunk: ``segments`` (records; their series are read now) and ``events`` (dicts)."""
+def write_chunk(path: Path, segments: list, events) -> None:
+    """One chunk: ``segments`` (records; their series are read now) and ``events`` (an
+    :class:`EventLog`, or dicts)."""
     groups: dict[tuple, int] = {}
     parts: dict[int, dict[str, list]] = {}
     metas = []
@@ -91,10 +107,12 @@ def write_chunk(path: Path, segments: list, events: list) -> None:
         for a in SERIES:
             bucket[a].append(np.asarray(getattr(s, a), float))
         metas.append([k, int(len(s.t))])
-    header = {"format": FORMAT, "segments": metas, "events": list(events),
+    header = {"format": FORMAT, "segments": metas, "event_count": len(events),
               "groups": [{"configuration": conf, **{n: list(v) for n, v in zip(NAMES, names)}}
                          for conf, names in groups]}
-    arrays = {"header": _header_array(header)}
+    layouts, rows, index, aside = (events if isinstance(events, EventLog) else EventLog(events)).columns()
+    arrays = {"header": _json_array(header), "event_layouts": _json_array({"layouts": layouts, "aside": aside}),
+              "event_index": index, **{f"event_rows{j}": r for j, r in enumerate(rows)}}
     for k, bucket in parts.items():
         for a, pieces in bucket.items():
             arrays[f"g{k}_{a}"] = np.concatenate(pieces)
@@ -108,11 +126,15 @@ class _Chunk:
     """A chunk read back: its segments' records and its events."""
 
     def __init__(self, path: Path):
-        with np.load(path, allow_pickle=False) as z:
+        with _open(path) as z:
             header = _read_header(z)
             if header.get("format") != FORMAT:
                 raise ValueError(f"{path.name}: format {header.get('format')!r}, expected {FORMAT}")
             arrays = {name: np.asarray(z[name]) for name in z.files if name != "header"}
+        if "event_index" in arrays:
+            self._events = {name: arrays.pop(name) for name in list(arrays) if name.startswith("event_")}
+        else:  # chunks written before: the events' JSON, in an array or the header
+            self._events = header.get("events", arrays.pop("events", None))
         groups = header["groups"]
         at = [0] * len(groups)
         self.segments = []
@@ -121,12 +143,24 @@ class _Chunk:
             at[k] += n
             self.segments.append(SegmentRecord(configuration=g["configuration"], **{m: g[m] for m in NAMES},
                                                **{a: arrays[f"g{k}_{a}"][a0:a0 + n] for a in SERIES}))
-        self.events = header["events"]
+
+    @property
+    def events(self):
+        """The chunk's events (an :class:`EventLog`, made when first asked for)."""
+        kept = self._events
+        if isinstance(kept, dict):
+            head = json.loads(kept["event_layouts"].tobytes().decode())
+            rows = [kept[f"event_rows{j}"] for j in range(len(head["layouts"]))]
+            self._events = EventLog.from_columns(head["layouts"], rows, kept["event_index"], head["aside"])
+        elif isinstance(kept, np.ndarray):
+            self._events = json.loads(kept.tobytes().decode())
+        return self._events
 
 
 class StoreReader:
-    """The chunks of a store folder: counts read once (from every chunk's header), records read one
-    chunk at a time."""
+    """The chunks of a store folder: counts read once (from every chunk's header, or given by the
+    writer of a chunk), records read one chunk at a time -- but for the last :data:`RECENT` segments
+    and events of those written by the run itself (``recent``), kept in memory."""
 
     def __init__(self, folder: Path):
         self.folder = folder
@@ -135,6 +169,8 @@ class StoreReader:
         self.event_counts: list[int] = []
         self.starts = {"segments": [0], "events": [0]}  # cumulative counts: where each chunk starts
         self._cached: tuple[int, _Chunk] | None = None
+        # which ("segments" or "events") -> (the index of the first kept, the records kept)
+        self.recent: dict[str, tuple[int, list]] = {}
         self.refresh()
 
     def refresh(self) -> None:
@@ -143,13 +179,36 @@ class StoreReader:
             path = chunk_path(self.folder, len(self.paths))
             if not path.is_file():
                 return
-            with np.load(path, allow_pickle=False) as z:
+            with _open(path) as z:
                 header = _read_header(z)
-            self.paths.append(path)
-            self.segment_counts.append(len(header["segments"]))
-            self.event_counts.append(len(header["events"]))
-            self.starts["segments"].append(self.starts["segments"][-1] + self.segment_counts[-1])
-            self.starts["events"].append(self.starts["events"][-1] + self.event_counts[-1])
+            events = header["event_count"] if "event_count" in header else len(header["events"])
+            self.add(path, len(header["segments"]), events)
+
+    def add(self, path: Path, segments: int, events: int) -> None:
+        """Chunk ``path`` holds the next ``segments`` and ``events``."""
+        self.paths.append(path)
+        self.segment_counts.append(segments)
+        self.event_counts.append(events)
+        self.starts["segments"].append(self.starts["segments"][-1] + segments)
+        self.starts["events"].append(self.starts["events"][-1] + events)
+
+    def written(self, path: Path, segments: list, events: list) -> None:
+        """The run wrote chunk ``path`` of ``segments`` and ``events`` (records): counted without
+        reading it back, its last :data:`RECENT` of each kept."""
+        for which, records in (("segments", segments), ("events", events)):
+            end = self.starts[which][-1] + len(records)
+            _, kept = self.recent.get(which, (end, []))
+            kept = (kept + list(records[-RECENT:]))[-RECENT:]
+            self.recent[which] = (end - len(kept), kept)
+        self.add(path, len(segments), len(events))
+
+    def record(self, which: str, i: int):
+        """Record ``i`` of those written (``which``: "segments" or "events")."""
+        first, kept = self.recent.get(which, (0, ()))
+        if first <= i < first + len(kept):
+            return kept[i - first]
+        k = bisect.bisect_right(self.starts[which], i) - 1
+        return getattr(self.chunk(k), which)[i - self.starts[which][k]]
 
     def chunk(self, k: int) -> _Chunk:
         if self._cached is None or self._cached[0] != k:
@@ -175,8 +234,15 @@ class _Stored(RecordSequence):
         starts = self.reader.starts[self.which]
         if i >= starts[-1]:  # not yet written (a run's latest: what it reads while it goes on)
             return self.tail[i - starts[-1]]
-        k = bisect.bisect_right(starts, i) - 1
-        return getattr(self.reader.chunk(k), self.which)[i - starts[k]]
+        return self.reader.record(self.which, i)
+
+    def time(self, i: int) -> float:
+        """Event ``i``'s ``"t"`` (:meth:`EventLog.time` where it is not yet written)."""
+        i = self._position(i, self.which[:-1])
+        written = self.reader.starts[self.which][-1]
+        if i >= written and hasattr(self.tail, "time"):
+            return self.tail.time(i - written)
+        return self._get(i)["t"]
 
     def __getitem__(self, i):
         if isinstance(i, slice):
@@ -253,9 +319,11 @@ class StoreWriter:
         from it, and goes on filling empty logs (``more``) or none."""
         segs, events = self.pending(traj)
         if len(segs) or len(events):
-            write_chunk(chunk_path(self.folder, self.chunks), list(segs), list(events))
+            path = chunk_path(self.folder, self.chunks)
+            segs = list(segs)
+            write_chunk(path, segs, events)
             self.chunks += 1
-            self.reader.refresh()
+            self.reader.written(path, segs, events)  # not read back
         traj.segments = _Stored(self.reader, "segments", SegmentLog() if more else ())
         traj.events = _Stored(self.reader, "events", EventLog() if more else ())
 
