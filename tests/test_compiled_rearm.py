@@ -11,13 +11,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from builders import EXAMPLES, driven_cart_pendulum
 
 import pcmm
 from pcmm.model import compiled
 from pcmm.ode import integrators
 from pcmm.ode.integrators import _Stepper
-
-from builders import EXAMPLES, driven_cart_pendulum
 
 pytestmark = pytest.mark.skipif(compiled._tree_dynamics is None or not compiled.enabled(),
                                 reason=f"the compiled segment loop is not built or is off: {compiled.why_not()}")
