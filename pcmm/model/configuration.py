@@ -201,6 +201,9 @@ class Configuration:
         for link, xy in key[1]:
             self.point(link, xy)
         self._data = model.createData()
+        # the constant potential energy of the bodies welded to the frame (gravity_energy)
+        fixed = model.inertias[0]
+        self._welded_energy = -fixed.mass * float(model.gravity.linear @ fixed.lever)
         check_point_masses(model, self.data, spec, self._planar, self.link_frame)
         self._angle_map()
         self.cut_models: dict = {}  # cut systems by cut joints (pcmm.events.cutting), built on first impact
@@ -210,7 +213,7 @@ class Configuration:
             cache.pop(next(iter(cache)))
         cache[key] = {k: self.__dict__[k] for k in (
             "model", "nv", "joint_names", "joint_slice", "joint_id", "_planar", "links", "link_frame", "root",
-            "_points", "_data", "A", "b", "link_index", "cut_models", "impulse_models", "_forces_compiled")}
+            "_points", "_data", "_welded_energy", "A", "b", "link_index", "cut_models", "impulse_models", "_forces_compiled")}
         self._after_model()
 
     @property
@@ -486,10 +489,10 @@ class Configuration:
 
         Bodies welded to the frame (a link merged with it, like a slider at its stop) sit in
         Pinocchio's universe inertia, which ``computePotentialEnergy`` leaves out; their constant
-        share is added so the potential energy is continuous across a configuration switch."""
-        fixed = self.model.inertias[0]
-        welded = -fixed.mass * float(self.model.gravity.linear @ fixed.lever)
-        return float(pin.computePotentialEnergy(self.model, self.data, self.to_pin(q))) + welded
+        share is added so the potential energy is continuous across a configuration switch: a
+        constant of the model (its inertia 0 and gravity, neither written after it is built),
+        computed once with it (``_welded_energy``)."""
+        return float(pin.computePotentialEnergy(self.model, self.data, self.to_pin(q))) + self._welded_energy
 
     def potential_energy(self, q: np.ndarray, forces: ForceField | None = None) -> float:
         """Gravity plus spring energy (J) of ``forces`` (a recorded segment's own, compiled at its
