@@ -97,21 +97,16 @@ def states_on_rows(t, y, times, k_of, kept, components=None) -> np.ndarray | Non
         if k != last:
             row, last = kept[k].row.tolist(), k
             if form is scipy_row_dense:  # per component: y_old, then F[6], F[5], ..., F[0]
-                coefficients = [(row[2 + j], row[2 + n + 6 * n + j::-n][:7]) for j in range(m)]
+                coefficients = [(row[2 + j], *row[2 + n + 6 * n + j::-n][:7]) for j in range(m)]
                 t_old, h = row[0], row[1] - row[0]  # DenseStep's h = t - t_old
             else:  # _Contd8: per component its 8 coefficients
                 coefficients = [row[2 + j::n] for j in range(m)]
                 t_old, h = row[0], row[1]
         x = (ti - t_old) / h
         if form is scipy_row_dense:  # DenseStep: y = 0; y += F[6 - i], y *= x or (1 - x) alternately; y += y_old
-            x1 = 1 - x
-            factors = (x, x1, x, x1, x, x1, x)
-            state = []
-            for y0, fs in coefficients:
-                acc = 0.0
-                for f, a in zip(fs, factors):
-                    acc = (acc + f) * a
-                state.append(acc + y0)
+            x1 = 1 - x  # (the loop over F written out: the same operations in the same order)
+            state = [((((((((0.0 + f6) * x + f5) * x1 + f4) * x + f3) * x1 + f2) * x + f1) * x1 + f0) * x) + y0
+                     for y0, f6, f5, f4, f3, f2, f1, f0 in coefficients]
         else:
             s1 = 1.0 - x
             state = [c[0] + x * (c[1] + s1 * (c[2] + x * (c[3] + s1 * (c[4] + x * (c[5] + s1 * (c[6] + x * c[7]))))))
