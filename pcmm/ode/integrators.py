@@ -877,27 +877,37 @@ def _segment_loop(fun, t0, y0, t_bound, events, opts, beta, tableau=None, keep_d
         options["keep_dense"] = True
     y0 = np.array(y0, float)
     ny = y0.size
-    affine = [getattr(e, "affine", None) for e in events]
-    holding = [getattr(e, "holding", None) for e in events]
-    # a closed loop's guards on its solution (Guard.loop_scan), which its compiled loop scans itself
-    solved = [getattr(e, "loop_scan", None) if a is None and h is None else None
-              for e, a, h in zip(events, affine, holding)]
-    # guards read at the state by a compiled evaluator (Guard.evaluator: a tree's contact gap)
-    evaluated = [getattr(e, "evaluator", None) if a is None and h is None and s is None else None
-                 for e, a, h, s in zip(events, affine, holding, solved)]
-    # guards linear in the state, their rates read from it (Guard.linear: a driven configuration's joint
-    # stop, whose coordinate and rate are state entries; a tree's re-armed joint-angle guard), plain or
-    # re-armed after a bounce, which the loop scans as Python reads them
-    linear = [_linear_scan(e, ny) if a is None and h is None and s is None and v is None else None
-              for e, a, h, s, v in zip(events, affine, holding, solved, evaluated)]
-    # a progress bar (the run loop's wrapper) is fed every _PROGRESS_STEPS steps, as the wrapper's
-    # own count of evaluations did: then every step comes back to Python.  The loop scans a guard
-    # affine in the state with its rate read from the state, a guard on a compiled holding force, and
-    # a closed loop's guard on its solution with its rate read from the state, a guard linear in the state
-    every_step = (progress is not None or not all(
-        ((a is not None or s is not None or v is not None or w is not None) and getattr(e, "rate_from_state", False))
-        or h is not None for e, a, h, s, v, w in zip(events, affine, holding, solved, evaluated, linear)))
-    if any(s is not None for s in solved) and not every_step:
+    # each guard's one scan, in one pass over the guards (a segment has a few; this runs per segment):
+    # affine in the state (Guard.affine), on a compiled holding force (Guard.holding), else a closed
+    # loop's guard on its solution (Guard.loop_scan, which its compiled loop scans itself), else a guard
+    # read at the state by a compiled evaluator (Guard.evaluator: a tree's contact gap), else a guard
+    # linear in the state, its rate read from it (Guard.linear: a driven configuration's joint stop,
+    # whose coordinate and rate are state entries; a tree's re-armed joint-angle guard), plain or
+    # re-armed after a bounce, which the loop scans as Python reads them.  A progress bar (the run
+    # loop's wrapper) is fed every _PROGRESS_STEPS steps, as the wrapper's own count of evaluations
+    # did: then every step comes back to Python, as for a guard the loop cannot scan with its rate
+    # read from the state (or on a holding force)
+    affine, holding, solved, evaluated, linear = [], [], [], [], []
+    every_step = progress is not None
+    for e in events:
+        a, h = getattr(e, "affine", None), getattr(e, "holding", None)
+        sv = ev = w = None
+        if a is None and h is None:
+            sv = getattr(e, "loop_scan", None)
+            if sv is None:
+                ev = getattr(e, "evaluator", None)
+                if ev is None:
+                    w = _linear_scan(e, ny)
+        if not every_step and h is None and not (
+                (a is not None or sv is not None or ev is not None or w is not None)
+                and getattr(e, "rate_from_state", False)):
+            every_step = True
+        affine.append(a)
+        holding.append(h)
+        solved.append(sv)
+        evaluated.append(ev)
+        linear.append(w)
+    if not every_step and any(s is not None for s in solved):
         options["solved"] = [(i, 0, np.asarray(s[1], float), float(s[2]), float(s[3])) if s[0] == "coordinate"
                              else (i, 1, None, 0.0, 0.0) for i, s in enumerate(solved) if s is not None]
     if every_step:
