@@ -97,7 +97,7 @@ def states_on_rows(t, y, times, k_of, kept, components=None) -> np.ndarray | Non
         if k != last:
             row, last = kept[k].row.tolist(), k
             if form is scipy_row_dense:  # per component: y_old, then F[6], F[5], ..., F[0]
-                coefficients = [(row[2 + j], *row[2 + n + 6 * n + j::-n][:7]) for j in range(m)]
+                coefficients = [(row[2 + j], *row[2 + 7 * n + j:2 + j:-n]) for j in range(m)]  # (7 of them)
                 t_old, h = row[0], row[1] - row[0]  # DenseStep's h = t - t_old
             else:  # _Contd8: per component its 8 coefficients
                 coefficients = [row[2 + j::n] for j in range(m)]
