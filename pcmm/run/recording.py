@@ -79,11 +79,16 @@ def filling(traj: Trajectory):
 
 
 def recorded_steps(traj: Trajectory, seg, q_start):
-    """``() -> (t, y, q_start)`` of the segment just recorded (``seg``, started from ``q_start``):
-    read back from the run's :class:`SegmentLog` (no copy), else copies of them."""
+    """``() -> (t, y, q_start)`` of the segment just recorded (``seg``, started from ``q_start``),
+    to be read before the run goes on (the flight audit, at once): where the run's
+    :class:`SegmentLog` keeps it, the very arrays it copied into its blocks (no copy; the same
+    values as :meth:`SegmentLog.arrays` reads back, without forming its read-only views at every
+    flight), else copies of them."""
     log = filling(traj)
     if isinstance(log, SegmentLog):
-        return functools.partial(log.arrays, len(log) - 1)
+        steps = (np.ascontiguousarray(seg.t, float), np.ascontiguousarray(seg.y, float),
+                 np.ascontiguousarray(q_start, float))
+        return lambda: steps
     kept = (np.array(seg.t, float), np.array(seg.y, float), np.array(q_start, float))
     return lambda: kept
 
