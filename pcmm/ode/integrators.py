@@ -907,9 +907,11 @@ def _segment_loop(fun, t0, y0, t_bound, events, opts, beta, tableau=None, keep_d
         solved.append(sv)
         evaluated.append(ev)
         linear.append(w)
-    if not every_step and any(s is not None for s in solved):
-        options["solved"] = [(i, 0, np.asarray(s[1], float), float(s[2]), float(s[3])) if s[0] == "coordinate"
-                             else (i, 1, None, 0.0, 0.0) for i, s in enumerate(solved) if s is not None]
+    if not every_step:
+        scans = [(i, 0, np.asarray(s[1], float), float(s[2]), float(s[3])) if s[0] == "coordinate"
+                 else (i, 1, None, 0.0, 0.0) for i, s in enumerate(solved) if s is not None]
+        if scans:
+            options["solved"] = scans
     if every_step:
         C, ct, d, direction = np.zeros((0, ny)), np.zeros(0), np.zeros(0), np.zeros(0)
     else:
@@ -920,13 +922,13 @@ def _segment_loop(fun, t0, y0, t_bound, events, opts, beta, tableau=None, keep_d
         ct = np.array([0.0 if a is None else a[1] for a in affine], float)
         d = np.array([0.0 if a is None else a[2] for a in affine], float)
         direction = np.array([e.direction for e in events], float)
-        if any(h is not None for h in holding):
-            options["holding"] = [(j, *h) for j, h in enumerate(holding) if h is not None]
-        if any(v is not None for v in evaluated):
-            options["evaluated"] = [(j, v[0], float(v[2]) if v[1] else 0.0) for j, v in enumerate(evaluated)
-                                    if v is not None]
-        if any(w is not None for w in linear):
-            options["linear"] = [(j, *w) for j, w in enumerate(linear) if w is not None]
+        # each kind's guards, where there are any (the loop's options)
+        for key, scans in (("holding", [(j, *h) for j, h in enumerate(holding) if h is not None]),
+                           ("evaluated", [(j, v[0], float(v[2]) if v[1] else 0.0) for j, v in enumerate(evaluated)
+                                          if v is not None]),
+                           ("linear", [(j, *w) for j, w in enumerate(linear) if w is not None])):
+            if scans:
+                options[key] = scans
     max_step = opts.max_step if np.isfinite(opts.max_step) else 0.0
     args = (owner, float(t0), y0, float(t_bound), float(opts.rtol), float(opts.atol), float(max_step),
             int(opts.max_steps), float(beta), C, ct, d, direction, every_step)
