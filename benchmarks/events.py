@@ -29,7 +29,9 @@ numbers of events and impacts are printed so that a change can be checked to kee
 On a shared machine those figures move by +-30 % from one run to the next.  ``--replay N`` adds
 a measure the load hardly moves: the calls of the parts that are functions of their arguments
 (the impulse solve, the entry of ``transitions.switch`` or ``enter_bounce``, the event record, a
-bounce's ``bounce_record`` included, the guard residual)
+bounce's ``bounce_record`` included, the guard residual; the entry's projection onto the
+configuration's constraints, ``PartitionedCoordinates.project``, also counted in the entry; the
+re-arm's check of the guards already at their crossing, ``loop._pending``)
 are captured in one run and each call is repeated ``N`` times, its least time kept
 (``time.perf_counter``: a repeat preempted or slowed by a neighbour is not the least), summed and
 divided by the number of events.  The caches are warm in these repeats, so they are a lower
@@ -48,6 +50,7 @@ from pathlib import Path  # noqa: E402
 
 import pcmm  # noqa: E402
 from pcmm.events import transitions  # noqa: E402
+from pcmm.model.partitioned import PartitionedCoordinates  # noqa: E402
 from pcmm.ode import integrators  # noqa: E402
 from pcmm.run import actions, audit, loop  # noqa: E402
 
@@ -68,6 +71,9 @@ REPLAYED = {  # the parts whose calls depend on their arguments alone (and scrat
     "entry": [(transitions, "switch"), (transitions, "enter_bounce")],  # (a bounce's entry, since h-bounce)
     "record": [(transitions, "event_record"), (transitions, "bounce_record")],  # (a bounce's record, since h-bounce)
     "guard residual": [(actions, "guard_residual")],
+    # inside the entry above, counted there too: a bounce's projection onto its configuration's drives
+    "(entry's projection)": [(PartitionedCoordinates, "project")],
+    "re-arm's pending check": [(loop, "_pending")],  # the guards at or past their crossing at the start
 }
 
 

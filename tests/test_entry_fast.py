@@ -105,6 +105,8 @@ def test_drives_only_projection_is_the_general_route_to_the_bit(tmp_path, planar
         fast_q, fast_v = coords.project(t, q, v)
         slow_q, slow_v = general_projection(coords, t, q, v)
         assert fast_q.tobytes() == slow_q.tobytes() and fast_v.tobytes() == slow_v.tobytes()
+        # new arrays: the state handed in (the run's, the impulse's) is not written over
+        assert not np.shares_memory(fast_q, q) and not np.shares_memory(fast_v, v)
         # and by hand: the driven coordinate prescribed, the others (and their rates) kept
         assert math.isclose(fast_q[j0], drive(t, 0), rel_tol=1e-15, abs_tol=1e-15)
         rates = cfg.qdot(fast_q, fast_v)

@@ -117,6 +117,7 @@ class PartitionedCoordinates:
         self._max_residual = 0.0  # largest loop residual a Newton solve accepted in Python (max_residual)
         self._segment_forces = None  # a reader's own force elements (restored); None: the configuration's
         self._driven = np.array(drives.index, dtype=int)
+        self._distinct_drives = len(set(drives.index)) == drives.size  # no coordinate driven twice (project)
         # the coordinates the closure rows see only through cos and sin (_nearest_turns): revolute joints,
         # not driven (a drive's row q_j - f(t) is not periodic)
         self._turns = np.zeros(self.nv, bool)
@@ -1029,11 +1030,16 @@ class PartitionedCoordinates:
         in one step, and its polishing step lands on ``f(t)`` to the last bit, so the state is
         the same, only its residual is now exactly zero."""
         k = len(self.I)
-        f, f1, _ = self.drives.values(t)
         q = np.empty(self.nv)
         rates = np.empty(self.nv)
         q[self.I] = y[:k]
         rates[self.I] = y[k:]
+        return self._driven_state(t, q, rates)
+
+    def _driven_state(self, t, q, rates):
+        """:meth:`_prescribed` of a posture ``q`` and its rates whose independent entries are set:
+        the driven ones are written (in place) as ``f(t)`` and ``f'(t)``; returns ``(q, v)``."""
+        f, f1, _ = self.drives.values(t)
         q[self._driven] = f
         rates[self._driven] = f1
         self._qD = q
@@ -1078,9 +1084,11 @@ class PartitionedCoordinates:
         are the driven ones whatever the posture (:meth:`partition`), and the projection is
         :meth:`_prescribed` of ``[q_I, q'_I]`` itself (``q_D = f(t)``, ``q'_D = f'(t)``), the same
         bits :meth:`unpack` gives, without its dispatch and cache (a bounce's entry, at every impact)."""
-        if self.D is not None and not self.closure.size and len(set(self.drives.index)) == self.drives.size:
+        if self.D is not None and not self.closure.size and self._distinct_drives:
             self.seed(q)
-            return self._prescribed(t, np.concatenate([q[self.I], self.cfg.qdot(q, v)[self.I]]))
+            # q and its rates with the driven entries written over (the independent ones are the rest,
+            # :meth:`partition`): the bits of _prescribed([q_I, q'_I]) without gathering and scattering them
+            return self._driven_state(t, q.copy(), self.cfg.qdot(q, v).copy())
         self.partition(t, q, prefer_independent)
         self.seed(q)
         q_new, v_new = self.unpack(t, np.concatenate([q[self.I], self.cfg.qdot(q, v)[self.I]]))

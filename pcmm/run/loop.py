@@ -464,8 +464,9 @@ def _guards(scene: Scene, cfg: Configuration, holds: Holds, t: float, phase, bou
     the same bounced stop and the same angle offsets (they move the measures:
     :meth:`Configuration.continue_angles`) takes those guards again: a sequence of bounces at one
     stop builds them once; and the merges' guards likewise (:func:`_unmerge_guards`)."""
-    key = (cfg, bounced, cfg.angle_offsets)
-    if kept and kept[0] is not None and phase is None and kept[0][0] is cfg and kept[0][1] is bounced and kept[0][2] == key[2]:
+    offsets = cfg.angle_offsets  # (a sorted tuple built per read: read once, for both kept sets below)
+    key = (cfg, bounced, offsets)
+    if kept and kept[0] is not None and phase is None and kept[0][0] is cfg and kept[0][1] is bounced and kept[0][2] == offsets:
         out = list(kept[1])
     else:
         out = []
@@ -481,30 +482,33 @@ def _guards(scene: Scene, cfg: Configuration, holds: Holds, t: float, phase, bou
                 out.append(g)
         if kept is not None:
             kept[:2] = [key, tuple(out)] if reusable else [None, ()]
-    out += _unmerge_guards(cfg, holds, phase, kept)
+    out += _unmerge_guards(cfg, holds, phase, kept, offsets)
     out += cfg.coords.guards()  # the coordinates' own: a loop's partition guard
     return out
 
 
-def _unmerge_guards(cfg: Configuration, holds: Holds, phase, kept) -> list:
+def _unmerge_guards(cfg: Configuration, holds: Holds, phase, kept, offsets=None) -> list:
     """The guards of the merges held by compression only (:meth:`Holds.unmerge_guards`).  ``kept[2]``:
     those of the last call and what they were built for: the configuration (the same object), its
     angle offsets and the holds (the same ``Hold`` objects), outside a contact phase.  A call that
     finds them all the same takes those guards again: the run has stayed in ``cfg`` since (a bounce
     does not switch), so nothing their holding-force evaluator was built from has changed (the
     reference configuration changes only when the run enters it, the holds only by a lock, a
-    release or a switch), and a sequence of bounces builds them once."""
+    release or a switch), and a sequence of bounces builds them once.  ``offsets``: ``cfg.angle_offsets``
+    where the caller has read them."""
     if kept is None:
         return holds.unmerge_guards(cfg)
     items = holds.items
     last = kept[2] if len(kept) > 2 else None
-    if (phase is None and last is not None and last[0] is cfg and last[1] == cfg.angle_offsets
+    if offsets is None:
+        offsets = cfg.angle_offsets
+    if (phase is None and last is not None and last[0] is cfg and last[1] == offsets
             and len(last[2]) == len(items) and all(a is b for a, b in zip(last[2], items))):
         return list(last[3])
     out = holds.unmerge_guards(cfg)
     while len(kept) < 3:
         kept.append(None)
-    kept[2] = (cfg, cfg.angle_offsets, tuple(items), tuple(out)) if phase is None else None
+    kept[2] = (cfg, offsets, tuple(items), tuple(out)) if phase is None else None
     return out
 
 
