@@ -600,3 +600,18 @@ def compiled_and_python_impulses(cfg, t, q, v, contact, e, cut):
     got = impulse._compiled_solve(cfg, plan, fast, q, v, e)
     assert got is not None
     return got, impulse.solve_impulse_python(cfg, t, q, v, contact, e, tuple(cut))
+
+
+def captured_impulse_solves(scene_path, monkeypatch):
+    """(the run of ``scene_path``, every impulse solve it asked for as (cfg, t, q, v, contact, e,
+    cut)): the states at which a test replays the compiled and Python solves."""
+    import pcmm
+    from pcmm.events import transitions
+    calls = []
+    solve = transitions.solve_impulse
+
+    def capture(cfg, t, q, v, contact, e, cut, name=None):
+        calls.append((cfg, t, q.copy(), v.copy(), contact, e, cut))
+        return solve(cfg, t, q, v, contact, e, cut, name=name)
+    monkeypatch.setattr(transitions, "solve_impulse", capture)
+    return pcmm.simulate(pcmm.load_scene(scene_path)), calls

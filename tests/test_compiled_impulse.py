@@ -15,6 +15,7 @@ import pytest
 from builders import (
     Bar,
     base_doc,
+    captured_impulse_solves,
     chain_urdf,
     compiled_and_python_impulses,
     nudge_impulses,
@@ -25,7 +26,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import pcmm
-from pcmm.events import impulse, transitions
+from pcmm.events import impulse
 from pcmm.events.impulse_compiled import compiled_impulse, reason, reasons
 from pcmm.model import compiled
 from pcmm.model.mechanism import Mechanism
@@ -90,14 +91,7 @@ def test_every_impulse_of_the_cycle_is_the_python_solve(monkeypatch):
     replayed at each of its states, the compiled and Python solves agree to 1e-12 of their
     scale, each obeys Newton's law (a bounce, e = 0.8, or a merge's plastic impact, e = 0) and
     keeps the drive's joint at its prescribed speed; the run's events balance momentum."""
-    calls = []
-    solve = transitions.solve_impulse
-
-    def capture(cfg, t, q, v, contact, e, cut, name=None):
-        calls.append((cfg, t, q.copy(), v.copy(), contact, e, cut))
-        return solve(cfg, t, q, v, contact, e, cut, name=name)
-    monkeypatch.setattr(transitions, "solve_impulse", capture)
-    traj = pcmm.simulate(pcmm.load_scene(ROOT / "examples" / "three_bar_cycle.toml"))
+    traj, calls = captured_impulse_solves(ROOT / "examples" / "three_bar_cycle.toml", monkeypatch)
     assert len(calls) >= traj.stats["impacts"] >= 500  # the bounces, and the merges' plastic impacts
     plans = {}
     for cfg, t, q, v, contact, e, cut in calls:

@@ -17,6 +17,7 @@ import pytest
 from builders import (
     bar_xml,
     base_doc,
+    captured_impulse_solves,
     compiled_and_python_impulses,
     joint_xml,
     link_xml,
@@ -29,7 +30,7 @@ from hypothesis import strategies as st
 from test_compiled_impulse import REL, _assert_same, _momenta_match, _newton, _run
 
 import pcmm
-from pcmm.events import impulse, transitions
+from pcmm.events import impulse
 from pcmm.events.contact import contact_state
 from pcmm.events.impulse_compiled import compiled_impulse, reason, reasons
 from pcmm.model import compiled
@@ -64,24 +65,12 @@ def _amplification(cfg, q, v, contact, ref, e) -> float:
     return max(1.0, free / held)
 
 
-def _captured(scene_path, monkeypatch):
-    calls = []
-    solve = transitions.solve_impulse
-
-    def capture(cfg, t, q, v, contact, e, cut, name=None):
-        calls.append((cfg, t, q.copy(), v.copy(), contact, e, cut))
-        return solve(cfg, t, q, v, contact, e, cut, name=name)
-    monkeypatch.setattr(transitions, "solve_impulse", capture)
-    traj = pcmm.simulate(pcmm.load_scene(scene_path))
-    return traj, calls
-
-
 @pytest.mark.parametrize("name", ["double_folded", "double_folded_cycle"])
 def test_every_impulse_of_example_2_is_the_python_solve(name, monkeypatch):
     """Example 2 (the slider's stop E, the loop closed at C, the crank driven) and its cycle solve their
     impulses compiled; replayed at each of their states, the two solves agree to 1e-12 of their scale,
     obey Newton's law, keep the loop closed in velocity and the drive's joint at its speed."""
-    traj, calls = _captured(ROOT / "examples" / f"{name}.toml", monkeypatch)
+    traj, calls = captured_impulse_solves(ROOT / "examples" / f"{name}.toml", monkeypatch)
     assert len(calls) >= traj.stats["impacts"] >= 40
     for cfg, t, q, v, contact, e, cut in calls:
         a, b = _both(cfg, t, q, v, contact, e, cut)
