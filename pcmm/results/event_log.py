@@ -137,35 +137,13 @@ def _flattener(layout):
     return scope["flat"]
 
 
-def _build(layout, row, pos: int, aside: list):
-    """The value of ``layout`` from ``row`` at ``pos``: (value, next position)."""
-    if layout == _F:
-        return float(row[pos]), pos + 1
-    if layout == _I:
-        return int(row[pos]), pos + 1
-    if layout == _O:
-        return aside[int(row[pos])], pos + 1
-    kind = layout[0]
-    if kind == _C:
-        return layout[1], pos
-    if kind == "d":
-        out = {}
-        for key, sub in zip(layout[1], layout[2]):
-            out[key], pos = _build(sub, row, pos, aside)
-        return out, pos
-    items = []
-    for sub in layout[1]:
-        value, pos = _build(sub, row, pos, aside)
-        items.append(value)
-    return (items if kind == "l" else tuple(items)), pos
-
-
 @functools.lru_cache(maxsize=256)  # per layout, for every log of the process
 def _builder(layout):
     """``(row, aside) -> the record`` of ``layout`` from its numbers ``row`` (a list of floats):
-    what :func:`_build` returns, by straight-line code generated from the layout -- one dict or
-    list display per container, no call per value (a store writes, and a summary reads, every
-    event of a run: 75 calls of :func:`_build` for a bouncing ball's record)."""
+    the record a recursive walk of the layout builds, by straight-line code generated from the
+    layout -- one dict or list display per container, no call per value (a store writes, and a
+    summary reads, every event of a run: the walk made 75 calls for a bouncing ball's record;
+    tests/test_event_log_builder.py keeps it as the reference)."""
     consts: list = []
     pos = [0]
 
