@@ -371,7 +371,26 @@ def cmd_check(args) -> int:
         say(f"  {line}")
     for source, cut_joint, target in scene.lift_offs():  # releases pcmm adds by itself
         say(f"  '{source}': the point held by '{cut_joint}' lifts off into '{target}' where its normal force turns tensile")
+    for line in _undrawn(scene):
+        say(f"  {line}")
     return 0
+
+
+def _undrawn(scene) -> list[str]:
+    """A note per URDF with links the drawing cannot show (no box or sphere ``<visual>``),
+    each with a visual to paste: the run itself does not need them."""
+    from .scene.urdf import undrawn_links
+    out = []
+    for path in dict.fromkeys(spec.urdf for spec in scene.configurations.values()):
+        links = undrawn_links(path)
+        if links:
+            names = ", ".join(f"'{n}'" for n, _ in links)
+            out.append(f"{path.name}: link{'s' if len(links) > 1 else ''} {names} "
+                       f"{'have' if len(links) > 1 else 'has'} no <box> or <sphere> <visual>: the drawing and the "
+                       f"video show only {'their' if len(links) > 1 else 'its'} joints (and so does the replay page, "
+                       f"unless a <cylinder> draws {'them' if len(links) > 1 else 'it'}); "
+                       f"for example, " + "; ".join(f"in <link name=\"{n}\">: {v}" for n, v in links))
+    return out
 
 
 def _derive_run(scene, progress):

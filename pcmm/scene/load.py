@@ -59,7 +59,9 @@ CONFIG_KEYS = [
           doc="closed loops: the joints cut from the URDF tree, each a table (see the cut_joints entries)"),
 ]
 CUT_JOINT_KEYS = [
-    S.Key("name", "str", doc="the cut joint's name (its constraint force is the series NAME.x, NAME.y, ...)"),
+    S.Key("name", "str", doc="the cut joint's name; its constraint force on link b is the series NAME.fx, NAME.fy "
+          "(revolute; N, world axes), NAME.fn, NAME.mz (prismatic: across the axis, N, and the moment, N m) or "
+          "NAME.fx, NAME.fy, NAME.mz (weld)"),
     S.Key("type", "str", check=S.one_of(*CUT_JOINT_TYPES), doc="revolute and prismatic: 2 constraint rows, weld: 3"),
     S.Key("a", "str", doc="link on one side of the cut"),
     S.Key("point_a", "list|str", check=S.point_or_entry,

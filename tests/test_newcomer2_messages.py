@@ -1,0 +1,71 @@
+"""What made the second new user (task h-newcomer2) stumble while writing the four-bar and the leg
+of tests/test_newcomer2_mechanisms.py, each now said where the user looks."""
+from __future__ import annotations
+
+import re
+
+import pcmm
+import pcmm.cli
+from pcmm.scene.load import CUT_JOINT_KEYS
+from pcmm.scene.urdf import undrawn_links
+from test_newcomer2_mechanisms import FOURBAR_TOML, FOURBAR_URDF, LEG_URDF, leg_scene
+
+
+def _without_visuals(urdf: str) -> str:
+    return re.sub(r"<visual>.*?</visual>", "", urdf)
+
+
+def test_check_names_the_links_the_drawing_cannot_show(tmp_path, capsys):
+    """The leg's URDF written without <visual>s ran and checked clean, and its drawing showed the hip
+    pin, a knee circle and the foot pin, but no thigh and no shank (the legend listed both). `pcmm
+    check` now names the file and both links and gives a box along each bar to paste: thigh from its
+    origin to the knee (0.4 m), shank to twice its centre of mass (0.4 m, no child joint)."""
+    leg_scene(tmp_path, 60.0, 60.0, -0.7)
+    (tmp_path / "leg.urdf").write_text(_without_visuals(LEG_URDF))
+    assert pcmm.cli.main(["check", str(tmp_path / "leg.toml")]) == 0
+    out = capsys.readouterr().out
+    bar = '<visual><origin xyz="0.2 0 0" rpy="0 0 0"/><geometry><box size="0.4 0.012 0.012"/></geometry></visual>'
+    assert ("leg.urdf: links 'thigh', 'shank' have no <box> or <sphere> <visual>: the drawing and the video show "
+            "only their joints") in out
+    assert f'in <link name="thigh">: {bar}' in out and f'in <link name="shank">: {bar}' in out
+    # pasted, the suggestion is drawn, and the note goes
+    text = _without_visuals(LEG_URDF)
+    for link in ("thigh", "shank"):
+        text = text.replace(f'<link name="{link}">', f'<link name="{link}">{bar}')
+    (tmp_path / "leg.urdf").write_text(text)
+    assert undrawn_links(tmp_path / "leg.urdf") == []
+    assert pcmm.cli.main(["check", str(tmp_path / "leg.toml")]) == 0
+    assert "<visual>" not in capsys.readouterr().out
+
+
+def test_a_point_mass_gets_a_sphere_and_a_bent_bar_points_at_its_child(tmp_path):
+    """A link whose centre of mass is on its joint and that carries no joint is a point: a sphere.
+    A link whose child joint is off its x axis gets a bar turned towards that joint."""
+    urdf = ('<?xml version="1.0"?><robot name="r"><link name="frame"/>'
+            '<joint name="j1" type="revolute"><parent link="frame"/><child link="bent"/><axis xyz="0 0 1"/>'
+            '<limit lower="-1" upper="1" effort="1" velocity="1"/></joint>'
+            '<link name="bent"><inertial><origin xyz="0.1 0 0"/><mass value="1"/>'
+            '<inertia ixx="1" ixy="0" ixz="0" iyy="1" iyz="0" izz="1"/></inertial></link>'
+            '<joint name="j2" type="revolute"><parent link="bent"/><child link="point"/><origin xyz="0.3 0.4 0"/>'
+            '<axis xyz="0 0 1"/><limit lower="-1" upper="1" effort="1" velocity="1"/></joint>'
+            '<link name="point"><inertial><mass value="1"/>'
+            '<inertia ixx="0" ixy="0" ixz="0" iyy="0" iyz="0" izz="0"/></inertial></link></robot>')
+    path = tmp_path / "r.urdf"
+    path.write_text(urdf)
+    out = dict(undrawn_links(path))
+    assert out["bent"] == ('<visual><origin xyz="0.15 0.2 0" rpy="0 0 0.927295"/>'
+                           '<geometry><box size="0.5 0.012 0.012"/></geometry></visual>')
+    assert out["point"] == '<visual><geometry><sphere radius="0.02"/></geometry></visual>'
+
+
+def test_the_cut_joint_series_are_named_as_the_scene_reference_says(tmp_path):
+    """The scene reference said a cut joint's constraint force is the series "NAME.x, NAME.y";
+    `traj.series("constraint_forces", "foot.x")` then failed (the rows are foot.fx, foot.fy).
+    The reference now gives the names a run has, and which body the force acts on."""
+    doc = next(k.doc for k in CUT_JOINT_KEYS if k.name == "name")
+    assert "NAME.fx, NAME.fy (revolute" in doc and "NAME.fn, NAME.mz (prismatic" in doc and "on link b" in doc
+    (tmp_path / "fourbar.urdf").write_text(FOURBAR_URDF)
+    (tmp_path / "fourbar.toml").write_text(FOURBAR_TOML)
+    traj = pcmm.simulate(pcmm.load_scene(tmp_path / "fourbar.toml"), pcmm.RunOptions(t_end=0.05))
+    fx, fy = (traj.series("constraint_forces", f"J4.{c}") for c in ("fx", "fy"))
+    assert len(fx) == len(traj.t) and fy[0] > 0  # the frame holds the rocker up at J4
