@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import re
 
+import pytest
+
 import pcmm
 import pcmm.cli
 from pcmm.scene.load import CUT_JOINT_KEYS
@@ -69,3 +71,31 @@ def test_the_cut_joint_series_are_named_as_the_scene_reference_says(tmp_path):
     traj = pcmm.simulate(pcmm.load_scene(tmp_path / "fourbar.toml"), pcmm.RunOptions(t_end=0.05))
     fx, fy = (traj.series("constraint_forces", f"J4.{c}") for c in ("fx", "fy"))
     assert len(fx) == len(traj.t) and fy[0] > 0  # the frame holds the rocker up at J4
+
+
+def test_a_key_given_twice_is_named_with_its_lines(tmp_path):
+    """A second `contact = { ... }` pasted into the leg's cut joint read "not valid TOML: Cannot mutate
+    immutable namespace ('contact',) (at line 14, column 190)", and a key repeated in a table "Cannot
+    overwrite a value (at end of document)": neither named the key's line (tomllib's words). The
+    message now names the key (or the table) and the line(s)."""
+    leg_scene(tmp_path, 60.0, 60.0, -0.7)
+    text = (tmp_path / "leg.toml").read_text()
+    path = tmp_path / "leg.toml"
+    lines = text.splitlines()
+    number = next(i for i, line in enumerate(lines, 1) if 'point_a = "entry"' in line)
+    path.write_text(text.replace('point_a = "entry"', 'point_a = "entry", contact = { normal = [0.0, 1.0] }'))
+    with pytest.raises(pcmm.SceneError) as err:
+        pcmm.load_scene(path)
+    assert f"the key 'contact' is given twice in one inline table {{ ... }} on line {number}" in str(err.value)
+    # a key repeated in a table: tomllib says "at end of document"
+    t_end = next(i for i, line in enumerate(lines, 1) if line.startswith("t_end"))
+    path.write_text(text.replace("t_end = 1.0\n", "t_end = 1.0\nt_end = 2.0\n"))
+    with pytest.raises(pcmm.SceneError) as err:
+        pcmm.load_scene(path)
+    assert f"the key 't_end' is given twice in [scene], on lines {t_end} and {t_end + 1}" in str(err.value)
+    # a table declared twice
+    path.write_text(text + "\n[scene]\ngravity = [0.0, -9.81]\n")
+    with pytest.raises(pcmm.SceneError) as err:
+        pcmm.load_scene(path)
+    scene_line = next(i for i, line in enumerate(lines, 1) if line == "[scene]")
+    assert f"the table [scene] is declared twice, on lines {scene_line} and {len(lines) + 2}" in str(err.value)

@@ -221,6 +221,53 @@ def _inline_table_hint(text: str, exc: Exception) -> str:
             " stay on one line; break lines inside a list [ ... ] instead)") if depth > 0 else ""
 
 
+def _repeated_key_hint(text: str, exc: Exception) -> str:
+    """Where a key or a table is given twice: tomllib says "Cannot overwrite a value (at end of
+    document)" or "Cannot mutate immutable namespace ('contact',)", naming neither the key nor the
+    line (a second `contact = { ... }` pasted into a cut joint's inline table read so)."""
+    import re
+    if not re.search(r"Cannot overwrite a value|Cannot mutate immutable namespace|Duplicate inline table key"
+                     r"|Cannot declare", str(exc)):
+        return ""
+    tables: dict[str, int] = {}  # [header] -> its line
+    seen: dict[tuple[str, str], int] = {}  # (header, key) -> its line, in the current table
+    header = shown = ""
+    for number, line in enumerate(text.splitlines(), 1):
+        code = re.sub(r'"(?:[^"\\]|\\.)*"|\'[^\']*\'', '""', line).split("#")[0]
+        m = re.match(r"\s*(\[\[?)\s*([^\]]+?)\s*\]\]?\s*$", code)
+        if m:
+            header = m.group(2)
+            shown = f"{m.group(1)}{header}{']' * len(m.group(1))}"
+            if m.group(1) == "[" and header in tables:
+                return (f" (the table [{header}] is declared twice, on lines {tables[header]} and {number}; "
+                        "TOML allows a table once: put its keys together)")
+            tables.setdefault(header, number)
+            seen = {k: v for k, v in seen.items() if k[0] != header}  # [[header]]: a new element
+            continue
+        m = re.match(r"\s*([A-Za-z0-9_.\-]+)\s*=", code)
+        if m:
+            key = (header, m.group(1))
+            if key in seen:
+                where = f"in {shown}" if header else "at the top level"
+                return (f" (the key '{m.group(1)}' is given twice {where}, on lines {seen[key]} and {number}; "
+                        "TOML allows a key once per table)")
+            seen[key] = number
+        stack: list[set] = []  # the keys of each inline table open on this line
+        for k, ch in enumerate(code):
+            if ch == "{":
+                stack.append(set())
+            elif ch == "}" and stack:
+                stack.pop()
+            elif stack and (k == 0 or not re.match(r"[A-Za-z0-9_\-]", code[k - 1])):
+                km = re.match(r"([A-Za-z0-9_\-]+)\s*=(?!=)", code[k:])
+                if km and (k == 0 or code[k - 1] in " {,\t"):
+                    if km.group(1) in stack[-1]:
+                        return (f" (the key '{km.group(1)}' is given twice in one inline table {{ ... }} on line "
+                                f"{number}; TOML allows a key once per table)")
+                    stack[-1].add(km.group(1))
+    return ""
+
+
 def load_scene(path: str | Path) -> Scene:
     """Read, validate and return the scene at ``path``.
 
@@ -264,7 +311,8 @@ def load_scene(path: str | Path) -> Scene:
     try:
         raw = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
-        raise SceneError(f"{path}: not valid TOML: {exc}{_inline_table_hint(text, exc)}") from None
+        raise SceneError(f"{path}: not valid TOML: {exc}{_inline_table_hint(text, exc)}"
+                         f"{_repeated_key_hint(text, exc)}") from None
     except RecursionError:
         raise SceneError(f"{path}: not valid TOML for a scene: arrays or tables nested too deeply") from None
     except ValueError as exc:  # an integer of more than 4300 digits: Python's int limit
