@@ -401,7 +401,8 @@ def fourbar_impact(th, w, e=E_STOP):
     solve: unknowns the bars' (vx, vy, w) after, the impulses of the four pins (O_A, crank pin,
     J3, J4) and the contact impulse P along n; rows the 9 momentum balances, the 8 pin velocity
     conditions after, and Newton's law n . (v_rocker - v_coupler)+ = -e n . (...)- at the contact.
-    Returns (P, w after, J4's impulse on the rocker, u_n before)."""
+    Returns (P, w after, the pins' impulses, u_n before): J1 on the crank, J2 on the coupler, J3 and J4
+    on the rocker."""
     OA, OB = np.zeros(2), np.array([D, 0.0])
     pin = A * _e(th[0])
     end = pin + B * _e(th[1])
@@ -445,7 +446,8 @@ def fourbar_impact(th, w, e=E_STOP):
     u_before = normal_row[:9] @ before
     Mx[17], rhs[17] = normal_row, -e * u_before
     x = np.linalg.solve(Mx, rhs)
-    return x[17], x[[2, 5, 8]], -x[15:17], u_before
+    pins = {"J1": x[9:11], "J2": x[11:13], "J3": x[13:15], "J4": -x[15:17]}   # each on its later body
+    return x[17], x[[2, 5, 8]], pins, u_before
 
 
 def hold_force(th1_stop, t):
@@ -475,21 +477,24 @@ def test_fourbar_first_strike_by_newton_euler(fourbar):
     cut joint) reaches q3 = -85 deg at t = 0.1177756826 s, the crank at 13.605847 rad/s. With one
     freedom, Newton's law at the contact reverses every rate times e: w+ = -0.5 w-. The 18 x 18
     Newton-Euler solve gives the contact impulse P = 12.85177 N s (the contact's effective mass is
-    50.7 kg: near q3's extreme the loop gears the crank's inertia up) and J4's impulse on the rocker
-    (2.98072, -0.20085) N s."""
+    50.7 kg: near q3's extreme the loop gears the crank's inertia up), J4's impulse on the rocker
+    (2.98072, -0.20085) N s, and the impulse of every tree joint as the event reports it (J1 on the
+    crank, J2 on the coupler, J3 on the rocker)."""
     t_hand, th, w = fourbar_strike()
     first = fourbar.events[0]
     assert first["transition"] == "stop" and first["kind"] == "mobile" and not first["merge"]
     assert first["t"] == pytest.approx(t_hand, abs=1e-9)
     names = ("crank", "coupler", "rocker")
     assert [first["omega_before"][x] for x in names] == pytest.approx(list(w), rel=1e-8)
-    P, w_after, j4, u_before = fourbar_impact(th, w)
+    P, w_after, pins, u_before = fourbar_impact(th, w)
     assert w_after == pytest.approx(-E_STOP * w, rel=1e-10)
     assert [first["omega_after"][x] for x in names] == pytest.approx(list(w_after), rel=1e-8)
     assert first["normal_velocity"]["before"] == pytest.approx(u_before, rel=1e-8)
     assert first["impulse"]["normal"] == pytest.approx(P, rel=1e-7)
     assert P == pytest.approx(12.85177, abs=1e-5)
-    assert first["constraint_impulses"]["J4"][:2] == pytest.approx(list(j4), rel=1e-7)
+    assert first["constraint_impulses"]["J4"][:2] == pytest.approx(list(pins["J4"]), rel=1e-7)
+    for joint in ("J1", "J2", "J3"):
+        assert first["joint_impulses"][joint][:2] == pytest.approx(list(pins[joint]), rel=1e-7), joint
 
 
 def test_fourbar_bounces_merge_hold_and_release(fourbar):
