@@ -99,3 +99,24 @@ def test_a_key_given_twice_is_named_with_its_lines(tmp_path):
         pcmm.load_scene(path)
     scene_line = next(i for i, line in enumerate(lines, 1) if line == "[scene]")
     assert f"the table [scene] is declared twice, on lines {scene_line} and {len(lines) + 2}" in str(err.value)
+
+
+def test_a_link_welded_to_a_moving_link_is_named_too(tmp_path):
+    """The tutorial's latched arm without its boxes: the forearm hangs on a `fixed` elbow but moves
+    with the upper arm, so it is named too; a link welded to the frame is not (it never moves)."""
+    urdf = ('<?xml version="1.0"?><robot name="r"><link name="frame"/>'
+            '<joint name="base" type="fixed"><parent link="frame"/><child link="plate"/></joint>'
+            '<link name="plate"><inertial><mass value="1"/><inertia ixx="1" ixy="0" ixz="0" iyy="1" iyz="0" izz="1"/>'
+            '</inertial></link>'
+            '<joint name="shoulder" type="revolute"><parent link="plate"/><child link="upper"/><axis xyz="0 0 1"/>'
+            '<limit lower="-1" upper="1" effort="1" velocity="1"/></joint>'
+            '<link name="upper"><inertial><origin xyz="0.15 0 0"/><mass value="0.6"/>'
+            '<inertia ixx="1" ixy="0" ixz="0" iyy="1" iyz="0" izz="1"/></inertial></link>'
+            '<joint name="elbow" type="fixed"><parent link="upper"/><child link="fore"/><origin xyz="0.3 0 0"/></joint>'
+            '<link name="fore"><inertial><origin xyz="0.1 0 0"/><mass value="0.4"/>'
+            '<inertia ixx="1" ixy="0" ixz="0" iyy="1" iyz="0" izz="1"/></inertial></link></robot>')
+    path = tmp_path / "r.urdf"
+    path.write_text(urdf)
+    out = dict(undrawn_links(path))
+    assert sorted(out) == ["fore", "upper"]
+    assert '<box size="0.3 0.012 0.012"/>' in out["upper"] and '<box size="0.2 0.012 0.012"/>' in out["fore"]
