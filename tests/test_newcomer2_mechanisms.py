@@ -536,9 +536,10 @@ def test_fourbar_bounces_merge_hold_and_release(fourbar):
     assert fourbar.configuration_at()[-1] == "open"
 
 
-@pytest.mark.xfail(strict=True, reason="pcmm/run: after the merge is let go at its guard value, the first "
-                   "step re-detects the stop's guard (the freed J3 sits 2.2e-16 below -85 deg) and re-merges "
-                   "with no impulse, then lets go again: three events at t = 1.10156952 s for one release")
+@pytest.mark.xfail(strict=True, reason="pcmm/run: after the merge is let go at its guard value, the next "
+                   "segment fires the stop's guard at its first instant (it reads g(t0) = 0.0 there, _pending "
+                   "-2.2e-16) and the stop merges with no impulse, then lets go again: three events at "
+                   "t = 1.10156952 s for one release")
 def test_fourbar_release_is_one_event(fourbar):
     """By hand there is one release (the hold crosses zero once, as the arm turns back) and no
     impact after it: the loop swings away from the stop."""
