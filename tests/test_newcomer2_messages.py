@@ -120,3 +120,28 @@ def test_a_link_welded_to_a_moving_link_is_named_too(tmp_path):
     out = dict(undrawn_links(path))
     assert sorted(out) == ["fore", "upper"]
     assert '<box size="0.3 0.012 0.012"/>' in out["upper"] and '<box size="0.2 0.012 0.012"/>' in out["fore"]
+
+
+def test_a_pin_judged_with_two_frictions_is_named(tmp_path, capsys):
+    """The leg's friction is written twice: on the strike (`transitions[0].contact.friction`) and on
+    the cut joint that holds the foot (`configurations.stance.cut_joints[0].contact.friction`). Written
+    0.6 and 0.3, the scene checked clean and the run stopped right after the strike: "would slip: its
+    force needs friction >= 0.346292 ... the cut joint has mu = 0.3" (by hand, the stance needs
+    |F_t| / F_n = 8.0803 / 23.3338 = 0.3463). `pcmm check` (and `pcmm run`) now warn, naming both
+    fields and values; the same mu on both says nothing."""
+    leg_scene(tmp_path, 60.0, 60.0, -0.7)
+    path = tmp_path / "leg.toml"
+    text = path.read_text()
+    held = "contact = { normal = [0.0, 1.0], friction = 0.6 } }"
+    assert held in text
+    path.write_text(text.replace(held, held.replace("0.6", "0.3")))
+    assert pcmm.cli.main(["check", str(path)]) == 0
+    err = capsys.readouterr().err
+    assert (f"pcmm: warning: {path}: transitions[0] (foot strike).contact.friction: = 0.6, but the cut joint "
+            "'foot' of 'stance' that holds the point after the strike has friction = 0.3") in err
+    path.write_text(text.replace(held, held.replace("0.6", '"stick"')))
+    assert pcmm.cli.main(["check", str(path)]) == 0
+    assert 'friction = "stick"' in capsys.readouterr().err
+    path.write_text(text)
+    assert pcmm.cli.main(["check", str(path)]) == 0
+    assert "friction" not in capsys.readouterr().err
