@@ -2,6 +2,7 @@
 of tests/test_newcomer2_mechanisms.py, each now said where the user looks."""
 from __future__ import annotations
 
+import math
 import re
 
 import pytest
@@ -145,3 +146,24 @@ def test_a_pin_judged_with_two_frictions_is_named(tmp_path, capsys):
     path.write_text(text)
     assert pcmm.cli.main(["check", str(path)]) == 0
     assert "friction" not in capsys.readouterr().err
+
+
+def test_a_joint_stops_accumulation_speed_is_its_joints_rate(tmp_path):
+    """The four-bar's stop written as a joint stop (`contact = { joint = "J3", arm = 0.05 }`) instead of
+    the point 0.05 m along the rocker: the same first impulse, but 22 impacts to the merge instead of 18.
+    The reference said the accumulation speed is in m/s; at a joint stop it is compared with the joint's
+    rate, 1/arm = 20 times the point's speed: from u1 = 3.38133 rad/s the halving bounces reach a rebound
+    below 1e-6 after 1 + ceil(log2(u1 / 2e-6)) = 22 impacts (18 from the point's 0.16907 m/s). The
+    setting's text now says so."""
+    from pcmm.scene.settings import SETTINGS
+    doc = next(s for s in SETTINGS if s.name == "accumulation_speed").help
+    assert "at a joint stop the joint's own rate (rad/s" in doc
+    (tmp_path / "fourbar.urdf").write_text(FOURBAR_URDF)
+    text = re.sub(r'contact = \{ a = "coupler".*\n', 'contact = { joint = "J3", arm = 0.05 }\n', FOURBAR_TOML)
+    (tmp_path / "fourbar.toml").write_text(text.replace("t_end = 1.2", "t_end = 0.5"))
+    traj = pcmm.simulate(pcmm.load_scene(tmp_path / "fourbar.toml"))
+    impacts = [e for e in traj.events if e["transition"] == "stop"]
+    u1 = -impacts[0]["normal_velocity"]["before"]
+    assert u1 == pytest.approx(3.38133, abs=1e-5)
+    assert impacts[0]["impulse"]["normal"] == pytest.approx(12.85177, abs=1e-5)  # as the point contact's
+    assert impacts[-1]["merge"] and len(impacts) == 1 + math.ceil(math.log2(u1 / 2e-6)) == 22
