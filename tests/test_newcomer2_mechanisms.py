@@ -366,31 +366,39 @@ def dpotential(th1, h=1e-6):
     return (potential(th1 + h) - potential(th1 - h)) / (2 * h)
 
 
+COEF = np.array([[A / 2, 0, 0], [A, B / 2, 0], [A, B, C / 2]])   # centre_k = sum_j COEF[k, j] e(th_j)
+
+
+def loop_rhs(t, y):
+    """The loop in the absolute angles th = (th1, th2, th3) with the rocker's end held at O_B (two
+    rows, Lagrange multipliers): M th'' = Q + Phi^T lambda, Phi th'' = -Phi' th'; Q holds gravity,
+    the centripetal terms and the arm's spring on the crank."""
+    th, w = y[:3], y[3:]
+    E = [_e(x) for x in th]
+    JG = [np.column_stack([COEF[k, j] * _perp(E[j]) for j in range(3)]) for k in range(3)]
+    M = sum(MASS[k] * JG[k].T @ JG[k] for k in range(3)) + np.diag(INERTIA)
+    centripetal = [-sum(COEF[k, j] * w[j] ** 2 * E[j] for j in range(3)) for k in range(3)]
+    Q = sum(JG[k].T @ (MASS[k] * (np.array([0, -G]) - centripetal[k])) for k in range(3))
+    Q[0] -= K_ARM * (th[0] - arm_angle(t))
+    Phi = np.column_stack([A * _perp(E[0]), B * _perp(E[1]), C * _perp(E[2])])
+    gamma = -(A * w[0] ** 2 * E[0] + B * w[1] ** 2 * E[1] + C * w[2] ** 2 * E[2])
+    sol = np.linalg.solve(np.block([[M, -Phi.T], [Phi, np.zeros((2, 2))]]), np.concatenate([Q, -gamma]))
+    return np.concatenate([w, sol[:3]])
+
+
+def at_rest(th1):
+    """The state (angles, rates) of the loop at rest with the crank at th1."""
+    th2, th3 = close_loop(th1)
+    return [th1, th2, th2 + (th3 - th2 + math.pi) % (2 * math.pi) - math.pi, 0.0, 0.0, 0.0]
+
+
 def fourbar_strike():
-    """The loop in the absolute angles th = (th1, th2, th3) with the rocker's end held at O_B
-    (two rows, Lagrange multipliers): M th'' = Q + Phi^T lambda, Phi th'' = -Phi' th', integrated
-    from th1 = 90 deg at rest to q3 = th3 - th2 = -85 deg. Returns (t, th, w) just before the strike."""
-    coef = np.array([[A / 2, 0, 0], [A, B / 2, 0], [A, B, C / 2]])   # centre_k = sum_j coef[k, j] e(th_j)
-
-    def rhs(t, y):
-        th, w = y[:3], y[3:]
-        E = [_e(x) for x in th]
-        JG = [np.column_stack([coef[k, j] * _perp(E[j]) for j in range(3)]) for k in range(3)]
-        M = sum(MASS[k] * JG[k].T @ JG[k] for k in range(3)) + np.diag(INERTIA)
-        centripetal = [-sum(coef[k, j] * w[j] ** 2 * E[j] for j in range(3)) for k in range(3)]
-        Q = sum(JG[k].T @ (MASS[k] * (np.array([0, -G]) - centripetal[k])) for k in range(3))
-        Q[0] -= K_ARM * (th[0] - arm_angle(t))
-        Phi = np.column_stack([A * _perp(E[0]), B * _perp(E[1]), C * _perp(E[2])])
-        gamma = -(A * w[0] ** 2 * E[0] + B * w[1] ** 2 * E[1] + C * w[2] ** 2 * E[2])
-        sol = np.linalg.solve(np.block([[M, -Phi.T], [Phi, np.zeros((2, 2))]]), np.concatenate([Q, -gamma]))
-        return np.concatenate([w, sol[:3]])
-
+    """:func:`loop_rhs` integrated from th1 = 90 deg at rest to q3 = th3 - th2 = -85 deg.
+    Returns (t, th, w) just before the strike."""
     def at_stop(t, y):
         return y[2] - y[1] - Q3_STOP
     at_stop.terminal, at_stop.direction = True, 1
-    th2, th3 = close_loop(math.pi / 2)
-    th3 = th2 + (th3 - th2 + math.pi) % (2 * math.pi) - math.pi
-    sol = solve_ivp(rhs, (0, 1), [math.pi / 2, th2, th3, 0, 0, 0], events=at_stop, rtol=1e-12, atol=1e-13,
+    sol = solve_ivp(loop_rhs, (0, 1), at_rest(math.pi / 2), events=at_stop, rtol=1e-12, atol=1e-13,
                     method="DOP853")
     y = sol.y_events[0][0]
     return sol.t_events[0][0], y[:3], y[3:]
@@ -505,7 +513,9 @@ def test_fourbar_bounces_merge_hold_and_release(fourbar):
     Latched, the loop is a rigid triangle at rest at th1* (q3(th1*) = -85 deg, th1* = 139.467 deg);
     its hold (the stop's normal force) is statics: N(t) = (V'(th1*) + k (th1* - th5(t))) / g'(th1*),
     40.37582 N at the merge, falling as the arm turns back, and zero where
-    th5(t) = th1* + V'(th1*)/k, t = 1.10156952 s: there the merge is let go into `open`."""
+    th5(t) = th1* + V'(th1*)/k, t = 1.10156952 s: there the merge is let go into `open`, and from
+    rest there the loop's own dynamics (the same KKT integration as the first strike's) give the state
+    at the end of the run."""
     events = fourbar.events
     impacts = [e for e in events if e["transition"] == "stop" and e["t"] < 1.0]
     u1 = -impacts[0]["normal_velocity"]["before"]
@@ -534,6 +544,12 @@ def test_fourbar_bounces_merge_hold_and_release(fourbar):
     assert np.all(np.diff(q3[free]) < 0) and q3[-1] < Q3_STOP - 1e-3
     assert fourbar.series("theta", "crank")[-1] < th1_stop - 1e-3
     assert fourbar.configuration_at()[-1] == "open"
+    # and from rest at the release, the loop's own dynamics to the end of the run
+    end = solve_ivp(loop_rhs, (t_release, fourbar.t[-1]), at_rest(th1_stop), rtol=1e-12, atol=1e-13,
+                    method="DOP853").y[:, -1]
+    for k, name in enumerate(("crank", "coupler", "rocker")):
+        assert fourbar.series("theta", name)[-1] == pytest.approx(end[k], abs=1e-8), name
+        assert fourbar.series("omega", name)[-1] == pytest.approx(end[3 + k], abs=1e-7), name
 
 
 @pytest.mark.xfail(strict=True, reason="pcmm/run: after the merge is let go at its guard value, the next "
