@@ -167,3 +167,72 @@ def test_a_joint_stops_accumulation_speed_is_its_joints_rate(tmp_path):
     assert u1 == pytest.approx(3.38133, abs=1e-5)
     assert impacts[0]["impulse"]["normal"] == pytest.approx(12.85177, abs=1e-5)  # as the point contact's
     assert impacts[-1]["merge"] and len(impacts) == 1 + math.ceil(math.log2(u1 / 2e-6)) == 22
+
+
+SPRING_TOML = """
+[scene]
+name = "knee"
+gravity = [0.0, 0.0]
+t_end = 0.5
+initial_configuration = "swing"
+[configurations.swing]
+urdf = "leg.urdf"
+[initial]
+q = { hip = 0.0, knee = 0.3 }
+v = { hip = 0.0, knee = 0.0 }
+[[forces]]
+name = "knee spring"
+type = "spring"
+ON
+MEASURE
+k = 5.0
+"""
+
+
+def _spring(tmp_path, on: str, measure: str):
+    (tmp_path / "leg.urdf").write_text(LEG_URDF)
+    path = tmp_path / "knee.toml"
+    path.write_text(SPRING_TOML.replace("ON", on).replace("MEASURE", measure))
+    return path
+
+
+def test_a_spring_measured_against_its_joint_is_refused(tmp_path):
+    """A knee spring written `on = { joint = "knee" }`, `measure = { between = ["shank", "thigh"] }`
+    (the pair reversed) measures minus the knee's coordinate: -k (x - rest) then pushes the knee away
+    from rest, a negative spring. It ran without a word: without gravity, from the knee at 0.3 rad at
+    rest, the knee wound up to 12.7 rad and kinetic + potential energy rose from 0.225 to 810 J in
+    0.5 s (k < 0 itself is refused as an energy source). It is refused now, at the measure, with the
+    order to write; the right order conserves that energy (0.225 J = k 0.3^2 / 2)."""
+    path = _spring(tmp_path, 'on = { joint = "knee" }', 'measure = { between = ["shank", "thigh"] }')
+    with pytest.raises(pcmm.SceneError) as err:
+        pcmm.load_scene(path)
+    assert (f"{path}: forces[0] (knee spring).measure: = between ['shank', 'thigh'] is theta_thigh - theta_shank, "
+            "minus the coordinate the element acts along (on = { joint = 'knee' }: joint 'knee' (thigh -> shank), "
+            "whose coordinate is theta_shank - theta_thigh), so its stiffness drives that coordinate away from rest "
+            "and feeds energy in, as k < 0 or c < 0 would; write between = ['thigh', 'shank']") in str(err.value)
+    path = _spring(tmp_path, 'on = { joint = "knee" }', 'measure = { between = ["thigh", "shank"] }')
+    traj = pcmm.simulate(pcmm.load_scene(path))
+    energy = traj.series("kinetic") + traj.series("potential")
+    assert energy == pytest.approx(0.5 * 5.0 * 0.3 ** 2, abs=1e-9)
+    # a torque on a link from the frame, measured from the link to the frame: minus its angle
+    path = _spring(tmp_path, 'on = { link = "thigh" }', 'measure = { between = ["thigh", "frame"] }')
+    with pytest.raises(pcmm.SceneError, match=r"forces\[0\] \(knee spring\)\.measure: = between \['thigh', 'frame'\]"):
+        pcmm.load_scene(path)
+    assert pcmm.load_scene(_spring(tmp_path, 'on = { link = "thigh" }', 'measure = { between = ["frame", "thigh"] }'))
+
+
+def test_measure_sign_reads_welds_links_and_joints():
+    """measure_sign on the shipped examples: every element acts along its measure (+1) or, as Example
+    1's Eq. 44 torques (on a link, measured between two links), along another coordinate (0); none
+    against it."""
+    from pathlib import Path
+    from pcmm.scene.load import measure_sign
+    root = Path(__file__).resolve().parents[1] / "examples"
+    signs = {}
+    for name in ("three_bar.toml", "three_bar_cycle.toml", "double_folded.toml"):
+        scene = pcmm.load_scene(root / name)
+        for f in scene.forces:
+            signs[(name, f.name)] = {measure_sign(f, scene.configurations[c])
+                                     for c in (f.configurations or scene.configurations)}
+    assert signs[("three_bar.toml", "tau1")] == {1} and signs[("three_bar.toml", "tau2")] == {0}
+    assert signs[("three_bar_cycle.toml", "spring O2")] == {1} and signs[("double_folded.toml", "spring D")] == {1}

@@ -268,6 +268,61 @@ def _repeated_key_hint(text: str, exc: Exception) -> str:
     return ""
 
 
+def measure_sign(force: ForceSpec, config: ConfigurationSpec) -> int | None:
+    """How a force element's ``measure`` x relates to the coordinate its ``on`` acts along, in
+    ``config``: +1 when x is that coordinate (plus a constant), so that ``-k (x - rest)`` is a spring
+    with the potential ``k (x - rest)^2 / 2`` and ``-c x'`` a damper; -1 when x is minus it (the
+    element is then a negative spring and damper: it drives x away from rest and feeds energy in);
+    0 when x is another coordinate (the element does work that ``k (x - rest)^2 / 2`` does not
+    account for); None where pcmm cannot tell (a point spring, a planar joint).
+
+    A joint's coordinate is ``theta_child - theta_parent`` (revolute), a link's the absolute angle
+    its ``on = { link }`` torque is conjugate to; links welded by fixed (or locked) joints are one
+    body."""
+    if force.points is not None or force.measure is None or force.on is None:
+        return None
+    info, m, on = config.info, force.measure, force.on
+    locked = set(config.derivation.lock) if config.derivation is not None else set()
+    parent_joint = {j.child: j for j in info.joints.values()}
+
+    def body(link: str) -> str:  # the moving body a link is welded to (the root for the frame's)
+        seen = set()
+        while link in parent_joint and link not in seen:
+            seen.add(link)
+            j = parent_joint[link]
+            if j.type != "fixed" and j.name not in locked:
+                return link
+            link = j.parent
+        return link
+
+    def angle_joint(link: str):  # the revolute joint whose coordinate is the link's absolute angle
+        j = parent_joint.get(body(link))
+        return j.name if j is not None and j.type == "revolute" and body(j.parent) == body(info.root) else None
+
+    joints = [info.joints.get(n) for n in ([on.name] if on.kind == "joint" else []) +
+              ([m.names[0]] if m.kind == "joint" else [])]
+    if any(j is None or j.type == "planar" for j in joints):
+        return None
+    if on.kind == "joint":
+        j = info.joints[on.name]
+        if m.kind == "joint":
+            return 1 if m.names[0] == on.name else 0
+        if j.type != "revolute":
+            return 0
+        if m.kind == "link":
+            return 1 if angle_joint(m.names[0]) == on.name else 0
+        a, b = (body(n) for n in m.names)
+        return 1 if (a, b) == (body(j.parent), j.child) else -1 if (a, b) == (j.child, body(j.parent)) else 0
+    target = body(on.name)
+    if m.kind == "link":
+        return 1 if body(m.names[0]) == target else 0
+    if m.kind == "joint":
+        return 1 if angle_joint(on.name) == m.names[0] else 0
+    a, b = (body(n) for n in m.names)
+    frame = body(info.root)
+    return 1 if (a, b) == (frame, target) else -1 if (a, b) == (target, frame) else 0
+
+
 def load_scene(path: str | Path) -> Scene:
     """Read, validate and return the scene at ``path``.
 
@@ -944,6 +999,23 @@ class _Builder:
                 self.p.add(where, f"= {n!r}: no such configuration; defined: {', '.join(scene.configurations)}")
         return out
 
+    @staticmethod
+    def _negative_element(f: ForceSpec, cfg: ConfigurationSpec) -> str:
+        """Why an element whose measure is minus the coordinate it acts along is refused."""
+        a, b = f.measure.names
+        if f.on.kind == "joint":
+            j = cfg.info.joints[f.on.name]
+            along = f"joint '{j.name}' ({j.parent} -> {j.child}), whose coordinate is theta_{j.child} - theta_{j.parent}"
+        else:
+            along = f"the angle of '{f.on.name}'"
+        parts = [w for w, x in (("stiffness", f.k), ("damping", f.c)) if x > 0]
+        verb = "drive" if len(parts) > 1 else "drives"
+        rest = f", with rest = {-f.rest:g} (a value of the measure)" if f.rest else ""
+        return (f"= between {list(f.measure.names)} is theta_{b} - theta_{a}, minus the coordinate the element acts "
+                f"along (on = {{ {f.on.kind} = '{f.on.name}' }}: {along}), so its {' and '.join(parts)} {verb} that "
+                f"coordinate away from rest and feed{'s' if verb == 'drives' else ''} energy in, as k < 0 or c < 0 "
+                f"would; write between = {[b, a]!r}{rest}")
+
     def _cross_check(self, scene: Scene) -> None:
         names = scene.configurations
         for i, f in enumerate(scene.forces):
@@ -962,6 +1034,9 @@ class _Builder:
                     self._check_measure(f"{where}.measure", f.measure, cfg)
                 if tail and len(self.p.items) > n0:
                     self.p.items[-1] += tail
+                elif len(self.p.items) == n0 and (f.k > 0 or f.c > 0) and measure_sign(f, cfg) == -1 \
+                        and not any(p.startswith(f"{where}.measure:") for p in self.p.items):
+                    self.p.add(f"{where}.measure", self._negative_element(f, cfg))
         for i, t in enumerate(scene.transitions):
             where = f"transitions[{i}] ({t.name})"
             for key, ref in (("from", t.source), ("to", getattr(t, "target", None)),
