@@ -348,7 +348,7 @@ def _pin_frictions(scene) -> list[str]:
     ``contact.friction`` the stance's force (a leg's foot struck with mu = 0.6 and held with 0.3 stopped
     at once "right after the strike ... would slip", from a scene whose strike said 0.6)."""
     def mu(x):
-        return "frictionless" if x is None else '"stick"' if math.isinf(x) else f"{x:g}"
+        return "none (frictionless)" if x is None else '"stick"' if math.isinf(x) else f"{x:g}"
     out = []
     for i, t in enumerate(scene.transitions):
         if t.type != "pin" or t.target not in scene.configurations or t.contact is None:
