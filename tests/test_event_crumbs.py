@@ -205,9 +205,9 @@ def test_a_signal_while_a_segment_of_the_cycle_is_recorded_waits_until_it_is_kep
     try:
         with as_interrupts(), pytest.raises(pcmm.SimulationError) as info:
             pcmm.simulate(pcmm.load_scene(CYCLE), OPTS)
+        assert (_signal.getsignal(signal.SIGINT), _signal.getsignal(signal.SIGTERM)) == before
     finally:
         _signal.signal(signal.SIGINT, sigint)
-    assert (_signal.getsignal(signal.SIGINT), _signal.getsignal(signal.SIGTERM)) == before
     partial = info.value.partial
     assert state["n"] == 40 and len(partial.segments) == 40
     assert partial.segments[-1].t[-1] == state["t"] and partial.t[-1] == state["t"]
