@@ -161,6 +161,130 @@ def no_free_coordinate(scene: Scene, cfg: Configuration, q) -> str | None:
             "or drive it by a motor torque (a `torque` force) instead of a drive")
 
 
+# ---- redundant rows --------------------------------------------------------------------------
+#: a singular value of a configuration's rows below this (relative to the largest) is a redundancy
+RANK_TOL = 1e-9
+
+
+def _drive_rows(scene: Scene, cfg: Configuration, drives_of: str) -> tuple[np.ndarray, list[str], list]:
+    """(unit rows, labels, (coordinate, coefficients)) of the drives of configuration ``drives_of``
+    on ``cfg``'s coordinates."""
+    rows, labels, laws = [], [], []
+    for d in scene.drives_in(drives_of):
+        if d.joint not in cfg.joint_slice:
+            continue
+        e = np.zeros(cfg.nv)
+        e[cfg.joint_slice[d.joint].start] = 1.0
+        rows.append(e)
+        labels.append(f"drives[{scene.drives.index(d)}] ('{d.joint}')")
+        laws.append((cfg.joint_slice[d.joint].start, np.array(d.coefficients, dtype=float)))
+    return np.array(rows).reshape(len(rows), cfg.nv), labels, laws
+
+
+@dataclass
+class Redundancy:
+    """Constraint rows of one configuration that are not independent (:func:`redundant_rows`)."""
+
+    configuration: str
+    labels: list[str]  # every row: cut-joint rows (C.fx, ...), drives ("drives[0] ('A')"), holds
+    rank: int
+    nv: int
+    null: np.ndarray  # left null vectors y (y^T R = 0), one per column, unit length
+    consistent: bool  # some motion satisfies the rows (the drives' rates are orthogonal to every y)
+
+    @property
+    def indeterminate(self) -> list[str]:
+        """The rows whose force some null vector moves: statically indeterminate."""
+        return [lab for lab, y in zip(self.labels, self.null) if np.max(np.abs(y)) > 1e-9]
+
+    def message(self, also: list[str] = ()) -> str:
+        m = len(self.labels)
+        rows = ", ".join(self.labels)
+        loose = self.indeterminate + [a for a in also if a not in self.indeterminate]
+        if not self.consistent:
+            return (f"configuration '{self.configuration}' has {m} constraint rows ({rows}) of rank {self.rank} on "
+                    f"{self.nv} coordinates, and its drives ask a motion the others forbid: no motion satisfies "
+                    f"{', '.join(self.indeterminate)} together (a lock or the loop fixes what a drive moves); drive "
+                    "the joint only where it is free (the drive's configurations) or release the lock first")
+        free = self.nv - self.rank
+        return (f"configuration '{self.configuration}' has {m} constraint rows ({rows}) of rank {self.rank} on "
+                f"{self.nv} coordinates: {m - self.rank} redundant but consistent, so the motion is still determined "
+                f"({free} free coordinate{'s' if free != 1 else ''}) while the forces of {', '.join(loose)} are "
+                "not: they are statically indeterminate (any split of the load between them balances it). pcmm "
+                "reports no arbitrary split: its run stops on entering the configuration (its rows cannot be "
+                "solved for the dependent coordinates). Remove the redundant row: a drive limited to the "
+                "configurations where its joint is free, one cut joint fewer, or a joint fewer locked")
+
+
+def redundant_rows(scene: Scene, cfg: Configuration, q, holds=(), drives_of: str | None = None) -> Redundancy | None:
+    """The dependence of ``cfg``'s constraint rows at ``q`` (its cut joints', the drives of
+    ``drives_of`` (default: ``cfg``'s own), plus ``holds``: ``(label, row)`` of locks whose holding
+    forces are solved with them, as :meth:`pcmm.events.holding.Holds.forces` does on a configuration
+    with the held joints free); None when they are independent.
+
+    Rows ``R`` of rank r < m leave the velocities ``R v = [0; f'(t)]`` solvable only where every
+    left null vector y of R (``y^T R = 0``) has ``y^T [0; f'(t)] = 0`` at every t, i.e. its drive
+    components are orthogonal to the drives' rate polynomials: then the rows are *consistent*, the
+    motion is still determined, but the multipliers (``R^T lam`` is the generalized force they
+    apply) are determined only up to adding any such y: the force of every row on which some y is
+    non-zero is statically indeterminate. Otherwise no motion satisfies the rows (inconsistent).
+    (A drive's position that the others contradict, at a rate they allow, is the run's to report:
+    the guard's posture here is not solved at the drive's time.)"""
+    coords = cfg.coords
+    closure = getattr(coords, "closure", None)
+    _, Jq = coords.loop_rows(q)
+    labels = list(closure.labels()) if closure is not None and Jq.shape[0] else []
+    Jd, dlabels, laws = _drive_rows(scene, cfg, drives_of or cfg.name)
+    R = np.vstack([Jq, Jd] + [row[None, :] for _, row in holds])
+    labels += dlabels + [label for label, _ in holds]
+    m = R.shape[0]
+    if m == 0:
+        return None
+    U, s, _ = np.linalg.svd(R)
+    rank = int(np.sum(s > RANK_TOL * max(float(s[0]), 1e-300))) if s.size else 0
+    if rank == m:
+        return None
+    Y = U[:, rank:]
+    consistent = True
+    if laws:  # each null vector's drive components against the drives' rates, as polynomials in t
+        rates = [np.polynomial.polynomial.polyder(c) if len(c) > 1 else np.zeros(1) for _, c in laws]
+        C = np.zeros((len(laws), max(len(r) for r in rates)))
+        for k, r in enumerate(rates):
+            C[k, :len(r)] = r
+        Yd = Y[Jq.shape[0]:Jq.shape[0] + len(laws)]
+        consistent = bool(np.all(np.abs(Yd.T @ C) <= 1e-9 * max(1.0, float(np.max(np.abs(C))))))
+    return Redundancy(cfg.name, labels, rank, cfg.nv, Y, consistent)
+
+
+def entry_redundancy(scene: Scene, src: Configuration, dst: Configuration, tr: TransitionSpec, q, q_dst
+                     ) -> tuple[str | None, bool]:
+    """(message, consistent) of the rows of configuration ``dst`` entered by ``tr`` from ``src`` at
+    ``q`` (``q_dst`` there) when they are dependent (:func:`redundant_rows`), else (None, True): its
+    own rows, and those its holding forces are solved with (``src``'s loops, ``dst``'s drives and one
+    row per lock ``tr`` makes: the stop's normal for a merge, the joint's coordinate for a latch, as
+    :class:`pcmm.events.holding.Holds` solves them), whose indeterminate holds it names too."""
+    own = redundant_rows(scene, dst, q_dst)
+    locked = [n for n in src.joint_names if n not in dst.joint_slice]
+    if not locked:
+        return (None, True) if own is None else (own.message(), own.consistent)
+    if tr.type == "stop" and tr.contact is not None:
+        from ..events.contact import contact_row
+        holds = [(f"'{tr.name}.hold'", contact_row(src, q, np.zeros(src.nv), tr.contact)[0])]
+    else:
+        holds = []
+        for n in locked:
+            e = np.zeros(src.nv)
+            e[src.joint_slice[n]] = 1.0
+            holds.append((f"'{n}.hold'", e))
+    held = redundant_rows(scene, src, q, holds, drives_of=dst.name)
+    holding = [lab for lab in (held.indeterminate if held is not None else []) if lab in dict(holds)]
+    if own is not None:
+        return own.message([f"the holding force {h}" for h in holding]), own.consistent
+    if held is None:
+        return None, True
+    return held.message(), held.consistent
+
+
 # ---- units -------------------------------------------------------------------------------------
 def is_angle(cfg: Configuration, tr: TransitionSpec) -> bool:
     """Does the guard measure an angle (rad): a revolute joint's coordinate, a link's angle, the
@@ -238,7 +362,8 @@ def check_scene(scene: Scene, mechanism: Mechanism | None = None) -> CheckReport
                     "contact and pose checks were skipped); check the guard's value and direction")
                 continue
             report.postures[tr.name] = q
-            if tr.contact is not None and (stuck := no_free_coordinate(scene, cfg, q)) is not None:
+            stuck = no_free_coordinate(scene, cfg, q) if tr.contact is not None else None
+            if stuck is not None:
                 report.warnings.append(f"{here}.contact: {stuck}")
             report.warnings += [f"{here}.guard.value: = {tr.guard.value:.12g}: {w}" for w in _limits(cfg, q)]
             for f in contact_findings(cfg, tr, q, warnings=True):
@@ -259,6 +384,13 @@ def check_scene(scene: Scene, mechanism: Mechanism | None = None) -> CheckReport
             report.problems += [f"{here}.{key}: at the guard value ({tr.guard.measure} = {tr.guard.value:.12g}) "
                                 f"{m}; the two URDFs must place every shared link identically there "
                                 "(check the fixed joint's origin in the merged configuration)" for m in mismatches]
+            try:  # (not past a strike that stops the run: the target is never entered)
+                rows, consistent = (None, True) if stuck else entry_redundancy(scene, cfg, dst, tr, q, q_dst)
+            except PcmmError as exc:
+                report.problems += [f"{here}.{key}: {p}" for p in exc.problems]
+                continue
+            if rows is not None:
+                (report.warnings if consistent else report.problems).append(f"{here}.{key}: {rows}")
             if target not in starts:
                 starts[target] = q_dst
                 todo.append(target)

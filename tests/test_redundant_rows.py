@@ -1,0 +1,116 @@
+"""Redundant constraint rows in a configuration the run enters (issue 22: no silent wrong number).
+
+A slider-crank of my own (crank a = 0.1 m on A, rod b = 0.3 m on B, slider on the prismatic P, the
+cut joint C closing the rod's tip on the slider) turned by a motor torque; the slider strikes a
+stop at the x it has for the crank angle -1 rad and merges into 'held', derived by locking P. In
+'held' a drive on A (listed for 'held' only) makes 3 rows (C.fx, C.fy and the drive) on the 2
+coordinates A, B.
+
+By hand, at A = -1, phi = asin(-a sin A / b) (the rod's angle), B = phi - A: the rows' Jacobian is
+[[d(tip)/dA, d(tip)/dB], [1, 0]], of rank 2 (the C block's determinant is a b sin B != 0), so one
+row is redundant, and its left null vector is y ~ (cos phi, sin phi, a sin B) (C's rows being
+slider minus rod tip): the rod's axial
+force, which the drive's moment (a sin B per newton) and the lock can trade at will, is statically
+indeterminate. With a constant drive the rows are consistent (nothing moves); with a drive that
+turns A they are not (no motion satisfies them).
+"""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import pcmm
+from builders import bar_xml, base_doc, joint_xml, link_xml, robot_xml, solid_xml, stop, write_scene
+from pcmm.model.mechanism import Mechanism
+from pcmm.run.checks import check_scene, redundant_rows
+
+A_, B_, TH0, TH_STOP = 0.1, 0.3, -2.0, -1.0
+
+
+def slider_x(th):
+    return A_ * math.cos(th) + math.sqrt(B_ ** 2 - (A_ * math.sin(th)) ** 2)
+
+
+def jammed_press(folder: Path, drive=None, lock=("P",)) -> Path:
+    urdf = robot_xml("sc", link_xml("frame"), joint_xml("A", "revolute", "frame", "crank"), bar_xml("crank", A_, 0.5),
+                     joint_xml("B", "revolute", "crank", "rod", xyz=(A_, 0.0)), bar_xml("rod", B_, 0.8),
+                     joint_xml("P", "prismatic", "frame", "slider", axis=(1, 0, 0)), solid_xml("slider", 2.0, 1e-3))
+    cut = [{"name": "C", "type": "revolute", "a": "rod", "point_a": [B_, 0.0], "b": "slider", "point_b": [0.0, 0.0]}]
+    xs = slider_x(TH_STOP)
+    tr = stop("stop", "free", 0.0, {"type": "coordinate", "measure": {"joint": "P"}, "value": xs,
+                                    "direction": "increasing"},
+              {"a": "frame", "point_a": [xs, 0.0], "b": "slider", "point_b": [0.0, 0.0], "normal": [-1.0, 0.0]},
+              merge_to="held", cut=["P"], unmerge=False)
+    more = {"drives": [{"joint": "A", "coefficients": list(drive), "configurations": ["held"]}]} if drive else {}
+    phi = math.asin(-A_ * math.sin(TH0) / B_)
+    doc = base_doc("jammed", "free", {"free": {"urdf": "sc.urdf", "cut_joints": cut},
+                                      "held": {"from": "free", "lock": list(lock)}},
+                   {"A": TH0, "B": phi - TH0, "P": slider_x(TH0)}, {"A": 0.0, "B": 0.0, "P": 0.0}, t_end=1.0,
+                   transitions=[tr], forces=[{"name": "motor", "type": "torque", "on": {"joint": "A"}, "value": 0.5,
+                                              "configurations": ["free"]}], **more)
+    doc["initial"]["independent"] = ["A"]
+    return write_scene(folder, doc, {"sc.urdf": urdf})
+
+
+def test_consistent_redundant_rows_are_a_warning_naming_the_indeterminate_forces(tmp_path):
+    path = jammed_press(tmp_path, drive=[TH_STOP])
+    scene = pcmm.load_scene(path)
+    report = check_scene(scene)
+    assert report.problems == []
+    [w] = [w for w in report.warnings if "redundant" in w]
+    assert w.startswith(f"{path}: transitions[0] (stop).merge_to: configuration 'held' has 3 constraint rows "
+                        "(C.fx, C.fy, drives[0] ('A')) of rank 2 on 2 coordinates: 1 redundant but consistent")
+    assert "the forces of C.fx, C.fy, drives[0] ('A'), the holding force 'stop.hold' are not" in w
+    assert "pcmm reports no arbitrary split" in w
+
+    # the null vector by hand: C's rows are p_b - p_a = slider - rod tip, so their Jacobian is
+    # -d(tip)/d(A, B); y^T R = 0 along B gives (y1, y2) ~ (cos phi, sin phi), the rod's axis, and
+    # along A then y3 = +a sin B
+    mech = Mechanism(scene)
+    held = mech.enter("held", mech["free"], report.postures["stop"])
+    q = np.zeros(held.nv)
+    phi = math.asin(-A_ * math.sin(TH_STOP) / B_)
+    q[held.joint_slice["A"].start], q[held.joint_slice["B"].start] = TH_STOP, phi - TH_STOP
+    found = redundant_rows(scene, held, q)
+    assert (found.rank, found.nv, found.null.shape) == (2, 2, (3, 1))
+    y = np.array([math.cos(phi), math.sin(phi), A_ * math.sin(phi - TH_STOP)])
+    y /= np.linalg.norm(y)
+    assert abs(abs(float(found.null[:, 0] @ y)) - 1.0) < 1e-12  # the same line: cos(angle) = 1
+    assert found.consistent
+
+
+def test_the_run_stops_on_the_redundancy_and_names_the_rows(tmp_path):
+    """No split of the indeterminate forces is reported: the run stops at the merge, naming the rows."""
+    with pytest.raises(pcmm.SimulationError) as info:
+        pcmm.simulate(pcmm.load_scene(jammed_press(tmp_path, drive=[TH_STOP])))
+    text = info.value.text()
+    assert "configuration 'held'" in text and "(C.fx, C.fy, A.drive) would be statically indeterminate" in text
+
+
+def test_inconsistent_rows_are_a_problem_naming_them(tmp_path):
+    """A drive turning A at 1 rad/s where the lock and the loop fix A: y's drive component times the
+    rate, a sin B / |y| != 0, so no motion satisfies the rows: an error before the run, not a stop at
+    the merge 0.283 s into it."""
+    report = check_scene(pcmm.load_scene(jammed_press(tmp_path, drive=[TH_STOP, 1.0])))
+    [p] = report.problems
+    assert "transitions[0] (stop).merge_to: configuration 'held' has 3 constraint rows (C.fx, C.fy, drives[0] ('A')) " \
+           "of rank 2 on 2 coordinates, and its drives ask a motion the others forbid" in p
+
+
+def test_locking_two_joints_of_the_loop_is_redundant_without_a_drive(tmp_path):
+    """Locking A and P leaves the rod (B) pinned at both ends: 2 rows on 1 coordinate, rank 1, consistent
+    (no drive); the rod's axial force is indeterminate, so both C rows are named."""
+    report = check_scene(pcmm.load_scene(jammed_press(tmp_path, lock=("P", "A"))))
+    [w] = [w for w in report.warnings if "redundant" in w]
+    assert "configuration 'held' has 2 constraint rows (C.fx, C.fy) of rank 1 on 1 coordinates: 1 redundant but " \
+           "consistent" in w
+
+
+def test_independent_rows_are_not_flagged(tmp_path):
+    """Without the drive, 'held' has the 2 rows of C on A, B: rank 2 = nv, a determinate structure;
+    the hold solved on 'free' adds the stop's row on P: 3 rows of rank 3."""
+    report = check_scene(pcmm.load_scene(jammed_press(tmp_path)))
+    assert report.problems == [] and not [w for w in report.warnings if "redundant" in w]
