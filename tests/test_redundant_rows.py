@@ -114,3 +114,35 @@ def test_independent_rows_are_not_flagged(tmp_path):
     the hold solved on 'free' adds the stop's row on P: 3 rows of rank 3."""
     report = check_scene(pcmm.load_scene(jammed_press(tmp_path)))
     assert report.problems == [] and not [w for w in report.warnings if "redundant" in w]
+
+
+def test_the_split_is_not_unique_which_is_why_no_run_reports_one(tmp_path):
+    """On 'free' with the holding rows of 'held' (C, the drive on A, the stop's normal on P; as
+    pcmm.events.holding solves a hold), at rest at the merge posture, R^T lam = h - Q has a line of
+    solutions: the KKT solve's and the minimum-norm one (numpy's lstsq) both balance gravity to
+    round-off and differ by a multiple of the null vector y of R, which is non-zero on all four rows
+    (here the hold on P: 0.555 N in the minimum-norm split, 1e-15 N in the KKT solve's own choice).
+    So the run must not report one, and it does not: it stops on entering 'held'."""
+    import pinocchio as pin
+    from pcmm.events.contact import contact_row
+    from pcmm.model.rows import constrained_accelerations
+    scene = pcmm.load_scene(jammed_press(tmp_path, drive=[TH_STOP]))
+    q = check_scene(scene).postures["stop"]
+    free = Mechanism(scene)["free"]
+    zero = np.zeros(free.nv)
+    Jc, bc = free.coords.rows(0.3, q, zero)
+    drive = np.zeros(free.nv)
+    drive[free.joint_slice["A"].start] = 1.0
+    Jn, bn = contact_row(free, q, zero, scene.transitions[0].contact)
+    R, bias = np.vstack([Jc, drive, Jn]), np.concatenate([bc, [0.0, bn]])
+    assert np.linalg.matrix_rank(R) == 3 and R.shape == (4, 3)
+    a, lam_kkt = constrained_accelerations(free, q, zero, R, bias)
+    h = pin.rnea(free.model, free.data, free.to_pin(q), zero, zero)  # gravity at rest
+    rhs = h - free.forces.generalized(q, zero)
+    lam_min = np.linalg.lstsq(R.T, rhs, rcond=None)[0]
+    assert np.max(np.abs(a)) < 1e-12
+    assert np.max(np.abs(R.T @ lam_kkt - rhs)) < 1e-12 and np.max(np.abs(R.T @ lam_min - rhs)) < 1e-12
+    y = np.linalg.svd(R.T)[2][-1]  # the left null vector of R
+    d = lam_kkt - lam_min
+    assert np.linalg.norm(d) > 0.1 and np.linalg.norm(d - (d @ y) * y) < 1e-12 * np.linalg.norm(d) + 1e-13
+    assert np.min(np.abs(y)) > 0.05  # every row's force moves along the line
