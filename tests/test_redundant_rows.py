@@ -146,3 +146,17 @@ def test_the_split_is_not_unique_which_is_why_no_run_reports_one(tmp_path):
     d = lam_kkt - lam_min
     assert np.linalg.norm(d) > 0.1 and np.linalg.norm(d - (d @ y) * y) < 1e-12 * np.linalg.norm(d) + 1e-13
     assert np.min(np.abs(y)) > 0.05  # every row's force moves along the line
+
+
+def test_the_newcomers_press_is_not_over_constrained(tmp_path):
+    """The newcomer's press ('held' locks the ram, which rides on its cushion ahead of the slider, not
+    the slider itself): the hold is solved on 'free' with C (2 rows), the drive on the crank and the
+    stop's normal on the ram. The ram's column is non-zero in the stop's row alone, so the rank is
+    1 + the rank of the driven slider-crank's 3 rows on crank, pin, slide (3 off its dead centres):
+    4 rows of rank 4 on 4 coordinates, a unique hold (the cushion's push, as
+    tests/test_newcomer_mechanisms.py checks to 1e-8 N). No warning."""
+    import test_newcomer_mechanisms as newcomer
+    (tmp_path / "press.urdf").write_text(newcomer.PRESS_URDF)
+    (tmp_path / "press.toml").write_text(newcomer.PRESS_TOML)
+    report = check_scene(pcmm.load_scene(tmp_path / "press.toml"))
+    assert report.problems == [] and report.warnings == []
