@@ -52,6 +52,7 @@ class CheckReport:
     problems: list[str] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
     postures: dict[str, np.ndarray] = field(default_factory=dict)  # transition name -> q at its guard
+    reach: dict[str, str] = field(default_factory=dict)  # transition name -> which posture that is (path_posture)
 
 
 # ---- the posture at a guard ---------------------------------------------------------------
@@ -136,6 +137,179 @@ def guard_posture(cfg: Configuration, tr: TransitionSpec, q_start) -> tuple[np.n
         return closest
     _, _, _, q, residual = min(reached, key=lambda c: c[:3])
     return q, residual
+
+
+# ---- the posture the run reaches -----------------------------------------------------------------
+#: path-length step (in coordinates: rad, m) and the most steps of the path followed from the start
+PATH_STEP = 0.01
+PATH_STEPS = 4000
+TURNS = "a turning point (its energy runs out)"
+
+
+@dataclass
+class PathPosture:
+    """Where the guard of a transition is met along the mechanism's path from its start
+    (:func:`path_posture`)."""
+
+    q: np.ndarray | None  # the posture, None when the path does not reach the guard
+    residual: float
+    how: str  # which posture this is and why the run reaches it (or does not)
+
+
+def _guard_value(cfg: Configuration, tr: TransitionSpec, q) -> float:
+    if tr.guard.type == "coordinate":
+        row, offset = cfg.measure_row(tr.guard.measure)
+        return float(row @ q + offset - tr.guard.value)
+    from ..events.contact import contact_state
+    return float(contact_state(cfg, q, np.zeros(cfg.nv), tr.contact)[1] - tr.guard.value)
+
+
+def _tangent(cfg: Configuration, q) -> np.ndarray | None:
+    """The unit tangent of a one-freedom posture space at q (the null vector of the loops'
+    position rows), None where it has not exactly one (a singular posture, or more freedom)."""
+    _, Jq = _closure(cfg, q)
+    if Jq.shape[0] == 0:
+        return np.ones(1) if cfg.nv == 1 else None
+    _, s, Vt = np.linalg.svd(Jq)
+    s = np.concatenate([s, np.zeros(cfg.nv - s.size)])
+    if s[0] == 0 or np.count_nonzero(s > 1e-8 * s[0]) != cfg.nv - 1:
+        return None
+    return Vt[-1]
+
+
+def _loads(cfg: Configuration, q) -> np.ndarray:
+    """The generalized force at rest (force elements at zero velocity, minus gravity's load):
+    its work along the path is the kinetic energy the motion gains (dampers left out)."""
+    import pinocchio as pin
+    return cfg.forces.generalized(q, np.zeros(cfg.nv)) - pin.computeGeneralizedGravity(cfg.model, cfg.data, cfg.to_pin(q))
+
+
+def _follow(cfg: Configuration, tr: TransitionSpec, q0, sign: float, energy: float | None):
+    """Follow the one-freedom path from ``q0`` with the tangent's orientation ``sign`` (predictor
+    along the tangent, Newton back onto the loops) until the guard crosses its value in its
+    direction; ``energy``: the kinetic energy at q0 (None: not counted), the work of the loads at
+    rest added on the way, the path ending where it runs out (a turning point).  Returns
+    (q near the crossing or None, the path length, why it ended, the postures near crossings
+    against the guard's direction on the way, which the motion meets in its direction after
+    turning back, and at a turning point that posture last)."""
+    back: list[np.ndarray] = []
+    t_prev = _tangent(cfg, q0)
+    if t_prev is None:
+        return None, 0.0, "no single path from the start", back
+    t_prev = sign * t_prev
+    q, r, length = np.array(q0, float), _guard_value(cfg, tr, q0), 0.0
+    ke, load = energy, (_loads(cfg, q0) if energy is not None else None)
+    for _ in range(PATH_STEPS):
+        nxt = q + PATH_STEP * t_prev
+        for _ in range(8):  # back onto the loops, minimum-norm Newton steps
+            phi, Jq = _closure(cfg, nxt)
+            if phi.size == 0 or np.max(np.abs(phi)) < 1e-12:
+                break
+            nxt = nxt - np.linalg.lstsq(Jq, phi, rcond=None)[0]
+        t = _tangent(cfg, nxt)
+        if t is None or not np.all(np.isfinite(nxt)):
+            return None, length, f"a singular posture after {length:.3g} along the path", back
+        t = t if t @ t_prev >= 0 else -t
+        length += float(np.linalg.norm(nxt - q))
+        if ke is not None:
+            new_load = _loads(cfg, nxt)
+            ke += 0.5 * float((load + new_load) @ (nxt - q))
+            load = new_load
+            if ke < 0:
+                back.append(q)  # the turning point last: where the motion turns back
+                return None, length, TURNS, back
+        r_next = _guard_value(cfg, tr, nxt)
+        near = nxt if abs(r_next) <= abs(r) else q
+        if (r > 0 >= r_next and tr.guard.direction < 0) or (r < 0 <= r_next and tr.guard.direction > 0):
+            return near, length, "the guard", back
+        if (r > 0 >= r_next) or (r < 0 <= r_next):
+            back.append(near)
+        if length > 2 * PATH_STEP and float(np.max(_distance(cfg, nxt, q0), initial=0.0)) < 0.5 * PATH_STEP:
+            return None, length, "a whole turn back to the start", back
+        q, r, t_prev = nxt, r_next, t
+    return None, length, f"{length:.3g} along the path", back
+
+
+def _describe_posture(cfg: Configuration, q) -> str:
+    return ", ".join(f"{n} = {float(q[cfg.joint_slice[n].start]):.6g}" for n in cfg.joint_names
+                     if cfg.joint_slice[n].stop - cfg.joint_slice[n].start == 1)
+
+
+def path_posture(scene: Scene, cfg: Configuration, tr: TransitionSpec, q0, v0=None) -> PathPosture | None:
+    """The posture where the run meets the guard of ``tr``, found by following the mechanism's
+    path from ``q0`` (its start in ``cfg``), for a configuration whose loops leave one freedom
+    (a pendulum, a slider-crank, a four-bar): the motion stays on that curve, so the posture it
+    reaches is the first crossing along it, in the direction it moves, before its energy runs out.
+
+    The direction: the initial velocity ``v0`` along the path, else (at rest) the loads' (gravity's,
+    the force elements') push along it, else a drive's rate; with none known both ways are followed
+    and the nearer crossing kept, said so. The energy: with ``v0`` known and no drive, the kinetic
+    energy at the start plus the work of the loads at rest along the path (dampers, which only take
+    energy, left out): where it runs out the motion turns back and the other way is followed (to
+    its own turning point). None where the path cannot be followed (more than one freedom, a planar
+    joint, a singular start): the caller then takes the nearest solution and says it could not tell."""
+    if cfg.has_planar:
+        return None
+    t0 = _tangent(cfg, q0)
+    if t0 is None:
+        return None
+    drives = getattr(cfg.coords, "drives", None)
+    driven = drives is not None and drives.size > 0
+    sign, why = 0.0, ""
+    if v0 is not None and abs(float(t0 @ v0)) > 1e-12:
+        sign, why = float(np.sign(t0 @ v0)), "in the direction of its initial velocity"
+    elif driven:
+        _, rate, _ = drives.values(0.0)
+        push = float(sum(r * t0[i] for i, r in zip(drives.index, rate)))
+        if abs(push) > 1e-12:
+            sign, why = float(np.sign(push)), "in the direction its drive moves it"
+    elif v0 is not None:
+        push = float(t0 @ _loads(cfg, q0))
+        if abs(push) > 1e-12 * max(1.0, float(np.max(np.abs(_loads(cfg, q0))))):
+            sign, why = float(np.sign(push)), "released at rest, in the direction its loads push it"
+    energy = None if v0 is None or driven else cfg.kinetic_energy(q0, v0)
+    where = f"from the initial posture ({_describe_posture(cfg, q0)})" if v0 is not None else \
+        f"from where '{cfg.name}' is entered ({_describe_posture(cfg, q0)})"
+    if sign:
+        q, length, end, back = _follow(cfg, tr, q0, sign, energy)
+        if q is not None:
+            return _settle(cfg, tr, q, f"reached along the path {where}, {why}, after {length:.3g} of path")
+        if end != TURNS:
+            return None  # a singular posture, or a whole turn or the longest path without the guard
+        turn = back.pop()
+        if back:  # met against its direction on the way out, so in it on the way back: the last one first
+            return _settle(cfg, tr, back[-1], f"reached along the path {where}, {why}, as the motion turns back "
+                                              f"{length:.3g} of path out")
+        q, length, end, other = _follow(cfg, tr, q0, -sign, energy)
+        if q is not None:
+            return _settle(cfg, tr, q, f"reached along the path {where} after the motion turns back, "
+                                       f"{length:.3g} of path the other way")
+        if end != TURNS:
+            return None
+        return PathPosture(None, math.inf, (
+            f"the path {where} swings between two turning points where its energy runs out (dampers left out), "
+            f"{_describe_posture(cfg, turn)} and {_describe_posture(cfg, other[-1])} (to {PATH_STEP:g} of path), "
+            "and the guard's value is not met in its direction between them: the guard cannot fire unless a "
+            "force adds energy or another transition changes the motion first"))
+    found = []
+    for d in (1.0, -1.0):
+        q, length, _, _ = _follow(cfg, tr, q0, d, None)
+        if q is not None:
+            found.append((length, q))
+    if not found:
+        return None
+    length, q = min(found, key=lambda f: f[0])
+    return _settle(cfg, tr, q, f"the nearer of the crossings along the path {where} (either way, "
+                               f"{length:.3g} of path: the direction it moves is not known at check time)")
+
+
+def _settle(cfg: Configuration, tr: TransitionSpec, q, how: str) -> PathPosture | None:
+    """The crossing near ``q`` to round-off (Newton with the guard and the loops); None when it
+    does not converge near q."""
+    exact, residual = _newton(cfg, tr, q, 30)
+    if residual > 1e-9 or float(np.max(_distance(cfg, exact, q), initial=0.0)) > 10 * PATH_STEP:
+        return None
+    return PathPosture(exact, residual, f"{how}: {_describe_posture(cfg, exact)}")
 
 
 # ---- freedom at an impact ----------------------------------------------------------------------
@@ -324,16 +498,18 @@ def _limits(cfg: Configuration, q) -> list[str]:
 
 
 def check_scene(scene: Scene, mechanism: Mechanism | None = None) -> CheckReport:
-    """Every check-time problem (and warning) of ``scene``, each naming the file and the field."""
+    """Every check-time problem (and warning) of ``scene``, each naming the file and the field.
+    What is found at a guard's posture says which posture that is and whether the run reaches it
+    (:func:`path_posture`), so nothing is claimed of a posture the run never reaches."""
     from ..model.assembly import assemble
     mech = mechanism or Mechanism(scene)
     report = CheckReport()
     where = str(scene.path)
-    starts: dict[str, np.ndarray] = {}
+    starts: dict[str, tuple] = {}  # configuration -> (q where the run starts in it, v there or None: unknown)
     try:
         cfg0 = mech[scene.initial_configuration]
-        q0, _, notes = assemble(scene, cfg0)
-        starts[cfg0.name] = q0
+        q0, v0, notes = assemble(scene, cfg0)
+        starts[cfg0.name] = (q0, v0)
         report.warnings += [f"{where}: initial: {w}" for w in notes]
     except PcmmError as exc:
         report.problems += [p if p.startswith(where) else f"{where}: initial: {p}" for p in exc.problems]
@@ -346,52 +522,76 @@ def check_scene(scene: Scene, mechanism: Mechanism | None = None) -> CheckReport
         for tr in scene.transitions_from(name):
             if tr.guard.type not in ("coordinate", "gap"):  # time and reaction guards fix no posture
                 continue
-            i = scene.transitions.index(tr)
-            here = f"{where}: transitions[{i}] ({tr.name})"
-            degrees = angle_in_degrees(cfg, tr)
-            if degrees is not None:
-                report.warnings.append(f"{here}.guard.value: {degrees}")
-            q, residual = guard_posture(cfg, tr, starts[name])
-            if residual > 1e-9:
-                what = "closing the loop" if cfg.coords.constrained else "reaching it"
-                tries = 1 + len(START_SHIFTS) * int(np.count_nonzero(_revolute(cfg)))
-                report.warnings.append(
-                    f"{here}.guard.value: = {tr.guard.value:.12g}: no posture {what} with the guard there was "
-                    f"found from {tries} starts near the initial posture (closest residual {residual:.3g}); "
-                    "either none exists and the guard never fires, or the solve could not tell (its "
-                    "contact and pose checks were skipped); check the guard's value and direction")
-                continue
-            report.postures[tr.name] = q
-            stuck = no_free_coordinate(scene, cfg, q) if tr.contact is not None else None
-            if stuck is not None:
-                report.warnings.append(f"{here}.contact: {stuck}")
-            report.warnings += [f"{here}.guard.value: = {tr.guard.value:.12g}: {w}" for w in _limits(cfg, q)]
-            for f in contact_findings(cfg, tr, q, warnings=True):
-                (report.warnings if f.warning else report.problems).append(f"{here}.{f.field}: {f.text}")
-            target = tr.merge_to if tr.type == "stop" else tr.target
-            if target is None or target not in scene.configurations:
-                continue
-            key = "merge_to" if tr.type == "stop" else "to"
-            try:
-                dst = mech.enter(target, cfg, q)  # a derived target locks the values the guard gives
-                entered.setdefault(target, dst)
-                q_dst, _, _ = map_state(cfg, dst, q, np.zeros(cfg.nv))
-                anchor_where_entered(dst, q_dst)  # a pinned point is anchored where it strikes
-                _, mismatches = pose_mismatches(cfg, dst, q, q_dst)
-            except PcmmError as exc:
-                report.problems += [f"{here}.{key}: {p}" for p in exc.problems]
-                continue
-            report.problems += [f"{here}.{key}: at the guard value ({tr.guard.measure} = {tr.guard.value:.12g}) "
-                                f"{m}; the two URDFs must place every shared link identically there "
-                                "(check the fixed joint's origin in the merged configuration)" for m in mismatches]
-            try:  # (not past a strike that stops the run: the target is never entered)
-                rows, consistent = (None, True) if stuck else entry_redundancy(scene, cfg, dst, tr, q, q_dst)
-            except PcmmError as exc:
-                report.problems += [f"{here}.{key}: {p}" for p in exc.problems]
-                continue
-            if rows is not None:
-                (report.warnings if consistent else report.problems).append(f"{here}.{key}: {rows}")
-            if target not in starts:
-                starts[target] = q_dst
-                todo.append(target)
+            here = f"{where}: transitions[{scene.transitions.index(tr)}] ({tr.name})"
+            n_warnings, n_problems = len(report.warnings), len(report.problems)
+            how = _check_transition(scene, mech, report, cfg, tr, here, starts, entered, todo)
+            if how:  # every finding at the posture says which posture it is
+                report.warnings[n_warnings:] = [f"{w} [{how}]" for w in report.warnings[n_warnings:]]
+                report.problems[n_problems:] = [f"{p} [{how}]" for p in report.problems[n_problems:]]
     return report
+
+
+def _check_transition(scene: Scene, mech: Mechanism, report: CheckReport, cfg: Configuration, tr: TransitionSpec,
+                      here: str, starts: dict, entered: dict, todo: list) -> str:
+    """The checks of one transition at its guard's posture (:func:`check_scene`); returns which
+    posture they were made at ("" when none was)."""
+    degrees = angle_in_degrees(cfg, tr)
+    if degrees is not None:
+        report.warnings.append(f"{here}.guard.value: {degrees}")
+    q_start, v_start = starts[cfg.name]
+    found = path_posture(scene, cfg, tr, q_start, v_start)
+    if found is not None and found.q is None:
+        report.warnings.append(f"{here}.guard.value: = {tr.guard.value:.12g}: {found.how} (its contact and pose "
+                               "checks were skipped: they would judge a posture the run does not reach)")
+        return ""
+    if found is not None:
+        q, residual, how = found.q, found.residual, f"at the guard's posture {found.how}"
+    else:
+        q, residual = guard_posture(cfg, tr, q_start)
+        how = (f"at the guard's posture nearest the start: {_describe_posture(cfg, q)}; whether the run reaches "
+               "it pcmm could not tell (the loops leave more than one freedom, or the path from the start could "
+               "not be followed to the guard)")
+    if residual > 1e-9:
+        what = "closing the loop" if cfg.coords.constrained else "reaching it"
+        tries = 1 + len(START_SHIFTS) * int(np.count_nonzero(_revolute(cfg)))
+        report.warnings.append(
+            f"{here}.guard.value: = {tr.guard.value:.12g}: no posture {what} with the guard there was "
+            f"found from {tries} starts near the initial posture (closest residual {residual:.3g}); "
+            "either none exists and the guard never fires, or the solve could not tell (its "
+            "contact and pose checks were skipped); check the guard's value and direction")
+        return ""
+    report.postures[tr.name] = q
+    report.reach[tr.name] = how
+    stuck = no_free_coordinate(scene, cfg, q) if tr.contact is not None else None
+    if stuck is not None:
+        report.warnings.append(f"{here}.contact: {stuck}")
+    report.warnings += [f"{here}.guard.value: = {tr.guard.value:.12g}: {w}" for w in _limits(cfg, q)]
+    for f in contact_findings(cfg, tr, q, warnings=True):
+        (report.warnings if f.warning else report.problems).append(f"{here}.{f.field}: {f.text}")
+    target = tr.merge_to if tr.type == "stop" else tr.target
+    if target is None or target not in scene.configurations:
+        return how
+    key = "merge_to" if tr.type == "stop" else "to"
+    try:
+        dst = mech.enter(target, cfg, q)  # a derived target locks the values the guard gives
+        entered.setdefault(target, dst)
+        q_dst, _, _ = map_state(cfg, dst, q, np.zeros(cfg.nv))
+        anchor_where_entered(dst, q_dst)  # a pinned point is anchored where it strikes
+        _, mismatches = pose_mismatches(cfg, dst, q, q_dst)
+    except PcmmError as exc:
+        report.problems += [f"{here}.{key}: {p}" for p in exc.problems]
+        return how
+    report.problems += [f"{here}.{key}: at the guard value ({tr.guard.measure} = {tr.guard.value:.12g}) "
+                        f"{m}; the two URDFs must place every shared link identically there "
+                        "(check the fixed joint's origin in the merged configuration)" for m in mismatches]
+    try:  # (not past a strike that stops the run: the target is never entered)
+        rows, consistent = (None, True) if stuck else entry_redundancy(scene, cfg, dst, tr, q, q_dst)
+    except PcmmError as exc:
+        report.problems += [f"{here}.{key}: {p}" for p in exc.problems]
+        return how
+    if rows is not None:
+        (report.warnings if consistent else report.problems).append(f"{here}.{key}: {rows}")
+    if target not in starts:
+        starts[target] = (q_dst, None)  # the velocity after the switch is not known here
+        todo.append(target)
+    return how

@@ -1,0 +1,106 @@
+"""The guard's posture that `pcmm check` judges is the one the run reaches (issue 22: no false
+finding, no false clean bill; pcmm/run/checks.py: path_posture).
+
+The check solves for a posture where a guard meets its value and reports what is wrong there. The
+nearest solution to the start can lie where the run never goes: the other crossing of a pendulum's
+circle with a wall (above the start, while the lever swings down), or the other assembly of a
+four-bar's crank for the rocker's stop angle (where the rocker passes the value the other way, so
+the guard does not fire). For a configuration whose loops leave one freedom, the check now follows
+that path from the start, in the direction the mechanism moves (its initial velocity, else its loads
+at rest), as far as its energy carries it (then back the other way), and says which posture it used.
+
+Mechanisms: tests/builders.py's lever on a wall (a uniform bar, m = 0.4 kg, L = 0.25 m, I_O = m L^2/3,
+whose tip meets the vertical wall x = L cos 40 deg at theta = +-40 deg) and four-bar with a rocker stop.
+"""
+from __future__ import annotations
+
+import math
+import tomllib
+
+import numpy as np
+import pytest
+
+import builders
+import pcmm
+from pcmm.run.checks import check_scene
+
+M, L, G = 0.4, 0.25, builders.G
+I_O = M * L ** 2 / 3
+THETA_S = math.radians(-40.0)
+
+
+def lever(tmp_path, q0, w0=0.0, friction=None):
+    path = builders.lever_on_wall(tmp_path, THETA_S, q0, friction=friction)
+    doc = tomllib.loads(path.read_text())
+    doc["initial"]["v"] = {"J1": w0}
+    path.write_text(builders.dump_toml(doc))
+    return path
+
+
+def test_lever_released_above_level_is_judged_where_it_strikes(tmp_path):
+    """Released at rest at +0.1 rad, the lever swings down (gravity's moment -m g (L/2) cos 0.1 < 0)
+    and strikes at -40 deg. The nearest solution, +40 deg (0.598 rad away against 0.798), was judged
+    before: the frictionless wall's warning then gave the tip's direction there, (-0.643, 0.766), and
+    told the user to write normal = (0.643, -0.766), which at the real strike is 80 deg off the path.
+    At -40 deg the tip moves along (-sin theta_s, cos theta_s) = (0.643, 0.766) (by hand), which the
+    warning must name, and the posture it used with it."""
+    report = check_scene(pcmm.load_scene(lever(tmp_path, 0.1)))
+    assert report.postures["tip strikes wall"][0] == pytest.approx(THETA_S, abs=1e-12)
+    [w] = report.warnings
+    u = f"[{-math.sin(THETA_S):.9g}, {math.cos(THETA_S):.9g}]"
+    assert f"is 50 deg off the direction {u} in which joint 'J1' moves the contact point" in w
+    assert f"write normal = {u}" in w
+    assert w.endswith("[at the guard's posture reached along the path from the initial posture (J1 = 0.1), "
+                      "released at rest, in the direction its loads push it, after 0.8 of path: J1 = -0.698132]")
+
+
+# the speed upwards from level that just carries the tip to the wall at +40 deg: I_O w^2 / 2 = m g (L/2) sin 40 deg
+W_UP = math.sqrt(2 * M * G * (L / 2) * math.sin(-THETA_S) / I_O)   # 8.703 rad/s
+
+
+@pytest.mark.parametrize("w0, theta", [(0.95 * W_UP, THETA_S), (1.05 * W_UP, -THETA_S)])
+def test_an_upward_start_strikes_above_only_with_the_energy_to_get_there(tmp_path, w0, theta):
+    """From level, thrown upwards at w0: below W_UP = 8.703 rad/s (energy, by hand) the lever turns
+    back before the wall's upper crossing and strikes the lower one on the way down; above it, it
+    strikes the upper one on the way up. The check judges the posture the run's first strike has."""
+    path = lever(tmp_path, 0.0, w0, friction=0.3)
+    report = check_scene(pcmm.load_scene(path))
+    assert report.problems == [] and report.warnings == []
+    assert report.postures["tip strikes wall"][0] == pytest.approx(theta, abs=1e-12)
+    assert ("after the motion turns back" in report.reach["tip strikes wall"]) == (theta < 0)
+    x, y = pcmm.simulate(pcmm.load_scene(path)).events[0]["contact_point"]  # the tip (L cos, L sin) at the strike
+    assert math.atan2(y, x) == pytest.approx(theta, abs=1e-8)
+
+
+def four_bar_crank_angles(a, b, c, d, rocker):
+    """Both crank angles closing the four-bar at a rocker angle (closed form): the crank tip
+    a (cos A, sin A) is at b from the rocker tip R = (d + c cos D, c sin D), so
+    R . (cos A, sin A) = (|R|^2 + a^2 - b^2) / (2 a)."""
+    R = np.array([d + c * math.cos(rocker), c * math.sin(rocker)])
+    k = (R @ R + a * a - b * b) / (2 * a)
+    base, half = math.atan2(R[1], R[0]), math.acos(k / np.linalg.norm(R))
+    return [(base + s * half) % (2 * math.pi) for s in (1, -1)]
+
+
+def test_four_bar_rocker_stop_is_judged_on_the_crank_angle_the_run_reaches(tmp_path):
+    """tests/builders.py's four-bar (a, b, c, d = 0.1, 0.3, 0.25, 0.3) under a crank torque from A = 1
+    rad: the rocker reaches 1.7 rad at two crank angles, 1.501 and 6.275 rad (closed form). Turning
+    forward from 1, the crank passes 1.501 with the rocker rising through 1.7 (the decreasing guard
+    does not fire) and strikes at 6.275. The nearest solution, 1.501, was judged before."""
+    path = builders.four_bar_rocker_stop(tmp_path, 0.5, 1.7, theta0=1.0, rocker0=2.0)
+    report = check_scene(pcmm.load_scene(path))
+    crank = report.postures["rocker stop"][0]
+    low, high = sorted(four_bar_crank_angles(0.1, 0.3, 0.25, 0.3, 1.7))
+    assert (low, high) == pytest.approx((1.50148602, 6.27546381), abs=1e-8)
+    assert crank % (2 * math.pi) == pytest.approx(high, abs=1e-9)
+    assert "reached along the path from the initial posture" in report.reach["rocker stop"]
+    run = pcmm.simulate(pcmm.load_scene(path))
+    before = run.t < run.events[0]["t"]
+    assert run.series("q", "A")[before][-1] % (2 * math.pi) == pytest.approx(high, abs=0.1)
+
+
+def test_two_freedoms_say_the_check_could_not_tell(tmp_path):
+    """Two bars on two joints (no loop): the posture space has two freedoms, no single path; the
+    check keeps the nearest solution and says it could not tell whether the run reaches it."""
+    report = check_scene(pcmm.load_scene(builders.two_link(tmp_path, 0.5, 1.0, 1.0)))
+    assert "whether the run reaches it pcmm could not tell" in report.reach["hit"]
