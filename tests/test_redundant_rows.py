@@ -160,3 +160,16 @@ def test_the_newcomers_press_is_not_over_constrained(tmp_path):
     (tmp_path / "press.toml").write_text(newcomer.PRESS_TOML)
     report = check_scene(pcmm.load_scene(tmp_path / "press.toml"))
     assert report.problems == [] and report.warnings == []
+
+
+def test_a_constant_drive_holding_the_crank_elsewhere_is_a_problem(tmp_path):
+    """The drive holds A at -0.8 rad while the lock of P at the stop's x and the loop put A at -1
+    (the rows' null vector has a sin B on the drive's row, so y . (f - q) = a sin B (0.2) / |y| != 0):
+    no posture satisfies them, an error; at -1 (test above) a warning."""
+    report = check_scene(pcmm.load_scene(jammed_press(tmp_path, drive=[TH_STOP + 0.2])))
+    [p] = report.problems
+    assert "configuration 'held' has 3 constraint rows (C.fx, C.fy, drives[0] ('A')) of rank 2 on 2 coordinates, " \
+           "and its drives ask a posture the others forbid: no posture satisfies C.fx, C.fy, drives[0] ('A')" in p
+    # a turn away is the same posture: consistent
+    report = check_scene(pcmm.load_scene(jammed_press(tmp_path / "turn", drive=[TH_STOP + 2 * math.pi])))
+    assert report.problems == [] and [w for w in report.warnings if "redundant but consistent" in w]

@@ -365,6 +365,7 @@ class Redundancy:
     nv: int
     null: np.ndarray  # left null vectors y (y^T R = 0), one per column, unit length
     consistent: bool  # some motion satisfies the rows (the drives' rates are orthogonal to every y)
+    posture: bool = False  # inconsistent in posture: a constant drive holds a joint where the others do not
 
     @property
     def indeterminate(self) -> list[str]:
@@ -376,10 +377,13 @@ class Redundancy:
         rows = ", ".join(self.labels)
         loose = self.indeterminate + [a for a in also if a not in self.indeterminate]
         if not self.consistent:
+            what = ("a posture the others forbid: no posture satisfies {} together (a constant drive holds a "
+                    "joint where the lock and the loop put it elsewhere)" if self.posture else
+                    "a motion the others forbid: no motion satisfies {} together (a lock or the loop fixes what "
+                    "a drive moves)").format(", ".join(self.indeterminate))
             return (f"configuration '{self.configuration}' has {m} constraint rows ({rows}) of rank {self.rank} on "
-                    f"{self.nv} coordinates, and its drives ask a motion the others forbid: no motion satisfies "
-                    f"{', '.join(self.indeterminate)} together (a lock or the loop fixes what a drive moves); drive "
-                    "the joint only where it is free (the drive's configurations) or release the lock first")
+                    f"{self.nv} coordinates, and its drives ask {what}; drive the joint only where it is free (the "
+                    "drive's configurations) or release the lock first")
         free = self.nv - self.rank
         return (f"configuration '{self.configuration}' has {m} constraint rows ({rows}) of rank {self.rank} on "
                 f"{self.nv} coordinates: {m - self.rank} redundant but consistent, so the motion is still determined "
@@ -402,8 +406,10 @@ def redundant_rows(scene: Scene, cfg: Configuration, q, holds=(), drives_of: str
     motion is still determined, but the multipliers (``R^T lam`` is the generalized force they
     apply) are determined only up to adding any such y: the force of every row on which some y is
     non-zero is statically indeterminate. Otherwise no motion satisfies the rows (inconsistent).
-    (A drive's position that the others contradict, at a rate they allow, is the run's to report:
-    the guard's posture here is not solved at the drive's time.)"""
+    A null vector whose drive components fall on constant drives alone also asks
+    ``y^T [0; f - q] = 0`` (a drive being a position): a constant drive holding a joint where the
+    loop and the locks put it elsewhere is inconsistent in posture. (A moving drive's position is
+    the run's to judge: the guard's posture here is not solved at the drive's time.)"""
     coords = cfg.coords
     closure = getattr(coords, "closure", None)
     _, Jq = coords.loop_rows(q)
@@ -427,7 +433,21 @@ def redundant_rows(scene: Scene, cfg: Configuration, q, holds=(), drives_of: str
             C[k, :len(r)] = r
         Yd = Y[Jq.shape[0]:Jq.shape[0] + len(laws)]
         consistent = bool(np.all(np.abs(Yd.T @ C) <= 1e-9 * max(1.0, float(np.max(np.abs(C))))))
+        if consistent:
+            still = np.array([not np.any(c[1:]) for _, c in laws])
+            rev = _revolute_joints(cfg)
+            off = np.array([float(c[0]) - float(q[i]) for i, c in laws])
+            off = np.where([i in rev for i, _ in laws], (off + math.pi) % (2 * math.pi) - math.pi, off)
+            for y in Yd.T:
+                moving = (np.abs(y) > 1e-9) & ~still
+                if not moving.any() and abs(float(y @ off)) > 1e-9 * max(1.0, float(np.max(np.abs(q)))):
+                    return Redundancy(cfg.name, labels, rank, cfg.nv, Y, False, posture=True)
     return Redundancy(cfg.name, labels, rank, cfg.nv, Y, consistent)
+
+
+def _revolute_joints(cfg: Configuration) -> set[int]:
+    """Coordinates of revolute joints (a drive's angle is the same posture a turn away)."""
+    return {cfg.joint_slice[n].start for n in cfg.joint_names if cfg.spec.info.joints[n].type == "revolute"}
 
 
 def entry_redundancy(scene: Scene, src: Configuration, dst: Configuration, tr: TransitionSpec, q, q_dst
