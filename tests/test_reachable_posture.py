@@ -104,3 +104,40 @@ def test_two_freedoms_say_the_check_could_not_tell(tmp_path):
     check keeps the nearest solution and says it could not tell whether the run reaches it."""
     report = check_scene(pcmm.load_scene(builders.two_link(tmp_path, 0.5, 1.0, 1.0)))
     assert "whether the run reaches it pcmm could not tell" in report.reach["hit"]
+
+
+def driven_slider_crank(tmp_path, coefficients):
+    """tests/builders.py's slider-crank whose slider strikes a stop at x(-1 rad), with its crank driven
+    by ``coefficients`` instead of its motor (the stop's x is also x(+1 rad): x = a cos + sqrt(b^2 - a^2 sin^2))."""
+    path = builders.slider_crank_stop(tmp_path, 0.5, theta0=-2.0, theta_stop=-1.0)
+    doc = tomllib.loads(path.read_text())
+    del doc["forces"]
+    doc["initial"]["v"] = {"A": coefficients[1] if len(coefficients) > 1 else 0.0}
+    doc["drives"] = [{"joint": "A", "coefficients": list(coefficients)}]
+    path.write_text(builders.dump_toml(doc))
+    return path
+
+
+def test_a_drive_turning_the_crank_away_reaches_the_stop_after_most_of_a_turn(tmp_path):
+    """The crank driven at -4 rad/s from -2 rad turns away from -1 rad: the slider first goes back,
+    then forward to the stop at the crank's other solution, 1 - 2 pi rad, at t = (-2 - (1 - 2 pi)) / 4
+    = 0.8208 s, where the run stops (a driven loop has no freedom to take the impulse). The nearest
+    solution, -1 rad, was judged before."""
+    path = driven_slider_crank(tmp_path, [-2.0, -4.0])
+    report = check_scene(pcmm.load_scene(path))
+    assert report.postures["stop"][0] % (2 * math.pi) == pytest.approx(1.0, abs=1e-9)
+    assert "in the direction of its initial velocity" in report.reach["stop"]  # the drive's rate
+    with pytest.raises(pcmm.SimulationError) as info:
+        pcmm.simulate(pcmm.load_scene(path))
+    text = info.value.text()
+    assert "cannot take an impulse along its normal" in text
+    assert float(text.split("t = ", 1)[1].split(" s", 1)[0]) == pytest.approx((-2.0 - (1.0 - 2 * math.pi)) / 4.0, abs=1e-9)
+
+
+def test_a_constant_drive_holds_the_path_still(tmp_path):
+    """The crank held at -2 rad by a constant drive: the loop's one freedom is held, the slider never
+    moves, the guard cannot fire: the check says so and judges nothing."""
+    report = check_scene(pcmm.load_scene(driven_slider_crank(tmp_path, [-2.0])))
+    assert report.postures == {}
+    [w] = report.warnings
+    assert "its drives (A) are constant and hold the configuration's one freedom still" in w

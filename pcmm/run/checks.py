@@ -258,10 +258,17 @@ def path_posture(scene: Scene, cfg: Configuration, tr: TransitionSpec, q0, v0=No
     sign, why = 0.0, ""
     if v0 is not None and abs(float(t0 @ v0)) > 1e-12:
         sign, why = float(np.sign(t0 @ v0)), "in the direction of its initial velocity"
-    elif driven:
-        _, rate, _ = drives.values(0.0)
-        push = float(sum(r * t0[i] for i, r in zip(drives.index, rate)))
-        if abs(push) > 1e-12:
+    elif driven:  # each driven coordinate first moves as its first non-zero term beyond the constant
+        lead = [next((float(c) for c in d[0][1:] if c != 0), 0.0) for d in drives._derivs]
+        along = [(x, t0[i]) for i, x in zip(drives.index, lead) if abs(t0[i]) > 1e-9]
+        if along and all(x == 0 for x, _ in along):
+            if v0 is None:
+                return None  # entered at a time not known here: the drive's law then decides
+            return PathPosture(None, math.inf, (
+                f"its drives ({', '.join(drives.joints)}) are constant and hold the configuration's one "
+                "freedom still from the start: the guard cannot fire while they do"))
+        push = float(sum(np.sign(x) * ti for x, ti in along))
+        if v0 is not None and abs(push) > 1e-12:
             sign, why = float(np.sign(push)), "in the direction its drive moves it"
     elif v0 is not None:
         push = float(t0 @ _loads(cfg, q0))
