@@ -213,11 +213,11 @@ def _follow(cfg: Configuration, tr: TransitionSpec, q0, sign: float, energy: flo
         length += float(np.linalg.norm(nxt - q))
         if ke is not None:
             new_load = _loads(cfg, nxt)
-            ke += 0.5 * float((load + new_load) @ (nxt - q))
-            load = new_load
-            if ke < 0:
-                back.append(q)  # the turning point last: where the motion turns back
+            gained = 0.5 * float((load + new_load) @ (nxt - q))
+            if ke + gained < 0:  # the turning point (last in ``back``), the energy linear across the step
+                back.append(q + (ke / (ke - (ke + gained))) * (nxt - q))
                 return None, length, TURNS, back
+            ke, load = ke + gained, new_load
         r_next = _guard_value(cfg, tr, nxt)
         near = nxt if abs(r_next) <= abs(r) else q
         if (r > 0 >= r_next and tr.guard.direction < 0) or (r < 0 <= r_next and tr.guard.direction > 0):
@@ -295,7 +295,7 @@ def path_posture(scene: Scene, cfg: Configuration, tr: TransitionSpec, q0, v0=No
             return None
         return PathPosture(None, math.inf, (
             f"the path {where} swings between two turning points where its energy runs out (dampers left out), "
-            f"{_describe_posture(cfg, turn)} and {_describe_posture(cfg, other[-1])} (to {PATH_STEP:g} of path), "
+            f"{_describe_posture(cfg, turn)} and {_describe_posture(cfg, other[-1])}, "
             "and the guard's value is not met in its direction between them: the guard cannot fire unless a "
             "force adds energy or another transition changes the motion first"))
     found = []
