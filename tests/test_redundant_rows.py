@@ -173,3 +173,26 @@ def test_a_constant_drive_holding_the_crank_elsewhere_is_a_problem(tmp_path):
     # a turn away is the same posture: consistent
     report = check_scene(pcmm.load_scene(jammed_press(tmp_path / "turn", drive=[TH_STOP + 2 * math.pi])))
     assert report.problems == [] and [w for w in report.warnings if "redundant but consistent" in w]
+
+
+def test_holding_rows_alone_redundant_say_the_reported_split_is_one_of_many(tmp_path):
+    """A cart on the prismatic X carrying a bar on the revolute J2, level (J2 = 0), whose tip strikes
+    a wall x = 0.5 along its normal (1, 0); the merge locks J2, and in 'held' a constant drive holds X.
+    'held' alone has 1 row (the drive) on 1 coordinate: independent, the run goes on. Its hold is
+    solved on 'free' with the drive's row e_X and the stop's normal row, which at J2 = 0 is
+    n . d(tip)/d(X, J2) = (1, -L sin 0) = (1, 0) = e_X (by hand): 2 rows of rank 1, the wall's force and
+    the drive's force trade at will. The check says any split would be one of many. (The run itself
+    reports none here: no configuration has J2 free with the drive, so its hold cannot be solved.)"""
+    urdf = robot_xml("cart", link_xml("frame"), joint_xml("X", "prismatic", "frame", "cart", axis=(1, 0, 0)),
+                     solid_xml("cart", 1.0, 1e-3), joint_xml("J2", "revolute", "cart", "bar"), bar_xml("bar", 0.3, 0.5))
+    tr = stop("tip hits wall", "free", 0.0, {"type": "gap", "value": 0.0, "direction": "decreasing"},
+              {"a": "frame", "point_a": [0.5, 0.0], "b": "bar", "point_b": [0.3, 0.0], "normal": [-1.0, 0.0]},
+              merge_to="held", unmerge=False)
+    doc = base_doc("cart", "free", {"free": "cart.urdf", "held": {"from": "free", "lock": ["J2"]}},
+                   {"X": 0.0, "J2": 0.0}, {"X": 1.0, "J2": 0.0}, g=0.0, t_end=1.0, transitions=[tr],
+                   drives=[{"joint": "X", "coefficients": [0.2], "configurations": ["held"]}])
+    report = check_scene(pcmm.load_scene(write_scene(tmp_path, doc, {"cart.urdf": urdf})))
+    [w] = [w for w in report.warnings if "redundant" in w]
+    assert "configuration 'free' has 2 constraint rows (drives[0] ('X'), 'tip hits wall.hold') of rank 1 on 2 " \
+           "coordinates: 1 redundant but consistent" in w
+    assert "any split it reported would be one of many" in w

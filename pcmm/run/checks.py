@@ -379,7 +379,9 @@ class Redundancy:
         """The rows whose force some null vector moves: statically indeterminate."""
         return [lab for lab, y in zip(self.labels, self.null) if np.max(np.abs(y)) > 1e-9]
 
-    def message(self, also: list[str] = ()) -> str:
+    def message(self, also: list[str] = (), holding: bool = False) -> str:
+        """The check's message; ``holding``: the rows are those the holding forces are solved with,
+        not the configuration's own (which the run can integrate)."""
         m = len(self.labels)
         rows = ", ".join(self.labels)
         loose = self.indeterminate + [a for a in also if a not in self.indeterminate]
@@ -395,10 +397,14 @@ class Redundancy:
         return (f"configuration '{self.configuration}' has {m} constraint rows ({rows}) of rank {self.rank} on "
                 f"{self.nv} coordinates: {m - self.rank} redundant but consistent, so the motion is still determined "
                 f"({free} free coordinate{'s' if free != 1 else ''}) while the forces of {', '.join(loose)} are "
-                "not: they are statically indeterminate (any split of the load between them balances it). pcmm "
-                "reports no arbitrary split: its run stops on entering the configuration (its rows cannot be "
-                "solved for the dependent coordinates). Remove the redundant row: a drive limited to the "
-                "configurations where its joint is free, one cut joint fewer, or a joint fewer locked")
+                "not: they are statically indeterminate (any split of the load between them balances it). "
+                + ("pcmm solves the holding forces with these rows (on a configuration with the held joints free "
+                   "and the same drives): any split it reported would be one of many (the KKT solve's, not a "
+                   "minimum-norm one), not a physical answer. " if holding else
+                   "pcmm reports no arbitrary split: its run stops on entering the configuration (its rows cannot "
+                   "be solved for the dependent coordinates). ")
+                + "Remove the redundant row: a drive limited to the configurations where its joint is free, one "
+                "cut joint fewer, or a joint fewer locked")
 
 
 def redundant_rows(scene: Scene, cfg: Configuration, q, holds=(), drives_of: str | None = None) -> Redundancy | None:
@@ -483,7 +489,7 @@ def entry_redundancy(scene: Scene, src: Configuration, dst: Configuration, tr: T
         return own.message([f"the holding force {h}" for h in holding]), own.consistent
     if held is None:
         return None, True
-    return held.message(), held.consistent
+    return held.message(holding=True), held.consistent
 
 
 # ---- units -------------------------------------------------------------------------------------
