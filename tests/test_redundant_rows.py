@@ -191,7 +191,12 @@ def test_holding_rows_alone_redundant_say_the_reported_split_is_one_of_many(tmp_
     doc = base_doc("cart", "free", {"free": "cart.urdf", "held": {"from": "free", "lock": ["J2"]}},
                    {"X": 0.0, "J2": 0.0}, {"X": 1.0, "J2": 0.0}, g=0.0, t_end=1.0, transitions=[tr],
                    drives=[{"joint": "X", "coefficients": [0.2], "configurations": ["held"]}])
-    report = check_scene(pcmm.load_scene(write_scene(tmp_path, doc, {"cart.urdf": urdf})))
+    path = write_scene(tmp_path, doc, {"cart.urdf": urdf})
+    report = check_scene(pcmm.load_scene(path))
+    run = pcmm.simulate(pcmm.load_scene(path))
+    assert [(e["t"], e["to"]) for e in run.events] == [(pytest.approx(0.2, abs=1e-9), "held")]  # x + 0.3 = 0.5 at 1 m/s
+    with pytest.raises(pcmm.SimulationError, match="so the holding forces cannot be computed"):
+        run.series("constraint_forces", "tip hits wall.hold")
     [w] = [w for w in report.warnings if "redundant" in w]
     assert "configuration 'free' has 2 constraint rows (drives[0] ('X'), 'tip hits wall.hold') of rank 1 on 2 " \
            "coordinates: 1 redundant but consistent" in w
