@@ -201,13 +201,15 @@ def _follow(cfg: Configuration, tr: TransitionSpec, q0, sign: float, energy: flo
     ke, load = energy, (_loads(cfg, q0) if energy is not None else None)
     for _ in range(PATH_STEPS):
         nxt = q + PATH_STEP * t_prev
-        for _ in range(8):  # back onto the loops, minimum-norm Newton steps
+        closed = False
+        for _ in range(8):  # back onto the loops, minimum-norm Newton steps (closed below 1e-10)
             phi, Jq = _closure(cfg, nxt)
+            closed = phi.size == 0 or float(np.max(np.abs(phi))) < 1e-10
             if phi.size == 0 or np.max(np.abs(phi)) < 1e-12:
                 break
             nxt = nxt - np.linalg.lstsq(Jq, phi, rcond=None)[0]
-        t = _tangent(cfg, nxt)
-        if t is None or not np.all(np.isfinite(nxt)):
+        t = _tangent(cfg, nxt) if closed and np.all(np.isfinite(nxt)) else None
+        if t is None:
             return None, length, f"a singular posture after {length:.3g} along the path", back
         t = t if t @ t_prev >= 0 else -t
         length += float(np.linalg.norm(nxt - q))
