@@ -141,3 +141,19 @@ def test_a_constant_drive_holds_the_path_still(tmp_path):
     assert report.postures == {}
     [w] = report.warnings
     assert "its drives (A) are constant and hold the configuration's one freedom still" in w
+
+
+def test_a_spinning_lever_meets_an_angle_guard_beyond_a_turn(tmp_path):
+    """A coordinate guard is not periodic: a lever thrown up from level at 40 rad/s has the energy to
+    go over the top (I_O w^2 / 2 = 0.667 J against m g L/2 = 0.49 J) and spins; it meets J1 = 7 rad
+    (more than a turn) on its second turn, where the run's guard fires (its stop on the frame merges
+    the lever there)."""
+    w0 = 40.0
+    assert I_O * w0 ** 2 / 2 > M * G * L / 2
+    path = builders.pendulum(tmp_path, 0.5, L=L, m=M, q0=0.0, w0=w0, qs=7.0, direction="increasing")
+    report = check_scene(pcmm.load_scene(path))
+    assert report.postures["stop"][0] == pytest.approx(7.0, abs=1e-12)
+    assert "in the direction of its initial velocity" in report.reach["stop"]
+    run = pcmm.simulate(pcmm.load_scene(path))
+    before = run.t < run.events[0]["t"]
+    assert np.max(run.series("q", "J1")[before]) < 7.0 < np.max(run.series("q", "J1")[before]) + 0.5

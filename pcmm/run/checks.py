@@ -226,7 +226,8 @@ def _follow(cfg: Configuration, tr: TransitionSpec, q0, sign: float, energy: flo
             return near, length, "the guard", back
         if (r > 0 >= r_next) or (r < 0 <= r_next):
             back.append(near)
-        if length > 2 * PATH_STEP and float(np.max(_distance(cfg, nxt, q0), initial=0.0)) < 0.5 * PATH_STEP:
+        if tr.guard.type == "gap" and length > 2 * PATH_STEP and \
+                float(np.max(_distance(cfg, nxt, q0), initial=0.0)) < 0.5 * PATH_STEP:  # (an angle guard is not periodic)
             return None, length, "a whole turn back to the start", back
         q, r, t_prev = nxt, r_next, t
     return None, length, f"{length:.3g} along the path", back
