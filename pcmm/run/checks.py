@@ -198,6 +198,7 @@ def _follow(cfg: Configuration, tr: TransitionSpec, q0, sign: float, energy: flo
         return None, 0.0, "no single path from the start", back
     t_prev = sign * t_prev
     q, r, length = np.array(q0, float), _guard_value(cfg, tr, q0), 0.0
+    r0 = r
     ke, load = energy, (_loads(cfg, q0) if energy is not None else None)
     for _ in range(PATH_STEPS):
         nxt = q + PATH_STEP * t_prev
@@ -226,9 +227,10 @@ def _follow(cfg: Configuration, tr: TransitionSpec, q0, sign: float, energy: flo
             return near, length, "the guard", back
         if (r > 0 >= r_next) or (r < 0 <= r_next):
             back.append(near)
-        if tr.guard.type == "gap" and length > 2 * PATH_STEP and \
-                float(np.max(_distance(cfg, nxt, q0), initial=0.0)) < 0.5 * PATH_STEP:  # (an angle guard is not periodic)
-            return None, length, "a whole turn back to the start", back
+        if length > 2 * PATH_STEP and float(np.max(_distance(cfg, nxt, q0), initial=0.0)) < 0.5 * PATH_STEP:
+            turned = q0 + (nxt - _near(cfg, nxt, q0))  # the start, whole turns on: the same posture
+            if abs(_guard_value(cfg, tr, turned) - r0) < 1e-9 * max(1.0, abs(r0)):  # (a joint's angle is not periodic)
+                return None, length, "a whole turn back to the start", back
         q, r, t_prev = nxt, r_next, t
     return None, length, f"{length:.3g} along the path", back
 
