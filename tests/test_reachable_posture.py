@@ -157,3 +157,32 @@ def test_a_spinning_lever_meets_an_angle_guard_beyond_a_turn(tmp_path):
     run = pcmm.simulate(pcmm.load_scene(path))
     before = run.t < run.events[0]["t"]
     assert np.max(run.series("q", "J1")[before]) < 7.0 < np.max(run.series("q", "J1")[before]) + 0.5
+
+
+HANG = -math.pi / 2
+P_L, P_M = 0.6, 1.5   # tests/builders.py's pendulum bar
+W_03 = math.sqrt(2 * P_M * G * (P_L / 2) * (1 - math.cos(0.3)) / (P_M * P_L ** 2 / 3))  # swings 0.3 rad from hanging
+
+
+@pytest.mark.parametrize("q0, w0, qs, direction, how", [
+    (HANG + 0.3, 0.0, HANG - 0.2, "increasing", "as the motion turns back"),   # passed falling, fires rising
+    (HANG, W_03, HANG - 0.2, "decreasing", "after the motion turns back"),     # up first, then down through it
+    (HANG, W_03, HANG - 0.4, "decreasing", None),                              # beyond the swing
+])
+def test_a_swing_meets_a_rising_or_falling_guard_where_the_run_does(tmp_path, q0, w0, qs, direction, how):
+    """A pendulum swinging 0.3 rad either side of hanging (energy, by hand: w0 = 2.21 rad/s from
+    hanging, or at rest 0.3 rad out) meets a guard on its angle only in the guard's direction: the
+    check follows the swing through its turning points and says when the run's guard fires (the run
+    confirms: it fires at qs, or never)."""
+    path = builders.pendulum(tmp_path, 0.5, q0=q0, w0=w0, qs=qs, direction=direction, t_end=2.0)
+    report = check_scene(pcmm.load_scene(path))
+    run = pcmm.simulate(pcmm.load_scene(path))
+    if how is None:
+        [w] = report.warnings
+        assert f"swings between two turning points where its energy runs out (dampers left out), J1 = " \
+               f"{HANG + 0.3:.6g} and J1 = {HANG - 0.3:.6g}" in w
+        assert run.events == []
+        return
+    assert report.postures["stop"][0] == pytest.approx(qs, abs=1e-12)
+    assert how in report.reach["stop"]
+    assert run.events[0]["name"] == "stop"

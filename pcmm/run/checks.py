@@ -298,9 +298,12 @@ def path_posture(scene: Scene, cfg: Configuration, tr: TransitionSpec, q0, v0=No
                                        f"{length:.3g} of path the other way")
         if end != TURNS:
             return None
+        turn_back = other.pop()
+        if other:  # met against its direction on the way to the second turning point: in it coming back
+            return _settle(cfg, tr, other[-1], f"reached along the path {where} after the motion turns back twice")
         return PathPosture(None, math.inf, (
             f"the path {where} swings between two turning points where its energy runs out (dampers left out), "
-            f"{_describe_posture(cfg, turn)} and {_describe_posture(cfg, other[-1])}, "
+            f"{_describe_posture(cfg, turn)} and {_describe_posture(cfg, turn_back)}, "
             "and the guard's value is not met in its direction between them: the guard cannot fire unless a "
             "force adds energy or another transition changes the motion first"))
     found = []
