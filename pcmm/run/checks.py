@@ -22,7 +22,17 @@ here at once, each problem naming the file and the field:
   drives;
 * **units**: a guard on an angle (a revolute joint, a link's angle, the angle between two links)
   whose value lies outside [-2 pi, 2 pi] was most likely written in degrees: a warning that
-  gives the value in radians (``"-50 deg"``).
+  gives the value in radians (``"-50 deg"``);
+* **redundant rows** at a switch: a target configuration whose rows (cut joints, drives; and the
+  lock rows its holding forces are solved with) are dependent leaves the forces they carry
+  statically indeterminate (a warning naming them), or, where no motion or posture satisfies them,
+  is an error (:func:`redundant_rows`).
+
+**Which posture.** The posture a guard is judged at is the one the run reaches: where the loops
+leave one freedom, the first crossing along the path from the start, in the direction the
+mechanism moves, as far as its energy carries it (:func:`path_posture`); elsewhere the solution
+nearest the start (:func:`guard_posture`), of which every finding says that pcmm could not tell
+whether the run reaches it. Every finding names the posture it was made at.
 
 A message blames the normal only when the normal is at fault: rounded contact points that do not
 meet are reported as points (:func:`pcmm.contact_faults.contact_findings`, also used by the run's
