@@ -121,7 +121,7 @@ def test_the_split_is_not_unique_which_is_why_no_run_reports_one(tmp_path):
     pcmm.events.holding solves a hold), at rest at the merge posture, R^T lam = h - Q has a line of
     solutions: the KKT solve's and the minimum-norm one (numpy's lstsq) both balance gravity to
     round-off and differ by a multiple of the null vector y of R, which is non-zero on all four rows
-    (here the hold on P: 0.555 N in the minimum-norm split, 4.0 N in the KKT solve's own choice).
+    (here the hold on P: 0.555 N in the minimum-norm split, -4.0 N in the KKT solve's own choice).
     So the run must not report one, and it does not: it stops on entering 'held'."""
     import pinocchio as pin
     from pcmm.events.contact import contact_row
@@ -146,7 +146,9 @@ def test_the_split_is_not_unique_which_is_why_no_run_reports_one(tmp_path):
     d = lam_kkt - lam_min
     assert np.linalg.norm(d) > 0.1 and np.linalg.norm(d - (d @ y) * y) < 1e-12 * np.linalg.norm(d) + 1e-13
     assert np.min(np.abs(y)) > 0.05  # every row's force moves along the line
-    assert lam_min[3] == pytest.approx(0.5547, abs=1e-4) and lam_kkt[3] == pytest.approx(4.0, abs=1e-9)  # the hold
+    # the hold: 0.5547 N in the minimum-norm split, -4.0 N (tensile) in the KKT solve's on this machine,
+    # whichever split its factorization of the singular system lands on (not pinned here)
+    assert lam_min[3] == pytest.approx(0.5547, abs=1e-4) and abs(lam_kkt[3] - lam_min[3]) > 1.0
 
 
 def test_the_newcomers_press_is_not_over_constrained(tmp_path):
