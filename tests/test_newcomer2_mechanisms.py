@@ -552,13 +552,11 @@ def test_fourbar_bounces_merge_hold_and_release(fourbar):
         assert fourbar.series("omega", name)[-1] == pytest.approx(end[3 + k], abs=1e-7), name
 
 
-@pytest.mark.xfail(strict=True, reason="pcmm/run: after the merge is let go at its guard value, the next "
-                   "segment fires the stop's guard at its first instant (it reads g(t0) = 0.0 there, _pending "
-                   "-2.2e-16) and the stop merges with no impulse, then lets go again: three events at "
-                   "t = 1.10156952 s for one release")
 def test_fourbar_release_is_one_event(fourbar):
     """By hand there is one release (the hold crosses zero once, as the arm turns back) and no
-    impact after it: the loop swings away from the stop."""
+    impact after it: the loop swings away from the stop.  (The segment after the release read the
+    stop's guard at its first instant as 0.0 by the compiled loop's solve, -2.2e-16 by the state's,
+    and took it for a crossing: a zero-impulse merge and a second release at the same instant.)"""
     late = [e for e in fourbar.events if e["t"] > 1.0]
     assert [e["transition"] for e in late] == ["release"]
 

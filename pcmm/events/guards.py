@@ -325,6 +325,24 @@ def make_guard(cfg: Configuration, tr: TransitionSpec, rearm: bool = False, cont
                  affine=affine, linear=linear, holding=holding, loop_scan=loop_scan, evaluator=evaluator)
 
 
+def left_at_value(cfg: Configuration, guards: list, leaving, t) -> list:
+    """``guards`` with each one at an index in ``leaving`` re-armed (:func:`make_guard`'s ``rearm``):
+    guards that sit at their value where a segment starts while their contact separates, or rests
+    with the loads pulling it apart (the state a release leaves: a merge let go at its stop, the
+    freed joint at its stop's value to an ulp or two), as :func:`pcmm.run.loop._pending` reads them
+    at the segment's first instant.  Such a guard is not at a crossing: like a stop's guard after a
+    bounce, it fires only where its contact comes back and reaches the value while approaching.  Read
+    plain, the segment's scan took round-off at its first instant for a crossing: the four-bar's
+    merge, let go with its joint -2.2e-16 rad from the stop, was merged again at once with no
+    impulse (the stop guard's value read 0.0 there by the compiled loop's solve, -2.2e-16 by the
+    state's) and let go again, three events for one release
+    (tests/test_release_events.py).  ``t``: the segment's start (a time guard's context)."""
+    out = list(guards)
+    for i in leaving:
+        out[i] = make_guard(cfg, guards[i].transition, rearm=True, context=t)
+    return out
+
+
 def _affine(cfg: Configuration, tr: TransitionSpec, context=None):
     """(c, ct, d) with the plain guard's value c . y + ct t + d, where it is affine in a tree's state
     [q, v] (a coordinate guard: the row of the measure on q; a time guard: t - the instant); else None."""
