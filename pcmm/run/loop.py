@@ -21,7 +21,7 @@ import numpy as np
 
 from ..errors import ModelError, Repartition, SimulationError, UsageError
 from ..events.contact import contact_row, contact_state, normal_speed
-from ..events.guards import guard_residual, make_guard
+from ..events.guards import guard_residual, left_at_value, make_guard
 from ..events.holding import Holds
 from ..events.transitions import POSE_TOL, Context
 from ..model.assembly import assemble
@@ -185,8 +185,12 @@ def integrate_segment(run: RunState, progress):
     guards = _guards(run.scene, cfg, run.holds, t, run.phase, run.bounced, run.fired, run.kept_guards)
     # a flight between two impacts at the same contact: its energy is audited (pcmm.run.audit)
     flight = run.bounced is not None and run.phase is None and y0.size > 0
-    run.bounced = None
-    pending = None if run.phase is not None else _pending(cfg, guards, t, y0)
+    bounced, run.bounced = run.bounced, None
+    leaving = []  # guards at their value whose contact does not approach (_pending): re-armed, not crossed
+    pending = None if run.phase is not None else _pending(cfg, guards, t, y0, leaving)
+    leaving = [i for i in leaving if guards[i].transition is not bounced]  # (that one is re-armed already)
+    if pending is None and leaving:
+        guards = left_at_value(cfg, guards, leaving, t)
     fun = cfg.coords.rhs
     if run.phase is not None:  # the collision's impulse integrated with the state
         guards = [run.phase.end_guard()] + [g.on_state(y0.size) for g in guards]
@@ -534,13 +538,15 @@ def _on_state(guards: list, n: int, kept: list) -> list:
     return out
 
 
-def _pending(cfg: Configuration, guards, t, y0):
+def _pending(cfg: Configuration, guards, t, y0, leaving=None):
     """Index of a guard that is already at or past its crossing at the start of a segment
     while its contact still approaches: a contact that closed at the same instant as the
     impact just resolved; or a merge (or a pinned point) whose holding force is already tensile (it never held).  It is resolved now, before any integration (sequential impacts
     in scene order); a step would never see it change sign.  The state is unpacked to ``(q, v)``
     only where a contact's normal speed needs it (a joint stop whose rate is an entry of the state
-    reads it there: :func:`_stop_speed`)."""
+    reads it there: :func:`_stop_speed`).  ``leaving`` (a list, where given): the indices of the
+    guards read at their crossing whose contact separates or rests pulled apart, before the first
+    pending one (the segment watches them re-armed: :func:`pcmm.events.guards.left_at_value`)."""
     state = None  # (q, v), when first needed
     for i, g in enumerate(guards):
         if g.action in ("unmerge", "lift-off") and g(t, y0) < 0:
@@ -568,6 +574,8 @@ def _pending(cfg: Configuration, guards, t, y0):
                 # at rest against the contact and pushed into it: it closes now (with no impulse),
                 # whichever side of the guard round-off left the state on
                 return i
+        if leaving is not None:  # separating, or at rest pulled apart: at its value, not at a crossing
+            leaving.append(i)
     return None
 
 
