@@ -216,6 +216,11 @@ def _describe(tr: TransitionSpec) -> str:
     return f"transition '{tr.name}': {what}"
 
 
+def describe_guard(tr: TransitionSpec) -> str:
+    """``transition 'name': what its guard reads = value`` (for messages)."""
+    return _describe(tr)
+
+
 def armed(cfg: Configuration, tr: TransitionSpec, raw, raw_rate):
     """A guard armed by a region (``when``): with u = -direction * value (> 0 on the unfired side)
     and d the signed distance into the region (``measure - above``, or ``below - measure``), the
