@@ -23,7 +23,7 @@ from ..errors import ModelError, Repartition, SimulationError, UsageError
 from ..events.contact import contact_row, contact_state, normal_speed
 from ..events.guards import guard_residual, left_at_value, make_guard
 from ..events.holding import Holds
-from ..events.transitions import POSE_TOL, Context
+from ..events.transitions import AT_REST_SPEED, POSE_TOL, Context
 from ..model.assembly import assemble
 from ..model.configuration import Configuration
 from ..model.mechanism import Mechanism
@@ -565,9 +565,9 @@ def _pending(cfg: Configuration, guards, t, y0, leaving=None):
             if state is None:
                 state = cfg.coords.unpack(t, y0)
             vn = normal_speed(cfg, *state, tr.contact)
-        if vn < -1e-12:
+        if vn < -AT_REST_SPEED:
             return i
-        if abs(vn) <= 1e-12:
+        if abs(vn) <= AT_REST_SPEED:
             if state is None:
                 state = cfg.coords.unpack(t, y0)
             if _pushed_closed(cfg, t, *state, tr.contact):
