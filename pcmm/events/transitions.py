@@ -44,7 +44,7 @@ from ..errors import SimulationError
 from .contact import contact_state, normal_speed
 from .contact_faults import POSE_TOL, contact_findings
 from .records import BounceRecord, bounce_record, by_link, event_record
-from .guards import describe_guard, guard_value
+from .guards import describe_guard, guard_value, make_guard
 from .entry import VELOCITY_ROUNDOFF, Entry, enter, enter_bounce, joints_from_poses, map_state, pose_mismatches  # noqa: F401 - re-exported
 from .impulse import Impulse, no_impulse, solve_impulse
 from .pins import check_held_points_push, pin_strike
@@ -310,16 +310,20 @@ def _separating(cfg: Configuration, tr: TransitionSpec, t, q, v, vn) -> str:
             f"(relative normal velocity {vn:.3g} {_speed_unit(cfg, tr.contact)} "
             "along the declared normal)")
     try:
-        from .guards import guard_value
-        qd = cfg.qdot(q, v)
-        eps = 1e-7 / max(1.0, float(np.max(np.abs(qd)))) if qd.size else 0.0
-        rate = (guard_value(cfg, tr, t, q + eps * qd, v) - guard_value(cfg, tr, t, q - eps * qd, v)) / (2 * eps)
+        # the guard's own rate at the state (a joint stop's: the joint's rate); a difference of its
+        # values along q' reads round-off where the rate is tiny (+1.0e-10 rad/s: 0, and blamed the normal)
+        rate = make_guard(cfg, tr).rate(t, cfg.coords.pack(t, q, v), None)
+        if rate is None:
+            qd = cfg.qdot(q, v)
+            eps = 1e-7 / max(1.0, float(np.max(np.abs(qd)))) if qd.size else 0.0
+            rate = (guard_value(cfg, tr, t, q + eps * qd, v) - guard_value(cfg, tr, t, q - eps * qd, v)) / (2 * eps)
     except Exception:  # noqa: BLE001 - the diagnosis is a hint; never let it mask the error itself
         rate = None
     if rate is not None and rate * tr.guard.direction < 0:
         return (f"{head}, and the guard itself is moving away from its value (rate {rate:.3g}/s), so the "
-                "crossing comes from an inaccurate step, not from the normal: the integration is unstable "
-                "or too coarse here; with RK4 lower solver.step (--step), else tighten rtol")
+                "crossing comes from round-off in its value or an inaccurate step, not from the normal (a "
+                "separating contact is never struck nor merged); where the integration is unstable or too "
+                "coarse, with RK4 lower solver.step (--step), else tighten rtol")
     return f"{head}; the normal must point from link a towards link b"
 
 
