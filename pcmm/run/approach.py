@@ -76,6 +76,13 @@ def closest_approach(scene: Scene, cfg: Configuration, traj: Trajectory) -> list
         # is a local minimum inside the run (else the nearer end); otherwise the nearest sample
         inner = np.flatnonzero((d[1:-1] <= d[:-2]) & (d[1:-1] <= d[2:]) & np.isfinite(d[:-2])) + 1
         i = int(inner[np.argmin(d[inner])]) if fired and inner.size else int(np.argmin(d))
+        since = np.flatnonzero(after)
+        if fired and not inner.size and i == since[0] and since.size > 1:
+            # no minimum inside the run: nearest at its start (the first sample after the event)
+            if d[since[-1]] >= np.max(d[since]):  # and farthest at its end: it only moved away
+                out.append(_moved_away(tr, t, g, after, owner, max(fired)))
+                continue
+            i = int(since[-1])  # it turned back and was still approaching as the run ended
         k = owner[i]
         same = np.flatnonzero((owner == k) & after)  # the neighbours within the same segment
         lo, hi = t[max(i - 1, same[0])], t[min(i + 1, same[-1])]
@@ -90,6 +97,21 @@ def closest_approach(scene: Scene, cfg: Configuration, traj: Trajectory) -> list
                     "past": _past(tr, gi),
                     "crossed_against": _crossed_against(tr, t, g, owner)})
     return out
+
+
+def _moved_away(tr, t: np.ndarray, g: np.ndarray, after: np.ndarray, owner: np.ndarray, last_fired: float) -> dict:
+    """The record of a guard that, since it last fired, only moved away from its value: the distance
+    grows from the first sample after the firing and has no minimum inside the run (the rate never
+    turned back towards the value), so there is no closest approach to report (the first sample
+    after a release read "5.5e-06 short" while the freed joint moved monotonically away from its
+    stop).  ``closest``, ``t`` and ``distance`` are None; ``final`` and ``t_final``: where the
+    measure is at the run's last sample."""
+    k = int(np.flatnonzero(after)[-1])
+    return {"transition": tr.name, "guard": str(tr.guard.measure) if tr.guard.measure else "contact gap",
+            "value": tr.guard.value, "direction": "increasing" if tr.guard.direction > 0 else "decreasing",
+            "closest": None, "t": None, "distance": None, "last_fired": last_fired, "at_entry": False,
+            "past": False, "crossed_against": _crossed_against(tr, t, g, owner), "moved_away": True,
+            "final": float(g[k]), "t_final": float(t[k])}
 
 
 def _segments_in(traj: Trajectory, name: str, watched) -> list[SegmentRecord]:
@@ -205,6 +227,11 @@ def _describe_one(r: dict) -> str:
         return (f"guard of '{r['transition']}' ({r['guard']} {r['direction']} to {r['value']:.9g}) did not fire: "
                 f"the measure crossed {r['value']:.9g} {against} at t = {r['crossed_against']:.6g} s, against the "
                 f"guard's direction ({r['direction']}); check `direction`")
+    if r.get("moved_away"):
+        return (f"guard of '{r['transition']}' ({r['guard']} {r['direction']} to {r['value']:.9g}) did not fire "
+                f"again: since its last event at t = {r['last_fired']:.9g} s the measure moved away from its value "
+                f"and never turned back towards it (at t = {r['t_final']:.6g} s it is {r['final']:.9g}, "
+                f"{abs(r['final'] - r['value']):.3g} from it)")
     return (
         f"guard of '{r['transition']}' ({r['guard']} {r['direction']} to {r['value']:.9g}) did not fire: "
         f"closest {r['closest']:.9g} at t = {r['t']:.6g} s"
