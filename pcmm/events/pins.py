@@ -54,6 +54,7 @@ from ..model.pinocchio_helpers import frame_jacobian
 from ..scene.spec import PinSpec
 from .contact import contact_state
 from .entry import enter
+from .friction import AmbiguousImpact, FrictionalImpulse, Phase, routh
 from .records import event_record
 from .impulse import Impulse, _inverse_mass, constraint_impulses, joint_impulses, loop_point_impulses, tangent_of
 
@@ -192,6 +193,57 @@ def _inside_cone(F: np.ndarray, K: np.ndarray, n: np.ndarray, tang: np.ndarray, 
         return True
     alpha = float(np.linalg.norm(g[1]) / np.linalg.norm(g[0]))
     return c[0] + c[1] / alpha >= 0
+
+
+def _stuck_at_once(D: np.ndarray, vt: float, vn: float) -> FrictionalImpulse:
+    """Routh's process with no slip (mu -> infinity, e = 0): the slip is stopped at p = 0+ by a
+    tangential impulse -v_t / D_tt (its work -v_t^2 / (2 D_tt), the limit of the slide phase's
+    mu v_t^2 / (2 (mu D_tt - sigma D_tn))), then the point sticks (dP_t = kappa dp) until compression ends."""
+    Pt1 = -vt / D[0, 0]
+    vn1 = vn + D[1, 0] * Pt1
+    if not vn1 < 0:  # stopping the slip already separates the point: no compression left
+        raise AmbiguousImpact(f"stopping the slip leaves the point separating (v_n {vn1:.6g} m/s)")
+    slope = D[1, 1] - D[0, 1] ** 2 / D[0, 0]
+    p = -vn1 / slope
+    phases = (Phase("stick", 0.0, 0.0, "slip stops"), Phase("stick", 0.0, p, "compression ends"))
+    return FrictionalImpulse(float(Pt1 - D[0, 1] / D[0, 0] * p), float(p), vt, 0.0, vn, 0.0, 0.5 * vn1 * p,
+                             -0.5 * vt * vt / D[0, 0], phases, math.inf, "newton")
+
+
+def strike_works(M: np.ndarray, name: str, v: np.ndarray, A: np.ndarray, b: np.ndarray, J_c: np.ndarray,
+                 P: tuple[float, float], mu: float) -> dict:
+    """What the normal and the tangential part of a pin's strike did: Routh's process
+    (:func:`pcmm.events.friction.routh`, e = 0; mu infinite: :func:`_stuck_at_once`) at the struck
+    point, whose rows ``J_c`` = [t; n] give the 2 x 2 Delassus matrix D = J_c W_eff J_c^T, W_eff the
+    inverse inertia with the other rows ``A`` of the solve held (``A v = b``).  Where Routh's process
+    ends at the pin's own impulse ``P`` (P_t, P_n), its exact per-phase works are the energy lost to
+    each part (friction's >= 0: it only dissipates).  Where it does not (it ends sliding, a Painleve
+    case, the point's rows redundant with the others), there is no such split: only the phases and why."""
+    W = _inverse_mass(M, name)
+    if A.shape[0]:
+        S = A @ W @ A.T
+        v = v + W @ A.T @ np.linalg.lstsq(S, b - A @ v, rcond=1e-13)[0]
+        W = W - W @ A.T @ np.linalg.pinv(S, rcond=1e-13) @ A @ W
+    D = J_c @ W @ J_c.T
+    D = 0.5 * (D + D.T)
+    vt, vn = (float(x) for x in J_c @ v)
+    P = np.asarray(P, float)
+    why = None
+    if np.linalg.cond(D) > 1e12:
+        why = "the struck point's rows are redundant with the other constraints (its Delassus matrix is singular)"
+    else:
+        try:
+            fr = _stuck_at_once(D, vt, vn) if math.isinf(mu) else routh(D, vt, vn, mu, 0.0)
+        except (AmbiguousImpact, ValueError) as exc:
+            why = f"Routh's process has no answer here ({exc})"
+        else:
+            if np.abs(fr.P - P).max() <= 1e-9 * max(float(np.abs(P).max()), 1e-300):
+                return {"phases": fr.phase_text,
+                        "energy_lost": {"normal": -fr.work_normal, "tangential": -fr.work_tangential}}
+            why = (f"Routh's process from this state ends elsewhere (phases {fr.phase_text}, impulse "
+                   f"({fr.P_t:.6g}, {fr.P_n:.6g}) N s, slip after {fr.slip_after:.6g} m/s): the pin holds the "
+                   "point where Coulomb's law would not")
+    return {"phases": "stick", "energy_lost": None, "energy_split": f"none: {why}"}
 
 
 def pin_strike(ctx, cfg: Configuration, tr: PinSpec, t, q, v, target: str | None = None):
@@ -341,16 +393,18 @@ def pin_strike(ctx, cfg: Configuration, tr: PinSpec, t, q, v, target: str | None
     record["impulse"]["tangential"] = P_t
     record["impulse"]["vector"] = [float(F[0]), float(F[1])]
     record["anchor"] = {name: [float(x) for x in A] for name, A in anchors.items()}
-    # the strike's two parts, as for a frictional impact (pcmm.events.records.friction_record): the
-    # relative velocity of b's point is linear along the proportional path from 0 to the impulse, so
-    # each part's work is P_i (v_i- + v_i+) / 2, exactly
+    # what each part of the strike did: Routh's process at b's point from the same state (e = 0, the
+    # other rows of the solve held), whose per-phase works are exact, as for a frictional stop
     J_rel = np.vstack([tang @ _point_rows(cfg, q, tr.contact), Jn])
-    (vt0, vn0), (vt1, vn1) = J_rel @ v, J_rel @ v_plus
-    record["friction"] = {"mu": "stick" if mu is None or math.isinf(mu) else mu, "law": "pin", "phases": "stick",
+    (vt0, _), (vt1, _) = J_rel @ v, J_rel @ v_plus
+    struck_at = kept.index(i_struck)
+    others = [i for i in range(A.shape[0]) if i not in (struck_at, struck_at + 1)]
+    b_all = np.concatenate([b_dst[kept], np.zeros(A.shape[0] - len(kept))])
+    record["friction"] = {"mu": "stick" if mu is None or math.isinf(mu) else mu, "law": "pin",
                           "impulse": {"normal": P_n, "tangential": P_t},
                           "slip": {"before": float(vt0), "after": float(vt1)},
-                          "energy_lost": {"normal": -0.5 * P_n * float(vn0 + vn1),
-                                          "tangential": -0.5 * P_t * float(vt0 + vt1)}}
+                          **strike_works(M, cfg.name, v, A[others], b_all[others], J_rel, (P_t, P_n),
+                                         math.inf if mu is None else mu)}
     released = {}
     for (s, nu, row) in unilateral:
         released[s.name] = {"normal_velocity_after": float(row @ v_plus), "impulse": 0.0}
