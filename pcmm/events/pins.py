@@ -246,6 +246,31 @@ def strike_works(M: np.ndarray, name: str, v: np.ndarray, A: np.ndarray, b: np.n
     return {"phases": "stick", "energy_lost": None, "energy_split": f"none: {why}"}
 
 
+def _no_outcome_text(where, cfg: Configuration, tr: PinSpec, struck: str, q, v, n, tang, vn: float,
+                     closed: list[str], found: int, tried: list[str], F: np.ndarray) -> list[str]:
+    """The refusal of a strike with no consistent outcome (or several): the struck point, how it
+    arrives (normal and tangential speeds), and the impulse a pin would need.  ``F`` is the pin's
+    impulse with every closed contact held (the last active set tried), on b, world axes."""
+    vt = float(tang @ _point_rows(cfg, q, tr.contact) @ v)
+    c = tr.contact
+    point = f"{c.b}'s point {list(c.point_b)} (the cut joint '{struck}')"
+    arrives = (f"it arrives with normal velocity {vn:.6g} m/s and tangential velocity {vt:.6g} m/s "
+               f"(along t = ({tang[0] + 0.0:.6g}, {tang[1] + 0.0:.6g}))")
+    P_n, P_t = float(n @ F), float(tang @ F)
+    if not closed and not found:
+        return [f"{where}: {point} cannot be pinned where it strikes {c.a}: {arrives}, and holding it there "
+                f"would need the normal impulse {P_n:.6g} N s (tangential {P_t:.6g} N s): {c.a} would pull "
+                f"on {c.b}, which a contact cannot. A pin holds a point only where its strike presses it onto the "
+                "surface; this strike is too oblique for that (the point would slide or leave): model it as a "
+                "`stop` (a bounce, with friction) or change the approach"]
+    head = (f"{where}: the strike of {point} on {c.a} ({arrives}) with the closed contacts {closed} has "
+            + (f"no consistent outcome: each way of keeping or releasing them needs a contact to pull or to "
+               f"sink, as listed (a 'kept' or 'held' point's normal impulse, and the new pin's, must be >= 0; a "
+               f"'released' or 'lifted' one's normal velocity after must be >= 0):" if not found else
+               f"{found} consistent outcomes (the rigid-body impact is ambiguous here), among these:"))
+    return [head] + tried
+
+
 def pin_strike(ctx, cfg: Configuration, tr: PinSpec, t, q, v, target: str | None = None):
     """Pin b's point where it strikes, with every constraint of the target at once (module text):
     (target, q, v, event) of the run's outcome.  ``target``: the configuration entered, when not the
@@ -322,10 +347,9 @@ def pin_strike(ctx, cfg: Configuration, tr: PinSpec, t, q, v, target: str | None
         if ok:
             solutions.append((held, v_plus, lam, redundant, A, kept))
     if len(solutions) != 1:
-        raise SimulationError(
-            [f"{where}: the strike with the closed contacts {[u[0].name for u in unilateral + both]} has "
-             f"{'no' if not solutions else len(solutions)} consistent outcome(s) (a rigid-body impact that is "
-             f"{'inconsistent' if not solutions else 'ambiguous'} here); the active sets tried:"] + tried)
+        raise SimulationError(_no_outcome_text(where, cfg, tr, struck.name, q, v, n, tang, vn,
+                                               [u[0].name for u in unilateral + both], len(solutions), tried,
+                                               lam[i_struck:i_struck + 2]))
     held, v_plus, lam, redundant, A, kept = solutions[0]
     lifted = [u[0].name for u, h in zip(both, held[len(unilateral):]) if not h]
     if lifted:  # a foot in double support that the strike would pull: it leaves at the strike

@@ -1,0 +1,179 @@
+"""What the second new user misread (task h-messages2, issue 22: no silent wrong number, every
+message names the value), each on a mechanism of this file's own, checked by hand.
+
+The arm: two uniform bars (upper 0.5 m, 3 kg on J1 at the frame's origin; fore 0.3 m, 1 kg on J2 at
+the upper bar's tip) falling from rest under gravity; its tip strikes a floor and is pinned where
+it lands (a ``pin``). Hip and tip pinned leave no freedom: the strike stops the arm dead
+(P = -J^-T M w-) and the stance is statics (F = J^-T dV/da). The expectations come from the arm's own
+Lagrangian in the bars' absolute angles (a1, a2), integrated with scipy to the floor, Routh's process
+written out below, and the statics; nothing of pcmm's is used but the run.
+"""
+from __future__ import annotations
+
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.integrate import solve_ivp
+
+import pcmm
+
+sys.path.insert(0, str(Path(__file__).parent))
+from builders import Bar, chain_urdf  # noqa: E402
+
+G = 9.81
+M1, L1, M2, L2 = 3.0, 0.5, 1.0, 0.3
+I1, I2 = M1 * L1 ** 2 / 12, M2 * L2 ** 2 / 12
+ARM_URDF = chain_urdf([Bar(L1, M1), Bar(L2, M2)], name="arm")
+
+ARM_TOML = """
+[scene]
+name = "arm"
+description = "two bars falling from rest; the tip strikes the floor and is pinned"
+gravity = [0.0, -9.81]
+t_end = 0.8
+initial_configuration = "free"
+
+[configurations.free]
+urdf = "arm.urdf"
+
+[configurations.held]
+urdf = "arm.urdf"
+cut_joints = [ { name = "tip", type = "revolute", a = "frame", point_a = "entry", b = "link2", point_b = [0.3, 0.0], contact = { normal = [0.0, 1.0]FRICTION } } ]
+
+[initial]
+q = { J1 = "A1 deg", J2 = "A2 deg" }
+v = { J1 = 0.0, J2 = 0.0 }
+
+[[transitions]]
+name = "tip strike"
+type = "pin"
+from = "free"
+to = "held"
+contact = { a = "frame", point_a = [0.0, FLOOR], b = "link2", point_b = [0.3, 0.0], normal = [0.0, 1.0]FRICTION }
+guard = { type = "gap", value = 0.0, direction = "decreasing" }
+"""
+
+
+def arm_scene(tmp_path: Path, q1: float, q2: float, floor: float, friction: str = ", friction = 0.8"):
+    (tmp_path / "arm.urdf").write_text(ARM_URDF)
+    path = tmp_path / "arm.toml"
+    path.write_text(ARM_TOML.replace("A1", repr(q1)).replace("A2", repr(q2)).replace("FLOOR", repr(floor))
+                    .replace("FRICTION", friction))
+    return pcmm.load_scene(path)
+
+
+def mass(a1, a2):
+    c = math.cos(a1 - a2)
+    return np.array([[I1 + M1 * L1 ** 2 / 4 + M2 * L1 ** 2, M2 * L1 * L2 / 2 * c],
+                     [M2 * L1 * L2 / 2 * c, I2 + M2 * L2 ** 2 / 4]])
+
+
+def dV(a1, a2):
+    return np.array([(M1 * L1 / 2 + M2 * L1) * G * math.cos(a1), M2 * L2 / 2 * G * math.cos(a2)])
+
+
+def tip_jacobian(a1, a2):
+    return np.array([[-L1 * math.sin(a1), -L2 * math.sin(a2)], [L1 * math.cos(a1), L2 * math.cos(a2)]])
+
+
+def strike_state(q1_deg, q2_deg, floor):
+    """Lagrange's equations integrated from rest to the tip's crossing of the floor: (t, a1, a2, w1, w2)."""
+    def rhs(t, y):
+        a1, a2, w1, w2 = y
+        s = math.sin(a1 - a2)
+        f = np.array([-M2 * L1 * L2 / 2 * s * w2 ** 2, M2 * L1 * L2 / 2 * s * w1 ** 2]) - dV(a1, a2)
+        return [w1, w2, *np.linalg.solve(mass(a1, a2), f)]
+
+    def gap(t, y):
+        return L1 * math.sin(y[0]) + L2 * math.sin(y[1]) - floor
+    gap.terminal, gap.direction = True, -1
+    a1 = math.radians(q1_deg)
+    sol = solve_ivp(rhs, (0, 2), [a1, a1 + math.radians(q2_deg), 0.0, 0.0], events=gap, rtol=1e-12, atol=1e-13,
+                    method="DOP853")
+    return sol.t_events[0][0], sol.y_events[0][0]
+
+
+def routh_slide_then_stick(D, u, mu):
+    """Routh's process, e = 0, written out for a slip that stops before compression ends and then
+    sticks: returns (P_t, P_n, friction work, normal work). Slide: dP_t = -sigma mu dp, the contact
+    velocity changes by D (-sigma mu, 1) dp; stick: dP_t = kappa dp (kappa = -D_tn / D_tt), v_t = 0."""
+    sigma = math.copysign(1.0, u[0])
+    slide = D @ np.array([-sigma * mu, 1.0])
+    p1 = -u[0] / slide[0]
+    assert 0 < p1 < -u[1] / slide[1]
+    kappa = -D[0, 1] / D[0, 0]
+    assert abs(kappa) <= mu
+    un1 = u[1] + slide[1] * p1
+    p2 = -un1 / (D @ np.array([kappa, 1.0]))[1]
+    work_t = -sigma * mu * (u[0] * p1 / 2)               # v_t falls linearly to 0 over p1
+    work_n = (u[1] + un1) / 2 * p1 + un1 / 2 * p2         # v_n linear in p within each phase
+    return -sigma * mu * p1 + kappa * p2, p1 + p2, work_t, work_n
+
+
+# ---- 1. a pin's friction.energy_lost is what friction dissipated (Routh's process) -------------------
+def test_pin_energy_split_is_rouths_friction_only_dissipates(tmp_path):
+    """Upper bar at 50 deg, fore bar at +80 deg to it, from rest; the floor 0.65 m below J1. The tip
+    lands sliding forwards (v_t = +1.20 m/s); pinned, P = -J^-T M w- = (3.21018, 8.84786) N s
+    (|P_t|/P_n = 0.363 < 0.8). Routh's process (mu = 0.8) slides, then sticks, and ends at that same
+    impulse: friction dissipates 0.18931 J, the normal part the rest of the kinetic energy. The
+    proportional path's split P_t v_t- / 2 (what the event said before) is -1.93 J: friction feeding
+    energy in."""
+    traj = pcmm.simulate(arm_scene(tmp_path, 50.0, 80.0, -0.65))
+    t_hand, y = strike_state(50.0, 80.0, -0.65)
+    (ev,) = traj.events
+    assert ev["t"] == pytest.approx(t_hand, abs=1e-9)
+    a1, a2, w = y[0], y[1], y[2:]
+    J, M = tip_jacobian(a1, a2), mass(a1, a2)
+    P = -np.linalg.solve(J.T, M @ w)
+    assert ev["impulse"]["vector"] == pytest.approx(list(P), rel=1e-8)
+    u = J @ w
+    D = J @ np.linalg.solve(M, J.T)
+    Pt, Pn, work_t, work_n = routh_slide_then_stick(D, u, 0.8)
+    assert (Pt, Pn) == pytest.approx(tuple(P), rel=1e-9)            # Routh ends at the pin's impulse
+    ke = 0.5 * w @ M @ w
+    assert work_t + work_n == pytest.approx(-ke, rel=1e-9)
+    assert -0.5 * P[0] * u[0] == pytest.approx(-1.9258, abs=1e-4)     # the old, misleading split
+    fr = ev["friction"]
+    assert fr["phases"] == "slide+ -> stick"
+    assert fr["energy_lost"]["tangential"] == pytest.approx(-work_t, rel=1e-8)
+    assert fr["energy_lost"]["tangential"] == pytest.approx(0.18931, abs=1e-5)
+    assert fr["energy_lost"]["normal"] == pytest.approx(-work_n, rel=1e-8)
+
+
+def test_pin_without_friction_stops_the_slip_at_once(tmp_path):
+    """The same strike with no friction given (neither on the transition nor on the cut joint ("stick", mu -> infinity)): Routh's process stops the
+    slip at p = 0+ by the tangential impulse -v_t / D_tt, which dissipates v_t^2 / (2 D_tt); then the
+    tip sticks to the end of compression, ending at the same impulse. Friction's share is >= 0."""
+    traj = pcmm.simulate(arm_scene(tmp_path, 50.0, 80.0, -0.65, friction=""))
+    _, y = strike_state(50.0, 80.0, -0.65)
+    a1, a2, w = y[0], y[1], y[2:]
+    J, M = tip_jacobian(a1, a2), mass(a1, a2)
+    u, D = J @ w, J @ np.linalg.solve(M, J.T)
+    fr = traj.events[0]["friction"]
+    assert fr["mu"] == "stick"
+    assert fr["energy_lost"]["tangential"] == pytest.approx(u[0] ** 2 / (2 * D[0, 0]), rel=1e-8)
+    assert fr["energy_lost"]["normal"] + fr["energy_lost"]["tangential"] == pytest.approx(0.5 * w @ M @ w, rel=1e-9)
+
+
+# ---- 2. the strike that would need the floor to pull: the refusal names the point and the numbers ----
+def test_tensile_pin_refusal_names_point_impulse_and_speeds(tmp_path):
+    """Both bars level from rest, the floor 0.7 m below J1: the tip lands sweeping backwards
+    (v_t = -5.45 m/s) faster than it falls (v_n = -3.69 m/s); pinning it needs P = -J^-T M w- with
+    P_n < 0: the floor would pull. The refusal gives the point, its speeds and that impulse, and no
+    empty list of active sets."""
+    _, y = strike_state(0.0, 0.0, -0.7)
+    a1, a2, w = y[0], y[1], y[2:]
+    J, M = tip_jacobian(a1, a2), mass(a1, a2)
+    P = -np.linalg.solve(J.T, M @ w)
+    u = J @ w
+    assert P[1] < 0
+    with pytest.raises(pcmm.SimulationError) as err:
+        pcmm.simulate(arm_scene(tmp_path, 0.0, 0.0, -0.7))
+    text = str(err.value)
+    assert "link2's point [0.3, 0.0] (the cut joint 'tip')" in text
+    assert f"normal velocity {u[1]:.6g} m/s and tangential velocity {u[0]:.6g} m/s" in text
+    assert f"the normal impulse {P[1]:.6g} N s (tangential {P[0]:.6g} N s): frame would pull" in text
+    assert "active sets tried" not in text and "closed contacts []" not in text
