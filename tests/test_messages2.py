@@ -45,7 +45,7 @@ cut_joints = [ { name = "tip", type = "revolute", a = "frame", point_a = "entry"
 
 [initial]
 q = { J1 = "A1 deg", J2 = "A2 deg" }
-v = { J1 = 0.0, J2 = 0.0 }
+v = { J1 = RATE, J2 = 0.0 }
 
 [[transitions]]
 name = "tip strike"
@@ -57,11 +57,12 @@ guard = { type = "gap", value = 0.0, direction = "decreasing" }
 """
 
 
-def arm_scene(tmp_path: Path, q1: float, q2: float, floor: float, friction: str = ", friction = 0.8"):
+def arm_scene(tmp_path: Path, q1: float, q2: float, floor: float, friction: str = ", friction = 0.8",
+              rate: float = 0.0):
     (tmp_path / "arm.urdf").write_text(ARM_URDF)
     path = tmp_path / "arm.toml"
     path.write_text(ARM_TOML.replace("A1", repr(q1)).replace("A2", repr(q2)).replace("FLOOR", repr(floor))
-                    .replace("FRICTION", friction))
+                    .replace("FRICTION", friction).replace("RATE", repr(rate)))
     return pcmm.load_scene(path)
 
 
@@ -79,8 +80,8 @@ def tip_jacobian(a1, a2):
     return np.array([[-L1 * math.sin(a1), -L2 * math.sin(a2)], [L1 * math.cos(a1), L2 * math.cos(a2)]])
 
 
-def strike_state(q1_deg, q2_deg, floor):
-    """Lagrange's equations integrated from rest to the tip's crossing of the floor: (t, a1, a2, w1, w2)."""
+def strike_state(q1_deg, q2_deg, floor, rate=0.0):
+    """Lagrange's equations integrated from the start (J1 turning at ``rate``, J2 at rest) to the tip's crossing of the floor: (t, a1, a2, w1, w2)."""
     def rhs(t, y):
         a1, a2, w1, w2 = y
         s = math.sin(a1 - a2)
@@ -91,7 +92,7 @@ def strike_state(q1_deg, q2_deg, floor):
         return L1 * math.sin(y[0]) + L2 * math.sin(y[1]) - floor
     gap.terminal, gap.direction = True, -1
     a1 = math.radians(q1_deg)
-    sol = solve_ivp(rhs, (0, 2), [a1, a1 + math.radians(q2_deg), 0.0, 0.0], events=gap, rtol=1e-12, atol=1e-13,
+    sol = solve_ivp(rhs, (0, 2), [a1, a1 + math.radians(q2_deg), rate, rate], events=gap, rtol=1e-12, atol=1e-13,
                     method="DOP853")
     return sol.t_events[0][0], sol.y_events[0][0]
 
@@ -177,3 +178,25 @@ def test_tensile_pin_refusal_names_point_impulse_and_speeds(tmp_path):
     assert f"normal velocity {u[1]:.6g} m/s and tangential velocity {u[0]:.6g} m/s" in text
     assert f"the normal impulse {P[1]:.6g} N s (tangential {P[0]:.6g} N s): frame would pull" in text
     assert "active sets tried" not in text and "closed contacts []" not in text
+
+
+# ---- 3. a pinned point tensile from the strike on: the lift-off refusal says so and gives N ----------
+def test_lift_off_refusal_says_tensile_at_the_strike_and_gives_n(tmp_path):
+    """Upper bar at -75 deg turning at 2 rad/s, fore bar at +100 deg to it, the floor 0.55 m below J1.
+    The strike stops the arm dead; pinned at rest, the floor would have to pull the tip
+    (F = J^-T dV/da, F_n < 0) from the strike on; freed, the tip's acceleration from rest, J (-M^-1 dV/da),
+    points into the floor. The run stops there saying the force was tensile at entry (not that it
+    turned tensile) and giving N."""
+    t_hand, y = strike_state(-75.0, 100.0, -0.55, rate=2.0)
+    a1, a2 = y[0], y[1]
+    J, M = tip_jacobian(a1, a2), mass(a1, a2)
+    F = np.linalg.solve(J.T, dV(a1, a2))
+    a_free = J @ np.linalg.solve(M, -dV(a1, a2))
+    assert F[1] < 0 and a_free[1] < 0
+    with pytest.raises(pcmm.SimulationError) as err:
+        pcmm.simulate(arm_scene(tmp_path, -75.0, 100.0, -0.55, rate=2.0))
+    text = str(err.value)
+    assert f"t = {t_hand:.9f} s" in text
+    assert f"already tensile where 'held' is entered (the strike that pinned it): N = {F[1]:.6g} N" in text
+    assert f"tangential force {F[0]:.6g} N" in text and f"normal acceleration {a_free[1]:.6g} m/s^2" in text
+    assert "turns tensile" not in text

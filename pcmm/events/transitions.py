@@ -413,10 +413,16 @@ def lift_off(ctx: Context, cfg: Configuration, tr: ReleaseSpec, t, q, v, cause: 
     a_n = separating_acceleration(cfg, dst, k, t, out.q, out.v) if same_tree else math.nan
     scale = max(1.0, abs(float(np.linalg.norm(cfg.scene.gravity))))
     if a_n < -1e-9 * scale:
+        # a located crossing of the normal force leaves it at round-off; a force well below zero was
+        # tensile from the instant the configuration was entered (the strike that pinned the point)
+        weight = scale * sum(float(I.mass) for I in cfg.model.inertias)
+        when = (f"its normal force is already tensile where '{cfg.name}' is entered (the strike that pinned it): "
+                f"N = {Fn:.6g} N" if Fn < -1e-6 * max(weight, abs(Ft), 1e-300) else
+                f"its normal force turns tensile here: N = {Fn:.3g} N")
         raise SimulationError(
-            f"t = {t:.9g} s, configuration '{cfg.name}': the point held by cut joint '{name}' lifts off (its normal "
-            f"force turns tensile, tangential force {Ft:.6g} N), but freed in '{target}' it would be pushed back into "
-            f"the surface (normal acceleration {a_n:.6g} m/s^2): it would slide, which pcmm does not model")
+            f"t = {t:.9g} s, configuration '{cfg.name}': the point held by cut joint '{name}' lifts off ({when}, "
+            f"tangential force {Ft:.6g} N), but freed in '{target}' it would be pushed back into the surface (normal "
+            f"acceleration {a_n:.6g} m/s^2): it would slide, which pcmm does not model")
     out.event["lifted"] = {name: {"anchor": [float(x) for x in anchor], "normal_force": float(Fn),
                                   "tangential_force": float(Ft),
                                   "normal_acceleration_after": a_n if same_tree else None}}
