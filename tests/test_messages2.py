@@ -200,3 +200,37 @@ def test_lift_off_refusal_says_tensile_at_the_strike_and_gives_n(tmp_path):
     assert f"already tensile where 'held' is entered (the strike that pinned it): N = {F[1]:.6g} N" in text
     assert f"tangential force {F[0]:.6g} N" in text and f"normal acceleration {a_free[1]:.6g} m/s^2" in text
     assert "turns tensile" not in text
+
+
+# ---- 5. a driven joint outside every loop is named with its drive, not "the loop" -----------------
+def _loop_with_side_arms(make_scene):
+    """A three-bar chain J1-J2-J3 (0.3 m bars) whose tip is pinned to the frame where it starts (a loop
+    with one freedom), and two arms on the frame outside the loop: J4 driven by q = 30 deg + 1.5 t,
+    J5 free. [initial] gives J4 = 50 deg at rest (the drive says 30 deg and 1.5 rad/s) and no rate for J5."""
+    from builders import bar_xml, joint_xml, link_xml, robot_xml
+    urdf = robot_xml("side", link_xml("frame"),
+                     joint_xml("J1", "revolute", "frame", "l1"), bar_xml("l1", 0.3, 1.0),
+                     joint_xml("J2", "revolute", "l1", "l2", xyz=(0.3, 0.0)), bar_xml("l2", 0.3, 1.0),
+                     joint_xml("J3", "revolute", "l2", "l3", xyz=(0.3, 0.0)), bar_xml("l3", 0.3, 1.0),
+                     joint_xml("J4", "revolute", "frame", "driven"), bar_xml("driven", 0.2, 0.5),
+                     joint_xml("J5", "revolute", "frame", "free"), bar_xml("free", 0.2, 0.5))
+    pin = {"name": "tip", "type": "revolute", "a": "frame", "point_a": "entry", "b": "l3", "point_b": [0.3, 0.0]}
+    return make_scene({"side.urdf": urdf}, configurations={"loop": {"urdf": "side.urdf", "cut_joints": [pin]}},
+                      q0={"J1": "80 deg", "J2": "-60 deg", "J3": "-60 deg", "J4": "50 deg", "J5": "10 deg"},
+                      v0={"J1": 0.5, "J4": 0.0}, independent=["J1"],
+                      drives=[{"joint": "J4", "coefficients": ["30 deg", 1.5]}])
+
+
+def test_driven_joint_is_named_with_its_drive_not_the_loop(make_scene):
+    from pcmm.model.assembly import assemble
+    from pcmm.model.mechanism import Mechanism
+    scene = pcmm.load_scene(_loop_with_side_arms(make_scene))
+    q, v, notes = assemble(scene, Mechanism(scene)["loop"])
+    assert q[3] == pytest.approx(math.radians(30), abs=1e-12) and v[3] == pytest.approx(1.5, abs=1e-12)
+    text = "\n".join(notes)
+    assert (f"J4 is driven (drives[0]): its drive gives {math.radians(30):.6g} rad at t = 0, "
+            f"given {math.radians(50):.6g}") in text
+    assert "J4 is driven (drives[0]): its drive gives 1.5 rad/s at t = 0, given 0" in text
+    assert "the loop was assembled away" not in text          # J4 is in no loop; the others are as given
+    assert "initial.v has no value for J5, kept as an independent coordinate: it starts at rest" in text
+    assert "of the loop" not in text and "J4, " not in text
