@@ -234,3 +234,36 @@ def test_driven_joint_is_named_with_its_drive_not_the_loop(make_scene):
     assert "the loop was assembled away" not in text          # J4 is in no loop; the others are as given
     assert "initial.v has no value for J5, kept as an independent coordinate: it starts at rest" in text
     assert "of the loop" not in text and "J4, " not in text
+
+
+# ---- 6. a pinned point's stance force is listed beside the holds -----------------------------------
+def test_stance_force_extremes_are_in_stats_holding(tmp_path):
+    """The arm of test 1 planted (upper bar 50 deg, fore bar +80 deg, floor 0.65 m): at rest after the
+    strike the floor holds the tip with F = J^-T dV/da (statics), the same at every sample; with the
+    flat floor (n = (0, 1), t = (1, 0)) its normal part is F_y and its tangential part F_x. Both are in
+    stats["holding"] beside the holds, their extremes at the first sample of the stance; the oracle's
+    own reading of the series (n . F, t . F from foot.fx, foot.fy) agrees to the bit."""
+    sys.path.insert(0, str(Path(__file__).parent))
+    import oracle
+    traj = pcmm.simulate(arm_scene(tmp_path, 50.0, 80.0, -0.65))
+    _, y = strike_state(50.0, 80.0, -0.65)
+    F = np.linalg.solve(tip_jacobian(y[0], y[1]).T, dV(y[0], y[1]))
+    assert F[1] > 0 and abs(F[0]) < 0.8 * F[1]
+    stance = traj.stats["holding"]["tip"]
+    t_strike = traj.events[0]["t"]
+    for part, value in (("normal", F[1]), ("tangential", F[0])):
+        assert stance[part]["min"] == pytest.approx(value, rel=1e-8)
+        assert stance[part]["max"] == pytest.approx(value, rel=1e-8)
+        assert stance[part]["t_min"] == pytest.approx(t_strike, abs=1e-12)
+    assert not oracle.check_records(traj, tmp_path)
+    stance["normal"]["max"] += 1e-9
+    assert any(p.startswith("stats holding tip (normal)") for p in oracle.check_records(traj, tmp_path))
+
+
+def test_leg_stance_force_in_stats_holding_matches_the_statics(tmp_path):
+    """The second newcomer's leg (tests/test_newcomer2_mechanisms.py, hip and knee at 60 deg, floor
+    0.7 m): its statics by hand is F = (8.08030, 23.33376) N."""
+    from test_newcomer2_mechanisms import leg_scene
+    stance = pcmm.simulate(leg_scene(tmp_path, 60.0, 60.0, -0.7)).stats["holding"]["foot"]
+    assert stance["normal"]["max"] == pytest.approx(23.33376, abs=1e-5)
+    assert stance["tangential"]["max"] == pytest.approx(8.08030, abs=1e-5)
