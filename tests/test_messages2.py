@@ -267,3 +267,35 @@ def test_leg_stance_force_in_stats_holding_matches_the_statics(tmp_path):
     stance = pcmm.simulate(leg_scene(tmp_path, 60.0, 60.0, -0.7)).stats["holding"]["foot"]
     assert stance["normal"]["max"] == pytest.approx(23.33376, abs=1e-5)
     assert stance["tangential"]["max"] == pytest.approx(8.08030, abs=1e-5)
+
+
+# ---- 4. a two-dimensional impulse is shown whole: the event table and impulses.png ------------------
+def test_event_table_and_impulse_figure_show_the_tangential_part(tmp_path):
+    """The arm of test 1: the pin's impulse P = -J^-T M w- = (3.21018, 8.84786) N s has a tangential
+    part of a third of its normal one; the table row gives P_t and |P| beside the P_n column, and
+    impulses.png draws P_t and |P| beside P_n (their data are the hand values)."""
+    from pcmm.results.summary import event_table
+    from pcmm.viz.plots import figures
+    traj = pcmm.simulate(arm_scene(tmp_path, 50.0, 80.0, -0.65))
+    _, y = strike_state(50.0, 80.0, -0.65)
+    P = -np.linalg.solve(tip_jacobian(y[0], y[1]).T, mass(y[0], y[1]) @ y[2:])
+    row = event_table(traj).splitlines()[-1]
+    assert f"{P[1]:11.4e}" in row
+    assert f"2-D impulse: P_t {P[0]:.4e}, |P| {math.hypot(*P):.4e} N s (the P column is P_n)" in row
+    ax = figures(traj)["impulses"].axes[0]
+    drawn = {line.get_label(): line.get_ydata() for line in ax.lines}
+    assert drawn["$|P|$"] == pytest.approx([math.hypot(*P)], rel=1e-8)
+    tangential = next(v for k, v in drawn.items() if k.startswith("$P_t$"))
+    assert tangential == pytest.approx([P[0]], rel=1e-8)
+    assert ax.get_ylabel() == "impulse (N·s)"
+
+
+def test_event_table_of_a_one_dimensional_impulse_is_unchanged(tmp_path):
+    """A frictionless ball's bounces (no tangential part): no 2-D note, P_n alone on the figure."""
+    from builders import ball
+    from pcmm.results.summary import event_table
+    from pcmm.viz.plots import figures
+    traj = pcmm.simulate(pcmm.load_scene(ball(tmp_path, 0.5, t_end=0.7)))
+    assert traj.events and "2-D impulse" not in event_table(traj)
+    ax = figures(traj)["impulses"].axes[0]
+    assert ax.get_ylabel() == "$P_n$ (N·s)" and "$|P|$" not in [line.get_label() for line in ax.lines]
