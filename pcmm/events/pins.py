@@ -424,11 +424,10 @@ def pin_strike(ctx, cfg: Configuration, tr: PinSpec, t, q, v, target: str | None
     struck_at = kept.index(i_struck)
     others = [i for i in range(A.shape[0]) if i not in (struck_at, struck_at + 1)]
     b_all = np.concatenate([b_dst[kept], np.zeros(A.shape[0] - len(kept))])
+    works = strike_works(M, cfg.name, v, A[others], b_all[others], J_rel, (P_t, P_n), math.inf if mu is None else mu)
     record["friction"] = {"mu": "stick" if mu is None or math.isinf(mu) else mu, "law": "pin",
-                          "impulse": {"normal": P_n, "tangential": P_t},
-                          "slip": {"before": float(vt0), "after": float(vt1)},
-                          **strike_works(M, cfg.name, v, A[others], b_all[others], J_rel, (P_t, P_n),
-                                         math.inf if mu is None else mu)}
+                          "phases": works.pop("phases"), "impulse": {"normal": P_n, "tangential": P_t},
+                          "slip": {"before": float(vt0), "after": float(vt1)}, **works}
     released = {}
     for (s, nu, row) in unilateral:
         released[s.name] = {"normal_velocity_after": float(row @ v_plus), "impulse": 0.0}
