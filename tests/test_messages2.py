@@ -299,3 +299,35 @@ def test_event_table_of_a_one_dimensional_impulse_is_unchanged(tmp_path):
     assert traj.events and "2-D impulse" not in event_table(traj)
     ax = figures(traj)["impulses"].axes[0]
     assert ax.get_ylabel() == "$P_n$ (N·s)" and "$|P|$" not in [line.get_label() for line in ax.lines]
+
+
+def test_pin_that_coulomb_would_not_stick_says_so(tmp_path):
+    """Upper bar at -60 deg, fore bar at +120 deg to it, from rest; the floor 0.3 m below J1. The pin's
+    impulse P = -J^-T M w- lies inside the cone (|P_t|/P_n < 0.8), but the stick ratio
+    kappa = |D_tn| / D_tt exceeds 0.8: in Routh's process the slip stops and reverses (slide+ -> slide-)
+    and compression ends sliding, at another impulse (written out here). So no split of the energy lost is
+    Routh's; the event gives none, says why, and warns that the pin is not Coulomb's outcome."""
+    traj = pcmm.simulate(arm_scene(tmp_path, -60.0, 120.0, -0.3))
+    _, y = strike_state(-60.0, 120.0, -0.3)
+    J, M = tip_jacobian(y[0], y[1]), mass(y[0], y[1])
+    P = -np.linalg.solve(J.T, M @ y[2:])
+    D = J @ np.linalg.solve(M, J.T)
+    u = J @ y[2:]
+    mu = 0.8
+    assert u[0] > 0 and abs(P[0]) / P[1] < mu and abs(D[0, 1]) / D[0, 0] > mu
+    # Routh's process by hand: slide+ until the slip stops, then slide- (it cannot stick) to the end of compression
+    s1 = D @ np.array([-mu, 1.0])
+    p1 = -u[0] / s1[0]
+    un1 = u[1] + s1[1] * p1
+    assert 0 < p1 and un1 < 0
+    s2 = D @ np.array([mu, 1.0])
+    p2 = -un1 / s2[1]
+    routh_P = np.array([-mu * p1 + mu * p2, p1 + p2])
+    assert abs(routh_P[0] - P[0]) > 0.1
+    ev = traj.events[0]
+    assert ev["impulse"]["vector"] == pytest.approx(list(P), rel=1e-8)
+    fr = ev["friction"]
+    assert fr["energy_lost"] is None
+    assert "phases slide+ -> slide-" in fr["energy_split"]
+    assert f"impulse ({routh_P[0]:.6g}, {routh_P[1]:.6g}) N s" in fr["energy_split"]
+    assert any("Coulomb's law from this state would not stick" in w for w in ev["warnings"])

@@ -425,6 +425,11 @@ def pin_strike(ctx, cfg: Configuration, tr: PinSpec, t, q, v, target: str | None
     others = [i for i in range(A.shape[0]) if i not in (struck_at, struck_at + 1)]
     b_all = np.concatenate([b_dst[kept], np.zeros(A.shape[0] - len(kept))])
     works = strike_works(M, cfg.name, v, A[others], b_all[others], J_rel, (P_t, P_n), math.inf if mu is None else mu)
+    if "ends elsewhere" in works.get("energy_split", ""):  # the pin is not Coulomb's outcome: said, not silent
+        record.setdefault("warnings", []).append(
+            f"{where}: the pin holds the struck point with the impulse ({P_t:.6g}, {P_n:.6g}) N s, inside the friction "
+            f"cone, but Coulomb's law from this state would not stick: {works['energy_split'][len('none: '):]}; "
+            "the run goes on pinned (what a pin models), and no split of the energy lost is given")
     record["friction"] = {"mu": "stick" if mu is None or math.isinf(mu) else mu, "law": "pin",
                           "phases": works.pop("phases"), "impulse": {"normal": P_n, "tangential": P_t},
                           "slip": {"before": float(vt0), "after": float(vt1)}, **works}
