@@ -331,3 +331,31 @@ def test_pin_that_coulomb_would_not_stick_says_so(tmp_path):
     assert "phases slide+ -> slide-" in fr["energy_split"]
     assert f"impulse ({routh_P[0]:.6g}, {routh_P[1]:.6g}) N s" in fr["energy_split"]
     assert any("Coulomb's law from this state would not stick" in w for w in ev["warnings"])
+
+
+def test_lift_off_refusal_after_a_stance_says_the_force_turned_tensile(make_scene):
+    """Three bars (0.4 m 2 kg, 0.3 m 1 kg, 0.3 m 1 kg) from 30/90/60 deg at rest; the tip is pinned (no
+    friction limit) on a floor 0.3 m below J1 and the chain swings on it (one freedom). Its normal force
+    falls through zero during the stance, where freed the tip would be pushed into the floor: the
+    refusal says the force turned tensile at that instant (N at round-off), not that it was tensile at
+    the strike, and comes after the strike."""
+    bars = [Bar(0.4, 2.0), Bar(0.3, 1.0), Bar(0.3, 1.0)]
+    pin = {"name": "tip", "type": "revolute", "a": "frame", "point_a": "entry", "b": "link3", "point_b": [0.3, 0.0],
+           "contact": {"normal": [0.0, 1.0]}}
+    tr = {"name": "tip strike", "type": "pin", "from": "free", "to": "held",
+          "guard": {"type": "gap", "value": 0.0, "direction": "decreasing"},
+          "contact": {"a": "frame", "point_a": [0.0, -0.3], "b": "link3", "point_b": [0.3, 0.0], "normal": [0.0, 1.0]}}
+    path = make_scene({"tri.urdf": chain_urdf(bars, name="tri")},
+                      configurations={"free": "tri.urdf", "held": {"urdf": "tri.urdf", "cut_joints": [pin]}},
+                      q0={"J1": "30 deg", "J2": "90 deg", "J3": "60 deg"}, v0={"J1": 0.0, "J2": 0.0, "J3": 0.0},
+                      t_end=1.5, transitions=[tr])
+    with pytest.raises(pcmm.SimulationError) as err:
+        pcmm.simulate(pcmm.load_scene(path))
+    text = str(err.value)
+    assert "its normal force turns tensile at this instant: N crosses 0, " in text
+    assert "already tensile" not in text
+    N = float(text.split("N crosses 0, ")[1].split(" N")[0])
+    assert abs(N) < 1e-9
+    t_stop = float(text.split("t = ")[1].split(" s")[0])
+    strike = [e for e in err.value.partial.events if e["name"] == "tip strike"]
+    assert strike and t_stop > strike[0]["t"] + 0.1

@@ -418,7 +418,7 @@ def lift_off(ctx: Context, cfg: Configuration, tr: ReleaseSpec, t, q, v, cause: 
         weight = scale * sum(float(I.mass) for I in cfg.model.inertias)
         when = (f"its normal force is already tensile where '{cfg.name}' is entered (the strike that pinned it): "
                 f"N = {Fn:.6g} N" if Fn < -1e-6 * max(weight, abs(Ft), 1e-300) else
-                f"its normal force turns tensile here: N = {Fn:.3g} N")
+                f"its normal force turns tensile at this instant: N crosses 0, {Fn:.3g} N where located")
         raise SimulationError(
             f"t = {t:.9g} s, configuration '{cfg.name}': the point held by cut joint '{name}' lifts off ({when}, "
             f"tangential force {Ft:.6g} N), but freed in '{target}' it would be pushed back into the surface (normal "
