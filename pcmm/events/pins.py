@@ -267,7 +267,8 @@ def _no_outcome_text(where, cfg: Configuration, tr: PinSpec, struck: str, q, v, 
             + (f"no consistent outcome: each way of keeping or releasing them needs a contact to pull or to "
                f"sink, as listed (a 'kept' or 'held' point's normal impulse, and the new pin's, must be >= 0; a "
                f"'released' or 'lifted' one's normal velocity after must be >= 0):" if not found else
-               f"{found} consistent outcomes (the rigid-body impact is ambiguous here), among these:"))
+               f"{found} consistent outcomes (the rigid-body impact is ambiguous here); each way of keeping or "
+               "releasing them:"))
     return [head] + tried
 
 
