@@ -24,6 +24,8 @@ mechanisms of its own.
 """
 from __future__ import annotations
 
+import threading
+
 import numpy as np
 
 from ..model import compiled
@@ -106,13 +108,33 @@ def _with_angles(cfg: Configuration, offsets, series: dict) -> dict:
                 constraint_forces=series["constraint_forces"])
 
 
+class _Held(threading.local):
+    """This thread's compiled series trees, {id(model): (model, gravity, tree)}: the tree of a
+    model looked up once per thread, not at every segment (a bouncing run's chunk derives 2,000)."""
+
+    def __init__(self):
+        self.trees: dict = {}
+
+
+_HELD = _Held()
+
+
 def _series_tree(cfg: Configuration):
     """The calling thread's compiled tree of ``cfg``'s model with its links' frames (checked against
-    :func:`_python_series` once per tree), or None."""
+    :func:`_python_series` once per tree: :func:`pcmm.model.compiled.series_tree`), or None."""
     if not compiled.enabled():
         return None
+    model = cfg.model
+    gravity = model.gravity.linear.tobytes()  # (a caller may set it: part of the compiled tree's key)
+    held = _HELD.trees.get(id(model))
+    if held is not None and held[0] is model and held[1] == gravity:
+        return held[2]
     frames = [cfg.link_frame[link] for link in cfg.links]
-    return compiled.series_tree(cfg.model, frames, lambda Q, V: _python_series(cfg, Q, V))
+    tree = compiled.series_tree(model, frames, lambda Q, V: _python_series(cfg, Q, V))
+    if len(_HELD.trees) >= 32:
+        _HELD.trees.pop(next(iter(_HELD.trees)))
+    _HELD.trees[id(model)] = (model, gravity, tree)
+    return tree
 
 
 def _python_series(cfg: Configuration, Q, V):
