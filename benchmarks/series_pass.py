@@ -6,8 +6,10 @@ chunk (``pcmm.results.store.write_chunk``, the series derived as a store's write
 (``per_sample_series``) and the default (``whole_segment_series`` where it applies).  Prints the CPU
 time of each write (process time: the writer's thread is this one), the medians, their ratio, and the
 largest difference between the two routes' series relative to each series' scale (max(1, |x|)).
+With ``--stored-runs`` it then times whole stored runs, ``pcmm.simulate(scene, store=DIR)`` in this
+process (the run, its chunks written on the store's thread, the end), the two routes alternating.
 
-    python benchmarks/series_pass.py /tmp/bb1k.toml --t-end 903.04728 --rounds 5
+    python benchmarks/series_pass.py /tmp/bb1k.toml --t-end 903.04728 --rounds 5 [--stored-runs]
 """
 from __future__ import annotations
 
@@ -37,6 +39,7 @@ def main(argv=None):
     ap.add_argument("scene", type=Path)
     ap.add_argument("--t-end", type=float, default=None)
     ap.add_argument("--rounds", type=int, default=5)
+    ap.add_argument("--stored-runs", action="store_true", help="time whole stored runs too")
     args = ap.parse_args(argv)
     scene = pcmm.load_scene(args.scene)
     traj = pcmm.simulate(scene, pcmm.RunOptions(t_end=args.t_end) if args.t_end else pcmm.RunOptions())
@@ -70,6 +73,30 @@ def main(argv=None):
               f"{m / len(log) * 1e6:.1f} us per segment")
     print(f"per-sample / whole-segment: {med['per-sample'] / med['whole-segment']:.2f}x; "
           f"largest relative difference of any series: {worst:.3g}")
+    if args.stored_runs:
+        stored_runs(scene, args, routes)
+
+
+def stored_runs(scene, args, routes) -> None:
+    """Whole stored runs in this process, the routes alternating: CPU seconds each, medians, ratio."""
+    options = pcmm.RunOptions(t_end=args.t_end) if args.t_end else pcmm.RunOptions()
+    times = {name: [] for name in routes}
+    with tempfile.TemporaryDirectory() as tmp:
+        for r in range(args.rounds):
+            for name, route in routes.items():
+                series.derived_series = route
+                try:
+                    t0 = time.process_time()
+                    traj = pcmm.simulate(scene, options, store=Path(tmp) / f"{name}-{r}")
+                    times[name].append(time.process_time() - t0)
+                finally:
+                    series.derived_series = routes["whole-segment"]
+                print(f"stored run {r + 1} {name}: {times[name][-1]:.3f} s CPU, {len(traj.events)} events",
+                      flush=True)
+    med = {name: statistics.median(v) for name, v in times.items()}
+    for name, m in med.items():
+        print(f"stored run, {name}: median {m:.3f} s ({min(times[name]):.3f}-{max(times[name]):.3f})")
+    print(f"stored run, per-sample / whole-segment: {med['per-sample'] / med['whole-segment']:.2f}x")
 
 
 if __name__ == "__main__":
