@@ -7,7 +7,8 @@ chunk (``pcmm.results.store.write_chunk``, the series derived as a store's write
 time of each write (process time: the writer's thread is this one), the medians, their ratio, and the
 largest difference between the two routes' series relative to each series' scale (max(1, |x|)).
 With ``--stored-runs`` it then times whole stored runs, ``pcmm.simulate(scene, store=DIR)`` in this
-process (the run, its chunks written on the store's thread, the end), the two routes alternating.
+process (the run, its chunks written on the store's thread, the end), the two routes and a run kept
+in memory (its series not read) alternating.
 
     python benchmarks/series_pass.py /tmp/bb1k.toml --t-end 903.04728 --rounds 5 [--stored-runs]
 """
@@ -80,6 +81,7 @@ def main(argv=None):
 def stored_runs(scene, args, routes) -> None:
     """Whole stored runs in this process, the routes alternating: CPU seconds each, medians, ratio."""
     options = pcmm.RunOptions(t_end=args.t_end) if args.t_end else pcmm.RunOptions()
+    routes = {**routes, "in memory, no store": series.derived_series}  # the run alone, its series not read
     times = {name: [] for name in routes}
     with tempfile.TemporaryDirectory() as tmp:
         for r in range(args.rounds):
@@ -87,16 +89,20 @@ def stored_runs(scene, args, routes) -> None:
                 series.derived_series = route
                 try:
                     t0 = time.process_time()
-                    traj = pcmm.simulate(scene, options, store=Path(tmp) / f"{name}-{r}")
+                    traj = pcmm.simulate(scene, options, store=None if name.startswith("in memory") else
+                                         Path(tmp) / f"{name}-{r}")
                     times[name].append(time.process_time() - t0)
                 finally:
                     series.derived_series = routes["whole-segment"]
-                print(f"stored run {r + 1} {name}: {times[name][-1]:.3f} s CPU, {len(traj.events)} events",
+                print(f"run {r + 1} {name}: {times[name][-1]:.3f} s CPU, {len(traj.events)} events",
                       flush=True)
     med = {name: statistics.median(v) for name, v in times.items()}
     for name, m in med.items():
-        print(f"stored run, {name}: median {m:.3f} s ({min(times[name]):.3f}-{max(times[name]):.3f})")
-    print(f"stored run, per-sample / whole-segment: {med['per-sample'] / med['whole-segment']:.2f}x")
+        print(f"run, {name}: median {m:.3f} s ({min(times[name]):.3f}-{max(times[name]):.3f})")
+    alone = med["in memory, no store"]
+    print(f"stored run, per-sample / whole-segment: {med['per-sample'] / med['whole-segment']:.2f}x; what the store "
+          f"adds to the run in memory: {(med['per-sample'] - alone) * 1e3:.0f} ms per-sample, "
+          f"{(med['whole-segment'] - alone) * 1e3:.0f} ms whole-segment")
 
 
 if __name__ == "__main__":
