@@ -233,3 +233,64 @@ def test_without_the_compiled_pass_the_reference_serves(tmp_path, monkeypatch):
     traj = run(cart_pendulum_tree(tmp_path, t_end=0.2))
     assert read_everything(traj) > 0 and pairs == []
     assert math.isfinite(float(traj.segments[0].kinetic[-1]))
+
+
+def _counted(monkeypatch) -> list:
+    """Count the calls of ``derived_series`` from now on (and the samples each derives)."""
+    calls = []
+    default = series.derived_series
+
+    def counted(cfg, coords, t, y, offsets, forces):
+        calls.append(len(t))
+        return default(cfg, coords, t, y, offsets, forces)
+    monkeypatch.setattr(series, "derived_series", counted)
+    return calls
+
+
+def test_a_stored_chunks_segments_of_one_context_are_derived_together(tmp_path, monkeypatch):
+    """A bouncing ball (e = 1, 30 bounces) stored in chunks of at most 8 segments or events: each
+    chunk's flights (one context: the same configuration, forces, offsets and stepping) derived in one call
+    (store.derive_together), not one a segment; every series the same bits as the run kept in memory
+    derives segment by segment."""
+    from pcmm.results.store import StoreWriter
+    scene = pcmm.load_scene(builders.ball(tmp_path, 1.0, merge=False))
+    period = 2.0 * math.sqrt(2.0 / 9.81)
+    opts = pcmm.RunOptions(t_end=29.5 * period)
+    kept = pcmm.simulate(scene, opts)
+    read_everything(kept)  # (derived segment by segment, before the count)
+    calls = _counted(monkeypatch)
+    stored = pcmm.simulate(scene, opts, store=StoreWriter(tmp_path / "store", chunk_samples=10 ** 6, chunk_records=8))
+    chunks = len(list((tmp_path / "store").glob("chunk-*.npz")))
+    assert len(kept.events) == 30 and len(stored.segments) == 31 and chunks >= 4
+    # one derivation a chunk, and one more for the first fall (its own context: not a flight between
+    # bounces, whose states carry their work)
+    assert len(calls) <= chunks + 1 < len(stored.segments)
+    assert sum(calls) == sum(len(s.t) for s in kept.segments)  # every sample derived once
+    derived_when_read = len(calls)
+    back = pcmm.Trajectory.load(tmp_path / "store")
+    for run_back in (stored, back):
+        for x, y in zip(kept.segments, run_back.segments):
+            for key in KEYS:
+                np.testing.assert_array_equal(getattr(x, key), getattr(y, key), err_msg=key)
+    assert len(calls) == derived_when_read  # nothing derived again when read back
+
+
+def test_a_constrained_configurations_segments_are_derived_one_by_one(tmp_path):
+    """Drives (constrained: the store does not assume a sample's series stand alone): derive_together
+    leaves every segment to derive its own, and a tree's segments of one context are derived in one
+    call, with the series each segment derives alone."""
+    from pcmm.results import store
+    driven = pcmm.simulate(pcmm.load_scene(builders.driven_cart_pendulum(tmp_path / "driven", e=0.6)))
+    assert len(driven.segments) > 4 and store.derive_together(driven.segments) == 0
+    assert all("_derive" in driven.segments[i].__dict__ for i in range(len(driven.segments)))
+    tree = pcmm.simulate(pcmm.load_scene(builders.ball(tmp_path / "ball", 1.0, merge=False)),
+                         pcmm.RunOptions(t_end=6.0))
+    alone = [{key: getattr(seg, key) for key in KEYS} for seg in tree.segments]
+    tree.segments._records.clear()  # the same segments, not yet derived
+    # one call: the flights between bounces (the first fall, alone in its context, derives its own when read)
+    assert store.derive_together(tree.segments) == 1
+    assert "_derive" in tree.segments[0].__dict__
+    for mine, seg in zip(alone, tree.segments):
+        assert seg is tree.segments[0] or "_derive" not in seg.__dict__
+        for key in KEYS:
+            np.testing.assert_array_equal(mine[key], getattr(seg, key), err_msg=key)
