@@ -294,3 +294,54 @@ def test_a_constrained_configurations_segments_are_derived_one_by_one(tmp_path):
         assert seg is tree.segments[0] or "_derive" not in seg.__dict__
         for key in KEYS:
             np.testing.assert_array_equal(mine[key], getattr(seg, key), err_msg=key)
+
+
+def _count_accelerations(monkeypatch) -> list:
+    from pcmm.model.partitioned import PartitionedCoordinates
+    calls = []
+    solve = PartitionedCoordinates.accelerations
+
+    def counted(self, t, q, v, extra=None):
+        calls.append(t)
+        return solve(self, t, q, v, extra)
+    monkeypatch.setattr(PartitionedCoordinates, "accelerations", counted)
+    return calls
+
+
+@needs_compiled
+def test_a_drives_moments_come_from_one_compiled_call_a_segment(tmp_path, monkeypatch):
+    """The driven cart's drive force at every sample from one compiled KKT solve a segment (checked
+    at 3 probe states first), not one Python solve a sample; the same numbers as the reference."""
+    if not compiled.has_multipliers():
+        pytest.skip("this build has no compiled multipliers")
+    traj = run(builders.driven_cart_pendulum(tmp_path, e=0.6))
+    series._HELD.multipliers.clear()
+    calls = _count_accelerations(monkeypatch)
+    samples = read_everything(traj)
+    assert samples > 40 and 0 < len(calls) <= 3, len(calls)  # the probe check's three, once
+    calls.clear()
+    pairs = both_routes(monkeypatch)
+    traj.segments._records.clear()
+    read_everything(traj)
+    assert pairs and worst(pairs) <= REL
+
+
+@needs_compiled
+def test_compiled_multipliers_that_disagree_are_refused(tmp_path, monkeypatch):
+    """A planted fault in the compiled drive moments (their sign flipped): the probe check refuses
+    them, every sample is solved in Python, and the series still equal the reference."""
+    if not compiled.has_multipliers():
+        pytest.skip("this build has no compiled multipliers")
+    traj = run(builders.driven_cart_pendulum(tmp_path, e=0.6))
+    series._HELD.multipliers.clear()
+    right = compiled.multipliers
+    monkeypatch.setattr(compiled, "multipliers", lambda *a: -right(*a))
+    calls = _count_accelerations(monkeypatch)
+    samples = read_everything(traj)
+    assert "disagrees" in compiled.why_not() and "constraint forces" in compiled.why_not()
+    assert len(calls) >= samples  # every sample solved in Python (and the probes)
+    pairs = both_routes(monkeypatch)
+    traj.segments._records.clear()
+    read_everything(traj)
+    assert pairs and worst(pairs) <= REL
+    series._HELD.multipliers.clear()

@@ -77,9 +77,66 @@ PyObject *series_py(PyObject *, PyObject *const *args, Py_ssize_t nargs) {
   return Py_BuildValue("NNN", xy, ke, pe);
 }
 
+// multipliers(tree, Q (n x nv), V (n x nv), TAU (n x nv), J (m x nv), GAMMA (n x m)) -> lam (n x m):
+// at each sample, M a + h = tau + J^T lam with J a + gamma = 0, by pinocchio::forwardDynamics with the
+// constraint rows, what pcmm.model.rows.constrained_accelerations calls through the binding for rows
+// that depend on time alone (drives without a loop: unit rows, gamma = -f''(t)).  A sample where it
+// throws or answers a non-finite value gets NaN: the caller solves that one in Python.
+PyObject *multipliers_py(PyObject *, PyObject *const *args, Py_ssize_t nargs) {
+  if (nargs != 6 || !PyObject_TypeCheck(args[0], &TreeType) || !((Tree *)args[0])->ready) {
+    PyErr_SetString(PyExc_TypeError, "multipliers(tree, Q, V, TAU, J, GAMMA) takes a finalized Tree and five arrays");
+    return nullptr;
+  }
+  Tree *tree = (Tree *)args[0];
+  const int nv = tree->nv;
+  PyArrayObject *in[5] = {nullptr, nullptr, nullptr, nullptr, nullptr};
+  for (int k = 0; k < 5; ++k) {
+    in[k] = (PyArrayObject *)PyArray_FROMANY(args[k + 1], NPY_DOUBLE, 2, 2, NPY_ARRAY_IN_ARRAY);
+    if (!in[k]) {
+      for (int j = 0; j < k; ++j) Py_DECREF(in[j]);
+      return nullptr;
+    }
+  }
+  const npy_intp n = PyArray_DIM(in[0], 0), m = PyArray_DIM(in[3], 0);
+  bool ok = true;
+  for (int k = 0; k < 3; ++k) ok = ok && PyArray_DIM(in[k], 0) == n && PyArray_DIM(in[k], 1) == nv;
+  ok = ok && PyArray_DIM(in[3], 1) == nv && PyArray_DIM(in[4], 0) == n && PyArray_DIM(in[4], 1) == m;
+  PyArrayObject *lam = nullptr;
+  if (!ok) {
+    PyErr_Format(PyExc_ValueError, "multipliers: Q, V, TAU must be (n x %d), J (m x %d), GAMMA (n x m)", nv, nv);
+  } else {
+    npy_intp dims[2] = {n, m};
+    lam = (PyArrayObject *)PyArray_SimpleNew(2, dims, NPY_DOUBLE);
+  }
+  if (lam) {
+    const Model &model = *tree->model;
+    Data &data = *tree->data;
+    const Eigen::MatrixXd J = Eigen::Map<const RowMatrixXd>((const double *)PyArray_DATA(in[3]), m, nv);
+    const double *qs = (const double *)PyArray_DATA(in[0]), *vs = (const double *)PyArray_DATA(in[1]),
+                 *ts = (const double *)PyArray_DATA(in[2]), *gs = (const double *)PyArray_DATA(in[4]);
+    double *out = (double *)PyArray_DATA(lam);
+    for (npy_intp i = 0; i < n; ++i) {
+      const Eigen::Map<const VectorXd> q(qs + i * nv, nv), v(vs + i * nv, nv), tau(ts + i * nv, nv), gamma(gs + i * m, m);
+      bool good = true;
+      try {
+        const VectorXd &a = pinocchio::forwardDynamics(model, data, q, v, tau, J, gamma);
+        good = a.allFinite() && data.lambda_c.allFinite();
+      } catch (const std::exception &) {
+        good = false;
+      }
+      for (npy_intp r = 0; r < m; ++r) out[i * m + r] = good ? data.lambda_c[r] : NAN;
+    }
+  }
+  for (int k = 0; k < 5; ++k) Py_DECREF(in[k]);
+  return (PyObject *)lam;
+}
+
 PyMethodDef series_methods[] = {
     {"series", (PyCFunction)(void (*)(void))series_py, METH_FASTCALL,
      "series(tree, Q, V) -> (xy (n x frames x 2), kinetic (n), gravity potential (n)) at the samples' rows of Q, V "
+     "(_series.hpp)"},
+    {"multipliers", (PyCFunction)(void (*)(void))multipliers_py, METH_FASTCALL,
+     "multipliers(tree, Q, V, TAU, J, GAMMA) -> lam (n x m): M a + h = tau + J^T lam, J a + gamma = 0 at each row "
      "(_series.hpp)"},
     {nullptr, nullptr, 0, nullptr}};
 

@@ -570,3 +570,20 @@ def series(tree, Q: np.ndarray, V: np.ndarray) -> tuple[np.ndarray, np.ndarray, 
     (n x nv) on a :func:`series_tree`: Pinocchio's forward kinematics, kinetic and potential energy
     and frame placements, sample by sample in one compiled call."""
     return _tree_dynamics.series(tree, Q, V)
+
+
+def multipliers(tree, Q: np.ndarray, V: np.ndarray, TAU: np.ndarray, J: np.ndarray, GAMMA: np.ndarray) -> np.ndarray:
+    """(n, m) multipliers ``lam`` of ``M a + h = tau + J^T lam``, ``J a + gamma = 0`` at the rows of ``Q``,
+    ``V``, ``TAU`` (n x nv) and ``GAMMA`` (n x m) with the constant rows ``J`` (m x nv), on a
+    :func:`series_tree` (pcmm/model/_series.hpp); NaN in a row where Pinocchio's solve failed."""
+    return _tree_dynamics.multipliers(tree, Q, V, TAU, J, GAMMA)
+
+
+def probe_states(nv: int) -> tuple[np.ndarray, ...]:
+    """The fixed probe states ``[q, v]`` of ``nv`` coordinates every compiled evaluation is checked at."""
+    return _probe_states(nv)
+
+
+def has_multipliers() -> bool:
+    """Whether this build of the extension has :func:`multipliers`."""
+    return hasattr(_tree_dynamics, "multipliers")

@@ -88,15 +88,56 @@ def whole_segment_series(cfg: Configuration, coords, t, y, offsets, forces) -> d
     xy, ke, gravity = compiled.series(tree, Q, V)
     x = Q @ forces.C.T + forces.d - forces.rest  # each linear element's measure from its rest value
     m = len(coords.labels)
-    lam = np.empty((n, m))
-    for i in range(n if m else 0):  # a drive's moment: the constrained accelerations' multipliers
-        lam[i] = coords.accelerations(t[i], Q[i], V[i])[1]
+    lam = _multipliers(coords, tree, t, Q, V, forces) if m else np.empty((n, 0))
     return _with_angles(cfg, offsets, dict(
         q=Q, v=V, xy=xy, kinetic=ke,
         # Configuration.potential_energy: gravity (with the bodies welded to the frame) plus the springs'
         potential=(gravity + cfg._welded_energy) + 0.5 * np.sum(forces.k * x * x, axis=1),
         forces=forces.f0 - forces.k * x - forces.c * (V @ forces.C.T),  # ForceField.element_values
         constraint_forces=lam))
+
+
+def _multipliers(coords, tree, t, Q, V, forces) -> np.ndarray:
+    """(n, m) constraint forces (a drive's moment) at the samples: ``M a + h = tau + J^T lam`` with
+    rows ``J`` that depend on time alone (``coords.time_rows()``: drives without a loop, bias
+    ``-f''(t)``), every sample in one compiled call (checked once per tree and rows against
+    ``coords.accelerations``, the Python solve); a sample the compiled solve leaves (NaN), and
+    every sample where there is none, by ``coords.accelerations`` itself."""
+    n, m = len(t), len(coords.labels)
+    lam = np.full((n, m), np.nan)
+    rows = coords.time_rows()
+    if rows is not None and len(rows[0]) == m and compiled.has_multipliers():
+        J, bias_of = rows
+        if _multipliers_agree(coords, tree, J, bias_of, forces):
+            gamma = np.array([bias_of(ti) for ti in t], float).reshape(n, m)
+            lam = compiled.multipliers(tree, Q, V, _generalized(forces, Q, V), J, gamma)
+    for i in np.flatnonzero(~np.isfinite(lam).all(axis=1)):
+        lam[i] = coords.accelerations(t[i], Q[i], V[i])[1]
+    return lam
+
+
+def _generalized(forces, Q, V) -> np.ndarray:
+    """:meth:`ForceField.generalized` at every row of ``Q``, ``V`` (linear elements: no point spring)."""
+    return forces.Q0 - Q @ forces.K.T - V @ forces.Dv.T
+
+
+def _multipliers_agree(coords, tree, J, bias_of, forces) -> bool:
+    """Whether the compiled multipliers on ``tree`` with the rows ``J`` equal ``coords.accelerations``
+    at probe states and times (asked once per thread, tree and rows)."""
+    key = (id(tree), J.tobytes())
+    held = _HELD.multipliers.get(key)
+    if held is not None and held[0] is tree:
+        return held[1]
+    nv = J.shape[1]
+
+    def compiled_lam(t, q, v):
+        Q, V = q[None, :], v[None, :]
+        return compiled.multipliers(tree, Q, V, _generalized(forces, Q, V), J, np.reshape(bias_of(t), (1, -1)))[0]
+    probes = [(0.37 * (k + 1), y[:nv], y[nv:2 * nv]) for k, y in enumerate(compiled.probe_states(nv))]
+    ok = compiled.agrees(set(), compiled_lam, lambda t, q, v: coords.accelerations(t, q, v)[1], probes,
+                         "constraint forces of rows that depend on time alone")
+    _HELD.multipliers[key] = (tree, ok)
+    return ok
 
 
 def _with_angles(cfg: Configuration, offsets, series: dict) -> dict:
@@ -114,6 +155,7 @@ class _Held(threading.local):
 
     def __init__(self):
         self.trees: dict = {}
+        self.multipliers: dict = {}  # {(id(tree), rows' bytes): (tree, agreed)}
 
 
 _HELD = _Held()
