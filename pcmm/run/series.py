@@ -15,7 +15,8 @@ Two routes give the same numbers:
   forward kinematics, ``computeKineticEnergy`` and ``computePotentialEnergy``: what the reference's
   Python calls compute) and the rest as array expressions of the same formulas (the linear force
   elements' ``f = value - k (C q + d - rest) - c C q'``, their energy ``k x^2 / 2``, the angles
-  ``A q + b``).  A drive's moments are still one :meth:`accelerations` a sample.
+  ``A q + b``), and a drive's moments (rows that depend on time alone) in one compiled KKT solve
+  (:func:`pcmm.model.compiled.multipliers`, checked against ``coords.accelerations``).
 
 A stored run derives each chunk's series on its writer's thread while the run waits
 (:mod:`pcmm.results.store`): there the per-sample route was 82 % of writing a chunk.
