@@ -37,7 +37,8 @@ else:
         "pcmm.model._tree_dynamics",
         sources=["pcmm/model/_tree_dynamics.cpp"],
         depends=["pcmm/model/_segment_loop.hpp", "pcmm/model/_loops.hpp", "pcmm/model/_impulse.hpp",
-                 "pcmm/model/_locate.hpp", "pcmm/model/_holding.hpp", "pcmm/model/_guard_eval.hpp"],  # the compiled segment loop, loops, impulse, event location and holding forces, included by it
+                 "pcmm/model/_locate.hpp", "pcmm/model/_holding.hpp", "pcmm/model/_guard_eval.hpp",
+                 "pcmm/model/_series.hpp"],  # the compiled segment loop, loops, impulse, event location and holding forces, included by it
         language="c++",
         include_dirs=[str(prefix / "include"), str(prefix / "include" / "eigen3"), numpy.get_include()],
         library_dirs=[str(prefix / "lib")],
