@@ -453,9 +453,11 @@ _STOP_KINDS = {"revolute": 0, "prismatic": 1, "point": 2}
 def compiled_bounce(cfg: Configuration, tr: TransitionSpec):
     """The compiled bounce of ``tr``'s stop in ``cfg`` (``BouncePlan`` of pcmm/model/_impulse.hpp: the
     impulse, the record's numbers and the projection onto the drives in one call), once it has given the
-    Python route's bits (:func:`adopt_compiled_bounce`); else None."""
+    Python route's bits (:func:`adopt_compiled_bounce`); else None.  ``PCMM_COMPILED`` is read where it
+    is adopted, once per stop and run (a configuration is a run's own: :class:`pcmm.model.mechanism.Mechanism`),
+    not at every bounce (reading the environment costs more than the rest of this look-up)."""
     plan = cfg.impulse_models.get("bounce_records", _NONE).get((cfg.name, tr.name))
-    if plan is None or plan.bounce is None or plan.tr is not tr or plan.cfg is not cfg or not compiled.enabled():
+    if plan is None or plan.bounce is None or plan.tr is not tr or plan.cfg is not cfg:
         return None
     return plan
 

@@ -253,12 +253,21 @@ def handle_stop(ctx: Context, cfg: Configuration, tr: StopSpec, t, q, v) -> Outc
                                   "the stop, so the stop needs merge_to (the merged configuration)")
         return _merge(ctx, cfg, tr, tr.merge_to, t, q, v, "stop")
     speed, interval = ctx.tolerances(tr)
-    vn = normal_speed(cfg, q, v, tr.contact)  # a joint stop's without a kinematics pass (solve_impulse makes one)
+    # the whole bounce in one compiled call where the stop's bounces have given the Python route's bits
+    # (records.adopt_compiled_bounce); else the impulse solved (compiled or in Python), the rest below
+    fast = compiled_bounce(cfg, tr)
+    got = None
+    if fast is not None and tr.contact.joint is not None:
+        # a joint stop's approach speed is the call's vn_before, -s v_j: normal_speed's number (its row
+        # has one entry); a stop that does not approach goes the general way below, with normal_speed's
+        got = solve_bounce(fast, t, q, v, tr.restitution)
+        if got is not None and not got[4][1] < 0:
+            got = None
+    vn = got[4][1] if got is not None else normal_speed(cfg, q, v, tr.contact)  # (a joint stop's without a kinematics pass)
     together = closed_with(cfg, tr, q)
     if together and min([vn] + [contact_state(cfg, q, v, s.contact)[2] for s in together]) < 0:
         # other contacts closed at this instant, one of them approaching: one solve with them all
         return _simultaneous(ctx, cfg, [tr] + together, t, q, v)
-    got = None  # the compiled bounce's answer, where it is taken
     if vn >= 0:
         # The guard fired while the contact does not approach.  A tiny separating speed is the
         # integrator's resolution at the end of an accumulation (the bounces are shorter than its
@@ -267,10 +276,8 @@ def handle_stop(ctx: Context, cfg: Configuration, tr: StopSpec, t, q, v) -> Outc
             raise SimulationError(_separating_with_faults(cfg, tr, t, q, v, vn))
         accumulated, rest_speed = True, vn
     else:
-        # the whole bounce in one compiled call where the stop's bounces have given the Python route's bits
-        # (records.adopt_compiled_bounce); else the impulse solved (compiled or in Python), the rest below
-        fast = compiled_bounce(cfg, tr)
-        got = solve_bounce(fast, t, q, v, tr.restitution) if fast is not None else None
+        if got is None and fast is not None and tr.contact.joint is None:  # a point contact's, after its normal_speed
+            got = solve_bounce(fast, t, q, v, tr.restitution)
         if got is None:
             imp = solve_impulse(cfg, t, q, v, tr.contact, tr.restitution, tr.cut, name=tr.name)
             rest_speed = imp.vn_after
