@@ -1,6 +1,8 @@
 // The impulse of one contact in a tree configuration (pcmm.events.impulse: the paper's Eqs. 21-43),
 // in one compiled call: included from _tree_dynamics.cpp (it uses its Tree), bound as
-// pcmm._tree_dynamics.ImpulsePlan.
+// pcmm._tree_dynamics.ImpulsePlan; and a whole bounce at a stop (the impulse, the velocity jump, the event
+// record's numbers and the projection onto the drives) as pcmm._tree_dynamics.BouncePlan (below), both
+// over one solve, impulse_solve.
 //
 // The Python solve cuts the metamorphic joint (the system f of section 2.2, a free planar joint in
 // its place) and brings the cut joint's forbidden motions back as rows G; with W = M_f^-1,
