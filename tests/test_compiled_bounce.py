@@ -67,6 +67,24 @@ def falling_elbow(folder, e: float = 0.6, t_end: float = 4.0):
     return builders.write_scene(folder, doc, {"fall.urdf": urdf})
 
 
+def slider_arm(folder, e: float = 0.5, t_end: float = 2.0, driven: bool = True):
+    """A third: an arm (1 m, 2 kg) on revolute J1 at the origin, driven at 6 rad/s (or free, at 3 rad/s at
+    the start), and a slider (0.5 kg) on the prismatic J2 along it, thrown outward onto a joint stop at
+    J2 = 0.8 m (a prismatic stop, restitution e, J2 cut), its bounces merging into 'locked'."""
+    urdf = builders.robot_xml("slider", builders.link_xml("frame"),
+                              builders.joint_xml("J1", "revolute", "frame", "arm"), builders.bar_xml("arm", 1.0, 2.0),
+                              builders.joint_xml("J2", "prismatic", "arm", "slider", axis=(1.0, 0.0, 0.0)),
+                              builders.solid_xml("slider", 0.5, 0.01))
+    tr = builders.stop("end_stop", "c1", e, {"type": "coordinate", "measure": {"joint": "J2"}, "value": 0.8,
+                                               "direction": "increasing"},
+                       {"joint": "J2"}, merge_to="locked", cut=["J2"])
+    more = {"drives": [{"joint": "J1", "coefficients": [0.0, 6.0]}]} if driven else {}
+    doc = builders.base_doc("slider_arm", "c1", {"c1": "s.urdf", "locked": {"from": "c1", "lock": {"J2": 0.8}}},
+                            {"J1": 0.0, "J2": 0.3}, {"J1": 6.0 if driven else 3.0, "J2": 0.0}, t_end=t_end,
+                            transitions=[tr], **more)
+    return builders.write_scene(folder, doc, {"s.urdf": urdf})
+
+
 def _scenes(tmp_path):
     return {
         "three_bar_cycle": (pcmm.load_scene(builders.EXAMPLES / "three_bar_cycle.toml"), pcmm.RunOptions(t_end=2.5)),
@@ -75,10 +93,14 @@ def _scenes(tmp_path):
         # a mobile point contact between two moving links of a tree
         "falling_elbow": (pcmm.load_scene(falling_elbow(tmp_path)), pcmm.RunOptions()),
         "driven_elbow": (pcmm.load_scene(driven_elbow(tmp_path)), pcmm.RunOptions()),
+        # a prismatic joint stop, beside a revolute drive and without one
+        "slider_arm": (pcmm.load_scene(slider_arm(tmp_path / "driven")), pcmm.RunOptions()),
+        "free_slider_arm": (pcmm.load_scene(slider_arm(tmp_path / "free", driven=False)), pcmm.RunOptions()),
     }
 
 
-@pytest.mark.parametrize("name", ["three_bar_cycle", "pendulum", "falling_elbow", "driven_elbow"])
+@pytest.mark.parametrize("name", ["three_bar_cycle", "pendulum", "falling_elbow", "driven_elbow", "slider_arm",
+                                  "free_slider_arm"])
 def test_every_compiled_bounce_is_the_python_route_to_the_bit(name, tmp_path, monkeypatch):
     """At every bounce the compiled call takes, the Python route is run at the same located state (the
     impulse solve, the record's numbers from its arrays, the bounce's entry) and gives the same bits:
