@@ -94,7 +94,14 @@ class CachedBuildExt(build_ext):
             shutil.copyfile(cached, target)
             print(f"pcmm: {ext.name} taken from the build cache {cached} (not compiled again)", file=sys.stderr)
             return
-        super().build_extension(ext)
+        # a miss compiles, whatever the dates say: setuptools skips an extension whose output is newer
+        # than its sources and depends, and that output (build/lib's, from other sources) would be
+        # cached under this key - a stale module passed off as the new sources' build
+        force, self.force = self.force, True
+        try:
+            super().build_extension(ext)
+        finally:
+            self.force = force
         if target.is_file():
             try:
                 cached.parent.mkdir(parents=True, exist_ok=True)
