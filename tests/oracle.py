@@ -899,10 +899,33 @@ def check_records(traj, folder: Path, stats: bool = True) -> list[str]:
     if config != [traj.configuration_at()[i] for i in order]:
         problems.append("CSV configuration column differs from the segments'")
     for label, ext in ((traj.stats.get("holding") or {}) if stats else {}).items():
+        if "normal" in ext:  # a point held by compression only: its stance force's parts
+            problems += _stance_extremes(traj, label, ext)
+            continue
         series = traj.series("constraint_forces", label)
         i_lo, i_hi = int(np.nanargmin(series)), int(np.nanargmax(series))
         got = (ext["min"], ext["t_min"], ext["max"], ext["t_max"])
         want = (series[i_lo], traj.t[i_lo], series[i_hi], traj.t[i_hi])
         if not np.allclose(got, want, rtol=0, atol=0):
             problems.append(f"stats holding {label}: {got}, the series' extremes {want}")
+    return problems
+
+
+def _stance_extremes(traj, name: str, ext: dict) -> list[str]:
+    """``stats["holding"][name]`` of a point held by compression only against the extremes of
+    n . F and t . F (t = (n_y, -n_x)) over the samples, F the series ``name.fx``, ``name.fy``, n the
+    cut joint's normal (recorded in the views, in link a's frame) turned by link a's angle."""
+    joint = next(j for c in traj.views["configurations"].values() for j in c.get("cut_joints", ())
+                 if j["name"] == name and j.get("normal") is not None)
+    F = np.column_stack([traj.series("constraint_forces", f"{name}.{x}") for x in ("fx", "fy")])
+    angle = traj.series("theta", joint["a"]) if joint["a"] in traj.links else np.zeros(len(traj.t))
+    n0 = np.asarray(joint["normal"], float) / np.linalg.norm(joint["normal"])
+    n = np.column_stack([np.cos(angle) * n0[0] - np.sin(angle) * n0[1], np.sin(angle) * n0[0] + np.cos(angle) * n0[1]])
+    problems = []
+    for part, series in (("normal", np.sum(n * F, axis=1)), ("tangential", n[:, 1] * F[:, 0] - n[:, 0] * F[:, 1])):
+        i_lo, i_hi = int(np.nanargmin(series)), int(np.nanargmax(series))
+        got = (ext[part]["min"], ext[part]["t_min"], ext[part]["max"], ext[part]["t_max"])
+        want = (series[i_lo], traj.t[i_lo], series[i_hi], traj.t[i_hi])
+        if not np.allclose(got, want, rtol=1e-14, atol=1e-12):
+            problems.append(f"stats holding {name} ({part}): {got}, the series' extremes {want}")
     return problems

@@ -54,6 +54,7 @@ from ..model.pinocchio_helpers import frame_jacobian
 from ..scene.spec import PinSpec
 from .contact import contact_state
 from .entry import enter
+from .friction import AmbiguousImpact, FrictionalImpulse, Phase, routh
 from .records import event_record
 from .impulse import Impulse, _inverse_mass, constraint_impulses, joint_impulses, loop_point_impulses, tangent_of
 
@@ -194,6 +195,83 @@ def _inside_cone(F: np.ndarray, K: np.ndarray, n: np.ndarray, tang: np.ndarray, 
     return c[0] + c[1] / alpha >= 0
 
 
+def _stuck_at_once(D: np.ndarray, vt: float, vn: float) -> FrictionalImpulse:
+    """Routh's process with no slip (mu -> infinity, e = 0): the slip is stopped at p = 0+ by a
+    tangential impulse -v_t / D_tt (its work -v_t^2 / (2 D_tt), the limit of the slide phase's
+    mu v_t^2 / (2 (mu D_tt - sigma D_tn))), then the point sticks (dP_t = kappa dp) until compression ends."""
+    Pt1 = -vt / D[0, 0]
+    vn1 = vn + D[1, 0] * Pt1
+    if not vn1 < 0:  # stopping the slip already separates the point: no compression left
+        raise AmbiguousImpact(f"stopping the slip leaves the point separating (v_n {vn1:.6g} m/s)")
+    slope = D[1, 1] - D[0, 1] ** 2 / D[0, 0]
+    p = -vn1 / slope
+    phases = (Phase("stick", 0.0, 0.0, "slip stops"), Phase("stick", 0.0, p, "compression ends"))
+    return FrictionalImpulse(float(Pt1 - D[0, 1] / D[0, 0] * p), float(p), vt, 0.0, vn, 0.0, 0.5 * vn1 * p,
+                             -0.5 * vt * vt / D[0, 0], phases, math.inf, "newton")
+
+
+def strike_works(M: np.ndarray, name: str, v: np.ndarray, A: np.ndarray, b: np.ndarray, J_c: np.ndarray,
+                 P: tuple[float, float], mu: float) -> dict:
+    """What the normal and the tangential part of a pin's strike did: Routh's process
+    (:func:`pcmm.events.friction.routh`, e = 0; mu infinite: :func:`_stuck_at_once`) at the struck
+    point, whose rows ``J_c`` = [t; n] give the 2 x 2 Delassus matrix D = J_c W_eff J_c^T, W_eff the
+    inverse inertia with the other rows ``A`` of the solve held (``A v = b``).  Where Routh's process
+    ends at the pin's own impulse ``P`` (P_t, P_n), its exact per-phase works are the energy lost to
+    each part (friction's >= 0: it only dissipates).  Where it does not (it ends sliding, a Painleve
+    case, the point's rows redundant with the others), there is no such split: only the phases and why."""
+    W = _inverse_mass(M, name)
+    if A.shape[0]:
+        S = A @ W @ A.T
+        v = v + W @ A.T @ np.linalg.lstsq(S, b - A @ v, rcond=1e-13)[0]
+        W = W - W @ A.T @ np.linalg.pinv(S, rcond=1e-13) @ A @ W
+    D = J_c @ W @ J_c.T
+    D = 0.5 * (D + D.T)
+    vt, vn = (float(x) for x in J_c @ v)
+    P = np.asarray(P, float)
+    why = None
+    if np.linalg.cond(D) > 1e12:
+        why = "the struck point's rows are redundant with the other constraints (its Delassus matrix is singular)"
+    else:
+        try:
+            fr = _stuck_at_once(D, vt, vn) if math.isinf(mu) else routh(D, vt, vn, mu, 0.0)
+        except (AmbiguousImpact, ValueError) as exc:
+            why = f"Routh's process has no answer here ({exc})"
+        else:
+            if np.abs(fr.P - P).max() <= 1e-9 * max(float(np.abs(P).max()), 1e-300):
+                return {"phases": fr.phase_text,
+                        "energy_lost": {"normal": -fr.work_normal, "tangential": -fr.work_tangential}}
+            why = (f"Routh's process from this state ends elsewhere (phases {fr.phase_text}, impulse "
+                   f"({fr.P_t:.6g}, {fr.P_n:.6g}) N s, slip after {fr.slip_after:.6g} m/s): the pin holds the "
+                   "point where Coulomb's law would not")
+    return {"phases": "stick", "energy_lost": None, "energy_split": f"none: {why}"}
+
+
+def _no_outcome_text(where, cfg: Configuration, tr: PinSpec, struck: str, q, v, n, tang, vn: float,
+                     closed: list[str], found: int, tried: list[str], F: np.ndarray) -> list[str]:
+    """The refusal of a strike with no consistent outcome (or several): the struck point, how it
+    arrives (normal and tangential speeds), and the impulse a pin would need.  ``F`` is the pin's
+    impulse with every closed contact held (the last active set tried), on b, world axes."""
+    vt = float(tang @ _point_rows(cfg, q, tr.contact) @ v)
+    c = tr.contact
+    point = f"{c.b}'s point {list(c.point_b)} (the cut joint '{struck}')"
+    arrives = (f"it arrives with normal velocity {vn:.6g} m/s and tangential velocity {vt:.6g} m/s "
+               f"(along t = ({tang[0] + 0.0:.6g}, {tang[1] + 0.0:.6g}))")
+    P_n, P_t = float(n @ F), float(tang @ F)
+    if not closed and not found:
+        return [f"{where}: {point} cannot be pinned where it strikes {c.a}: {arrives}, and holding it there "
+                f"would need the normal impulse {P_n:.6g} N s (tangential {P_t:.6g} N s): {c.a} would pull "
+                f"on {c.b}, which a contact cannot. A pin holds a point only where its strike presses it onto the "
+                "surface; this strike is too oblique for that (the point would slide or leave): model it as a "
+                "`stop` (a bounce, with friction) or change the approach"]
+    head = (f"{where}: the strike of {point} on {c.a} ({arrives}) with the closed contacts {closed} has "
+            + (f"no consistent outcome: each way of keeping or releasing them needs a contact to pull or to "
+               f"sink, as listed (a 'kept' or 'held' point's normal impulse, and the new pin's, must be >= 0; a "
+               f"'released' or 'lifted' one's normal velocity after must be >= 0):" if not found else
+               f"{found} consistent outcomes (the rigid-body impact is ambiguous here); each way of keeping or "
+               "releasing them:"))
+    return [head] + tried
+
+
 def pin_strike(ctx, cfg: Configuration, tr: PinSpec, t, q, v, target: str | None = None):
     """Pin b's point where it strikes, with every constraint of the target at once (module text):
     (target, q, v, event) of the run's outcome.  ``target``: the configuration entered, when not the
@@ -270,10 +348,9 @@ def pin_strike(ctx, cfg: Configuration, tr: PinSpec, t, q, v, target: str | None
         if ok:
             solutions.append((held, v_plus, lam, redundant, A, kept))
     if len(solutions) != 1:
-        raise SimulationError(
-            [f"{where}: the strike with the closed contacts {[u[0].name for u in unilateral + both]} has "
-             f"{'no' if not solutions else len(solutions)} consistent outcome(s) (a rigid-body impact that is "
-             f"{'inconsistent' if not solutions else 'ambiguous'} here); the active sets tried:"] + tried)
+        raise SimulationError(_no_outcome_text(where, cfg, tr, struck.name, q, v, n, tang, vn,
+                                               [u[0].name for u in unilateral + both], len(solutions), tried,
+                                               lam[i_struck:i_struck + 2]))
     held, v_plus, lam, redundant, A, kept = solutions[0]
     lifted = [u[0].name for u, h in zip(both, held[len(unilateral):]) if not h]
     if lifted:  # a foot in double support that the strike would pull: it leaves at the strike
@@ -341,16 +418,22 @@ def pin_strike(ctx, cfg: Configuration, tr: PinSpec, t, q, v, target: str | None
     record["impulse"]["tangential"] = P_t
     record["impulse"]["vector"] = [float(F[0]), float(F[1])]
     record["anchor"] = {name: [float(x) for x in A] for name, A in anchors.items()}
-    # the strike's two parts, as for a frictional impact (pcmm.events.records.friction_record): the
-    # relative velocity of b's point is linear along the proportional path from 0 to the impulse, so
-    # each part's work is P_i (v_i- + v_i+) / 2, exactly
+    # what each part of the strike did: Routh's process at b's point from the same state (e = 0, the
+    # other rows of the solve held), whose per-phase works are exact, as for a frictional stop
     J_rel = np.vstack([tang @ _point_rows(cfg, q, tr.contact), Jn])
-    (vt0, vn0), (vt1, vn1) = J_rel @ v, J_rel @ v_plus
-    record["friction"] = {"mu": "stick" if mu is None or math.isinf(mu) else mu, "law": "pin", "phases": "stick",
-                          "impulse": {"normal": P_n, "tangential": P_t},
-                          "slip": {"before": float(vt0), "after": float(vt1)},
-                          "energy_lost": {"normal": -0.5 * P_n * float(vn0 + vn1),
-                                          "tangential": -0.5 * P_t * float(vt0 + vt1)}}
+    (vt0, _), (vt1, _) = J_rel @ v, J_rel @ v_plus
+    struck_at = kept.index(i_struck)
+    others = [i for i in range(A.shape[0]) if i not in (struck_at, struck_at + 1)]
+    b_all = np.concatenate([b_dst[kept], np.zeros(A.shape[0] - len(kept))])
+    works = strike_works(M, cfg.name, v, A[others], b_all[others], J_rel, (P_t, P_n), math.inf if mu is None else mu)
+    if "ends elsewhere" in works.get("energy_split", ""):  # the pin is not Coulomb's outcome: said, not silent
+        record.setdefault("warnings", []).append(
+            f"{where}: the pin holds the struck point with the impulse ({P_t:.6g}, {P_n:.6g}) N s, inside the friction "
+            f"cone, but Coulomb's law from this state would not stick: {works['energy_split'][len('none: '):]}; "
+            "the run goes on pinned (what a pin models), and no split of the energy lost is given")
+    record["friction"] = {"mu": "stick" if mu is None or math.isinf(mu) else mu, "law": "pin",
+                          "phases": works.pop("phases"), "impulse": {"normal": P_n, "tangential": P_t},
+                          "slip": {"before": float(vt0), "after": float(vt1)}, **works}
     released = {}
     for (s, nu, row) in unilateral:
         released[s.name] = {"normal_velocity_after": float(row @ v_plus), "impulse": 0.0}

@@ -133,6 +133,13 @@ def assemble(scene: Scene, cfg: Configuration):
     diff = _distance(cfg, q, q0)
     moved = [(n, float(q0[cfg.joint_slice[n].start]), float(q[cfg.joint_slice[n].start]))
              for n in cfg.joint_names if diff[cfg.joint_slice[n].start] > GUESS_TOL]
+    drives = driven_joints(scene, cfg)
+    if any(n in drives for n, _, _ in moved):
+        notes.append("the drives fix some initial positions, and these given ones were replaced: "
+                     + ", ".join(f"{n} is driven ({drives[n]}): its drive gives {a:.6g} {_unit(cfg, n)} at t = 0, "
+                                 f"given {g:.6g}" for n, g, a in moved if n in drives)
+                     + "; give the drive's values in [initial] q, or change the drive's coefficients")
+        moved = [m for m in moved if m[0] not in drives]
     if moved:
         notes.append("the loop was assembled away from the given values: "
                      + ", ".join(f"{n} given {g:.6g}, assembled {a:.6g}" for n, g, a in moved)
@@ -168,16 +175,34 @@ def _velocity_notes(scene: Scene, cfg: Configuration, v_given: np.ndarray, v: np
     tol = VELOCITY_TOL * max(1.0, float(np.max(np.abs(v_given), initial=0.0)))
     replaced = [(n, float(v_given[cfg.joint_slice[n].start]), float(v[cfg.joint_slice[n].start])) for n in single
                 if n in scene.v0 and abs(v[cfg.joint_slice[n].start] - v_given[cfg.joint_slice[n].start]) > tol]
+    drives = driven_joints(scene, cfg)
     kept = set(np.asarray(cfg.coords.I if cfg.coords.I is not None else (), dtype=int).tolist())
-    independent = {n for n in single if cfg.joint_slice[n].start in kept}
+    independent = {n for n in single if cfg.joint_slice[n].start in kept and n not in drives}
     at_rest = [n for n in single if n not in scene.v0 and n in independent]
     notes = []
+    if any(n in drives for n, _, _ in replaced):
+        notes.append("the drives fix some initial velocities, and these given ones were replaced: "
+                     + ", ".join(f"{n} is driven ({drives[n]}): its drive gives {a:.6g} {_unit(cfg, n)}/s at t = 0, "
+                                 f"given {g:.6g}" for n, g, a in replaced if n in drives)
+                     + "; leave the driven joints out of [initial] v, or give the drive's rates")
+        replaced = [r for r in replaced if r[0] not in drives]
     if replaced:
         notes.append("the constraints fix some initial velocities, and these given ones were replaced: "
                      + ", ".join(f"{n} given {g:.6g}, now {a:.6g}" for n, g, a in replaced)
                      + f" (the velocities kept as given: {', '.join(sorted(independent)) or 'none'}); give only "
                        "those, or consistent values")
     if at_rest:
-        notes.append(f"initial.v has no value for {', '.join(at_rest)}, kept as an independent coordinate of "
-                     "the loop: it starts at rest (v = 0)")
+        notes.append(f"initial.v has no value for {', '.join(at_rest)}, kept as an independent coordinate: "
+                     f"{'it starts' if len(at_rest) == 1 else 'they start'} at rest (v = 0)")
     return notes
+
+
+def driven_joints(scene: Scene, cfg: Configuration) -> dict[str, str]:
+    """{joint: "drives[i]"} of the scene's drives acting in ``cfg`` (i indexes ``[[drives]]``)."""
+    return {d.joint: f"drives[{i}]" for i, d in enumerate(scene.drives)
+            if d.configurations is None or cfg.name in d.configurations}
+
+
+def _unit(cfg: Configuration, joint: str) -> str:
+    """"rad" for a revolute joint's coordinate, "m" for a prismatic one's."""
+    return "rad" if cfg.spec.info.joints[joint].type in ("revolute", "continuous") else "m"

@@ -1,6 +1,8 @@
 """The run summary (JSON) and the short human table of events."""
 from __future__ import annotations
 
+import math
+
 from .trajectory import Trajectory
 
 
@@ -47,6 +49,9 @@ def event_table(traj: Trajectory) -> str:
         elif imp.get("joint"):  # a prismatic joint stop: its rate and axial impulse, the header's units
             note = (f"  joint stop {imp['joint']} (prismatic): vn and P along its axis,"
                     " signed along the stop's normal (vn- < 0 closing, P > 0 pushing apart)")
+        elif imp.get("tangential"):  # a pin's or a frictional contact's impulse is two-dimensional
+            note = (f"  2-D impulse: P_t {num(imp['tangential']).strip()}, |P| "
+                    f"{num(math.hypot(imp['normal'], imp['tangential'])).strip()} N s (the P column is P_n)")
         rows.append(
             f"{e['t']:13.9f}  {e['name'][:wn]:<{wn}} {e['kind']:<7} {e['transition']:<{wt}} "
             f"{(e['from'] + ' -> ' + e['to'])[:wc]:<{wc}} {num(e['normal_velocity']['before'])} "

@@ -92,21 +92,54 @@ class RunStats(dict):
         return (dict, (dict(super().items()),))
 
 
+def _extend(ext: dict, col: np.ndarray, t: np.ndarray) -> None:
+    """Widen the extremes ``ext`` ({min, t_min, max, t_max}) by the samples ``col`` at ``t``."""
+    i_lo, i_hi = int(np.argmin(col)), int(np.argmax(col))
+    if col[i_lo] < ext["min"]:
+        ext["min"], ext["t_min"] = float(col[i_lo]), float(t[i_lo])
+    if col[i_hi] > ext["max"]:
+        ext["max"], ext["t_max"] = float(col[i_hi]), float(t[i_hi])
+
+
+def stance_forces(traj: "Trajectory", s: SegmentRecord) -> dict:
+    """{cut joint: (F_n, F_t)} of every point ``s``'s configuration holds by compression only (a cut
+    joint with a contact normal: a pinned foot's stance): the force on b along the contact's world
+    normal n (> 0 pushing) and tangent t = (n_y, -n_x), from the recorded ``<cut joint>.fx``, ``.fy``
+    and link a's angle (the normal is given in a's frame).  Empty without the run's views."""
+    view = ((traj.views or {}).get("configurations") or {}).get(s.configuration) or {}
+    out = {}
+    for j in view.get("cut_joints") or ():
+        labels = (f"{j['name']}.fx", f"{j['name']}.fy")
+        if j.get("normal") is None or not all(x in s.constraint_labels for x in labels):
+            continue
+        F = s.constraint_forces[:, [s.constraint_labels.index(x) for x in labels]]
+        angle = s.theta[:, s.links.index(j["a"])] if j["a"] in s.links else np.zeros(len(s.t))
+        c, si = np.cos(angle), np.sin(angle)
+        nx, ny = c * j["normal"][0] - si * j["normal"][1], si * j["normal"][0] + c * j["normal"][1]
+        norm = np.hypot(nx, ny)
+        nx, ny = nx / norm, ny / norm
+        out[j["name"]] = (nx * F[:, 0] + ny * F[:, 1], ny * F[:, 0] - nx * F[:, 1])
+    return out
+
+
 def holding_extremes(traj: "Trajectory") -> dict:
     """{lock: {min, t_min, max, t_max}} of every holding force or moment over the recorded
-    samples (constraint forces labelled ``<lock>.hold``): what a designer sizes a latch by."""
+    samples (constraint forces labelled ``<lock>.hold``): what a designer sizes a latch by; and
+    beside them {cut joint: {"normal": {...}, "tangential": {...}}} of every point held by
+    compression only (a pinned foot's stance force, :func:`stance_forces`), what a designer sizes
+    the contact's friction by."""
     out: dict = {}
     for s in traj.segments:
+        for name, parts in stance_forces(traj, s).items():
+            entry = out.setdefault(name, {part: {"min": math.inf, "t_min": None, "max": -math.inf, "t_max": None}
+                                          for part in ("normal", "tangential")})
+            for part, col in zip(("normal", "tangential"), parts):
+                _extend(entry[part], col, s.t)
         for k, label in enumerate(s.constraint_labels):
             if not label.endswith(".hold"):
                 continue
-            col = s.constraint_forces[:, k]
             ext = out.setdefault(label, {"min": math.inf, "t_min": None, "max": -math.inf, "t_max": None})
-            i_lo, i_hi = int(np.argmin(col)), int(np.argmax(col))
-            if col[i_lo] < ext["min"]:
-                ext["min"], ext["t_min"] = float(col[i_lo]), float(s.t[i_lo])
-            if col[i_hi] > ext["max"]:
-                ext["max"], ext["t_max"] = float(col[i_hi]), float(s.t[i_hi])
+            _extend(ext, s.constraint_forces[:, k], s.t)
     return out
 
 
@@ -571,7 +604,8 @@ def _configuration_view(c) -> dict:
     view = _view(c.urdf)
     view["cut_joints"] = [{"name": j.name, "type": j.type, "a": j.a, "point_a": list(j.point_a), "b": j.b,
                            "point_b": list(j.point_b), "axis": list(j.axis) if j.axis else None,
-                           "anchor_at_entry": bool(getattr(j, "anchor_at_entry", False))}
+                           "anchor_at_entry": bool(getattr(j, "anchor_at_entry", False)),
+                           "normal": list(j.normal) if getattr(j, "normal", None) is not None else None}
                           for j in getattr(c, "cut_joints", ())]
     derivation = getattr(c, "derivation", None)
     view["locked"] = list(derivation.lock) if derivation is not None else []

@@ -10,7 +10,8 @@ file                           content                                     paper
 ``angular_velocities.png``     angular velocity of every rotating link     Fig. 7
 ``force_elements.png``         each force element's output (moments)       Fig. 8
 ``energy.png``                 kinetic and potential energy                Figs. 9, 15
-``impulses.png``               normal impulse per impact (stem plot)       Fig. 12
+``impulses.png``               impulse per impact (stem plot): P_n, and    Fig. 12
+                               P_t and abs P where it is two-dimensional
 ``slider.png``                 slider position and velocity, inset zoom    Fig. 13
                                around the first impact
 ``driving_moment.png``         driving moment (constraint rows "*.drive")  Fig. 14
@@ -471,16 +472,24 @@ def figures(traj: RecordedRun, compare: RecordedRun | None = None, impulse_sign:
     # Fig. 12: impulse per impact, in the sign convention the figure states
     impact_runs = [r for r in runs if r.traj.impact]
     sign, convention = IMPULSE_SIGNS[impulse_sign]
-    evs = [(float(e["t"]), sign * float(e["impulse"]["normal"])) for r in impact_runs[:1] for e in r.traj.events
-           if e.get("impact") and e.get("impulse") is not None]
+    evs = [(float(e["t"]), sign * float(e["impulse"]["normal"]), sign * float(e["impulse"].get("tangential") or 0.0))
+           for r in impact_runs[:1] for e in r.traj.events if e.get("impact") and e.get("impulse") is not None]
     if evs:
-        t_ev, p_ev = np.array(evs).T
+        t_ev, p_ev, pt_ev = np.array(evs).T
         f = _Figure(Figure, 1, f"{name}: impulse of each impact ({len(evs)} impact{'s' if len(evs) > 1 else ''})")
         ax = f.axes[0]
-        ax.stem(t_ev, p_ev, linefmt="C3-", markerfmt="C3o", basefmt="0.5")
+        stems = ax.stem(t_ev, p_ev, linefmt="C3-", markerfmt="C3o", basefmt="0.5")
         handles = _mark(ax, marks)
+        two_d = bool(np.any(pt_ev != 0.0))  # a pin's or a frictional contact's impulse has a tangential part
+        if two_d:  # P_t beside P_n, and |P| (the impulse is two-dimensional: P_n alone hides part of it)
+            stems.markerline.set_label(r"$P_n$" if sign > 0 else r"$-P_n$")
+            tang = ax.stem(t_ev, pt_ev, linefmt="C0--", markerfmt="C0s", basefmt="0.5")
+            tang.markerline.set_label(r"$P_t$, along t = ($n_y$, $-n_x$)" if sign > 0 else r"$-P_t$")
+            size, = ax.plot(t_ev, np.hypot(p_ev, pt_ev), "kx", ms=7, label=r"$|P|$")
+            handles = [stems.markerline, tang.markerline, size] + list(handles)
         ax.set_xlabel("t (s)")
-        ax.set_ylabel(r"$P_n$ (N·s)" if sign > 0 else r"$-P_n$ (N·s), the paper's sign")
+        ax.set_ylabel(("impulse (N·s)" if two_d else r"$P_n$ (N·s)") if sign > 0 else
+                      (r"impulse on a (N·s), the paper's sign" if two_d else r"$-P_n$ (N·s), the paper's sign"))
         ax.margins(y=0.15)
         ax.set_xlim(0.0, duration)
         ax.grid(True, alpha=0.3)
@@ -489,7 +498,9 @@ def figures(traj: RecordedRun, compare: RecordedRun | None = None, impulse_sign:
             # left of the first impact, unless that is in the axes' left third (the label would run
             # over the y axis): then right of it
             right = duration > 0 and t_ev[0] < duration / 3
-            ax.annotate(f"{_fmt_t(t_ev[0])}, {p_ev[0]:.4g} N·s", (t_ev[0], p_ev[0]), textcoords="offset points",
+            text = (f"{_fmt_t(t_ev[0])}, {p_ev[0]:.4g} N·s" if not two_d else
+                    f"{_fmt_t(t_ev[0])}, P_n {p_ev[0]:.4g}, P_t {pt_ev[0]:.4g}, |P| {math.hypot(p_ev[0], pt_ev[0]):.4g} N·s")
+            ax.annotate(text, (t_ev[0], p_ev[0]), textcoords="offset points",
                         xytext=(8 if right else -8, 6 if p_ev[0] >= 0 else -12), ha="left" if right else "right",
                         fontsize=8)
         bursts = _bursts(impact_runs[0].traj, duration)
