@@ -240,7 +240,7 @@ def test_contact_law_bounce_is_no_wrong_direction_warning(tmp_path, capsys):
     """A ball dropped from 0.5 m onto a Hunt-Crossley floor (first contact at sqrt(2 h / g)) leaves
     the floor and is in flight at t_end: the gap crossing 0 upwards at the separation was reported
     as "crossed against the guard's direction; check `direction`".  Now no warning; the guard is
-    said to have last fired at the separation (the event's t_end)."""
+    said to have had its last event at the separation (the event's t_end)."""
     import json
     path = builders.ball(tmp_path, 0.8, h=0.5, law="hunt_crossley", stiffness=1e10, exponent=1.5, merge=False,
                          t_end=0.4)
@@ -249,7 +249,7 @@ def test_contact_law_bounce_is_no_wrong_direction_warning(tmp_path, capsys):
     assert rc == 0 and "against the guard's direction" not in out + err and "warning" not in err
     (event,) = json.loads(S.read_text())["events"]
     assert event["t"] == pytest.approx(math.sqrt(2 * 0.5 / builders.G), abs=1e-9)
-    assert f"since it last fired at t = {event['t_end']:.9g} s" in out
+    assert f"since its last event at t = {event['t_end']:.9g} s" in out
 
 
 # ---- (b) a failure at a trial step reports where the run stopped --------------------------------------
