@@ -143,9 +143,11 @@ def _rate(e, t, y, f, h, g=None):
 def _pure_value(e) -> bool:
     """Is the guard's value a function of ``(t, y)`` alone, so that a value already computed may
     stand for asking it again?  A guard on a compiled holding force (``holding``: the compiled solve
-    at the state, pcmm.events.holding.guard_value); not a guard read through a loop's Newton solve,
-    whose last bits follow its warm start (the previous call's solution)."""
-    return getattr(e, "holding", None) is not None
+    at the state, pcmm.events.holding.guard_value), or one whose value function says so (``pure``: a
+    holding force read through coordinates without a Newton solve, pcmm.events.holding._LastState); not
+    a guard read through a loop's Newton solve, whose last bits follow its warm start (the previous
+    call's solution)."""
+    return getattr(e, "holding", None) is not None or getattr(getattr(e, "value", None), "pure", False)
 
 
 def _hermite_dips(g0, d0, g1, d1, h, direction) -> bool:
@@ -877,6 +879,62 @@ def _segment_loop(fun, t0, y0, t_bound, events, opts, beta, tableau=None, keep_d
         options["keep_dense"] = True
     y0 = np.array(y0, float)
     ny = y0.size
+    C, ct, d, direction, every_step, scans = _guard_scans(events, ny, progress is not None)
+    options.update(scans)
+    max_step = opts.max_step if np.isfinite(opts.max_step) else 0.0
+    args = (owner, float(t0), y0, float(t_bound), float(opts.rtol), float(opts.atol), float(max_step),
+            int(opts.max_steps), float(beta), C, ct, d, direction, every_step)
+    try:
+        try:
+            loop = make(*args, **options)
+        except TypeError:  # an extension built before keep_dense: the steps are taken again for their dense output
+            if not options.pop("keep_dense", False):
+                raise
+            loop = make(*args, **options)
+    except (ValueError, TypeError, RuntimeError):  # a state that is not the tree's: Python steps it
+        if "evaluated" not in options and "linear" not in options:
+            return None, None
+        # the evaluated or linear guards are not this loop's to scan (not a plain tree's state, an extension
+        # built before `linear`): every step to Python
+        options.pop("evaluated", None)
+        options.pop("linear", None)
+        options.pop("holding", None)
+        try:
+            loop = make(*args[:9], np.zeros((0, ny)), np.zeros(0), np.zeros(0), np.zeros(0), True, **options)
+        except (ValueError, TypeError, RuntimeError):
+            return None, None
+    return loop, progress
+
+
+#: the last few guard sets' scans (:func:`_guard_scans`), by the guards' identities: {key: (guards, scans)}
+_SCANS: dict = {}
+_SCANS_KEPT = 16
+
+
+def _guard_scans(events, ny: int, progress: bool):
+    """``(C, ct, d, direction, every_step, options)``: how a compiled segment loop scans ``events`` on a
+    state of ``ny`` entries (:func:`_scan_guards`), the arrays read-only.  A run re-arms the same guard
+    objects at every bounce of a sequence (pcmm.run.loop._guards keeps them), so the scans made for the
+    same guards (the same objects, whose scanned fields are set when they are made), the same ``ny`` and
+    progress are taken again: the same arguments to the loop, without classifying every guard again at
+    every segment."""
+    key = (ny, progress, *map(id, events))
+    got = _SCANS.get(key)
+    if got is not None and len(got[0]) == len(events) and all(a is b for a, b in zip(got[0], events)):
+        return got[1]
+    scans = _scan_guards(events, ny, progress)
+    for a in scans[:4]:
+        a.flags.writeable = False
+    if len(_SCANS) >= _SCANS_KEPT:
+        _SCANS.clear()
+    _SCANS[key] = (tuple(events), scans)  # (the guards held: their ids stay theirs while kept here)
+    return scans
+
+
+def _scan_guards(events, ny: int, progress: bool):
+    """:func:`_guard_scans` made: ``(C, ct, d, direction, every_step, options)``, the options a dict of
+    the kinds of guards the loop scans itself (``solved``, ``holding``, ``evaluated``, ``linear``)."""
+    options = {}
     # each guard's one scan, in one pass over the guards (a segment has a few; this runs per segment):
     # affine in the state (Guard.affine), on a compiled holding force (Guard.holding), else a closed
     # loop's guard on its solution (Guard.loop_scan, which its compiled loop scans itself), else a guard
@@ -888,7 +946,7 @@ def _segment_loop(fun, t0, y0, t_bound, events, opts, beta, tableau=None, keep_d
     # did: then every step comes back to Python, as for a guard the loop cannot scan with its rate
     # read from the state (or on a holding force)
     affine, holding, solved, evaluated, linear = [], [], [], [], []
-    every_step = progress is not None
+    every_step = progress
     for e in events:
         a, h = getattr(e, "affine", None), getattr(e, "holding", None)
         sv = ev = w = None
@@ -929,29 +987,7 @@ def _segment_loop(fun, t0, y0, t_bound, events, opts, beta, tableau=None, keep_d
                            ("linear", [(j, *w) for j, w in enumerate(linear) if w is not None])):
             if scans:
                 options[key] = scans
-    max_step = opts.max_step if np.isfinite(opts.max_step) else 0.0
-    args = (owner, float(t0), y0, float(t_bound), float(opts.rtol), float(opts.atol), float(max_step),
-            int(opts.max_steps), float(beta), C, ct, d, direction, every_step)
-    try:
-        try:
-            loop = make(*args, **options)
-        except TypeError:  # an extension built before keep_dense: the steps are taken again for their dense output
-            if not options.pop("keep_dense", False):
-                raise
-            loop = make(*args, **options)
-    except (ValueError, TypeError, RuntimeError):  # a state that is not the tree's: Python steps it
-        if "evaluated" not in options and "linear" not in options:
-            return None, None
-        # the evaluated or linear guards are not this loop's to scan (not a plain tree's state, an extension
-        # built before `linear`): every step to Python
-        options.pop("evaluated", None)
-        options.pop("linear", None)
-        options.pop("holding", None)
-        try:
-            loop = make(*args[:9], np.zeros((0, ny)), np.zeros(0), np.zeros(0), np.zeros(0), True, **options)
-        except (ValueError, TypeError, RuntimeError):
-            return None, None
-    return loop, progress
+    return C, ct, d, direction, every_step, options
 
 
 def _linear_scan(e, ny):

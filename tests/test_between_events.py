@@ -1,0 +1,236 @@
+"""What the run does between two events is made once where it repeats, with the same bits
+(docs/performance.md, "Between events, third round"):
+
+* the guards on one holding-force evaluator share its answer at the state asked last, where that is a
+  function of the state alone (``holding._LastState``: a fully driven configuration's merges, two guards
+  at every sample of its known motion), and such a guard's rate starts from its value
+  (``integrators._pure_value``);
+* ``Holds.applied`` gives the Applied it made last while nothing it is made from changed;
+* the recording hands the log the name lists it made last for the configuration;
+* the compiled segment loop's guard scans are made once per set of guard objects
+  (``integrators._guard_scans``).
+
+Each is checked against the route it replaces: the same events, times and recorded samples to the
+bit, and the replaced work counted."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from builders import EXAMPLES
+
+import pcmm
+from pcmm.events import holding
+from pcmm.model.partitioned import PartitionedCoordinates
+from pcmm.ode import integrators
+from pcmm.run import loop, recording
+
+CYCLE = EXAMPLES / "three_bar_cycle.toml"
+# to 3.5 s: the fully driven configuration ("folded") is entered twice and left by the release of a merge
+T_END = 3.5
+
+
+def _run(t_end=T_END):
+    return pcmm.simulate(pcmm.load_scene(CYCLE), pcmm.RunOptions(t_end=t_end))
+
+
+def _fingerprint(run) -> tuple:
+    """Everything a run records, as bytes: event times and records, every segment's times and states."""
+    events = tuple((ev["t"], ev["name"], ev["kind"], ev["from"], ev["to"]) for ev in run.events)
+    segments, log = [], run.segments
+    for i in range(len(log)):
+        t, y, q_start = log.arrays(i)
+        segments.append((log.configuration(i), t.tobytes(), y.tobytes(), q_start.tobytes()))
+    return events, tuple(segments), run.stats["steps"], run.stats["rhs_evals"]
+
+
+class _Unshared(holding._LastState):
+    """The route before: every guard asks its evaluator itself, at every call."""
+
+    __slots__ = ()
+
+    def at(self, t, y):
+        q, v = self.unpack(t, y)
+        return self.forces(t, q, v)
+
+
+def _impure(e) -> bool:  # the route before: only a compiled holding guard's value stands for itself
+    return getattr(e, "holding", None) is not None
+
+
+def _count_known_motion_solves(monkeypatch) -> tuple[int, int]:
+    """(unpacks of the fully driven configuration's coordinates during its known motion, its samples)."""
+    counts = {"unpack": 0, "samples": 0}
+    inside = [False]
+    unpack, known = PartitionedCoordinates.unpack, loop._known_motion
+
+    def counted_unpack(self, t, y):
+        counts["unpack"] += inside[0]
+        return unpack(self, t, y)
+
+    def counted_known(cfg, t, y0, guards, opts):
+        inside[0] = True
+        try:
+            seg = known(cfg, t, y0, guards, opts)
+        finally:
+            inside[0] = False
+        counts["samples"] += seg.t.size
+        return seg
+    monkeypatch.setattr(PartitionedCoordinates, "unpack", counted_unpack)
+    monkeypatch.setattr(loop, "_known_motion", counted_known)
+    return counts
+
+
+def test_the_merges_of_a_fully_driven_configuration_share_one_solve_per_state(monkeypatch):
+    counts = _count_known_motion_solves(monkeypatch)
+    shared = _fingerprint(_run())
+    n_shared, samples = counts["unpack"], counts["samples"]
+    assert samples > 10
+    counts["unpack"] = counts["samples"] = 0
+    with monkeypatch.context() as m:
+        m.setattr(holding, "_LastState", _Unshared)
+        m.setattr(integrators, "_pure_value", _impure)
+        before = _fingerprint(_run())
+    assert counts["samples"] == samples
+    # the same run to the bit: events, times, every segment's samples, steps and evaluations
+    assert shared == before
+    # two merges, each asked at a sample's state, at the state a forward difference away and again at the
+    # sample's state for that difference (the value could not stand for itself): about 7 reads of the
+    # coordinates a sample before; now the sample itself, the difference, and the second guard's read of
+    # the state the first just asked is shared: about 3 (the located release adds a few more)
+    assert counts["unpack"] > 2 * n_shared
+    assert n_shared <= 4 * samples
+
+
+def test_last_state_answers_again_only_at_the_same_state():
+    calls = []
+
+    def forces(t, q, v):
+        calls.append(t)
+        return {"a": float(t) + float(q.sum())}
+    shared = holding._LastState(forces, lambda t, y: (np.array([t, *y]), np.zeros(1)))
+    y = np.array([0.25])
+    first = shared.at(1.0, y)
+    assert shared.at(1.0, y.copy()) is first and calls == [1.0]  # the same state: the same answer
+    assert shared.at(1.0, np.array([0.5]))["a"] == 2.5  # another state at the same instant: solved
+    assert shared.at(2.0, np.array([0.5]))["a"] == 4.5  # another instant: solved
+    assert calls == [1.0, 1.0, 2.0]
+    # -0.0 is not 0.0's bytes: solved again (the same value: always right)
+    shared.at(3.0, np.array([0.0]))
+    shared.at(3.0, np.array([-0.0]))
+    assert calls[-2:] == [3.0, 3.0]
+
+
+def test_applied_is_made_again_only_where_what_it_is_made_from_changed(monkeypatch):
+    made = []
+    record = recording.record_samples
+
+    def kept(traj, cfg, seg, offsets, q_start, holds, stepping):
+        if holds.items:
+            made.append((cfg, tuple(holds.items), holds.applied(cfg)))
+        return record(traj, cfg, seg, offsets, q_start, holds, stepping)
+    monkeypatch.setattr(recording, "record_samples", kept)
+    run = _run()
+    assert run.stats["impacts"] > 100 and len(made) > 100
+    for (cfg, items, applied), (cfg2, items2, applied2) in zip(made, made[1:]):
+        if cfg2 is cfg and len(items) == len(items2) and all(a is b for a, b in zip(items, items2)):
+            assert applied2 is applied  # the same configuration and holds in one run: the one made last
+        else:
+            assert applied2 is not applied
+    assert len({id(a) for _, _, a in made}) < len(made) / 10
+
+
+def test_applied_follows_its_reference_frozen_state(monkeypatch):
+    scene = pcmm.load_scene(CYCLE)
+    seen = {}
+    record = recording.record_samples
+
+    def keep(traj, cfg, seg, offsets, q_start, holds, stepping):
+        if holds.items and "holds" not in seen:
+            seen["holds"], seen["cfg"] = holds, cfg
+        return record(traj, cfg, seg, offsets, q_start, holds, stepping)
+    monkeypatch.setattr(recording, "record_samples", keep)
+    pcmm.simulate(scene, pcmm.RunOptions(t_end=0.3))
+    holds, cfg = seen["holds"], seen["cfg"]
+    first = holds.applied(cfg)
+    assert holds.applied(cfg) is first
+    ref = first.reference
+    frozen = ref.coords.frozen_state()
+    moved = dict(frozen, I=np.array(frozen["I"][::-1]))  # another partition of the reference's coordinates
+    monkeypatch.setattr(type(ref.coords), "frozen_state", lambda self: dict(moved))
+    again = holds.applied(cfg)
+    assert again is not first and again.frozen["I"].tobytes() == moved["I"].tobytes()
+    assert again.acting is first.acting and again.springs is first.springs  # (their maps: as before)
+    assert holds.applied(cfg) is again
+
+
+def test_segment_loop_scans_are_made_once_per_guard_set(monkeypatch):
+    made = []
+    scans = integrators._scan_guards
+
+    def counted(events, ny, progress):
+        out = scans(events, ny, progress)
+        made.append(out)
+        return out
+    monkeypatch.setattr(integrators, "_scan_guards", counted)
+    given = []
+    guard_scans = integrators._guard_scans
+
+    def compared(events, ny, progress):
+        out = guard_scans(events, ny, progress)
+        given.append((out, scans(events, ny, progress)))  # what the classification makes afresh
+        return out
+    monkeypatch.setattr(integrators, "_guard_scans", compared)
+    integrators._SCANS.clear()
+    _run()
+    assert len(given) > 100 and len(made) < len(given) / 10
+    for out, fresh in given:  # the same arguments as made afresh, value for value
+        assert len(out) == len(fresh) == 6
+        for a, b in zip(out[:4], fresh[:4]):
+            assert a.shape == b.shape and a.tobytes() == b.tobytes() and not a.flags.writeable
+        assert out[4] == fresh[4]
+        assert out[5].keys() == fresh[5].keys()
+        for key in out[5]:
+            assert repr(out[5][key]) == repr(fresh[5][key])
+
+
+def test_the_recording_names_are_made_once_per_configuration(monkeypatch):
+    names = recording._names
+    given = []
+
+    def kept(log, cfg, coords, held):
+        out = names(log, cfg, coords, held)
+        given.append((cfg, list(held), out))
+        return out
+    monkeypatch.setattr(recording, "_names", kept)
+    run = _run()
+    assert len(given) == len(run.segments)
+    assert len({id(n) for _, _, n in given}) <= len({(c.name, tuple(h)) for c, h, _ in given}) + 2
+    for cfg, held, out in given:  # equal to the lists made afresh
+        labels = list(cfg.coords.labels) + held
+        assert out["constraint_labels"] == labels and out["links"] == list(cfg.links)
+        assert out["force_names"] == list(cfg.forces.names)
+    # a plain list of segments (no log) gets its lists as before
+    assert recording._names([], given[0][0], given[0][0].coords, []) is not given[0][2]
+
+
+@pytest.mark.parametrize("compiled", ["1", "0"])
+def test_the_cut_run_is_the_run(monkeypatch, compiled):
+    """The whole cycle (to T_END) with every cut of this file, and with the routes they replace, to the bit,
+    also with the Python evaluations (PCMM_COMPILED=0)."""
+    monkeypatch.setenv("PCMM_COMPILED", compiled)
+    now = _fingerprint(_run())
+    with monkeypatch.context() as m:
+        m.setattr(holding, "_LastState", _Unshared)
+        m.setattr(integrators, "_pure_value", _impure)
+        m.setattr(integrators, "_guard_scans", lambda events, ny, progress: integrators._scan_guards(events, ny, progress))
+        applied = holding.Holds.applied
+
+        def fresh_applied(self, cfg):
+            self._applied = None
+            return applied(self, cfg)
+        m.setattr(holding.Holds, "applied", fresh_applied)
+        names = recording._names
+        m.setattr(recording, "_names", lambda log, cfg, coords, held: names([], cfg, coords, held))
+        before = _fingerprint(_run())
+    assert now == before
