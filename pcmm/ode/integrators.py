@@ -1028,17 +1028,26 @@ class _ScipyDense(DenseStep):
     component by component on Python floats, the very operations ``DenseStep`` does on arrays (a
     quarter of its cost at a few components)."""
 
-    __slots__ = ("_rows", "_start")
+    __slots__ = ("_rows", "_start", "_columns")
 
     def __call__(self, t):
-        if np.ndim(t) != 0:
+        if not isinstance(t, float) and np.ndim(t) != 0:
             return super().__call__(t)
+        columns = getattr(self, "_columns", None)
+        if columns is None:
+            F = self.F
+            # per component (y_old, F[6], F[5], ..., F[0]): DOP853's seven rows, the loop below written
+            # out (as pcmm.run.dense.states_on_rows does: the same operations in the same order)
+            columns = self._columns = list(zip(self.y_old.tolist(), *F[::-1].tolist())) if F.shape[0] == 7 else ()
+        x = (float(t) - float(self.t_old)) / float(self.h)  # as DenseStep's, on floats
+        x1 = 1 - x
+        if columns:
+            return np.array([((((((((0.0 + f6) * x + f5) * x1 + f4) * x + f3) * x1 + f2) * x + f1) * x1 + f0) * x) + y0
+                             for y0, f6, f5, f4, f3, f2, f1, f0 in columns], dtype=self.y_old.dtype)
         rows = getattr(self, "_rows", None)
         if rows is None:
             rows = self._rows = [f.tolist() for f in self.F[::-1]]
             self._start = self.y_old.tolist()
-        x = (float(t) - float(self.t_old)) / float(self.h)  # as DenseStep's, on floats
-        x1 = 1 - x
         out = []
         for j, y0 in enumerate(self._start):
             acc = 0.0
