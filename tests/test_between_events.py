@@ -1,10 +1,12 @@
 """What the run does between two events is made once where it repeats, with the same bits
 (docs/performance.md, "Between events, third round"):
 
-* the guards on one holding-force evaluator share its answer at the state asked last, where that is a
-  function of the state alone (``holding._LastState``: a fully driven configuration's merges, two guards
-  at every sample of its known motion), and such a guard's rate starts from its value
-  (``integrators._pure_value``);
+* a fully driven configuration's merges read their guards at its (empty) state in one compiled call
+  (``HoldingForces.at_state``, the same Horner sums and solve as ``unpack`` then ``forces``), and such a
+  guard's rate starts from its value (``integrators._pure_value``);
+* without the compiled evaluations, the guards on one holding-force evaluator share its answer at the
+  state asked last, where that is a function of the state alone (``holding._LastState``: those merges,
+  two guards at every sample of the known motion);
 * ``Holds.applied`` gives the Applied it made last while nothing it is made from changed;
 * the recording hands the log the name lists it made last for the configuration;
 * the compiled segment loop's guard scans are made once per set of guard objects
@@ -81,7 +83,60 @@ def _count_known_motion_solves(monkeypatch) -> tuple[int, int]:
     return counts
 
 
+def _no_state_map_without_free_coordinates(monkeypatch):
+    """The route before: a fully driven configuration's merges read (t, q, v), not its (empty) state."""
+    agrees = holding.compiled.agrees
+
+    def refused(checked, fn, reference, probes, what, key=None):
+        if what == "holding forces at the state" and not len(probes[0][1]):
+            return False
+        return agrees(checked, fn, reference, probes, what, key=key)
+    monkeypatch.setattr(holding.compiled, "agrees", refused)
+
+
+def test_the_merges_of_a_fully_driven_configuration_read_their_guards_in_one_compiled_call(monkeypatch):
+    if not holding.compiled.enabled():
+        pytest.skip("the compiled extension is not available")
+    counts = _count_known_motion_solves(monkeypatch)
+    guards = []
+    known = loop._known_motion
+
+    def kept(cfg, t, y0, gs, opts):
+        guards.append((cfg, t, gs))
+        return known(cfg, t, y0, gs, opts)
+    monkeypatch.setattr(loop, "_known_motion", kept)
+    now = _fingerprint(_run())
+    n_now, samples = counts["unpack"], counts["samples"]
+    assert samples > 10 and guards
+    # each merge's guard reads the compiled evaluator at the state (its `holding`), and gives the Python
+    # evaluator's value at the coordinates unpack gives, to the bit, all along the stay
+    cfg, t0, gs = guards[0]
+    assert len(gs) == 2 and all(g.holding is not None for g in gs)
+    y = np.zeros(0)
+    for t in np.linspace(t0, t0 + 0.25, 101):
+        for g in gs:
+            fast, i, offset = g.holding
+            q, v = cfg.coords.unpack(t, y)
+            python = fast.forces(t, q, v)  # the same solve at the unpacked (q, v)
+            assert g(t, y) == float(python[i]) - offset
+    counts["unpack"] = counts["samples"] = 0
+    with monkeypatch.context() as m:
+        _no_state_map_without_free_coordinates(m)
+        m.setattr(holding, "_LastState", _Unshared)
+        m.setattr(integrators, "_pure_value", _impure)
+        guards.clear()
+        before = _fingerprint(_run())
+        assert all(g.holding is None for g in guards[0][2])
+    assert counts["samples"] == samples
+    assert now == before  # the same run to the bit: events, times, every segment's samples, steps, evaluations
+    # before: each sample's coordinates read by `assemble`, then by each guard at the sample, a forward
+    # difference away and at the sample again (its value could not stand for itself); now by `assemble` only
+    assert counts["unpack"] > 5 * n_now and n_now <= 1.2 * samples
+
+
 def test_the_merges_of_a_fully_driven_configuration_share_one_solve_per_state(monkeypatch):
+    """With the Python evaluations (PCMM_COMPILED=0): the guards share their evaluator's answer."""
+    monkeypatch.setenv("PCMM_COMPILED", "0")
     counts = _count_known_motion_solves(monkeypatch)
     shared = _fingerprint(_run())
     n_shared, samples = counts["unpack"], counts["samples"]
@@ -98,7 +153,7 @@ def test_the_merges_of_a_fully_driven_configuration_share_one_solve_per_state(mo
     # sample's state for that difference (the value could not stand for itself): about 7 reads of the
     # coordinates a sample before; now the sample itself, the difference, and the second guard's read of
     # the state the first just asked is shared: about 3 (the located release adds a few more)
-    assert counts["unpack"] > 2 * n_shared
+    assert counts["unpack"] > 1.8 * n_shared
     assert n_shared <= 4 * samples
 
 
@@ -221,6 +276,7 @@ def test_the_cut_run_is_the_run(monkeypatch, compiled):
     monkeypatch.setenv("PCMM_COMPILED", compiled)
     now = _fingerprint(_run())
     with monkeypatch.context() as m:
+        _no_state_map_without_free_coordinates(m)
         m.setattr(holding, "_LastState", _Unshared)
         m.setattr(integrators, "_pure_value", _impure)
         m.setattr(integrators, "_guard_scans", lambda events, ny, progress: integrators._scan_guards(events, ny, progress))

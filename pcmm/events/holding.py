@@ -465,7 +465,8 @@ class _LastState:
     a tree, or drives without a loop: no warm start) and an evaluator that solves the same system at each
     call (``pure``: not :meth:`Holds.forces` through a loop's rows).  The guards on one evaluator ask at the
     same state one after the other (a fully driven configuration's merges, two guards at every sample:
-    pcmm.run.loop._known_motion), and the second gets the first's answer, the same dict, instead of a
+    pcmm.run.loop._known_motion, where the evaluator is not compiled with the state map), and the second
+    gets the first's answer, the same dict, instead of a
     second unpack and solve (the same bits: the same call at the same arguments)."""
 
     __slots__ = ("forces", "unpack", "t", "y", "out")
@@ -548,9 +549,12 @@ def _compiled_evaluator(cfg, ref, J, m, labels, mine, theirs, held, ref_forces, 
         fast.set_state(free, driven, laws)
         k = len(free)
         unpack = cfg.coords.unpack
-        states = [(0.37 * (j + 1), y) for j, y in enumerate(compiled._probe_states(max(k, 1)))] if k else []
+        # (every coordinate driven, k = 0: the state is empty, the probes are instants; at_state then
+        # prescribes every coordinate by the Horner sums unpack does, the same bits: a fully driven
+        # configuration's merges read their guards in one compiled call, pcmm.run.loop._known_motion)
+        states = [(0.37 * (j + 1), y if k else y[:0]) for j, y in enumerate(compiled._probe_states(max(k, 1)))]
         try:
-            if k and compiled.agrees(checked, fast.at_state,
+            if compiled.agrees(checked, fast.at_state,
                                      lambda t, y: np.array(list(python(t, *unpack(t, y)).values())), states,
                                      "holding forces at the state", key=key + ("state", tuple(free), tuple(driven))):
                 forces.at_state = fast
