@@ -312,3 +312,68 @@ def test_the_compiled_steps_dense_output_at_one_time_is_dense_steps():
     F = rng.normal(size=(5, 3))
     fast, reference = integrators._ScipyDense(0.0, 0.5, np.ones(3), F), DenseStep(0.0, 0.5, np.ones(3), F)
     assert fast(0.2).tobytes() == reference(np.float64(0.2)).tobytes()
+
+
+def _random_rows(rng, k, n, scipy):
+    """A flight of ``k`` steps (times ``t``) and each step's dense row of ``n`` components, either form."""
+    t = np.cumsum(np.concatenate([[rng.uniform(-3, 3)], 10 ** rng.uniform(-7, -1, size=k)]))
+    rows = []
+    for s in range(k):
+        coefficients = rng.normal(size=8 * n) * 10 ** rng.uniform(-6, 2, size=8 * n)
+        second = t[s + 1] if scipy else t[s + 1] - t[s]  # (t_old, t_new, ...) or (t_old, h, ...)
+        rows.append(np.concatenate([[t[s], second], coefficients]))
+    form = integrators.scipy_row_dense if scipy else integrators.contd8_row_dense
+    block = np.array(rows)  # (as take_dense hands them: rows of one array)
+    return t, [integrators._Row(row, form) for row in block]
+
+
+def test_the_flight_audits_nodes_and_states_in_one_compiled_call():
+    """``dense.compiled_node_states`` against ``audit._nodes`` and ``audit._node_states`` (the Python floats,
+    or numpy for a long flight: ``states_on_rows``, itself held to each step's interpolant to the bit by
+    tests/test_flight_python.py): the same times, weights and states to the bit, both row forms, 1 to 40
+    steps, some components only; None where a node falls on a step's end, as the Python path."""
+    from pcmm.run import audit, dense
+    if not holding.compiled.enabled() or dense._gauss_states() is None:
+        pytest.skip("the compiled extension (with gauss_states) is not available")
+    rng = np.random.default_rng(2026)
+    for trial in range(600):
+        k, n, scipy = 1 + int(rng.integers(0, 6)) if trial % 10 else 40, 1 + trial % 5, bool(trial % 2)
+        t, kept = _random_rows(rng, k, n, scipy)
+        y = np.zeros((n + 1, k + 1))
+        components = n if trial % 3 else max(1, n - 1)
+        got = dense.compiled_node_states(t, y, kept, audit._NODES_1_FLOATS, audit._WEIGHTS_FLOATS, components)
+        times, weights = audit._nodes(t)
+        states = audit._node_states(t, y, times, kept, components)
+        assert got is not None and states is not None
+        assert got[0].tobytes() == times.tobytes() and got[1].tobytes() == weights.tobytes()
+        assert got[2].shape == (components, 4 * k)
+        assert got[2].tobytes() == np.ascontiguousarray(states[:components]).tobytes()
+    # a step shorter than its nodes' round-off: a node on the step's end, left to dense_states by both
+    t = np.array([1.0, 1.0 + 1e-16 * 2, 1.5])
+    _, kept = _random_rows(rng, 2, 2, True)
+    kept = [integrators._Row(np.concatenate([[t[s], t[s + 1]], e.row[2:]]), e.form) for s, e in enumerate(kept)]
+    y = np.zeros((3, 3))
+    times, _ = audit._nodes(t)
+    assert audit._node_states(t, y, times, kept, 2) is None
+    assert dense.compiled_node_states(t, y, kept, audit._NODES_1_FLOATS, audit._WEIGHTS_FLOATS, 2) is None
+
+
+def test_the_cycles_flight_audit_is_the_python_one(monkeypatch):
+    """Every flight of the cycle audited with the compiled nodes and with the Python ones: the same works
+    to the bit, so the same residuals in the run's stats."""
+    from pcmm.run import audit
+    works = []
+    run_work = audit.run_work
+
+    def both(cfg, t, y, stepping, kept):
+        fast = run_work(cfg, t, y, stepping, kept)
+        with monkeypatch.context() as m:
+            m.setattr(audit, "compiled_node_states", lambda *args: None)
+            python = run_work(cfg, t, y, stepping, kept)
+        works.append((fast, python))
+        return fast
+    monkeypatch.setattr(audit, "run_work", both)
+    run = _run(2.0)
+    assert len(works) > 100 and all(w is not None for w, _ in works)
+    assert all(a == b for a, b in works)
+    assert run.stats["macro_impacts"]
