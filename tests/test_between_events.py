@@ -377,3 +377,49 @@ def test_the_cycles_flight_audit_is_the_python_one(monkeypatch):
     assert len(works) > 100 and all(w is not None for w, _ in works)
     assert all(a == b for a, b in works)
     assert run.stats["macro_impacts"]
+
+
+def _count_holding_asks(monkeypatch) -> dict:
+    """Counts each ask of a guard on a compiled holding force from Python (the guards made from now on)."""
+    counts = {"asks": 0}
+    made = holding.guard_value
+
+    def counted(cfg, forces, label, offset=0.0):
+        value = made(cfg, forces, label, offset)
+
+        def asked(t, y):
+            counts["asks"] += 1
+            return value(t, y)
+        asked.__dict__.update(value.__dict__)  # (holding, pure: what the scanner and the loop read)
+        return asked
+    monkeypatch.setattr(holding, "guard_value", counted)
+    return counts
+
+
+def test_the_holding_guards_at_a_segments_start_and_a_candidates_end_are_the_loops(monkeypatch):
+    """A guard on a compiled holding force is scanned by the compiled loop itself, at the segment's start
+    and at every step's end: where the loop hands a candidate step back, the scanner takes those values
+    and rates (``guard_state()``) instead of asking the same compiled solve again at the same states.
+    The same run to the bit as asking them, with far fewer asks."""
+    from pcmm.ode.integrators import _holding_known
+    if not holding.compiled.enabled() or not hasattr(holding.compiled._tree_dynamics.SegmentLoop, "guard_state"):
+        pytest.skip("the compiled extension (with guard_state) is not available")
+    counts = _count_holding_asks(monkeypatch)
+    used = []
+
+    def kept(loop, guards, m):
+        out = _holding_known(loop, guards, m)
+        used.append(out is not None and any(g is not None for g in out[0]))
+        return out
+    monkeypatch.setattr(integrators, "_holding_known", kept)
+    now = _fingerprint(_run(2.0))
+    asks = counts["asks"]
+    assert sum(used) > 100
+    counts["asks"] = 0
+    with monkeypatch.context() as m:
+        m.setattr(integrators, "_holding_known", lambda loop, guards, m: None)
+        before = _fingerprint(_run(2.0))
+    assert now == before  # events, times, every segment's samples, steps and evaluations, to the bit
+    # asked before: at the start and at the candidate's end of each flight with a merge held by compression
+    # only, a value and its forward difference each time (besides the re-arm's pending check, still asked)
+    assert counts["asks"] - asks >= 2 * sum(used)  # (a value and its difference, each time the loop's are taken)

@@ -1249,6 +1249,13 @@ PyObject *loop_candidate_start(SegmentLoop *s, PyObject *) {
   return Py_BuildValue("NN", new_vector(s->g_start->data(), s->m), new_vector(s->r_start->data(), s->m));
 }
 
+// guard_state() -> (g, r): the guards' values and rates at the loop's state, as it scanned them: at the
+// segment's start before the first run(), at the candidate step's end after run() returned 1 (NaN where a
+// holding force could not be solved there)
+PyObject *loop_guard_state(SegmentLoop *s, PyObject *) {
+  return Py_BuildValue("NN", new_vector(s->g_old->data(), s->m), new_vector(s->r_old->data(), s->m));
+}
+
 // start_again() -> whether a Loop's warm starts went back to the solution at the candidate step's start,
 // the accepted state (loops::start_again: its stages' solutions had put that start on another posture)
 PyObject *loop_start_again(SegmentLoop *s, PyObject *) {
@@ -1423,6 +1430,8 @@ PyMethodDef loop_methods[] = {
     {"dense", (PyCFunction)loop_dense, METH_NOARGS, "dense() -> (t_old, h, contd8 coefficients (8, n))"},
     {"counts", (PyCFunction)loop_counts, METH_NOARGS, "counts() -> (evaluations, steps, accepted, rejected)"},
     {"fallbacks", (PyCFunction)loop_fallbacks, METH_NOARGS, "fallbacks() -> the evaluations a Loop declined (Python took them)"},
+    {"guard_state", (PyCFunction)loop_guard_state, METH_NOARGS,
+     "guard_state() -> (g, r): the guards' values and rates at the segment's start (before run()) or the candidate's end"},
     {"candidate_start", (PyCFunction)loop_candidate_start, METH_NOARGS,
      "candidate_start() -> (g, r): the guards' values and rates at the candidate step's start"},
     {"start_again", (PyCFunction)loop_start_again, METH_NOARGS,

@@ -178,14 +178,43 @@ def _hermite_dips(g0, d0, g1, d1, h, direction) -> bool:
     return False
 
 
+_NO_RATES = (None,)
+
+
+def _holding_known(loop, holding: list, m: int):
+    """``(values, rates)`` of the guards on a compiled holding force (``holding``: their indices among the
+    ``m`` guards) as the compiled loop scanned them at its state (``guard_state()``: the segment's start
+    before it runs, a candidate step's end after), None for every other guard and where the loop could
+    not solve one (NaN); None where there is none or the loop cannot say (an extension built before it).
+    The loop computes them as :meth:`_Stepper.accept` and :func:`_rate` do: the same compiled solve at the
+    same state (``HoldingForces.at_state``), the forward difference ``d = max(1e-7 |h|, 1e-12 max(1, |t|))``
+    along the same derivative, ``(g(t + d, y + d f) - g) / d``: the same bits, as its ``candidate_start``
+    is taken for a candidate's start (:func:`_guards_at_start`)."""
+    state = getattr(loop, "guard_state", None) if holding else None
+    if state is None:
+        return None
+    g_all, r_all = state()
+    if len(g_all) != m:
+        return None
+    g, r = [None] * m, [None] * m
+    g_list, r_list = g_all.tolist(), r_all.tolist()
+    for j in holding:
+        gj, rj = g_list[j], r_list[j]
+        if math.isfinite(gj) and math.isfinite(rj):
+            g[j], r[j] = gj, rj
+    return g, r
+
+
 class _Stepper:
     """Event scanning over accepted steps, shared by every method."""
 
-    def __init__(self, fun, events, opts, t0, y0, f0, t_bound, keep_dense=False):
+    def __init__(self, fun, events, opts, t0, y0, f0, t_bound, keep_dense=False, known=None):
         self.fun, self.events, self.opts, self.t_bound = fun, events, opts, t_bound
         self.kept = [] if keep_dense else None  # each accepted step's dense output (Segment.dense)
         self.ts, self.ys = [t0], [np.array(y0, float)]
-        self.g = [e(t0, self.ys[0]) for e in events]
+        # known: (values, rates) at the start, None for a guard to ask (:func:`_holding_known`)
+        self.g = [e(t0, self.ys[0]) for e in events] if known is None else \
+            [e(t0, self.ys[0]) if g is None else g for e, g in zip(events, known[0])]
         # per guard, read once (not at every step): the value already computed at a step's end stands
         # for asking the guard again in its forward difference (_pure_value), and whether its rate is
         # read at all without the state's derivative:
@@ -195,13 +224,16 @@ class _Stepper:
                       for e in events]
         self._directions = [e.direction for e in events]
         self.rates = [_rate(e, t0, self.ys[0], f0, 1e-6, g if pure else None)
-                      for (e, _, pure, _), g in zip(self._scan, self.g)] if events else []
+                      for (e, _, pure, _), g in zip(self._scan, self.g)] if events and known is None else \
+            [_rate(e, t0, self.ys[0], f0, 1e-6, g if pure else None) if r is None else r
+             for (e, _, pure, _), g, r in zip(self._scan, self.g, known[1])] if events else []
         self.count = 0
         self.max_steps = opts.max_steps  # read once: opts may resolve attributes through a fallback
 
-    def accept(self, t_old, y_old, t_new, y_new, f_new, dense, keep=None):
+    def accept(self, t_old, y_old, t_new, y_new, f_new, dense, keep=None, known=None):
         """Record one step; return (event index, t_event, y_event) if a guard fires in it.  ``keep``:
-        what :attr:`kept` keeps of it (``fun -> interpolant``), where the segment keeps them."""
+        what :attr:`kept` keeps of it (``fun -> interpolant``), where the segment keeps them.  ``known``:
+        ``(values, rates)`` at the step's end, None for a guard to ask (:func:`_holding_known`)."""
         if not math.isfinite(y_new @ y_new) and not np.all(np.isfinite(y_new)):  # (the dot: one cheap test)
             raise SimulationError(
                 f"the state became {y_new.tolist()} (not finite) at t = {t_new:.9g} s: the method "
@@ -216,14 +248,20 @@ class _Stepper:
         hit = None
         events = self.events
         if events:
-            g_new = [e(t_new, y_new) for e in events]  # every value first, then the rates (a loop's
-            # guards solve from the previous call's solution: the order of the calls is part of the bits)
+            # every value first, then the rates (a loop's guards solve from the previous call's solution:
+            # the order of the calls is part of the bits; a known one is a holding guard's, a compiled solve
+            # that leaves nothing behind)
+            g_new = [e(t_new, y_new) for e in events] if known is None or f_new is None else \
+                [e(t_new, y_new) if g is None else g for e, g in zip(events, known[0])]
             if f_new is not None:
                 d = max(1e-7 * abs(h), 1e-12 * max(1.0, abs(t_new)))  # _rate's forward difference, once a step
                 forward = None
                 r_new = []
-                for (e, own, pure, _), g in zip(self._scan, g_new):
-                    if own is not None:
+                rates = known[1] if known is not None else _NO_RATES * len(events)
+                for (e, own, pure, _), g, known_rate in zip(self._scan, g_new, rates):
+                    if known_rate is not None:
+                        r_new.append(known_rate)
+                    elif own is not None:
                         r_new.append(own(t_new, y_new, f_new))
                     else:  # (_rate: from the value just computed where it is a function of the state alone)
                         if forward is None:
@@ -440,14 +478,14 @@ def _guarded_rhs(counted, rhs, zeros, raised):
     return f
 
 
-def _run(driver, fun, t0, y0, t_bound, events, opts, keep_dense=False):
+def _run(driver, fun, t0, y0, t_bound, events, opts, keep_dense=False, known=None):
     """Set up the counted right-hand side and the event scanner, let ``driver(counted, f0, st)``
     step (it returns ``(hit, failure)``), and turn what it raises into pcmm errors that carry
     the steps already taken.  ``keep_dense``: the segment keeps each step's dense output
-    (:attr:`Segment.dense`)."""
+    (:attr:`Segment.dense`); ``known``: guards' values and rates at the start (:func:`_holding_known`)."""
     counted = _Counted(fun)
     f0 = counted(t0, np.asarray(y0, float))
-    st = _Stepper(counted, events, opts, t0, y0, f0, t_bound, keep_dense)
+    st = _Stepper(counted, events, opts, t0, y0, f0, t_bound, keep_dense, known)
     try:
         hit, failure = driver(counted, f0, st)
     except (SimulationError, KeyboardInterrupt, Repartition) as exc:
@@ -501,9 +539,10 @@ class ScipyMethod:
         if self.name == "DOP853" and (self.compiled_steps or COMPILED_SCIPY_STEPS):  # a compiled loop stepping as this class does
             loop, progress = _segment_loop(fun, t0, y0, t_bound, events, opts, 0.0, tableau=packed_tableau(),
                                            keep_dense=keep_dense)
-            if loop is not None:
+            if loop is not None:  # (the holding guards at the start: as the loop's constructor scanned them)
                 return _run(lambda counted, f0, st: self._drive_compiled(loop, progress, counted, st, opts),
-                            fun, t0, y0, t_bound, events, opts, keep_dense)
+                            fun, t0, y0, t_bound, events, opts, keep_dense,
+                            _holding_known(loop, _holding_guards(events), len(events)))
         needs_f = _needs_derivative(events)
         stages = keep_dense and self.cls is DOP853  # pcmm's own DOP853 hands its stages out
 
@@ -548,6 +587,7 @@ def _drive_loop(loop, progress, st, dense, failure, counted, name, from_row):
     accepted the step (``take_dense()``, one row each: ``from_row(row, n)`` is its interpolant, kept
     as the row, :class:`_Row`)."""
     events, needs_f = st.events, _needs_derivative(st.events)
+    holding = _holding_guards(events)
     keeping = st.kept is not None and hasattr(loop, "take_dense")
     stale = False  # steps recorded since the scanner last saw one: its guard values are not the last step's
     try:
@@ -576,7 +616,8 @@ def _drive_loop(loop, progress, st, dense, failure, counted, name, from_row):
                 stale = False
                 lazy = _lazy(dense)
                 keep = kept[len(steps)] if len(kept) == len(steps) + 1 else _KeptStages(None, lazy)
-                hit = st.accept(t_old, y_old, t_new, y_new, f_new if needs_f else None, lazy, keep)
+                hit = st.accept(t_old, y_old, t_new, y_new, f_new if needs_f else None, lazy, keep,
+                                _holding_known(loop, holding, len(events)) if needs_f else None)
                 if hit is not None:
                     return hit, None
                 if progress is not None and st.count % _PROGRESS_STEPS == 0:
@@ -594,6 +635,11 @@ def _drive_loop(loop, progress, st, dense, failure, counted, name, from_row):
                 return None, message
     finally:
         counted.n += loop.counts()[0]
+
+
+def _holding_guards(events) -> list:
+    """The indices of the guards on a compiled holding force (``holding``), which a compiled loop scans."""
+    return [j for j, e in enumerate(events) if getattr(e, "holding", None) is not None]
 
 
 def _guards_at_start(loop, events, st, t_old, y_old, t_new):
