@@ -37,7 +37,8 @@ else:
         "pcmm.model._tree_dynamics",
         sources=["pcmm/model/_tree_dynamics.cpp"],
         depends=["pcmm/model/_segment_loop.hpp", "pcmm/model/_loops.hpp", "pcmm/model/_impulse.hpp",
-                 "pcmm/model/_locate.hpp", "pcmm/model/_holding.hpp", "pcmm/model/_guard_eval.hpp"],  # the compiled segment loop, loops, impulse, event location and holding forces, included by it
+                 "pcmm/model/_locate.hpp", "pcmm/model/_holding.hpp", "pcmm/model/_guard_eval.hpp",
+                 "pcmm/model/_series.hpp"],  # the compiled segment loop, loops, impulse, event location and holding forces, included by it
         language="c++",
         include_dirs=[str(prefix / "include"), str(prefix / "include" / "eigen3"), numpy.get_include()],
         library_dirs=[str(prefix / "lib")],
@@ -93,7 +94,14 @@ class CachedBuildExt(build_ext):
             shutil.copyfile(cached, target)
             print(f"pcmm: {ext.name} taken from the build cache {cached} (not compiled again)", file=sys.stderr)
             return
-        super().build_extension(ext)
+        # a miss compiles, whatever the dates say: setuptools skips an extension whose output is newer
+        # than its sources and depends, and that output (build/lib's, from other sources) would be
+        # cached under this key - a stale module passed off as the new sources' build
+        force, self.force = self.force, True
+        try:
+            super().build_extension(ext)
+        finally:
+            self.force = force
         if target.is_file():
             try:
                 cached.parent.mkdir(parents=True, exist_ok=True)

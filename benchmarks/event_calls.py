@@ -35,6 +35,8 @@ PARTS = {  # part: the (owner, attribute) whose calls it counts
     "normal speed": [(transitions, "normal_speed")],
     "closed with": [(transitions, "closed_with")],
     "impulse": [(transitions, "solve_impulse")],
+    # a bounce in one compiled call (h-cbounce): the plan looked up, the call, its checks and its outcome
+    "compiled bounce": [(transitions, "compiled_bounce"), (transitions, "solve_bounce"), (transitions, "_compiled_bounce")],
     "held points": [(transitions, "check_held_points_push")],
     "event record": [(transitions, "event_record"), (transitions, "bounce_record")],
     "entry": [(transitions, "enter"), (transitions, "enter_bounce")],

@@ -335,11 +335,33 @@ def _check_geometry(scene):
     from .run.checks import check_scene
     from .errors import SceneError
     report = check_scene(scene)
-    for w in report.warnings:
+    for w in report.warnings + _pin_frictions(scene):
         print(f"pcmm: warning: {w}", file=sys.stderr)
     if report.problems:
         raise SceneError(report.problems)
     return report
+
+
+def _pin_frictions(scene) -> list[str]:
+    """A pin whose strike and stance judge one contact with two friction coefficients: the
+    transition's ``contact.friction`` bounds the strike's impulse, the target's cut joint's
+    ``contact.friction`` the stance's force (a leg's foot struck with mu = 0.6 and held with 0.3 stopped
+    at once "right after the strike ... would slip", from a scene whose strike said 0.6)."""
+    def mu(x):
+        return "none (frictionless)" if x is None else '"stick"' if math.isinf(x) else f"{x:g}"
+    out = []
+    for i, t in enumerate(scene.transitions):
+        if t.type != "pin" or t.target not in scene.configurations or t.contact is None:
+            continue
+        for cj in scene.configurations[t.target].cut_joints:
+            held = cj.anchor_at_entry and cj.b == t.contact.b and tuple(cj.point_b) == tuple(t.contact.point_b)
+            if held and cj.normal is not None and cj.friction != t.contact.friction:
+                out.append(f"{scene.path}: transitions[{i}] ({t.name}).contact.friction: = {mu(t.contact.friction)}, "
+                           f"but the cut joint '{cj.name}' of '{t.target}' that holds the point after the strike has "
+                           f"friction = {mu(cj.friction)}: the strike's impulse is judged with "
+                           f"{mu(t.contact.friction)}, the stance's force with {mu(cj.friction)}; give both the same "
+                           "mu if they are one surface")
+    return out
 
 
 def cmd_check(args) -> int:
@@ -371,7 +393,26 @@ def cmd_check(args) -> int:
         say(f"  {line}")
     for source, cut_joint, target in scene.lift_offs():  # releases pcmm adds by itself
         say(f"  '{source}': the point held by '{cut_joint}' lifts off into '{target}' where its normal force turns tensile")
+    for line in _undrawn(scene):
+        say(f"  {line}")
     return 0
+
+
+def _undrawn(scene) -> list[str]:
+    """A note per URDF with links the drawing cannot show (no box or sphere ``<visual>``),
+    each with a visual to paste: the run itself does not need them."""
+    from .scene.urdf import undrawn_links
+    out = []
+    for path in dict.fromkeys(spec.urdf for spec in scene.configurations.values()):
+        links = undrawn_links(path)
+        if links:
+            names = ", ".join(f"'{n}'" for n, _ in links)
+            out.append(f"{path.name}: link{'s' if len(links) > 1 else ''} {names} "
+                       f"{'have' if len(links) > 1 else 'has'} no <box> or <sphere> <visual>: the drawing and the "
+                       f"video show only {'their' if len(links) > 1 else 'its'} joints (and so does the replay page, "
+                       f"unless a <cylinder> draws {'them' if len(links) > 1 else 'it'}); "
+                       f"for example, " + "; ".join(f"in <link name=\"{n}\">: {v}" for n, v in links))
+    return out
 
 
 def _derive_run(scene, progress):

@@ -18,6 +18,15 @@ from pcmm.model import compiled
 needs_compiled = pytest.mark.skipif(not compiled.enabled(), reason="the compiled impulse does not run here")
 
 
+@pytest.fixture(autouse=True)
+def _python_route(monkeypatch):
+    """These tests hold the Python route of a bounce (the reference and the fallback: the impulse solve,
+    the record from its arrays, the entry) to the general one, and plant their defects in it: every bounce
+    takes it here.  The bounce in one compiled call, which replaces it once it has given its bits, is held
+    to it in tests/test_compiled_bounce.py."""
+    monkeypatch.setattr(transitions, "compiled_bounce", lambda cfg, tr: None)
+
+
 def _general_record(cfg, tr, t, imp, q):
     return records.event_record(cfg, tr, t, cfg.name, False, imp, q=q)
 

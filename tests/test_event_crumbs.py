@@ -198,10 +198,16 @@ def test_a_signal_while_a_segment_of_the_cycle_is_recorded_waits_until_it_is_kep
             time.sleep(0.02)  # the handler runs meanwhile (held, not raised)
         return real(traj, cfg, seg, *rest)
     monkeypatch.setattr(recording, "record_samples", record)
+    # a shell without job control starts its background jobs with SIGINT ignored (so does pytest
+    # launched with `... &`): the test is about Python's own Ctrl-C handler, so it puts that in place
+    sigint = _signal.signal(signal.SIGINT, _signal.default_int_handler)
     before = _signal.getsignal(signal.SIGINT), _signal.getsignal(signal.SIGTERM)
-    with as_interrupts(), pytest.raises(pcmm.SimulationError) as info:
-        pcmm.simulate(pcmm.load_scene(CYCLE), OPTS)
-    assert (_signal.getsignal(signal.SIGINT), _signal.getsignal(signal.SIGTERM)) == before
+    try:
+        with as_interrupts(), pytest.raises(pcmm.SimulationError) as info:
+            pcmm.simulate(pcmm.load_scene(CYCLE), OPTS)
+        assert (_signal.getsignal(signal.SIGINT), _signal.getsignal(signal.SIGTERM)) == before
+    finally:
+        _signal.signal(signal.SIGINT, sigint)
     partial = info.value.partial
     assert state["n"] == 40 and len(partial.segments) == 40
     assert partial.segments[-1].t[-1] == state["t"] and partial.t[-1] == state["t"]

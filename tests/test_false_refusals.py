@@ -87,17 +87,20 @@ def test_guard_posture_found_where_the_gap_is_stationary(tmp_path, q0):
 
 
 def test_unreachable_guard_is_not_claimed_unreachable_only_not_found(tmp_path):
-    """A wall beyond the tip's reach (x = 1.2 L): no posture exists; check says none was found from
-    its starts, that either none exists or the solve could not tell, and never that the guard
-    cannot fire for certain. The closest residual is the gap's extreme: L - 1.2 L = -0.05 m."""
+    """A wall beyond the tip's reach (x = 1.2 L). The lever released at rest at -0.3 rad swings,
+    down, by energy (m g (L/2) sin q constant), between its turning points -0.3 and -pi + 0.3 rad; the
+    check follows that path (tests/test_reachable_posture.py) and says the guard is not met between
+    them, naming both, and skips the contact checks; before, a Newton solve found no posture and
+    said only that it could not tell."""
     path = builders.lever_on_wall(tmp_path, THETA_S, -0.3, friction=0.3)
     path.write_text(path.read_text().replace(repr(L * math.cos(THETA_S)), repr(1.2 * L)))
     report = check(path)
     assert report.problems == []
     [w] = report.warnings
-    assert "guard.value: = 0: no posture reaching it with the guard there was found from 6 starts" in w
-    assert "closest residual 0.05" in w and "or the solve could not tell" in w
-    assert "no posture reaches it" not in w
+    assert "guard.value: = 0: the path from the initial posture (J1 = -0.3) swings between two turning points" in w
+    turns = [float(x) for x in w.split("(dampers left out), J1 = ")[1].split(", and")[0].split(" and J1 = ")]
+    assert sorted(turns) == pytest.approx([-math.pi + 0.3, -0.3], abs=1e-5)
+    assert "the guard cannot fire unless a force adds energy" in w and "contact and pose checks were skipped" in w
 
 
 # ---- 3. a driven mechanism with no free coordinate strikes a stop --------------------------------
@@ -212,13 +215,18 @@ def test_frictionless_wall_verdict_does_not_depend_on_the_start(tmp_path, q0):
     assert [w for w in report.warnings if "contact.normal" in w and "is 50 deg off" in w]
 
 
-def test_guard_posture_within_the_joint_limits_is_preferred(tmp_path):
+def test_guard_posture_is_the_one_the_run_reaches_even_outside_the_joint_limits(tmp_path):
     """With the pivot limited to [-0.5, 1e6] rad the wall's -40 deg posture (-0.698 rad) lies
-    outside the joint's range: from level, where +-40 deg are equally near, check keeps +40 deg,
-    inside it, and so has no limit warning to give."""
+    outside the joint's range. Released at rest from level, the lever swings down (gravity's moment
+    about the pivot, -m g (L/2) cos 0, is negative) and strikes there, not at +40 deg, which it never
+    reaches: check judges -40 deg and warns that it lies outside the limits. (It used to keep +40 deg,
+    inside them, and say nothing: a clean bill on a posture the run never reaches.)"""
     path = builders.lever_on_wall(tmp_path, THETA_S, 0.0, friction=0.3)
     urdf = tmp_path / "lever.urdf"
     urdf.write_text(urdf.read_text().replace('lower="-1e6"', 'lower="-0.5"'))
     report = check(path)
-    assert report.problems == [] and report.warnings == []
-    assert report.postures["tip strikes wall"][0] == pytest.approx(-THETA_S, abs=1e-12)
+    assert report.problems == []
+    [w] = report.warnings
+    assert "joint 'J1' is at -0.698131701 there, outside its URDF limits [-0.5, 1e+06]" in w
+    assert "released at rest, in the direction its loads push it" in w
+    assert report.postures["tip strikes wall"][0] == pytest.approx(THETA_S, abs=1e-12)

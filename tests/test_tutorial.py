@@ -55,5 +55,6 @@ def test_every_block_of_the_tutorial_runs(tmp_path, monkeypatch, capsys):
     assert "pcmm check arm.toml" in ran and "python" in ran
     out = capsys.readouterr().out
     assert "latch at t = 0.13" in out
+    assert "<visual>" not in out  # pcmm check: every bar of the tutorial's URDFs is drawn
     for f in ("summary.json", "run.npz", "run.csv", "replay.html", "figures/link_angles.png"):
         assert (tmp_path / f).is_file(), f

@@ -129,7 +129,9 @@ def scene_keys() -> str:
         ("`cut_joints` entries", "`{ name, type, a, point_a, b, point_b, ... }` in a configuration's "
          "`cut_joints` list.", L.CUT_JOINT_KEYS),
         ("`[initial]`", "", L.INITIAL_KEYS),
-        ("A measure", "`measure`, `on` and `branch` tables name one of these.", L.MEASURE_KEYS),
+        ("A measure", "`measure` and `branch` tables name one of these; a force's `on` names a `joint` (a "
+         "torque or force between the joint's two bodies) or a `link` (a torque on it from the frame), never a "
+         "`between`.", L.MEASURE_KEYS),
         ("`[[forces]]`", "", L.FORCE_KEYS),
         ("`[[drives]]`", "", L.DRIVE_KEYS),
         ("`[[transitions]]`", "", L.TRANSITION_KEYS),

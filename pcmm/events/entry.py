@@ -113,6 +113,28 @@ def enter_bounce(cfg: Configuration, t: float, q: np.ndarray, v: np.ndarray, wha
     return q_new, v_new, residual
 
 
+def bounce_projection(cfg: Configuration) -> tuple | None:
+    """:func:`enter_bounce`'s projection as plain numbers, for the compiled bounce (``BouncePlan`` of
+    pcmm/model/_impulse.hpp): ``((), (), ())`` for a tree (its ``project`` hands ``(q, v)`` back as they
+    are, and it has no row); for drives without a loop (``PartitionedCoordinates.project``'s prescribed
+    route, whose rows are the unit rows :func:`_unit_columns` reads the residual off) the driven
+    coordinates and each drive's f and f' coefficients (low order first: ``Drives.values``' Horner sums);
+    None for anything else (a loop, a planar joint, a coordinate driven twice): the Python entry."""
+    coords = cfg.coords
+    if cfg.has_planar:
+        return None
+    if not getattr(coords, "constrained", False):  # a tree: no row, (q, v) as they are
+        return ((), (), ()) if not len(coords.labels) else None
+    drives = getattr(coords, "drives", None)
+    if (drives is None or getattr(coords, "time_rows", lambda: None)() is None or getattr(coords, "D", None) is None
+            or len(set(drives.index)) != drives.size):
+        return None
+    driven = tuple(int(i) for i in drives.index)
+    if sorted(_unit_columns(coords)) != sorted(driven) or len(coords.labels) != len(driven):
+        return None
+    return driven, tuple(tuple(d[0]) for d in drives._derivs), tuple(tuple(d[1]) for d in drives._derivs)
+
+
 #: {coordinates: the column of each row where every row of the coordinates is a unit row of time-only
 #: rows (drives without a loop: q_j - f(t) = 0), else ()}
 _UNIT_COLUMNS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()

@@ -15,6 +15,7 @@ import math
 
 import numpy as np
 
+from ..model import compiled
 from ..model.configuration import Configuration
 from ..errors import SimulationError
 from .contact import impact_kind
@@ -230,7 +231,8 @@ class RecordPlan:
     the stop's kind (``"prismatic"``, ``"revolute"``, ``"point"``), the point the momenta are taken
     about, the root joints with their (fixed) points, which contact impulse the frame applies."""
 
-    __slots__ = ("cfg", "tr", "template", "top", "consts", "why", "stop", "about", "roots", "root_rows", "frame_contact")
+    __slots__ = ("cfg", "tr", "template", "top", "consts", "why", "stop", "about", "roots", "root_rows", "frame_contact",
+                 "bounce", "bounce_why")
 
     def __init__(self, cfg: Configuration, tr, template: dict):
         self.cfg, self.tr, self.template, self.why = cfg, tr, template, None
@@ -252,6 +254,8 @@ class RecordPlan:
         self.roots: list = []  # [(joint, [x, y])] of the joints on the frame (external_impulses')
         self.root_rows = None  # their rows in a compiled solve's joint array (ArrayImpulse.arrays)
         self.frame_contact = None  # the contact impulse on b (0) or on a (1) the frame applies, if any
+        self.bounce = None  # the compiled bounce (:func:`compiled_bounce`), once checked against the Python route
+        self.bounce_why = None  # why the bounces take the Python route (None: not asked yet, or compiled)
         if cfg.root == tr.contact.a and cfg.root != tr.contact.b:
             self.frame_contact = 0
         elif cfg.root == tr.contact.b and cfg.root != tr.contact.a:
@@ -437,3 +441,101 @@ def _bounce_numbers(plan: RecordPlan, cfg: Configuration, tr: TransitionSpec, t,
         out += [float(p[0]), float(p[1]), float(F[0]), float(F[1]), float(mz)]
     return out
 
+
+
+# ---- the whole bounce in one compiled call ------------------------------------------------------------------
+#: why a stop's bounces take the Python route rather than the compiled bounce: {(configuration, transition): reason}
+COMPILED_BOUNCE_REFUSED: dict = {}
+
+_STOP_KINDS = {"revolute": 0, "prismatic": 1, "point": 2}
+
+
+def compiled_bounce(cfg: Configuration, tr: TransitionSpec):
+    """The compiled bounce of ``tr``'s stop in ``cfg`` (``BouncePlan`` of pcmm/model/_impulse.hpp: the
+    impulse, the record's numbers and the projection onto the drives in one call), once it has given the
+    Python route's bits (:func:`adopt_compiled_bounce`); else None.  ``PCMM_COMPILED`` is read where it
+    is adopted, once per stop and run (a configuration is a run's own: :class:`pcmm.model.mechanism.Mechanism`),
+    not at every bounce (reading the environment costs more than the rest of this look-up)."""
+    plan = cfg.impulse_models.get("bounce_records", _NONE).get((cfg.name, tr.name))
+    if plan is None or plan.bounce is None or plan.tr is not tr or plan.cfg is not cfg:
+        return None
+    return plan
+
+
+_NONE: dict = {}
+
+
+def solve_bounce(plan: RecordPlan, t, q, v, e):
+    """The compiled bounce's one call (``BouncePlan.solve``) at the located state ``(t, q, v)`` with
+    restitution ``e``: ``(record numbers, q_new, v_new, v_after, (P, vn_before, vn_after, ke_before, ke_after,
+    drive_work), moved, residual)``, or None where the contact takes no impulse along its normal (the
+    Python solve decides and says why)."""
+    return plan.bounce.solve(t, q, v, e)
+
+
+def bounce_plan_args(plan: RecordPlan, imp: Impulse, projection: tuple) -> tuple | None:
+    """The arguments of the compiled bounce (``BouncePlan``) of the stop whose accepted record plan is
+    ``plan``, from a bounce's compiled impulse ``imp`` and the entry's ``projection``
+    (:func:`pcmm.events.entry.bounce_projection`); None where the record's numbers are not those the compiled
+    bounce forms (a loop's or a prismatic drive's constraint impulses, a record plan not read from arrays)."""
+    solved = getattr(imp, "solved", None)
+    if solved is None or plan.why is not None or plan.root_rows is None or solved[0].loop_cuts:
+        return None
+    fast = solved[0]
+    if not fast.checked or any(not lab.endswith(".drive") for lab in fast.row_labels):
+        return None
+    cfg, tr = plan.cfg, plan.tr
+    arm = tr.contact.arm if plan.stop == "revolute" else None
+    roots = [(float(p[0]), float(p[1]), k) for (_, p), k in zip(plan.roots, plan.root_rows)]
+    driven, f, f1 = projection
+    return (fast.plan, _STOP_KINDS[plan.stop], arm, cfg.A, (float(plan.about[0]), float(plan.about[1])), roots,
+            -1 if plan.frame_contact is None else plan.frame_contact, driven, f, f1)
+
+
+def adopt_compiled_bounce(cfg: Configuration, tr: TransitionSpec, t, q, v, imp: Impulse, record, q_new, v_new,
+                          projection: tuple | None) -> None:
+    """At a bounce taken by the Python route (the impulse ``imp``, its ``record``, the entry's ``(q_new,
+    v_new)``), where the stop's record plan is read from arrays and its compiled bounce was never asked:
+    build the compiled bounce and compare, bit by bit, everything it gives with this bounce's (the record's
+    numbers, the velocity after the impulse, the state entered, the impulse's numbers the checks read).
+    Adopted where all agree, for every later bounce at the stop; else refused for good, with the reason
+    (:data:`COMPILED_BOUNCE_REFUSED`)."""
+    plan = cfg.impulse_models.get("bounce_records", _NONE).get((cfg.name, tr.name))
+    if plan is None or plan.tr is not tr or plan.cfg is not cfg or plan.bounce is not None or plan.bounce_why is not None:
+        return
+    why = None
+    args = bounce_plan_args(plan, imp, projection) if projection is not None else None
+    if projection is None:
+        why = "the entry's projection is not the compiled one (a loop, a planar joint, a coordinate driven twice)"
+    elif args is None:
+        why = plan.why or "the record's numbers are not formed from a compiled impulse without loops"
+    elif not compiled.enabled() or not hasattr(compiled._tree_dynamics, "BouncePlan"):
+        why = compiled.why_not() or "this build of pcmm.model._tree_dynamics has no BouncePlan"
+    if why is None:
+        fast = compiled._tree_dynamics.BouncePlan(*args)
+        got = fast.solve(t, q, v, imp.restitution)
+        want = record.numbers if isinstance(record, BounceRecord) else record_numbers(record)
+        why = _bounce_disagreement(got, want, imp, q_new, v_new)
+        if why is None:
+            plan.bounce = fast
+    if why is not None:
+        plan.bounce_why = why
+        COMPILED_BOUNCE_REFUSED[(cfg.name, tr.name)] = why
+
+
+def _bounce_disagreement(got, want: list, imp: Impulse, q_new, v_new) -> str | None:
+    """Where the compiled bounce's ``got`` differs from the Python route's bits (None: nowhere)."""
+    if got is None:
+        return "the compiled bounce takes no impulse where the Python route does"
+    numbers, q_c, v_c, v_after, scalars, _, _ = got
+    if len(numbers) != len(want) or any(_bits(a) != _bits(b) for a, b in zip(numbers, want)):
+        at = next((k for k, (a, b) in enumerate(zip(numbers, want)) if _bits(a) != _bits(b)), min(len(numbers), len(want)))
+        return f"its record's numbers differ from the Python route's (number {at} of {len(want)})"
+    if v_after.tobytes() != np.asarray(imp.v_after, float).tobytes():
+        return "its velocity after the impulse differs from the Python route's"
+    mine = (imp.P, imp.vn_before, imp.vn_after, imp.ke_before, imp.ke_after, imp.drive_work)
+    if any(_bits(a) != _bits(b) for a, b in zip(scalars, mine)):
+        return "its impulse's numbers differ from the Python route's"
+    if q_c.tobytes() != np.asarray(q_new).tobytes() or v_c.tobytes() != np.asarray(v_new).tobytes():
+        return "the state it enters differs from the Python route's"
+    return None

@@ -43,9 +43,11 @@ from ..model.pinocchio_helpers import LWA
 from ..errors import SimulationError
 from .contact import contact_state, normal_speed
 from .contact_faults import POSE_TOL, contact_findings
-from .records import BounceRecord, bounce_record, by_link, event_record
+from .records import (BounceRecord, adopt_compiled_bounce, bounce_record, by_link, check_energy, compiled_bounce,
+                      event_record, solve_bounce)
 from .guards import guard_value
-from .entry import VELOCITY_ROUNDOFF, Entry, enter, enter_bounce, joints_from_poses, map_state, pose_mismatches  # noqa: F401 - re-exported
+from .entry import (VELOCITY_ROUNDOFF, Entry, bounce_projection, enter, enter_bounce, joints_from_poses,  # noqa: F401 - re-exported
+                    map_state, pose_mismatches)
 from .impulse import Impulse, no_impulse, solve_impulse
 from .pins import check_held_points_push, pin_strike
 from .simultaneous import closed_with, simultaneous_impact
@@ -135,14 +137,20 @@ def check_restitution(tr: TransitionSpec, t, imp: Impulse) -> None:
     the law's formula).  A frictional contact's law is Routh's process (:mod:`pcmm.events.friction`)."""
     if imp.friction is not None or imp.restitution is None:
         return
-    off = abs(imp.vn_after + imp.restitution * imp.vn_before)
-    if off <= RESTITUTION_ROUNDOFF * abs(imp.vn_before) or off <= RESTITUTION_ROUNDOFF * VELOCITY_ROUNDOFF * max(
-            1.0, float(np.abs(imp.v_before).max(initial=0.0))):
+    check_restitution_law(tr, t, imp.restitution, imp.vn_before, imp.vn_after, imp.v_before)
+
+
+def check_restitution_law(tr: TransitionSpec, t, e: float, vn_before: float, vn_after: float, v_before) -> None:
+    """:func:`check_restitution` on the numbers themselves: ``vn_after = -e vn_before`` to round-off
+    (``v_before``: the velocity before, whose size scales the floor of a vanishing ``vn_before``)."""
+    off = abs(vn_after + e * vn_before)
+    if off <= RESTITUTION_ROUNDOFF * abs(vn_before) or off <= RESTITUTION_ROUNDOFF * VELOCITY_ROUNDOFF * max(
+            1.0, float(np.abs(v_before).max(initial=0.0))):
         return
     raise SimulationError(
         f"t = {t:.9g} s, transition '{tr.name}': the bounce breaks Newton's restitution law (Eq. 21): normal "
-        f"velocity {imp.vn_before:.9g} m/s before and {imp.vn_after:.9g} after, where e = {imp.restitution:g} "
-        f"gives {-imp.restitution * imp.vn_before:.9g} (off by {off:.3g}); the impulse solve is wrong here")
+        f"velocity {vn_before:.9g} m/s before and {vn_after:.9g} after, where e = {e:g} "
+        f"gives {-e * vn_before:.9g} (off by {off:.3g}); the impulse solve is wrong here")
 
 
 def _contact_faults(cfg: Configuration, tr: TransitionSpec, q, otherwise: str) -> list[str]:
@@ -245,7 +253,17 @@ def handle_stop(ctx: Context, cfg: Configuration, tr: StopSpec, t, q, v) -> Outc
                                   "the stop, so the stop needs merge_to (the merged configuration)")
         return _merge(ctx, cfg, tr, tr.merge_to, t, q, v, "stop")
     speed, interval = ctx.tolerances(tr)
-    vn = normal_speed(cfg, q, v, tr.contact)  # a joint stop's without a kinematics pass (solve_impulse makes one)
+    # the whole bounce in one compiled call where the stop's bounces have given the Python route's bits
+    # (records.adopt_compiled_bounce); else the impulse solved (compiled or in Python), the rest below
+    fast = compiled_bounce(cfg, tr)
+    got = None
+    if fast is not None and tr.contact.joint is not None:
+        # a joint stop's approach speed is the call's vn_before, -s v_j: normal_speed's number (its row
+        # has one entry); a stop that does not approach goes the general way below, with normal_speed's
+        got = solve_bounce(fast, t, q, v, tr.restitution)
+        if got is not None and not got[4][1] < 0:
+            got = None
+    vn = got[4][1] if got is not None else normal_speed(cfg, q, v, tr.contact)  # (a joint stop's without a kinematics pass)
     together = closed_with(cfg, tr, q)
     if together and min([vn] + [contact_state(cfg, q, v, s.contact)[2] for s in together]) < 0:
         # other contacts closed at this instant, one of them approaching: one solve with them all
@@ -258,12 +276,17 @@ def handle_stop(ctx: Context, cfg: Configuration, tr: StopSpec, t, q, v) -> Outc
             raise SimulationError(_separating_with_faults(cfg, tr, t, q, v, vn))
         accumulated, rest_speed = True, vn
     else:
-        imp = solve_impulse(cfg, t, q, v, tr.contact, tr.restitution, tr.cut, name=tr.name)
+        if got is None and fast is not None and tr.contact.joint is None:  # a point contact's, after its normal_speed
+            got = solve_bounce(fast, t, q, v, tr.restitution)
+        if got is None:
+            imp = solve_impulse(cfg, t, q, v, tr.contact, tr.restitution, tr.cut, name=tr.name)
+            rest_speed = imp.vn_after
+        else:
+            rest_speed = got[4][2]  # vn_after
         last = ctx.last_impact.get(tr.name)
-        rest_speed = imp.vn_after
         # impacts at the same instant are a sequential resolution of simultaneous contacts, not an
         # accumulation: only a positive interval counts
-        accumulated = abs(imp.vn_after) <= speed or (last is not None and 0 < t - last <= interval)
+        accumulated = abs(rest_speed) <= speed or (last is not None and 0 < t - last <= interval)
     ctx.last_impact[tr.name] = t
     if accumulated:
         if tr.merge_to is None:
@@ -272,12 +295,32 @@ def handle_stop(ctx: Context, cfg: Configuration, tr: StopSpec, t, q, v) -> Outc
                 f"{abs(rest_speed):.3g} m/s) and the bodies come to rest in contact; give the stop a "
                 "merge_to configuration so the run can continue with the bodies merged")
         return _merge(ctx, cfg, tr, tr.merge_to, t, q, v, "stop")
+    if got is not None:
+        return _compiled_bounce(cfg, tr, fast, t, q, v, got)
     check_held_points_push(cfg, q, imp, f"t = {t:.9g} s, transition '{tr.name}'")
     check_restitution(tr, t, imp)
     record = bounce_record(cfg, tr, t, imp, q)  # event_record's, as its numbers where the impulse has them
     # no switch: the configuration stays; the state after the impulse (Eq. 43) projected and checked
     q_new, v_new, _ = enter_bounce(cfg, t, q, imp.v_after, what=f"bounce at '{tr.name}'")
+    if getattr(imp, "solved", None) is not None:  # the compiled bounce, asked once per stop: the same bits?
+        adopt_compiled_bounce(cfg, tr, t, q, v, imp, record, q_new, v_new, bounce_projection(cfg))
     return Outcome(cfg.name, q_new, v_new, record, {})
+
+
+def _compiled_bounce(cfg: Configuration, tr: StopSpec, plan, t, q, v, got) -> Outcome:
+    """A bounce from the compiled call's ``got`` (``BouncePlan.solve``: the impulse, the record's numbers
+    and the state projected onto the drives), with the checks of the Python route on its numbers:
+    Newton's law (:func:`check_restitution_law`), the energy (:func:`check_energy`) and the drive rows at the
+    post-impact velocity, whose residual the call measured: beyond :data:`VELOCITY_ROUNDOFF`, or where the
+    projection moved the posture, the Python entry (:func:`enter_bounce`) checks them and says what is
+    wrong.  No held point can be pulled: the compiled bounce is taken only without loops (no point held
+    by compression only, :func:`check_held_points_push`)."""
+    numbers, q_new, v_new, v_after, (P, vn_before, vn_after, ke_before, ke_after, drive_work), moved, residual = got
+    check_restitution_law(tr, t, tr.restitution, vn_before, vn_after, v)
+    check_energy(tr, t, (ke_before, ke_after), drive_work)
+    if moved or residual > VELOCITY_ROUNDOFF:
+        q_new, v_new, _ = enter_bounce(cfg, t, q, v_after, what=f"bounce at '{tr.name}'")
+    return Outcome(cfg.name, q_new, v_new, BounceRecord(plan, numbers), {})
 
 
 def _simultaneous(ctx: Context, cfg: Configuration, trs: list, t, q, v) -> Outcome:

@@ -783,6 +783,7 @@ PyModuleDef module_def = {PyModuleDef_HEAD_INIT, "_tree_dynamics",
 
 #include "_impulse.hpp"  // the impulse of a contact in a tree (pcmm.events.impulse_compiled)
 #include "_locate.hpp"   // an event located on a step's dense output (pcmm.ode.integrators._locate)
+#include "_series.hpp"   // a tree's recorded series in one pass (pcmm.run.series)
 
 }  // namespace
 
@@ -843,6 +844,10 @@ PyMODINIT_FUNC PyInit__tree_dynamics(void) {
     return nullptr;
   }
   if (add_holding_type(m) < 0) {  // the holding forces, and the segment loop's scan of their guards (_holding.hpp)
+    Py_DECREF(m);
+    return nullptr;
+  }
+  if (add_series(m) < 0) {  // a tree's recorded series in one pass (_series.hpp)
     Py_DECREF(m);
     return nullptr;
   }

@@ -535,3 +535,55 @@ def _agrees(checked: set, fn, reference, probes, what: str, key=None) -> bool:
     checked.add(key)
     _last_reason.clear()
     return True
+
+
+def series_tree(model: pin.Model, frames, reference: Callable):
+    """A compiled tree of ``model`` with the body frames ``frames`` (the links', in order) added as
+    its frames 1, 2, ... and the model's gravity, whose :func:`series` over many samples equals
+    ``reference(Q, V) -> (xy, kinetic, gravity potential)``, the Python evaluation sample by sample
+    (checked at probe states, once per tree); or None (why_not says).  What
+    :mod:`pcmm.run.series` derives a tree's recorded series with (pcmm/model/_series.hpp)."""
+    if enabled() and not hasattr(_tree_dynamics, "series"):  # an extension built before it was
+        _refuse("this build of pcmm.model._tree_dynamics has no compiled series (built from older sources): "
+                "reinstall pcmm (pip install -e .) to rebuild it")
+        return None
+    frames, nv = tuple(int(f) for f in frames), model.nv
+
+    def build(tree):
+        for k, f in enumerate(frames):
+            frame = model.frames[f]
+            if tree.add_frame(int(frame.parentJoint), frame.placement.rotation, frame.placement.translation) != k + 1:
+                raise ValueError(f"frame {frame.name!r} came out as another frame of the compiled tree")
+        tree.finalize(model.gravity.linear, np.zeros(nv), np.zeros((nv, 2 * nv)))
+    entry = _tree(model, ("series", frames), build)
+    if entry is None:
+        return None
+    tree, checked = entry
+    probes = lambda: [(y[None, :nv], y[None, nv:]) for y in _probe_states(nv)]  # noqa: E731 (made where checked)
+    if not _agrees(checked, lambda Q, V: _tree_dynamics.series(tree, Q, V), reference, probes, "recorded series"):
+        return None
+    return tree
+
+
+def series(tree, Q: np.ndarray, V: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(xy (n, frames, 2), kinetic energy (n), gravity potential (n)) at the rows of ``Q`` and ``V``
+    (n x nv) on a :func:`series_tree`: Pinocchio's forward kinematics, kinetic and potential energy
+    and frame placements, sample by sample in one compiled call."""
+    return _tree_dynamics.series(tree, Q, V)
+
+
+def multipliers(tree, Q: np.ndarray, V: np.ndarray, TAU: np.ndarray, J: np.ndarray, GAMMA: np.ndarray) -> np.ndarray:
+    """(n, m) multipliers ``lam`` of ``M a + h = tau + J^T lam``, ``J a + gamma = 0`` at the rows of ``Q``,
+    ``V``, ``TAU`` (n x nv) and ``GAMMA`` (n x m) with the constant rows ``J`` (m x nv), on a
+    :func:`series_tree` (pcmm/model/_series.hpp); NaN in a row where Pinocchio's solve failed."""
+    return _tree_dynamics.multipliers(tree, Q, V, TAU, J, GAMMA)
+
+
+def probe_states(nv: int) -> tuple[np.ndarray, ...]:
+    """The fixed probe states ``[q, v]`` of ``nv`` coordinates every compiled evaluation is checked at."""
+    return _probe_states(nv)
+
+
+def has_multipliers() -> bool:
+    """Whether this build of the extension has :func:`multipliers`."""
+    return hasattr(_tree_dynamics, "multipliers")

@@ -578,7 +578,10 @@ class PartitionedCoordinates:
             raise SimulationError(
                 f"configuration '{self.cfg.name}': its {m} constraint rows cannot be solved for "
                 f"{JD.shape[1]} dependent coordinates: the cut joints are redundant (a cut joint given "
-                "twice, or more loops than the tree has joints to close them)")
+                "twice, or more loops than the tree has joints to close them), or a drive prescribes a joint "
+                "that the loops and the locked joints already fix; the forces of these rows "
+                f"({', '.join(self.labels)}) would be statically indeterminate (`pcmm check` says whether they "
+                "are consistent where a guard fixes the posture of the switch into the configuration)")
         flat = Jq.ravel()
         return float(_det(JD) / max((math.sqrt(flat @ flat) / math.sqrt(max(m, 1))) ** m, 1e-300))
 

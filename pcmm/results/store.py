@@ -94,6 +94,54 @@ def _read_header(z) -> dict:
     return json.loads(a.tobytes().decode() if a.dtype == np.uint8 else str(a[()]))
 
 
+def derive_together(log) -> int:
+    """Derive the series of a chunk's segments (a run's :class:`SegmentLog`) not yet read, one call
+    for each run of consecutive segments that share a context reading every sample alone (a tree's:
+    ``cfg.coords.constrained`` false, so a sample's series depend on that sample's state and time
+    alone, never on a Newton solve warm-started from the sample before); each segment gets its own
+    rows (views of the run's arrays, copies for the last :data:`RECENT`, which outlive the chunk).  A bouncing ball's chunk of 2,000 segments is then one derivation instead of
+    2,000 (each made its reader of the segment and some twenty small array operations: 57 us a
+    bounce).  Every other segment derives its series when read, as before.  Returns the calls made."""
+    if not isinstance(log, SegmentLog):
+        return 0
+    calls, n, start = 0, len(log), 0
+    while start < n:
+        k = int(log._row(start)[0])
+        end = start + 1
+        while end < n and int(log._row(end)[0]) == k:
+            end += 1
+        calls += _derive_run(log, log._contexts[k][2], range(start, end))
+        start = end
+    return calls
+
+
+def _derive_run(log: SegmentLog, context, indices: range) -> int:
+    """:func:`derive_together` for the segments ``indices`` of one context: 1 call, or 0 where it
+    does not apply (fewer than two segments not yet read, a constrained configuration, states of
+    different sizes)."""
+    coords = getattr(getattr(context, "cfg", None), "coords", None)
+    if coords is None or getattr(coords, "constrained", True):
+        return 0
+    todo = [i for i in indices if "_derive" in log[i].__dict__]  # (a segment read already keeps its series)
+    if len(todo) < 2:
+        return 0
+    pieces = [log.arrays(i) for i in todo]
+    if len({y.shape[0] for _, y, _ in pieces}) != 1:
+        return 0
+    whole = context.derive(np.concatenate([t for t, _, _ in pieces]), np.hstack([y for _, y, _ in pieces]),
+                           pieces[0][2])
+    at, kept = 0, len(log) - RECENT  # the last RECENT segments outlive the chunk (StoreReader.written): copies
+    for i, (t, _, _) in zip(todo, pieces):
+        rec, m = log[i], len(t)
+        if i < kept:  # views of the run's arrays, dropped with the chunk once it is written
+            rec.__dict__.update({name: a[at:at + m] for name, a in whole.items()})
+        else:
+            rec.__dict__.update({name: a[at:at + m].copy() for name, a in whole.items()})
+        del rec.__dict__["_derive"]
+        at += m
+    return 1
+
+
 def write_chunk(path: Path, segments: list, events) -> None:
     """One chunk: ``segments`` (records; their series are read now) and ``events`` (an
     :class:`EventLog`, or dicts)."""
@@ -320,6 +368,7 @@ class StoreWriter:
         segs, events = self.pending(traj)
         if len(segs) or len(events):
             path = chunk_path(self.folder, self.chunks)
+            derive_together(segs)
             segs = list(segs)
             write_chunk(path, segs, events)
             self.chunks += 1

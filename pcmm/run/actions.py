@@ -67,10 +67,20 @@ def _residual(run: RunState, guard) -> float:
     row: y[p] + d, which is y[p] - value to the bit) without building the guard again."""
     linear = getattr(guard, "linear", None)
     if linear is not None:
-        hot = linear[0].nonzero()[0]
-        if len(hot) == 1 and linear[0][hot[0]] == 1.0 and linear[1] == 0.0:
-            return float(run.y[hot[0]] + linear[2])
+        held = _UNIT_ROWS.get(id(linear))
+        if held is None or held[0] is not linear:  # (a bounce re-arms with the same guard: decided once)
+            hot = linear[0].nonzero()[0]
+            entry = int(hot[0]) if len(hot) == 1 and linear[0][hot[0]] == 1.0 and linear[1] == 0.0 else None
+            if len(_UNIT_ROWS) >= 256:
+                _UNIT_ROWS.clear()
+            held = _UNIT_ROWS[id(linear)] = (linear, entry)
+        if held[1] is not None:
+            return float(run.y[held[1]] + linear[2])
     return guard_residual(run.cfg, guard.transition, run.t, run.y)
+
+
+#: {id of a guard's ``linear``: (that ``linear``, the state entry it reads where it is a unit row, else None)}
+_UNIT_ROWS: dict = {}
 
 
 def release_merge(run: RunState, guard) -> bool:

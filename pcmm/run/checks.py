@@ -22,7 +22,17 @@ here at once, each problem naming the file and the field:
   drives;
 * **units**: a guard on an angle (a revolute joint, a link's angle, the angle between two links)
   whose value lies outside [-2 pi, 2 pi] was most likely written in degrees: a warning that
-  gives the value in radians (``"-50 deg"``).
+  gives the value in radians (``"-50 deg"``);
+* **redundant rows** at a switch: a target configuration whose rows (cut joints, drives; and the
+  lock rows its holding forces are solved with) are dependent leaves the forces they carry
+  statically indeterminate (a warning naming them), or, where no motion or posture satisfies them,
+  is an error (:func:`redundant_rows`).
+
+**Which posture.** The posture a guard is judged at is the one the run reaches: where the loops
+leave one freedom, the first crossing along the path from the start, in the direction the
+mechanism moves, as far as its energy carries it (:func:`path_posture`); elsewhere the solution
+nearest the start (:func:`guard_posture`), of which every finding says that pcmm could not tell
+whether the run reaches it. Every finding names the posture it was made at.
 
 A message blames the normal only when the normal is at fault: rounded contact points that do not
 meet are reported as points (:func:`pcmm.contact_faults.contact_findings`, also used by the run's
@@ -52,6 +62,7 @@ class CheckReport:
     problems: list[str] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
     postures: dict[str, np.ndarray] = field(default_factory=dict)  # transition name -> q at its guard
+    reach: dict[str, str] = field(default_factory=dict)  # transition name -> which posture that is (path_posture)
 
 
 # ---- the posture at a guard ---------------------------------------------------------------
@@ -138,6 +149,194 @@ def guard_posture(cfg: Configuration, tr: TransitionSpec, q_start) -> tuple[np.n
     return q, residual
 
 
+# ---- the posture the run reaches -----------------------------------------------------------------
+#: path-length step (in coordinates: rad, m) and the most steps of the path followed from the start
+PATH_STEP = 0.01
+PATH_STEPS = 4000
+TURNS = "a turning point (its energy runs out)"
+
+
+@dataclass
+class PathPosture:
+    """Where the guard of a transition is met along the mechanism's path from its start
+    (:func:`path_posture`)."""
+
+    q: np.ndarray | None  # the posture, None when the path does not reach the guard
+    residual: float
+    how: str  # which posture this is and why the run reaches it (or does not)
+
+
+def _guard_value(cfg: Configuration, tr: TransitionSpec, q) -> float:
+    if tr.guard.type == "coordinate":
+        row, offset = cfg.measure_row(tr.guard.measure)
+        return float(row @ q + offset - tr.guard.value)
+    from ..events.contact import contact_state
+    return float(contact_state(cfg, q, np.zeros(cfg.nv), tr.contact)[1] - tr.guard.value)
+
+
+def _tangent(cfg: Configuration, q) -> np.ndarray | None:
+    """The unit tangent of a one-freedom posture space at q (the null vector of the loops'
+    position rows), None where it has not exactly one (a singular posture, or more freedom)."""
+    _, Jq = _closure(cfg, q)
+    if Jq.shape[0] == 0:
+        return np.ones(1) if cfg.nv == 1 else None
+    _, s, Vt = np.linalg.svd(Jq)
+    s = np.concatenate([s, np.zeros(cfg.nv - s.size)])
+    if s[0] == 0 or np.count_nonzero(s > 1e-8 * s[0]) != cfg.nv - 1:
+        return None
+    return Vt[-1]
+
+
+def _loads(cfg: Configuration, q) -> np.ndarray:
+    """The generalized force at rest (force elements at zero velocity, minus gravity's load):
+    its work along the path is the kinetic energy the motion gains (dampers left out)."""
+    import pinocchio as pin
+    return cfg.forces.generalized(q, np.zeros(cfg.nv)) - pin.computeGeneralizedGravity(cfg.model, cfg.data, cfg.to_pin(q))
+
+
+def _follow(cfg: Configuration, tr: TransitionSpec, q0, sign: float, energy: float | None):
+    """Follow the one-freedom path from ``q0`` with the tangent's orientation ``sign`` (predictor
+    along the tangent, Newton back onto the loops) until the guard crosses its value in its
+    direction; ``energy``: the kinetic energy at q0 (None: not counted), the work of the loads at
+    rest added on the way, the path ending where it runs out (a turning point).  Returns
+    (q near the crossing or None, the path length, why it ended, the postures near crossings
+    against the guard's direction on the way, which the motion meets in its direction after
+    turning back, and at a turning point that posture last)."""
+    back: list[np.ndarray] = []
+    t_prev = _tangent(cfg, q0)
+    if t_prev is None:
+        return None, 0.0, "no single path from the start", back
+    t_prev = sign * t_prev
+    q, r, length = np.array(q0, float), _guard_value(cfg, tr, q0), 0.0
+    r0 = r
+    ke, load = energy, (_loads(cfg, q0) if energy is not None else None)
+    for _ in range(PATH_STEPS):
+        nxt = q + PATH_STEP * t_prev
+        closed = False
+        for _ in range(8):  # back onto the loops, minimum-norm Newton steps (closed below 1e-10)
+            phi, Jq = _closure(cfg, nxt)
+            closed = phi.size == 0 or float(np.max(np.abs(phi))) < 1e-10
+            if phi.size == 0 or np.max(np.abs(phi)) < 1e-12:
+                break
+            nxt = nxt - np.linalg.lstsq(Jq, phi, rcond=None)[0]
+        t = _tangent(cfg, nxt) if closed and np.all(np.isfinite(nxt)) else None
+        if t is None:
+            return None, length, f"a singular posture after {length:.3g} along the path", back
+        t = t if t @ t_prev >= 0 else -t
+        length += float(np.linalg.norm(nxt - q))
+        if ke is not None:
+            new_load = _loads(cfg, nxt)
+            gained = 0.5 * float((load + new_load) @ (nxt - q))
+            if ke + gained < 0:  # the turning point (last in ``back``), the energy linear across the step
+                back.append(q + (ke / (ke - (ke + gained))) * (nxt - q))
+                return None, length, TURNS, back
+            ke, load = ke + gained, new_load
+        r_next = _guard_value(cfg, tr, nxt)
+        near = nxt if abs(r_next) <= abs(r) else q
+        if (r > 0 >= r_next and tr.guard.direction < 0) or (r < 0 <= r_next and tr.guard.direction > 0):
+            return near, length, "the guard", back
+        if (r > 0 >= r_next) or (r < 0 <= r_next):
+            back.append(near)
+        if length > 2 * PATH_STEP and float(np.max(_distance(cfg, nxt, q0), initial=0.0)) < 0.5 * PATH_STEP:
+            turned = q0 + (nxt - _near(cfg, nxt, q0))  # the start, whole turns on: the same posture
+            if abs(_guard_value(cfg, tr, turned) - r0) < 1e-9 * max(1.0, abs(r0)):  # (a joint's angle is not periodic)
+                return None, length, "a whole turn back to the start", back
+        q, r, t_prev = nxt, r_next, t
+    return None, length, f"{length:.3g} along the path", back
+
+
+def _describe_posture(cfg: Configuration, q) -> str:
+    return ", ".join(f"{n} = {float(q[cfg.joint_slice[n].start]):.6g}" for n in cfg.joint_names
+                     if cfg.joint_slice[n].stop - cfg.joint_slice[n].start == 1)
+
+
+def path_posture(scene: Scene, cfg: Configuration, tr: TransitionSpec, q0, v0=None) -> PathPosture | None:
+    """The posture where the run meets the guard of ``tr``, found by following the mechanism's
+    path from ``q0`` (its start in ``cfg``), for a configuration whose loops leave one freedom
+    (a pendulum, a slider-crank, a four-bar): the motion stays on that curve, so the posture it
+    reaches is the first crossing along it, in the direction it moves, before its energy runs out.
+
+    The direction: the initial velocity ``v0`` along the path, else (at rest) the loads' (gravity's,
+    the force elements') push along it, else a drive's rate; with none known both ways are followed
+    and the nearer crossing kept, said so. The energy: with ``v0`` known and no drive, the kinetic
+    energy at the start plus the work of the loads at rest along the path (dampers, which only take
+    energy, left out): where it runs out the motion turns back and the other way is followed (to
+    its own turning point). None where the path cannot be followed (more than one freedom, a planar
+    joint, a singular start): the caller then takes the nearest solution and says it could not tell."""
+    if cfg.has_planar:
+        return None
+    t0 = _tangent(cfg, q0)
+    if t0 is None:
+        return None
+    drives = getattr(cfg.coords, "drives", None)
+    driven = drives is not None and drives.size > 0
+    sign, why = 0.0, ""
+    if v0 is not None and abs(float(t0 @ v0)) > 1e-12:
+        sign, why = float(np.sign(t0 @ v0)), "in the direction of its initial velocity"
+    elif driven:  # each driven coordinate first moves as its first non-zero term beyond the constant
+        lead = [next((float(c) for c in d[0][1:] if c != 0), 0.0) for d in drives._derivs]
+        along = [(x, t0[i]) for i, x in zip(drives.index, lead) if abs(t0[i]) > 1e-9]
+        if along and all(x == 0 for x, _ in along):
+            if v0 is None:
+                return None  # entered at a time not known here: the drive's law then decides
+            return PathPosture(None, math.inf, (
+                f"its drives ({', '.join(drives.joints)}) are constant and hold the configuration's one "
+                "freedom still from the start: the guard cannot fire while they do"))
+        push = float(sum(np.sign(x) * ti for x, ti in along))
+        if v0 is not None and abs(push) > 1e-12:
+            sign, why = float(np.sign(push)), "in the direction its drive moves it"
+    elif v0 is not None:
+        push = float(t0 @ _loads(cfg, q0))
+        if abs(push) > 1e-12 * max(1.0, float(np.max(np.abs(_loads(cfg, q0))))):
+            sign, why = float(np.sign(push)), "released at rest, in the direction its loads push it"
+    energy = None if v0 is None or driven else cfg.kinetic_energy(q0, v0)
+    where = f"from the initial posture ({_describe_posture(cfg, q0)})" if v0 is not None else \
+        f"from where '{cfg.name}' is entered ({_describe_posture(cfg, q0)})"
+    if sign:
+        q, length, end, back = _follow(cfg, tr, q0, sign, energy)
+        if q is not None:
+            return _settle(cfg, tr, q, f"reached along the path {where}, {why}, after {length:.3g} of path")
+        if end != TURNS:
+            return None  # a singular posture, or a whole turn or the longest path without the guard
+        turn = back.pop()
+        if back:  # met against its direction on the way out, so in it on the way back: the last one first
+            return _settle(cfg, tr, back[-1], f"reached along the path {where}, {why}, as the motion turns back "
+                                              f"{length:.3g} of path out")
+        q, length, end, other = _follow(cfg, tr, q0, -sign, energy)
+        if q is not None:
+            return _settle(cfg, tr, q, f"reached along the path {where} after the motion turns back, "
+                                       f"{length:.3g} of path the other way")
+        if end != TURNS:
+            return None
+        turn_back = other.pop()
+        if other:  # met against its direction on the way to the second turning point: in it coming back
+            return _settle(cfg, tr, other[-1], f"reached along the path {where} after the motion turns back twice")
+        return PathPosture(None, math.inf, (
+            f"the path {where} swings between two turning points where its energy runs out (dampers left out), "
+            f"{_describe_posture(cfg, turn)} and {_describe_posture(cfg, turn_back)}, "
+            "and the guard's value is not met in its direction between them: the guard cannot fire unless a "
+            "force adds energy or another transition changes the motion first"))
+    found = []
+    for d in (1.0, -1.0):
+        q, length, _, _ = _follow(cfg, tr, q0, d, None)
+        if q is not None:
+            found.append((length, q))
+    if not found:
+        return None
+    length, q = min(found, key=lambda f: f[0])
+    return _settle(cfg, tr, q, f"the nearer of the crossings along the path {where} (either way, "
+                               f"{length:.3g} of path: the direction it moves is not known at check time)")
+
+
+def _settle(cfg: Configuration, tr: TransitionSpec, q, how: str) -> PathPosture | None:
+    """The crossing near ``q`` to round-off (Newton with the guard and the loops); None when it
+    does not converge near q."""
+    exact, residual = _newton(cfg, tr, q, 30)
+    if residual > 1e-9 or float(np.max(_distance(cfg, exact, q), initial=0.0)) > 10 * PATH_STEP:
+        return None
+    return PathPosture(exact, residual, f"{how}: {_describe_posture(cfg, exact)}")
+
+
 # ---- freedom at an impact ----------------------------------------------------------------------
 def no_free_coordinate(scene: Scene, cfg: Configuration, q) -> str | None:
     """The warning for an impact at ``q`` in a configuration whose rows (loops and drives) leave no
@@ -159,6 +358,156 @@ def no_free_coordinate(scene: Scene, cfg: Configuration, q) -> str | None:
             f"{why}): the impact cannot change a velocity and the run will stop at the strike. A driven joint "
             "takes the freedom an impact needs: give the struck part a freedom of its own (e.g. on a spring), "
             "or drive it by a motor torque (a `torque` force) instead of a drive")
+
+
+# ---- redundant rows --------------------------------------------------------------------------
+#: a singular value of a configuration's rows below this (relative to the largest) is a redundancy
+RANK_TOL = 1e-9
+
+
+def _drive_rows(scene: Scene, cfg: Configuration, drives_of: str) -> tuple[np.ndarray, list[str], list]:
+    """(unit rows, labels, (coordinate, coefficients)) of the drives of configuration ``drives_of``
+    on ``cfg``'s coordinates."""
+    rows, labels, laws = [], [], []
+    for d in scene.drives_in(drives_of):
+        if d.joint not in cfg.joint_slice:
+            continue
+        e = np.zeros(cfg.nv)
+        e[cfg.joint_slice[d.joint].start] = 1.0
+        rows.append(e)
+        labels.append(f"drives[{scene.drives.index(d)}] ('{d.joint}')")
+        laws.append((cfg.joint_slice[d.joint].start, np.array(d.coefficients, dtype=float)))
+    return np.array(rows).reshape(len(rows), cfg.nv), labels, laws
+
+
+@dataclass
+class Redundancy:
+    """Constraint rows of one configuration that are not independent (:func:`redundant_rows`)."""
+
+    configuration: str
+    labels: list[str]  # every row: cut-joint rows (C.fx, ...), drives ("drives[0] ('A')"), holds
+    rank: int
+    nv: int
+    null: np.ndarray  # left null vectors y (y^T R = 0), one per column, unit length
+    consistent: bool  # some motion satisfies the rows (the drives' rates are orthogonal to every y)
+    posture: bool = False  # inconsistent in posture: a constant drive holds a joint where the others do not
+
+    @property
+    def indeterminate(self) -> list[str]:
+        """The rows whose force some null vector moves: statically indeterminate."""
+        return [lab for lab, y in zip(self.labels, self.null) if np.max(np.abs(y)) > 1e-9]
+
+    def message(self, also: list[str] = (), holding: bool = False) -> str:
+        """The check's message; ``holding``: the rows are those the holding forces are solved with,
+        not the configuration's own (which the run can integrate)."""
+        m = len(self.labels)
+        rows = ", ".join(self.labels)
+        loose = self.indeterminate + [a for a in also if a not in self.indeterminate]
+        if not self.consistent:
+            what = ("a posture the others forbid: no posture satisfies {} together (a constant drive holds a "
+                    "joint where the lock and the loop put it elsewhere)" if self.posture else
+                    "a motion the others forbid: no motion satisfies {} together (a lock or the loop fixes what "
+                    "a drive moves)").format(", ".join(self.indeterminate))
+            return (f"configuration '{self.configuration}' has {m} constraint rows ({rows}) of rank {self.rank} on "
+                    f"{self.nv} coordinates, and its drives ask {what}; drive the joint only where it is free (the "
+                    "drive's configurations) or release the lock first")
+        free = self.nv - self.rank
+        return (f"configuration '{self.configuration}' has {m} constraint rows ({rows}) of rank {self.rank} on "
+                f"{self.nv} coordinates: {m - self.rank} redundant but consistent, so the motion is still determined "
+                f"({free} free coordinate{'s' if free != 1 else ''}) while the forces of {', '.join(loose)} are "
+                "not: they are statically indeterminate (any split of the load between them balances it). "
+                + ("pcmm solves the holding forces with these rows (on a configuration with the held joints free "
+                   "and the same drives): any split it reported would be one of many (the KKT solve's, not a "
+                   "minimum-norm one), not a physical answer. " if holding else
+                   "pcmm reports no arbitrary split: its run stops on entering the configuration (its rows cannot "
+                   "be solved for the dependent coordinates). ")
+                + "Remove the redundant row: a drive limited to the configurations where its joint is free, one "
+                "cut joint fewer, or a joint fewer locked")
+
+
+def redundant_rows(scene: Scene, cfg: Configuration, q, holds=(), drives_of: str | None = None) -> Redundancy | None:
+    """The dependence of ``cfg``'s constraint rows at ``q`` (its cut joints', the drives of
+    ``drives_of`` (default: ``cfg``'s own), plus ``holds``: ``(label, row)`` of locks whose holding
+    forces are solved with them, as :meth:`pcmm.events.holding.Holds.forces` does on a configuration
+    with the held joints free); None when they are independent.
+
+    Rows ``R`` of rank r < m leave the velocities ``R v = [0; f'(t)]`` solvable only where every
+    left null vector y of R (``y^T R = 0``) has ``y^T [0; f'(t)] = 0`` at every t, i.e. its drive
+    components are orthogonal to the drives' rate polynomials: then the rows are *consistent*, the
+    motion is still determined, but the multipliers (``R^T lam`` is the generalized force they
+    apply) are determined only up to adding any such y: the force of every row on which some y is
+    non-zero is statically indeterminate. Otherwise no motion satisfies the rows (inconsistent).
+    A null vector whose drive components fall on constant drives alone also asks
+    ``y^T [0; f - q] = 0`` (a drive being a position): a constant drive holding a joint where the
+    loop and the locks put it elsewhere is inconsistent in posture. (A moving drive's position is
+    the run's to judge: the guard's posture here is not solved at the drive's time.)"""
+    coords = cfg.coords
+    closure = getattr(coords, "closure", None)
+    _, Jq = coords.loop_rows(q)
+    labels = list(closure.labels()) if closure is not None and Jq.shape[0] else []
+    Jd, dlabels, laws = _drive_rows(scene, cfg, drives_of or cfg.name)
+    R = np.vstack([Jq, Jd] + [row[None, :] for _, row in holds])
+    labels += dlabels + [label for label, _ in holds]
+    m = R.shape[0]
+    if m == 0:
+        return None
+    U, s, _ = np.linalg.svd(R)
+    rank = int(np.sum(s > RANK_TOL * max(float(s[0]), 1e-300))) if s.size else 0
+    if rank == m:
+        return None
+    Y = U[:, rank:]
+    consistent = True
+    if laws:  # each null vector's drive components against the drives' rates, as polynomials in t
+        rates = [np.polynomial.polynomial.polyder(c) if len(c) > 1 else np.zeros(1) for _, c in laws]
+        C = np.zeros((len(laws), max(len(r) for r in rates)))
+        for k, r in enumerate(rates):
+            C[k, :len(r)] = r
+        Yd = Y[Jq.shape[0]:Jq.shape[0] + len(laws)]
+        consistent = bool(np.all(np.abs(Yd.T @ C) <= 1e-9 * max(1.0, float(np.max(np.abs(C))))))
+        if consistent:
+            still = np.array([not np.any(c[1:]) for _, c in laws])
+            rev = _revolute_joints(cfg)
+            off = np.array([float(c[0]) - float(q[i]) for i, c in laws])
+            off = np.where([i in rev for i, _ in laws], (off + math.pi) % (2 * math.pi) - math.pi, off)
+            for y in Yd.T:
+                moving = (np.abs(y) > 1e-9) & ~still
+                if not moving.any() and abs(float(y @ off)) > 1e-9 * max(1.0, float(np.max(np.abs(q)))):
+                    return Redundancy(cfg.name, labels, rank, cfg.nv, Y, False, posture=True)
+    return Redundancy(cfg.name, labels, rank, cfg.nv, Y, consistent)
+
+
+def _revolute_joints(cfg: Configuration) -> set[int]:
+    """Coordinates of revolute joints (a drive's angle is the same posture a turn away)."""
+    return {cfg.joint_slice[n].start for n in cfg.joint_names if cfg.spec.info.joints[n].type == "revolute"}
+
+
+def entry_redundancy(scene: Scene, src: Configuration, dst: Configuration, tr: TransitionSpec, q, q_dst
+                     ) -> tuple[str | None, bool]:
+    """(message, consistent) of the rows of configuration ``dst`` entered by ``tr`` from ``src`` at
+    ``q`` (``q_dst`` there) when they are dependent (:func:`redundant_rows`), else (None, True): its
+    own rows, and those its holding forces are solved with (``src``'s loops, ``dst``'s drives and one
+    row per lock ``tr`` makes: the stop's normal for a merge, the joint's coordinate for a latch, as
+    :class:`pcmm.events.holding.Holds` solves them), whose indeterminate holds it names too."""
+    own = redundant_rows(scene, dst, q_dst)
+    locked = [n for n in src.joint_names if n not in dst.joint_slice]
+    if not locked:
+        return (None, True) if own is None else (own.message(), own.consistent)
+    if tr.type == "stop" and tr.contact is not None:
+        from ..events.contact import contact_row
+        holds = [(f"'{tr.name}.hold'", contact_row(src, q, np.zeros(src.nv), tr.contact)[0])]
+    else:
+        holds = []
+        for n in locked:
+            e = np.zeros(src.nv)
+            e[src.joint_slice[n]] = 1.0
+            holds.append((f"'{n}.hold'", e))
+    held = redundant_rows(scene, src, q, holds, drives_of=dst.name)
+    holding = [lab for lab in (held.indeterminate if held is not None else []) if lab in dict(holds)]
+    if own is not None:
+        return own.message([f"the holding force {h}" for h in holding]), own.consistent
+    if held is None:
+        return None, True
+    return held.message(holding=True), held.consistent
 
 
 # ---- units -------------------------------------------------------------------------------------
@@ -200,16 +549,18 @@ def _limits(cfg: Configuration, q) -> list[str]:
 
 
 def check_scene(scene: Scene, mechanism: Mechanism | None = None) -> CheckReport:
-    """Every check-time problem (and warning) of ``scene``, each naming the file and the field."""
+    """Every check-time problem (and warning) of ``scene``, each naming the file and the field.
+    What is found at a guard's posture says which posture that is and whether the run reaches it
+    (:func:`path_posture`), so nothing is claimed of a posture the run never reaches."""
     from ..model.assembly import assemble
     mech = mechanism or Mechanism(scene)
     report = CheckReport()
     where = str(scene.path)
-    starts: dict[str, np.ndarray] = {}
+    starts: dict[str, tuple] = {}  # configuration -> (q where the run starts in it, v there or None: unknown)
     try:
         cfg0 = mech[scene.initial_configuration]
-        q0, _, notes = assemble(scene, cfg0)
-        starts[cfg0.name] = q0
+        q0, v0, notes = assemble(scene, cfg0)
+        starts[cfg0.name] = (q0, v0)
         report.warnings += [f"{where}: initial: {w}" for w in notes]
     except PcmmError as exc:
         report.problems += [p if p.startswith(where) else f"{where}: initial: {p}" for p in exc.problems]
@@ -222,44 +573,76 @@ def check_scene(scene: Scene, mechanism: Mechanism | None = None) -> CheckReport
         for tr in scene.transitions_from(name):
             if tr.guard.type not in ("coordinate", "gap"):  # time and reaction guards fix no posture
                 continue
-            i = scene.transitions.index(tr)
-            here = f"{where}: transitions[{i}] ({tr.name})"
-            degrees = angle_in_degrees(cfg, tr)
-            if degrees is not None:
-                report.warnings.append(f"{here}.guard.value: {degrees}")
-            q, residual = guard_posture(cfg, tr, starts[name])
-            if residual > 1e-9:
-                what = "closing the loop" if cfg.coords.constrained else "reaching it"
-                tries = 1 + len(START_SHIFTS) * int(np.count_nonzero(_revolute(cfg)))
-                report.warnings.append(
-                    f"{here}.guard.value: = {tr.guard.value:.12g}: no posture {what} with the guard there was "
-                    f"found from {tries} starts near the initial posture (closest residual {residual:.3g}); "
-                    "either none exists and the guard never fires, or the solve could not tell (its "
-                    "contact and pose checks were skipped); check the guard's value and direction")
-                continue
-            report.postures[tr.name] = q
-            if tr.contact is not None and (stuck := no_free_coordinate(scene, cfg, q)) is not None:
-                report.warnings.append(f"{here}.contact: {stuck}")
-            report.warnings += [f"{here}.guard.value: = {tr.guard.value:.12g}: {w}" for w in _limits(cfg, q)]
-            for f in contact_findings(cfg, tr, q, warnings=True):
-                (report.warnings if f.warning else report.problems).append(f"{here}.{f.field}: {f.text}")
-            target = tr.merge_to if tr.type == "stop" else tr.target
-            if target is None or target not in scene.configurations:
-                continue
-            key = "merge_to" if tr.type == "stop" else "to"
-            try:
-                dst = mech.enter(target, cfg, q)  # a derived target locks the values the guard gives
-                entered.setdefault(target, dst)
-                q_dst, _, _ = map_state(cfg, dst, q, np.zeros(cfg.nv))
-                anchor_where_entered(dst, q_dst)  # a pinned point is anchored where it strikes
-                _, mismatches = pose_mismatches(cfg, dst, q, q_dst)
-            except PcmmError as exc:
-                report.problems += [f"{here}.{key}: {p}" for p in exc.problems]
-                continue
-            report.problems += [f"{here}.{key}: at the guard value ({tr.guard.measure} = {tr.guard.value:.12g}) "
-                                f"{m}; the two URDFs must place every shared link identically there "
-                                "(check the fixed joint's origin in the merged configuration)" for m in mismatches]
-            if target not in starts:
-                starts[target] = q_dst
-                todo.append(target)
+            here = f"{where}: transitions[{scene.transitions.index(tr)}] ({tr.name})"
+            n_warnings, n_problems = len(report.warnings), len(report.problems)
+            how = _check_transition(scene, mech, report, cfg, tr, here, starts, entered, todo)
+            if how:  # every finding at the posture says which posture it is
+                report.warnings[n_warnings:] = [f"{w} [{how}]" for w in report.warnings[n_warnings:]]
+                report.problems[n_problems:] = [f"{p} [{how}]" for p in report.problems[n_problems:]]
     return report
+
+
+def _check_transition(scene: Scene, mech: Mechanism, report: CheckReport, cfg: Configuration, tr: TransitionSpec,
+                      here: str, starts: dict, entered: dict, todo: list) -> str:
+    """The checks of one transition at its guard's posture (:func:`check_scene`); returns which
+    posture they were made at ("" when none was)."""
+    degrees = angle_in_degrees(cfg, tr)
+    if degrees is not None:
+        report.warnings.append(f"{here}.guard.value: {degrees}")
+    q_start, v_start = starts[cfg.name]
+    found = path_posture(scene, cfg, tr, q_start, v_start)
+    if found is not None and found.q is None:
+        report.warnings.append(f"{here}.guard.value: = {tr.guard.value:.12g}: {found.how} (its contact and pose "
+                               "checks were skipped: they would judge a posture the run does not reach)")
+        return ""
+    if found is not None:
+        q, residual, how = found.q, found.residual, f"at the guard's posture {found.how}"
+    else:
+        q, residual = guard_posture(cfg, tr, q_start)
+        how = (f"at the guard's posture nearest the start: {_describe_posture(cfg, q)}; whether the run reaches "
+               "it pcmm could not tell (the loops leave more than one freedom, or the path from the start could "
+               "not be followed to the guard)")
+    if residual > 1e-9:
+        what = "closing the loop" if cfg.coords.constrained else "reaching it"
+        tries = 1 + len(START_SHIFTS) * int(np.count_nonzero(_revolute(cfg)))
+        report.warnings.append(
+            f"{here}.guard.value: = {tr.guard.value:.12g}: no posture {what} with the guard there was "
+            f"found from {tries} starts near the initial posture (closest residual {residual:.3g}); "
+            "either none exists and the guard never fires, or the solve could not tell (its "
+            "contact and pose checks were skipped); check the guard's value and direction")
+        return ""
+    report.postures[tr.name] = q
+    report.reach[tr.name] = how
+    stuck = no_free_coordinate(scene, cfg, q) if tr.contact is not None else None
+    if stuck is not None:
+        report.warnings.append(f"{here}.contact: {stuck}")
+    report.warnings += [f"{here}.guard.value: = {tr.guard.value:.12g}: {w}" for w in _limits(cfg, q)]
+    for f in contact_findings(cfg, tr, q, warnings=True):
+        (report.warnings if f.warning else report.problems).append(f"{here}.{f.field}: {f.text}")
+    target = tr.merge_to if tr.type == "stop" else tr.target
+    if target is None or target not in scene.configurations:
+        return how
+    key = "merge_to" if tr.type == "stop" else "to"
+    try:
+        dst = mech.enter(target, cfg, q)  # a derived target locks the values the guard gives
+        entered.setdefault(target, dst)
+        q_dst, _, _ = map_state(cfg, dst, q, np.zeros(cfg.nv))
+        anchor_where_entered(dst, q_dst)  # a pinned point is anchored where it strikes
+        _, mismatches = pose_mismatches(cfg, dst, q, q_dst)
+    except PcmmError as exc:
+        report.problems += [f"{here}.{key}: {p}" for p in exc.problems]
+        return how
+    report.problems += [f"{here}.{key}: at the guard value ({tr.guard.measure} = {tr.guard.value:.12g}) "
+                        f"{m}; the two URDFs must place every shared link identically there "
+                        "(check the fixed joint's origin in the merged configuration)" for m in mismatches]
+    try:  # (not past a strike that stops the run: the target is never entered)
+        rows, consistent = (None, True) if stuck else entry_redundancy(scene, cfg, dst, tr, q, q_dst)
+    except PcmmError as exc:
+        report.problems += [f"{here}.{key}: {p}" for p in exc.problems]
+        return how
+    if rows is not None:
+        (report.warnings if consistent else report.problems).append(f"{here}.{key}: {rows}")
+    if target not in starts:
+        starts[target] = (q_dst, None)  # the velocity after the switch is not known here
+        todo.append(target)
+    return how

@@ -21,6 +21,7 @@ from ..model.configuration import Configuration
 from ..results.segment_log import SegmentLog
 from ..results.trajectory import SegmentRecord, Trajectory
 from ..signals import deferred
+from . import series as segment_series
 from .dense import dense_states
 
 
@@ -273,27 +274,5 @@ def holding_forces(cfg: Configuration, holds: Holds, t, series: dict, applied=No
 
 
 def derived_series(cfg: Configuration, coords, t, y, offsets, forces) -> dict:
-    """Coordinates, angles, positions, energies, force elements and constraint forces at the
-    recorded states of one segment, read by ``coords`` (a reader of the segment: :meth:`Coordinates.restored`),
-    with the segment's force elements ``forces`` (a value: the configuration's may have been
-    compiled again since, at other angle offsets)."""
-    n = len(t)
-    nv, nl = cfg.nv, len(cfg.links)
-    Q, V = np.empty((n, nv)), np.empty((n, nv))
-    xy = np.empty((n, nl, 2))
-    ke, pe = np.empty(n), np.empty(n)
-    ff = np.empty((n, len(forces.names)))
-    m = len(coords.labels)
-    lam = np.empty((n, m))
-    for i in range(n):
-        q, v = coords.unpack(t[i], y[:, i])
-        Q[i], V[i] = q, cfg.qdot(q, v)  # the coordinates' rates: a planar joint's x', y' in world axes
-        xy[i] = cfg.link_poses(q)[:, :2]
-        ke[i] = cfg.kinetic_energy(q, v)
-        pe[i] = cfg.potential_energy(q, forces)
-        ff[i] = forces.element_values(q, v)
-        if m:
-            lam[i] = coords.accelerations(t[i], q, v)[1]
-    off = np.array([offsets.get(link, 0.0) for link in cfg.links])
-    return dict(q=Q, v=V, theta=Q @ cfg.A.T + cfg.b + off, omega=V @ cfg.A.T, xy=xy, kinetic=ke, potential=pe,
-                forces=ff, constraint_forces=lam)
+    """The series of one segment at its recorded states (:func:`pcmm.run.series.derived_series`)."""
+    return segment_series.derived_series(cfg, coords, t, y, offsets, forces)

@@ -59,7 +59,9 @@ CONFIG_KEYS = [
           doc="closed loops: the joints cut from the URDF tree, each a table (see the cut_joints entries)"),
 ]
 CUT_JOINT_KEYS = [
-    S.Key("name", "str", doc="the cut joint's name (its constraint force is the series NAME.x, NAME.y, ...)"),
+    S.Key("name", "str", doc="the cut joint's name; its constraint force on link b is the series NAME.fx, NAME.fy "
+          "(revolute; N, world axes), NAME.fn, NAME.mz (prismatic: across the axis, N, and the moment, N m) or "
+          "NAME.fx, NAME.fy, NAME.mz (weld)"),
     S.Key("type", "str", check=S.one_of(*CUT_JOINT_TYPES), doc="revolute and prismatic: 2 constraint rows, weld: 3"),
     S.Key("a", "str", doc="link on one side of the cut"),
     S.Key("point_a", "list|str", check=S.point_or_entry,
@@ -219,6 +221,108 @@ def _inline_table_hint(text: str, exc: Exception) -> str:
             " stay on one line; break lines inside a list [ ... ] instead)") if depth > 0 else ""
 
 
+def _repeated_key_hint(text: str, exc: Exception) -> str:
+    """Where a key or a table is given twice: tomllib says "Cannot overwrite a value (at end of
+    document)" or "Cannot mutate immutable namespace ('contact',)", naming neither the key nor the
+    line (a second `contact = { ... }` pasted into a cut joint's inline table read so)."""
+    import re
+    if not re.search(r"Cannot overwrite a value|Cannot mutate immutable namespace|Duplicate inline table key"
+                     r"|Cannot declare", str(exc)):
+        return ""
+    tables: dict[str, int] = {}  # [header] -> its line
+    seen: dict[tuple[str, str], int] = {}  # (header, key) -> its line, in the current table
+    header = shown = ""
+    for number, line in enumerate(text.splitlines(), 1):
+        code = re.sub(r'"(?:[^"\\]|\\.)*"|\'[^\']*\'', '""', line).split("#")[0]
+        m = re.match(r"\s*(\[\[?)\s*([^\]]+?)\s*\]\]?\s*$", code)
+        if m:
+            header = m.group(2)
+            shown = f"{m.group(1)}{header}{']' * len(m.group(1))}"
+            if m.group(1) == "[" and header in tables:
+                return (f" (the table [{header}] is declared twice, on lines {tables[header]} and {number}; "
+                        "TOML allows a table once: put its keys together)")
+            tables.setdefault(header, number)
+            seen = {k: v for k, v in seen.items() if k[0] != header}  # [[header]]: a new element
+            continue
+        m = re.match(r"\s*([A-Za-z0-9_.\-]+)\s*=", code)
+        if m:
+            key = (header, m.group(1))
+            if key in seen:
+                where = f"in {shown}" if header else "at the top level"
+                return (f" (the key '{m.group(1)}' is given twice {where}, on lines {seen[key]} and {number}; "
+                        "TOML allows a key once per table)")
+            seen[key] = number
+        stack: list[set] = []  # the keys of each inline table open on this line
+        for k, ch in enumerate(code):
+            if ch == "{":
+                stack.append(set())
+            elif ch == "}" and stack:
+                stack.pop()
+            elif stack and (k == 0 or not re.match(r"[A-Za-z0-9_\-]", code[k - 1])):
+                km = re.match(r"([A-Za-z0-9_\-]+)\s*=(?!=)", code[k:])
+                if km and (k == 0 or code[k - 1] in " {,\t"):
+                    if km.group(1) in stack[-1]:
+                        return (f" (the key '{km.group(1)}' is given twice in one inline table {{ ... }} on line "
+                                f"{number}; TOML allows a key once per table)")
+                    stack[-1].add(km.group(1))
+    return ""
+
+
+def measure_sign(force: ForceSpec, config: ConfigurationSpec) -> int | None:
+    """How a force element's ``measure`` x relates to the coordinate its ``on`` acts along, in
+    ``config``: +1 when x is that coordinate (plus a constant), so that ``-k (x - rest)`` is a spring
+    with the potential ``k (x - rest)^2 / 2`` and ``-c x'`` a damper; -1 when x is minus it (the
+    element is then a negative spring and damper: it drives x away from rest and feeds energy in);
+    0 when x is another coordinate (the element does work that ``k (x - rest)^2 / 2`` does not
+    account for); None where pcmm cannot tell (a point spring, a planar joint).
+
+    A joint's coordinate is ``theta_child - theta_parent`` (revolute), a link's the absolute angle
+    its ``on = { link }`` torque is conjugate to; links welded by fixed (or locked) joints are one
+    body."""
+    if force.points is not None or force.measure is None or force.on is None:
+        return None
+    info, m, on = config.info, force.measure, force.on
+    locked = set(config.derivation.lock) if config.derivation is not None else set()
+    parent_joint = {j.child: j for j in info.joints.values()}
+
+    def body(link: str) -> str:  # the moving body a link is welded to (the root for the frame's)
+        seen = set()
+        while link in parent_joint and link not in seen:
+            seen.add(link)
+            j = parent_joint[link]
+            if j.type != "fixed" and j.name not in locked:
+                return link
+            link = j.parent
+        return link
+
+    def angle_joint(link: str):  # the revolute joint whose coordinate is the link's absolute angle
+        j = parent_joint.get(body(link))
+        return j.name if j is not None and j.type == "revolute" and body(j.parent) == body(info.root) else None
+
+    joints = [info.joints.get(n) for n in ([on.name] if on.kind == "joint" else []) +
+              ([m.names[0]] if m.kind == "joint" else [])]
+    if any(j is None or j.type == "planar" for j in joints):
+        return None
+    if on.kind == "joint":
+        j = info.joints[on.name]
+        if m.kind == "joint":
+            return 1 if m.names[0] == on.name else 0
+        if j.type != "revolute":
+            return 0
+        if m.kind == "link":
+            return 1 if angle_joint(m.names[0]) == on.name else 0
+        a, b = (body(n) for n in m.names)
+        return 1 if (a, b) == (body(j.parent), j.child) else -1 if (a, b) == (j.child, body(j.parent)) else 0
+    target = body(on.name)
+    if m.kind == "link":
+        return 1 if body(m.names[0]) == target else 0
+    if m.kind == "joint":
+        return 1 if angle_joint(on.name) == m.names[0] else 0
+    a, b = (body(n) for n in m.names)
+    frame = body(info.root)
+    return 1 if (a, b) == (frame, target) else -1 if (a, b) == (target, frame) else 0
+
+
 def load_scene(path: str | Path) -> Scene:
     """Read, validate and return the scene at ``path``.
 
@@ -262,7 +366,8 @@ def load_scene(path: str | Path) -> Scene:
     try:
         raw = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
-        raise SceneError(f"{path}: not valid TOML: {exc}{_inline_table_hint(text, exc)}") from None
+        raise SceneError(f"{path}: not valid TOML: {exc}{_inline_table_hint(text, exc)}"
+                         f"{_repeated_key_hint(text, exc)}") from None
     except RecursionError:
         raise SceneError(f"{path}: not valid TOML for a scene: arrays or tables nested too deeply") from None
     except ValueError as exc:  # an integer of more than 4300 digits: Python's int limit
@@ -894,6 +999,23 @@ class _Builder:
                 self.p.add(where, f"= {n!r}: no such configuration; defined: {', '.join(scene.configurations)}")
         return out
 
+    @staticmethod
+    def _negative_element(f: ForceSpec, cfg: ConfigurationSpec) -> str:
+        """Why an element whose measure is minus the coordinate it acts along is refused."""
+        a, b = f.measure.names
+        if f.on.kind == "joint":
+            j = cfg.info.joints[f.on.name]
+            along = f"joint '{j.name}' ({j.parent} -> {j.child}), whose coordinate is theta_{j.child} - theta_{j.parent}"
+        else:
+            along = f"the angle of '{f.on.name}'"
+        parts = [w for w, x in (("stiffness", f.k), ("damping", f.c)) if x > 0]
+        verb = "drive" if len(parts) > 1 else "drives"
+        rest = f", with rest = {-f.rest:g} (a value of the measure)" if f.rest else ""
+        return (f"= between {list(f.measure.names)} is theta_{b} - theta_{a}, minus the coordinate the element acts "
+                f"along (on = {{ {f.on.kind} = '{f.on.name}' }}: {along}), so its {' and '.join(parts)} {verb} that "
+                f"coordinate away from rest and feed{'s' if verb == 'drives' else ''} energy in, as k < 0 or c < 0 "
+                f"would; write between = {[b, a]!r}{rest}")
+
     def _cross_check(self, scene: Scene) -> None:
         names = scene.configurations
         for i, f in enumerate(scene.forces):
@@ -912,6 +1034,9 @@ class _Builder:
                     self._check_measure(f"{where}.measure", f.measure, cfg)
                 if tail and len(self.p.items) > n0:
                     self.p.items[-1] += tail
+                elif len(self.p.items) == n0 and (f.k > 0 or f.c > 0) and measure_sign(f, cfg) == -1 \
+                        and not any(p.startswith(f"{where}.measure:") for p in self.p.items):
+                    self.p.add(f"{where}.measure", self._negative_element(f, cfg))
         for i, t in enumerate(scene.transitions):
             where = f"transitions[{i}] ({t.name})"
             for key, ref in (("from", t.source), ("to", getattr(t, "target", None)),

@@ -78,7 +78,9 @@ SETTINGS: tuple[Setting, ...] = (
     Setting("max_steps", "int", 1_000_000, "stop with an error after this many steps in a segment "
             "(a run that needs more is too stiff for its method)", S.positive),
     Setting("accumulation_speed", "number", 1e-6,
-            "post-impact normal speed (m/s) below which repeated stop impacts end in a merge", S.non_negative),
+            "post-impact normal speed below which repeated stop impacts end in a merge: m/s at a point "
+            "contact; at a joint stop the joint's own rate (rad/s, or m/s for a prismatic joint), whatever its "
+            "arm", S.non_negative),
     Setting("accumulation_interval", "number", 1e-9,
             "impact interval (s) below which repeated stop impacts end in a merge", S.non_negative),
     Setting("max_events", "int", 10_000, "stop with an error after this many events", S.positive),

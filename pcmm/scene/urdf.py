@@ -83,6 +83,53 @@ def _nearby(path: Path) -> str:
     return f" (did you mean {' or '.join(close)}?)" if close else ""
 
 
+def undrawn_links(path: str | Path) -> list[tuple[str, str]]:
+    """The links of the (valid) URDF ``path`` that move (a joint moves them, or they are welded to a
+    link that moves) but have no ``<box>`` or ``<sphere>`` visual, each with a ``<visual>`` to paste:
+    a bar along the link's frame from its origin to its farthest child joint (or, with none, to twice
+    its centre of mass; a sphere for a point mass on its joint). The 2D drawing, the video and the
+    replay page draw a link by its visuals alone (its joints by their symbols), so such a link does
+    not show."""
+    def xy(el) -> tuple[float, float]:
+        origin = el.find("origin") if el is not None else None
+        v = _floats(origin.get("xyz") if origin is not None else None, 3, (0.0, 0.0, 0.0))
+        return (v[0], v[1]) if v else (0.0, 0.0)
+
+    root = ET.parse(path).getroot()
+    parent_of, ends = {}, {}  # link -> (its parent link, its joint's type); link -> its joints' origins
+    for j in root.findall("joint"):
+        parent, child = j.find("parent"), j.find("child")
+        if parent is not None and child is not None:
+            parent_of[child.get("link")] = (parent.get("link"), j.get("type"))
+            ends.setdefault(parent.get("link"), []).append(xy(j))
+
+    def moves(link: str) -> bool:  # a joint moves it, or it is welded to a link that moves
+        seen = set()
+        while link in parent_of and link not in seen:
+            seen.add(link)
+            link, kind = parent_of[link]
+            if kind in MOVABLE:
+                return True
+        return False
+    out = []
+    for el in root.findall("link"):
+        name = el.get("name")
+        shapes = [g[0].tag for v in el.findall("visual") for g in [v.find("geometry")] if g is not None and len(g)]
+        if not moves(name) or any(s in ("box", "sphere") for s in shapes):
+            continue
+        cx, cy = xy(el.find("inertial"))
+        far = max(ends.get(name, []), key=lambda p: math.hypot(*p), default=(2 * cx, 2 * cy))
+        length = math.hypot(*far)
+        if length > 0:
+            yaw = math.atan2(far[1], far[0])
+            visual = (f'<visual><origin xyz="{far[0] / 2:.6g} {far[1] / 2:.6g} 0" rpy="0 0 {yaw:.6g}"/>'
+                      f'<geometry><box size="{length:.6g} 0.012 0.012"/></geometry></visual>')
+        else:
+            visual = '<visual><geometry><sphere radius="0.02"/></geometry></visual>'
+        out.append((name, visual))
+    return out
+
+
 def read_urdf(path: str | Path) -> UrdfInfo:
     """Parse and validate ``path``; raise :class:`ModelError` listing every problem."""
     path = Path(path)
