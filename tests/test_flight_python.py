@@ -126,7 +126,7 @@ def test_the_audit_still_catches_a_wrong_drive_power_or_a_wrong_flight_state(tmp
         m.setattr(audit, "drive_powers", lambda *a: real(*a) * (1 + 1e-4))
 
     def wrong_states(m, audit):
-        real = audit.states_on_rows
+        real, compiled_real = audit.states_on_rows, audit.compiled_node_states
 
         def shifted(*a, **k):
             states = real(*a, **k)
@@ -134,7 +134,17 @@ def test_the_audit_still_catches_a_wrong_drive_power_or_a_wrong_flight_state(tmp
                 states = states.copy()
                 states[states.shape[0] // 2:] += 1e-5  # the velocities
             return states
+
+        def compiled_shifted(*a):  # (the nodes and their states in one compiled call, where there is one)
+            got = compiled_real(*a)
+            if got is not None:
+                times, weights, states = got
+                states = states.copy()
+                states[states.shape[0] // 2:] += 1e-5
+                got = times, weights, states
+            return got
         m.setattr(audit, "states_on_rows", shifted)
+        m.setattr(audit, "compiled_node_states", compiled_shifted)
     (m0,) = clean.stats["macro_impacts"]
     assert m0["flights"] >= 3 and 0 < m0["flight_energy_residual_max"] < 1e-10 and m0["flight_energy_relative_max"] < 1e-9
     for corrupt in (wrong_power, wrong_states):

@@ -76,6 +76,7 @@ class Holds:
         self._refs: dict = {}  # (configuration, holds) -> its reference configuration
         self._sets: dict | None = None  # {configuration: its URDF's movable joints}, read on first use
         self._evaluator: tuple | None = None  # (what it was built from, by identity; the evaluator): evaluator
+        self._applied: tuple | None = None  # (what it was made from; the Applied): applied
         # {configuration: "compiled", or "python: why"}: how its holding forces were evaluated, as
         # each segment's evaluator was built (the run's stats["holding_evaluations"])
         self.evaluations: dict[str, str] = {}
@@ -216,7 +217,20 @@ class Holds:
         if ref_name is None:
             return None
         ref = self.mechanism[ref_name]
-        return Applied(ref, ref.coords.frozen_state(), ref.forces, self._forces_on(ref, cfg), self._held_springs(ref, cfg))
+        frozen, offsets, items = ref.coords.frozen_state(), ref.angle_offsets, self.items
+        # the one made last where everything it is made from is the same: the configuration, the
+        # reference's model and force elements (the same objects), its angle offsets (which key the
+        # maps of _forces_on and _held_springs), the holds (the same Hold objects) and its frozen
+        # state (the same bytes): a run recording segment after segment in one stay (a bouncing run)
+        # gets one Applied, which its recording then compares by identity (pcmm.run.recording)
+        last = self._applied
+        if (last is not None and last[0] is cfg and last[1] is ref and last[2] is ref.forces and last[3] == offsets
+                and len(last[4]) == len(items) and all(a is b for a, b in zip(last[4], items))
+                and _same_bytes(last[5].frozen, frozen)):
+            return last[5]
+        out = Applied(ref, frozen, ref.forces, self._forces_on(ref, cfg), self._held_springs(ref, cfg))
+        self._applied = (cfg, ref, ref.forces, offsets, tuple(items), out)
+        return out
 
     def _on_reference(self, cfg: Configuration, q: np.ndarray, v: np.ndarray, ref: Configuration | None = None):
         """(ref, qs, vs): the state of ``cfg`` mapped onto its reference configuration ``ref`` (by
@@ -359,6 +373,7 @@ class Holds:
             bias = np.concatenate((bias_of(t), lock_bias))
             _, lam = constrained_accelerations(ref, qs, vs, J, bias, extra, forces=ref_forces)
             return dict(zip(labels, lam[m:].tolist()))
+        forces.pure = True  # the same solve at each call: a function of (t, q, v) alone (_LastState)
         fast, why = _compiled_evaluator(cfg, ref, J, m, labels, mine, theirs, held, ref_forces, own, forces)
         self.evaluations[cfg.name] = "compiled" if fast is not None else f"python: {why}"
         chosen = fast or forces
@@ -367,14 +382,21 @@ class Holds:
 
     # -- guards
     def unmerge_guards(self, cfg: Configuration) -> list[Guard]:
-        """One guard per merge held by compression only: fires when its force would turn tensile."""
+        """One guard per merge held by compression only: fires when its force would turn tensile.
+        The guards share one evaluator; where it reads ``cfg``'s state through ``unpack`` (no compiled
+        state map) and that is a function of ``(t, y)`` alone (:class:`_LastState`), they share its
+        answer at the state asked last (the second guard at a step asks where the first just did)."""
         out = []
         forces = None
         for h in self.items:
             if not (h.merge and h.unilateral):
                 continue
             self.release_target(h, cfg)  # a merge that could not be released here is an error now
-            forces = forces or self.evaluator(cfg)
+            if forces is None:
+                forces = self.evaluator(cfg)
+                if getattr(forces, "at_state", None) is None and getattr(forces, "pure", False) \
+                        and _state_map(cfg) is not None:
+                    forces = _LastState(forces, cfg.coords.unpack)
             value = guard_value(cfg, forces, h.label)
             out.append(Guard(f"the merge of '{h.label}': its holding force turns tensile", value, -1,
                              "unmerge", h.transition, payload=h, holding=getattr(value, "holding", None)))
@@ -391,6 +413,12 @@ def guard_value(cfg: Configuration, forces, label: str, offset: float = 0.0):
     unpack = cfg.coords.unpack
     fast = getattr(forces, "at_state", None)
     if fast is None:
+        if type(forces) is _LastState:  # the evaluator at the state, shared (unmerge_guards)
+            def value(t, y):
+                return forces.at(t, y)[label] - offset
+            value.pure = True  # a function of (t, y) alone: pcmm.ode.integrators._pure_value
+            return value
+
         def value(t, y):
             q, v = unpack(t, y)
             return forces(t, q, v)[label] - offset
@@ -406,6 +434,57 @@ def guard_value(cfg: Configuration, forces, label: str, offset: float = 0.0):
         return float(lam[i]) - offset
     value.holding = (fast, i, float(offset))
     return value
+
+
+def _same_bytes(a, b) -> bool:
+    """A frozen state (:meth:`Coordinates.frozen_state`: a dict of arrays, numbers and dicts of arrays)
+    equal to another one to the byte: the same keys, arrays of one dtype and shape with the same bytes
+    (-0.0 and 0.0 differ here: such a state is made again, which is always right)."""
+    if a is b:
+        return True
+    if type(a) is not type(b):
+        return False
+    if type(a) is dict:
+        if a.keys() != b.keys():
+            return False
+        for k, x in a.items():
+            if not _same_bytes(x, b[k]):
+                return False
+        return True
+    if type(a) is np.ndarray:
+        return a.dtype == b.dtype and a.shape == b.shape and a.tobytes() == b.tobytes()
+    if type(a) in (int, float, str, bool):
+        return a == b
+    return False
+
+
+class _LastState:
+    """``forces(t, *unpack(t, y))`` of a holding-force evaluator (:meth:`Holds.evaluator`) at a
+    configuration's integrator state, its answer at the last state kept.  Made where that is a function
+    of ``(t, y)`` alone: the configuration's coordinates read without a Newton solve (:func:`_state_map`:
+    a tree, or drives without a loop: no warm start) and an evaluator that solves the same system at each
+    call (``pure``: not :meth:`Holds.forces` through a loop's rows).  The guards on one evaluator ask at the
+    same state one after the other (a fully driven configuration's merges, two guards at every sample:
+    pcmm.run.loop._known_motion, where the evaluator is not compiled with the state map), and the second
+    gets the first's answer, the same dict, instead of a
+    second unpack and solve (the same bits: the same call at the same arguments)."""
+
+    __slots__ = ("forces", "unpack", "t", "y", "out")
+
+    def __init__(self, forces, unpack):
+        self.forces, self.unpack = forces, unpack
+        self.t, self.y, self.out = None, None, None
+
+    def at(self, t, y) -> dict:
+        if t == self.t and self.y is not None and y.tobytes() == self.y:
+            return self.out
+        q, v = self.unpack(t, y)
+        out = self.forces(t, q, v)
+        self.t, self.y, self.out = t, y.tobytes(), out
+        return out
+
+    def __call__(self, t, q, v) -> dict:
+        return self.forces(t, q, v)
 
 
 def _state_map(cfg: Configuration):
@@ -463,15 +542,19 @@ def _compiled_evaluator(cfg, ref, J, m, labels, mine, theirs, held, ref_forces, 
             return python(t, q, v)
         return dict(zip(labels, lam.tolist()))
     forces.labels, forces.python, forces.at_state = list(labels), python, None
+    forces.pure = getattr(python, "pure", False)  # (its fallback's too)
     state = _state_map(cfg)
     if state is not None:
         free, driven, laws = state
         fast.set_state(free, driven, laws)
         k = len(free)
         unpack = cfg.coords.unpack
-        states = [(0.37 * (j + 1), y) for j, y in enumerate(compiled._probe_states(max(k, 1)))] if k else []
+        # (every coordinate driven, k = 0: the state is empty, the probes are instants; at_state then
+        # prescribes every coordinate by the Horner sums unpack does, the same bits: a fully driven
+        # configuration's merges read their guards in one compiled call, pcmm.run.loop._known_motion)
+        states = [(0.37 * (j + 1), y if k else y[:0]) for j, y in enumerate(compiled._probe_states(max(k, 1)))]
         try:
-            if k and compiled.agrees(checked, fast.at_state,
+            if compiled.agrees(checked, fast.at_state,
                                      lambda t, y: np.array(list(python(t, *unpack(t, y)).values())), states,
                                      "holding forces at the state", key=key + ("state", tuple(free), tuple(driven))):
                 forces.at_state = fast

@@ -1249,6 +1249,13 @@ PyObject *loop_candidate_start(SegmentLoop *s, PyObject *) {
   return Py_BuildValue("NN", new_vector(s->g_start->data(), s->m), new_vector(s->r_start->data(), s->m));
 }
 
+// guard_state() -> (g, r): the guards' values and rates at the loop's state, as it scanned them: at the
+// segment's start before the first run(), at the candidate step's end after run() returned 1 (NaN where a
+// holding force could not be solved there)
+PyObject *loop_guard_state(SegmentLoop *s, PyObject *) {
+  return Py_BuildValue("NN", new_vector(s->g_old->data(), s->m), new_vector(s->r_old->data(), s->m));
+}
+
 // start_again() -> whether a Loop's warm starts went back to the solution at the candidate step's start,
 // the accepted state (loops::start_again: its stages' solutions had put that start on another posture)
 PyObject *loop_start_again(SegmentLoop *s, PyObject *) {
@@ -1304,13 +1311,127 @@ PyObject *loop_counts(SegmentLoop *s, PyObject *) {
   return Py_BuildValue("llll", s->nfcn, s->nstep, s->naccpt, s->nrejct);
 }
 
+// SegmentLoop.gauss_states(t, rows, scipy, x, w, components) -> (times, weights, states) or None: the
+// flight audit's Gauss-Legendre nodes of every step of a flight (its recorded times t, k + 1 of them;
+// x: the nodes' abscissae plus one, w: their weights, p each) and its states there, on each step's
+// row of take_dense() (rows: k of them, (t_old, t_new, y_old, F) with `scipy`, else (t_old, h, cont)),
+// the first `components` of them: times and weights (p k), states (components, p k), node after node
+// and step after step.  The operations of pcmm.run.audit._nodes (h = (t1 - t0) / 2, t0 + h x, h w)
+// and pcmm.run.dense.states_on_rows (x = (time - t_old) / h, the Horner sums of DenseStep and contd8
+// in their order), on doubles in their order: the same bits.  None where a node falls on its step's
+// end (states_on_rows leaves those to dense_states).
+PyObject *loop_gauss_states(PyObject *, PyObject *args) {
+  PyObject *t_o, *rows_o, *x_o, *w_o;
+  int scipy;
+  Py_ssize_t components;
+  if (!PyArg_ParseTuple(args, "OOpOOn", &t_o, &rows_o, &scipy, &x_o, &w_o, &components)) return nullptr;
+  PyArrayObject *t = (PyArrayObject *)PyArray_FROMANY(t_o, NPY_DOUBLE, 1, 1, NPY_ARRAY_IN_ARRAY);
+  if (!t) return nullptr;
+  PyObject *rows = PySequence_Fast(rows_o, "gauss_states: rows, one per step");
+  PyObject *xs = rows ? PySequence_Fast(x_o, "gauss_states: x, the nodes") : nullptr;
+  PyObject *ws = xs ? PySequence_Fast(w_o, "gauss_states: w, the weights") : nullptr;
+  PyObject *result = nullptr;
+  PyObject *times_a = nullptr, *weights_a = nullptr, *states_a = nullptr;
+  const Py_ssize_t k = PyArray_DIM(t, 0) - 1;
+  const Py_ssize_t p = xs ? PySequence_Fast_GET_SIZE(xs) : 0;
+  std::vector<double> x(p), w(p);
+  bool ok = ws != nullptr;
+  if (ok && (k < 1 || PySequence_Fast_GET_SIZE(rows) != k || PySequence_Fast_GET_SIZE(ws) != p || components < 0)) {
+    PyErr_SetString(PyExc_ValueError, "gauss_states: one row per step of t, as many weights as nodes");
+    ok = false;
+  }
+  for (Py_ssize_t j = 0; ok && j < p; ++j) {
+    x[j] = PyFloat_AsDouble(PySequence_Fast_GET_ITEM(xs, j));
+    w[j] = PyFloat_AsDouble(PySequence_Fast_GET_ITEM(ws, j));
+    ok = !PyErr_Occurred();
+  }
+  if (ok) {
+    const npy_intp cols = (npy_intp)(p * k), dims[2] = {(npy_intp)components, cols};
+    times_a = PyArray_SimpleNew(1, &cols, NPY_DOUBLE);
+    weights_a = times_a ? PyArray_SimpleNew(1, &cols, NPY_DOUBLE) : nullptr;
+    states_a = weights_a ? PyArray_SimpleNew(2, dims, NPY_DOUBLE) : nullptr;
+    ok = states_a != nullptr;
+  }
+  bool on_end = false;
+  const double *tt = ok ? (const double *)PyArray_DATA(t) : nullptr;
+  for (Py_ssize_t s = 0; ok && !on_end && s < k; ++s) {
+    PyArrayObject *row = (PyArrayObject *)PyArray_FROMANY(PySequence_Fast_GET_ITEM(rows, s), NPY_DOUBLE, 1, 1,
+                                                          NPY_ARRAY_IN_ARRAY);
+    if (!row) {
+      ok = false;
+      break;
+    }
+    const Py_ssize_t width = PyArray_DIM(row, 0), n = (width - 2) / 8;
+    if (width != 2 + 8 * n || components > n) {
+      PyErr_SetString(PyExc_ValueError, "gauss_states: a row is not a dense row (2 + 8 n) of at least `components`");
+      Py_DECREF(row);
+      ok = false;
+      break;
+    }
+    const double *r = (const double *)PyArray_DATA(row);
+    const double t0 = tt[s], t1 = tt[s + 1];
+    const double h = (t1 - t0) / 2;
+    const double t_old = r[0], h_step = scipy ? r[1] - r[0] : r[1];
+    const npy_intp cols = (npy_intp)(p * k);
+    double *times = (double *)PyArray_DATA((PyArrayObject *)times_a);
+    double *weights = (double *)PyArray_DATA((PyArrayObject *)weights_a);
+    double *states = (double *)PyArray_DATA((PyArrayObject *)states_a);
+    for (Py_ssize_t j = 0; j < p; ++j) {
+      const npy_intp col = (npy_intp)(s * p + j);
+      const double ti = t0 + h * x[j];
+      times[col] = ti;
+      weights[col] = h * w[j];
+      if (ti == t0 || ti == t1) {
+        on_end = true;
+        break;
+      }
+      const double xx = (ti - t_old) / h_step;
+      for (Py_ssize_t c = 0; c < components; ++c) {
+        double v;
+        if (scipy) {  // DenseStep: y = 0; y += F[6 - i], y *= x or (1 - x) alternately; y += y_old
+          const double x1 = 1 - xx;
+          const double *F = r + 2 + n + c;
+          v = ((((((((0.0 + F[6 * n]) * xx + F[5 * n]) * x1 + F[4 * n]) * xx + F[3 * n]) * x1 + F[2 * n]) * xx +
+                 F[n]) * x1 + F[0]) * xx) + r[2 + c];
+        } else {  // contd8
+          const double s1 = 1.0 - xx;
+          const double *q = r + 2 + c;
+          v = q[0] + xx * (q[n] + s1 * (q[2 * n] + xx * (q[3 * n] + s1 * (q[4 * n] + xx * (q[5 * n] + s1 * (q[6 * n] +
+                                                                                                           xx * q[7 * n]))))));
+        }
+        states[c * cols + col] = v;
+      }
+    }
+    Py_DECREF(row);
+  }
+  if (ok && !on_end) {
+    result = Py_BuildValue("OOO", times_a, weights_a, states_a);
+  } else if (ok) {
+    Py_INCREF(Py_None);
+    result = Py_None;
+  }
+  Py_XDECREF(times_a);
+  Py_XDECREF(weights_a);
+  Py_XDECREF(states_a);
+  Py_XDECREF(ws);
+  Py_XDECREF(xs);
+  Py_XDECREF(rows);
+  Py_DECREF(t);
+  return result;
+}
+
 PyMethodDef loop_methods[] = {
+    {"gauss_states", (PyCFunction)loop_gauss_states, METH_VARARGS | METH_STATIC,
+     "gauss_states(t, rows, scipy, x, w, components) -> (times, weights, states): a flight's Gauss nodes and its "
+     "states there on its steps' dense rows, or None (a node on a step's end)"},
     {"run", (PyCFunction)loop_run, METH_NOARGS, "run() -> 0 (t_bound), 1 (a candidate step), 2 (a pause), -2/-3/-4 (failure)"},
     {"take", (PyCFunction)loop_take, METH_NOARGS, "take() -> the accepted steps since the last take, rows (t, y)"},
     {"candidate", (PyCFunction)loop_candidate, METH_NOARGS, "candidate() -> (t_old, t_new, y_new, f_new)"},
     {"dense", (PyCFunction)loop_dense, METH_NOARGS, "dense() -> (t_old, h, contd8 coefficients (8, n))"},
     {"counts", (PyCFunction)loop_counts, METH_NOARGS, "counts() -> (evaluations, steps, accepted, rejected)"},
     {"fallbacks", (PyCFunction)loop_fallbacks, METH_NOARGS, "fallbacks() -> the evaluations a Loop declined (Python took them)"},
+    {"guard_state", (PyCFunction)loop_guard_state, METH_NOARGS,
+     "guard_state() -> (g, r): the guards' values and rates at the segment's start (before run()) or the candidate's end"},
     {"candidate_start", (PyCFunction)loop_candidate_start, METH_NOARGS,
      "candidate_start() -> (g, r): the guards' values and rates at the candidate step's start"},
     {"start_again", (PyCFunction)loop_start_again, METH_NOARGS,

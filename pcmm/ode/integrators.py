@@ -143,9 +143,11 @@ def _rate(e, t, y, f, h, g=None):
 def _pure_value(e) -> bool:
     """Is the guard's value a function of ``(t, y)`` alone, so that a value already computed may
     stand for asking it again?  A guard on a compiled holding force (``holding``: the compiled solve
-    at the state, pcmm.events.holding.guard_value); not a guard read through a loop's Newton solve,
-    whose last bits follow its warm start (the previous call's solution)."""
-    return getattr(e, "holding", None) is not None
+    at the state, pcmm.events.holding.guard_value), or one whose value function says so (``pure``: a
+    holding force read through coordinates without a Newton solve, pcmm.events.holding._LastState); not
+    a guard read through a loop's Newton solve, whose last bits follow its warm start (the previous
+    call's solution)."""
+    return getattr(e, "holding", None) is not None or getattr(getattr(e, "value", None), "pure", False)
 
 
 def _hermite_dips(g0, d0, g1, d1, h, direction) -> bool:
@@ -176,14 +178,43 @@ def _hermite_dips(g0, d0, g1, d1, h, direction) -> bool:
     return False
 
 
+_NO_RATES = (None,)
+
+
+def _holding_known(loop, holding: list, m: int):
+    """``(values, rates)`` of the guards on a compiled holding force (``holding``: their indices among the
+    ``m`` guards) as the compiled loop scanned them at its state (``guard_state()``: the segment's start
+    before it runs, a candidate step's end after), None for every other guard and where the loop could
+    not solve one (NaN); None where there is none or the loop cannot say (an extension built before it).
+    The loop computes them as :meth:`_Stepper.accept` and :func:`_rate` do: the same compiled solve at the
+    same state (``HoldingForces.at_state``), the forward difference ``d = max(1e-7 |h|, 1e-12 max(1, |t|))``
+    along the same derivative, ``(g(t + d, y + d f) - g) / d``: the same bits, as its ``candidate_start``
+    is taken for a candidate's start (:func:`_guards_at_start`)."""
+    state = getattr(loop, "guard_state", None) if holding else None
+    if state is None:
+        return None
+    g_all, r_all = state()
+    if len(g_all) != m:
+        return None
+    g, r = [None] * m, [None] * m
+    g_list, r_list = g_all.tolist(), r_all.tolist()
+    for j in holding:
+        gj, rj = g_list[j], r_list[j]
+        if math.isfinite(gj) and math.isfinite(rj):
+            g[j], r[j] = gj, rj
+    return g, r
+
+
 class _Stepper:
     """Event scanning over accepted steps, shared by every method."""
 
-    def __init__(self, fun, events, opts, t0, y0, f0, t_bound, keep_dense=False):
+    def __init__(self, fun, events, opts, t0, y0, f0, t_bound, keep_dense=False, known=None):
         self.fun, self.events, self.opts, self.t_bound = fun, events, opts, t_bound
         self.kept = [] if keep_dense else None  # each accepted step's dense output (Segment.dense)
         self.ts, self.ys = [t0], [np.array(y0, float)]
-        self.g = [e(t0, self.ys[0]) for e in events]
+        # known: (values, rates) at the start, None for a guard to ask (:func:`_holding_known`)
+        self.g = [e(t0, self.ys[0]) for e in events] if known is None else \
+            [e(t0, self.ys[0]) if g is None else g for e, g in zip(events, known[0])]
         # per guard, read once (not at every step): the value already computed at a step's end stands
         # for asking the guard again in its forward difference (_pure_value), and whether its rate is
         # read at all without the state's derivative:
@@ -193,13 +224,16 @@ class _Stepper:
                       for e in events]
         self._directions = [e.direction for e in events]
         self.rates = [_rate(e, t0, self.ys[0], f0, 1e-6, g if pure else None)
-                      for (e, _, pure, _), g in zip(self._scan, self.g)] if events else []
+                      for (e, _, pure, _), g in zip(self._scan, self.g)] if events and known is None else \
+            [_rate(e, t0, self.ys[0], f0, 1e-6, g if pure else None) if r is None else r
+             for (e, _, pure, _), g, r in zip(self._scan, self.g, known[1])] if events else []
         self.count = 0
         self.max_steps = opts.max_steps  # read once: opts may resolve attributes through a fallback
 
-    def accept(self, t_old, y_old, t_new, y_new, f_new, dense, keep=None):
+    def accept(self, t_old, y_old, t_new, y_new, f_new, dense, keep=None, known=None):
         """Record one step; return (event index, t_event, y_event) if a guard fires in it.  ``keep``:
-        what :attr:`kept` keeps of it (``fun -> interpolant``), where the segment keeps them."""
+        what :attr:`kept` keeps of it (``fun -> interpolant``), where the segment keeps them.  ``known``:
+        ``(values, rates)`` at the step's end, None for a guard to ask (:func:`_holding_known`)."""
         if not math.isfinite(y_new @ y_new) and not np.all(np.isfinite(y_new)):  # (the dot: one cheap test)
             raise SimulationError(
                 f"the state became {y_new.tolist()} (not finite) at t = {t_new:.9g} s: the method "
@@ -214,14 +248,20 @@ class _Stepper:
         hit = None
         events = self.events
         if events:
-            g_new = [e(t_new, y_new) for e in events]  # every value first, then the rates (a loop's
-            # guards solve from the previous call's solution: the order of the calls is part of the bits)
+            # every value first, then the rates (a loop's guards solve from the previous call's solution:
+            # the order of the calls is part of the bits; a known one is a holding guard's, a compiled solve
+            # that leaves nothing behind)
+            g_new = [e(t_new, y_new) for e in events] if known is None or f_new is None else \
+                [e(t_new, y_new) if g is None else g for e, g in zip(events, known[0])]
             if f_new is not None:
                 d = max(1e-7 * abs(h), 1e-12 * max(1.0, abs(t_new)))  # _rate's forward difference, once a step
                 forward = None
                 r_new = []
-                for (e, own, pure, _), g in zip(self._scan, g_new):
-                    if own is not None:
+                rates = known[1] if known is not None else _NO_RATES * len(events)
+                for (e, own, pure, _), g, known_rate in zip(self._scan, g_new, rates):
+                    if known_rate is not None:
+                        r_new.append(known_rate)
+                    elif own is not None:
                         r_new.append(own(t_new, y_new, f_new))
                     else:  # (_rate: from the value just computed where it is a function of the state alone)
                         if forward is None:
@@ -438,14 +478,14 @@ def _guarded_rhs(counted, rhs, zeros, raised):
     return f
 
 
-def _run(driver, fun, t0, y0, t_bound, events, opts, keep_dense=False):
+def _run(driver, fun, t0, y0, t_bound, events, opts, keep_dense=False, known=None):
     """Set up the counted right-hand side and the event scanner, let ``driver(counted, f0, st)``
     step (it returns ``(hit, failure)``), and turn what it raises into pcmm errors that carry
     the steps already taken.  ``keep_dense``: the segment keeps each step's dense output
-    (:attr:`Segment.dense`)."""
+    (:attr:`Segment.dense`); ``known``: guards' values and rates at the start (:func:`_holding_known`)."""
     counted = _Counted(fun)
     f0 = counted(t0, np.asarray(y0, float))
-    st = _Stepper(counted, events, opts, t0, y0, f0, t_bound, keep_dense)
+    st = _Stepper(counted, events, opts, t0, y0, f0, t_bound, keep_dense, known)
     try:
         hit, failure = driver(counted, f0, st)
     except (SimulationError, KeyboardInterrupt, Repartition) as exc:
@@ -499,9 +539,10 @@ class ScipyMethod:
         if self.name == "DOP853" and (self.compiled_steps or COMPILED_SCIPY_STEPS):  # a compiled loop stepping as this class does
             loop, progress = _segment_loop(fun, t0, y0, t_bound, events, opts, 0.0, tableau=packed_tableau(),
                                            keep_dense=keep_dense)
-            if loop is not None:
+            if loop is not None:  # (the holding guards at the start: as the loop's constructor scanned them)
                 return _run(lambda counted, f0, st: self._drive_compiled(loop, progress, counted, st, opts),
-                            fun, t0, y0, t_bound, events, opts, keep_dense)
+                            fun, t0, y0, t_bound, events, opts, keep_dense,
+                            _holding_known(loop, _holding_guards(events), len(events)))
         needs_f = _needs_derivative(events)
         stages = keep_dense and self.cls is DOP853  # pcmm's own DOP853 hands its stages out
 
@@ -546,6 +587,7 @@ def _drive_loop(loop, progress, st, dense, failure, counted, name, from_row):
     accepted the step (``take_dense()``, one row each: ``from_row(row, n)`` is its interpolant, kept
     as the row, :class:`_Row`)."""
     events, needs_f = st.events, _needs_derivative(st.events)
+    holding = _holding_guards(events)
     keeping = st.kept is not None and hasattr(loop, "take_dense")
     stale = False  # steps recorded since the scanner last saw one: its guard values are not the last step's
     try:
@@ -574,7 +616,8 @@ def _drive_loop(loop, progress, st, dense, failure, counted, name, from_row):
                 stale = False
                 lazy = _lazy(dense)
                 keep = kept[len(steps)] if len(kept) == len(steps) + 1 else _KeptStages(None, lazy)
-                hit = st.accept(t_old, y_old, t_new, y_new, f_new if needs_f else None, lazy, keep)
+                hit = st.accept(t_old, y_old, t_new, y_new, f_new if needs_f else None, lazy, keep,
+                                _holding_known(loop, holding, len(events)) if needs_f else None)
                 if hit is not None:
                     return hit, None
                 if progress is not None and st.count % _PROGRESS_STEPS == 0:
@@ -592,6 +635,11 @@ def _drive_loop(loop, progress, st, dense, failure, counted, name, from_row):
                 return None, message
     finally:
         counted.n += loop.counts()[0]
+
+
+def _holding_guards(events) -> list:
+    """The indices of the guards on a compiled holding force (``holding``), which a compiled loop scans."""
+    return [j for j, e in enumerate(events) if getattr(e, "holding", None) is not None]
 
 
 def _guards_at_start(loop, events, st, t_old, y_old, t_new):
@@ -877,6 +925,62 @@ def _segment_loop(fun, t0, y0, t_bound, events, opts, beta, tableau=None, keep_d
         options["keep_dense"] = True
     y0 = np.array(y0, float)
     ny = y0.size
+    C, ct, d, direction, every_step, scans = _guard_scans(events, ny, progress is not None)
+    options.update(scans)
+    max_step = opts.max_step if np.isfinite(opts.max_step) else 0.0
+    args = (owner, float(t0), y0, float(t_bound), float(opts.rtol), float(opts.atol), float(max_step),
+            int(opts.max_steps), float(beta), C, ct, d, direction, every_step)
+    try:
+        try:
+            loop = make(*args, **options)
+        except TypeError:  # an extension built before keep_dense: the steps are taken again for their dense output
+            if not options.pop("keep_dense", False):
+                raise
+            loop = make(*args, **options)
+    except (ValueError, TypeError, RuntimeError):  # a state that is not the tree's: Python steps it
+        if "evaluated" not in options and "linear" not in options:
+            return None, None
+        # the evaluated or linear guards are not this loop's to scan (not a plain tree's state, an extension
+        # built before `linear`): every step to Python
+        options.pop("evaluated", None)
+        options.pop("linear", None)
+        options.pop("holding", None)
+        try:
+            loop = make(*args[:9], np.zeros((0, ny)), np.zeros(0), np.zeros(0), np.zeros(0), True, **options)
+        except (ValueError, TypeError, RuntimeError):
+            return None, None
+    return loop, progress
+
+
+#: the last few guard sets' scans (:func:`_guard_scans`), by the guards' identities: {key: (guards, scans)}
+_SCANS: dict = {}
+_SCANS_KEPT = 16
+
+
+def _guard_scans(events, ny: int, progress: bool):
+    """``(C, ct, d, direction, every_step, options)``: how a compiled segment loop scans ``events`` on a
+    state of ``ny`` entries (:func:`_scan_guards`), the arrays read-only.  A run re-arms the same guard
+    objects at every bounce of a sequence (pcmm.run.loop._guards keeps them), so the scans made for the
+    same guards (the same objects, whose scanned fields are set when they are made), the same ``ny`` and
+    progress are taken again: the same arguments to the loop, without classifying every guard again at
+    every segment."""
+    key = (ny, progress, *map(id, events))
+    got = _SCANS.get(key)
+    if got is not None and len(got[0]) == len(events) and all(a is b for a, b in zip(got[0], events)):
+        return got[1]
+    scans = _scan_guards(events, ny, progress)
+    for a in scans[:4]:
+        a.flags.writeable = False
+    if len(_SCANS) >= _SCANS_KEPT:
+        _SCANS.clear()
+    _SCANS[key] = (tuple(events), scans)  # (the guards held: their ids stay theirs while kept here)
+    return scans
+
+
+def _scan_guards(events, ny: int, progress: bool):
+    """:func:`_guard_scans` made: ``(C, ct, d, direction, every_step, options)``, the options a dict of
+    the kinds of guards the loop scans itself (``solved``, ``holding``, ``evaluated``, ``linear``)."""
+    options = {}
     # each guard's one scan, in one pass over the guards (a segment has a few; this runs per segment):
     # affine in the state (Guard.affine), on a compiled holding force (Guard.holding), else a closed
     # loop's guard on its solution (Guard.loop_scan, which its compiled loop scans itself), else a guard
@@ -888,7 +992,7 @@ def _segment_loop(fun, t0, y0, t_bound, events, opts, beta, tableau=None, keep_d
     # did: then every step comes back to Python, as for a guard the loop cannot scan with its rate
     # read from the state (or on a holding force)
     affine, holding, solved, evaluated, linear = [], [], [], [], []
-    every_step = progress is not None
+    every_step = progress
     for e in events:
         a, h = getattr(e, "affine", None), getattr(e, "holding", None)
         sv = ev = w = None
@@ -929,29 +1033,7 @@ def _segment_loop(fun, t0, y0, t_bound, events, opts, beta, tableau=None, keep_d
                            ("linear", [(j, *w) for j, w in enumerate(linear) if w is not None])):
             if scans:
                 options[key] = scans
-    max_step = opts.max_step if np.isfinite(opts.max_step) else 0.0
-    args = (owner, float(t0), y0, float(t_bound), float(opts.rtol), float(opts.atol), float(max_step),
-            int(opts.max_steps), float(beta), C, ct, d, direction, every_step)
-    try:
-        try:
-            loop = make(*args, **options)
-        except TypeError:  # an extension built before keep_dense: the steps are taken again for their dense output
-            if not options.pop("keep_dense", False):
-                raise
-            loop = make(*args, **options)
-    except (ValueError, TypeError, RuntimeError):  # a state that is not the tree's: Python steps it
-        if "evaluated" not in options and "linear" not in options:
-            return None, None
-        # the evaluated or linear guards are not this loop's to scan (not a plain tree's state, an extension
-        # built before `linear`): every step to Python
-        options.pop("evaluated", None)
-        options.pop("linear", None)
-        options.pop("holding", None)
-        try:
-            loop = make(*args[:9], np.zeros((0, ny)), np.zeros(0), np.zeros(0), np.zeros(0), True, **options)
-        except (ValueError, TypeError, RuntimeError):
-            return None, None
-    return loop, progress
+    return C, ct, d, direction, every_step, options
 
 
 def _linear_scan(e, ny):
@@ -992,17 +1074,26 @@ class _ScipyDense(DenseStep):
     component by component on Python floats, the very operations ``DenseStep`` does on arrays (a
     quarter of its cost at a few components)."""
 
-    __slots__ = ("_rows", "_start")
+    __slots__ = ("_rows", "_start", "_columns")
 
     def __call__(self, t):
-        if np.ndim(t) != 0:
+        if not isinstance(t, float) and np.ndim(t) != 0:
             return super().__call__(t)
+        columns = getattr(self, "_columns", None)
+        if columns is None:
+            F = self.F
+            # per component (y_old, F[6], F[5], ..., F[0]): DOP853's seven rows, the loop below written
+            # out (as pcmm.run.dense.states_on_rows does: the same operations in the same order)
+            columns = self._columns = list(zip(self.y_old.tolist(), *F[::-1].tolist())) if F.shape[0] == 7 else ()
+        x = (float(t) - float(self.t_old)) / float(self.h)  # as DenseStep's, on floats
+        x1 = 1 - x
+        if columns:
+            return np.array([((((((((0.0 + f6) * x + f5) * x1 + f4) * x + f3) * x1 + f2) * x + f1) * x1 + f0) * x) + y0
+                             for y0, f6, f5, f4, f3, f2, f1, f0 in columns], dtype=self.y_old.dtype)
         rows = getattr(self, "_rows", None)
         if rows is None:
             rows = self._rows = [f.tolist() for f in self.F[::-1]]
             self._start = self.y_old.tolist()
-        x = (float(t) - float(self.t_old)) / float(self.h)  # as DenseStep's, on floats
-        x1 = 1 - x
         out = []
         for j, y0 in enumerate(self._start):
             acc = 0.0

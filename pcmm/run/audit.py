@@ -37,7 +37,7 @@ import numpy as np
 from ..model.configuration import Configuration
 from ..model import compiled
 from ..model.constraints import constrained_accelerations
-from .dense import dense_states, states_on_rows
+from .dense import compiled_node_states, dense_states, states_on_rows
 
 RESOLVED_KINETIC = 1e-6  # flights with less rebound energy than this x the first are round-off dominated
 GAUSS_NODES, GAUSS_WEIGHTS = np.polynomial.legendre.leggauss(4)
@@ -74,11 +74,10 @@ def flight_work(cfg: Configuration, coords, t, y, stepping, q_start, kept=None) 
     t = np.asarray(t, float)
     if len(t) < 2 or not (len(coords.labels) or coords.forces.names):
         return 0.0  # no step; or no force element and no constraint row: no force but gravity does work
-    times, weights = _nodes(t)
+    times, weights, states = _nodes_and_states(t, y, kept, coords.ny)
     fun, method, opts = stepping
     if getattr(fun, "__self__", None) is cfg.coords:  # rhs or rhs_with_power: the reader's own
         fun = getattr(coords, fun.__name__)
-    states = _node_states(t, y, times, kept, coords.ny)
     if states is None:
         states = dense_states(t, y, times, (fun, method, opts), kept)
     states = states[:coords.ny]
@@ -99,6 +98,17 @@ def _nodes(t) -> tuple[np.ndarray, np.ndarray]:
         return np.array([t0 + h * x for x in _NODES_1_FLOATS]), np.array([h * w for w in _WEIGHTS_FLOATS])
     h = ((t[1:] - t[:-1]) / 2)[:, None]  # (what np.diff forms)
     return (t[:-1, None] + h * _NODES_1).ravel(), (h * GAUSS_WEIGHTS).ravel()
+
+
+def _nodes_and_states(t, y, kept, components):
+    """``(times, weights, states)``: :func:`_nodes` and :func:`_node_states` (states None where they are not
+    read off the compiled loop's rows), in one compiled call where there is one
+    (:func:`pcmm.run.dense.compiled_node_states`: the same bits)."""
+    got = compiled_node_states(t, y, kept, _NODES_1_FLOATS, _WEIGHTS_FLOATS, components)
+    if got is not None:
+        return got
+    times, weights = _nodes(t)
+    return times, weights, _node_states(t, y, times, kept, components)
 
 
 def _node_states(t, y, times, kept, components):
@@ -132,8 +142,7 @@ def run_work(cfg: Configuration, t, y, stepping, kept) -> float | None:
     t = np.asarray(t, float)
     if len(t) < 2:
         return 0.0
-    times, weights = _nodes(t)
-    states = _node_states(t, y, times, kept, coords.ny)
+    times, weights, states = _nodes_and_states(t, y, kept, coords.ny)
     if states is None:
         try:
             states = dense_states(t, y, times, (_no_right_hand_side, *stepping[1:]), kept)

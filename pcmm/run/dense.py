@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..model import compiled
 from ..ode.dop853 import DenseStep
 from ..ode.integrators import _Contd8, _Row, _ScipyDense, contd8_row_dense, scipy_row_dense
 
@@ -113,6 +114,35 @@ def states_on_rows(t, y, times, k_of, kept, components=None) -> np.ndarray | Non
                      for c in coefficients]
         out.append(state)
     return np.array(out).T
+
+
+def compiled_node_states(t, y, kept, x, w, components):
+    """``(times, weights, states)``: the Gauss-Legendre nodes of every step of ``t`` (``x``: the nodes'
+    abscissae plus one, ``w`` their weights, as floats) and the states there, the first ``components``,
+    in one compiled call (``SegmentLoop.gauss_states``, pcmm/model/_segment_loop.hpp) where every step of
+    ``kept`` is a row of the compiled loop (:class:`~pcmm.ode.integrators._Row`) of one form: the
+    operations of pcmm.run.audit._nodes and :func:`states_on_rows` on the same doubles in their order,
+    so the same bits.  None otherwise (the compiled evaluations off, another dense output kept), and
+    where a node falls on its step's end (:func:`states_on_rows` leaves those to :func:`dense_states`)."""
+    if kept is None or y.shape[0] == 0 or not len(kept) or not compiled.enabled():
+        return None
+    nodes = _GAUSS_STATES[0] if _GAUSS_STATES else _gauss_states()
+    if nodes is None:
+        return None
+    form = _rows_form(kept)
+    if form is None:
+        return None
+    return nodes(t, [e.row for e in kept], form is scipy_row_dense, x, w, components)
+
+
+_GAUSS_STATES: list = []
+
+
+def _gauss_states():
+    """The compiled ``gauss_states``, or None (an extension built before it)."""
+    loop = getattr(getattr(compiled, "_tree_dynamics", None), "SegmentLoop", None)
+    _GAUSS_STATES.append(getattr(loop, "gauss_states", None))
+    return _GAUSS_STATES[0]
 
 
 #: times x components up to which :func:`states_on_rows` evaluates on Python floats (numpy's call per

@@ -12,6 +12,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import time
+import weakref
 
 import numpy as np
 
@@ -52,14 +53,9 @@ def record_samples(traj: Trajectory, cfg: Configuration, seg, offsets, q_start, 
                              holds.applied(cfg) if held else None, cfg.forces, stepping,
                              own_rhs=stepping[0] is coords.rhs,  # a tree's rhs: a closure over these forces
                              n_state=coords.ny)  # the partition's state size (a flight's y has one more row)
-    coord_names = []
-    for name in cfg.joint_names:
-        sl = cfg.joint_slice[name]
-        coord_names += [name] if sl.stop - sl.start == 1 else [f"{name}.x", f"{name}.y", f"{name}.theta"]
-    names = dict(coordinates=coord_names, links=list(cfg.links), force_names=list(cfg.forces.names),
-                 constraint_labels=list(coords.labels) + held)
-    q_start = np.array(q_start, float)
     log = filling(traj)
+    names = _names(log, cfg, coords, held)
+    q_start = np.array(q_start, float)
     if isinstance(log, SegmentLog):
         log.add(log.context_id(cfg.name, names, context, SegmentContext.kept), t, y_full, q_start)
     else:  # one copy of the name lists per configuration, as the log keeps them
@@ -71,6 +67,34 @@ def record_samples(traj: Trajectory, cfg: Configuration, seg, offsets, q_start, 
             resample=lambda times: context.resample(t, y_full, q_start, times), configuration=cfg.name, **names))
     traj.stats["constraint_drift_max"] = max(traj.stats["constraint_drift_max"], getattr(coords, "max_residual", 0.0))
     traj.stats["record_s"] += time.perf_counter() - t0
+
+
+#: {a run's SegmentLog: {configuration: (force names, constraint labels, holds' labels, the name lists)}}:
+#: the name lists handed to the log last, per configuration (the log keeps one copy of equal ones)
+_NAMES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def _names(log, cfg: Configuration, coords, held: list) -> dict:
+    """The name lists of a segment of ``cfg`` (its coordinates, links, force elements and constraint
+    labels with the holds' ``held``): those made for ``log``'s last segment of ``cfg`` where the values
+    they are made from are equal (made again at every segment, they were equal lists; the log keeps the
+    first of equal ones), else new ones."""
+    forces, labels = cfg.forces.names, coords.labels
+    kept = _NAMES.get(log) if isinstance(log, SegmentLog) else None
+    last = None if kept is None else kept.get(cfg)
+    if last is not None and last[0] == tuple(forces) and last[1] == tuple(labels) and last[2] == held:
+        return last[3]
+    coord_names = []
+    for name in cfg.joint_names:
+        sl = cfg.joint_slice[name]
+        coord_names += [name] if sl.stop - sl.start == 1 else [f"{name}.x", f"{name}.y", f"{name}.theta"]
+    names = dict(coordinates=coord_names, links=list(cfg.links), force_names=list(forces),
+                 constraint_labels=list(labels) + held)
+    if isinstance(log, SegmentLog):
+        if kept is None:
+            kept = _NAMES[log] = weakref.WeakKeyDictionary()
+        kept[cfg] = (tuple(forces), tuple(labels), list(held), names)
+    return names
 
 
 def filling(traj: Trajectory):
