@@ -449,3 +449,31 @@ def test_run_to_t_is_the_first_part_of_the_run_to_2t(case, tmp_path):
 def test_fourbar_run_through_its_release_is_the_first_part_of_a_longer_run(tmp_path):
     scene = fourbar_scene(tmp_path, 1.0)
     assert oracle.check_prefix(scene, 1.2, 2.4, 0.01, tmp_path) == []
+
+
+# ---- a partial run, and the pool --------------------------------------------------------------
+def test_partial_row_is_the_partial_run_and_pool_rows_are_the_in_process_rows(leg_table, tmp_path):
+    """A floor 0.6 m down: by hand the strike comes at t = 0.44995870 s and would need mu >= 0.648526;
+    the run stops there. Its row is ``partial`` with that message, ends at that instant, and its
+    columns are the partial run's (no event: the strike was refused). On the local pool (two worker
+    processes) the same two runs give the rows of this process, bit for bit but for the timings."""
+    _, scene, whole = leg_table
+    t_hand, y = nm.leg_strike(60.0, 60.0, -0.6)
+    plan = make_plan([parse_set(f"{FLOOR_PATH}=-0.6,-0.7")])
+    sweep(pcmm.load_scene(scene), plan, tmp_path / "p.csv", pcmm.RunOptions(t_end=1.0), workers=1)
+    sweep(pcmm.load_scene(scene), plan, tmp_path / "pool.csv", pcmm.RunOptions(t_end=1.0), workers=2)
+    partial, complete = read(tmp_path / "p.csv")
+    with pytest.raises(pcmm.SimulationError) as err:
+        pcmm.simulate(nm.leg_scene(tmp_path, 60.0, 60.0, -0.6), pcmm.RunOptions(t_end=1.0))
+    assert partial["status"] == "partial" and f"t = {t_hand:.9f} s" in partial["error"] and "friction >= 0.648526" in partial["error"]
+    assert float(partial["t_final"]) == pytest.approx(t_hand, abs=1e-9)
+    assert same(partial, plain_columns(err.value.partial), 0.0) == []
+    assert partial["events"] == "0" and partial["configuration_final"] == "swing"
+
+    def key(r):
+        return {k: v for k, v in r.items() if k not in (*TIMING, "check")}
+    assert [key(r) for r in read(tmp_path / "pool.csv")] == [key(partial), key(complete)]
+    # the complete run is the uninterrupted leg table's run at the same floor, bit for bit
+    twin = next(r for r in whole if r[FLOOR_PATH] == "-0.7" and r[RATE_PATH] == "0")
+    assert {k: v for k, v in key(complete).items() if k not in ("run", RATE_PATH)} == \
+        {k: v for k, v in key(twin).items() if k not in ("run", RATE_PATH)}
