@@ -477,3 +477,21 @@ def test_partial_row_is_the_partial_run_and_pool_rows_are_the_in_process_rows(le
     twin = next(r for r in whole if r[FLOOR_PATH] == "-0.7" and r[RATE_PATH] == "0")
     assert {k: v for k, v in key(complete).items() if k not in ("run", RATE_PATH)} == \
         {k: v for k, v in key(twin).items() if k not in ("run", RATE_PATH)}
+
+
+# ---- the series the holding column is read from -----------------------------------------------
+@pytest.mark.parametrize("case", ["fourbar k = 0.9", "leg"])
+def test_the_oracle_recomputes_the_series_a_row_reads(case, tmp_path):
+    """max_holding_force is the extreme of the recorded hold series and the energies come from the
+    kinetic series: the differential oracle (tests/oracle.py: its own Pinocchio model, one KKT solve
+    per sample) recomputes them, in the steps and resampled at 10 ms, at the switches (momentum,
+    energies) too."""
+    if case == "leg":
+        scene, t_end = nm.leg_scene(tmp_path, 60.0, 60.0, -0.7).path, 1.0
+    else:
+        scene, t_end = fourbar_scene(tmp_path, 0.9), 1.2
+    traj = pcmm.simulate(pcmm.load_scene(scene), pcmm.RunOptions(t_end=t_end))
+    o = oracle.Oracle(pcmm.load_scene(scene))
+    found = o.check(traj, samples=6) + oracle.Oracle(pcmm.load_scene(scene)).check(traj.resampled(0.01), samples=6)
+    assert found == []
+    assert {"constraint force", "kinetic energy", "momentum not conserved", "kinetic_energy_after"} <= set(o.counts)
