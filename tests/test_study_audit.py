@@ -550,3 +550,50 @@ def test_a_contact_phase_without_its_record_is_unknown_not_zero(tmp_path):
     (loss,) = contact_phase_losses(traj).values()
     assert quantities(summ, contact_phase_losses(traj))["energy_dissipated"] == loss == pytest.approx(
         hunt_crossley_phase(0.8, 0.3)[1], rel=1e-6)
+
+
+# ---- resampled samples against the hand's own dense solution ----------------------------------
+def test_every_resampled_sample_is_the_hands_solution(tmp_path):
+    """At every 5 ms sample of the --dt resampling, the angles and rates are the hand's: the leg's
+    swing by its own Lagrangian (DOP853 dense output) up to the strike and at rest after it; the
+    four-bar's loop by its own KKT integration up to the first strike, and from rest at the
+    release (t = sqrt((140 deg - th1* - V'(th1*)/k) / 0.5)) to the end, across the release's events."""
+    from scipy.integrate import solve_ivp
+    leg = pcmm.simulate(nm.leg_scene(tmp_path, 60.0, 60.0, -0.7), pcmm.RunOptions(t_end=1.0))
+    t_strike, y_strike = nm.leg_strike(60.0, 60.0, -0.7)
+    r = leg.resampled(0.005)
+    a = math.radians(60.0)
+
+    def leg_rhs(t, y):
+        a1, a2, w1, w2 = y
+        s = math.sin(a1 - a2)
+        f = np.array([-nm.M2 * nm.L1 * nm.L2 / 2 * s * w2 ** 2, nm.M2 * nm.L1 * nm.L2 / 2 * s * w1 ** 2]) - nm.leg_gravity(a1, a2)
+        return [w1, w2, *np.linalg.solve(nm.leg_mass(a1, a2), f)]
+    swing = solve_ivp(leg_rhs, (0, t_strike), [a, 2 * a, 0.0, 0.0], rtol=1e-12, atol=1e-13, method="DOP853",
+                      dense_output=True).sol
+    names = ("thigh", "shank")
+    got = np.column_stack([r.series("theta", x) for x in names] + [r.series("omega", x) for x in names])
+    config = r.configuration_at()
+    before = np.array([c == "swing" for c in config])
+    want = np.array([swing(t) if b else [*y_strike[:2], 0.0, 0.0] for t, b in zip(r.t, before)])
+    assert before.sum() > 90 and (~before).sum() > 100
+    assert np.max(np.abs(got[:, :2] - want[:, :2])) < 1e-8
+    assert np.max(np.abs(got[:, 2:] - want[:, 2:])) < 1e-7
+
+    fb = pcmm.simulate(pcmm.load_scene(fourbar_scene(tmp_path / "fb", 1.0)), pcmm.RunOptions(t_end=1.2))
+    r = fb.resampled(0.005)
+    t1, _, _ = nm.fourbar_strike()
+    th1_stop = nm.brentq(lambda x: nm.q3_of(x) - nm.Q3_STOP, math.radians(90), math.radians(180))
+    t_release = math.sqrt((math.radians(140) - th1_stop - nm.dpotential(th1_stop) / nm.K_ARM) / 0.5)
+    start = solve_ivp(nm.loop_rhs, (0, t1), nm.at_rest(math.pi / 2), rtol=1e-12, atol=1e-13, method="DOP853",
+                      dense_output=True).sol
+    end = solve_ivp(nm.loop_rhs, (t_release, 1.2), nm.at_rest(th1_stop), rtol=1e-12, atol=1e-13, method="DOP853",
+                    dense_output=True).sol
+    links = ("crank", "coupler", "rocker")
+    got = np.column_stack([r.series("theta", x) for x in links] + [r.series("omega", x) for x in links])
+    early, late = r.t <= t1 - 1e-9, r.t >= t_release + 1e-9
+    assert early.sum() > 20 and late.sum() > 15
+    for mask, sol in ((early, start), (late, end)):
+        want = np.array([sol(t) for t in r.t[mask]])
+        assert np.max(np.abs(got[mask, :3] - want[:, :3])) < 1e-8
+        assert np.max(np.abs(got[mask, 3:] - want[:, 3:])) < 1e-7
