@@ -513,7 +513,7 @@ def hunt_crossley_phase(e: float, h: float, k: float = 1e7, n: float = 1.5, m: f
     """A point mass dropped from h onto the floor through a Hunt-Crossley contact,
     m y'' = -m g + k d^n (1 + D d' / v-), d = -y, D = 3 (1 - e) / 2, integrated here from first
     contact (y = 0, y' = -v-, v- = sqrt(2 g h)) to the gap reopening (y = 0 again). Returns
-    (speed after, energy the damping dissipates: the integral of k d^n D d'^2 / v-)."""
+    (speed after, energy the damping dissipates: the integral of k d^n D d'^2 / v-, duration)."""
     from scipy.integrate import solve_ivp
     v0, D = math.sqrt(2 * g * h), 1.5 * (1 - e)
 
@@ -528,7 +528,7 @@ def hunt_crossley_phase(e: float, h: float, k: float = 1e7, n: float = 1.5, m: f
     reopens.terminal, reopens.direction = True, 1
     sol = solve_ivp(rhs, (0, 0.1), [-1e-300, -v0, 0.0], events=reopens, rtol=1e-12, atol=1e-15, method="DOP853",
                     first_step=1e-9)
-    return sol.y_events[0][0][1], sol.y_events[0][0][2]
+    return sol.y_events[0][0][1], sol.y_events[0][0][2], sol.t_events[0][0]
 
 
 @pytest.mark.parametrize("e", [0.5, 0.8])
@@ -541,8 +541,10 @@ def test_energy_dissipated_by_a_continuous_contact_law(e, tmp_path):
     import builders
     scene = builders.ball(tmp_path, e, h=0.3, t_end=0.4, merge=False, law="hunt_crossley", stiffness=1e7, exponent=1.5)
     (row,) = run_sweep(scene, ["transitions.floor.restitution=" + repr(e)], tmp_path / "hc.csv", 0.4)
-    v_after, lost = hunt_crossley_phase(e, 0.3)
+    v_after, lost, duration = hunt_crossley_phase(e, 0.3)
     assert row["impacts"] == "1" and lost > 0.3
+    # the contact's impulse: the floor's force integrated, m (v+ + v-) + m g (duration)
+    assert float(row["first_impulse"]) == pytest.approx(v_after + math.sqrt(2 * 9.81 * 0.3) + 9.81 * duration, rel=1e-6)
     assert float(row["energy_dissipated"]) == pytest.approx(lost, rel=1e-6)
     assert float(row["kinetic_energy_lost"]) == pytest.approx(0.5 * (2 * 9.81 * 0.3 - v_after ** 2), rel=1e-6)
 
