@@ -629,3 +629,69 @@ def test_optimize_on_the_fourbar_answers_the_least_peak_impulse(tmp_path):
     assert all(float(r["last_merge_t"]) < 0.5 for r in rows), [(r[K_PATH], r["last_merge_t"]) for r in rows]
     best = min(rows, key=lambda r: float(r["peak_impulse"]))
     assert res.run == int(best["run"])
+
+
+LEG_HC_TOML = """
+[scene]
+name = "leg_hc"
+gravity = [0.0, -9.81]
+t_end = 0.6
+initial_configuration = "swing"
+
+[configurations.swing]
+urdf = "leg.urdf"
+
+[initial]
+q = { hip = "60 deg", knee = "60 deg" }
+v = { hip = 0.0, knee = 0.0 }
+
+[[transitions]]
+name = "foot"
+type = "stop"
+from = "swing"
+restitution = 0.6
+cut = []
+law = "hunt_crossley"
+stiffness = 1e7
+exponent = 1.5
+contact = { a = "frame", point_a = [0.0, -0.7], b = "shank", point_b = [0.4, 0.0], normal = [0.0, 1.0] }
+guard = { type = "gap", value = 0.0, direction = "decreasing" }
+"""
+
+
+def test_energy_dissipated_by_a_contact_law_is_not_the_kinetic_energy_lost(tmp_path):
+    """The leg's foot strikes a Hunt-Crossley floor (e = 0.6, k = 1e7 N/m^1.5): during the 4.5 ms
+    contact the leg keeps swinging and gravity works on it, so the energy the contact dissipates is
+    not the kinetic energy lost. By hand (the leg's Lagrangian with the floor's force at the foot,
+    integrated from the strike to the foot leaving the floor): the damping's work is 11.57064 J, the
+    kinetic energy lost 11.44296 J, the contact ends at 0.47173619 s. The row has both."""
+    from scipy.integrate import solve_ivp
+    (tmp_path / "leg.urdf").write_text(nm.LEG_URDF)
+    (tmp_path / "leg.toml").write_text(LEG_HC_TOML)
+    (row,) = run_sweep(tmp_path / "leg.toml", ["transitions.foot.restitution=0.6"], tmp_path / "t.csv", 0.6)
+    t0, y = nm.leg_strike(60.0, 60.0, -0.7)
+    k, n, floor, D = 1e7, 1.5, -0.7, 1.5 * (1 - 0.6)
+    v0 = -(nm.foot_jacobian(y[0], y[1]) @ y[2:])[1]
+
+    def rhs(t, s):
+        a1, a2, w1, w2, _ = s
+        J = nm.foot_jacobian(a1, a2)
+        depth, rate = max(floor - nm.L1 * math.sin(a1) - nm.L2 * math.sin(a2), 0.0), -(J @ [w1, w2])[1]
+        force = max(k * depth ** n * (1 + D * rate / v0), 0.0)
+        sn = math.sin(a1 - a2)
+        f = (np.array([-nm.M2 * nm.L1 * nm.L2 / 2 * sn * w2 ** 2, nm.M2 * nm.L1 * nm.L2 / 2 * sn * w1 ** 2])
+             - nm.leg_gravity(a1, a2) + J.T @ [0.0, force])
+        return [w1, w2, *np.linalg.solve(nm.leg_mass(a1, a2), f), k * depth ** n * D * rate * rate / v0]
+
+    def leaves(t, s):
+        return nm.L1 * math.sin(s[0]) + nm.L2 * math.sin(s[1]) - floor
+    leaves.terminal, leaves.direction = True, 1
+    sol = solve_ivp(rhs, (0, 0.1), [*y, 0.0], events=leaves, rtol=1e-12, atol=1e-15, method="DOP853", first_step=1e-9)
+    end = sol.y_events[0][0]
+
+    def kinetic(s):
+        return 0.5 * np.array(s[2:4]) @ nm.leg_mass(s[0], s[1]) @ np.array(s[2:4])
+    assert end[4] == pytest.approx(11.57064, abs=1e-5) and t0 + sol.t_events[0][0] == pytest.approx(0.47173619, abs=1e-8)
+    assert float(row["energy_dissipated"]) == pytest.approx(end[4], rel=1e-8)
+    assert float(row["kinetic_energy_lost"]) == pytest.approx(kinetic(y) - kinetic(end), rel=1e-8)
+    assert abs(float(row["energy_dissipated"]) - float(row["kinetic_energy_lost"])) > 0.1
