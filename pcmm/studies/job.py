@@ -21,7 +21,9 @@ QUANTITIES = {
     "peak_impulse": "largest |normal impulse| of the run, N s",
     "total_impulse": "sum of |normal impulse| over the run, N s",
     "kinetic_energy_lost": "sum over impacts of KE before - KE after, J",
-    "energy_dissipated": "sum over impacts of KE before + drive work - KE after, J",
+    "energy_dissipated": "sum over impacts of KE before + drive work - KE after, J (a collision resolved by a "
+                         "continuous contact law: the kinetic + potential energy lost over its duration); "
+                         "empty when a run's record cannot give it",
     "max_holding_force": "largest |holding force or moment| of any lock (stats.holding), N or N m; "
                          "empty when nothing was locked",
     "last_merge_t": "time of the run's last merge (a latch, or a stop's bounces accumulated into a lock), s; "
@@ -72,7 +74,7 @@ def run_one(job: Job) -> dict:
     from ..results.summary import summary
     t0 = time.perf_counter()
     row: dict[str, Any] = {"run": job.index, **job.values}
-    summ = None
+    summ, phases = None, {}
     try:
         scene = base_scene(job.scene_path, job.raw, job.token).with_values(job.values)
         try:
@@ -85,6 +87,7 @@ def run_one(job: Job) -> dict:
             row.update(status="partial", error=exc.text())
         if traj is not None:
             summ = summary(traj, scene.initial_configuration)
+            phases = contact_phase_losses(traj)
     except PcmmError as exc:
         row.update(status="failed", error=exc.text())
     except KeyboardInterrupt:
@@ -92,7 +95,7 @@ def run_one(job: Job) -> dict:
     except Exception as exc:  # a defect in pcmm must not lose the sweep: the run is a row with its error
         row.update(status="failed", error=f"{type(exc).__name__}: {exc} "
                    f"({traceback.extract_tb(exc.__traceback__)[-1].name})")
-    row.update(quantities(summ) if summ is not None else {})
+    row.update(quantities(summ, phases) if summ is not None else {})
     for path in job.collect:
         row[path] = collect_value(summ, path) if summ is not None else None
     row["wall_s"] = time.perf_counter() - t0
@@ -105,13 +108,36 @@ def failed_row(job: Job, status: str, message: str, seconds: float) -> dict:
     return {"run": job.index, **job.values, "status": status, "error": message, "wall_s": seconds}
 
 
-def quantities(summ: dict) -> dict:
-    """The per-run quantities of :data:`QUANTITIES` from a run summary."""
+def contact_phase_losses(traj) -> dict[float, float]:
+    """{start time: kinetic + potential energy lost} of each collision the run resolved by a
+    continuous contact law (an event with ``t_end``): its contact force acts over the stay from
+    ``t`` to ``t_end``, so what it dissipates is not an impulse's KE- + drive work - KE+ (gravity,
+    springs and drives work during it) but the mechanical energy lost across the stay (the
+    potential holds gravity and the springs; the contact's own elastic energy is zero at both ends,
+    where the bodies meet and part)."""
+    out = {}
+    for e in traj.events:
+        if e.get("t_end") is None or not e.get("impact"):
+            continue
+        stay = [s for s in traj.segments if s.t[0] >= e["t"] and s.t[-1] <= e["t_end"] and s.t[-1] > s.t[0]]
+        if stay and stay[0].t[0] == e["t"] and stay[-1].t[-1] == e["t_end"]:
+            first, last = stay[0], stay[-1]
+            out[e["t"]] = float(first.kinetic[0] + first.potential[0] - last.kinetic[-1] - last.potential[-1])
+    return out
+
+
+def quantities(summ: dict, phases: dict | None = None) -> dict:
+    """The per-run quantities of :data:`QUANTITIES` from a run summary; ``phases``: the energy
+    lost over each collision resolved by a continuous contact law (:func:`contact_phase_losses`),
+    by its start time.  Without it such a collision's dissipation is unknown, and so is the run's
+    ``energy_dissipated`` (empty, never a partial sum)."""
+    phases = phases or {}
     events = summ["events"]
     impacts = [e for e in events if e.get("impact")]
     impulses = [abs(e["impulse"]["normal"]) for e in impacts]
     merges = [e for e in events if e.get("merge")]
-    dissipated = [e["energy_dissipated"] for e in impacts if e.get("energy_dissipated") is not None]
+    dissipated = [e["energy_dissipated"] if e.get("energy_dissipated") is not None else phases.get(e["t"])
+                  for e in impacts]
     holding = [abs(v) for h in ((summ.get("stats") or {}).get("holding") or {}).values()
                for v in (h.get("min"), h.get("max")) if isinstance(v, (int, float)) and math.isfinite(v)]
     return {
@@ -121,7 +147,7 @@ def quantities(summ: dict) -> dict:
         "peak_impulse": max(impulses) if impulses else 0.0,
         "total_impulse": math.fsum(impulses),
         "kinetic_energy_lost": math.fsum(e["kinetic_energy_before"] - e["kinetic_energy_after"] for e in impacts),
-        "energy_dissipated": math.fsum(dissipated),
+        "energy_dissipated": None if None in dissipated else math.fsum(dissipated),
         "max_holding_force": max(holding) if holding else None,
         "last_merge_t": merges[-1]["t"] if merges else None,
         "configuration_final": summ.get("configuration_final"),
