@@ -240,10 +240,6 @@ def test_leg_sweep_rows_by_hand_and_by_plain_run(leg_table, tmp_path):
         assert same(row, hand, 1e-8, 1e-12, row["run"]) == []
 
 
-@pytest.mark.xfail(strict=True, reason="pcmm/ode/integrators.py RK4.integrate (the known motion of the pinned "
-                   "leg, pcmm/run/loop.py _known_motion): the loop stops once t >= t_bound - 1e-15 max(1, t_bound), "
-                   "so the accumulated t = 0.9999999999999999 ends the run one ulp short of t_end = 1.0 and the "
-                   "row's t_final says 0.9999999999999999; the last step should land on t_bound itself")
 def test_leg_sweep_rows_end_at_t_end(leg_table):
     _, _, rows = leg_table
     assert [row["t_final"] for row in rows] == ["1.0"] * 4

@@ -1144,10 +1144,16 @@ class FixedStepRK4:
         def steps(counted, f0, st):
             h = opts.step
             t, y, f = t0, np.array(y0, float), f0
-            while t < t_bound - 1e-15 * max(1.0, abs(t_bound)):
+            tol = 1e-15 * max(1.0, abs(t_bound))
+            while t < t_bound - tol:
                 hh = min(h, t_bound - t)
+                # a step that ends within tol of t_bound ends on it: accumulated steps of h fall an
+                # ulp or so short of it, and the run would end (and say it ended) at 0.9999999999999999
+                last = t_bound - (t + hh) <= tol
+                if last:
+                    hh = t_bound - t
                 if y.size == 0:  # nothing to integrate (a locked or fully driven configuration)
-                    t_new = t + hh
+                    t_new = t_bound if last else t + hh
                     f_new = counted(t_new, y)
                     yield t, y, t_new, y, f_new, _lazy(lambda a=(t, y, f, t_new, y, f_new): _hermite(*a)), None, None
                     t = t_new
@@ -1156,7 +1162,7 @@ class FixedStepRK4:
                 k3 = counted(t + hh / 2, y + hh / 2 * k2)
                 k4 = counted(t + hh, y + hh * k3)
                 y_new = y + hh / 6 * (f + 2 * k2 + 2 * k3 + k4)
-                t_new = t + hh
+                t_new = t_bound if last else t + hh
                 f_new = counted(t_new, y_new) if np.all(np.isfinite(y_new)) else y_new
                 yield t, y, t_new, y_new, f_new, _lazy(lambda a=(t, y, f, t_new, y_new, f_new): _hermite(*a)), None, None
                 t, y, f = t_new, y_new, f_new
