@@ -130,3 +130,28 @@ def test_stuck_at_once_against_routh_at_large_mu():
     with pytest.raises(AmbiguousImpact, match="separating"):
         stuck_at_once(D, 10 * vt, vn, E)
     assert stick_impulse(D, 10 * vt, vn, E).no_split.startswith("Routh's process with no slip has no answer")
+
+
+def test_no_example_reports_friction_feeding_energy():
+    """Every event of every shipped example with a frictional contact (a stop's or a pin's): friction's
+    share of the energy lost is >= 0 (to round-off) and the shares sum to the kinetic energy lost;
+    where an event gives no split it says why.  Examples without friction have no friction block."""
+    from pathlib import Path
+    root = Path(__file__).resolve().parents[1] / "examples"
+    checked = 0
+    for path in sorted(root.glob("*.toml")):
+        if "friction" not in path.read_text():
+            continue
+        for ev in pcmm.simulate(pcmm.load_scene(path)).events:
+            fr = ev.get("friction")
+            if fr is None:
+                continue
+            lost = ev["kinetic_energy_before"] - ev["kinetic_energy_after"]
+            if fr["energy_lost"] is None:
+                assert fr["energy_split"].startswith("none: "), (path.name, ev["t"])
+                continue
+            scale = max(ev["kinetic_energy_before"], 1e-300)
+            assert fr["energy_lost"]["tangential"] >= -1e-12 * scale, (path.name, ev["name"], ev["t"], fr)
+            assert fr["energy_lost"]["normal"] + fr["energy_lost"]["tangential"] == pytest.approx(lost, abs=1e-9 * scale)
+            checked += 1
+    assert checked >= 20  # the compass gait's and the rimless wheel's strikes
