@@ -21,6 +21,7 @@ import numpy as np
 import pytest
 
 import pcmm
+from pcmm.errors import SimulationError
 from builders import Bar, chain_urdf
 from pcmm.events.friction import AmbiguousImpact, stick_impulse, stuck_at_once
 
@@ -126,10 +127,41 @@ def test_stuck_at_once_against_routh_at_large_mu():
     fr = stick_impulse(D, vt, vn, E)
     np.testing.assert_array_equal(fr.P, np.linalg.solve(D, [-vt, -(1 + E) * vn]))
     assert fr.work_tangential == -0.5 * vt * vt / D[0, 0] and fr.no_split is None
-    # a slip whose stop already separates the point: no compression, no split
+    # a slip whose stop already separates the point (v_n1 = v_n - D_tn v_t / D_tt >= 0): no compression,
+    # no split; the impulse stays compressive while v_n1 <= -e v_n (4 v_t: v_n1 = 0.264 m/s <= 0.729 m/s)
+    vn1 = vn - D[0, 1] * 4 * vt / D[0, 0]
+    assert 0 < vn1 < -E * vn
     with pytest.raises(AmbiguousImpact, match="separating"):
-        stuck_at_once(D, 10 * vt, vn, E)
-    assert stick_impulse(D, 10 * vt, vn, E).no_split.startswith("Routh's process with no slip has no answer")
+        stuck_at_once(D, 4 * vt, vn, E)
+    fr = stick_impulse(D, 4 * vt, vn, E)
+    assert fr.no_split.startswith("Routh's process with no slip has no answer") and fr.work_normal is None
+    assert fr.P_n == pytest.approx((-E * vn - vn1) / (D[1, 1] - D[0, 1] ** 2 / D[0, 0]), rel=1e-12) and fr.P_n > 0
+    # beyond it (10 v_t: v_n1 = 2.85 m/s > -e v_n) the no-slip impulse would pull: refused
+    with pytest.raises(AmbiguousImpact, match="pulling normal impulse"):
+        stick_impulse(D, 10 * vt, vn, E)
+
+
+def test_sticking_stop_that_would_pull_is_refused(make_scene, monkeypatch):
+    """A stop with no slip whose slip's stop already moves the tip away faster than Newton's -e v_n^-:
+    the stick impulse W^-1 (-v_t, -(1 + e) v_n) has P_n < 0 (by hand at the start, 2 mm before the wall: -0.1514 N s; at the wall -0.147), a wall pulling the tip
+    back, which pcmm applied silently.  Refused, naming the pull; with a finite mu (Routh's process)
+    the same strike runs, its impulse compressive and its friction share >= 0."""
+    import test_stick_split as here
+    monkeypatch.setattr(here, "Q0", (-0.392, -1.245))
+    monkeypatch.setattr(here, "V0", (-1.839, -1.717))
+    monkeypatch.setattr(here, "WALL", math.radians(309.1))
+    n = np.array([math.cos(here.WALL), math.sin(here.WALL)])
+    t = np.array([n[1], -n[0]])
+    Jc = np.vstack([t @ tip_jacobian(here.Q0), n @ tip_jacobian(here.Q0)])
+    D = Jc @ np.linalg.solve(mass_matrix(here.Q0), Jc.T)
+    vt, vn = Jc @ np.array(here.V0)
+    assert np.linalg.solve(D, [-vt, -(1 + E) * vn])[1] == pytest.approx(-0.1514, abs=1e-4)  # at the start, 2 mm before
+    with pytest.raises(SimulationError, match=r"tip strikes wall.*pulling normal impulse \(P_n = -0\.147"):
+        pcmm.simulate(pcmm.load_scene(wall_scene(make_scene)))
+    ev = pcmm.simulate(pcmm.load_scene(wall_scene(make_scene, friction=2.0))).events[0]
+    assert ev["impulse"]["normal"] > 0 and ev["friction"]["energy_lost"]["tangential"] >= 0
+    assert ev["friction"]["energy_lost"]["normal"] + ev["friction"]["energy_lost"]["tangential"] == pytest.approx(
+        ev["kinetic_energy_before"] - ev["kinetic_energy_after"], rel=1e-9)
 
 
 def test_no_example_reports_friction_feeding_energy():

@@ -151,9 +151,17 @@ def stuck_at_once(W: np.ndarray, vt: float, vn: float, e: float, law: str = "new
 
 def stick_impulse(W: np.ndarray, vt: float, vn: float, e: float, law: str = "newton") -> FrictionalImpulse:
     """No slip (``friction = "stick"``): P = W^-1 (-v_t^-, -(1 + e) v_n^-), the velocity after
-    (0, -e v_n^-).  The works are Routh's process with mu -> infinity (:func:`stuck_at_once`, friction's
+    (0, -e v_n^-); refused (:class:`AmbiguousImpact`) where P_n < 0, a contact pulling.  The works are
+    Routh's process with mu -> infinity (:func:`stuck_at_once`, friction's
     >= 0 dissipated) where it ends at P; where it does not, ``no_split`` says why and the works are None."""
     P = np.linalg.solve(W, np.array([-vt, -(1.0 + e) * vn]))
+    if P[1] < -1e-12 * float(np.abs(P).max()):  # (-e v_n - v_n1) / (W_nn - W_nt^2 / W_tt): v_n1 > -e v_n
+        vn1 = vn - W[1, 0] * vt / W[0, 0]
+        raise AmbiguousImpact(
+            f"with no slip the impact needs a pulling normal impulse (P_n = {P[1]:.6g} N s, P_t = {P[0]:.6g} N s), "
+            f"which a contact cannot give: stopping the slip ({vt:.6g} m/s) already moves the point away from the "
+            f"surface (normal velocity {vn1:.6g} m/s, above Newton's -e v_n^- = {-e * vn:.6g} m/s); give the contact "
+            "a finite friction mu (Routh's process, in which it slides)")
     v1 = np.array([vt, vn]) + W @ P
     try:
         fr = stuck_at_once(W, vt, vn, e, law)
