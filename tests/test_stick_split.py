@@ -19,10 +19,10 @@ import math
 
 import numpy as np
 import pytest
+from builders import Bar, chain_urdf
 
 import pcmm
 from pcmm.errors import SimulationError
-from builders import Bar, chain_urdf
 from pcmm.events.friction import AmbiguousImpact, stick_impulse, stuck_at_once
 
 L, MASS, E = 0.5, 1.0, 0.5
