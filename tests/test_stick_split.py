@@ -70,8 +70,7 @@ def test_sticking_stop_splits_its_loss_by_routh(make_scene):
     assert n @ tip(q) == pytest.approx(n @ tip(Q0) - 0.002, abs=1e-10)  # on the wall
     M, J = mass_matrix(q), tip_jacobian(q)
     Jc = np.vstack([t @ J, n @ J])
-    vm = np.array([ev["v_before"]["J1"][0] if isinstance(ev["v_before"]["J1"], list) else ev["v_before"]["J1"],
-                   ev["v_before"]["J2"][0] if isinstance(ev["v_before"]["J2"], list) else ev["v_before"]["J2"]])
+    vm = np.array([ev["v_before"][j] for j in ("J1", "J2")]).ravel()
     D = Jc @ np.linalg.solve(M, Jc.T)
     vt, vn = Jc @ vm
     # impulse and momentum by hand: the tip sticks and leaves at -e vn
