@@ -25,7 +25,13 @@ compression work.  The three coincide while the slip direction does not change.
 The work of each part is exact per phase: ``W_n = integral v_n dp``, ``W_t = integral v_t dP_t``;
 they sum to KE^+ - KE^-, and W_t <= 0.  ``friction = "stick"`` is mu = infinity: the impulse is
 ``W^-1 (-v_t^-, -(1 + e) v_n^-)`` (for a pin, e = 0: the paper's Eq. 29 with J = [J_t; J_n]),
-its works those of the proportional path from 0 to P.
+Newton's outcome whatever the law.  What each part did is Routh's process in the limit mu -> infinity
+(:func:`stuck_at_once`): the slip is stopped at p = 0+ by the tangential impulse -v_t^- / W_tt, so
+friction dissipates v_t^-^2 / (2 W_tt), and the point then sticks to the end of the impact.  (Not the
+proportional path's P_i (v_i^- + v_i^+) / 2, whose tangential part can be negative, as if friction fed
+energy in.)  Where that process does not end at the impulse taken (the slip's stop already separates
+the point, or a Poisson or Stronge law, which end it elsewhere) there is no such split:
+:attr:`FrictionalImpulse.no_split` says why.
 
 **Painleve.**  A slide phase with ``dv_n/dp = W_nn - sigma mu W_nt <= 0`` means the normal impulse
 does not separate the sliding contact: the rigid-body law has no unique answer (Genot and
@@ -69,11 +75,12 @@ class FrictionalImpulse:
     slip_after: float
     vn_before: float
     vn_after: float
-    work_normal: float  # J, integral v_n dP_n (<= 0 unless Newton's law creates energy)
-    work_tangential: float  # J, integral v_t dP_t (<= 0 always)
+    work_normal: float | None  # J, integral v_n dP_n (<= 0 unless Newton's law creates energy); None: no_split
+    work_tangential: float | None  # J, integral v_t dP_t (<= 0 always); None: no_split
     phases: tuple[Phase, ...]
     mu: float  # math.inf for "stick"
     law: str
+    no_split: str | None = None  # why Routh's process gives no split of the works here ("stick" only)
 
     @property
     def P(self) -> np.ndarray:
@@ -115,14 +122,60 @@ def painleve_text(W, mode: str, mu: float, slope: float) -> str:
             "(lower mu, or model the contact's compliance)")
 
 
+def stuck_at_once(W: np.ndarray, vt: float, vn: float, e: float, law: str = "newton") -> FrictionalImpulse:
+    """Routh's process with no slip (mu -> infinity): the slip is stopped at p = 0+ by the tangential
+    impulse -v_t / W_tt (its work -v_t^2 / (2 W_tt), the limit of the slide phase's
+    -mu v_t^2 / (2 (mu W_tt - sigma W_tn))), leaving the normal velocity v_n1 = v_n - W_nt v_t / W_tt;
+    then the point sticks (dP_t = kappa dp, dv_n/dp = W_nn - W_nt^2 / W_tt) until compression ends and
+    the impact ends by ``law``: Newton's at v_n = -e v_n^-, Poisson's at p = (1 + e) p_c and Stronge's
+    (restitution work -e^2 times the compression's) both at v_n = -e v_n1 on this one stick phase.  The
+    works are exact: v_n is linear in p.  Raises :class:`AmbiguousImpact` when stopping the slip
+    already separates the point (v_n1 >= 0: no compression)."""
+    if law not in LAWS:
+        raise ValueError(f"restitution law {law!r}: one of {LAWS}")
+    Pt1 = -vt / W[0, 0]
+    vn1 = vn + W[1, 0] * Pt1
+    if not vn1 < 0:
+        raise AmbiguousImpact(f"stopping the slip (tangential impulse {Pt1:.6g} N s) leaves the point separating "
+                              f"(normal velocity {vn1:.6g} m/s) before any compression")
+    slope = W[1, 1] - W[0, 1] ** 2 / W[0, 0]
+    p_c = -vn1 / slope
+    vn_end = -e * vn if law == "newton" else -e * vn1
+    p = (vn_end - vn1) / slope
+    phases = [Phase("stick", 0.0, 0.0, "slip stops"), Phase("stick", 0.0, p_c, "compression ends")]
+    if e != 0.0:
+        phases.append(Phase("stick", p_c, p, "impact ends"))
+    return FrictionalImpulse(float(Pt1 - W[0, 1] / W[0, 0] * p), float(p), vt, 0.0, vn, float(vn_end),
+                             0.5 * (vn1 + vn_end) * p, -0.5 * vt * vt / W[0, 0], tuple(phases), math.inf, law)
+
+
 def stick_impulse(W: np.ndarray, vt: float, vn: float, e: float, law: str = "newton") -> FrictionalImpulse:
-    """No slip (``friction = "stick"``): P = W^-1 (-v_t^-, -(1 + e) v_n^-); the works are those of the
-    proportional path from 0 to P, along which the contact velocity is linear."""
+    """No slip (``friction = "stick"``): P = W^-1 (-v_t^-, -(1 + e) v_n^-), the velocity after
+    (0, -e v_n^-); refused (:class:`AmbiguousImpact`) where P_n < 0, a contact pulling.  The works are
+    Routh's process with mu -> infinity (:func:`stuck_at_once`, friction's
+    >= 0 dissipated) where it ends at P; where it does not, ``no_split`` says why and the works are None."""
     P = np.linalg.solve(W, np.array([-vt, -(1.0 + e) * vn]))
+    if P[1] < -1e-12 * float(np.abs(P).max()):  # (-e v_n - v_n1) / (W_nn - W_nt^2 / W_tt): v_n1 > -e v_n
+        vn1 = vn - W[1, 0] * vt / W[0, 0]
+        raise AmbiguousImpact(
+            f"with no slip the impact needs a pulling normal impulse (P_n = {P[1]:.6g} N s, P_t = {P[0]:.6g} N s), "
+            f"which a contact cannot give: stopping the slip ({vt:.6g} m/s) already moves the point away from the "
+            f"surface (normal velocity {vn1:.6g} m/s, above Newton's -e v_n^- = {-e * vn:.6g} m/s); give the contact "
+            "a finite friction mu (Routh's process, in which it slides)")
     v1 = np.array([vt, vn]) + W @ P
-    Wt, Wn = 0.5 * P[0] * (vt + v1[0]), 0.5 * P[1] * (vn + v1[1])
-    return FrictionalImpulse(float(P[0]), float(P[1]), vt, float(v1[0]), vn, float(v1[1]), float(Wn), float(Wt),
-                             (Phase("stick", 0.0, float(P[1]), "impact ends"),), math.inf, law)
+    try:
+        fr = stuck_at_once(W, vt, vn, e, law)
+    except AmbiguousImpact as exc:
+        why = f"Routh's process with no slip has no answer here: {exc}"
+    else:
+        if np.abs(fr.P - P).max() <= 1e-9 * max(float(np.abs(P).max()), 1e-300):
+            return FrictionalImpulse(float(P[0]), float(P[1]), vt, float(v1[0]), vn, float(v1[1]), fr.work_normal,
+                                     fr.work_tangential, fr.phases, math.inf, law)
+        why = (f"Routh's process with no slip and the {law} law ends at another impulse ({fr.P_t:.6g}, "
+               f"{fr.P_n:.6g}) N s, normal velocity after {fr.vn_after:.6g} m/s; the stick impulse "
+               f"({P[0]:.6g}, {P[1]:.6g}) N s is Newton's, W^-1 (-v_t, -(1 + e) v_n)")
+    return FrictionalImpulse(float(P[0]), float(P[1]), vt, float(v1[0]), vn, float(v1[1]), None, None,
+                             (Phase("stick", 0.0, float(P[1]), "impact ends"),), math.inf, law, why)
 
 
 def routh(W: np.ndarray, vt: float, vn: float, mu: float, e: float, law: str = "newton",

@@ -459,8 +459,9 @@ def check_frictional_energy(fr: FrictionalImpulse, imp: Impulse, where: str) -> 
                  f"the frictional impact ({fr.law} law, phases {fr.phase_text}) creates energy")
         raise SimulationError(
             f"{where}: {cause}: kinetic energy {imp.ke_before:.9g} -> {imp.ke_after:.9g} J "
-            f"(normal work {fr.work_normal:.6g} J, friction work {fr.work_tangential:.6g} J); use "
-            "restitution_law = \"energetic\" (Stronge) or a smaller restitution")
+            + (f"(no split of the works: {fr.no_split}); use " if fr.no_split is not None else
+               f"(normal work {fr.work_normal:.6g} J, friction work {fr.work_tangential:.6g} J); use ")
+            + "restitution_law = \"energetic\" (Stronge) or a smaller restitution")
 
 
 def no_impulse(cfg: Configuration, q: np.ndarray, v_before: np.ndarray, v_after: np.ndarray,

@@ -54,7 +54,7 @@ from ..model.pinocchio_helpers import frame_jacobian
 from ..scene.spec import PinSpec
 from .contact import contact_state
 from .entry import enter
-from .friction import AmbiguousImpact, FrictionalImpulse, Phase, routh
+from .friction import AmbiguousImpact, routh
 from .records import event_record
 from .impulse import Impulse, _inverse_mass, constraint_impulses, joint_impulses, loop_point_impulses, tangent_of
 
@@ -195,25 +195,11 @@ def _inside_cone(F: np.ndarray, K: np.ndarray, n: np.ndarray, tang: np.ndarray, 
     return c[0] + c[1] / alpha >= 0
 
 
-def _stuck_at_once(D: np.ndarray, vt: float, vn: float) -> FrictionalImpulse:
-    """Routh's process with no slip (mu -> infinity, e = 0): the slip is stopped at p = 0+ by a
-    tangential impulse -v_t / D_tt (its work -v_t^2 / (2 D_tt), the limit of the slide phase's
-    mu v_t^2 / (2 (mu D_tt - sigma D_tn))), then the point sticks (dP_t = kappa dp) until compression ends."""
-    Pt1 = -vt / D[0, 0]
-    vn1 = vn + D[1, 0] * Pt1
-    if not vn1 < 0:  # stopping the slip already separates the point: no compression left
-        raise AmbiguousImpact(f"stopping the slip leaves the point separating (v_n {vn1:.6g} m/s)")
-    slope = D[1, 1] - D[0, 1] ** 2 / D[0, 0]
-    p = -vn1 / slope
-    phases = (Phase("stick", 0.0, 0.0, "slip stops"), Phase("stick", 0.0, p, "compression ends"))
-    return FrictionalImpulse(float(Pt1 - D[0, 1] / D[0, 0] * p), float(p), vt, 0.0, vn, 0.0, 0.5 * vn1 * p,
-                             -0.5 * vt * vt / D[0, 0], phases, math.inf, "newton")
-
-
 def strike_works(M: np.ndarray, name: str, v: np.ndarray, A: np.ndarray, b: np.ndarray, J_c: np.ndarray,
                  P: tuple[float, float], mu: float) -> dict:
     """What the normal and the tangential part of a pin's strike did: Routh's process
-    (:func:`pcmm.events.friction.routh`, e = 0; mu infinite: :func:`_stuck_at_once`) at the struck
+    (:func:`pcmm.events.friction.routh`, e = 0; mu infinite: its limit
+    :func:`~pcmm.events.friction.stuck_at_once`, as for a stop with no slip) at the struck
     point, whose rows ``J_c`` = [t; n] give the 2 x 2 Delassus matrix D = J_c W_eff J_c^T, W_eff the
     inverse inertia with the other rows ``A`` of the solve held (``A v = b``).  Where Routh's process
     ends at the pin's own impulse ``P`` (P_t, P_n), its exact per-phase works are the energy lost to
@@ -233,16 +219,19 @@ def strike_works(M: np.ndarray, name: str, v: np.ndarray, A: np.ndarray, b: np.n
         why = "the struck point's rows are redundant with the other constraints (its Delassus matrix is singular)"
     else:
         try:
-            fr = _stuck_at_once(D, vt, vn) if math.isinf(mu) else routh(D, vt, vn, mu, 0.0)
+            fr = routh(D, vt, vn, mu, 0.0)
         except (AmbiguousImpact, ValueError) as exc:
             why = f"Routh's process has no answer here ({exc})"
         else:
-            if np.abs(fr.P - P).max() <= 1e-9 * max(float(np.abs(P).max()), 1e-300):
+            if fr.no_split is not None:  # no slip, whose process has no answer here
+                why = fr.no_split
+            elif np.abs(fr.P - P).max() <= 1e-9 * max(float(np.abs(P).max()), 1e-300):
                 return {"phases": fr.phase_text,
                         "energy_lost": {"normal": -fr.work_normal, "tangential": -fr.work_tangential}}
-            why = (f"Routh's process from this state ends elsewhere (phases {fr.phase_text}, impulse "
-                   f"({fr.P_t:.6g}, {fr.P_n:.6g}) N s, slip after {fr.slip_after:.6g} m/s): the pin holds the "
-                   "point where Coulomb's law would not")
+            else:
+                why = (f"Routh's process from this state ends elsewhere (phases {fr.phase_text}, impulse "
+                       f"({fr.P_t:.6g}, {fr.P_n:.6g}) N s, slip after {fr.slip_after:.6g} m/s): the pin holds the "
+                       "point where Coulomb's law would not")
     return {"phases": "stick", "energy_lost": None, "energy_split": f"none: {why}"}
 
 

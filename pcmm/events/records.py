@@ -90,13 +90,17 @@ class EventRecord(_EventCore, total=False):
 def friction_record(imp: Impulse) -> dict:
     """The frictional part of an impact (:mod:`pcmm.events.friction`): Coulomb's mu ("stick" for no
     slip), the restitution law, Routh's phases, the slip (m/s along t) before and after, the normal
-    and tangential impulses, and the energy lost to each (J, >= 0 for friction; the two sum to
-    KE- - KE+)."""
+    and tangential impulses, and the energy lost to each: Routh's per-phase works (J, >= 0 for
+    friction; the two sum to KE- - KE+), for "stick" those of its limit mu -> infinity
+    (:func:`pcmm.events.friction.stuck_at_once`).  Where that limit does not end at the impulse taken,
+    ``energy_lost`` is None and ``energy_split`` says why (as for a pin, :func:`pcmm.events.pins.strike_works`)."""
     fr = imp.friction
-    return {"mu": "stick" if math.isinf(fr.mu) else fr.mu, "law": fr.law, "phases": fr.phase_text,
-            "impulse": {"normal": fr.P_n, "tangential": fr.P_t},
-            "slip": {"before": fr.slip_before, "after": fr.slip_after},
-            "energy_lost": {"normal": -fr.work_normal, "tangential": -fr.work_tangential}}
+    record = {"mu": "stick" if math.isinf(fr.mu) else fr.mu, "law": fr.law, "phases": fr.phase_text,
+              "impulse": {"normal": fr.P_n, "tangential": fr.P_t},
+              "slip": {"before": fr.slip_before, "after": fr.slip_after}}
+    if fr.no_split is not None:
+        return {**record, "energy_lost": None, "energy_split": f"none: {fr.no_split}"}
+    return {**record, "energy_lost": {"normal": -fr.work_normal, "tangential": -fr.work_tangential}}
 
 
 def by_link(cfg: Configuration, v):
