@@ -34,7 +34,9 @@ def slider_x(th):
     return A_ * math.cos(th) + math.sqrt(B_ ** 2 - (A_ * math.sin(th)) ** 2)
 
 
-def jammed_press(folder: Path, drive=None, lock=("P",)) -> Path:
+def jammed_press(folder: Path, drive=None, lock=("P",), reference=False, t_end=1.0) -> Path:
+    """``reference``: a configuration 'ref' on the URDF and cut joint of 'free' with the drive too, on
+    which the hold of 'held' is solved (pcmm.events.holding: the held joint free, the same drives)."""
     urdf = robot_xml("sc", link_xml("frame"), joint_xml("A", "revolute", "frame", "crank"), bar_xml("crank", A_, 0.5),
                      joint_xml("B", "revolute", "crank", "rod", xyz=(A_, 0.0)), bar_xml("rod", B_, 0.8),
                      joint_xml("P", "prismatic", "frame", "slider", axis=(1, 0, 0)), solid_xml("slider", 2.0, 1e-3))
@@ -44,11 +46,14 @@ def jammed_press(folder: Path, drive=None, lock=("P",)) -> Path:
                                     "direction": "increasing"},
               {"a": "frame", "point_a": [xs, 0.0], "b": "slider", "point_b": [0.0, 0.0], "normal": [-1.0, 0.0]},
               merge_to="held", cut=["P"], unmerge=False)
-    more = {"drives": [{"joint": "A", "coefficients": list(drive), "configurations": ["held"]}]} if drive else {}
+    more = {"drives": [{"joint": "A", "coefficients": list(drive),
+                        "configurations": ["held", "ref"] if reference else ["held"]}]} if drive else {}
+    configs = {"free": {"urdf": "sc.urdf", "cut_joints": cut}, "held": {"from": "free", "lock": list(lock)}}
+    if reference:
+        configs["ref"] = {"urdf": "sc.urdf", "cut_joints": cut}
     phi = math.asin(-A_ * math.sin(TH0) / B_)
-    doc = base_doc("jammed", "free", {"free": {"urdf": "sc.urdf", "cut_joints": cut},
-                                      "held": {"from": "free", "lock": list(lock)}},
-                   {"A": TH0, "B": phi - TH0, "P": slider_x(TH0)}, {"A": 0.0, "B": 0.0, "P": 0.0}, t_end=1.0,
+    doc = base_doc("jammed", "free", configs,
+                   {"A": TH0, "B": phi - TH0, "P": slider_x(TH0)}, {"A": 0.0, "B": 0.0, "P": 0.0}, t_end=t_end,
                    transitions=[tr], forces=[{"name": "motor", "type": "torque", "on": {"joint": "A"}, "value": 0.5,
                                               "configurations": ["free"]}], **more)
     doc["initial"]["independent"] = ["A"]
@@ -82,12 +87,30 @@ def test_consistent_redundant_rows_are_a_warning_naming_the_indeterminate_forces
     assert found.consistent
 
 
-def test_the_run_stops_on_the_redundancy_and_names_the_rows(tmp_path):
-    """No split of the indeterminate forces is reported: the run stops at the merge, naming the rows."""
-    with pytest.raises(pcmm.SimulationError) as info:
-        pcmm.simulate(pcmm.load_scene(jammed_press(tmp_path, drive=[TH_STOP])))
-    text = info.value.text()
-    assert "configuration 'held'" in text and "(C.fx, C.fy, A.drive) would be statically indeterminate" in text
+def test_the_run_goes_on_at_rest_and_reports_no_split(tmp_path):
+    """The run enters 'held' (3 rows of rank 2 on A, B) and goes on: the motion is determined (the
+    crank held by its drive at -1, the rod by the loop: at rest, A = -1 and B = phi - A by hand),
+    solved with a maximal independent set of the rows, the dropped one named once in the warnings
+    with the time; every row's force is moved by the null vector (cos phi, sin phi, a sin B), so
+    all three constraint_forces series are NaN, and so is the stop's hold (solved on 'ref', with P
+    free and the drive: 4 rows of rank 3, the null vector non-zero on the hold's row too)."""
+    run = pcmm.simulate(pcmm.load_scene(jammed_press(tmp_path, drive=[TH_STOP], reference=True, t_end=0.6)))
+    [(t_merge, to)] = [(e["t"], e["to"]) for e in run.events]
+    assert to == "held" and t_merge == pytest.approx(0.2833, abs=1e-4)
+    [w] = [w for w in run.stats["warnings"] if "redundant" in w]
+    assert w.startswith(f"t = {t_merge:.9g} s, configuration 'held': its 3 constraint rows (C.fx, C.fy, A.drive) are "
+                        "of rank 2 on 2 coordinates: redundant but consistent")
+    assert "the dropped C.fx is checked at every solve" in w and "C.fx, C.fy, A.drive are statically indeterminate" in w
+    after = run.t > t_merge
+    phi = math.asin(-A_ * math.sin(TH_STOP) / B_)
+    assert run.t[-1] == pytest.approx(0.6) and np.count_nonzero(after) >= 2
+    assert np.max(np.abs(run.series("q", "A")[after] - TH_STOP)) < 1e-12
+    assert np.max(np.abs(run.series("q", "B")[after] - (phi - TH_STOP))) < 1e-12
+    assert np.max(np.abs(run.series("v", "A")[after])) < 1e-12 and np.max(np.abs(run.series("v", "B")[after])) < 1e-12
+    for label in ("C.fx", "C.fy", "A.drive", "stop.hold"):
+        assert np.all(np.isnan(run.series("constraint_forces", label)[after])), label
+    for label in ("C.fx", "C.fy"):  # in 'free' (no drive, no hold) C is determinate: finite
+        assert np.all(np.isfinite(run.series("constraint_forces", label)[run.t < t_merge]))
 
 
 def test_inconsistent_rows_are_a_problem_naming_them(tmp_path):

@@ -23,7 +23,7 @@ import numpy as np
 
 from ..model import compiled
 from ..model.configuration import Configuration
-from ..model.constraints import constrained_accelerations
+from ..model.constraints import constrained_accelerations, determinate
 from ..errors import SimulationError
 from ..model.forces import compile_forces
 from .contact import contact_row
@@ -295,7 +295,9 @@ class Holds:
                 bias.append([0.0])
             owners.append(h.label)
         extra = None if own is None else own.generalized(qs, vs) - ref_forces.generalized(qs, vs)
-        _, lam = constrained_accelerations(ref, qs, vs, np.vstack(rows), np.concatenate(bias), extra, forces=ref_forces)
+        R = np.vstack(rows)
+        _, lam = constrained_accelerations(ref, qs, vs, R, np.concatenate(bias), extra, forces=ref_forces)
+        lam = determinate(R, lam)  # a hold the rows leave statically indeterminate: NaN, never one arbitrary split
         return {label: float(x) for label, x in zip(owners, lam[Jc.shape[0]:])}
 
     def evaluator(self, cfg: Configuration):

@@ -40,7 +40,7 @@ from .impulse_compiled import (NO_IMPULSE, CompiledImpulse, compiled_impulse, di
                                takes_no_impulse)
 from ..errors import SimulationError
 from ..model.pinocchio_helpers import cholesky, frame_jacobian, mass_matrix
-from ..model.rows import solve
+from ..model.rows import determinate, independent_rows, solve
 from ..scene.spec import ContactSpec
 
 #: NO_IMPULSE (:func:`takes_no_impulse`): the one rule of both solves for 'no impulse along the
@@ -189,7 +189,8 @@ def solve_impulse(cfg: Configuration, t: float, q: np.ndarray, v: np.ndarray, co
     loop cut joints and drives, a joint stop or a frictionless point contact), checked against
     :func:`solve_impulse_python` at the plan's first impact; else that Python solve."""
     plan = _plan(cfg, contact, cut_joints)
-    fast = compiled_impulse(cfg, plan)
+    # redundant rows (pcmm.model.partitioned): the Python solve keeps an independent set of them
+    fast = None if getattr(cfg.coords, "redundant", False) else compiled_impulse(cfg, plan)
     if fast is not None:
         out = _compiled_solve(cfg, plan, fast, q, v, restitution)
         if out is not None and fast.checked:
@@ -353,6 +354,13 @@ def solve_impulse_python(cfg: Configuration, t: float, q: np.ndarray, v: np.ndar
                                      - frame_jacobian(cs.model, cs.data, plan.frame_a)[5]))[None, :]
     G = np.concatenate((cs.J_cut, cfg.coords.equality(t, cs.model, cs.data)))
     W = _inverse_mass(M_f, cfg.name)
+    G_all = G
+    # redundant but consistent rows (a cut joint given twice, a drive on a joint a lock and a loop fix):
+    # the impulse is the same on a maximal independent set of them; their impulsive forces along the
+    # rows' left null vectors are indeterminate, reported NaN (below)
+    kept = independent_rows(G) if getattr(cfg.coords, "redundant", False) else None
+    if kept is not None:
+        G = G[kept]
     if G.shape[0]:
         WGt = W @ G.T
         S = G @ WGt
@@ -385,6 +393,13 @@ def solve_impulse_python(cfg: Configuration, t: float, q: np.ndarray, v: np.ndar
     dv_f = W_eff @ J.T @ P  # Eqs. 24, 38 (and 35 with its sign)
     v_f_after = v_f + dv_f  # Eqs. 30, 43
     mult = -solve(S, G @ W @ J.T @ P) if G.shape[0] else np.zeros(0)
+    if kept is not None:
+        full = np.zeros(G_all.shape[0])
+        full[kept] = mult
+        mult = full
+        work_mult, mult = mult, determinate(G_all, mult)
+    else:
+        work_mult = mult
     v_after = _least_squares(cs.T, v_f_after)
     if _norm(cs.T @ v_after - v_f_after) > 1e-8 * max(1.0, _norm(v_f_after)):
         raise SimulationError(f"t = {t:.9g} s: the cut system's post-impact velocity does not reassemble "
@@ -406,7 +421,8 @@ def solve_impulse_python(cfg: Configuration, t: float, q: np.ndarray, v: np.ndar
     # A driven joint keeps its prescribed speed through the impact: its motor's impulsive
     # moment does work (mu q'), so the kinetic energy may rise by that much; what never
     # rises is KE_before + drive_work - KE_after (the energy the impact dissipates).
-    out.drive_work = sum(rows[i] * float(v[j]) for i, j in plan.drive_rows)
+    # (with redundant rows: any split's work, the same for all: a drive whose impulse is indeterminate is at rest)
+    out.drive_work = sum(float(work_mult[len(cs.row_owner) + i]) * float(v[j]) for i, j in plan.drive_rows)
     if not plan.stop:
         point_impulses = [(contact.b, pos_b, out.vector, 0.0), (contact.a, pos_a, -out.vector, 0.0)]
     elif plan.prismatic:  # a force along the axis at the child

@@ -855,6 +855,13 @@ class _Builder:
         free = total - len(kept)
         if sum(rows.values()) <= free:
             return
+        driven = sum(1 for why in kept.values() if why.startswith("driven"))
+        if sum(rows.values()) > total - driven:
+            # more rows than the drives leave coordinates: the rows are dependent whatever is kept, and
+            # dependent rows may be consistent (a crank driven where the loop and a locked slide hold it,
+            # a cut joint given twice): the assembly judges them by their rank, and names any it cannot
+            # satisfy (pcmm.model.partitioned); counting here would refuse a posture that exists
+            return
         where = "initial.independent" if scene.independent else "drives"
         value = f"= {list(scene.independent)}: " if scene.independent else ""
         self.p.add(where, f"{value}the loops of configuration '{cfg.name}' involve {total} coordinates "
