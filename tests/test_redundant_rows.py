@@ -145,7 +145,8 @@ def test_the_split_is_not_unique_which_is_why_no_run_reports_one(tmp_path):
     solutions: the KKT solve's and the minimum-norm one (numpy's lstsq) both balance gravity to
     round-off and differ by a multiple of the null vector y of R, which is non-zero on all four rows
     (here the hold on P: 0.555 N in the minimum-norm split, -4.0 N in the KKT solve's own choice).
-    So the run must not report one, and it does not: it stops on entering 'held'."""
+    So the run must not report one, and it does not: the hold and the rows' forces are NaN in its series
+    (test_the_run_goes_on_at_rest_and_reports_no_split)."""
     import pinocchio as pin
     from pcmm.events.contact import contact_row
     from pcmm.model.rows import constrained_accelerations
@@ -226,4 +227,86 @@ def test_holding_rows_alone_redundant_say_the_reported_split_is_one_of_many(tmp_
     [w] = [w for w in report.warnings if "redundant" in w]
     assert "configuration 'free' has 2 constraint rows (drives[0] ('X'), 'tip hits wall.hold') of rank 1 on 2 " \
            "coordinates: 1 redundant but consistent" in w
-    assert "any split it reported would be one of many" in w
+    assert "any split would be one of many, so it reports those it leaves indeterminate as NaN" in w
+
+
+def test_a_guard_on_the_indeterminate_hold_is_refused_at_check_and_at_run(tmp_path):
+    """The same press with unmerge = true: the merge would be undone where its hold turns tensile, but
+    the hold is statically indeterminate (the null vector is non-zero on its row: the sign of the
+    hold depends on the split, -4.0 N in one, 0.555 N in another), so no guard can read it without
+    the parts' compliance: `pcmm check` refuses it (the field: the stop's unmerge), and so does the
+    run when it enters 'held' (before this, the guard read NaN, never fired, and said nothing)."""
+    path = jammed_press(tmp_path, drive=[TH_STOP], reference=True, t_end=0.6)
+    path.write_text(path.read_text().replace("unmerge = false", "unmerge = true"))
+    report = check_scene(pcmm.load_scene(path))
+    [p] = report.problems
+    assert p.startswith(f"{path}: transitions[0] (stop).unmerge: = true (the stop's): the merge is undone where its "
+                        "holding force 'stop.hold' turns tensile, which the redundant rows leave statically indeterminate")
+    with pytest.raises(pcmm.SimulationError) as info:
+        pcmm.simulate(pcmm.load_scene(path))
+    text = info.value.text()
+    assert "configuration 'held': a guard reads the holding force of 'stop', which the constraint rows leave " \
+           "statically indeterminate" in text and "t = 0.2832989" in text
+
+
+def test_a_drive_that_turns_inconsistent_stops_the_run_naming_the_dropped_row(tmp_path):
+    """The drive on A, f(t) = -1 + (t - t_m)^3 with t_m the merge's instant: at t_m it holds the crank
+    where the lock and the loop put it, at rest (consistent: the run enters 'held' and goes on), then
+    turns it, which the loop and the lock forbid. The row dropped at entry (C.fx) is checked at every
+    solve: its residual leaves round-off within a few steps and the run stops naming it and the time
+    (its velocity residual 3 (t - t_m)^2 a sin B / ... reaches 1e-9 after about 2e-5 s)."""
+    first = pcmm.simulate(pcmm.load_scene(jammed_press(tmp_path / "first", drive=[TH_STOP], reference=True, t_end=0.4)))
+    tm = first.events[0]["t"]
+    cubic = [TH_STOP - tm ** 3, 3 * tm ** 2, -3 * tm, 1.0]  # -1 + (t - tm)^3, expanded
+    with pytest.raises(pcmm.SimulationError) as info:
+        pcmm.simulate(pcmm.load_scene(jammed_press(tmp_path / "cubic", drive=cubic, reference=True, t_end=0.4)))
+    text = info.value.text()
+    assert "configuration 'held': at t = " in text and "its redundant rows, dropped at t = " in text
+    assert "are violated: C.fx (residual" in text
+    t_stop = float(text.split("configuration 'held': at t = ")[1].split(" s")[0])
+    assert tm < t_stop < tm + 0.01
+
+
+def initial_held(folder: Path, drive: float, lock_x: float | None = None) -> Path:
+    """The press starting in 'held' (P locked at the stop's x, or at ``lock_x``), its crank driven
+    at ``drive``: 2 rows (C.fx, C.fy) and the drive on A, B: 3 rows on 2 coordinates."""
+    import tomllib
+    from builders import dump_toml
+    path = jammed_press(folder, drive=[drive], t_end=0.2)
+    doc = tomllib.loads(path.read_text())
+    doc["scene"]["initial_configuration"] = "held"
+    doc["configurations"]["held"]["lock"] = {"P": slider_x(TH_STOP) if lock_x is None else lock_x}
+    doc["initial"]["q"] = {"A": drive, "B": doc["initial"]["q"]["B"]}
+    doc["initial"]["v"] = {"A": 0.0, "B": 0.0}
+    doc["initial"].pop("independent", None)
+    doc["transitions"] = []
+    path.write_text(dump_toml(doc))
+    return path
+
+
+def test_a_consistent_redundant_initial_configuration_loads_and_runs(tmp_path):
+    """Crank driven at -1 and slide locked at the x the loop gives for -1: the loader counted 2
+    coordinates less 1 driven for 2 rows and said "no posture satisfies them all" (a false error:
+    A = -1, B = phi + 1 does, by hand). Now it loads, assembles there, and stays at rest."""
+    run = pcmm.simulate(pcmm.load_scene(initial_held(tmp_path, TH_STOP)))
+    phi = math.asin(-A_ * math.sin(TH_STOP) / B_)
+    assert abs(run.series("q", "A")[-1] - TH_STOP) < 1e-12 and abs(run.series("q", "B")[-1] - (phi - TH_STOP)) < 1e-12
+    assert [w for w in run.stats["warnings"] if "t = 0 s, configuration 'held': its 3 constraint rows" in w]
+
+
+def test_an_inconsistent_redundant_initial_configuration_is_a_clear_error(tmp_path):
+    """The slide locked 1 cm beyond where the loop puts it for the crank's -1: no posture satisfies
+    the rows; the assembly says so, naming the row it cannot satisfy and its residual."""
+    with pytest.raises(pcmm.PcmmError) as info:
+        pcmm.simulate(pcmm.load_scene(initial_held(tmp_path, TH_STOP, lock_x=slider_x(TH_STOP) + 0.01)))
+    text = info.value.text()
+    assert "configuration 'held': at t = 0 s its 3 constraint rows (C.fx, C.fy, A.drive) are of rank 2 and no " \
+           "posture and motion satisfies them all" in text
+    # solved with C.fx and the drive (QR's pivoting at the guess): the crank at -1, the rod's tip reaching
+    # the slider's x, 1 cm beyond its reach there, leaves the tip off the slide by, by hand,
+    # a sin A + sqrt(b^2 - (sqrt(b^2 - a^2 sin^2 A) + 0.01)^2) = -0.0492 m: C.fy's residual
+    assert "solved with C.fx, A.drive, the others are violated: C.fy (residual " in text
+    residual = float(text.split("(residual ")[1].split(",")[0])
+    dx = math.sqrt(B_ ** 2 - (A_ * math.sin(TH_STOP)) ** 2) + 0.01
+    hand = A_ * math.sin(TH_STOP) + math.sqrt(B_ ** 2 - dx ** 2)
+    assert abs(abs(residual) - abs(hand)) < 1e-3 * abs(hand) and abs(hand) == pytest.approx(0.0492, abs=1e-4)

@@ -23,7 +23,7 @@ import numpy as np
 
 from ..model import compiled
 from ..model.configuration import Configuration
-from ..model.constraints import constrained_accelerations, determinate
+from ..model.constraints import constrained_accelerations, determinate, left_null
 from ..errors import SimulationError
 from ..model.forces import compile_forces
 from .contact import contact_row
@@ -341,6 +341,9 @@ class Holds:
                 rows.append(e[None, :])
             labels.append(h.label)
         J, m = np.vstack(rows), Jc.shape[0]
+        if left_null(J).shape[1]:  # redundant rows: forces() says which holds are indeterminate (NaN)
+            self.evaluations[cfg.name] = "python: not compiled: redundant rows"
+            return lambda t, q, v: self.forces(cfg, t, q, v)
         lock_bias = np.zeros(len(labels))  # joint rows: no bias (as forces() gives them)
         mine, theirs = [], []  # cfg's coordinates and where they sit in the reference's
         for name in ref.joint_names:
@@ -383,6 +386,21 @@ class Holds:
         return out
 
 
+def decidable(cfg: Configuration, t: float, label: str, force: float) -> float:
+    """``force``, the holding force ``label`` a guard reads; a SimulationError where it is NaN: the
+    rows leave it statically indeterminate (:func:`pcmm.model.rows.determinate`), so whether it turns
+    tensile depends on the parts' compliance, which pcmm does not model: no guard can read it."""
+    if force == force:
+        return force
+    raise SimulationError(
+        f"t = {t:.9g} s, configuration '{cfg.name}': a guard reads the holding force of '{label}', which the "
+        "constraint rows leave statically indeterminate (redundant rows: any split of the load between them "
+        "balances it; the run's warnings and `pcmm check` name them): whether it turns tensile cannot be "
+        "decided without the parts' compliance. Remove the redundant row (a drive limited to the "
+        "configurations where its joint is free, one cut joint fewer, or a joint fewer locked), or hold the "
+        "merge for good (unmerge = false) and release it by a time or coordinate guard")
+
+
 def guard_value(cfg: Configuration, forces, label: str, offset: float = 0.0):
     """``(t, y) -> forces(t, q, v)[label] - offset`` at ``cfg``'s integrator state: the value of a
     guard on a holding force (``forces``: a :meth:`Holds.evaluator`).  Where the evaluator is compiled
@@ -395,7 +413,7 @@ def guard_value(cfg: Configuration, forces, label: str, offset: float = 0.0):
     if fast is None:
         def value(t, y):
             q, v = unpack(t, y)
-            return forces(t, q, v)[label] - offset
+            return decidable(cfg, t, label, forces(t, q, v)[label]) - offset
         return value
     i = forces.labels.index(label)
     at_state, python = fast.at_state, forces.python
@@ -404,7 +422,7 @@ def guard_value(cfg: Configuration, forces, label: str, offset: float = 0.0):
         lam = at_state(t, y)
         if lam is None:
             q, v = unpack(t, y)
-            return python(t, q, v)[label] - offset
+            return decidable(cfg, t, label, python(t, q, v)[label]) - offset
         return float(lam[i]) - offset
     value.holding = (fast, i, float(offset))
     return value

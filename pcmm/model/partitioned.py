@@ -573,6 +573,15 @@ class PartitionedCoordinates:
         if _max_abs(pos) <= 1e-9 and _max_abs(vel) <= 1e-9 * scale:
             return
         named = ", ".join(f"{self.labels[i]} (residual {p:.3g}, rate {w:.3g})" for i, p, w in zip(d, pos, vel))
+        if t == self._dropped_at:  # where the rows were found dependent: never consistent
+            err = SimulationError(
+                f"configuration '{self.cfg.name}': at t = {t:.9g} s its {self.m} constraint rows "
+                f"({', '.join(self.labels)}) are of rank {len(self._kept)} and no posture and motion satisfies "
+                f"them all: solved with {', '.join(self.labels[i] for i in self._kept)}, the others are violated: "
+                f"{named}. A lock or a drive holds a joint where the loop puts it elsewhere: check the locked "
+                "values and the drives' values there")
+            err.at = t
+            raise err
         err = SimulationError(
             f"configuration '{self.cfg.name}': at t = {t:.9g} s its redundant rows, dropped at t = "
             f"{self._dropped_at:.9g} s where they were consistent with the others, are violated: {named}: the "
@@ -933,6 +942,14 @@ class PartitionedCoordinates:
             n = self.cfg.data.oMf[self.closure.links_a[k]].rotation[:2, :2] @ np.asarray(s.normal, float)
             n = n / np.linalg.norm(n)
             F = lam[i:i + 2]
+            if not np.isfinite(F).all():  # redundant rows leave it indeterminate (accelerations: NaN)
+                raise SimulationError(
+                    f"t = {t:.9g} s, configuration '{self.cfg.name}': the point held by cut joint '{s.name}' is held "
+                    "by compression (and friction) only, but its force is statically indeterminate: the rows "
+                    f"({', '.join(self.labels)}) are redundant, so any split of the load between them balances it "
+                    "(the run's warnings name them), and whether the point lifts off or slips cannot be decided "
+                    "without the parts' compliance. Remove the redundant row (a cut joint fewer, a joint fewer "
+                    "locked, a drive limited to the configurations where its joint is free)")
             out[s.name] = (float(n @ F), float(n[1] * F[0] - n[0] * F[1]))
         return out
 
