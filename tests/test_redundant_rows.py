@@ -262,7 +262,7 @@ def test_a_drive_that_turns_inconsistent_stops_the_run_naming_the_dropped_row(tm
         pcmm.simulate(pcmm.load_scene(jammed_press(tmp_path / "cubic", drive=cubic, reference=True, t_end=0.4)))
     text = info.value.text()
     assert "configuration 'held': at t = " in text and "its redundant rows, dropped at t = " in text
-    assert "are violated: C.fx (residual" in text
+    assert "are violated: C.fx (residual" in text and "max_step" not in text  # not blamed on a Newton solve
     t_stop = float(text.split("configuration 'held': at t = ")[1].split(" s")[0])
     assert tm < t_stop < tm + 0.01
 
