@@ -111,3 +111,18 @@ def test_the_determinate_force_is_reported_and_the_indeterminate_ones_are_nan(tm
         h = pin.rnea(cfg.model, cfg.data, cfg.to_pin(q), v, a)
         assert np.max(np.abs(R @ a + bias)) < 1e-9
         assert np.max(np.abs(h - cfg.forces.generalized(q, v) - R.T @ lam)) < 1e-9
+
+
+def test_the_flight_between_two_bounces_is_audited_as_in_the_four_bar_closed_once(tmp_path):
+    """e = 0.8: the rocker bounces twice at its stop, and the flight between is audited (the work of
+    the motor torque against the change of kinetic plus gravity energy, pcmm.run.audit), which solves
+    the constraint rows' multipliers: on the rows kept (one split; the power of any split of
+    consistent rows is the same). The same impacts and the same audit as the four-bar closed once."""
+    solver = {"method": "RK4", "step": 1e-3}
+    once = pcmm.simulate(pcmm.load_scene(four_bar(tmp_path / "once", False, e=0.8, t_end=1.5, solver=solver)))
+    twice = pcmm.simulate(pcmm.load_scene(four_bar(tmp_path / "twice", True, e=0.8, t_end=1.5, solver=solver)))
+    assert [e["t"] for e in once.events] == [e["t"] for e in twice.events] and len(once.events) == 2
+    [a], [b] = once.stats["macro_impacts"], twice.stats["macro_impacts"]
+    assert (a["impacts"], a["flights"], a["flights_resolved"]) == (b["impacts"], b["flights"], b["flights_resolved"]) == (2, 2, 2)
+    assert math.isfinite(b["flight_energy_residual_max"])
+    assert abs(a["flight_energy_residual_max"] - b["flight_energy_residual_max"]) < 1e-12

@@ -1292,10 +1292,21 @@ class PartitionedCoordinates:
 
     def _solved_accelerations(self, t, q, v):
         """(a, lam) at an assembled (q, v): with revolute cut joints the rows and bias come from
-        one kinematics pass (:meth:`_point_rows_and_bias`); otherwise :meth:`accelerations`."""
+        one kinematics pass (:meth:`_point_rows_and_bias`); otherwise :meth:`accelerations`.  Where
+        the rows are redundant, ``lam`` is that of the rows kept (:meth:`solving_rows`): one split,
+        for the power of the drives (the same for every split), never reported."""
         if self.closure.revolute_only:
             return constrained_accelerations(self.cfg, q, v, *self._point_rows_and_bias(t, q, v), forces=self.forces)
+        if self._kept is not None:
+            return constrained_accelerations(self.cfg, q, v, *self.solving_rows(t, q, v), forces=self.forces)
         return self.accelerations(t, q, v)
+
+    def solving_rows(self, t, q, v):
+        """(Phi_q, bias) of the rows the motion is solved with (:meth:`rows` but for the rows dropped
+        as redundant: :meth:`partition`), whose multipliers are one split of the load: the power of
+        the constraint forces, ``lam . Phi_q v``, is the same for every split of consistent rows."""
+        _, Jq, bias = self._phi(t, q, need_bias=True, v=v)
+        return Jq, bias
 
     def rhs(self, t, y):
         """``[q'_I, q''_I]`` at ``(t, y)``: compiled where the drives are (:meth:`_compiled_drives`)

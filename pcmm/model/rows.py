@@ -367,7 +367,7 @@ def determinate(J: np.ndarray, lam: np.ndarray) -> np.ndarray:
 
 def independent_rows(J: np.ndarray, first: int = 0, tol: float = REDUNDANT_TOL) -> np.ndarray | None:
     """The indices of a maximal set of independent rows of ``J`` where its rows ``first:`` are
-    dependent to round-off (``tol`` of its largest singular value), the rows before ``first``
+    dependent to round-off (``tol`` of their largest singular value), the rows before ``first``
     always kept (a configuration's drives, whose rows are unit rows on distinct coordinates: the
     remaining rows are judged on the columns the kept ones leave); None where they are independent.
     Rank-revealing: QR with column pivoting on the remaining rows' transpose picks, of the dependent
@@ -379,8 +379,7 @@ def independent_rows(J: np.ndarray, first: int = 0, tol: float = REDUNDANT_TOL) 
     cols = np.flatnonzero(~np.any(head != 0.0, axis=0)) if first else np.arange(J.shape[1])
     block = J[rest_rows][:, cols]
     s = np.linalg.svd(block, compute_uv=False) if block.size else np.zeros(0)
-    scale = max(float(np.linalg.norm(J, 2)) if J.size else 0.0, 1e-300)
-    rank = int(np.sum(s > tol * scale))
+    rank = int(np.sum(s > tol * max(float(s[0]), 1e-300))) if s.size else 0
     if rank == rest_rows.size:
         return None
     keep = np.sort(pivots(block.T)[:rank]) if rank else np.zeros(0, int)
