@@ -190,7 +190,7 @@ def solve_impulse(cfg: Configuration, t: float, q: np.ndarray, v: np.ndarray, co
     :func:`solve_impulse_python` at the plan's first impact; else that Python solve."""
     plan = _plan(cfg, contact, cut_joints)
     # redundant rows (pcmm.model.partitioned): the Python solve keeps an independent set of them
-    fast = None if getattr(cfg.coords, "redundant", False) else compiled_impulse(cfg, plan)
+    fast = None if cfg.coords.redundant else compiled_impulse(cfg, plan)
     if fast is not None:
         out = _compiled_solve(cfg, plan, fast, q, v, restitution)
         if out is not None and fast.checked:
@@ -358,7 +358,7 @@ def solve_impulse_python(cfg: Configuration, t: float, q: np.ndarray, v: np.ndar
     # redundant but consistent rows (a cut joint given twice, a drive on a joint a lock and a loop fix):
     # the impulse is the same on a maximal independent set of them; their impulsive forces along the
     # rows' left null vectors are indeterminate, reported NaN (below)
-    kept = independent_rows(G) if getattr(cfg.coords, "redundant", False) else None
+    kept = independent_rows(G) if cfg.coords.redundant else None
     if kept is not None:
         G = G[kept]
     if G.shape[0]:

@@ -494,6 +494,8 @@ class PartitionedCoordinates:
         self._kept, self._nloop, self._dropped = None, self.closure.size, np.zeros(0, int)
         Jq = self._position_rows(t, q)
         kept = self._independent(Jq) if self._distinct_drives else None
+        if kept is not None and not self._persists(t, q, Jq, kept):
+            kept = None  # a singular posture (a change point, a dead centre): the conditioning check's to judge
         if kept is not None:  # redundant rows: the motion is solved with a maximal independent set
             self._keep_rows(t, kept, Jq)
             Jq = Jq[kept]
@@ -520,6 +522,28 @@ class PartitionedCoordinates:
         order = np.concatenate([np.arange(nc, self.m), np.arange(nc)]).astype(int)
         sel = independent_rows(Jq[order], first=self.m - nc)
         return None if sel is None else np.sort(order[sel])
+
+    #: how far (relative to the coordinates' size) :meth:`_persists` moves the posture along its freedoms
+    PERSIST_STEP = 1e-6
+
+    def _persists(self, t, q, Jq, kept) -> bool:
+        """Whether the dependence of the rows ``Jq`` at ``q`` persists where the rows ``kept`` let the
+        posture move (a step of PERSIST_STEP along each direction of their null space): redundant rows
+        (a cut joint given twice, a drive on a joint a lock and the loop fix, an over-constrained linkage
+        on its motion) stay dependent there to second order in the step, while at a singular posture (a
+        change point, a dead centre) the rank comes back to first order (the parallelogram with its
+        links collinear), which is a singular posture, not a redundancy.  With no freedom left the
+        dependence is the rows' own (more rows than coordinates the drives leave): it persists."""
+        _, sv, Vt = np.linalg.svd(Jq[kept])
+        rank = int(np.sum(sv > 1e-9 * max(float(sv[0]), 1e-300))) if sv.size else 0
+        step = self.PERSIST_STEP * max(1.0, _max_abs(q))
+        nc = self.closure.size
+        order = np.concatenate([np.arange(nc, self.m), np.arange(nc)]).astype(int)
+        for n in Vt[rank:]:
+            moved = q + step * n
+            if independent_rows(self._position_rows(t, moved)[order], first=self.m - nc) is None:
+                return False
+        return True
 
     def _keep_rows(self, t, kept, Jq) -> None:
         """Solve the motion with the rows ``kept`` from now on (redundant rows found at ``t``; ``Jq``

@@ -182,9 +182,7 @@ def integrate_segment(run: RunState, progress):
     loop's partition degenerated mid-step (recorded up to there; ``run`` moved on to it)."""
     cfg, t = run.cfg, run.t
     y0 = cfg.coords.pack(t, run.q, run.v)
-    notes = getattr(cfg.coords, "take_notes", None)  # redundant rows the coordinates now solve without
-    if notes is not None:
-        run.traj.stats["warnings"] += notes()
+    run.traj.stats["warnings"] += cfg.coords.take_notes()  # redundant rows the coordinates now solve without
     guards = _guards(run.scene, cfg, run.holds, t, run.phase, run.bounced, run.fired, run.kept_guards)
     # a flight between two impacts at the same contact: its energy is audited (pcmm.run.audit)
     flight = run.bounced is not None and run.phase is None and y0.size > 0
