@@ -111,6 +111,10 @@ def test_the_run_goes_on_at_rest_and_reports_no_split(tmp_path):
         assert np.all(np.isnan(run.series("constraint_forces", label)[after])), label
     for label in ("C.fx", "C.fy"):  # in 'free' (no drive, no hold) C is determinate: finite
         assert np.all(np.isfinite(run.series("constraint_forces", label)[run.t < t_merge]))
+    # the summary's extremes of the hold: none (it used to read min = inf, max = -inf, and the summary
+    # JSON was refused as "overflowed"); the indeterminate samples counted
+    held = run.stats["holding"]["stop.hold"]
+    assert held["min"] is None and held["max"] is None and held["indeterminate_samples"] == len(run.segments[-1].t)
 
 
 def test_inconsistent_rows_are_a_problem_naming_them(tmp_path):

@@ -94,19 +94,31 @@ class RunStats(dict):
 
 def holding_extremes(traj: "Trajectory") -> dict:
     """{lock: {min, t_min, max, t_max}} of every holding force or moment over the recorded
-    samples (constraint forces labelled ``<lock>.hold``): what a designer sizes a latch by."""
+    samples (constraint forces labelled ``<lock>.hold``): what a designer sizes a latch by.  A hold
+    the rows leave statically indeterminate (NaN: redundant rows, :func:`pcmm.model.rows.determinate`)
+    is left out of the extremes and counted (``indeterminate_samples``); held indeterminate
+    throughout, its extremes are None (no number is any split's)."""
     out: dict = {}
     for s in traj.segments:
         for k, label in enumerate(s.constraint_labels):
             if not label.endswith(".hold"):
                 continue
-            col = s.constraint_forces[:, k]
+            col, ts = s.constraint_forces[:, k], s.t
             ext = out.setdefault(label, {"min": math.inf, "t_min": None, "max": -math.inf, "t_max": None})
+            loose = np.isnan(col)
+            if loose.any():
+                ext["indeterminate_samples"] = ext.get("indeterminate_samples", 0) + int(np.count_nonzero(loose))
+                col, ts = col[~loose], ts[~loose]
+                if not col.size:
+                    continue
             i_lo, i_hi = int(np.argmin(col)), int(np.argmax(col))
             if col[i_lo] < ext["min"]:
-                ext["min"], ext["t_min"] = float(col[i_lo]), float(s.t[i_lo])
+                ext["min"], ext["t_min"] = float(col[i_lo]), float(ts[i_lo])
             if col[i_hi] > ext["max"]:
-                ext["max"], ext["t_max"] = float(col[i_hi]), float(s.t[i_hi])
+                ext["max"], ext["t_max"] = float(col[i_hi]), float(ts[i_hi])
+    for ext in out.values():
+        if ext["t_min"] is None:  # indeterminate at every sample
+            ext["min"] = ext["max"] = None
     return out
 
 
