@@ -67,6 +67,16 @@ def test_a_cut_joint_given_twice_moves_as_the_four_bar_closed_once(tmp_path):
     for a, b in zip(once.events, twice.events):
         assert (a["t"], a["kind"]) == (b["t"], b["kind"])
         assert a["impulse"]["normal"] == pytest.approx(b["impulse"]["normal"], rel=1e-13)
+        # the impulse each tree joint carries is determinate (C's and C2's reach the links only through
+        # their sum): the four-bar's; the impulses of C and of C2 are not: NaN, written null in a summary
+        for j in "ABD":
+            assert np.max(np.abs(np.subtract(a["joint_impulses"][j], b["joint_impulses"][j]))) < 1e-12
+        assert np.all(np.isnan(b["constraint_impulses"]["C"][:2])) and np.all(np.isnan(b["constraint_impulses"]["C2"][:2]))
+        assert np.all(np.isfinite(a["constraint_impulses"]["C"]))
+    from pcmm.results.trajectory import dumps_json_finite
+    import json
+    written = json.loads(dumps_json_finite({"events": list(twice.events)}, "summary"))
+    assert written["events"][0]["constraint_impulses"]["C2"] == [None, None, 0.0]
     assert np.array_equal(once.t, twice.t)
     for n in "ABD":
         assert np.max(np.abs(once.series("q", n) - twice.series("q", n))) < 1e-13

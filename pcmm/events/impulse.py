@@ -40,7 +40,7 @@ from .impulse_compiled import (NO_IMPULSE, CompiledImpulse, compiled_impulse, di
                                takes_no_impulse)
 from ..errors import SimulationError
 from ..model.pinocchio_helpers import cholesky, frame_jacobian, mass_matrix
-from ..model.rows import determinate, independent_rows, solve
+from ..model.rows import determinate, independent_rows, left_null, solve
 from ..scene.spec import ContactSpec
 
 #: NO_IMPULSE (:func:`takes_no_impulse`): the one rule of both solves for 'no impulse along the
@@ -436,10 +436,33 @@ def solve_impulse_python(cfg: Configuration, t: float, q: np.ndarray, v: np.ndar
     out.constraint_impulses = constraint_impulses(cfg, out.constraint_rows, loop)
     for name in cut_loops:  # on b from a, world axes, like a tree joint's cut impulse
         out.cut_impulses[name] = list(out.constraint_impulses[name])
-    out.joint_impulses, out.rnea_residual = joint_impulses(cfg, q, v_after - v, point_impulses)
+    if kept is None:
+        out.joint_impulses, out.rnea_residual = joint_impulses(cfg, q, v_after - v, point_impulses)
+    else:  # redundant rows: each joint's impulse from one split, NaN where another split changes it
+        out.joint_impulses, out.rnea_residual = _determinate_joint_impulses(
+            cfg, q, v_after - v, point_impulses[:len(point_impulses) - len(loop)], work_mult, G_all, len(cs.row_owner))
     if fr is not None:
         check_frictional_energy(fr, out, where)
     return out
+
+
+def _determinate_joint_impulses(cfg: Configuration, q, dv, contact, split, G, first: int):
+    """``joint_impulses`` where the rows ``G`` are redundant: from the impulsive multipliers ``split``
+    (one solution; the constraint rows' from index ``first`` on), then again with each left null
+    vector of ``G`` added (another solution, the same velocities): a joint's component that changes
+    is statically indeterminate, NaN; the others are every split's (a joint the redundant rows'
+    forces reach only through their resultant)."""
+    labels = cfg.coords.labels
+
+    def carried(m):
+        return joint_impulses(cfg, q, dv, list(contact) + loop_point_impulses(cfg, dict(zip(labels, m[first:].tolist()))))
+    base, residual = carried(split)
+    scale = max([1.0] + [abs(x) for f in base.values() for x in f])
+    for y in left_null(G).T:
+        other, _ = carried(split + scale * y)
+        for name, f in base.items():
+            base[name] = [x if abs(x - o) <= 1e-9 * scale else math.nan for x, o in zip(f, other[name])]
+    return base, residual
 
 
 def _norm(x: np.ndarray) -> float:

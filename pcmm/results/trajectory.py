@@ -527,9 +527,34 @@ def non_finite_fields(obj, where: str = "") -> list[str]:
     return []
 
 
+#: an event's impulses between parts: NaN there is a force the rows leave statically indeterminate
+#: (redundant rows: pcmm.events.impulse), written as null; nowhere else
+_INDETERMINATE_KEYS = ("constraint_rows", "cut_impulses", "constraint_impulses", "joint_impulses")
+
+
+def _indeterminate_as_null(obj):
+    """``obj`` (a summary) with the NaN of its events' impulses between parts written as None (JSON
+    null): statically indeterminate, which a velocity, an energy or an impulse on the contact never is
+    (a NaN there still refuses the summary, :func:`dumps_json_finite`)."""
+    if not isinstance(obj, dict) or not isinstance(obj.get("events"), list):
+        return obj
+
+    def null(x):
+        if isinstance(x, dict):
+            return {k: null(v) for k, v in x.items()}
+        if isinstance(x, (list, tuple)):
+            return [null(v) for v in x]
+        return None if isinstance(x, (float, np.floating)) and math.isnan(x) else x
+    events = [dict(e, **{k: null(e[k]) for k in _INDETERMINATE_KEYS if k in e}) if isinstance(e, dict) else e
+              for e in obj["events"]]
+    return dict(obj, events=events)
+
+
 def dumps_json_finite(obj, what: str) -> str:
     """JSON text of ``obj``, refusing NaN and infinities (which are not JSON): a result that
-    overflowed is an error naming the fields, never ``Infinity`` in a file."""
+    overflowed is an error naming the fields, never ``Infinity`` in a file.  An event's impulse
+    between parts that the rows leave statically indeterminate (NaN) is written as null."""
+    obj = _indeterminate_as_null(obj)
     bad = non_finite_fields(obj)
     if bad:
         shown = ", ".join(bad[:5]) + (f" and {len(bad) - 5} more" if len(bad) > 5 else "")
