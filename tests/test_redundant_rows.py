@@ -101,6 +101,9 @@ def test_the_run_goes_on_at_rest_and_reports_no_split(tmp_path):
     assert w.startswith(f"t = {t_merge:.9g} s, configuration 'held': its 3 constraint rows (C.fx, C.fy, A.drive) are "
                         "of rank 2 on 2 coordinates: redundant but consistent")
     assert "the dropped C.fx is checked at every solve" in w and "C.fx, C.fy, A.drive are statically indeterminate" in w
+    [h] = [w for w in run.stats["warnings"] if "holding force" in w]
+    assert h.startswith(f"t = {t_merge:.9g} s, configuration 'held': the holding force stop.hold is statically "
+                        "indeterminate")
     after = run.t > t_merge
     phi = math.asin(-A_ * math.sin(TH_STOP) / B_)
     assert run.t[-1] == pytest.approx(0.6) and np.count_nonzero(after) >= 2

@@ -24,7 +24,7 @@ import numpy as np
 from ..model import compiled
 from ..model.configuration import Configuration
 from ..model.constraints import constrained_accelerations, determinate, left_null
-from ..errors import SimulationError
+from ..errors import PcmmError, SimulationError
 from ..model.forces import compile_forces
 from .contact import contact_row
 from ..model.mechanism import Mechanism
@@ -79,6 +79,7 @@ class Holds:
         # {configuration: "compiled", or "python: why"}: how its holding forces were evaluated, as
         # each segment's evaluator was built (the run's stats["holding_evaluations"])
         self.evaluations: dict[str, str] = {}
+        self._noted: set = set()  # (configuration, holds) whose indeterminate holds were named (indeterminate_notes)
 
     # -- book-keeping
     def lock(self, src: Configuration, dst: Configuration, tr: TransitionSpec, q: np.ndarray, merge: bool) -> None:
@@ -107,6 +108,26 @@ class Holds:
             # the lock carries the elements acting on the joint where it is free (source), not those
             # of the release's source (the locked configuration, where the scene does not list them)
             self.items.append(Hold(of, tr, {of: q_s[src.joint_slice[of]].copy()}, False, False, carries=source))
+
+    def indeterminate_notes(self, cfg: Configuration, t: float, q: np.ndarray, v: np.ndarray) -> list[str]:
+        """For the run's warnings, once per configuration and set of holds: the holds in force at
+        (t, q, v) of ``cfg`` that their rows leave statically indeterminate (NaN in :meth:`forces`:
+        the reference's rows and the lock rows are dependent), whose series are NaN."""
+        key = (cfg.name, tuple(h.label for h in self.items))
+        if not self.items or key in self._noted:
+            return []
+        self._noted.add(key)
+        try:
+            forces = self.forces(cfg, t, q, v)
+        except PcmmError:  # a hold that cannot be solved here says so where it is read
+            return []
+        loose = [f"{label}.hold" for label, x in forces.items() if x != x]
+        if not loose:
+            return []
+        return [f"t = {t:.9g} s, configuration '{cfg.name}': the holding force{'s' if len(loose) > 1 else ''} "
+                f"{', '.join(loose)} {'are' if len(loose) > 1 else 'is'} statically indeterminate (solved with the "
+                "rows of the configuration with the held joints free and the lock rows, which are dependent: any "
+                "split of the load balances it): NaN in the series, left out of stats.holding; no guard may read it"]
 
     def snapshot(self) -> "Holds":
         """The locks in force now, kept as they are (a recorded segment computes its holding
