@@ -23,7 +23,7 @@ import numpy as np
 
 from ..model import compiled
 from ..model.configuration import Configuration
-from ..model.constraints import constrained_accelerations, determinate, left_null
+from ..model.constraints import constrained_accelerations, determinate, indeterminate, left_null
 from ..errors import PcmmError, SimulationError
 from ..model.forces import compile_forces
 from .contact import contact_row
@@ -118,10 +118,10 @@ class Holds:
             return []
         self._noted.add(key)
         try:
-            forces = self.forces(cfg, t, q, v)
+            _, _, _, R, _, m, owners, _, _ = self._rows(cfg, t, q, v)
         except PcmmError:  # a hold that cannot be solved here says so where it is read
             return []
-        loose = [f"{label}.hold" for label, x in forces.items() if x != x]
+        loose = [f"{label}.hold" for label, bad in zip(owners, indeterminate(left_null(R))[m:]) if bad]
         if not loose:
             return []
         return [f"t = {t:.9g} s, configuration '{cfg.name}': the holding force{'s' if len(loose) > 1 else ''} "
@@ -294,6 +294,15 @@ class Holds:
         by default those of now."""
         if not self.items:
             return {}
+        ref, qs, vs, R, bias, m, owners, extra, ref_forces = self._rows(cfg, t, q, v, applied)
+        _, lam = constrained_accelerations(ref, qs, vs, R, bias, extra, forces=ref_forces)
+        lam = determinate(R, lam)  # a hold the rows leave statically indeterminate: NaN, never one arbitrary split
+        return {label: float(x) for label, x in zip(owners, lam[m:])}
+
+    def _rows(self, cfg: Configuration, t: float, q: np.ndarray, v: np.ndarray, applied: Applied | None = None):
+        """What :meth:`forces` solves: ``(ref, qs, vs, R, bias, m, owners, extra, ref_forces)``, the
+        reference configuration and the state on it, its rows (its own ``m`` first, then one per
+        hold, labelled ``owners``) with their bias, and the force elements acting."""
         ref, qs, vs = self._on_reference(cfg, q, v, applied and applied.reference)
         if applied is None:
             Jc, bc = ref.coords.rows(t, qs, vs)
@@ -316,10 +325,7 @@ class Holds:
                 bias.append([0.0])
             owners.append(h.label)
         extra = None if own is None else own.generalized(qs, vs) - ref_forces.generalized(qs, vs)
-        R = np.vstack(rows)
-        _, lam = constrained_accelerations(ref, qs, vs, R, np.concatenate(bias), extra, forces=ref_forces)
-        lam = determinate(R, lam)  # a hold the rows leave statically indeterminate: NaN, never one arbitrary split
-        return {label: float(x) for label, x in zip(owners, lam[Jc.shape[0]:])}
+        return ref, qs, vs, np.vstack(rows), np.concatenate(bias), Jc.shape[0], owners, extra, ref_forces
 
     def evaluator(self, cfg: Configuration):
         """``(t, q, v) -> {label: holding force}``: :meth:`forces` of the holds in force now, to the
