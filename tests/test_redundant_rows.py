@@ -34,7 +34,9 @@ def slider_x(th):
     return A_ * math.cos(th) + math.sqrt(B_ ** 2 - (A_ * math.sin(th)) ** 2)
 
 
-def jammed_press(folder: Path, drive=None, lock=("P",)) -> Path:
+def jammed_press(folder: Path, drive=None, lock=("P",), reference=False, t_end=1.0) -> Path:
+    """``reference``: a configuration 'ref' on the URDF and cut joint of 'free' with the drive too, on
+    which the hold of 'held' is solved (pcmm.events.holding: the held joint free, the same drives)."""
     urdf = robot_xml("sc", link_xml("frame"), joint_xml("A", "revolute", "frame", "crank"), bar_xml("crank", A_, 0.5),
                      joint_xml("B", "revolute", "crank", "rod", xyz=(A_, 0.0)), bar_xml("rod", B_, 0.8),
                      joint_xml("P", "prismatic", "frame", "slider", axis=(1, 0, 0)), solid_xml("slider", 2.0, 1e-3))
@@ -44,11 +46,14 @@ def jammed_press(folder: Path, drive=None, lock=("P",)) -> Path:
                                     "direction": "increasing"},
               {"a": "frame", "point_a": [xs, 0.0], "b": "slider", "point_b": [0.0, 0.0], "normal": [-1.0, 0.0]},
               merge_to="held", cut=["P"], unmerge=False)
-    more = {"drives": [{"joint": "A", "coefficients": list(drive), "configurations": ["held"]}]} if drive else {}
+    more = {"drives": [{"joint": "A", "coefficients": list(drive),
+                        "configurations": ["held", "ref"] if reference else ["held"]}]} if drive else {}
+    configs = {"free": {"urdf": "sc.urdf", "cut_joints": cut}, "held": {"from": "free", "lock": list(lock)}}
+    if reference:
+        configs["ref"] = {"urdf": "sc.urdf", "cut_joints": cut}
     phi = math.asin(-A_ * math.sin(TH0) / B_)
-    doc = base_doc("jammed", "free", {"free": {"urdf": "sc.urdf", "cut_joints": cut},
-                                      "held": {"from": "free", "lock": list(lock)}},
-                   {"A": TH0, "B": phi - TH0, "P": slider_x(TH0)}, {"A": 0.0, "B": 0.0, "P": 0.0}, t_end=1.0,
+    doc = base_doc("jammed", "free", configs,
+                   {"A": TH0, "B": phi - TH0, "P": slider_x(TH0)}, {"A": 0.0, "B": 0.0, "P": 0.0}, t_end=t_end,
                    transitions=[tr], forces=[{"name": "motor", "type": "torque", "on": {"joint": "A"}, "value": 0.5,
                                               "configurations": ["free"]}], **more)
     doc["initial"]["independent"] = ["A"]
@@ -82,12 +87,37 @@ def test_consistent_redundant_rows_are_a_warning_naming_the_indeterminate_forces
     assert found.consistent
 
 
-def test_the_run_stops_on_the_redundancy_and_names_the_rows(tmp_path):
-    """No split of the indeterminate forces is reported: the run stops at the merge, naming the rows."""
-    with pytest.raises(pcmm.SimulationError) as info:
-        pcmm.simulate(pcmm.load_scene(jammed_press(tmp_path, drive=[TH_STOP])))
-    text = info.value.text()
-    assert "configuration 'held'" in text and "(C.fx, C.fy, A.drive) would be statically indeterminate" in text
+def test_the_run_goes_on_at_rest_and_reports_no_split(tmp_path):
+    """The run enters 'held' (3 rows of rank 2 on A, B) and goes on: the motion is determined (the
+    crank held by its drive at -1, the rod by the loop: at rest, A = -1 and B = phi - A by hand),
+    solved with a maximal independent set of the rows, the dropped one named once in the warnings
+    with the time; every row's force is moved by the null vector (cos phi, sin phi, a sin B), so
+    all three constraint_forces series are NaN, and so is the stop's hold (solved on 'ref', with P
+    free and the drive: 4 rows of rank 3, the null vector non-zero on the hold's row too)."""
+    run = pcmm.simulate(pcmm.load_scene(jammed_press(tmp_path, drive=[TH_STOP], reference=True, t_end=0.6)))
+    [(t_merge, to)] = [(e["t"], e["to"]) for e in run.events]
+    assert to == "held" and t_merge == pytest.approx(0.2833, abs=1e-4)
+    [w] = [w for w in run.stats["warnings"] if "redundant" in w]
+    assert w.startswith(f"t = {t_merge:.9g} s, configuration 'held': its 3 constraint rows (C.fx, C.fy, A.drive) are "
+                        "of rank 2 on 2 coordinates: redundant but consistent")
+    assert "the dropped C.fx is checked at every solve" in w and "C.fx, C.fy, A.drive are statically indeterminate" in w
+    [h] = [w for w in run.stats["warnings"] if "holding force" in w]
+    assert h.startswith(f"t = {t_merge:.9g} s, configuration 'held': the holding force stop.hold is statically "
+                        "indeterminate")
+    after = run.t > t_merge
+    phi = math.asin(-A_ * math.sin(TH_STOP) / B_)
+    assert run.t[-1] == pytest.approx(0.6) and np.count_nonzero(after) >= 2
+    assert np.max(np.abs(run.series("q", "A")[after] - TH_STOP)) < 1e-12
+    assert np.max(np.abs(run.series("q", "B")[after] - (phi - TH_STOP))) < 1e-12
+    assert np.max(np.abs(run.series("v", "A")[after])) < 1e-12 and np.max(np.abs(run.series("v", "B")[after])) < 1e-12
+    for label in ("C.fx", "C.fy", "A.drive", "stop.hold"):
+        assert np.all(np.isnan(run.series("constraint_forces", label)[after])), label
+    for label in ("C.fx", "C.fy"):  # in 'free' (no drive, no hold) C is determinate: finite
+        assert np.all(np.isfinite(run.series("constraint_forces", label)[run.t < t_merge]))
+    # the summary's extremes of the hold: none (it used to read min = inf, max = -inf, and the summary
+    # JSON was refused as "overflowed"); the indeterminate samples counted
+    held = run.stats["holding"]["stop.hold"]
+    assert held["min"] is None and held["max"] is None and held["indeterminate_samples"] == len(run.segments[-1].t)
 
 
 def test_inconsistent_rows_are_a_problem_naming_them(tmp_path):
@@ -122,7 +152,8 @@ def test_the_split_is_not_unique_which_is_why_no_run_reports_one(tmp_path):
     solutions: the KKT solve's and the minimum-norm one (numpy's lstsq) both balance gravity to
     round-off and differ by a multiple of the null vector y of R, which is non-zero on all four rows
     (here the hold on P: 0.555 N in the minimum-norm split, -4.0 N in the KKT solve's own choice).
-    So the run must not report one, and it does not: it stops on entering 'held'."""
+    So the run must not report one, and it does not: the hold and the rows' forces are NaN in its series
+    (test_the_run_goes_on_at_rest_and_reports_no_split)."""
     import pinocchio as pin
     from pcmm.events.contact import contact_row
     from pcmm.model.rows import constrained_accelerations
@@ -203,4 +234,86 @@ def test_holding_rows_alone_redundant_say_the_reported_split_is_one_of_many(tmp_
     [w] = [w for w in report.warnings if "redundant" in w]
     assert "configuration 'free' has 2 constraint rows (drives[0] ('X'), 'tip hits wall.hold') of rank 1 on 2 " \
            "coordinates: 1 redundant but consistent" in w
-    assert "any split it reported would be one of many" in w
+    assert "any split would be one of many, so it reports those it leaves indeterminate as NaN" in w
+
+
+def test_a_guard_on_the_indeterminate_hold_is_refused_at_check_and_at_run(tmp_path):
+    """The same press with unmerge = true: the merge would be undone where its hold turns tensile, but
+    the hold is statically indeterminate (the null vector is non-zero on its row: the sign of the
+    hold depends on the split, -4.0 N in one, 0.555 N in another), so no guard can read it without
+    the parts' compliance: `pcmm check` refuses it (the field: the stop's unmerge), and so does the
+    run when it enters 'held' (before this, the guard read NaN, never fired, and said nothing)."""
+    path = jammed_press(tmp_path, drive=[TH_STOP], reference=True, t_end=0.6)
+    path.write_text(path.read_text().replace("unmerge = false", "unmerge = true"))
+    report = check_scene(pcmm.load_scene(path))
+    [p] = report.problems
+    assert p.startswith(f"{path}: transitions[0] (stop).unmerge: = true (the stop's): the merge is undone where its "
+                        "holding force 'stop.hold' turns tensile, which the redundant rows leave statically indeterminate")
+    with pytest.raises(pcmm.SimulationError) as info:
+        pcmm.simulate(pcmm.load_scene(path))
+    text = info.value.text()
+    assert "configuration 'held': a guard reads the holding force of 'stop', which the constraint rows leave " \
+           "statically indeterminate" in text and "t = 0.2832989" in text
+
+
+def test_a_drive_that_turns_inconsistent_stops_the_run_naming_the_dropped_row(tmp_path):
+    """The drive on A, f(t) = -1 + (t - t_m)^3 with t_m the merge's instant: at t_m it holds the crank
+    where the lock and the loop put it, at rest (consistent: the run enters 'held' and goes on), then
+    turns it, which the loop and the lock forbid. The row dropped at entry (C.fx) is checked at every
+    solve: its residual leaves round-off within a few steps and the run stops naming it and the time
+    (its velocity residual 3 (t - t_m)^2 a sin B / ... reaches 1e-9 after about 2e-5 s)."""
+    first = pcmm.simulate(pcmm.load_scene(jammed_press(tmp_path / "first", drive=[TH_STOP], reference=True, t_end=0.4)))
+    tm = first.events[0]["t"]
+    cubic = [TH_STOP - tm ** 3, 3 * tm ** 2, -3 * tm, 1.0]  # -1 + (t - tm)^3, expanded
+    with pytest.raises(pcmm.SimulationError) as info:
+        pcmm.simulate(pcmm.load_scene(jammed_press(tmp_path / "cubic", drive=cubic, reference=True, t_end=0.4)))
+    text = info.value.text()
+    assert "configuration 'held': at t = " in text and "its redundant rows, dropped at t = " in text
+    assert "are violated: C.fx (residual" in text and "max_step" not in text  # not blamed on a Newton solve
+    t_stop = float(text.split("configuration 'held': at t = ")[1].split(" s")[0])
+    assert tm < t_stop < tm + 0.01
+
+
+def initial_held(folder: Path, drive: float, lock_x: float | None = None) -> Path:
+    """The press starting in 'held' (P locked at the stop's x, or at ``lock_x``), its crank driven
+    at ``drive``: 2 rows (C.fx, C.fy) and the drive on A, B: 3 rows on 2 coordinates."""
+    import tomllib
+    from builders import dump_toml
+    path = jammed_press(folder, drive=[drive], t_end=0.2)
+    doc = tomllib.loads(path.read_text())
+    doc["scene"]["initial_configuration"] = "held"
+    doc["configurations"]["held"]["lock"] = {"P": slider_x(TH_STOP) if lock_x is None else lock_x}
+    doc["initial"]["q"] = {"A": drive, "B": doc["initial"]["q"]["B"]}
+    doc["initial"]["v"] = {"A": 0.0, "B": 0.0}
+    doc["initial"].pop("independent", None)
+    doc["transitions"] = []
+    path.write_text(dump_toml(doc))
+    return path
+
+
+def test_a_consistent_redundant_initial_configuration_loads_and_runs(tmp_path):
+    """Crank driven at -1 and slide locked at the x the loop gives for -1: the loader counted 2
+    coordinates less 1 driven for 2 rows and said "no posture satisfies them all" (a false error:
+    A = -1, B = phi + 1 does, by hand). Now it loads, assembles there, and stays at rest."""
+    run = pcmm.simulate(pcmm.load_scene(initial_held(tmp_path, TH_STOP)))
+    phi = math.asin(-A_ * math.sin(TH_STOP) / B_)
+    assert abs(run.series("q", "A")[-1] - TH_STOP) < 1e-12 and abs(run.series("q", "B")[-1] - (phi - TH_STOP)) < 1e-12
+    assert [w for w in run.stats["warnings"] if "t = 0 s, configuration 'held': its 3 constraint rows" in w]
+
+
+def test_an_inconsistent_redundant_initial_configuration_is_a_clear_error(tmp_path):
+    """The slide locked 1 cm beyond where the loop puts it for the crank's -1: no posture satisfies
+    the rows; the assembly says so, naming the row it cannot satisfy and its residual."""
+    with pytest.raises(pcmm.PcmmError) as info:
+        pcmm.simulate(pcmm.load_scene(initial_held(tmp_path, TH_STOP, lock_x=slider_x(TH_STOP) + 0.01)))
+    text = info.value.text()
+    assert "configuration 'held': at t = 0 s its 3 constraint rows (C.fx, C.fy, A.drive) are of rank 2 and no " \
+           "posture and motion satisfies them all" in text
+    # solved with C.fx and the drive (QR's pivoting at the guess): the crank at -1, the rod's tip reaching
+    # the slider's x, 1 cm beyond its reach there, leaves the tip off the slide by, by hand,
+    # a sin A + sqrt(b^2 - (sqrt(b^2 - a^2 sin^2 A) + 0.01)^2) = -0.0492 m: C.fy's residual
+    assert "solved with C.fx, A.drive, the others are violated: C.fy (residual " in text
+    residual = float(text.split("(residual ")[1].split(",")[0])
+    dx = math.sqrt(B_ ** 2 - (A_ * math.sin(TH_STOP)) ** 2) + 0.01
+    hand = A_ * math.sin(TH_STOP) + math.sqrt(B_ ** 2 - dx ** 2)
+    assert abs(abs(residual) - abs(hand)) < 1e-3 * abs(hand) and abs(hand) == pytest.approx(0.0492, abs=1e-4)

@@ -22,7 +22,7 @@ from ..model.configuration import Configuration
 from .contact import compiled_contact, contact_state, gap_rate
 from ..scene.spec import TransitionSpec
 from ..ode.witness import Guard
-from .holding import guard_value as holding_guard_value
+from .holding import decidable, guard_value as holding_guard_value
 
 
 def _coordinate(cfg: Configuration, tr: TransitionSpec, ctx=None):
@@ -184,7 +184,8 @@ def _cut_joint_force(cfg: Configuration, tr: TransitionSpec):
         q, v = unpack(t, y)
         _, lam = cfg.coords.accelerations(t, q, v)
         n = cfg.data.oMf[frame_a].rotation[:2, :2] @ np.asarray(spec.normal, float)
-        return float(n @ lam[[ix, iy]]) / float(np.linalg.norm(n)) - tr.guard.value
+        force = float(n @ lam[[ix, iy]]) / float(np.linalg.norm(n))
+        return decidable(cfg, t, spec.name, force) - tr.guard.value  # NaN: indeterminate (redundant rows)
     return value, None
 
 

@@ -23,8 +23,8 @@ import numpy as np
 
 from ..model import compiled
 from ..model.configuration import Configuration
-from ..model.constraints import constrained_accelerations
-from ..errors import SimulationError
+from ..model.constraints import constrained_accelerations, determinate, indeterminate, left_null
+from ..errors import PcmmError, SimulationError
 from ..model.forces import compile_forces
 from .contact import contact_row
 from ..model.mechanism import Mechanism
@@ -80,6 +80,7 @@ class Holds:
         # {configuration: "compiled", or "python: why"}: how its holding forces were evaluated, as
         # each segment's evaluator was built (the run's stats["holding_evaluations"])
         self.evaluations: dict[str, str] = {}
+        self._noted: set = set()  # (configuration, holds) whose indeterminate holds were named (indeterminate_notes)
 
     # -- book-keeping
     def lock(self, src: Configuration, dst: Configuration, tr: TransitionSpec, q: np.ndarray, merge: bool) -> None:
@@ -108,6 +109,26 @@ class Holds:
             # the lock carries the elements acting on the joint where it is free (source), not those
             # of the release's source (the locked configuration, where the scene does not list them)
             self.items.append(Hold(of, tr, {of: q_s[src.joint_slice[of]].copy()}, False, False, carries=source))
+
+    def indeterminate_notes(self, cfg: Configuration, t: float, q: np.ndarray, v: np.ndarray) -> list[str]:
+        """For the run's warnings, once per configuration and set of holds: the holds in force at
+        (t, q, v) of ``cfg`` that their rows leave statically indeterminate (NaN in :meth:`forces`:
+        the reference's rows and the lock rows are dependent), whose series are NaN."""
+        key = (cfg.name, tuple(h.label for h in self.items))
+        if not self.items or key in self._noted:
+            return []
+        self._noted.add(key)
+        try:
+            _, _, _, R, _, m, owners, _, _ = self._rows(cfg, t, q, v)
+        except PcmmError:  # a hold that cannot be solved here says so where it is read
+            return []
+        loose = [f"{label}.hold" for label, bad in zip(owners, indeterminate(left_null(R))[m:]) if bad]
+        if not loose:
+            return []
+        return [f"t = {t:.9g} s, configuration '{cfg.name}': the holding force{'s' if len(loose) > 1 else ''} "
+                f"{', '.join(loose)} {'are' if len(loose) > 1 else 'is'} statically indeterminate (solved with the "
+                "rows of the configuration with the held joints free and the lock rows, which are dependent: any "
+                "split of the load balances it): NaN in the series, left out of stats.holding; no guard may read it"]
 
     def snapshot(self) -> "Holds":
         """The locks in force now, kept as they are (a recorded segment computes its holding
@@ -287,6 +308,15 @@ class Holds:
         by default those of now."""
         if not self.items:
             return {}
+        ref, qs, vs, R, bias, m, owners, extra, ref_forces = self._rows(cfg, t, q, v, applied)
+        _, lam = constrained_accelerations(ref, qs, vs, R, bias, extra, forces=ref_forces)
+        lam = determinate(R, lam)  # a hold the rows leave statically indeterminate: NaN, never one arbitrary split
+        return {label: float(x) for label, x in zip(owners, lam[m:])}
+
+    def _rows(self, cfg: Configuration, t: float, q: np.ndarray, v: np.ndarray, applied: Applied | None = None):
+        """What :meth:`forces` solves: ``(ref, qs, vs, R, bias, m, owners, extra, ref_forces)``, the
+        reference configuration and the state on it, its rows (its own ``m`` first, then one per
+        hold, labelled ``owners``) with their bias, and the force elements acting."""
         ref, qs, vs = self._on_reference(cfg, q, v, applied and applied.reference)
         if applied is None:
             Jc, bc = ref.coords.rows(t, qs, vs)
@@ -309,8 +339,7 @@ class Holds:
                 bias.append([0.0])
             owners.append(h.label)
         extra = None if own is None else own.generalized(qs, vs) - ref_forces.generalized(qs, vs)
-        _, lam = constrained_accelerations(ref, qs, vs, np.vstack(rows), np.concatenate(bias), extra, forces=ref_forces)
-        return {label: float(x) for label, x in zip(owners, lam[Jc.shape[0]:])}
+        return ref, qs, vs, np.vstack(rows), np.concatenate(bias), Jc.shape[0], owners, extra, ref_forces
 
     def evaluator(self, cfg: Configuration):
         """``(t, q, v) -> {label: holding force}``: :meth:`forces` of the holds in force now, to the
@@ -353,6 +382,9 @@ class Holds:
                 rows.append(e[None, :])
             labels.append(h.label)
         J, m = np.vstack(rows), Jc.shape[0]
+        if left_null(J).shape[1]:  # redundant rows: forces() says which holds are indeterminate (NaN)
+            self.evaluations[cfg.name] = "python: not compiled: redundant rows"
+            return lambda t, q, v: self.forces(cfg, t, q, v)
         lock_bias = np.zeros(len(labels))  # joint rows: no bias (as forces() gives them)
         mine, theirs = [], []  # cfg's coordinates and where they sit in the reference's
         for name in ref.joint_names:
@@ -403,6 +435,21 @@ class Holds:
         return out
 
 
+def decidable(cfg: Configuration, t: float, label: str, force: float) -> float:
+    """``force``, the holding force ``label`` a guard reads; a SimulationError where it is NaN: the
+    rows leave it statically indeterminate (:func:`pcmm.model.rows.determinate`), so whether it turns
+    tensile depends on the parts' compliance, which pcmm does not model: no guard can read it."""
+    if force == force:
+        return force
+    raise SimulationError(
+        f"t = {t:.9g} s, configuration '{cfg.name}': a guard reads the holding force of '{label}', which the "
+        "constraint rows leave statically indeterminate (redundant rows: any split of the load between them "
+        "balances it; the run's warnings and `pcmm check` name them): whether it turns tensile cannot be "
+        "decided without the parts' compliance. Remove the redundant row (a drive limited to the "
+        "configurations where its joint is free, one cut joint fewer, or a joint fewer locked), or hold the "
+        "merge for good (unmerge = false) and release it by a time or coordinate guard")
+
+
 def guard_value(cfg: Configuration, forces, label: str, offset: float = 0.0):
     """``(t, y) -> forces(t, q, v)[label] - offset`` at ``cfg``'s integrator state: the value of a
     guard on a holding force (``forces``: a :meth:`Holds.evaluator`).  Where the evaluator is compiled
@@ -421,7 +468,7 @@ def guard_value(cfg: Configuration, forces, label: str, offset: float = 0.0):
 
         def value(t, y):
             q, v = unpack(t, y)
-            return forces(t, q, v)[label] - offset
+            return decidable(cfg, t, label, forces(t, q, v)[label]) - offset
         return value
     i = forces.labels.index(label)
     at_state, python = fast.at_state, forces.python
@@ -430,7 +477,7 @@ def guard_value(cfg: Configuration, forces, label: str, offset: float = 0.0):
         lam = at_state(t, y)
         if lam is None:
             q, v = unpack(t, y)
-            return python(t, q, v)[label] - offset
+            return decidable(cfg, t, label, python(t, q, v)[label]) - offset
         return float(lam[i]) - offset
     value.holding = (fast, i, float(offset))
     return value

@@ -40,7 +40,7 @@ from .impulse_compiled import (NO_IMPULSE, CompiledImpulse, compiled_impulse, di
                                takes_no_impulse)
 from ..errors import SimulationError
 from ..model.pinocchio_helpers import cholesky, frame_jacobian, mass_matrix
-from ..model.rows import solve
+from ..model.rows import determinate, independent_rows, left_null, solve
 from ..scene.spec import ContactSpec
 
 #: NO_IMPULSE (:func:`takes_no_impulse`): the one rule of both solves for 'no impulse along the
@@ -189,7 +189,8 @@ def solve_impulse(cfg: Configuration, t: float, q: np.ndarray, v: np.ndarray, co
     loop cut joints and drives, a joint stop or a frictionless point contact), checked against
     :func:`solve_impulse_python` at the plan's first impact; else that Python solve."""
     plan = _plan(cfg, contact, cut_joints)
-    fast = compiled_impulse(cfg, plan)
+    # redundant rows (pcmm.model.partitioned): the Python solve keeps an independent set of them
+    fast = None if cfg.coords.redundant else compiled_impulse(cfg, plan)
     if fast is not None:
         out = _compiled_solve(cfg, plan, fast, q, v, restitution)
         if out is not None and fast.checked:
@@ -353,6 +354,13 @@ def solve_impulse_python(cfg: Configuration, t: float, q: np.ndarray, v: np.ndar
                                      - frame_jacobian(cs.model, cs.data, plan.frame_a)[5]))[None, :]
     G = np.concatenate((cs.J_cut, cfg.coords.equality(t, cs.model, cs.data)))
     W = _inverse_mass(M_f, cfg.name)
+    G_all = G
+    # redundant but consistent rows (a cut joint given twice, a drive on a joint a lock and a loop fix):
+    # the impulse is the same on a maximal independent set of them; their impulsive forces along the
+    # rows' left null vectors are indeterminate, reported NaN (below)
+    kept = independent_rows(G) if cfg.coords.redundant else None
+    if kept is not None:
+        G = G[kept]
     if G.shape[0]:
         WGt = W @ G.T
         S = G @ WGt
@@ -385,6 +393,13 @@ def solve_impulse_python(cfg: Configuration, t: float, q: np.ndarray, v: np.ndar
     dv_f = W_eff @ J.T @ P  # Eqs. 24, 38 (and 35 with its sign)
     v_f_after = v_f + dv_f  # Eqs. 30, 43
     mult = -solve(S, G @ W @ J.T @ P) if G.shape[0] else np.zeros(0)
+    if kept is not None:
+        full = np.zeros(G_all.shape[0])
+        full[kept] = mult
+        mult = full
+        work_mult, mult = mult, determinate(G_all, mult)
+    else:
+        work_mult = mult
     v_after = _least_squares(cs.T, v_f_after)
     if _norm(cs.T @ v_after - v_f_after) > 1e-8 * max(1.0, _norm(v_f_after)):
         raise SimulationError(f"t = {t:.9g} s: the cut system's post-impact velocity does not reassemble "
@@ -406,7 +421,8 @@ def solve_impulse_python(cfg: Configuration, t: float, q: np.ndarray, v: np.ndar
     # A driven joint keeps its prescribed speed through the impact: its motor's impulsive
     # moment does work (mu q'), so the kinetic energy may rise by that much; what never
     # rises is KE_before + drive_work - KE_after (the energy the impact dissipates).
-    out.drive_work = sum(rows[i] * float(v[j]) for i, j in plan.drive_rows)
+    # (with redundant rows: any split's work, the same for all: a drive whose impulse is indeterminate is at rest)
+    out.drive_work = sum(float(work_mult[len(cs.row_owner) + i]) * float(v[j]) for i, j in plan.drive_rows)
     if not plan.stop:
         point_impulses = [(contact.b, pos_b, out.vector, 0.0), (contact.a, pos_a, -out.vector, 0.0)]
     elif plan.prismatic:  # a force along the axis at the child
@@ -420,10 +436,33 @@ def solve_impulse_python(cfg: Configuration, t: float, q: np.ndarray, v: np.ndar
     out.constraint_impulses = constraint_impulses(cfg, out.constraint_rows, loop)
     for name in cut_loops:  # on b from a, world axes, like a tree joint's cut impulse
         out.cut_impulses[name] = list(out.constraint_impulses[name])
-    out.joint_impulses, out.rnea_residual = joint_impulses(cfg, q, v_after - v, point_impulses)
+    if kept is None:
+        out.joint_impulses, out.rnea_residual = joint_impulses(cfg, q, v_after - v, point_impulses)
+    else:  # redundant rows: each joint's impulse from one split, NaN where another split changes it
+        out.joint_impulses, out.rnea_residual = _determinate_joint_impulses(
+            cfg, q, v_after - v, point_impulses[:len(point_impulses) - len(loop)], work_mult, G_all, len(cs.row_owner))
     if fr is not None:
         check_frictional_energy(fr, out, where)
     return out
+
+
+def _determinate_joint_impulses(cfg: Configuration, q, dv, contact, split, G, first: int):
+    """``joint_impulses`` where the rows ``G`` are redundant: from the impulsive multipliers ``split``
+    (one solution; the constraint rows' from index ``first`` on), then again with each left null
+    vector of ``G`` added (another solution, the same velocities): a joint's component that changes
+    is statically indeterminate, NaN; the others are every split's (a joint the redundant rows'
+    forces reach only through their resultant)."""
+    labels = cfg.coords.labels
+
+    def carried(m):
+        return joint_impulses(cfg, q, dv, list(contact) + loop_point_impulses(cfg, dict(zip(labels, m[first:].tolist()))))
+    base, residual = carried(split)
+    scale = max([1.0] + [abs(x) for f in base.values() for x in f])
+    for y in left_null(G).T:
+        other, _ = carried(split + scale * y)
+        for name, f in base.items():
+            base[name] = [x if abs(x - o) <= 1e-9 * scale else math.nan for x, o in zip(f, other[name])]
+    return base, residual
 
 
 def _norm(x: np.ndarray) -> float:

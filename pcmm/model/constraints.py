@@ -13,10 +13,10 @@ import numpy as np
 from .configuration import Configuration
 from .coordinates import Coordinates
 from .partitioned import NEWTON_TOL, SINGULAR_COND, PartitionedCoordinates
-from .rows import ClosureRows, Drives, constrained_accelerations, solve
+from .rows import ClosureRows, Drives, constrained_accelerations, determinate, indeterminate, left_null, solve
 from .tree import TreeCoordinates
 
-__all__ = ["coordinates_for", "constrained_accelerations", "solve", "NEWTON_TOL", "SINGULAR_COND"]
+__all__ = ["coordinates_for", "constrained_accelerations", "determinate", "indeterminate", "left_null", "solve", "NEWTON_TOL", "SINGULAR_COND"]
 
 
 def coordinates_for(cfg: Configuration) -> Coordinates:

@@ -20,7 +20,8 @@ import pinocchio as pin
 
 from . import compiled
 from .configuration import Configuration
-from .rows import ClosureRows, Drives, _det, _max_abs, constrained_accelerations, pivots, solve
+from .rows import (ClosureRows, Drives, _det, _max_abs, constrained_accelerations, determinate, independent_rows,
+                   indeterminate, left_null, pivots, solve)
 from ..errors import Repartition, SimulationError
 from ..ode.witness import Guard
 
@@ -102,6 +103,12 @@ class PartitionedCoordinates:
         self.nv = cfg.nv
         self.m = closure.size + drives.size
         self.labels = closure.labels() + [f"{j}.drive" for j in drives.joints]
+        # redundant but consistent rows (partition): the rows kept (indices into labels: a maximal
+        # independent set, the drives' always among them), the loop rows among them, the rows dropped
+        # (checked at every solve: _check_dropped), and the redundancies already reported (take_notes)
+        self._kept, self._nloop, self._dropped, self._dropped_at = None, closure.size, np.zeros(0, int), 0.0
+        self._noted: set = set()
+        self._notes: list[str] = []
         self.I = None
         self.D = None
         self.ny = 0  # 2 len(I), set with the partition (pack, project)
@@ -323,6 +330,8 @@ class PartitionedCoordinates:
         entry (a configuration entered again later holds its point elsewhere): values, which
         :meth:`restored` reads."""
         out = {"I": self.I, "D": self.D, "ny": self.ny}
+        if self._kept is not None:
+            out["kept"] = (self._kept, self._nloop, self._dropped, self._dropped_at)
         if self.closure.anchors:
             out["anchors"] = {k: np.array(a, float) for k, a in self.closure.anchors.items()}
         return out
@@ -343,6 +352,9 @@ class PartitionedCoordinates:
         if forces is not None:
             reader._segment_forces = forces
         reader.I, reader.D, reader.ny = frozen["I"], frozen["D"], frozen["ny"]
+        reader._kept, reader._nloop, reader._dropped, reader._dropped_at = frozen.get(
+            "kept", (None, self.closure.size, np.zeros(0, int), 0.0))
+        reader._notes = []
         reader.closure = dataclasses.replace(self.closure, anchors=dict(frozen.get("anchors", {})))
         if getattr(self._point_rows, "__self__", None) is self:  # the Python rows read the closure
             reader._point_rows = reader._python_point_rows
@@ -384,6 +396,16 @@ class PartitionedCoordinates:
         return Jq, self.closure.point_bias(cfg.model, cfg.data)
 
     def _phi(self, t, q, need_bias=False, v=None):
+        """(Phi, Phi_q, bias) of the rows the motion is solved with: every row, or where the rows are
+        redundant the independent ones kept (:meth:`partition`)."""
+        phi, Jq, bias = self._phi_all(t, q, need_bias, v)
+        kept = self._kept
+        if kept is None:
+            return phi, Jq, bias
+        return phi[kept], Jq[kept], (bias[kept] if bias is not None else None)
+
+    def _phi_all(self, t, q, need_bias=False, v=None):
+        """(Phi, Phi_q, bias) of every row (the cut joints', the drives'), whether or not they are independent."""
         cfg = self.cfg
         if not self.closure.size:  # drives alone: no kinematics pass, their rows need none
             phi, Jq, bias = self._no_rows, self._no_jacobian, (self._no_rows if need_bias else None)
@@ -414,13 +436,16 @@ class PartitionedCoordinates:
         if self.drives.size:
             Jq = np.concatenate((Jq, self._drive_rows))
             bias = np.concatenate((bias, -self.drives.values(t)[2]))
+        if self._kept is not None:
+            return Jq[self._kept], bias[self._kept]
         return Jq, bias
 
     def _phi_t(self, t):
         """``dPhi/dt``: zero for the loops, minus each drive's rate."""
         out = np.zeros(self.m)
         out[self.closure.size:] = self.drives.values(t)[1]
-        return np.negative(out, out=out)
+        np.negative(out, out=out)
+        return out if self._kept is None else out[self._kept]
 
     def equality(self, t, model, data):
         """Velocity rows of all constraints on ``model`` (the tree or its cut system);
@@ -448,7 +473,7 @@ class PartitionedCoordinates:
         return self.cfg.position_jacobian(q, self._phi(t, q)[1])
 
     def residual(self, t, q) -> float:
-        phi, _, _ = self._phi(t, q)
+        phi, _, _ = self._phi_all(t, q)
         return float(np.max(np.abs(phi))) if phi.size else 0.0
 
     # -- partition
@@ -466,7 +491,14 @@ class PartitionedCoordinates:
         if projected is not None and not prefer_independent and projected[0] == t and projected[1] == q.tobytes():
             return  # the posture project() just assembled, partitioned there: the same choice (see project)
         self._seed_t = t
+        self._kept, self._nloop, self._dropped = None, self.closure.size, np.zeros(0, int)
         Jq = self._position_rows(t, q)
+        kept = self._independent(Jq) if self._distinct_drives else None
+        if kept is not None and not self._persists(t, q, Jq, kept):
+            kept = None  # a singular posture (a change point, a dead centre): the conditioning check's to judge
+        if kept is not None:  # redundant rows: the motion is solved with a maximal independent set
+            self._keep_rows(t, kept, Jq)
+            Jq = Jq[kept]
         self.D = self._best_dependent(Jq, keep=prefer_independent)
         dependent = set(self.D.tolist())
         self.I = np.array([i for i in range(self.nv) if i not in dependent], dtype=int)
@@ -480,6 +512,108 @@ class PartitionedCoordinates:
                 f"configuration '{self.cfg.name}': the constraints are singular at t = {t:.6g} s "
                 f"(condition number {cond:.3g}): the loop is at or near a singular posture "
                 "(e.g. a slider-crank at dead centre) or the cut joints are redundant")
+
+    def _independent(self, Jq):
+        """The rows to keep where ``Jq`` (every row) is rank deficient to round-off
+        (:func:`pcmm.model.rows.independent_rows`): every drive row (unit rows on distinct
+        coordinates), and of the loop rows a maximal set independent of them; None where all are
+        independent (a posture merely near a singular one is the conditioning check's to judge)."""
+        nc = self.closure.size
+        order = np.concatenate([np.arange(nc, self.m), np.arange(nc)]).astype(int)
+        sel = independent_rows(Jq[order], first=self.m - nc)
+        return None if sel is None else np.sort(order[sel])
+
+    #: how far (relative to the coordinates' size) :meth:`_persists` moves the posture along its freedoms
+    PERSIST_STEP = 1e-6
+
+    def _persists(self, t, q, Jq, kept) -> bool:
+        """Whether the dependence of the rows ``Jq`` at ``q`` persists where the rows ``kept`` let the
+        posture move (a step of PERSIST_STEP along each direction of their null space): redundant rows
+        (a cut joint given twice, a drive on a joint a lock and the loop fix, an over-constrained linkage
+        on its motion) stay dependent there to second order in the step, while at a singular posture (a
+        change point, a dead centre) the rank comes back to first order (the parallelogram with its
+        links collinear), which is a singular posture, not a redundancy.  With no freedom left the
+        dependence is the rows' own (more rows than coordinates the drives leave): it persists."""
+        _, sv, Vt = np.linalg.svd(Jq[kept])
+        rank = int(np.sum(sv > 1e-9 * max(float(sv[0]), 1e-300))) if sv.size else 0
+        step = self.PERSIST_STEP * max(1.0, _max_abs(q))
+        nc = self.closure.size
+        order = np.concatenate([np.arange(nc, self.m), np.arange(nc)]).astype(int)
+        for n in Vt[rank:]:
+            moved = q + step * n
+            if independent_rows(self._position_rows(t, moved)[order], first=self.m - nc) is None:
+                return False
+        return True
+
+    def _keep_rows(self, t, kept, Jq) -> None:
+        """Solve the motion with the rows ``kept`` from now on (redundant rows found at ``t``; ``Jq``
+        every row there), the others checked at every solve (:meth:`_check_dropped`), and note it
+        once for the run's warnings (:meth:`take_notes`): the rows, the rank, the rows dropped and the
+        forces left statically indeterminate, which are NaN in the series (:meth:`accelerations`)."""
+        self._kept = np.asarray(kept, int)
+        self._nloop = int(np.count_nonzero(self._kept < self.closure.size))
+        self._dropped = np.array([i for i in range(self.m) if i not in set(self._kept.tolist())], int)
+        self._dropped_at = t
+        loose = [lab for lab, bad in zip(self.labels, indeterminate(left_null(Jq))) if bad]
+        key = (tuple(self._dropped.tolist()), tuple(loose))
+        if key in self._noted:
+            return
+        self._noted.add(key)
+        dropped = ", ".join(self.labels[i] for i in self._dropped)
+        free = self.nv - len(self._kept)
+        self._notes.append(
+            f"t = {t:.9g} s, configuration '{self.cfg.name}': its {self.m} constraint rows ({', '.join(self.labels)}) "
+            f"are of rank {len(self._kept)} on {self.nv} coordinates: redundant but consistent, so the motion is "
+            f"still determined ({free} free coordinate{'s' if free != 1 else ''}). It is solved with "
+            f"{', '.join(self.labels[i] for i in self._kept)}; the dropped {dropped} "
+            f"{'is' if len(self._dropped) == 1 else 'are'} checked at every solve (the run stops if "
+            f"{'it is' if len(self._dropped) == 1 else 'they are'} violated). The "
+            f"forces of {', '.join(loose)} are statically indeterminate (any split of the load between them "
+            "balances it): their constraint_forces series are NaN, not one arbitrary split")
+
+    @property
+    def redundant(self) -> bool:
+        """Whether the motion is solved with a subset of the rows (:meth:`_keep_rows`): an impulse's
+        solve then keeps an independent set of them too (pcmm.events.impulse)."""
+        return self._kept is not None
+
+    def take_notes(self) -> list[str]:
+        """The redundancies found since last asked (:meth:`_keep_rows`), each once: for the run's warnings."""
+        out, self._notes = self._notes, []
+        return out
+
+    def _check_dropped(self, t, q, rates) -> None:
+        """The rows dropped as redundant (:meth:`_keep_rows`) at the solved posture ``q`` and its rates:
+        their residual at position and at velocity level stays at round-off while the rows are
+        consistent; where it does not (a drive's rate or position the others forbid, a constant-rank
+        assumption broken at a singular posture) the run stops naming them."""
+        d = self._dropped
+        phi, Jq, _ = self._phi_all(t, q)
+        Jp = self.cfg.position_jacobian(q, Jq)
+        phi_t = np.zeros(self.m)
+        phi_t[self.closure.size:] = -self.drives.values(t)[1]
+        pos, vel = phi[d], Jp[d] @ rates + phi_t[d]
+        scale = max(1.0, _max_abs(rates))
+        if _max_abs(pos) <= 1e-9 and _max_abs(vel) <= 1e-9 * scale:
+            return
+        named = ", ".join(f"{self.labels[i]} (residual {p:.3g}, rate {w:.3g})" for i, p, w in zip(d, pos, vel))
+        if t == self._dropped_at:  # where the rows were found dependent: never consistent
+            err = SimulationError(
+                f"configuration '{self.cfg.name}': at t = {t:.9g} s its {self.m} constraint rows "
+                f"({', '.join(self.labels)}) are of rank {len(self._kept)} and no posture and motion satisfies "
+                f"them all: solved with {', '.join(self.labels[i] for i in self._kept)}, the others are violated: "
+                f"{named}. A lock or a drive holds a joint where the loop puts it elsewhere: check the locked "
+                "values and the drives' values there")
+            err.at = t
+            raise err
+        err = SimulationError(
+            f"configuration '{self.cfg.name}': at t = {t:.9g} s its redundant rows, dropped at t = "
+            f"{self._dropped_at:.9g} s where they were consistent with the others, are violated: {named}: the "
+            "drives now ask a motion (or posture) the loops and locks forbid, or the rows' dependence was a "
+            "singular posture's. Drive the joint only where it is free (the drive's configurations), or "
+            "release the lock first")
+        err.at = t
+        raise err
 
     def _solve_dependent(self, t, qI, guess):
         """Dependent coordinates closing the loop at ``qI`` (Newton from ``guess``) and the
@@ -560,9 +694,9 @@ class PartitionedCoordinates:
         driven = list(self.drives.index)
         rest = [i for i in range(self.nv) if i not in driven and i not in keep]
         dep = list(driven)
-        if self.closure.size:
-            piv = pivots(Jq[:self.closure.size][:, rest])
-            dep += [rest[i] for i in piv[:self.closure.size]]
+        if self._nloop:
+            piv = pivots(Jq[:self._nloop][:, rest])
+            dep += [rest[i] for i in piv[:self._nloop]]
         return np.array(sorted(dep), dtype=int)
 
     def _scaled_det(self, Jq):
@@ -577,7 +711,8 @@ class PartitionedCoordinates:
         if JD.shape[0] != JD.shape[1]:
             raise SimulationError(
                 f"configuration '{self.cfg.name}': its {m} constraint rows cannot be solved for "
-                f"{JD.shape[1]} dependent coordinates: the cut joints are redundant (a cut joint given "
+                f"{JD.shape[1]} dependent coordinates: more coordinates are kept independent ([initial] "
+                "independent) than the loops leave free, or the cut joints are redundant (a cut joint given "
                 "twice, or more loops than the tree has joints to close them), or a drive prescribes a joint "
                 "that the loops and the locked joints already fix; the forces of these rows "
                 f"({', '.join(self.labels)}) would be statically indeterminate (`pcmm check` says whether they "
@@ -831,6 +966,14 @@ class PartitionedCoordinates:
             n = self.cfg.data.oMf[self.closure.links_a[k]].rotation[:2, :2] @ np.asarray(s.normal, float)
             n = n / np.linalg.norm(n)
             F = lam[i:i + 2]
+            if not np.isfinite(F).all():  # redundant rows leave it indeterminate (accelerations: NaN)
+                raise SimulationError(
+                    f"t = {t:.9g} s, configuration '{self.cfg.name}': the point held by cut joint '{s.name}' is held "
+                    "by compression (and friction) only, but its force is statically indeterminate: the rows "
+                    f"({', '.join(self.labels)}) are redundant, so any split of the load between them balances it "
+                    "(the run's warnings name them), and whether the point lifts off or slips cannot be decided "
+                    "without the parts' compliance. Remove the redundant row (a cut joint fewer, a joint fewer "
+                    "locked, a drive limited to the configurations where its joint is free)")
             out[s.name] = (float(n @ F), float(n[1] * F[0] - n[0] * F[1]))
         return out
 
@@ -1020,6 +1163,8 @@ class PartitionedCoordinates:
         rates[self.I] = y[k:]
         rhs = -(Jp[:, self.I] @ y[k:] + self._phi_t(t))
         rates[self.D] = solve(Jp[:, self.D], rhs)
+        if self._kept is not None:
+            self._check_dropped(t, q, rates)
         v = self.cfg.velocity(q, rates)
         self._recent.append((t, q, rates))
         if len(self._recent) > 8:
@@ -1109,7 +1254,7 @@ class PartitionedCoordinates:
         loop = self._reader_loop()
         if loop is not None:
             return loop.rows(t, q, v)
-        _, Jq, bias = self._phi(t, q, need_bias=True, v=v)
+        _, Jq, bias = self._phi_all(t, q, need_bias=True, v=v)
         return Jq, bias
 
     def _reader_loop(self):
@@ -1151,6 +1296,12 @@ class PartitionedCoordinates:
 
     def accelerations(self, t, q, v, extra=None):
         """(a, lam): ``M a + h = Q + extra + Phi_q^T lam`` with ``Phi_q a + bias = 0``."""
+        if self._kept is not None:  # redundant rows: the KKT solve on the kept ones, the indeterminate forces NaN
+            _, Jk, bias = self._phi(t, q, need_bias=True, v=v)
+            a, lam_kept = constrained_accelerations(self.cfg, q, v, Jk, bias, extra, forces=self.forces)
+            lam = np.zeros(self.m)
+            lam[self._kept] = lam_kept
+            return a, determinate(self.rows(t, q, v)[0], lam)
         if extra is None:
             got = self._reader_kkt(t, q, v)
             if got is not None:
@@ -1165,10 +1316,21 @@ class PartitionedCoordinates:
 
     def _solved_accelerations(self, t, q, v):
         """(a, lam) at an assembled (q, v): with revolute cut joints the rows and bias come from
-        one kinematics pass (:meth:`_point_rows_and_bias`); otherwise :meth:`accelerations`."""
+        one kinematics pass (:meth:`_point_rows_and_bias`); otherwise :meth:`accelerations`.  Where
+        the rows are redundant, ``lam`` is that of the rows kept (:meth:`solving_rows`): one split,
+        for the power of the drives (the same for every split), never reported."""
         if self.closure.revolute_only:
             return constrained_accelerations(self.cfg, q, v, *self._point_rows_and_bias(t, q, v), forces=self.forces)
+        if self._kept is not None:
+            return constrained_accelerations(self.cfg, q, v, *self.solving_rows(t, q, v), forces=self.forces)
         return self.accelerations(t, q, v)
+
+    def solving_rows(self, t, q, v):
+        """(Phi_q, bias) of the rows the motion is solved with (:meth:`rows` but for the rows dropped
+        as redundant: :meth:`partition`), whose multipliers are one split of the load: the power of
+        the constraint forces, ``lam . Phi_q v``, is the same for every split of consistent rows."""
+        _, Jq, bias = self._phi(t, q, need_bias=True, v=v)
+        return Jq, bias
 
     def rhs(self, t, y):
         """``[q'_I, q''_I]`` at ``(t, y)``: compiled where the drives are (:meth:`_compiled_drives`)

@@ -326,3 +326,61 @@ def constrained_accelerations(cfg: Configuration, q, v, J, bias, extra=None, for
     MiJt = Minv @ J.T
     lam = solve(J @ MiJt, -bias - J @ a0)
     return a0 + MiJt @ lam, lam
+
+
+#: a singular value of a configuration's rows at most this fraction of the largest is a redundancy (the
+#: rows are dependent to round-off: a cut joint given twice, a drive on a joint a lock and a loop fix)
+REDUNDANT_TOL = 1e-9
+
+
+def left_null(J: np.ndarray, tol: float = REDUNDANT_TOL) -> np.ndarray:
+    """The left null vectors ``y`` of the rows ``J`` (``y^T J = 0``), one per column, unit length,
+    from the SVD: the directions along which the multipliers of ``J`` can be traded at will
+    (``J^T (lam + c y) = J^T lam``); an empty (m, 0) array where the rows are independent."""
+    m = J.shape[0]
+    if m == 0:
+        return np.zeros((0, 0))
+    U, s, _ = np.linalg.svd(J)
+    rank = int(np.sum(s > tol * max(float(s[0]), 1e-300))) if s.size else 0
+    return U[:, rank:]
+
+
+def indeterminate(null: np.ndarray) -> np.ndarray:
+    """Which rows' multipliers some left null vector moves (:func:`left_null`): their forces are
+    statically indeterminate (any split of the load between those rows balances it)."""
+    if null.shape[1] == 0:
+        return np.zeros(null.shape[0], bool)
+    return np.max(np.abs(null), axis=1) > 1e-9
+
+
+def determinate(J: np.ndarray, lam: np.ndarray) -> np.ndarray:
+    """``lam`` (a solution of ``J^T lam = f``) with NaN in every entry that the rows ``J`` leave
+    statically indeterminate (:func:`indeterminate`); ``lam`` itself where the rows are independent.
+    The entries kept are the same in every solution: they are the determinate forces."""
+    bad = indeterminate(left_null(J))
+    if not bad.any():
+        return lam
+    out = np.array(lam, float)
+    out[bad] = np.nan
+    return out
+
+
+def independent_rows(J: np.ndarray, first: int = 0, tol: float = REDUNDANT_TOL) -> np.ndarray | None:
+    """The indices of a maximal set of independent rows of ``J`` where its rows ``first:`` are
+    dependent to round-off (``tol`` of their largest singular value), the rows before ``first``
+    always kept (a configuration's drives, whose rows are unit rows on distinct coordinates: the
+    remaining rows are judged on the columns the kept ones leave); None where they are independent.
+    Rank-revealing: QR with column pivoting on the remaining rows' transpose picks, of the dependent
+    ones, those best conditioned to keep."""
+    rest_rows = np.arange(first, J.shape[0])
+    if rest_rows.size == 0:
+        return None
+    head = J[:first]
+    cols = np.flatnonzero(~np.any(head != 0.0, axis=0)) if first else np.arange(J.shape[1])
+    block = J[rest_rows][:, cols]
+    s = np.linalg.svd(block, compute_uv=False) if block.size else np.zeros(0)
+    rank = int(np.sum(s > tol * max(float(s[0]), 1e-300))) if s.size else 0
+    if rank == rest_rows.size:
+        return None
+    keep = np.sort(pivots(block.T)[:rank]) if rank else np.zeros(0, int)
+    return np.concatenate([np.arange(first), rest_rows[keep]]).astype(int)

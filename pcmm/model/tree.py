@@ -172,6 +172,13 @@ class TreeCoordinates:
     def rows(self, t, q, v):
         return np.zeros((0, self.nv)), np.zeros(0)
 
+    redundant = False  # no rows, none redundant (PartitionedCoordinates.solving_rows)
+    solving_rows = rows
+
+    def take_notes(self) -> list[str]:
+        """Nothing to report: a tree has no rows (see PartitionedCoordinates.take_notes)."""
+        return []
+
     def time_rows(self):
         """``(Phi_q, bias_of)``: a tree has no rows (see PartitionedCoordinates.time_rows)."""
         return np.zeros((0, self.nv)), lambda t: np.zeros(0)

@@ -93,7 +93,14 @@ class RunStats(dict):
 
 
 def _extend(ext: dict, col: np.ndarray, t: np.ndarray) -> None:
-    """Widen the extremes ``ext`` ({min, t_min, max, t_max}) by the samples ``col`` at ``t``."""
+    """Widen the extremes ``ext`` ({min, t_min, max, t_max}) by the samples ``col`` at ``t``; NaN
+    samples (a statically indeterminate force) are left out and counted (``indeterminate_samples``)."""
+    loose = np.isnan(col)
+    if loose.any():
+        ext["indeterminate_samples"] = ext.get("indeterminate_samples", 0) + int(np.count_nonzero(loose))
+        col, t = col[~loose], t[~loose]
+    if not col.size:
+        return
     i_lo, i_hi = int(np.argmin(col)), int(np.argmax(col))
     if col[i_lo] < ext["min"]:
         ext["min"], ext["t_min"] = float(col[i_lo]), float(t[i_lo])
@@ -127,7 +134,10 @@ def holding_extremes(traj: "Trajectory") -> dict:
     samples (constraint forces labelled ``<lock>.hold``): what a designer sizes a latch by; and
     beside them {cut joint: {"normal": {...}, "tangential": {...}}} of every point held by
     compression only (a pinned foot's stance force, :func:`stance_forces`), what a designer sizes
-    the contact's friction by."""
+    the contact's friction by.  A force the rows leave statically indeterminate (NaN: redundant
+    rows, :func:`pcmm.model.rows.determinate`) is left out of the extremes and counted
+    (``indeterminate_samples``); held indeterminate throughout, its extremes are None (no number
+    is any split's)."""
     out: dict = {}
     for s in traj.segments:
         for name, parts in stance_forces(traj, s).items():
@@ -140,6 +150,10 @@ def holding_extremes(traj: "Trajectory") -> dict:
                 continue
             ext = out.setdefault(label, {"min": math.inf, "t_min": None, "max": -math.inf, "t_max": None})
             _extend(ext, s.constraint_forces[:, k], s.t)
+    for entry in out.values():
+        for ext in (entry,) if "t_min" in entry else entry.values():
+            if ext["t_min"] is None:  # indeterminate at every sample
+                ext["min"] = ext["max"] = None
     return out
 
 
@@ -548,9 +562,34 @@ def non_finite_fields(obj, where: str = "") -> list[str]:
     return []
 
 
+#: an event's impulses between parts: NaN there is a force the rows leave statically indeterminate
+#: (redundant rows: pcmm.events.impulse), written as null; nowhere else
+_INDETERMINATE_KEYS = ("constraint_rows", "cut_impulses", "constraint_impulses", "joint_impulses")
+
+
+def _indeterminate_as_null(obj):
+    """``obj`` (a summary) with the NaN of its events' impulses between parts written as None (JSON
+    null): statically indeterminate, which a velocity, an energy or an impulse on the contact never is
+    (a NaN there still refuses the summary, :func:`dumps_json_finite`)."""
+    if not isinstance(obj, dict) or not isinstance(obj.get("events"), list):
+        return obj
+
+    def null(x):
+        if isinstance(x, dict):
+            return {k: null(v) for k, v in x.items()}
+        if isinstance(x, (list, tuple)):
+            return [null(v) for v in x]
+        return None if isinstance(x, (float, np.floating)) and math.isnan(x) else x
+    events = [dict(e, **{k: null(e[k]) for k in _INDETERMINATE_KEYS if k in e}) if isinstance(e, dict) else e
+              for e in obj["events"]]
+    return dict(obj, events=events)
+
+
 def dumps_json_finite(obj, what: str) -> str:
     """JSON text of ``obj``, refusing NaN and infinities (which are not JSON): a result that
-    overflowed is an error naming the fields, never ``Infinity`` in a file."""
+    overflowed is an error naming the fields, never ``Infinity`` in a file.  An event's impulse
+    between parts that the rows leave statically indeterminate (NaN) is written as null."""
+    obj = _indeterminate_as_null(obj)
     bad = non_finite_fields(obj)
     if bad:
         shown = ", ".join(bad[:5]) + (f" and {len(bad) - 5} more" if len(bad) > 5 else "")

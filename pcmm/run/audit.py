@@ -59,7 +59,8 @@ def power(cfg: Configuration, coords, t: float, q, v) -> float:
     applies the segment's own)."""
     p = float(coords.forces.generalized(q, v) @ v)
     if len(coords.labels):  # the rows once: coords.accelerations(t, q, v) solves with these
-        Jq, bias = coords.rows(t, q, v)
+        # (redundant rows: those the motion is solved with, one split; its power is every split's)
+        Jq, bias = (coords.solving_rows if coords.redundant else coords.rows)(t, q, v)
         _, lam = constrained_accelerations(cfg, q, v, Jq, bias, forces=coords.forces)
         p += float(lam @ (Jq @ v))
     return p

@@ -417,10 +417,10 @@ class Redundancy:
                 f"({free} free coordinate{'s' if free != 1 else ''}) while the forces of {', '.join(loose)} are "
                 "not: they are statically indeterminate (any split of the load between them balances it). "
                 + ("pcmm solves the holding forces with these rows (on a configuration with the held joints free "
-                   "and the same drives): any split it reported would be one of many (the KKT solve's, not a "
-                   "minimum-norm one), not a physical answer. " if holding else
-                   "pcmm reports no arbitrary split: its run stops on entering the configuration (its rows cannot "
-                   "be solved for the dependent coordinates). ")
+                   "and the same drives): any split would be one of many, so it reports those it leaves "
+                   "indeterminate as NaN, and refuses a guard that reads one. " if holding else
+                   "pcmm reports no arbitrary split: the run goes on with a maximal independent set of the rows "
+                   "(the others checked at every solve), and these forces are NaN in its series. ")
                 + "Remove the redundant row: a drive limited to the configurations where its joint is free, one "
                 "cut joint fewer, or a joint fewer locked")
 
@@ -482,16 +482,17 @@ def _revolute_joints(cfg: Configuration) -> set[int]:
 
 
 def entry_redundancy(scene: Scene, src: Configuration, dst: Configuration, tr: TransitionSpec, q, q_dst
-                     ) -> tuple[str | None, bool]:
-    """(message, consistent) of the rows of configuration ``dst`` entered by ``tr`` from ``src`` at
+                     ) -> tuple[str | None, bool, list[str]]:
+    """(message, consistent, the indeterminate labels) of the rows of configuration ``dst`` entered by ``tr`` from ``src`` at
     ``q`` (``q_dst`` there) when they are dependent (:func:`redundant_rows`), else (None, True): its
     own rows, and those its holding forces are solved with (``src``'s loops, ``dst``'s drives and one
     row per lock ``tr`` makes: the stop's normal for a merge, the joint's coordinate for a latch, as
-    :class:`pcmm.events.holding.Holds` solves them), whose indeterminate holds it names too."""
+    :class:`pcmm.events.holding.Holds` solves them), whose indeterminate holds it names too (the
+    labels: the rows' ``C.fx``, ``drives[0] ('A')``, the holds' ``'stop.hold'``)."""
     own = redundant_rows(scene, dst, q_dst)
     locked = [n for n in src.joint_names if n not in dst.joint_slice]
     if not locked:
-        return (None, True) if own is None else (own.message(), own.consistent)
+        return (None, True, []) if own is None else (own.message(), own.consistent, own.indeterminate)
     if tr.type == "stop" and tr.contact is not None:
         from ..events.contact import contact_row
         holds = [(f"'{tr.name}.hold'", contact_row(src, q, np.zeros(src.nv), tr.contact)[0])]
@@ -504,10 +505,44 @@ def entry_redundancy(scene: Scene, src: Configuration, dst: Configuration, tr: T
     held = redundant_rows(scene, src, q, holds, drives_of=dst.name)
     holding = [lab for lab in (held.indeterminate if held is not None else []) if lab in dict(holds)]
     if own is not None:
-        return own.message([f"the holding force {h}" for h in holding]), own.consistent
+        return own.message([f"the holding force {h}" for h in holding]), own.consistent, own.indeterminate + holding
     if held is None:
-        return None, True
-    return held.message(holding=True), held.consistent
+        return None, True, []
+    return held.message(holding=True), held.consistent, holding
+
+
+def indeterminate_readers(scene: Scene, dst: Configuration, tr: TransitionSpec, loose: list[str], here: str
+                          ) -> list[str]:
+    """The problems of guards that would read a force the rows leave statically indeterminate in
+    ``dst`` entered by ``tr`` (``loose``: :func:`entry_redundancy`'s labels): the merge's own unmerge
+    (its hold turning tensile), a reaction guard on the hold or on a cut joint of ``dst``, a cut joint
+    held by compression or friction only. Whether such a force turns tensile or leaves its friction cone
+    depends on the parts' compliance, which pcmm does not model: refused, as the run refuses it."""
+    out = []
+    why = ("which the redundant rows leave statically indeterminate (any split of the load between them "
+           "balances it): whether it turns tensile cannot be decided without the parts' compliance; remove the "
+           "redundant row (a drive limited to the configurations where its joint is free, one cut joint fewer, "
+           "or a joint fewer locked)")
+    holds = {lab.strip("'")[:-len(".hold")] for lab in loose if lab.startswith("'") and lab.endswith(".hold'")}
+    rows = {lab.split(".")[0] for lab in loose if not lab.startswith("'") and not lab.startswith("drives[")}
+    unmerge = tr.unmerge if tr.unmerge is not None else scene.solver.unmerge
+    if tr.type == "stop" and unmerge and tr.name in holds:
+        out.append(f"{here}.unmerge: = true ({'the stop' if tr.unmerge is not None else 'solver.unmerge'}'s): the "
+                   f"merge is undone where its holding force '{tr.name}.hold' turns tensile, {why}, or set "
+                   "unmerge = false and release it by a time or coordinate guard")
+    where = str(scene.path)
+    for k, other in enumerate(scene.transitions):
+        if other.source != dst.name or other.guard.type != "reaction" or other.guard.of not in holds | rows:
+            continue
+        what = f"the holding force '{other.guard.of}.hold'" if other.guard.of in holds else \
+            f"the force of cut joint '{other.guard.of}'"
+        out.append(f"{where}: transitions[{k}] ({other.name}).guard.of: = {other.guard.of!r}: in configuration "
+                   f"'{dst.name}' (entered by transition '{tr.name}') it reads {what}, {why}")
+    for spec in dst.spec.cut_joints:
+        if spec.normal is not None and spec.name in rows:
+            out.append(f"{here}: in configuration '{dst.name}' cut joint '{spec.name}' is held by compression "
+                       f"{'and friction ' if spec.friction is not None else ''}only, and its force is {why}")
+    return out
 
 
 # ---- units -------------------------------------------------------------------------------------
@@ -636,12 +671,14 @@ def _check_transition(scene: Scene, mech: Mechanism, report: CheckReport, cfg: C
                         f"{m}; the two URDFs must place every shared link identically there "
                         "(check the fixed joint's origin in the merged configuration)" for m in mismatches]
     try:  # (not past a strike that stops the run: the target is never entered)
-        rows, consistent = (None, True) if stuck else entry_redundancy(scene, cfg, dst, tr, q, q_dst)
+        rows, consistent, loose = (None, True, []) if stuck else entry_redundancy(scene, cfg, dst, tr, q, q_dst)
     except PcmmError as exc:
         report.problems += [f"{here}.{key}: {p}" for p in exc.problems]
         return how
     if rows is not None:
         (report.warnings if consistent else report.problems).append(f"{here}.{key}: {rows}")
+        if consistent:
+            report.problems += indeterminate_readers(scene, dst, tr, loose, here)
     if target not in starts:
         starts[target] = (q_dst, None)  # the velocity after the switch is not known here
         todo.append(target)

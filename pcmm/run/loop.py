@@ -182,6 +182,8 @@ def integrate_segment(run: RunState, progress):
     loop's partition degenerated mid-step (recorded up to there; ``run`` moved on to it)."""
     cfg, t = run.cfg, run.t
     y0 = cfg.coords.pack(t, run.q, run.v)
+    # redundant rows the coordinates now solve without, holds they leave indeterminate: named once
+    run.traj.stats["warnings"] += cfg.coords.take_notes() + run.holds.indeterminate_notes(cfg, t, run.q, run.v)
     guards = _guards(run.scene, cfg, run.holds, t, run.phase, run.bounced, run.fired, run.kept_guards)
     # a flight between two impacts at the same contact: its energy is audited (pcmm.run.audit)
     flight = run.bounced is not None and run.phase is None and y0.size > 0

@@ -194,7 +194,7 @@ def trial_time(cfg: Configuration, exc, t: float) -> str | None:
     try:
         q, _ = cfg.coords.unpack(t_stop, np.asarray(seg.y[:cfg.coords.ny, -1], float))
         _, Jq = cfg.coords.loop_rows(q)
-        if Jq.size:
+        if Jq.size and "cannot be closed" in text:  # a Newton solve's failure (not, e.g., redundant rows violated)
             cond = float(np.linalg.cond(Jq))
             posture = (f"; there the loop's constraint Jacobian has condition number {cond:.3g}, " +
                        ("a regular posture: the integrator's trial step was too long for the loop's "

@@ -925,10 +925,14 @@ class _Builder:
 
     def _loops_keep_a_coordinate_per_row(self, scene: Scene, cfg: ConfigurationSpec) -> None:
         """The initial assembly solves the loops' constraint rows for the coordinates they involve that
-        are neither kept (``[initial] independent``) nor driven: fewer of those than rows is a loop that
-        cannot close whatever the values (the assembly would otherwise fail as a Newton solve that
-        diverged, or as a singular posture).  A cut joint's rows involve the joints on the tree paths of
-        its two links that the paths do not share (a shared joint moves both links rigidly)."""
+        are neither kept (``[initial] independent``) nor driven: fewer of those than rows, where the drives
+        alone leave enough, is a kept list that over-determines the loop (the assembly would otherwise fail
+        as a Newton solve that diverged, or as a singular posture).  Where the drives and locks alone leave
+        fewer coordinates than rows, the rows are dependent whatever is kept, and dependent rows may be
+        consistent (a crank driven where a locked slide and the loop hold it): the assembly judges them by
+        their rank (pcmm.model.partitioned), so nothing is refused here.  A cut joint's rows involve the
+        joints on the tree paths of its two links that the paths do not share (a shared joint moves both
+        links rigidly)."""
         rows = {cj.name: CUT_JOINT_TYPES[cj.type] for cj in cfg.cut_joints}
         if not rows:
             return
@@ -959,6 +963,13 @@ class _Builder:
                 kept.setdefault(d.joint, f"driven by drives[{scene.drives.index(d)}]")
         free = total - len(kept)
         if sum(rows.values()) <= free:
+            return
+        driven = sum(1 for why in kept.values() if why.startswith("driven"))
+        if sum(rows.values()) > total - driven:
+            # more rows than the drives leave coordinates: the rows are dependent whatever is kept, and
+            # dependent rows may be consistent (a crank driven where the loop and a locked slide hold it,
+            # a cut joint given twice): the assembly judges them by their rank, and names any it cannot
+            # satisfy (pcmm.model.partitioned); counting here would refuse a posture that exists
             return
         where = "initial.independent" if scene.independent else "drives"
         value = f"= {list(scene.independent)}: " if scene.independent else ""
