@@ -126,3 +126,122 @@ def test_an_elbow_latch_let_go_by_a_timer_is_one_release(tmp_path, monkeypatch, 
     # by hand the elbow never comes back to the latch: its largest angle after the release is LATCH itself
     ts = np.linspace(T_RELEASE, 1.5, 20001)[1:]
     assert free.sol(ts)[1].max() < LATCH
+
+
+# ---- a four-bar whose latch is on the loop's dependent joint, let go by a timer ---------------------
+# crank J1 (0.06 m at the origin), coupler J2 (0.18 m), rocker J3 (0.12 m), the rocker's end pinned to
+# the frame at (0.2, 0) by the cut joint D: builders.four_bar_latch's loop, with a spring on the crank
+# (rest at VALUE / STIFF rad) instead of a constant torque, so the crank reaches the latch and is then
+# pulled back.  The latch (J3 = -1.5, increasing) makes the loop rigid: it rests there until the timer.
+BARS = [Bar(0.06, 0.0936), Bar(0.18, 0.2808), Bar(0.12, 0.1872)]
+PIVOT, J3_LATCH, FB_RELEASE = 0.2, -1.5, 0.8
+VALUE, STIFF, DAMP = 0.6, 0.5, 0.002
+
+
+def sprung_four_bar(folder: Path, t_end: float, value: float = VALUE, stiff: float = STIFF) -> Path:
+    cut = [{"name": "D", "type": "revolute", "a": "frame", "point_a": [PIVOT, 0.0], "b": "link3", "point_b": [0.12, 0.0]}]
+    doc = scene_doc({"open": {"urdf": "fb.urdf", "cut_joints": cut}, "latched": {"from": "open", "lock": ["J3"]}},
+                    {"J1": 0.0, "J2": 0.7287, "J3": -2.2519}, {"J1": 0.0, "J2": 0.0, "J3": 0.0},
+                    t_end=t_end, independent=["J1"],
+                    forces=[{"name": "crank spring", "type": "linear", "on": {"joint": "J1"}, "measure": {"joint": "J1"},
+                             "value": value, "k": stiff, "c": DAMP, "configurations": ["open"]}],
+                    transitions=[{"name": "latch", "type": "latch", "from": "open", "to": "latched", "cut": ["J3"],
+                                  "guard": {"type": "coordinate", "measure": {"joint": "J3"}, "value": J3_LATCH,
+                                            "direction": "increasing"},
+                                  "contact": {"joint": "J3", "arm": 0.05}},
+                                 {"name": "let go", "type": "release", "from": "latched", "to": "open",
+                                  "guard": {"type": "time", "at": FB_RELEASE}}])
+    doc["initial"]["branch"] = {"joint": "J3", "sign": "-"}
+    return write_scene(folder, doc, {"fb.urdf": chain_urdf(BARS)})
+
+
+def loop_angles(j1):
+    """(J2, J3) at crank angle j1 on the assembly the scene starts in (J2 = 0.7287, J3 = -2.2519 at
+    j1 = 0): the coupler's tip at distance 0.18 from the crank's tip and 0.12 from the pivot."""
+    a, b, c = (bar.length for bar in BARS)
+    p1 = np.array([a * math.cos(j1), a * math.sin(j1)])
+    d = np.array([PIVOT, 0.0]) - p1
+    r = float(np.hypot(*d))
+    phi2 = math.atan2(d[1], d[0]) + math.acos((b * b + r * r - c * c) / (2 * b * r))
+    p2 = p1 + b * np.array([math.cos(phi2), math.sin(phi2)])
+    phi3 = math.atan2(-p2[1], PIVOT - p2[0])
+    wrap = lambda x: (x + math.pi) % (2 * math.pi) - math.pi  # noqa: E731
+    return wrap(phi2 - j1), wrap(phi3 - phi2)
+
+
+def crank_load(j1, value=VALUE, stiff=STIFF, h=1e-6):
+    """The generalized force on J1 of the loop at rest at j1 (no damping): the spring's minus the
+    derivative of gravity's potential along the loop (the bars' centroids' heights)."""
+    def height(x):
+        j2, j3 = loop_angles(x)
+        a, b, c = (bar.length for bar in BARS)
+        m1, m2, m3 = (bar.mass for bar in BARS)
+        y1 = a * math.sin(x)
+        y2 = y1 + b * math.sin(x + j2)
+        return 9.81 * (m1 * y1 / 2 + m2 * (y1 + y2) / 2 + m3 * (y2 + c * math.sin(x + j2 + j3) / 2))
+    return value - stiff * j1 - (height(j1 + h) - height(j1 - h)) / (2 * h)
+
+
+def latch_crank() -> float:
+    """The crank angle where the closure gives J3 = -1.5 (bisection on :func:`loop_angles`)."""
+    from scipy.optimize import brentq
+    return brentq(lambda x: loop_angles(x)[1] - J3_LATCH, 1.0, 2.5, xtol=1e-14)
+
+
+def test_loop_angles_are_the_scene_start():
+    j2, j3 = loop_angles(0.0)
+    assert (j2, j3) == (pytest.approx(0.7287, abs=1e-4), pytest.approx(-2.2519, abs=1e-4))
+
+
+@pytest.mark.parametrize("compiled", ["1", "0"])
+def test_a_loop_latch_let_go_at_its_value_is_one_release(tmp_path, monkeypatch, compiled):
+    """By hand: the latch is where the closure gives J3 = -1.5 (crank angle j1_l, by bisection on
+    :func:`loop_angles`); latched, the loop is rigid and rests there; at the release the crank's load
+    (the spring's torque less gravity's, :func:`crank_load`) turns the crank back, and J3 increases
+    with the crank there, so J3 leaves the latch's value decreasing: one release and no latch after
+    it (to t_end 1.0 and 1.2 s, compiled and Python).  At the release the latch's guard reads the
+    round-off of the closure solve (+2.2e-16 compiled, 0.0 Python): :func:`pcmm.run.loop._pending`
+    lists it leaving, and the segment watches it re-armed."""
+    j1_l = latch_crank()
+    assert loop_angles(j1_l + 1e-4)[1] > J3_LATCH > loop_angles(j1_l - 1e-4)[1]  # J3 increases with J1
+    assert crank_load(j1_l) < -0.05  # pulled back, beyond any round-off
+    monkeypatch.setenv("PCMM_COMPILED", compiled)
+    listed = []
+    real = loop._pending
+
+    def pending(cfg, guards, t, y0, leaving=None):
+        found = real(cfg, guards, t, y0, leaving)
+        if t == FB_RELEASE and cfg.name == "open":
+            listed.append((found, [guards[i].transition.name for i in leaving],
+                           guards[0].transition.guard.direction * guards[0](t, y0)))
+        return found
+    monkeypatch.setattr(loop, "_pending", pending)
+    for t_end in (1.0, 1.2):
+        traj = pcmm.simulate(pcmm.load_scene(sprung_four_bar(tmp_path / f"fb{t_end}", t_end)))
+        assert all(v.startswith("compiled" if compiled == "1" else "python")
+                   for v in traj.stats["evaluations"].values()), traj.stats["evaluations"]
+        assert [e["transition"] for e in traj.events] == ["latch", "release"]
+        latch, release = traj.events
+        assert release["t"] == FB_RELEASE and release["cause"] == "time"
+        j1, j3 = traj.series("q", "J1"), traj.series("q", "J3")
+        held = (traj.t >= latch["t"]) & (traj.t <= FB_RELEASE)
+        assert np.allclose(j1[held], j1_l, rtol=0, atol=1e-8)  # (J3 locked: not recorded there)
+        after = traj.t > FB_RELEASE
+        assert np.all(j3[after] < J3_LATCH) and j1[after][0] < j1_l and np.all(np.diff(j1[after][:5]) < 0)
+    # at the release: no pending guard, the latch listed leaving, read within round-off of its value
+    assert [x[:2] for x in listed] == [(None, ["latch"])] * 2
+    assert all(abs(x[2]) <= 4.5e-16 for x in listed)
+
+
+def test_a_loop_latch_pushed_closed_at_its_release_latches_again_at_once(tmp_path):
+    """The contrast, by hand: with the spring's rest beyond the latch (the crank's load 0.6 - 0.2 j1_l
+    less gravity's share is positive at the latch) the loads push J3 into the latch when the timer lets it go:
+    it latches again at the same instant, with no impulse (h-release's rule: at rest and pushed
+    closed), and stays latched."""
+    assert crank_load(latch_crank(), value=0.6, stiff=0.2) > 0.05
+    traj = pcmm.simulate(pcmm.load_scene(sprung_four_bar(tmp_path, 1.0, value=0.6, stiff=0.2)))
+    assert [(e["transition"], e["t"]) for e in traj.events][1:] == [("release", FB_RELEASE), ("latch", FB_RELEASE)]
+    again = traj.events[2]
+    assert again["impulse"]["normal"] == 0.0 and again["kinetic_energy_before"] == again["kinetic_energy_change"] == 0.0
+    j1 = traj.series("q", "J1")
+    assert np.ptp(j1[traj.t >= traj.events[0]["t"]]) < 1e-9
