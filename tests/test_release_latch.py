@@ -245,3 +245,79 @@ def test_a_loop_latch_pushed_closed_at_its_release_latches_again_at_once(tmp_pat
     assert again["impulse"]["normal"] == 0.0 and again["kinetic_energy_before"] == again["kinetic_energy_change"] == 0.0
     j1 = traj.series("q", "J1")
     assert np.ptp(j1[traj.t >= traj.events[0]["t"]]) < 1e-9
+
+
+# ---- a release's own guard (no contact) at its value where the run starts ----------------------------
+# The hanging four-bar of tests/test_release_events.py (its crank spring to the driven arm), started at
+# rest in 'swing' at crank angle PHI0 with a release to 'open' (the cut joint F let go) whose guard is
+# the coupler-rocker angle at its value there: the run's first instant sits on the guard.  The closure
+# solve puts J3 there within an ulp or two of the value, on either side (+4.4e-16 compiled, -8.9e-16
+# Python at PHI0 = -0.3).
+def released_four_bar(folder: Path, phi0: float, direction: str, t_end: float) -> Path:
+    from test_release_events import A_, B_, C_, D_, M1, M2, M3, K as K_ARM, ALPHA, closure, j3_of
+    urdf = robot_xml("fourbar", link_xml("frame"),
+                     joint_xml("J1", "revolute", "frame", "crank"), bar_xml("crank", A_, M1),
+                     joint_xml("J2", "revolute", "crank", "coupler", xyz=(A_, 0.0)), bar_xml("coupler", B_, M2),
+                     joint_xml("J3", "revolute", "coupler", "rocker", xyz=(B_, 0.0)), bar_xml("rocker", C_, M3),
+                     joint_xml("J5", "revolute", "frame", "arm"), bar_xml("arm", 0.1, 0.1))
+    cut = [{"name": "F", "type": "revolute", "a": "frame", "point_a": [D_, 0.0], "b": "rocker", "point_b": [C_, 0.0]}]
+    phi2, _ = closure(phi0)
+    doc = scene_doc({"swing": {"urdf": "p.urdf", "cut_joints": cut}, "open": {"urdf": "p.urdf"}},
+                    {"J1": phi0, "J2": phi2 - phi0, "J3": j3_of(phi0), "J5": 0.0}, {"J1": 0.0},
+                    t_end=t_end, independent=["J1"],
+                    drives=[{"joint": "J5", "coefficients": [0.0, 0.0, -ALPHA]}],
+                    forces=[{"name": "arm spring", "type": "spring", "on": {"joint": "J1"},
+                             "measure": {"between": ["arm", "crank"]}, "k": K_ARM, "rest": 0.0}],
+                    transitions=[{"name": "let go", "type": "release", "from": "swing", "to": "open",
+                                  "guard": {"type": "coordinate", "measure": {"between": ["coupler", "rocker"]},
+                                            "value": j3_of(phi0), "direction": direction}}])
+    doc["initial"]["branch"] = {"joint": "J3", "sign": "+"}
+    return write_scene(folder, doc, {"p.urdf": urdf})
+
+
+def j3_start_acceleration_sign(phi0: float) -> int:
+    """The sign of J3'' at the start, by hand: the loop starts at rest, so J3'' = (dJ3/dphi1) phi1''
+    and phi1'' has the sign of the crank's load -V'(phi0) - K phi0 (the spring to the arm, at
+    theta5(0) = 0; V gravity's potential along the loop)."""
+    from test_release_events import K as K_ARM, dV, j3_of
+    slope = (j3_of(phi0 + 1e-6) - j3_of(phi0 - 1e-6)) / 2e-6
+    return int(np.sign(slope * (-dV(phi0) - K_ARM * phi0)))
+
+
+@pytest.mark.parametrize("compiled", ["1", "0"])
+@pytest.mark.parametrize("phi0", [-0.3, -0.6, -0.9])
+def test_a_release_at_its_value_at_the_start_fires_there_when_the_loads_carry_it_over(tmp_path, monkeypatch,
+                                                                                      compiled, phi0):
+    """Started at rest on the release's guard with the loads accelerating J3 to its fired side, the
+    release fires at the start (within the 1e-6 s the acceleration takes to carry J3 beyond an ulp of
+    round-off), whatever t_end and compiled or not.  Before, the plain guard read the start by
+    round-off: on the fired side the crossing was missed (no release at -0.3, decreasing; at -0.6,
+    increasing, only where J3 came back through its value 0.49 s later), exactly at 0.0 it fired."""
+    sign = j3_start_acceleration_sign(phi0)
+    direction = "increasing" if sign > 0 else "decreasing"
+    monkeypatch.setenv("PCMM_COMPILED", compiled)
+    for t_end in (0.3, 0.6):
+        traj = pcmm.simulate(pcmm.load_scene(released_four_bar(tmp_path / f"{t_end}", phi0, direction, t_end)))
+        assert all(v.startswith("compiled" if compiled == "1" else "python")
+                   for v in traj.stats["evaluations"].values()), traj.stats["evaluations"]
+        assert [e["transition"] for e in traj.events] == ["release"], (phi0, direction, t_end, traj.events)
+        assert traj.events[0]["t"] < 1e-6
+
+
+@pytest.mark.parametrize("compiled", ["1", "0"])
+@pytest.mark.parametrize("phi0", [-0.3, -0.6, -0.9])
+def test_a_release_at_its_value_at_the_start_waits_when_the_loads_carry_it_away(tmp_path, monkeypatch,
+                                                                              compiled, phi0):
+    """The other direction: the loads carry J3 away from the guard's fired side, so the start is no
+    crossing and the release waits for J3 to come back through its value: not before 0.3 s here (J3
+    has moved by more than 1e-7 rad at the first step, far beyond round-off), and at one time
+    whatever t_end, compiled and Python alike."""
+    sign = j3_start_acceleration_sign(phi0)
+    direction = "decreasing" if sign > 0 else "increasing"
+    monkeypatch.setenv("PCMM_COMPILED", compiled)
+    seen = []
+    for t_end in (0.3, 0.6, 1.0):
+        traj = pcmm.simulate(pcmm.load_scene(released_four_bar(tmp_path / f"{t_end}", phi0, direction, t_end)))
+        assert all(e["t"] > 0.3 for e in traj.events), (phi0, direction, t_end, traj.events)
+        seen.append([(e["transition"], round(e["t"], 9)) for e in traj.events])
+    assert seen[0] == [] and seen[1] == [x for x in seen[2] if x[1] <= 0.6]
