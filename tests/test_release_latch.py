@@ -25,7 +25,7 @@ import pytest
 from scipy.integrate import solve_ivp
 
 import pcmm
-import pcmm.run.loop as loop
+from pcmm.run import loop
 
 from builders import Bar, bar_xml, chain_urdf, joint_xml, link_xml, robot_xml, scene_doc, write_scene
 
@@ -73,7 +73,7 @@ def _mass(q2):
 
 def _free(t, y):
     """The free arm's equations of motion (Lagrange, by hand): M q'' + c(q, q') = (0, -K q2 - C q2')."""
-    q1, q2, w1, w2 = y
+    _, q2, w1, w2 = y
     h = M2 * L1 * (L2 / 2) * math.sin(q2)
     rhs = np.array([h * (2 * w1 * w2 + w2 * w2), -h * w1 * w1 - K * q2 - C * w2])
     return [w1, w2, *np.linalg.solve(_mass(q2), rhs)]
@@ -83,9 +83,9 @@ def by_hand(t_end: float):
     """(latch time, the locked arm's rate, the state at t_end): the free arm to the latch (an event of
     solve_ivp), the plastic latch keeping the angular momentum about the pivot (the first row of
     M q': no moment about J1 in the latch's impulse), rigid rotation to T_RELEASE, free again."""
-    reach = lambda t, y: y[1] - LATCH  # noqa: E731
+    reach = lambda t, y: y[1] - LATCH
     reach.terminal, reach.direction = True, 1
-    tol = dict(method="DOP853", rtol=1e-12, atol=1e-14)
+    tol = {"method": "DOP853", "rtol": 1e-12, "atol": 1e-14}
     a = solve_ivp(_free, (0.0, 1.0), [0.0, 0.0, 0.0, W2], events=reach, **tol)
     t_l, (q1, q2, w1, w2) = a.t_events[0][0], a.y_events[0][0]
     momentum = _mass(q2)[0] @ [w1, w2]
@@ -165,7 +165,7 @@ def loop_angles(j1):
     phi2 = math.atan2(d[1], d[0]) + math.acos((b * b + r * r - c * c) / (2 * b * r))
     p2 = p1 + b * np.array([math.cos(phi2), math.sin(phi2)])
     phi3 = math.atan2(-p2[1], PIVOT - p2[0])
-    wrap = lambda x: (x + math.pi) % (2 * math.pi) - math.pi  # noqa: E731
+    wrap = lambda x: (x + math.pi) % (2 * math.pi) - math.pi
     return wrap(phi2 - j1), wrap(phi3 - phi2)
 
 
@@ -254,7 +254,8 @@ def test_a_loop_latch_pushed_closed_at_its_release_latches_again_at_once(tmp_pat
 # solve puts J3 there within an ulp or two of the value, on either side (+4.4e-16 compiled, -8.9e-16
 # Python at PHI0 = -0.3).
 def released_four_bar(folder: Path, phi0: float, direction: str, t_end: float) -> Path:
-    from test_release_events import A_, B_, C_, D_, M1, M2, M3, K as K_ARM, ALPHA, closure, j3_of
+    from test_release_events import A_, ALPHA, B_, C_, D_, M1, M2, M3, closure, j3_of
+    from test_release_events import K as K_ARM
     urdf = robot_xml("fourbar", link_xml("frame"),
                      joint_xml("J1", "revolute", "frame", "crank"), bar_xml("crank", A_, M1),
                      joint_xml("J2", "revolute", "crank", "coupler", xyz=(A_, 0.0)), bar_xml("coupler", B_, M2),
@@ -279,7 +280,8 @@ def j3_start_acceleration_sign(phi0: float) -> int:
     """The sign of J3'' at the start, by hand: the loop starts at rest, so J3'' = (dJ3/dphi1) phi1''
     and phi1'' has the sign of the crank's load -V'(phi0) - K phi0 (the spring to the arm, at
     theta5(0) = 0; V gravity's potential along the loop)."""
-    from test_release_events import K as K_ARM, dV, j3_of
+    from test_release_events import K as K_ARM
+    from test_release_events import dV, j3_of
     slope = (j3_of(phi0 + 1e-6) - j3_of(phi0 - 1e-6)) / 2e-6
     return int(np.sign(slope * (-dV(phi0) - K_ARM * phi0)))
 
