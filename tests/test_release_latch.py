@@ -323,3 +323,16 @@ def test_a_release_at_its_value_at_the_start_waits_when_the_loads_carry_it_away(
         assert all(e["t"] > 0.3 for e in traj.events), (phi0, direction, t_end, traj.events)
         seen.append([(e["transition"], round(e["t"], 9)) for e in traj.events])
     assert seen[0] == [] and seen[1] == [x for x in seen[2] if x[1] <= 0.6]
+
+
+@pytest.mark.parametrize("compiled", ["1", "0"])
+def test_the_loop_latch_is_one_release_even_watched_plain(tmp_path, monkeypatch, compiled):
+    """Which reading protects the latch: with the re-arming undone (left_at_value returning the plain
+    guards) the release is still one event here, because the closure solve leaves J3 at or past the
+    latch's value (+2.2e-16 compiled, 0.0 Python), never below it, and J3 then moves away: no sign
+    change in the guard's direction for the scans to take.  The re-arming is what makes that hold
+    whichever side round-off puts the start on (h-release's four-bar read it -2.2e-16)."""
+    monkeypatch.setenv("PCMM_COMPILED", compiled)
+    monkeypatch.setattr(loop, "left_at_value", lambda cfg, guards, leaving, t: list(guards))
+    traj = pcmm.simulate(pcmm.load_scene(sprung_four_bar(tmp_path, 1.2)))
+    assert [(e["transition"], e["t"]) for e in traj.events][1:] == [("release", FB_RELEASE)]
