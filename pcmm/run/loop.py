@@ -548,19 +548,29 @@ def _pending(cfg: Configuration, guards, t, y0, leaving=None):
     only where a contact's normal speed needs it (a joint stop whose rate is an entry of the state
     reads it there: :func:`_stop_speed`).  ``leaving`` (a list, where given): the indices of the
     guards read at their crossing whose contact separates or rests pulled apart, before the first
-    pending one (the segment watches them re-armed: :func:`pcmm.events.guards.left_at_value`)."""
+    pending one (the segment watches them re-armed: :func:`pcmm.events.guards.left_at_value`).  A
+    guard with no contact (a release's coordinate or gap guard) at its value is pending where its own
+    rate approaches its fired side, else listed leaving (:func:`_guard_approaches`)."""
     state = None  # (q, v), when first needed
     for i, g in enumerate(guards):
         if g.action in ("unmerge", "lift-off") and g(t, y0) < 0:
             return i  # the merge or pin would have to pull from its first instant: the bodies separate now
         tr = g.transition
-        if g.action != "transition" or tr.contact is None or tr.guard.type not in ("coordinate", "gap"):
+        if g.action != "transition" or tr.guard.type not in ("coordinate", "gap"):
             continue
         value = tr.guard.direction * g(t, y0)
         # round-off puts a state that is exactly at the guard (a joint freed by a release at its
         # latch value, re-read from the links' poses) on either side of it by an ulp or two
         at_value = 64 * EPS * max(1.0, abs(tr.guard.value))
         if value < -at_value or value > POSE_TOL:  # not at its crossing (far past it: entered from the other side)
+            continue
+        if tr.contact is None:  # a release's own guard: no contact, its own rate says where the state goes
+            if g.rate is None:  # (no rate to re-arm it with: read plain)
+                continue
+            if _guard_approaches(cfg, g, t, y0):
+                return i
+            if leaving is not None:
+                leaving.append(i)
             continue
         vn = _stop_speed(cfg.coords, cfg, y0, tr.contact)
         if vn is None:
@@ -579,6 +589,17 @@ def _pending(cfg: Configuration, guards, t, y0, leaving=None):
         if leaving is not None:  # separating, or at rest pulled apart: at its value, not at a crossing
             leaving.append(i)
     return None
+
+
+def _guard_approaches(cfg: Configuration, g, t, y0) -> bool:
+    """Does the state move ``g``'s value towards its fired side beyond round-off (its rate along the
+    flow, read as a re-armed guard reads it: :func:`pcmm.events.guards.make_guard`)?  For a guard with
+    no contact (a release's) sitting at its value: it fires now where it does, else the segment watches
+    it re-armed, so a state at rest there fires it at the first instant the loads carry it over and
+    never where they carry it away (round-off put the start on either side of the value: on the fired
+    side the crossing was missed, exactly at it the guard fired, tests/test_release_latch.py)."""
+    rate = g.rate(t, y0, None if g.rate_from_state else cfg.coords.rhs(t, y0))
+    return g.direction * rate > AT_REST_SPEED
 
 
 #: {coordinates: {joint coordinate: where its rate sits in the state, or None}} (``state_entry``)
