@@ -332,7 +332,7 @@ def test_the_closest_approach_of_a_guard_that_fired_reads_the_segments_since_it_
     got = approach.closest_approach(scene, cfg, traj)
     read = []
     real = approach._segments_in
-    approach._segments_in = lambda traj, name, watched: (read.append(1), real(traj, name, None))[1]
+    approach._segments_in = lambda traj, name, watched, *a: (read.append(1), real(traj, name, None))[1]
     try:
         everything = approach.closest_approach(scene, cfg, traj)
     finally:

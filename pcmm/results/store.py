@@ -306,6 +306,14 @@ class _Stored(RecordSequence):
             yield from list(getattr(self.reader.chunk(k), self.which))
         yield from self.tail
 
+    def logs(self):
+        """The records as their parts, in order: each chunk's (an :class:`EventLog` for events written
+        as columns), then those not yet written; one chunk read at a time (a pass over the events'
+        columns, :func:`pcmm.run.approach.firings`, builds no record)."""
+        for k in range(len(self._counts())):
+            yield getattr(self.reader.chunk(k), self.which)
+        yield self.tail
+
     def __eq__(self, other):
         if isinstance(other, (Sequence,)) and not isinstance(other, str):
             return len(self) == len(other) and all(a == b for a, b in zip(self, other))

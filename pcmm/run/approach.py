@@ -10,6 +10,8 @@ the step's distance.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from ..model.configuration import Configuration
@@ -17,6 +19,7 @@ from ..ode.roots import minimize_bounded
 from ..events.contact import contact_state
 from ..scene.spec import Scene
 from ..errors import UsageError
+from ..results.event_log import EventLog
 from ..results.trajectory import SegmentRecord, Trajectory
 
 
@@ -53,11 +56,12 @@ def closest_approach(scene: Scene, cfg: Configuration, traj: Trajectory) -> list
     timers = [tr for tr in scene.transitions_from(cfg.name) if tr.guard.type == "time" and tr.guard.at is not None]
     if not (watched or reactions or timers):
         return []
-    segs = _segments_in(traj, cfg.name, watched if not (reactions or timers) else None)
+    fired_by = firings(traj.events, {tr.name for tr in watched + reactions + timers})
+    segs = _segments_in(traj, cfg.name, watched if not (reactions or timers) else None, fired_by)
     if not segs:
         return []
-    out = [r for r in (_timer_missed(tr, segs, traj) for tr in timers) if r is not None]
-    out += [r for r in (_reaction_approach(tr, segs, traj) for tr in reactions) if r is not None]
+    out = [r for r in (_timer_missed(tr, segs, fired_by) for tr in timers) if r is not None]
+    out += [r for r in (_reaction_approach(tr, segs, fired_by) for tr in reactions) if r is not None]
     if not watched:
         return out
     t = np.concatenate([s.t for s in segs])
@@ -66,7 +70,8 @@ def closest_approach(scene: Scene, cfg: Configuration, traj: Trajectory) -> list
     for tr in watched:
         # a collision resolved by a contact law lasts from its first contact to the separation
         # (t_end), where the gap crosses back through its value: that crossing is not a miss
-        fired = [e.get("t_end") or e["t"] for e in traj.events if e.get("name") == tr.name]
+        fired = fired_by.get(tr.name)
+        fired = [fired.latest] if fired else []  # (its latest firing: the max of its events' instants)
         after = t > max(fired) if fired else np.ones(t.size, bool)  # since it last fired
         if not after.any():
             continue
@@ -114,17 +119,16 @@ def _moved_away(tr, t: np.ndarray, g: np.ndarray, after: np.ndarray, owner: np.n
             "final": float(g[k]), "t_final": float(t[k])}
 
 
-def _segments_in(traj: Trajectory, name: str, watched) -> list[SegmentRecord]:
+def _segments_in(traj: Trajectory, name: str, watched, fired_by: dict | None = None) -> list[SegmentRecord]:
     """The run's segments in configuration ``name``.  Where only ``watched`` guards are asked about
     and each has fired, only the segments since the earliest of their last firings matter (a
     guard's approach is read since it last fired): they are taken from the end, so that a stored
     run of a million bounces reads its last segments, not all of them into memory at once."""
     segments = traj.segments
     if watched:
-        names, last = {tr.name for tr in watched}, {}
-        for e in traj.events:
-            if e.get("name") in names:
-                last[e["name"]] = e.get("t_end") or e["t"]
+        names = {tr.name for tr in watched}
+        fired_by = firings(traj.events, names) if fired_by is None else fired_by
+        last = {n: fired_by[n].last for n in names if n in fired_by}
         if len(last) == len(names):
             since, tail = min(last.values()), []
             for k in range(len(segments) - 1, -1, -1):
@@ -152,10 +156,10 @@ def _crossed_against(tr, t: np.ndarray, g: np.ndarray, owner: np.ndarray) -> flo
     return float(t[i] + (t[i + 1] - t[i]) * a / (a + b))
 
 
-def _timer_missed(tr, segs: list[SegmentRecord], traj: Trajectory) -> dict | None:
+def _timer_missed(tr, segs: list[SegmentRecord], fired_by: dict) -> dict | None:
     """A time guard ``at = T`` that never fired because the run was not in its configuration at T:
     it entered later, or ended first."""
-    if any(e.get("name") == tr.name for e in traj.events):
+    if tr.name in fired_by:
         return None
     at, entered, end = tr.guard.at, float(segs[0].t[0]), float(segs[-1].t[-1])
     if at < entered:
@@ -175,12 +179,12 @@ def _entered(traj: Trajectory, seg: SegmentRecord) -> bool:
     return j == 0 or traj.segments[j - 1].configuration != seg.configuration
 
 
-def _reaction_approach(tr, segs: list[SegmentRecord], traj: Trajectory) -> dict | None:
+def _reaction_approach(tr, segs: list[SegmentRecord], fired_by: dict) -> dict | None:
     """The closest approach of a reaction guard's holding force (or moment) to its value, over
     the recorded samples of the run in the configuration since the guard last fired (the hold
     is an algebraic function of the state: its samples are as fine as the output's)."""
     label = f"{tr.guard.of}.hold"
-    fired = [e["t"] for e in traj.events if e.get("name") == tr.name]
+    fired = [fired_by[tr.name].t_max] if tr.name in fired_by else []
     ts, gs = [], []
     for s in segs:
         if label in s.constraint_labels:
@@ -199,6 +203,116 @@ def _reaction_approach(tr, segs: list[SegmentRecord], traj: Trajectory) -> dict 
             "direction": "increasing" if tr.guard.direction > 0 else "decreasing",
             "closest": float(g[i]), "t": float(t[i]), "distance": float(d[i]),
             "last_fired": max(fired) if fired else None, "past": _past(tr, float(g[i]))}
+
+
+@dataclass
+class Firing:
+    """What the closest approach reads of one transition's events: ``latest``, the greatest of
+    their instants (an event's ``t_end`` where it has one that is not 0 or None -- a collision
+    resolved by a contact law lasts until then -- else its ``t``); ``last``, that instant of the
+    last of them in the log's order; ``t_max``, the greatest of their ``t``."""
+    latest: float
+    last: float
+    t_max: float
+
+    def then(self, later: "Firing") -> "Firing":
+        """These events followed by ``later``'s (of the same transition)."""
+        return Firing(max(self.latest, later.latest), later.last, max(self.t_max, later.t_max))
+
+
+def firings(events, names: set) -> dict[str, Firing]:
+    """The :class:`Firing` of each transition in ``names`` that has an event in ``events``, in one
+    pass and, where the events are kept as columns (an :class:`EventLog`, a store's chunks), without
+    building their records: from each layout's columns (its ``name`` a constant of the layout, its
+    ``t`` and ``t_end`` columns of numbers).  A record of any other layout is built and read (the
+    reference: :func:`_firings_of_records`)."""
+    parts = events.logs() if hasattr(events, "logs") else (events,)
+    out: dict[str, Firing] = {}
+    for part in parts:
+        found = _firings_of_log(part, names) if isinstance(part, EventLog) else _firings_of_records(part, names)
+        for name, f in found.items():
+            out[name] = out[name].then(f) if name in out else f
+    return out
+
+
+def _firings_of_records(events, names: set) -> dict[str, Firing]:
+    """:func:`firings` by reading every record (a list of dicts, a store's chunk written as JSON)."""
+    out: dict[str, Firing] = {}
+    for e in events:
+        name = e.get("name")
+        if name in names:
+            f = Firing(e.get("t_end") or e["t"], e.get("t_end") or e["t"], e["t"])
+            out[name] = out[name].then(f) if name in out else f
+    return out
+
+
+def _width(node) -> int:
+    """How many numbers of a row a layout node (:mod:`pcmm.results.event_log`'s tuples) holds: one
+    per number and per value kept aside (its index), none per constant."""
+    if isinstance(node, str):
+        return 1
+    if node[0] == "c":
+        return 0
+    return sum(_width(sub) for sub in (node[2] if node[0] == "d" else node[1]))
+
+
+def _fields(layout) -> dict | None:
+    """A record layout's top-level ``key -> (node, its column of the row or None)``; None where the
+    layout is not a dict's."""
+    if not (type(layout) is tuple and layout[0] == "d"):
+        return None
+    out, at = {}, 0
+    for key, sub in zip(layout[1], layout[2]):
+        out[key] = (sub, at if isinstance(sub, str) else None)
+        at += _width(sub)
+    return out
+
+
+def _values(field, rows: np.ndarray):
+    """A top-level field's values over ``rows`` (a list; None throughout where the layout has no
+    such field), or False where they are not numbers of the row nor a number or None constant."""
+    if field is None:
+        return [None] * len(rows)
+    node, column = field
+    if node == "f":
+        return rows[:, column].tolist()
+    if node == "i":
+        return [int(x) for x in rows[:, column]]
+    if isinstance(node, tuple) and node[0] == "c" and (node[1] is None or type(node[1]) in (int, float)):
+        return [node[1]] * len(rows)
+    return False
+
+
+def _firings_of_log(log: EventLog, names: set) -> dict[str, Firing]:
+    """:func:`firings` of one :class:`EventLog`, from its columns: per layout whose ``name`` is a
+    constant in ``names``, its ``t`` and ``t_end`` columns; a layout of any other shape has its
+    records built (slices of the log: built afresh, none kept)."""
+    layouts, rows, index, _ = log.columns()
+    hits: dict[str, list] = {}  # name -> [(position in the log, instant, t)] of each layout
+    for k, layout in enumerate(layouts):
+        fields = _fields(layout)
+        if fields is None or "name" not in fields or not len(rows[k]):
+            continue  # no transition's event in this layout
+        name = fields["name"][0]
+        constant = isinstance(name, tuple) and name[0] == "c"
+        if constant and name[1] not in names:
+            continue
+        positions = np.flatnonzero(index[:, 0] == k)  # this layout's events, in the log's order
+        t = _values(fields.get("t"), rows[k]) if "t" in fields else False
+        t_end = _values(fields.get("t_end"), rows[k])
+        if not constant or t is False or t_end is False:
+            for j in positions:
+                e = log[int(j):int(j) + 1][0]
+                if e.get("name") in names:
+                    hits.setdefault(e["name"], []).append((int(j), e.get("t_end") or e["t"], e["t"]))
+            continue
+        hits.setdefault(name[1], []).extend(
+            (int(j), t_end[r] or t[r], t[r]) for j, r in zip(positions, index[positions, 1].tolist()))
+    out = {}
+    for name, found in hits.items():
+        found.sort(key=lambda h: h[0])
+        out[name] = Firing(max(h[1] for h in found), found[-1][1], max(h[2] for h in found))
+    return out
 
 
 def _round_off(tr) -> float:
