@@ -9,9 +9,9 @@ from __future__ import annotations
 
 import math
 
+import builders
 import pytest
 
-import builders
 from pcmm.results.event_log import EventLog
 from pcmm.run import approach
 

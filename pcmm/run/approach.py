@@ -14,13 +14,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..errors import UsageError
+from ..events.contact import contact_state
 from ..model.configuration import Configuration
 from ..ode.roots import minimize_bounded
-from ..events.contact import contact_state
-from ..scene.spec import Scene
-from ..errors import UsageError
 from ..results.event_log import EventLog
 from ..results.trajectory import SegmentRecord, Trajectory
+from ..scene.spec import Scene
 
 
 def guard_series(cfg: Configuration, tr, q: np.ndarray) -> np.ndarray:
@@ -215,7 +215,7 @@ class Firing:
     last: float
     t_max: float
 
-    def then(self, later: "Firing") -> "Firing":
+    def then(self, later: Firing) -> Firing:
         """These events followed by ``later``'s (of the same transition)."""
         return Firing(max(self.latest, later.latest), later.last, max(self.t_max, later.t_max))
 
