@@ -197,12 +197,25 @@ class _Chunk:
         """The chunk's events (an :class:`EventLog`, made when first asked for)."""
         kept = self._events
         if isinstance(kept, dict):
-            head = json.loads(kept["event_layouts"].tobytes().decode())
-            rows = [kept[f"event_rows{j}"] for j in range(len(head["layouts"]))]
-            self._events = EventLog.from_columns(head["layouts"], rows, kept["event_index"], head["aside"])
+            self._events = _event_log(kept)
         elif isinstance(kept, np.ndarray):
             self._events = json.loads(kept.tobytes().decode())
         return self._events
+
+
+def _event_log(arrays) -> EventLog:
+    """A chunk's events written as columns (``arrays``: its ``event_*`` arrays, or the open file)."""
+    head = json.loads(np.asarray(arrays["event_layouts"]).tobytes().decode())
+    rows = [np.asarray(arrays[f"event_rows{j}"]) for j in range(len(head["layouts"]))]
+    return EventLog.from_columns(head["layouts"], rows, np.asarray(arrays["event_index"]), head["aside"])
+
+
+def chunk_events(path: Path):
+    """The events of chunk ``path`` alone (its segments' arrays not read), as :attr:`_Chunk.events`."""
+    with _open(path) as z:
+        if "event_index" in z.files and _read_header(z).get("format") == FORMAT:
+            return _event_log(z)
+    return _Chunk(path).events
 
 
 class StoreReader:
@@ -311,7 +324,11 @@ class _Stored(RecordSequence):
         as columns), then those not yet written; one chunk read at a time (a pass over the events'
         columns, :func:`pcmm.run.approach.firings`, builds no record)."""
         for k in range(len(self._counts())):
-            yield getattr(self.reader.chunk(k), self.which)
+            cached = self.reader._cached
+            if self.which == "events" and not (cached and cached[0] == k):
+                yield chunk_events(self.reader.paths[k])  # (not the chunk's segments)
+            else:
+                yield getattr(self.reader.chunk(k), self.which)
         yield self.tail
 
     def __eq__(self, other):
