@@ -94,14 +94,16 @@ def _read_header(z) -> dict:
     return json.loads(a.tobytes().decode() if a.dtype == np.uint8 else str(a[()]))
 
 
-def derive_together(log) -> int:
+def derive_together(log, copies: int = RECENT) -> int:
     """Derive the series of a chunk's segments (a run's :class:`SegmentLog`) not yet read, one call
     for each run of consecutive segments that share a context reading every sample alone (a tree's:
     ``cfg.coords.constrained`` false, so a sample's series depend on that sample's state and time
     alone, never on a Newton solve warm-started from the sample before); each segment gets its own
     rows (views of the run's arrays, copies for the last :data:`RECENT`, which outlive the chunk).  A bouncing ball's chunk of 2,000 segments is then one derivation instead of
     2,000 (each made its reader of the segment and some twenty small array operations: 57 us a
-    bounce).  Every other segment derives its series when read, as before.  Returns the calls made."""
+    bounce).  Every other segment derives its series when read, as before.  Returns the calls made.
+    ``copies``: how many of the last segments get copies (0 for a run kept in memory, whose arrays
+    all stay: :func:`pcmm.results.trajectory.derive_series`)."""
     if not isinstance(log, SegmentLog):
         return 0
     calls, n, start = 0, len(log), 0
@@ -110,12 +112,12 @@ def derive_together(log) -> int:
         end = start + 1
         while end < n and int(log._row(end)[0]) == k:
             end += 1
-        calls += _derive_run(log, log._contexts[k][2], range(start, end))
+        calls += _derive_run(log, log._contexts[k][2], range(start, end), copies)
         start = end
     return calls
 
 
-def _derive_run(log: SegmentLog, context, indices: range) -> int:
+def _derive_run(log: SegmentLog, context, indices: range, copies: int = RECENT) -> int:
     """:func:`derive_together` for the segments ``indices`` of one context: 1 call, or 0 where it
     does not apply (fewer than two segments not yet read, a constrained configuration, states of
     different sizes)."""
@@ -130,7 +132,7 @@ def _derive_run(log: SegmentLog, context, indices: range) -> int:
         return 0
     whole = context.derive(np.concatenate([t for t, _, _ in pieces]), np.hstack([y for _, y, _ in pieces]),
                            pieces[0][2])
-    at, kept = 0, len(log) - RECENT  # the last RECENT segments outlive the chunk (StoreReader.written): copies
+    at, kept = 0, len(log) - copies  # the last RECENT segments outlive the chunk (StoreReader.written): copies
     for i, (t, _, _) in zip(todo, pieces):
         rec, m = log[i], len(t)
         if i < kept:  # views of the run's arrays, dropped with the chunk once it is written

@@ -31,6 +31,7 @@ from ..errors import SimulationError, UsageError
 from ..files import atomic_write
 from .event_log import EventLog
 from .segment import SegmentRecord
+from .segment_log import SegmentLog
 
 FORMAT = "pcmm-trajectory-2"
 _FORMATS = ("pcmm-trajectory-1", FORMAT)
@@ -113,12 +114,9 @@ def stance_forces(traj: "Trajectory", s: SegmentRecord) -> dict:
     joint with a contact normal: a pinned foot's stance): the force on b along the contact's world
     normal n (> 0 pushing) and tangent t = (n_y, -n_x), from the recorded ``<cut joint>.fx``, ``.fy``
     and link a's angle (the normal is given in a's frame).  Empty without the run's views."""
-    view = ((traj.views or {}).get("configurations") or {}).get(s.configuration) or {}
     out = {}
-    for j in view.get("cut_joints") or ():
+    for j in _stance_joints(traj, s):
         labels = (f"{j['name']}.fx", f"{j['name']}.fy")
-        if j.get("normal") is None or not all(x in s.constraint_labels for x in labels):
-            continue
         F = s.constraint_forces[:, [s.constraint_labels.index(x) for x in labels]]
         angle = s.theta[:, s.links.index(j["a"])] if j["a"] in s.links else np.zeros(len(s.t))
         c, si = np.cos(angle), np.sin(angle)
@@ -127,6 +125,27 @@ def stance_forces(traj: "Trajectory", s: SegmentRecord) -> dict:
         nx, ny = nx / norm, ny / norm
         out[j["name"]] = (nx * F[:, 0] + ny * F[:, 1], ny * F[:, 0] - nx * F[:, 1])
     return out
+
+
+def _stance_joints(traj: Trajectory, s: SegmentRecord) -> list[dict]:
+    """The cut joints of ``s``'s configuration with a contact normal whose forces ``s`` records
+    (what :func:`stance_forces` reads)."""
+    view = ((traj.views or {}).get("configurations") or {}).get(s.configuration) or {}
+    return [j for j in view.get("cut_joints") or ()
+            if j.get("normal") is not None and all(x in s.constraint_labels for x in (f"{j['name']}.fx", f"{j['name']}.fy"))]
+
+
+def derive_series(segments) -> int:
+    """Derive the series of a run's segments kept in memory (its :class:`SegmentLog`) not yet read,
+    as a store's writer does a chunk's (:func:`pcmm.results.store.derive_together`: one call for each
+    run of consecutive segments of one tree context, each segment's series views of that call's
+    arrays, no copy), before they are first read; a segment that already derived its series, a
+    constrained configuration's, and any other sequence of segments (a store's, a list) are left to
+    derive when read, segment by segment.  Returns the calls made."""
+    if not isinstance(segments, SegmentLog):
+        return 0
+    from .store import derive_together  # (the store reads trajectories back)
+    return derive_together(segments, copies=0)
 
 
 def holding_extremes(traj: "Trajectory") -> dict:
@@ -139,7 +158,10 @@ def holding_extremes(traj: "Trajectory") -> dict:
     (``indeterminate_samples``); held indeterminate throughout, its extremes are None (no number
     is any split's)."""
     out: dict = {}
+    derived = False
     for s in traj.segments:
+        if not derived and (any(x.endswith(".hold") for x in s.constraint_labels) or _stance_joints(traj, s)):
+            derived = derive_series(traj.segments) >= 0  # the first series read: every run of one context at once
         for name, parts in stance_forces(traj, s).items():
             entry = out.setdefault(name, {part: {"min": math.inf, "t_min": None, "max": -math.inf, "t_max": None}
                                           for part in ("normal", "tangential")})
@@ -283,6 +305,7 @@ class Trajectory:
                 head = f"series: {quantity!r} needs a {what}" if name is None else f"series: no {what} {name!r} in this run"
                 raise UsageError(f"{head}; the run's {what}s: {', '.join(known) or '(none)'}")
         parts = []
+        derive_series(self.segments)
         for s in self.segments:
             arr = getattr(s, quantity)
             if quantity in names_of:
@@ -377,6 +400,7 @@ class Trajectory:
         >>> back.events[0]["t"] == traj.events[0]["t"], len(back.t) == len(traj.t)
         (True, True)
         """
+        derive_series(self.segments)
         visited = self.visited()
         views = {"configurations": {c: v for c, v in self.views.get("configurations", {}).items() if c in visited},
                  "forces": self.views.get("forces", {}), "transitions": self.views.get("transitions", [])}
