@@ -14,7 +14,11 @@ with each route in turn:
 
 Prints the CPU time of each write (process time: the writer is this thread), the medians, their
 ratios, and the largest difference between any two routes' series relative to each series' scale
-(max(1, |x|)).  With ``--stored-runs`` it then times whole runs in this process, alternating: stored
+(max(1, |x|)).  Then it times the first read of the run's series kept in memory (``traj.series("kinetic")``
+on records not yet derived, which derives every series of every segment), alternating: ``in memory,
+one by one`` (``trajectory.derive_series`` off: each segment derives its own, main's route before
+h-read) and ``in memory, grouped`` (the default: the segments of one tree context in one call).
+With ``--stored-runs`` it then times whole runs in this process, alternating: stored
 (``pcmm.simulate(scene, store=DIR)``: the run, its chunks written on the store's thread, the end)
 with each route, and kept in memory with its series not read (the run alone).
 
@@ -31,7 +35,7 @@ from pathlib import Path
 import numpy as np
 
 import pcmm
-from pcmm.results import store
+from pcmm.results import store, trajectory
 from pcmm.run import series
 
 KEYS = ("q", "v", "theta", "omega", "xy", "kinetic", "potential", "forces", "constraint_forces")
@@ -94,8 +98,35 @@ def main(argv=None):
         print(f"chunk, {name}: median {m * 1e3:.1f} ms ({min(times[name]) * 1e3:.1f}-{max(times[name]) * 1e3:.1f}), "
               f"{m / len(log) * 1e6:.1f} us per segment; per-sample / this {med['per-sample'] / m:.2f}x")
     print(f"largest relative difference of any series from the per-sample route's: {worst:.3g}")
+    in_memory(traj, args.rounds)
     if args.stored_runs:
         runs(scene, args)
+
+
+def in_memory(traj, rounds: int) -> None:
+    """The first read of an in-memory run's series: segment by segment, then grouped, alternating."""
+    log, grouped = traj.segments, trajectory.derive_series
+    times = {"in memory, one by one": [], "in memory, grouped": []}
+    kept = {}
+    for r in range(rounds):
+        for name in times:
+            trajectory.derive_series = grouped if name.endswith("grouped") else (lambda segments: 0)
+            try:
+                fresh_records(log)
+                t0 = time.process_time()
+                kept[name] = traj.series("kinetic")
+                times[name].append(time.process_time() - t0)
+            finally:
+                trajectory.derive_series = grouped
+            print(f"round {r + 1} {name}: {times[name][-1] * 1e3:.1f} ms", flush=True)
+    a, b = kept.values()
+    same = np.array_equal(a, b)
+    med = {name: statistics.median(v) for name, v in times.items()}
+    one = med["in memory, one by one"]
+    for name, m in med.items():
+        print(f"{name}: median {m * 1e3:.1f} ms ({min(times[name]) * 1e3:.1f}-{max(times[name]) * 1e3:.1f}), "
+              f"{m / len(log) * 1e6:.1f} us per segment; one by one / this {one / m:.2f}x")
+    print(f"the kinetic energy the same bits both ways: {same}")
 
 
 def runs(scene, args) -> None:
