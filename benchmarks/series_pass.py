@@ -109,16 +109,16 @@ def in_memory(traj, rounds: int) -> None:
     times = {"in memory, one by one": [], "in memory, grouped": []}
     kept = {}
     for r in range(rounds):
-        for name in times:
+        for name, spent in times.items():
             trajectory.derive_series = grouped if name.endswith("grouped") else (lambda segments: 0)
             try:
                 fresh_records(log)
                 t0 = time.process_time()
                 kept[name] = traj.series("kinetic")
-                times[name].append(time.process_time() - t0)
+                spent.append(time.process_time() - t0)
             finally:
                 trajectory.derive_series = grouped
-            print(f"round {r + 1} {name}: {times[name][-1] * 1e3:.1f} ms", flush=True)
+            print(f"round {r + 1} {name}: {spent[-1] * 1e3:.1f} ms", flush=True)
     a, b = kept.values()
     same = np.array_equal(a, b)
     med = {name: statistics.median(v) for name, v in times.items()}
