@@ -20,12 +20,14 @@ LONG = "a transition named at such a length that its name is kept aside, not in 
 
 def _events() -> list[dict]:
     """Events of several layouts, one transition's spread over two of them and interleaved with
-    another's (its last in the log's order is not its layout's last), a contact law's ``t_end``
-    (0.0, a number, None), an integer instant, a name kept aside, an event with no name."""
+    another's (its last in the log's order is not its latest), a contact law's ``t_end`` (0.0, a
+    number, None), an integer instant, a name kept aside, an event with no name, a record that is
+    not a plain dict (kept aside whole)."""
     return [
         {"t": 0.5, "name": "floor", "impulse": {"normal": 2.0}},
         {"t": 0.75, "name": "wall", "t_end": 0.0, "x": [1.0, 2.0]},
         {"t": 1.0, "name": "wall", "t_end": 1.25, "x": [3.0, 4.0]},
+        Record({"t": 2.75, "name": "wall"}),  # not a plain dict: kept aside whole
         {"t": 1.5, "name": "floor", "impulse": {"normal": 1.0}},
         {"t": 2, "name": "floor", "impulse": {"normal": 0.5}},  # an integer instant: its own layout
         {"t": 2.5, "name": "wall", "t_end": None, "x": [5.0, 6.0]},
@@ -36,13 +38,17 @@ def _events() -> list[dict]:
     ]
 
 
+class Record(dict):
+    """An event record of a dict's own type (the log keeps it aside, as it is)."""
+
+
 def test_firings_from_the_columns_equal_those_from_the_records():
     names = {"floor", "wall", LONG, "absent"}
     log = EventLog(_events())
     want = approach._firings_of_records(_events(), names)
     # by hand: floor's latest 2.25 (not its last layout's), wall's t_end where not 0/None
     assert want["floor"] == approach.Firing(2.25, 2.25, 2.25)
-    assert want["wall"] == approach.Firing(2.5, 0.2, 2.5)
+    assert want["wall"] == approach.Firing(2.75, 0.2, 2.75)
     assert want[LONG] == approach.Firing(3.0, 3.0, 3.0) and "absent" not in want
     got = approach.firings(log, names)
     assert got == want

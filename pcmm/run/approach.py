@@ -291,16 +291,16 @@ def _firings_of_log(log: EventLog, names: set) -> dict[str, Firing]:
     hits: dict[str, list] = {}  # name -> [(position in the log, instant, t)] of each layout
     for k, layout in enumerate(layouts):
         fields = _fields(layout)
-        if fields is None or "name" not in fields or not len(rows[k]):
-            continue  # no transition's event in this layout
-        name = fields["name"][0]
+        if not len(rows[k]) or fields is not None and "name" not in fields:
+            continue  # no event, or no transition's event in this layout
+        name = fields["name"][0] if fields is not None else None
         constant = isinstance(name, tuple) and name[0] == "c"
         if constant and name[1] not in names:
             continue
         positions = np.flatnonzero(index[:, 0] == k)  # this layout's events, in the log's order
-        t = _values(fields.get("t"), rows[k]) if "t" in fields else False
-        t_end = _values(fields.get("t_end"), rows[k])
-        if not constant or t is False or t_end is False:
+        t = _values(fields.get("t"), rows[k]) if constant and "t" in fields else False
+        t_end = _values(fields.get("t_end"), rows[k]) if constant else False
+        if not constant or t is False or t_end is False:  # (a record kept aside whole: not a plain dict)
             for j in positions:
                 e = log[int(j):int(j) + 1][0]
                 if e.get("name") in names:
