@@ -268,19 +268,20 @@ def _fields(layout) -> dict | None:
     return out
 
 
-def _values(field, rows: np.ndarray):
-    """A top-level field's values over ``rows`` (a list; None throughout where the layout has no
-    such field), or False where they are not numbers of the row nor a number or None constant."""
-    if field is None:
-        return [None] * len(rows)
-    node, column = field
-    if node == "f":
-        return rows[:, column].tolist()
-    if node == "i":
-        return [int(x) for x in rows[:, column]]
-    if isinstance(node, tuple) and node[0] == "c" and (node[1] is None or type(node[1]) in (int, float)):
-        return [node[1]] * len(rows)
-    return False
+def _instants(fields: dict, rows: np.ndarray):
+    """(each event's instant -- its ``t_end`` where that is not 0 or None, else its ``t`` -- and its
+    ``t``) as float arrays over a layout's ``rows``, or None where the layout's ``t`` is not a float
+    of the row or its ``t_end`` neither a float of the row, nor None, nor absent (read the records)."""
+    t, t_end = fields.get("t"), fields.get("t_end")
+    if t is None or t[0] != "f":
+        return None
+    times = rows[:, t[1]]
+    if t_end is None or t_end[0] == ("c", None):
+        return times, times
+    if t_end[0] != "f":
+        return None
+    ends = rows[:, t_end[1]]
+    return np.where(ends != 0.0, ends, times), times  # (``t_end or t``: 0.0 and -0.0 are false, NaN true)
 
 
 def _firings_of_log(log: EventLog, names: set) -> dict[str, Firing]:
@@ -288,7 +289,7 @@ def _firings_of_log(log: EventLog, names: set) -> dict[str, Firing]:
     constant in ``names``, its ``t`` and ``t_end`` columns; a layout of any other shape has its
     records built (slices of the log: built afresh, none kept)."""
     layouts, rows, index, _ = log.columns()
-    hits: dict[str, list] = {}  # name -> [(position in the log, instant, t)] of each layout
+    parts: dict[str, list] = {}  # name -> [(position of its last event in the log, Firing)] of each layout
     for k, layout in enumerate(layouts):
         fields = _fields(layout)
         if not len(rows[k]) or fields is not None and "name" not in fields:
@@ -298,20 +299,25 @@ def _firings_of_log(log: EventLog, names: set) -> dict[str, Firing]:
         if constant and name[1] not in names:
             continue
         positions = np.flatnonzero(index[:, 0] == k)  # this layout's events, in the log's order
-        t = _values(fields.get("t"), rows[k]) if constant and "t" in fields else False
-        t_end = _values(fields.get("t_end"), rows[k]) if constant else False
-        if not constant or t is False or t_end is False:  # (a record kept aside whole: not a plain dict)
-            for j in positions:
-                e = log[int(j):int(j) + 1][0]
+        found = _instants(fields, rows[k]) if constant else None
+        if found is None:  # read this layout's records (a record kept aside whole: not a plain dict)
+            for j in positions.tolist():
+                e = log[j:j + 1][0]
                 if e.get("name") in names:
-                    hits.setdefault(e["name"], []).append((int(j), e.get("t_end") or e["t"], e["t"]))
+                    instant = e.get("t_end") or e["t"]
+                    parts.setdefault(e["name"], []).append((j, Firing(instant, instant, e["t"])))
             continue
-        hits.setdefault(name[1], []).extend(
-            (int(j), t_end[r] or t[r], t[r]) for j, r in zip(positions, index[positions, 1].tolist()))
+        instants, times = found
+        last = int(index[positions[-1], 1])  # the row of this layout's last event in the log's order
+        parts.setdefault(name[1], []).append((int(positions[-1]), Firing(
+            float(np.max(instants)), float(instants[last]), float(np.max(times)))))
     out = {}
-    for name, found in hits.items():
-        found.sort(key=lambda h: h[0])
-        out[name] = Firing(max(h[1] for h in found), found[-1][1], max(h[2] for h in found))
+    for name, found in parts.items():
+        found.sort(key=lambda p: p[0])
+        f = found[0][1]
+        for _, later in found[1:]:
+            f = f.then(later)
+        out[name] = f
     return out
 
 
