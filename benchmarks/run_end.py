@@ -6,7 +6,7 @@ tests/builders.py's ``ball``) in memory, and streamed to a store with ``--stored
 for ``--rounds`` rounds, times (process CPU) the closest approach of its final configuration by this
 tree's ``pcmm/run/approach.py`` and by ``BEFORE/pcmm/run/approach.py`` (loaded as a module of this
 tree's package: only that file differs), checks the two records are equal, and prints the medians,
-the ratio and the CPU per event.
+the ratio and the CPU per event, and the peak memory each call allocates (one traced call each).
 
     python benchmarks/run_end.py --before /work/main --events 10000 --rounds 3 [--stored]
 """
@@ -19,6 +19,7 @@ import statistics
 import sys
 import tempfile
 import time
+import tracemalloc
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -71,6 +72,14 @@ def main() -> None:
         b, a = statistics.median(times["before"]), statistics.median(times["now"])
         print(f"closest approach, CPU s per round: before {[round(x, 3) for x in times['before']]}, "
               f"now {[round(x, 3) for x in times['now']]}")
+        peaks = {}
+        for label, mod in (("before", before), ("now", approach)):
+            tracemalloc.start()
+            mod.closest_approach(scene, cfg, traj)
+            peaks[label] = tracemalloc.get_traced_memory()[1]
+            tracemalloc.stop()
+        print(f"peak memory allocated during the call (tracemalloc): before {peaks['before'] / 1e6:.2f} MB, "
+              f"now {peaks['now'] / 1e6:.2f} MB")
         print(f"medians: before {b:.3f} s ({1e6 * b / n:.1f} us per event), now {a:.3f} s "
               f"({1e6 * a / n:.1f} us per event): {b / a:.1f}x; the records equal")
 
