@@ -10,6 +10,7 @@ import builders
 import numpy as np
 
 import pcmm
+from pcmm.results import trajectory
 from pcmm.results.trajectory import derive_series, holding_extremes
 from pcmm.run import series
 
@@ -52,9 +53,12 @@ def test_an_in_memory_runs_series_first_read_are_derived_in_one_call_a_context(t
     # views of the one call's arrays (no copy); read again: nothing derived again
     assert np.shares_memory(traj.segments[1].q, traj.segments[n - 1].q) is False
     assert traj.segments[1].q.base is not None and traj.segments[1].q.base is traj.segments[n - 1].q.base
+    walks = []
+    monkeypatch.setattr(trajectory, "derive_series", lambda segments: walks.append(1) or derive_series(segments))
     traj.series("kinetic")
     holding_extremes(traj)
     assert len(calls) == 2 and derive_series(traj.segments) == 0
+    assert walks == []  # the segments are not walked again for a second read (the same log, as long)
 
 
 def test_the_ends_holding_extremes_derive_only_where_they_read(tmp_path, monkeypatch):

@@ -161,7 +161,7 @@ def holding_extremes(traj: "Trajectory") -> dict:
     derived = False
     for s in traj.segments:
         if not derived and (any(x.endswith(".hold") for x in s.constraint_labels) or _stance_joints(traj, s)):
-            derived = derive_series(traj.segments) >= 0  # the first series read: every run of one context at once
+            derived = traj._derive_grouped() >= 0  # the first series read: every run of one context at once
         for name, parts in stance_forces(traj, s).items():
             entry = out.setdefault(name, {part: {"min": math.inf, "t_min": None, "max": -math.inf, "t_max": None}
                                           for part in ("normal", "tangential")})
@@ -305,7 +305,7 @@ class Trajectory:
                 head = f"series: {quantity!r} needs a {what}" if name is None else f"series: no {what} {name!r} in this run"
                 raise UsageError(f"{head}; the run's {what}s: {', '.join(known) or '(none)'}")
         parts = []
-        derive_series(self.segments)
+        self._derive_grouped()
         for s in self.segments:
             arr = getattr(s, quantity)
             if quantity in names_of:
@@ -317,6 +317,18 @@ class Trajectory:
             else:
                 parts.append(arr)
         return np.concatenate(parts) if parts else np.zeros(0)
+
+    def _derive_grouped(self) -> int:
+        """Derive the series of the segments not yet read, a run of one tree context in one call
+        (:func:`derive_series`), once for the segments there are: read again, the segments are
+        not walked again (a walk of 1,000 segments costs ~2 ms, most of a series read after the
+        first).  Returns the calls made."""
+        key = (id(self.segments), len(self.segments))
+        if self.__dict__.get("_derived") == key:
+            return 0
+        calls = derive_series(self.segments)
+        self.__dict__["_derived"] = key
+        return calls
 
     def resampled(self, dt: float) -> "Trajectory":
         """The run at times 0, dt, 2 dt, ... (and at every segment's ends, so events keep their
@@ -400,7 +412,7 @@ class Trajectory:
         >>> back.events[0]["t"] == traj.events[0]["t"], len(back.t) == len(traj.t)
         (True, True)
         """
-        derive_series(self.segments)
+        self._derive_grouped()
         visited = self.visited()
         views = {"configurations": {c: v for c, v in self.views.get("configurations", {}).items() if c in visited},
                  "forces": self.views.get("forces", {}), "transitions": self.views.get("transitions", [])}
