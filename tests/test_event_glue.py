@@ -34,3 +34,37 @@ def test_enabled_follows_a_change_of_the_environment(monkeypatch):
     assert not compiled.enabled()
     del os.environ[compiled.ENV]
     assert compiled.enabled()
+
+
+CYCLE = __import__("pathlib").Path(__file__).resolve().parents[1] / "examples" / "three_bar_cycle.toml"
+
+
+def test_rearm_list_taken_in_one_lookup_is_the_component_route(monkeypatch):
+    """``loop._guards``' one look-up (``kept[4]``) gives, at every segment of the cycle, the very guard
+    objects, in order, that its two kept sets give (the route before it: the same call on a copy of the
+    kept sets without ``kept[4]``), and it is taken at most bounces."""
+    import pcmm
+    from pcmm.run import loop
+
+    original = loop._guards
+    seen = {"calls": 0, "one_lookup": 0}
+
+    def both(scene, cfg, holds, t, phase, bounced, fired=(), kept=None):
+        before = list(kept[:4]) if kept is not None else None  # the kept sets of the route before kept[4]
+        entry = kept[4] if kept is not None and len(kept) > 4 else None
+        got = original(scene, cfg, holds, t, phase, bounced, fired, kept)
+        want = original(scene, cfg, holds, t, phase, bounced, fired, before)
+        assert len(got) == len(want), (t, cfg.name)
+        # (a call that builds rewrites kept[4]: left as it was, the one look-up was taken)
+        if entry is not None and kept[4] is entry:
+            seen["one_lookup"] += 1
+            assert all(a is b for a, b in zip(got, want)), (t, cfg.name)
+        else:  # both routes built (or took) the guards: the same transitions, re-armed alike
+            assert [(g.transition, g.description) for g in got] == [(g.transition, g.description) for g in want]
+        seen["calls"] += 1
+        return got
+
+    monkeypatch.setattr(loop, "_guards", both)
+    traj = pcmm.simulate(CYCLE)
+    assert seen["calls"] == len(traj.segments)
+    assert seen["one_lookup"] > len(traj.events) // 2  # (the bounces' re-arms: 524 impacts of 531 events)

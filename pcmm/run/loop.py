@@ -467,8 +467,17 @@ def _guards(scene: Scene, cfg: Configuration, holds: Holds, t: float, phase, bou
     state alone, not of ``t``, the holds or the events so far), a call for the same configuration,
     the same bounced stop and the same angle offsets (they move the measures:
     :meth:`Configuration.continue_angles`) takes those guards again: a sequence of bounces at one
-    stop builds them once; and the merges' guards likewise (:func:`_unmerge_guards`)."""
+    stop builds them once; and the merges' guards likewise (:func:`_unmerge_guards`).  ``kept[4]``: where
+    both were taken again, what they were and the guards made of them, so that the next call finding the
+    same configuration, bounced stop, offsets and holds, with neither kept set rebuilt since, takes that
+    list in one look-up (a bounce's re-arm: the same guards, with one call and one list fewer)."""
     offsets = cfg.angle_offsets  # (a sorted tuple built per read: read once, for both kept sets below)
+    last = kept[4] if kept is not None and len(kept) > 4 else None
+    if last is not None and phase is None and last[0] is cfg and last[1] is bounced and last[2] == offsets \
+            and last[4] is kept[0] and last[5] is kept[1] and last[6] is kept[2]:
+        items = holds.items
+        if len(last[3]) == len(items) and all(a is b for a, b in zip(last[3], items)):
+            return last[7] + cfg.coords.guards()  # (a new list: the caller's own)
     key = (cfg, bounced, offsets)
     if kept and kept[0] is not None and phase is None and kept[0][0] is cfg and kept[0][1] is bounced and kept[0][2] == offsets:
         out = list(kept[1])
@@ -487,6 +496,12 @@ def _guards(scene: Scene, cfg: Configuration, holds: Holds, t: float, phase, bou
         if kept is not None:
             kept[:2] = [key, tuple(out)] if reusable else [None, ()]
     out += _unmerge_guards(cfg, holds, phase, kept, offsets)
+    if kept is not None:
+        while len(kept) < 5:
+            kept.append(None)
+        # both kept sets as taken or made now (phase None, transitions reusable): the list for the next call
+        both = phase is None and kept[0] is not None and kept[2] is not None
+        kept[4] = (cfg, bounced, offsets, tuple(holds.items), kept[0], kept[1], kept[2], out[:]) if both else None
     out += cfg.coords.guards()  # the coordinates' own: a loop's partition guard
     return out
 
