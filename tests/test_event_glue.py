@@ -68,35 +68,3 @@ def test_rearm_list_taken_in_one_lookup_is_the_component_route(monkeypatch):
     traj = pcmm.simulate(CYCLE)
     assert seen["calls"] == len(traj.segments)
     assert seen["one_lookup"] > len(traj.events) // 2  # (the bounces' re-arms: 524 impacts of 531 events)
-
-
-def test_event_log_rows_packed_hold_numpys_bits():
-    """``_Table.append`` packs a row with ``struct`` where numpy's row assignment stored it before: the
-    same bytes, for every kind of number a record holds (signed zeros, NaN payloads, infinities,
-    subnormals, ints and bools, numpy scalars), across a block's end; a row of another width is refused
-    as numpy refused it."""
-    import numpy as np
-
-    from pcmm.results import event_log
-
-    rng = np.random.default_rng(4)
-    width = 7
-    special = [0.0, -0.0, float("nan"), float(np.frombuffer(np.uint64(0x7FF8000000000123).tobytes())[0]),
-               float("inf"), -float("inf"), 5e-324, -2.2250738585072014e-308, 3, True, False, np.float64(1.25),
-               np.float32(0.1), 2 ** 60 + 1, np.int64(-7)]
-    rows = []
-    for i in range(event_log.BLOCK + 40):
-        row = [float(x) for x in rng.normal(size=width) * 10.0 ** rng.integers(-300, 300, size=width)]
-        row[i % width] = special[i % len(special)]
-        rows.append(row)
-    table = event_log._Table(("layout",), width)
-    want = np.empty((len(rows), width))
-    for i, row in enumerate(rows):
-        assert table.append(row) == i
-        want[i] = row  # the assignment the table made before
-    got = np.concatenate(table.blocks)[:table.n]
-    assert got.tobytes() == want.tobytes()
-    assert np.frombuffer(got.tobytes(), np.uint64)[3 * width + 3] == 0x7FF8000000000123  # (the payload of row 3's NaN)
-    with pytest.raises(ValueError):
-        table.append([1.0] * (width + 1))
-    assert table.n == len(rows)
