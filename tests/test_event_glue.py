@@ -68,3 +68,52 @@ def test_rearm_list_taken_in_one_lookup_is_the_component_route(monkeypatch):
     traj = pcmm.simulate(CYCLE)
     assert seen["calls"] == len(traj.segments)
     assert seen["one_lookup"] > len(traj.events) // 2  # (the bounces' re-arms: 524 impacts of 531 events)
+
+
+def _run_record(traj):
+    import numpy as np
+    events = [repr(e) for e in traj.events]  # (every number by repr: its bits)
+    segments = [tuple(a.tobytes() for a in traj.segments.arrays(i)) for i in range(len(traj.segments))]
+    return events, segments
+
+
+def test_guards_built_at_an_earlier_stay_give_the_run_built_afresh(monkeypatch):
+    """``loop._made_guards`` hands a stay the transitions' guards built at an earlier stay in the same
+    configuration for the same bounced stop and offsets: the cycle's run is the run that builds them
+    at every stay, event by event and sample by sample, and the kept sets are taken at most stays."""
+    import pcmm
+    from pcmm.run import loop
+
+    taken = []
+    original = loop._made_guards
+
+    def counted(kept, key, guards=None):
+        got = original(kept, key, guards)
+        if guards is None and got is not None:
+            taken.append(key[0].name)
+        return got
+
+    monkeypatch.setattr(loop, "_made_guards", counted)
+    kept_run = _run_record(pcmm.simulate(CYCLE))
+    assert len(taken) >= 20  # (the cycle's periods: 'open''s two stops, each locked configuration's stop)
+    monkeypatch.setattr(loop, "_made_guards", lambda kept, key, guards=None: None)  # built at every stay
+    assert _run_record(pcmm.simulate(CYCLE)) == kept_run
+
+
+def test_made_guards_are_held_per_configuration_stop_and_offsets():
+    from pcmm.run import loop
+
+    class C:
+        name = "c"
+    a, b, stop = C(), C(), object()
+    kept: list = []
+    g = (object(),)
+    assert loop._made_guards(kept, (a, stop, ())) is None
+    loop._made_guards(kept, (a, stop, ()), g)
+    assert loop._made_guards(kept, (a, stop, ())) is g
+    assert loop._made_guards(kept, (b, stop, ())) is None  # another configuration
+    assert loop._made_guards(kept, (a, None, ())) is None  # another bounced stop (or none)
+    assert loop._made_guards(kept, (a, stop, (("L", 6.283185307179586),))) is None  # other offsets
+    for k in range(loop.MADE_GUARDS):  # bounded: a growing offset makes new keys
+        loop._made_guards(kept, (a, stop, (("L", float(k)),)), g)
+    assert len(kept[5]) <= loop.MADE_GUARDS

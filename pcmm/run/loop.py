@@ -479,8 +479,12 @@ def _guards(scene: Scene, cfg: Configuration, holds: Holds, t: float, phase, bou
         if len(last[3]) == len(items) and all(a is b for a, b in zip(last[3], items)):
             return last[7] + cfg.coords.guards()  # (a new list: the caller's own)
     key = (cfg, bounced, offsets)
+    made = _made_guards(kept, key) if phase is None and kept is not None else None
     if kept and kept[0] is not None and phase is None and kept[0][0] is cfg and kept[0][1] is bounced and kept[0][2] == offsets:
         out = list(kept[1])
+    elif made is not None:  # built at an earlier stay in cfg, for the same bounced stop and offsets
+        kept[:2] = [key, made]
+        out = list(made)
     else:
         out = []
         reusable = phase is None
@@ -495,6 +499,8 @@ def _guards(scene: Scene, cfg: Configuration, holds: Holds, t: float, phase, bou
                 out.append(g)
         if kept is not None:
             kept[:2] = [key, tuple(out)] if reusable else [None, ()]
+            if reusable:
+                _made_guards(kept, key, kept[1])
     out += _unmerge_guards(cfg, holds, phase, kept, offsets)
     if kept is not None:
         while len(kept) < 5:
@@ -504,6 +510,34 @@ def _guards(scene: Scene, cfg: Configuration, holds: Holds, t: float, phase, bou
         kept[4] = (cfg, bounced, offsets, tuple(holds.items), kept[0], kept[1], kept[2], out[:]) if both else None
     out += cfg.coords.guards()  # the coordinates' own: a loop's partition guard
     return out
+
+
+#: at most this many sets of transitions' guards kept per run (:func:`_made_guards`)
+MADE_GUARDS = 64
+
+
+def _made_guards(kept: list, key: tuple, guards: tuple | None = None):
+    """``kept[5]``: the transitions' guards :func:`_guards` built, by what they were built for (the
+    configuration and the bounced stop, the same objects, and the angle offsets), for the
+    configurations whose transitions all watch a coordinate or a gap.  A run that comes back to a
+    configuration for the same stop and offsets (a cycle's next period, a bounce at the other stop of
+    a configuration) takes them again instead of building them: they are functions of those alone,
+    as the kept set of the last call is.  With ``guards``, keeps them (at most :data:`MADE_GUARDS` sets:
+    an offset that grows with every turn of a link makes new keys); else the kept set or None."""
+    while len(kept) < 6:
+        kept.append(None)
+    if kept[5] is None:
+        kept[5] = {}
+    made = kept[5]
+    cfg, bounced, offsets = key
+    at = (id(cfg), id(bounced), offsets)
+    if guards is None:
+        entry = made.get(at)
+        return entry[2] if entry is not None and entry[0] is cfg and entry[1] is bounced else None
+    if len(made) >= MADE_GUARDS:
+        made.clear()
+    made[at] = (cfg, bounced, guards)  # (the objects held: their ids stay theirs while kept)
+    return guards
 
 
 def _unmerge_guards(cfg: Configuration, holds: Holds, phase, kept, offsets=None) -> list:
