@@ -117,3 +117,51 @@ def test_made_guards_are_held_per_configuration_stop_and_offsets():
     for k in range(loop.MADE_GUARDS):  # bounded: a growing offset makes new keys
         loop._made_guards(kept, (a, stop, (("L", float(k)),)), g)
     assert len(kept[5]) <= loop.MADE_GUARDS
+
+
+def _context_ids(f, monkeypatch):
+    import pcmm
+    from pcmm.results import segment_log
+
+    monkeypatch.setattr(segment_log.SegmentLog, "context_id", f)
+    log = pcmm.simulate(CYCLE).segments
+    ids = [int(log._row(i)[0]) for i in range(len(log))]
+    return ids, [(c, n) for c, n, _ in log._contexts], len(log._names)
+
+
+def test_segment_contexts_with_the_name_lists_not_looked_up_again(monkeypatch):
+    """``SegmentLog.context_id`` skips the name lists' look-up where they are the very lists its latest
+    context of the configuration holds: the cycle's segments get the same context ids, the contexts the
+    same configurations and name lists, as with the look-up at every segment (the route before)."""
+    from pcmm.results import segment_log
+
+    new = segment_log.SegmentLog.context_id
+
+    def before(self, configuration, names, context, keep=None):
+        names = self._names.setdefault((configuration, *(tuple(v) for v in names.values())), names)
+        k = self._last.get(configuration)
+        if k is not None:
+            conf, known_names, known = self._contexts[k]
+            if known_names is names and known == context:
+                return k
+        self._contexts.append((configuration, names, context if keep is None else keep(context)))
+        self._last[configuration] = len(self._contexts) - 1
+        return len(self._contexts) - 1
+
+    assert _context_ids(new, monkeypatch) == _context_ids(before, monkeypatch)
+
+
+def test_segment_context_name_lists_equal_but_not_the_same_are_the_kept_ones():
+    from pcmm.results.segment_log import SegmentLog
+
+    log = SegmentLog()
+    names = {"coordinates": ["a"], "links": ["L"]}
+    k = log.context_id("c", names, 1.0)
+    assert log.context_id("c", names, 1.0) == k  # the same lists: no look-up
+    equal = {"coordinates": ["a"], "links": ["L"]}
+    assert log.context_id("c", equal, 1.0) == k  # equal lists: looked up, the kept ones found
+    assert log.context_id("c", equal, 2.0) == k + 1 and log._contexts[k + 1][1] is names
+    other = {"coordinates": ["b"], "links": ["L"]}
+    j = log.context_id("c", other, 2.0)
+    assert j == k + 2 and log._contexts[j][1] is other
+    assert log.context_id("c", names, 2.0) == k + 3 and log._contexts[k + 3][1] is names
