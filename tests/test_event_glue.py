@@ -1,167 +1,228 @@
-"""The glue of a bounce cut in h-event4: each cut against the route it replaces."""
+"""The event path's glue cut without changing a bit: a bounce re-arms with the guards of the bounce
+before it (pcmm.run.loop._guards), ... Each against the route it replaces, on whole runs."""
 from __future__ import annotations
 
-import os
+import numpy as np
+from builders import EXAMPLES, pendulum
 
-import pytest
+import pcmm
+from pcmm.run import loop
 
-from pcmm.model import compiled
+
+def _run(path, monkeypatch, reuse: bool, t_end=None):
+    built = []
+    make = loop.make_guard
+
+    def counted(cfg, tr, rearm=False, context=None):
+        built.append((cfg.name, tr.name, rearm))
+        return make(cfg, tr, rearm=rearm, context=context)
+    monkeypatch.setattr(loop, "make_guard", counted)
+    if not reuse:
+        guards = loop._guards
+        monkeypatch.setattr(loop, "_guards", lambda *args: guards(*args[:7]))  # kept=None: built every time
+    opts = pcmm.RunOptions(t_end=t_end) if t_end is not None else None
+    traj = pcmm.simulate(pcmm.load_scene(path), opts) if opts else pcmm.simulate(pcmm.load_scene(path))
+    monkeypatch.undo()
+    return traj, built
 
 
-@pytest.mark.parametrize("value", [None, "0", "1", "", "00", " 0", "0 ", "no", "é"])
-def test_enabled_reads_the_environment_as_os_environ_get(monkeypatch, value):
-    """``compiled.enabled()`` reads PCMM_COMPILED from the environment's encoded dict: at every call,
-    and with the same answer as ``os.environ.get(ENV, "1") != "0"`` (the route it replaces)."""
-    if value is None:
-        monkeypatch.delenv(compiled.ENV, raising=False)
+def _same_run(a, b):
+    assert len(a.events) == len(b.events)
+    for ea, eb in zip(a.events, b.events):
+        assert ea == eb
+    assert len(a.segments) == len(b.segments)
+    for sa, sb in zip(a.segments, b.segments):
+        assert np.array_equal(sa.t, sb.t) and np.array_equal(sa.q, sb.q)
+
+
+def test_a_bounce_sequence_builds_its_guards_once(monkeypatch):
+    """three_bar_cycle's first 1.5 s: O2 and O3 bounce on their pins dozens of times each; the
+    re-armed stop's guards are built at the first bounce of each sequence only, and the run is the
+    one that builds them at every bounce, bit for bit."""
+    path = EXAMPLES / "three_bar_cycle.toml"
+    fast, built_fast = _run(path, monkeypatch, True, t_end=1.5)
+    slow, built_slow = _run(path, monkeypatch, False, t_end=1.5)
+    assert fast.stats["impacts"] > 50
+    assert len(built_slow) > 50 and len(built_fast) < len(built_slow) / 5
+    _same_run(fast, slow)
+
+
+def test_a_pendulum_bouncing_on_its_stop(tmp_path, monkeypatch):
+    """A tree (the compiled loop, its stop guard re-armed): three bounces in 2 s; the plain guard
+    built for the first approach, the re-armed one once for the next three segments (against once
+    per bounce without reuse), and the same run bit for bit."""
+    path = pendulum(tmp_path, 0.9, q0=0.0, t_end=2.0)
+    fast, built_fast = _run(path, monkeypatch, True)
+    slow, built_slow = _run(path, monkeypatch, False)
+    assert fast.stats["impacts"] == 3
+    assert built_fast == [("c1", "stop", False), ("c1", "stop", True)]
+    assert built_slow == [("c1", "stop", False)] + [("c1", "stop", True)] * 3
+    _same_run(fast, slow)
+
+
+def test_the_guard_residual_read_from_the_state_is_the_rebuilt_guards(monkeypatch):
+    """At each of three_bar_cycle's impacts (to 1.5 s), and at states moved off them at random, the
+    residual read off the state entry (actions._residual) is the value of the guard built again
+    (guards.guard_residual), to the bit."""
+    from types import SimpleNamespace
+
+    from pcmm.run import actions
+    seen = []
+    fast = actions._residual
+
+    def kept(run, guard):
+        seen.append((run.cfg, run.t, np.array(run.y), guard))
+        return fast(run, guard)
+    monkeypatch.setattr(actions, "_residual", kept)
+    pcmm.simulate(pcmm.load_scene(EXAMPLES / "three_bar_cycle.toml"), pcmm.RunOptions(t_end=1.5))
+    assert len(seen) > 50 and all(g.linear is not None for *_, g in seen)
+    rng = np.random.default_rng(1)
+    nonzero = 0
+    for cfg, t, y, guard in seen:
+        for state in (y, y + rng.normal(scale=1e-3, size=y.shape)):
+            got = fast(SimpleNamespace(cfg=cfg, t=t, y=state), guard)
+            want = actions.guard_residual(cfg, guard.transition, t, state)
+            assert type(got) is float and got == want
+            nonzero += got != 0.0
+    assert nonzero >= len(seen)
+
+
+# ---- the event log's generated readers (pcmm.results.event_log._flattener) -------------------------
+from hypothesis import given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+from pcmm.results import event_log  # noqa: E402
+
+
+def _typed(x):
+    """``x`` with every value's exact type beside it (``1 == 1.0 == True``, a log must not mix them)."""
+    if isinstance(x, dict):
+        return ("dict", [(k, _typed(v)) for k, v in x.items()])
+    if isinstance(x, (list, tuple)):
+        return (type(x).__name__, [_typed(v) for v in x])
+    name = "float" if isinstance(x, np.float64) else type(x).__name__  # the log keeps a numpy float as a float
+    return (name, x if x == x else "nan")
+
+
+leaf = st.one_of(st.floats(allow_nan=False), st.integers(-2 ** 60, 2 ** 60), st.booleans(), st.none(),
+                 st.sampled_from(["O2 pin", "stop", "x" * 60]), st.floats(-10, 10).map(np.float64),
+                 st.integers(-5, 5).map(np.int64))
+record = st.recursive(leaf, lambda inner: st.one_of(
+    st.lists(inner, max_size=3), st.lists(inner, max_size=3).map(tuple),
+    st.dictionaries(st.sampled_from(["t", "a", "b", "v"]), inner, max_size=3)), max_leaves=12)
+
+
+def _mutations(rec):
+    """``rec`` and records one leaf away from it: each number as an int, a bool, None, a numpy scalar."""
+    yield rec
+    if isinstance(rec, dict):
+        for k, v in rec.items():
+            for m in _mutations(v):
+                yield {**rec, k: m}
+        if len(rec) > 1:
+            yield dict(reversed(rec.items()))  # the same items, another key order: another layout
+    elif isinstance(rec, (list, tuple)):
+        for i, v in enumerate(rec):
+            for m in _mutations(v):
+                yield type(rec)([*rec[:i], m, *rec[i + 1:]])
+        yield type(rec)([*rec, 1.0])
     else:
-        monkeypatch.setenv(compiled.ENV, value)
-    want = compiled._tree_dynamics is not None and os.environ.get(compiled.ENV, "1") != "0"
-    assert compiled.enabled() is want
-    assert compiled.enabled() is (compiled._tree_dynamics is not None and value != "0")
+        yield from (1, 1.0, True, None, np.float64(1.0), np.int64(1), "O2 pin")
 
 
-def test_enabled_follows_a_change_of_the_environment(monkeypatch):
-    if compiled._tree_dynamics is None:
-        pytest.skip("no compiled extension in this tree")
-    monkeypatch.setenv(compiled.ENV, "1")
-    assert compiled.enabled()
-    monkeypatch.setenv(compiled.ENV, "0")
-    assert not compiled.enabled()
-    monkeypatch.delenv(compiled.ENV)
-    assert compiled.enabled()
-    os.environ[compiled.ENV] = "0"  # (monkeypatch restores it)
-    assert not compiled.enabled()
-    del os.environ[compiled.ENV]
-    assert compiled.enabled()
+@settings(max_examples=120, deadline=None)
+@given(st.lists(st.dictionaries(st.sampled_from(["t", "name", "impulse", "v"]), record, min_size=1, max_size=4),
+                min_size=1, max_size=4))
+def test_the_log_gives_back_every_record_with_its_types(records):
+    """Records of a few layouts, each followed by records one leaf away (an int for a float, a bool,
+    None, a numpy scalar, another key order, one more item): each read back as appended, types and
+    all, and each stored as the general encoder (_layout) stores it (the values kept aside apart)."""
+    sequence = [m for rec in records for m in _mutations(rec)][:200]
+    log = event_log.EventLog()
+    for rec in sequence:
+        log.append(rec)
+    assert [_typed(r) for r in log] == [_typed(r) for r in sequence]
+    for i, rec in enumerate(sequence):  # the same table and row as _layout gives
+        numbers, aside = [], []
+        layout = event_log._layout(rec, numbers, aside)
+        k, row = log._index[i // event_log.BLOCK][i % event_log.BLOCK]
+        table = log._tables[k]
+        assert table.layout == layout
+        assert table.row(int(row)).tolist()[:len(numbers)][:len(numbers) if not aside else 0] == \
+            [float(x) for x in numbers][:len(numbers) if not aside else 0]
 
 
-CYCLE = __import__("pathlib").Path(__file__).resolve().parents[1] / "examples" / "three_bar_cycle.toml"
+def test_a_run_of_bounces_appends_by_the_generated_reader(monkeypatch):
+    """three_bar_cycle's records go through the generated readers (the general encoder runs once
+    per layout, not once per impact), and come back as the run's records."""
+    calls = []
+    general = event_log._layout
+
+    def counted(obj, numbers, aside):
+        if type(obj) is dict and "name" in obj:  # a record, not one of its containers
+            calls.append(1)
+        return general(obj, numbers, aside)
+    traj = pcmm.simulate(pcmm.load_scene(EXAMPLES / "three_bar_cycle.toml"), pcmm.RunOptions(t_end=1.5))
+    records = list(traj.events)
+    monkeypatch.setattr(event_log, "_layout", counted)
+    log = event_log.EventLog()
+    for r in records:
+        log.append(r)
+    assert len(records) > 50 and 0 < len(calls) < 10
+    assert [_typed(r) for r in log] == [_typed(r) for r in records]
 
 
-def test_rearm_list_taken_in_one_lookup_is_the_component_route(monkeypatch):
-    """``loop._guards``' one look-up (``kept[4]``) gives, at every segment of the cycle, the very guard
-    objects, in order, that its two kept sets give (the route before it: the same call on a copy of the
-    kept sets without ``kept[4]``), and it is taken at most bounces."""
-    import pcmm
-    from pcmm.run import loop
-
-    original = loop._guards
-    seen = {"calls": 0, "one_lookup": 0}
-
-    def both(scene, cfg, holds, t, phase, bounced, fired=(), kept=None):
-        before = list(kept[:4]) if kept is not None else None  # the kept sets of the route before kept[4]
-        entry = kept[4] if kept is not None and len(kept) > 4 else None
-        got = original(scene, cfg, holds, t, phase, bounced, fired, kept)
-        want = original(scene, cfg, holds, t, phase, bounced, fired, before)
-        assert len(got) == len(want), (t, cfg.name)
-        # (a call that builds rewrites kept[4]: left as it was, the one look-up was taken)
-        if entry is not None and kept[4] is entry:
-            seen["one_lookup"] += 1
-            assert all(a is b for a, b in zip(got, want)), (t, cfg.name)
-        else:  # both routes built (or took) the guards: the same transitions, re-armed alike
-            assert [(g.transition, g.description) for g in got] == [(g.transition, g.description) for g in want]
-        seen["calls"] += 1
-        return got
-
-    monkeypatch.setattr(loop, "_guards", both)
-    traj = pcmm.simulate(CYCLE)
-    assert seen["calls"] == len(traj.segments)
-    assert seen["one_lookup"] > len(traj.events) // 2  # (the bounces' re-arms: 524 impacts of 531 events)
+def test_segments_under_the_same_holds_share_one_context():
+    """three_bar_cycle's bounces under a held merge (O3 on its pin while O2 bounces, and the other
+    way round) record their segments with one context per stay, not one each: the holds' applied
+    force elements (a dataclass of values) compare by value (recording._same).  Before, 464
+    contexts for 532 segments."""
+    from pcmm.events.holding import Applied
+    from pcmm.run import recording
+    traj = pcmm.simulate(pcmm.load_scene(EXAMPLES / "three_bar_cycle.toml"), pcmm.RunOptions(t_end=3.0))
+    n, contexts = len(traj.segments), len(traj.segments._contexts)
+    assert n > 150 and contexts < n / 5, (n, contexts)
+    kept = [c for _, _, c in traj.segments._contexts if c.applied is not None]
+    assert kept and all(isinstance(c.applied, Applied) for c in kept)
+    a = kept[0].applied
+    twin = Applied(a.reference, {k: (np.array(v) if isinstance(v, np.ndarray) else v) for k, v in a.frozen.items()},
+                   a.forces, a.acting, a.springs)
+    assert recording._same(a, twin)
+    assert not recording._same(a, Applied(a.reference, {**a.frozen, "ny": -1}, a.forces, a.acting, a.springs))
 
 
-def _run_record(traj):
-    import numpy as np
-    events = [repr(e) for e in traj.events]  # (every number by repr: its bits)
-    segments = [tuple(a.tobytes() for a in traj.segments.arrays(i)) for i in range(len(traj.segments))]
-    return events, segments
+def test_same_compares_values_as_a_context_needs():
+    """recording._same, asked at every segment: arrays element by element (-0.0 equals 0.0, NaN
+    never equals), dicts by keys and values, a list never equals a tuple, numbers and texts by
+    value, a dataclass field by field, anything else by identity."""
+    from dataclasses import dataclass
 
+    from pcmm.run.recording import _same
 
-def test_guards_built_at_an_earlier_stay_give_the_run_built_afresh(monkeypatch):
-    """``loop._made_guards`` hands a stay the transitions' guards built at an earlier stay in the same
-    configuration for the same bounced stop and offsets: the cycle's run is the run that builds them
-    at every stay, event by event and sample by sample, and the kept sets are taken at most stays."""
-    import pcmm
-    from pcmm.run import loop
-
-    taken = []
-    original = loop._made_guards
-
-    def counted(kept, key, guards=None):
-        got = original(kept, key, guards)
-        if guards is None and got is not None:
-            taken.append(key[0].name)
-        return got
-
-    monkeypatch.setattr(loop, "_made_guards", counted)
-    kept_run = _run_record(pcmm.simulate(CYCLE))
-    assert len(taken) >= 20  # (the cycle's periods: 'open''s two stops, each locked configuration's stop)
-    monkeypatch.setattr(loop, "_made_guards", lambda kept, key, guards=None: None)  # built at every stay
-    assert _run_record(pcmm.simulate(CYCLE)) == kept_run
-
-
-def test_made_guards_are_held_per_configuration_stop_and_offsets():
-    from pcmm.run import loop
-
-    class C:
-        name = "c"
-    a, b, stop = C(), C(), object()
-    kept: list = []
-    g = (object(),)
-    assert loop._made_guards(kept, (a, stop, ())) is None
-    loop._made_guards(kept, (a, stop, ()), g)
-    assert loop._made_guards(kept, (a, stop, ())) is g
-    assert loop._made_guards(kept, (b, stop, ())) is None  # another configuration
-    assert loop._made_guards(kept, (a, None, ())) is None  # another bounced stop (or none)
-    assert loop._made_guards(kept, (a, stop, (("L", 6.283185307179586),))) is None  # other offsets
-    for k in range(loop.MADE_GUARDS):  # bounded: a growing offset makes new keys
-        loop._made_guards(kept, (a, stop, (("L", float(k)),)), g)
-    assert len(kept[5]) <= loop.MADE_GUARDS
-
-
-def _context_ids(f, monkeypatch):
-    import pcmm
-    from pcmm.results import segment_log
-
-    monkeypatch.setattr(segment_log.SegmentLog, "context_id", f)
-    log = pcmm.simulate(CYCLE).segments
-    ids = [int(log._row(i)[0]) for i in range(len(log))]
-    return ids, [(c, n) for c, n, _ in log._contexts], len(log._names)
-
-
-def test_segment_contexts_with_the_name_lists_not_looked_up_again(monkeypatch):
-    """``SegmentLog.context_id`` skips the name lists' look-up where they are the very lists its latest
-    context of the configuration holds: the cycle's segments get the same context ids, the contexts the
-    same configurations and name lists, as with the look-up at every segment (the route before)."""
-    from pcmm.results import segment_log
-
-    new = segment_log.SegmentLog.context_id
-
-    def before(self, configuration, names, context, keep=None):
-        names = self._names.setdefault((configuration, *(tuple(v) for v in names.values())), names)
-        k = self._last.get(configuration)
-        if k is not None:
-            conf, known_names, known = self._contexts[k]
-            if known_names is names and known == context:
-                return k
-        self._contexts.append((configuration, names, context if keep is None else keep(context)))
-        self._last[configuration] = len(self._contexts) - 1
-        return len(self._contexts) - 1
-
-    assert _context_ids(new, monkeypatch) == _context_ids(before, monkeypatch)
-
-
-def test_segment_context_name_lists_equal_but_not_the_same_are_the_kept_ones():
-    from pcmm.results.segment_log import SegmentLog
-
-    log = SegmentLog()
-    names = {"coordinates": ["a"], "links": ["L"]}
-    k = log.context_id("c", names, 1.0)
-    assert log.context_id("c", names, 1.0) == k  # the same lists: no look-up
-    equal = {"coordinates": ["a"], "links": ["L"]}
-    assert log.context_id("c", equal, 1.0) == k  # equal lists: looked up, the kept ones found
-    assert log.context_id("c", equal, 2.0) == k + 1 and log._contexts[k + 1][1] is names
-    other = {"coordinates": ["b"], "links": ["L"]}
-    j = log.context_id("c", other, 2.0)
-    assert j == k + 2 and log._contexts[j][1] is other
-    assert log.context_id("c", names, 2.0) == k + 3 and log._contexts[k + 3][1] is names
+    @dataclass
+    class Rec:
+        a: object
+        b: object
+    marker = object()
+    cases = [
+        (np.array([0.0, 1.0]), np.array([-0.0, 1.0]), True),
+        (np.array([np.nan]), np.array([np.nan]), False),
+        (np.array([1, 2]), np.array([[1, 2]]), False),
+        (np.array([1, 2]), [1, 2], False),
+        ({"I": np.array([0, 2]), "ny": 4}, {"I": np.array([0, 2]), "ny": 4}, True),
+        ({"I": np.array([0, 2]), "ny": 4}, {"I": np.array([0, 2]), "ny": 5}, False),
+        ({"a": 1}, {"b": 1}, False),
+        ([1, (2.0, "x")], [1, (2.0, "x")], True),
+        ([1, 2], (1, 2), False),
+        ([1, 2], [1, 2, 3], False),
+        (1, 1.0, True),
+        ("x", "y", False),
+        (Rec(marker, {"k": np.array([1.0])}), Rec(marker, {"k": np.array([1.0])}), True),
+        (Rec(marker, 1), Rec(object(), 1), False),
+        (marker, marker, True),
+        (object(), object(), False),
+        (Rec, Rec, True),
+    ]
+    for a, b, want in cases:
+        assert _same(a, b) is want, (a, b)
+        assert _same(b, a) is want, (b, a)
