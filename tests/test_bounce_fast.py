@@ -302,14 +302,14 @@ def test_the_re_arm_reads_a_joint_stops_speed_off_the_state():
     options = pcmm.RunOptions(t_end=2.5)
     pending, compared = loop._pending, []
 
-    def checked(cfg, guards, t, y0):
+    def checked(cfg, guards, t, y0, *rest):
         q, v = cfg.coords.unpack(t, y0)
         for g in guards:
             c = getattr(g.transition, "contact", None)
             if g.action == "transition" and c is not None and c.joint is not None:
                 got = loop._stop_speed(cfg.coords, cfg, y0, c)
                 compared.append((cfg.name, got, normal_speed(cfg, q, v, c)))
-        return pending(cfg, guards, t, y0)
+        return pending(cfg, guards, t, y0, *rest)
     mp = pytest.MonkeyPatch()
     try:
         mp.setattr(loop, "_pending", checked)

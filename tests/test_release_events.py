@@ -63,28 +63,39 @@ def dV(phi1, h=1e-6):
     return (potential(phi1 + h) - potential(phi1 - h)) / (2 * h)
 
 
-def four_bar(folder, t_end=1.3):
-    urdf = robot_xml("fourbar", link_xml("frame"),
-                     joint_xml("J1", "revolute", "frame", "crank"), bar_xml("crank", A_, M1),
-                     joint_xml("J2", "revolute", "crank", "coupler", xyz=(A_, 0.0)), bar_xml("coupler", B_, M2),
-                     joint_xml("J3", "revolute", "coupler", "rocker", xyz=(B_, 0.0)), bar_xml("rocker", C_, M3),
-                     joint_xml("J5", "revolute", "frame", "arm"), bar_xml("arm", 0.1, 0.1))
-    cut = [{"name": "F", "type": "revolute", "a": "frame", "point_a": [D_, 0.0], "b": "rocker", "point_b": [C_, 0.0]}]
-    phi1 = -math.pi / 2
-    phi2, phi3 = closure(phi1)
-    doc = scene_doc({"swing": {"urdf": "p.urdf", "cut_joints": cut}, "held": {"from": "swing", "lock": ["J3"]}},
-                    {"J1": phi1, "J2": phi2 - phi1, "J3": j3_of(phi1), "J5": 0.0}, {"J1": 0.0},
+def hanging_four_bar(configurations: dict, phi1: float, t_end: float, transitions: list) -> dict:
+    """The hanging four-bar's scene document (its URDF: :data:`FOUR_BAR_URDF`): the loop closed by
+    the cut joint F, at rest at crank angle ``phi1`` on the J3 + branch, the arm driven
+    (J5 = -ALPHA t^2) and pulling the crank by the spring K; ``configurations`` maps each name to
+    its entry ("p.urdf" carries F in the first)."""
+    phi2, _ = closure(phi1)
+    doc = scene_doc(configurations, {"J1": phi1, "J2": phi2 - phi1, "J3": j3_of(phi1), "J5": 0.0}, {"J1": 0.0},
                     t_end=t_end, independent=["J1"],
                     drives=[{"joint": "J5", "coefficients": [0.0, 0.0, -ALPHA]}],
                     forces=[{"name": "arm spring", "type": "spring", "on": {"joint": "J1"},
                              "measure": {"between": ["arm", "crank"]}, "k": K, "rest": 0.0}],
-                    transitions=[{"name": "stop", "type": "stop", "from": "swing", "merge_to": "held",
-                                  "restitution": E, "cut": ["J3"],
-                                  "guard": {"type": "coordinate", "measure": {"between": ["coupler", "rocker"]},
-                                            "value": j3_of(PHI_STOP), "direction": "increasing"},
-                                  "contact": {"joint": "J3", "arm": 0.05}}])
+                    transitions=transitions)
     doc["initial"]["branch"] = {"joint": "J3", "sign": "+"}
-    return write_scene(folder, doc, {"p.urdf": urdf})
+    return doc
+
+
+FOUR_BAR_URDF = robot_xml("fourbar", link_xml("frame"),
+                          joint_xml("J1", "revolute", "frame", "crank"), bar_xml("crank", A_, M1),
+                          joint_xml("J2", "revolute", "crank", "coupler", xyz=(A_, 0.0)), bar_xml("coupler", B_, M2),
+                          joint_xml("J3", "revolute", "coupler", "rocker", xyz=(B_, 0.0)), bar_xml("rocker", C_, M3),
+                          joint_xml("J5", "revolute", "frame", "arm"), bar_xml("arm", 0.1, 0.1))
+CUT_F = [{"name": "F", "type": "revolute", "a": "frame", "point_a": [D_, 0.0], "b": "rocker", "point_b": [C_, 0.0]}]
+
+
+def four_bar(folder, t_end=1.3):
+    doc = hanging_four_bar({"swing": {"urdf": "p.urdf", "cut_joints": CUT_F}, "held": {"from": "swing", "lock": ["J3"]}},
+                           -math.pi / 2, t_end,
+                           [{"name": "stop", "type": "stop", "from": "swing", "merge_to": "held",
+                             "restitution": E, "cut": ["J3"],
+                             "guard": {"type": "coordinate", "measure": {"between": ["coupler", "rocker"]},
+                                       "value": j3_of(PHI_STOP), "direction": "increasing"},
+                             "contact": {"joint": "J3", "arm": 0.05}}])
+    return write_scene(folder, doc, {"p.urdf": FOUR_BAR_URDF})
 
 
 @pytest.fixture(scope="module")

@@ -254,26 +254,13 @@ def test_a_loop_latch_pushed_closed_at_its_release_latches_again_at_once(tmp_pat
 # solve puts J3 there within an ulp or two of the value, on either side (+4.4e-16 compiled, -8.9e-16
 # Python at PHI0 = -0.3).
 def released_four_bar(folder: Path, phi0: float, direction: str, t_end: float) -> Path:
-    from test_release_events import A_, ALPHA, B_, C_, D_, M1, M2, M3, closure, j3_of
-    from test_release_events import K as K_ARM
-    urdf = robot_xml("fourbar", link_xml("frame"),
-                     joint_xml("J1", "revolute", "frame", "crank"), bar_xml("crank", A_, M1),
-                     joint_xml("J2", "revolute", "crank", "coupler", xyz=(A_, 0.0)), bar_xml("coupler", B_, M2),
-                     joint_xml("J3", "revolute", "coupler", "rocker", xyz=(B_, 0.0)), bar_xml("rocker", C_, M3),
-                     joint_xml("J5", "revolute", "frame", "arm"), bar_xml("arm", 0.1, 0.1))
-    cut = [{"name": "F", "type": "revolute", "a": "frame", "point_a": [D_, 0.0], "b": "rocker", "point_b": [C_, 0.0]}]
-    phi2, _ = closure(phi0)
-    doc = scene_doc({"swing": {"urdf": "p.urdf", "cut_joints": cut}, "open": {"urdf": "p.urdf"}},
-                    {"J1": phi0, "J2": phi2 - phi0, "J3": j3_of(phi0), "J5": 0.0}, {"J1": 0.0},
-                    t_end=t_end, independent=["J1"],
-                    drives=[{"joint": "J5", "coefficients": [0.0, 0.0, -ALPHA]}],
-                    forces=[{"name": "arm spring", "type": "spring", "on": {"joint": "J1"},
-                             "measure": {"between": ["arm", "crank"]}, "k": K_ARM, "rest": 0.0}],
-                    transitions=[{"name": "let go", "type": "release", "from": "swing", "to": "open",
-                                  "guard": {"type": "coordinate", "measure": {"between": ["coupler", "rocker"]},
-                                            "value": j3_of(phi0), "direction": direction}}])
-    doc["initial"]["branch"] = {"joint": "J3", "sign": "+"}
-    return write_scene(folder, doc, {"p.urdf": urdf})
+    from test_release_events import CUT_F, FOUR_BAR_URDF, hanging_four_bar, j3_of
+    doc = hanging_four_bar({"swing": {"urdf": "p.urdf", "cut_joints": CUT_F}, "open": {"urdf": "p.urdf"}},
+                           phi0, t_end,
+                           [{"name": "let go", "type": "release", "from": "swing", "to": "open",
+                             "guard": {"type": "coordinate", "measure": {"between": ["coupler", "rocker"]},
+                                       "value": j3_of(phi0), "direction": direction}}])
+    return write_scene(folder, doc, {"p.urdf": FOUR_BAR_URDF})
 
 
 def j3_start_acceleration_sign(phi0: float) -> int:

@@ -135,10 +135,8 @@ def assemble(scene: Scene, cfg: Configuration):
              for n in cfg.joint_names if diff[cfg.joint_slice[n].start] > GUESS_TOL]
     drives = driven_joints(scene, cfg)
     if any(n in drives for n, _, _ in moved):
-        notes.append("the drives fix some initial positions, and these given ones were replaced: "
-                     + ", ".join(f"{n} is driven ({drives[n]}): its drive gives {a:.6g} {_unit(cfg, n)} at t = 0, "
-                                 f"given {g:.6g}" for n, g, a in moved if n in drives)
-                     + "; give the drive's values in [initial] q, or change the drive's coefficients")
+        notes.append(_driven_replaced("positions", cfg, drives, moved, "",
+                                      "give the drive's values in [initial] q, or change the drive's coefficients"))
         moved = [m for m in moved if m[0] not in drives]
     if moved:
         notes.append("the loop was assembled away from the given values: "
@@ -162,6 +160,15 @@ def assemble(scene: Scene, cfg: Configuration):
     return q, v, notes + _velocity_notes(scene, cfg, v0, v)
 
 
+def _driven_replaced(what: str, cfg: Configuration, drives: dict, replaced, per: str, advice: str) -> str:
+    """The note for given initial ``what`` (positions, velocities) of driven joints that their drives
+    replaced: each joint named with its drive, the drive's value at t = 0 and the given one."""
+    return (f"the drives fix some initial {what}, and these given ones were replaced: "
+            + ", ".join(f"{n} is driven ({drives[n]}): its drive gives {a:.6g} {_unit(cfg, n)}{per} at t = 0, "
+                        f"given {g:.6g}" for n, g, a in replaced if n in drives)
+            + f"; {advice}")
+
+
 VELOCITY_TOL = 1e-9  # rad/s or m/s, relative to the largest given velocity beyond 1
 
 
@@ -181,10 +188,8 @@ def _velocity_notes(scene: Scene, cfg: Configuration, v_given: np.ndarray, v: np
     at_rest = [n for n in single if n not in scene.v0 and n in independent]
     notes = []
     if any(n in drives for n, _, _ in replaced):
-        notes.append("the drives fix some initial velocities, and these given ones were replaced: "
-                     + ", ".join(f"{n} is driven ({drives[n]}): its drive gives {a:.6g} {_unit(cfg, n)}/s at t = 0, "
-                                 f"given {g:.6g}" for n, g, a in replaced if n in drives)
-                     + "; leave the driven joints out of [initial] v, or give the drive's rates")
+        notes.append(_driven_replaced("velocities", cfg, drives, replaced, "/s",
+                                      "leave the driven joints out of [initial] v, or give the drive's rates"))
         replaced = [r for r in replaced if r[0] not in drives]
     if replaced:
         notes.append("the constraints fix some initial velocities, and these given ones were replaced: "

@@ -69,9 +69,12 @@ class SegmentLog(RecordSequence):
         """The id of ``context`` (the latest one of ``configuration`` when equal to it); the name
         lists are kept once per configuration and set of names, whatever the context.  ``keep``:
         ``context -> the context kept`` where it is new (a context may refer to what the run
-        changes later, and be compared as it is: only a kept one needs its own copy)."""
-        names = self._names.setdefault((configuration, *(tuple(v) for v in names.values())), names)
+        changes later, and be compared as it is: only a kept one needs its own copy).  Name lists that
+        are the very ones the latest context of ``configuration`` holds are those kept (the recording
+        hands the same lists while their sources are equal): they are not looked up again."""
         k = self._last.get(configuration)
+        if k is None or self._contexts[k][1] is not names:
+            names = self._names.setdefault((configuration, *(tuple(v) for v in names.values())), names)
         if k is not None:
             conf, known_names, known = self._contexts[k]
             if known_names is names and known == context:

@@ -469,11 +469,24 @@ def _guards(scene: Scene, cfg: Configuration, holds: Holds, t: float, phase, bou
     state alone, not of ``t``, the holds or the events so far), a call for the same configuration,
     the same bounced stop and the same angle offsets (they move the measures:
     :meth:`Configuration.continue_angles`) takes those guards again: a sequence of bounces at one
-    stop builds them once; and the merges' guards likewise (:func:`_unmerge_guards`)."""
+    stop builds them once; and the merges' guards likewise (:func:`_unmerge_guards`).  ``kept[4]``: where
+    both were taken again, what they were and the guards made of them, so that the next call finding the
+    same configuration, bounced stop, offsets and holds, with neither kept set rebuilt since, takes that
+    list in one look-up (a bounce's re-arm: the same guards, with one call and one list fewer)."""
     offsets = cfg.angle_offsets  # (a sorted tuple built per read: read once, for both kept sets below)
+    last = kept[4] if kept is not None and len(kept) > 4 else None
+    if last is not None and phase is None and last[0] is cfg and last[1] is bounced and last[2] == offsets \
+            and last[4] is kept[0] and last[5] is kept[1] and last[6] is kept[2]:
+        items = holds.items
+        if len(last[3]) == len(items) and all(a is b for a, b in zip(last[3], items)):
+            return last[7] + cfg.coords.guards()  # (a new list: the caller's own)
     key = (cfg, bounced, offsets)
+    made = _made_guards(kept, key) if phase is None and kept is not None else None
     if kept and kept[0] is not None and phase is None and kept[0][0] is cfg and kept[0][1] is bounced and kept[0][2] == offsets:
         out = list(kept[1])
+    elif made is not None:  # built at an earlier stay in cfg, for the same bounced stop and offsets
+        kept[:2] = [key, made]
+        out = list(made)
     else:
         out = []
         reusable = phase is None
@@ -488,9 +501,45 @@ def _guards(scene: Scene, cfg: Configuration, holds: Holds, t: float, phase, bou
                 out.append(g)
         if kept is not None:
             kept[:2] = [key, tuple(out)] if reusable else [None, ()]
+            if reusable:
+                _made_guards(kept, key, kept[1])
     out += _unmerge_guards(cfg, holds, phase, kept, offsets)
+    if kept is not None:
+        while len(kept) < 5:
+            kept.append(None)
+        # both kept sets as taken or made now (phase None, transitions reusable): the list for the next call
+        both = phase is None and kept[0] is not None and kept[2] is not None
+        kept[4] = (cfg, bounced, offsets, tuple(holds.items), kept[0], kept[1], kept[2], out[:]) if both else None
     out += cfg.coords.guards()  # the coordinates' own: a loop's partition guard
     return out
+
+
+#: at most this many sets of transitions' guards kept per run (:func:`_made_guards`)
+MADE_GUARDS = 64
+
+
+def _made_guards(kept: list, key: tuple, guards: tuple | None = None):
+    """``kept[5]``: the transitions' guards :func:`_guards` built, by what they were built for (the
+    configuration and the bounced stop, the same objects, and the angle offsets), for the
+    configurations whose transitions all watch a coordinate or a gap.  A run that comes back to a
+    configuration for the same stop and offsets (a cycle's next period, a bounce at the other stop of
+    a configuration) takes them again instead of building them: they are functions of those alone,
+    as the kept set of the last call is.  With ``guards``, keeps them (at most :data:`MADE_GUARDS` sets:
+    an offset that grows with every turn of a link makes new keys); else the kept set or None."""
+    while len(kept) < 6:
+        kept.append(None)
+    if kept[5] is None:
+        kept[5] = {}
+    made = kept[5]
+    cfg, bounced, offsets = key
+    at = (id(cfg), id(bounced), offsets)
+    if guards is None:
+        entry = made.get(at)
+        return entry[2] if entry is not None and entry[0] is cfg and entry[1] is bounced else None
+    if len(made) >= MADE_GUARDS:
+        made.clear()
+    made[at] = (cfg, bounced, guards)  # (the objects held: their ids stay theirs while kept)
+    return guards
 
 
 def _unmerge_guards(cfg: Configuration, holds: Holds, phase, kept, offsets=None) -> list:
