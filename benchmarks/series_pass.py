@@ -113,7 +113,7 @@ def in_memory(traj, rounds: int) -> None:
             trajectory.derive_series = grouped if name.endswith("grouped") else (lambda segments: 0)
             try:
                 fresh_records(log)
-                traj.__dict__.pop("_derived", None)  # (the trajectory's mark of a log walked already)
+                traj.segments.__dict__.pop("_walked", None)  # (the log's mark of being walked already)
                 t0 = time.process_time()
                 kept[name] = traj.series("kinetic")
                 spent.append(time.process_time() - t0)

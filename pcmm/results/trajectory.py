@@ -323,11 +323,15 @@ class Trajectory:
         (:func:`derive_series`), once for the segments there are: read again, the segments are
         not walked again (a walk of 1,000 segments costs ~2 ms, most of a series read after the
         first).  Returns the calls made."""
-        key = (id(self.segments), len(self.segments))
-        if self.__dict__.get("_derived") == key:
+        segments = self.segments
+        if not isinstance(segments, SegmentLog):
             return 0
-        calls = derive_series(self.segments)
-        self.__dict__["_derived"] = key
+        # the mark is the log's own, not the trajectory's: a read that derives while the trajectory
+        # is pickled (its stats' holding extremes) must not grow the __dict__ pickle is walking
+        if segments.__dict__.get("_walked") == len(segments):
+            return 0
+        calls = derive_series(segments)
+        segments.__dict__["_walked"] = len(segments)
         return calls
 
     def resampled(self, dt: float) -> "Trajectory":
