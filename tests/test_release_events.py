@@ -19,6 +19,7 @@ import pytest
 
 import pcmm
 from pcmm.errors import SimulationError
+from pcmm.model import compiled
 
 from builders import G, bar_xml, joint_xml, link_xml, robot_xml, scene_doc, write_scene
 from test_newcomer2_mechanisms import FOURBAR_TOML, FOURBAR_URDF
@@ -154,6 +155,13 @@ def test_joint_stop_release_is_one_event_and_never_merges_a_separating_rate(tmp_
     assert np.all(np.diff(q3[traj.t > traj.events[k]["t"]]) < 0)
 
 
+# the compiled segment loop reads the guard 0.0 at the release's first instant where the state reads
+# -2.2e-16: the crossing this check is about arises there (the Python stepping reads one value both ways)
+needs_compiled = pytest.mark.skipif(not compiled.enabled() or compiled._tree_dynamics is None,
+                                    reason=f"the compiled segment loop does not run here: {compiled.why_not()}")
+
+
+@needs_compiled
 def test_a_stop_that_would_merge_a_separating_rate_stops_the_run_naming_it(tmp_path, monkeypatch):
     """The check behind the re-arming: with the segment after the release watching the plain guard
     again (left_at_value undone), its round-off crossing fires the stop while J3 separates at
@@ -176,6 +184,7 @@ def test_a_stop_that_would_merge_a_separating_rate_stops_the_run_naming_it(tmp_p
     assert err.value.partial is not None and err.value.partial.events[-1]["transition"] == "release"
 
 
+@needs_compiled
 def test_compiled_and_python_runs_give_the_same_events(held, tmp_path, monkeypatch):
     """The re-arming is decided where the guards are built, so the compiled segment loop and
     locator and the Python stepping give one event list (before, the compiled run alone had the
