@@ -12,20 +12,9 @@ import numpy as np
 import pcmm
 from pcmm.results import trajectory
 from pcmm.results.trajectory import derive_series, holding_extremes
-from pcmm.run import series
+from test_series import _counted  # derived_series' calls counted (the samples each derives)
 
 KEYS = ("q", "v", "theta", "omega", "xy", "kinetic", "potential", "forces", "constraint_forces")
-
-
-def _counted(monkeypatch) -> list:
-    calls = []
-    default = series.derived_series
-
-    def counted(cfg, coords, t, y, offsets, forces):
-        calls.append(len(t))
-        return default(cfg, coords, t, y, offsets, forces)
-    monkeypatch.setattr(series, "derived_series", counted)
-    return calls
 
 
 def _ball(tmp_path):
