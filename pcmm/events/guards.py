@@ -209,17 +209,13 @@ GUARD_BUILDERS = {"coordinate": _coordinate, "gap": _gap, "time": _time, "reacti
 UNFIRED = np.finfo(float).tiny  # the least distance from zero of a re-armed guard before its apex
 
 
-def _describe(tr: TransitionSpec) -> str:
+def describe_guard(tr: TransitionSpec) -> str:
+    """``transition 'name': what its guard reads = value`` (a guard's name, and messages)."""
     g = tr.guard
     what = {"coordinate": lambda: f"{g.measure} = {g.value:.9g}", "gap": lambda: f"contact gap = {g.value:.9g}",
             "time": lambda: f"t = {g.at:.9g} s" if g.at is not None else f"t = {g.start:.9g} + k {g.every:.9g} s",
             "reaction": lambda: f"holding force of {g.of} = {g.value:.9g}"}[g.type]()
     return f"transition '{tr.name}': {what}"
-
-
-def describe_guard(tr: TransitionSpec) -> str:
-    """``transition 'name': what its guard reads = value`` (for messages)."""
-    return _describe(tr)
 
 
 def armed(cfg: Configuration, tr: TransitionSpec, raw, raw_rate):
@@ -327,7 +323,7 @@ def make_guard(cfg: Configuration, tr: TransitionSpec, rearm: bool = False, cont
                     return None
                 return [val if direction * r > 0.0 else -direction * max(-direction * val, UNFIRED)
                         for val, r in zip(got[0].tolist(), got[1].tolist())]
-    return Guard(_describe(tr), value, direction, "transition", tr, rate, rate is not None, many=many,
+    return Guard(describe_guard(tr), value, direction, "transition", tr, rate, rate is not None, many=many,
                  affine=affine, linear=linear, holding=holding, loop_scan=loop_scan, evaluator=evaluator)
 
 
