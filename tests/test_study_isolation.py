@@ -17,6 +17,7 @@ import pcmm
 from pcmm.studies.sweep import Axis, make_plan, sweep
 
 from builders import EXAMPLES
+from processes import pause_at_lines
 
 ROOT = Path(__file__).resolve().parents[1]
 TESTS = Path(__file__).resolve().parent
@@ -99,9 +100,7 @@ def test_kill_9_of_the_sweep_leaves_no_worker_behind(tmp_path):
                              "forces.tau1.value=1.9:2.1:40", "--t-end", "3.0", "--out", "r.csv", "--workers", "2",
                              "--quiet"], cwd=tmp_path, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     out = tmp_path / "r.csv"
-    t0 = time.time()
-    while time.time() - t0 < 120 and (not out.exists() or len(out.read_text().splitlines()) < 3):
-        time.sleep(0.05)
+    assert pause_at_lines(proc, out, 3) < 41  # the sweep stopped mid-way, its workers alive
     kids = _descendants(proc.pid)
     assert len(kids) >= 2  # the two workers (and nothing of multiprocessing's)
     proc.send_signal(signal.SIGKILL)

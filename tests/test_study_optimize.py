@@ -9,7 +9,6 @@ import os
 import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
@@ -19,6 +18,7 @@ from pcmm.errors import UsageError
 from pcmm.studies.optimize import Constraint, optimize, parse_constraint, parse_vary
 from pcmm.studies.plan import Axis
 
+from processes import pause_at_lines
 from study_scenes import I_PIVOT, SWING, strike, torque_to_stop
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -105,9 +105,7 @@ def test_resume_after_kill_9_replays_the_table(scene, tmp_path):
     reference = read(tmp_path / "whole.csv")
     proc = _optimize_cli(args, tmp_path)
     out = tmp_path / "o.csv"
-    t0 = time.time()
-    while time.time() - t0 < 120 and (not out.exists() or len(out.read_text().splitlines()) < 6):
-        time.sleep(0.002)
+    pause_at_lines(proc, out, 6)  # stopped mid-way: the kill comes before its end for certain
     proc.send_signal(signal.SIGKILL)
     proc.wait(timeout=30)
     assert proc.returncode == -signal.SIGKILL

@@ -10,7 +10,6 @@ import resource
 import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
@@ -23,6 +22,7 @@ from pcmm.studies.sweep import Axis, ResultsTable, columns, make_plan, sweep
 from pcmm.studies.table import cell, checksum
 
 from builders import EXAMPLES
+from processes import pause_at_lines, resume
 
 ROOT = Path(__file__).resolve().parents[1]
 STOP = EXAMPLES / "three_bar_stop.toml"
@@ -105,11 +105,11 @@ def test_two_resumes_at_once_give_each_run_once(tmp_path):
             "--quiet"]
     first = _sweep_cli(args, tmp_path)
     out = tmp_path / "r.csv"
-    t0 = time.time()
-    while time.time() - t0 < 60 and (not out.exists() or len(out.read_text().splitlines()) < 2):
-        time.sleep(0.01)
+    written = pause_at_lines(first, out, 2)  # the first sweep holds the table, stopped mid-way
     second = _sweep_cli([*args, "--resume"], tmp_path)
     err2 = second.communicate(timeout=120)[1]
+    assert written < 18  # the second one started while the first had runs left
+    resume(first)
     first.communicate(timeout=120)
     assert first.returncode == 0
     assert second.returncode == 2 and "another pcmm sweep is writing this table" in err2
@@ -202,9 +202,8 @@ def test_sigterm_exits_143(tmp_path):
             "--quiet"]
     proc = _sweep_cli(args, tmp_path)
     out = tmp_path / "r.csv"
-    t0 = time.time()
-    while time.time() - t0 < 120 and (not out.exists() or len(out.read_text().splitlines()) < 2):
-        time.sleep(0.02)
+    assert pause_at_lines(proc, out, 2) < 10  # stopped mid-sweep; SIGTERM waits for it to go on
     proc.send_signal(signal.SIGTERM)
+    resume(proc)
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == 143 and "stopped by SIGTERM" in err and "--resume" in err

@@ -14,13 +14,13 @@ import os
 import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 import suite_checks
+from processes import pause_at_lines, resume
 
 import pcmm
 from pcmm.errors import SceneError, UsageError
@@ -182,17 +182,6 @@ def _spawn(args, tmp_path):
                             preexec_fn=suite_checks.default_signals)
 
 
-def _wait_rows(path, n, proc, timeout=120.0):
-    t0 = time.time()
-    while time.time() - t0 < timeout:
-        if path.exists() and len(path.read_text().splitlines()) >= n + 1:
-            return
-        if proc.poll() is not None:
-            pytest.fail(f"the sweep ended before {n} rows: {proc.communicate()}")
-        time.sleep(0.02)
-    pytest.fail("no rows landed")
-
-
 @pytest.mark.parametrize("sig, workers", [(signal.SIGTERM, "1"), (signal.SIGINT, "2")])
 @pytest.mark.slow  # two 16-run sweeps in subprocesses, one signalled
 def test_killed_sweep_resumes_to_the_complete_table(tmp_path, sig, workers):
@@ -202,8 +191,9 @@ def test_killed_sweep_resumes_to_the_complete_table(tmp_path, sig, workers):
             "--t-end", "3.0", "--out", "r.csv", "--workers", workers]
     out = tmp_path / "r.csv"
     proc = _spawn(args, tmp_path)
-    _wait_rows(out, 2, proc)
+    pause_at_lines(proc, out, 3)  # two rows, the sweep stopped mid-way: the signal lands before its end
     proc.send_signal(sig)
+    resume(proc)
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == 128 + sig and "--resume" in err  # 143 for SIGTERM, 130 for Ctrl-C
     first = read(out)
