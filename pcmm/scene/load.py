@@ -611,6 +611,8 @@ class _Builder:
                        "it, and a second element of that name would overwrite the first's series"):
             if f["type"] is None or f["name"] is None:
                 continue
+            if "configurations" in raw and f["configurations"] is None:
+                continue  # its list is at fault (said): read as None it would act in every configuration
             if f["type"] == "point_spring":
                 out += self._point_spring(where, f, raw)
                 continue
@@ -880,9 +882,11 @@ class _Builder:
 
     def _drives(self, items) -> list[DriveSpec]:
         out = []
-        for where, d, _ in self._list_of_tables(items, DRIVE_KEYS, "drives"):
+        for where, d, raw in self._list_of_tables(items, DRIVE_KEYS, "drives"):
             if None in (d["joint"], d["coefficients"]):
                 continue
+            if "configurations" in raw and d["configurations"] is None:
+                continue  # its list is at fault (said): read as None it would drive in every configuration
             out.append(DriveSpec(d["joint"], tuple(float(x) for x in d["coefficients"]),
                                  tuple(d["configurations"]) if d["configurations"] else None))
         return out

@@ -1,0 +1,270 @@
+"""The scene loader refuses what it would otherwise run wrong (task h-loader3).
+
+Each row writes a small mechanism of tests/builders.py (a pendulum on a stop, a torque-driven
+slider-crank on a stop, a four-bar with a latch and a timed release), edits one thing in its
+TOML document, and asserts that ``pcmm.load_scene`` refuses it with one message naming the file,
+the field and the value, and that ``pcmm check`` and ``pcmm run`` say the same on standard
+error with the scene-error status 2 and no traceback, writing nothing.  What each input did
+before (pcmm at 1544be0) is in its row's comment: a silent run, a misleading message far from the
+cause, NaN impulses or a traceback.
+"""
+from __future__ import annotations
+
+import copy
+import os
+import subprocess
+import sys
+import tomllib
+from pathlib import Path
+
+import pytest
+
+import builders
+import pcmm
+import pcmm.cli
+from pcmm.errors import SceneError
+
+ROOT = Path(__file__).resolve().parent.parent
+SCENE_ERROR = 2  # pcmm.errors.SceneError.exit_code
+
+
+# ---- the mechanisms ------------------------------------------------------------------------------
+def pendulum(folder: Path) -> Path:
+    """A bar on revolute J1 falling onto a frame stop at J1 = -pi/2 (e = 0.5) that merges it into
+    'rest'; a spring on J1 while it swings."""
+    return builders.pendulum(folder, 0.5, k=1.0, spring_configurations=["c1"])
+
+
+def bare_pendulum(folder: Path) -> Path:
+    """The pendulum with no transition and no force (configurations 'c1' and 'rest')."""
+    return builders.pendulum(folder, None)
+
+
+def slider_crank(folder: Path) -> Path:
+    """A torque-driven slider-crank (loop closed by the revolute cut joint C) whose slider strikes a
+    stop and merges into 'locked'."""
+    return builders.slider_crank_stop(folder, 0.5)
+
+
+def four_bar(folder: Path) -> Path:
+    """A four-bar (chain J1-J2-J3 closed by the cut joint D) that latches at J3 = -1.5 into 'latched'
+    (derived: J3 locked) and is let go at t = 0.8 s."""
+    return builders.four_bar_latch(folder)
+
+
+MECHANISMS = {"pendulum": pendulum, "bare_pendulum": bare_pendulum, "slider_crank": slider_crank,
+              "four_bar": four_bar}
+
+
+# ---- the edits -----------------------------------------------------------------------------------
+def cut_joint_twice(doc):  # before: valid with a redundancy warning, then NaN impulses at the strike
+    cuts = doc["configurations"]["free"]["cut_joints"]
+    cuts.append(copy.deepcopy(cuts[0]))
+
+
+def cut_joint_twice_elsewhere(doc):  # before: "its 4 constraint rows (D.fx, D.fy, D.fx, D.fy) ... violated"
+    cuts = doc["configurations"]["open"]["cut_joints"]
+    other = copy.deepcopy(cuts[0])
+    other["point_a"] = [0.25, 0.0]
+    cuts.append(other)
+
+
+def transition_twice(doc):  # before: accepted, both stops keyed by one name
+    doc["transitions"].append(copy.deepcopy(doc["transitions"][0]))
+
+
+def force_twice(doc):  # before: accepted, one series for two elements
+    doc["forces"].append({"name": "spring", "type": "damper", "on": {"joint": "J1"},
+                          "measure": {"joint": "J1"}, "c": 0.1, "configurations": ["c1"]})
+
+
+def joint_cut_twice(doc):  # before: check valid; run: numpy.linalg.LinAlgError traceback (three-bar latch)
+    doc["transitions"][0]["cut"] = ["P", "P"]
+
+
+def independent_twice(doc):  # before: accepted
+    doc["initial"]["independent"] = ["J1", "J1"]
+
+
+def force_in_no_configuration(doc):  # before: [] read as "every configuration": the spring acted in both
+    doc["forces"][0]["configurations"] = []
+
+
+def drive_in_no_configuration(doc):  # before: [] read as every one: "joint is fixed in configuration 'rest'"
+    doc["drives"] = [{"joint": "J1", "coefficients": [0.0, 1.0], "configurations": []}]
+
+
+def force_configuration_twice(doc):  # before: accepted
+    doc["forces"][0]["configurations"] = ["c1", "c1"]
+
+
+def joint_driven_twice(doc):  # before: "the constraints are singular at t = 0 s ... the cut joints are redundant"
+    doc["drives"] = [{"joint": "J1", "coefficients": [0.0, 1.0], "configurations": ["c1"]},
+                     {"joint": "J1", "coefficients": [0.0, 2.0], "configurations": ["c1"]}]
+
+
+def spring_between_one_link(doc):  # before: accepted; the spring measured 0 at all times
+    doc["forces"][0]["measure"] = {"between": ["link1", "link1"]}
+    doc["forces"][0]["on"] = {"link": "link1"}
+
+
+def guard_between_one_link(doc):  # before: a warning "no posture reaching it", then a guard that never fires
+    doc["transitions"][0]["guard"] = {"type": "coordinate", "measure": {"between": ["link2", "link2"]},
+                                      "value": 0.5, "direction": "increasing"}
+    doc["transitions"][0]["contact"] = {"joint": "J3"}
+
+
+def when_between_one_link(doc):  # before: accepted, the region test constant
+    doc["transitions"][0]["guard"]["when"] = {"measure": {"between": ["link1", "link1"]}, "above": 0.0}
+
+
+def branch_between_one_link(doc):  # before: "no assembly has angle link3 - link3 > 0 (... 0, 0, 0 ...)"
+    doc["initial"]["branch"] = {"between": ["link3", "link3"], "sign": "+"}
+
+
+def torque_on_frame(doc):  # before: accepted; a torque conjugate to the frame's angle does nothing
+    doc["forces"] = [{"name": "motor", "type": "torque", "on": {"link": "frame"}, "value": 2.0}]
+
+
+def cut_joint_on_one_link(doc):  # before: "at t = 0 s its 2 constraint rows (D.fx, D.fy) are of rank 1 ..."
+    doc["configurations"]["open"]["cut_joints"][0]["a"] = "link3"
+
+
+def cut_joint_named_as_joint(doc):  # before: accepted; a transition's cut = ["J2"] read as the cut joint
+    doc["configurations"]["open"]["cut_joints"][0]["name"] = "J2"
+
+
+def latch_to_itself(doc):  # before: check valid; run: "more than 10000 events by t = ... (last: 'latch')"
+    doc["transitions"][0]["to"] = "open"
+
+
+def stop_merging_into_itself(doc):  # before: accepted; the "merge" left the bar free on the stop
+    doc["transitions"][0]["merge_to"] = "c1"
+
+
+def unnamed_force(doc):  # before: accepted; a series named ""
+    doc["forces"][0]["name"] = ""
+
+
+def unnamed_transition(doc):  # before: accepted; events named ""
+    doc["transitions"][0]["name"] = ""
+
+
+def unnamed_cut_joint(doc):  # before: accepted; constraint forces ".fx", ".fy"
+    doc["configurations"]["open"]["cut_joints"][0]["name"] = " "
+
+
+# (mechanism, edit, fragments of the one message: the field and the value, and why)
+ROWS = [
+    pytest.param("slider_crank", cut_joint_twice,
+                 ["configurations.free.cut_joints[1] (C).name: = 'C': already the name of "
+                  "configurations.free.cut_joints[0] (C)", "distinct names"], id="cut-joint-name-twice"),
+    pytest.param("four_bar", cut_joint_twice_elsewhere,
+                 ["configurations.open.cut_joints[1] (D).name: = 'D': already the name of "
+                  "configurations.open.cut_joints[0] (D)"], id="cut-joint-name-twice-other-point"),
+    pytest.param("pendulum", transition_twice,
+                 ["transitions[1] (stop).name: = 'stop': already the name of transitions[0] (stop)",
+                  "each transition needs its own name"], id="transition-name-twice"),
+    pytest.param("pendulum", force_twice,
+                 ["forces[1] (spring).name: = 'spring': already the name of forces[0] (spring)",
+                  "overwrite the first's series"], id="force-name-twice"),
+    pytest.param("slider_crank", joint_cut_twice,
+                 ["transitions[0] (stop).cut: = ['P', 'P']: names P more than once"], id="joint-cut-twice"),
+    pytest.param("four_bar", independent_twice,
+                 ["initial.independent: = ['J1', 'J1']: names J1 more than once"], id="independent-twice"),
+    pytest.param("pendulum", force_in_no_configuration,
+                 ["forces[0] (spring).configurations: = []: an empty list names no configuration",
+                  "leave configurations out for every configuration"], id="force-configurations-empty"),
+    pytest.param("bare_pendulum", drive_in_no_configuration,
+                 ["drives[0].configurations: = []: an empty list names no configuration"],
+                 id="drive-configurations-empty"),
+    pytest.param("pendulum", force_configuration_twice,
+                 ["forces[0] (spring).configurations: = ['c1', 'c1']: names c1 more than once"],
+                 id="force-configuration-twice"),
+    pytest.param("bare_pendulum", joint_driven_twice,
+                 ["drives[1].joint: = 'J1': already driven by drives[0] in configuration 'c1'"],
+                 id="joint-driven-twice"),
+    pytest.param("pendulum", spring_between_one_link,
+                 ["forces[0] (spring).measure.between: = ['link1', 'link1']: names 'link1' twice",
+                  "0 at all times"], id="spring-between-one-link"),
+    pytest.param("four_bar", guard_between_one_link,
+                 ["transitions[0] (latch).guard.measure.between: = ['link2', 'link2']: names 'link2' twice"],
+                 id="guard-between-one-link"),
+    pytest.param("pendulum", when_between_one_link,
+                 ["transitions[0] (stop).guard.when.measure.between: = ['link1', 'link1']: names 'link1' twice"],
+                 id="when-between-one-link"),
+    pytest.param("four_bar", branch_between_one_link,
+                 ["initial.branch.between: = ['link3', 'link3']: names 'link3' twice"], id="branch-between-one-link"),
+    pytest.param("bare_pendulum", torque_on_frame,
+                 ["forces[0] (motor).on.link: = 'frame': the frame (the root of p.urdf) does not move",
+                  "does nothing"], id="torque-on-frame"),
+    pytest.param("four_bar", cut_joint_on_one_link,
+                 ["configurations.open.cut_joints[0] (D).b: = 'link3': a and b are the same link",
+                  "closes no loop"], id="cut-joint-a-is-b"),
+    pytest.param("four_bar", cut_joint_named_as_joint,
+                 ["configurations.open.cut_joints[0] (J2).name: = 'J2': also a joint of fb.urdf"],
+                 id="cut-joint-named-as-urdf-joint"),
+    pytest.param("four_bar", latch_to_itself,
+                 ["transitions[0] (latch).to: = 'open': the configuration the latch is watched in (from)"],
+                 id="latch-to-its-own-configuration"),
+    pytest.param("pendulum", stop_merging_into_itself,
+                 ["transitions[0] (stop).merge_to: = 'c1': the configuration the stop is watched in (from)"],
+                 id="stop-merging-into-its-own-configuration"),
+    pytest.param("pendulum", unnamed_force,
+                 ["forces[0].name: = '': must not be empty"], id="force-without-name"),
+    pytest.param("pendulum", unnamed_transition,
+                 ["transitions[0].name: = '': must not be empty"], id="transition-without-name"),
+    pytest.param("four_bar", unnamed_cut_joint,
+                 ["configurations.open.cut_joints[0] ( ).name: = ' ': must not be empty"], id="cut-joint-without-name"),
+]
+
+
+def hostile(tmp_path: Path, mechanism: str, edit) -> Path:
+    path = MECHANISMS[mechanism](tmp_path)
+    doc = tomllib.loads(path.read_text())
+    edit(doc)
+    path.write_text(builders.dump_toml(doc))
+    return path
+
+
+@pytest.mark.parametrize("mechanism", sorted(MECHANISMS))
+def test_the_unedited_mechanisms_load(tmp_path, mechanism):
+    """The control: each row's mechanism as built is accepted, so its edit is what is refused."""
+    scene = pcmm.load_scene(MECHANISMS[mechanism](tmp_path))
+    assert scene.configurations
+
+
+@pytest.mark.parametrize("mechanism, edit, fragments", ROWS)
+def test_refused_with_one_located_message(tmp_path, capsys, mechanism, edit, fragments):
+    path = hostile(tmp_path, mechanism, edit)
+    with pytest.raises(SceneError) as info:
+        pcmm.load_scene(path)
+    problems = info.value.problems
+    assert len(problems) == 1, problems  # the cause alone, not its consequences too
+    for fragment in fragments:
+        assert f"{path}: {fragments[0]}" in problems[0] and fragment in problems[0], problems[0]
+    # the command line: the same message, status 2, no traceback, no output file
+    summary = tmp_path / "out.json"
+    for argv in (["check", str(path)], ["run", str(path), "--quiet", "--summary", str(summary)]):
+        assert pcmm.cli.main(argv) == SCENE_ERROR, argv
+        out, err = capsys.readouterr()
+        assert f"{path}: {fragments[0]}" in err and "Traceback" not in err, err
+        assert out == ""
+    assert not summary.exists()
+
+
+def test_the_command_line_prints_no_traceback(tmp_path):
+    """As a user runs it (``python -m pcmm.cli``): the joint cut twice, which ended a run in
+    numpy's LinAlgError traceback, and the cut joint named twice, which ended it in NaN impulses."""
+    env = {**os.environ, "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", "")}
+    for k, (mechanism, edit, field) in enumerate(
+            [("slider_crank", joint_cut_twice, "transitions[0] (stop).cut: = ['P', 'P']"),
+             ("slider_crank", cut_joint_twice, "configurations.free.cut_joints[1] (C).name: = 'C'")]):
+        path = hostile(tmp_path / str(k), mechanism, edit)
+        for argv in (["check", str(path)], ["run", str(path), "--quiet"]):
+            p = subprocess.run([sys.executable, "-m", "pcmm.cli", *argv], env=env, capture_output=True, text=True,
+                               timeout=120)
+            assert p.returncode == SCENE_ERROR, p.stderr
+            assert p.stderr.startswith("pcmm: error: ") and field in p.stderr, p.stderr
+            assert "Traceback" not in p.stderr and p.stdout == ""
+
