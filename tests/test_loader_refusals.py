@@ -268,3 +268,29 @@ def test_the_command_line_prints_no_traceback(tmp_path):
             assert p.stderr.startswith("pcmm: error: ") and field in p.stderr, p.stderr
             assert "Traceback" not in p.stderr and p.stdout == ""
 
+
+
+# ---- a design study's value paths -------------------------------------------------------------------
+def test_two_value_paths_to_one_value_are_refused(tmp_path, capsys):
+    """``forces.spring.k`` and ``forces[0].k`` are one value: before, the later path silently won, and
+    a sweep's table listed values no run used (Example 1 swept with forces.tau3.value = 0.1, 0.2 and
+    forces[2].value = 0.3: two rows, 0.1 and 0.2, with the same final angle of link3 to the last bit)."""
+    path = pendulum(tmp_path)
+    scene = pcmm.load_scene(path)
+    with pytest.raises(SceneError) as info:
+        scene.with_values({"forces.spring.k": 2.0, "forces[0].k": 5.0})
+    assert info.value.problems == [f"{path}: value paths 'forces.spring.k' and 'forces[0].k' both set "
+                                   "forces[0].k: each value may be set by one path only"]
+    with pytest.raises(SceneError) as info:  # one inside the other: the list, then one of its numbers
+        scene.with_values({"scene.gravity": [0.0, -1.0], "scene.gravity[1]": -2.0})
+    assert "value paths 'scene.gravity' and 'scene.gravity[1]' both set scene.gravity[1] (one inside the other)" \
+        in info.value.problems[0]
+    assert scene.with_values({"forces.spring.k": 2.0, "forces[0].rest": 0.1}).forces[0].k == 2.0  # two values
+    # the command line: refused before the first run, no table written, no traceback
+    table = tmp_path / "k.csv"
+    argv = ["sweep", str(path), "--set", "forces.spring.k=2,3", "--set", "forces[0].k=5", "--out", str(table),
+            "--workers", "1", "--quiet"]
+    assert pcmm.cli.main(argv) == SCENE_ERROR
+    out, err = capsys.readouterr()
+    assert "value paths 'forces.spring.k' and 'forces[0].k' both set forces[0].k" in err and "Traceback" not in err
+    assert not table.exists()
