@@ -142,6 +142,14 @@ def stop_merging_into_itself(doc):  # before: accepted; the "merge" left the bar
     doc["transitions"][0]["merge_to"] = "c1"
 
 
+def start_on_a_coordinate_guard(doc):  # before: accepted and ignored (start is a periodic time guard's)
+    doc["transitions"][0]["guard"]["start"] = 0.3
+
+
+def start_with_at(doc):  # before: accepted and ignored (a time guard with at fires at at)
+    doc["transitions"][1]["guard"]["start"] = 0.3
+
+
 def unnamed_force(doc):  # before: accepted; a series named ""
     doc["forces"][0]["name"] = ""
 
@@ -210,6 +218,10 @@ ROWS = [
     pytest.param("pendulum", stop_merging_into_itself,
                  ["transitions[0] (stop).merge_to: = 'c1': the configuration the stop is watched in (from)"],
                  id="stop-merging-into-its-own-configuration"),
+    pytest.param("pendulum", start_on_a_coordinate_guard,
+                 ["transitions[0] (stop).guard.start: not used by a coordinate guard"], id="start-on-a-coordinate-guard"),
+    pytest.param("four_bar", start_with_at,
+                 ["transitions[1] (let go).guard.start: only used with every"], id="start-with-at"),
     pytest.param("pendulum", unnamed_force,
                  ["forces[0].name: = '': must not be empty"], id="force-without-name"),
     pytest.param("pendulum", unnamed_transition,
@@ -268,6 +280,26 @@ def test_the_command_line_prints_no_traceback(tmp_path):
             assert p.stderr.startswith("pcmm: error: ") and field in p.stderr, p.stderr
             assert "Traceback" not in p.stderr and p.stdout == ""
 
+
+
+def test_a_latch_into_redundant_rows_is_checked_without_a_traceback(tmp_path, capsys):
+    """The four-bar's latch into 'latched' (J3 locked: J1, J2 left, the cut joint D's 2 rows take both)
+    with a second cut joint X where J2 already joins link1's tip to link2: 4 rows of rank 2 on 2
+    coordinates, X's forces statically indeterminate.  ``pcmm check`` and ``pcmm run`` ended in
+    AttributeError ('LatchSpec' object has no attribute 'unmerge': the check of the guards reading
+    indeterminate forces asked a latch for a stop's unmerge); now the redundancy is a warning and
+    both go on."""
+    path = four_bar(tmp_path)
+    doc = tomllib.loads(path.read_text())
+    doc["configurations"]["latched"]["cut_joints"] = doc["configurations"]["open"]["cut_joints"] + [
+        {"name": "X", "type": "revolute", "a": "link1", "point_a": [0.06, 0.0], "b": "link2", "point_b": [0.0, 0.0]}]
+    path.write_text(builders.dump_toml(doc))
+    for argv in (["check", str(path)], ["run", str(path), "--quiet", "--t-end", "0.5"]):
+        assert pcmm.cli.main(argv) == 0, argv
+        err = capsys.readouterr().err
+        assert "Traceback" not in err
+        assert "configuration 'latched' has 4 constraint rows (D.fx, D.fy, X.fx, X.fy) of rank 2 on 2 coordinates" \
+            in err and "statically indeterminate" in err, err
 
 
 # ---- a design study's value paths -------------------------------------------------------------------

@@ -783,12 +783,12 @@ class _Builder:
         # a key written but at fault (a broken expression, a wrong type) is given: its own problem
         # is reported, not a second one saying it is missing
         raw = table if isinstance(table, dict) else {}
-        given = {k for k in ("measure", "value", "direction", "at", "every", "of") if k in raw}
+        given = {k for k in ("measure", "value", "direction", "at", "every", "start", "of") if k in raw}
         failed = any(g.get(k) is None for k in given)
         needs = {"coordinate": {"measure", "value", "direction"}, "gap": {"value", "direction"},
                  "time": set(), "reaction": {"of", "value", "direction"}}.get(g["type"])
         allowed = {"coordinate": {"measure", "value", "direction"}, "gap": {"value", "direction"},
-                   "time": {"at", "every"}, "reaction": {"of", "value", "direction"}}.get(g["type"])
+                   "time": {"at", "every", "start"}, "reaction": {"of", "value", "direction"}}.get(g["type"])
         if needs is None:
             return None
         ok = not failed
@@ -800,6 +800,10 @@ class _Builder:
             ok = False
         if g["type"] == "time" and (("at" in given) == ("every" in given)):
             self.p.add(where, "a time guard takes either at (one instant) or every (a period, from start)")
+            ok = False
+        elif g["type"] == "time" and "start" in given and "every" not in given:
+            self.p.add(f"{where}.start", "only used with every (the first instant of a period); a time guard "
+                       "with at fires at that instant")
             ok = False
         if g["type"] == "gap" and kind == "release":
             self.p.add(f"{where}.type", "= 'gap': a release has no contact; use a coordinate, time or reaction guard")
