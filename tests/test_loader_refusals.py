@@ -150,6 +150,10 @@ def start_with_at(doc):  # before: accepted and ignored (a time guard with at fi
     doc["transitions"][1]["guard"]["start"] = 0.3
 
 
+def angle_of_no_vector(doc):  # before: accepted as 0 (math.atan2(0.0, 0.0); of -0.0, -0.0 it is -pi)
+    doc["initial"]["q"]["J1"] = "atan2(0, 1 - 1)"
+
+
 def unnamed_force(doc):  # before: accepted; a series named ""
     doc["forces"][0]["name"] = ""
 
@@ -222,6 +226,9 @@ ROWS = [
                  ["transitions[0] (stop).guard.start: not used by a coordinate guard"], id="start-on-a-coordinate-guard"),
     pytest.param("four_bar", start_with_at,
                  ["transitions[1] (let go).guard.start: only used with every"], id="start-with-at"),
+    pytest.param("pendulum", angle_of_no_vector,
+                 ["initial.q.J1: = 'atan2(0, 1 - 1)': at position 1: atan2(0, 0): the zero vector has no angle"],
+                 id="atan2-of-zero"),
     pytest.param("pendulum", unnamed_force,
                  ["forces[0].name: = '': must not be empty"], id="force-without-name"),
     pytest.param("pendulum", unnamed_transition,
