@@ -154,6 +154,10 @@ def angle_of_no_vector(doc):  # before: accepted as 0 (math.atan2(0.0, 0.0); of 
     doc["initial"]["q"]["J1"] = "atan2(0, 1 - 1)"
 
 
+def stop_named_as_another_joint(doc):  # before: accepted; its hold 'A.hold' read as joint A's, and a
+    doc["transitions"][0]["name"] = "A"   # reaction guard of = "A" was told A "moves freely"
+
+
 def unnamed_force(doc):  # before: accepted; a series named ""
     doc["forces"][0]["name"] = ""
 
@@ -229,6 +233,9 @@ ROWS = [
     pytest.param("pendulum", angle_of_no_vector,
                  ["initial.q.J1: = 'atan2(0, 1 - 1)': at position 1: atan2(0, 0): the zero vector has no angle"],
                  id="atan2-of-zero"),
+    pytest.param("slider_crank", stop_named_as_another_joint,
+                 ["transitions[0] (A).name: = 'A': also a joint of free.urdf, which this stop's merge does not lock "
+                  "(it locks P)"], id="stop-named-as-a-joint-it-does-not-lock"),
     pytest.param("pendulum", unnamed_force,
                  ["forces[0].name: = '': must not be empty"], id="force-without-name"),
     pytest.param("pendulum", unnamed_transition,
@@ -251,6 +258,16 @@ def test_the_unedited_mechanisms_load(tmp_path, mechanism):
     """The control: each row's mechanism as built is accepted, so its edit is what is refused."""
     scene = pcmm.load_scene(MECHANISMS[mechanism](tmp_path))
     assert scene.configurations
+
+
+def test_a_stop_named_as_the_joint_it_locks_loads(tmp_path):
+    """The control of the row above: the pendulum's stop named J1, the joint its merge into 'rest'
+    locks, names one thing (its hold, J1.hold, is J1's), and loads."""
+    path = pendulum(tmp_path)
+    doc = tomllib.loads(path.read_text())
+    doc["transitions"][0]["name"] = "J1"
+    path.write_text(builders.dump_toml(doc))
+    assert pcmm.load_scene(path).transitions[0].name == "J1"
 
 
 @pytest.mark.parametrize("mechanism, edit, fragments", ROWS)

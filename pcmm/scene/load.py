@@ -1104,6 +1104,14 @@ class _Builder:
             if t.source not in names:
                 continue
             cfg = names[t.source]
+            if t.type == "stop" and t.merge_to in names:
+                locks = [j for j in cfg.info.movable_joints if j not in names[t.merge_to].info.movable_joints]
+                owner = next((c for c in names.values() if t.name in c.info.joints), None)
+                if owner is not None and t.name not in locks:
+                    self.p.add(f"{where}.name", f"= {t.name!r}: also a joint of {owner.info.path.name}, which this "
+                               f"stop's merge does not lock (it locks {', '.join(locks) or 'none'}): its holding "
+                               f"force '{t.name}.hold' and a reaction guard's of = {t.name!r} would name both; "
+                               "rename the stop")
             for j in t.cut:
                 if any(c.name == j for c in cfg.cut_joints):
                     continue  # a loop's cut joint is already cut: its rows' impulse is what it carries
