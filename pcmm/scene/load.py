@@ -268,6 +268,11 @@ def _repeated_key_hint(text: str, exc: Exception) -> str:
     return ""
 
 
+def _same_link(link: str) -> str:
+    return (f"= {link!r}: a and b are the same link, so the cut joint closes no loop (it joins two different "
+            "links, or a link and the frame)")
+
+
 def measure_sign(force: ForceSpec, config: ConfigurationSpec) -> int | None:
     """How a force element's ``measure`` x relates to the coordinate its ``on`` acts along, in
     ``config``: +1 when x is that coordinate (plus a constant), so that ``-k (x - rest)`` is a spring
@@ -564,6 +569,8 @@ class _Builder:
                 if cj.anchor_at_entry and cj.a != info.root:
                     self.p.add(f"{where}.cut_joints[{k}].point_a", f"= 'entry': the anchor is fixed in the world, so "
                                f"link a must be the frame ('{info.root}', the URDF's root), not '{cj.a}'")
+                elif cj.anchor_at_entry and cj.b == cj.a:
+                    self.p.add(f"{where}.cut_joints[{k}].b", _same_link(cj.b))
         if derived:
             from .derive import derive_configurations
             out.update(derive_configurations(derived, out, self.p, self._cut_joints, declared=list(table)))
@@ -578,9 +585,8 @@ class _Builder:
                        "reaction guard's of name them (two of one name gave NaN impulses)"):
             if None in (cj["name"], cj["type"], cj["a"], cj["point_a"], cj["b"], cj["point_b"]):
                 continue
-            if cj["a"] == cj["b"]:
-                self.p.add(f"{cw}.b", f"= {cj['b']!r}: a and b are the same link, so the cut joint closes no loop "
-                           "(it joins two different links, or a link and the frame)")
+            if cj["a"] == cj["b"] and cj["point_a"] != "entry":  # an entry anchor's a: the frame (said below)
+                self.p.add(f"{cw}.b", _same_link(cj["b"]))
                 continue
             if cj["type"] == "prismatic" and cj["axis"] is None:
                 self.p.add(f"{cw}.axis", "missing; a prismatic cut joint needs its sliding axis [x, y]")
