@@ -111,7 +111,7 @@ FORCE_KEYS = [
     S.Key("c", "number", required=False, default=0.0, check=S.non_negative,
           doc="damping >= 0 (a negative damper feeds energy in)"),
     S.Key("configurations", "list", required=False, check=S.configuration_names,
-          doc="the configurations it acts in (default: every one)"),
+          doc="the configurations it acts in, each once (default: every one)"),
 ]
 WHEN_KEYS = [
     S.Key("measure", "table", doc="{joint = NAME}, {link = NAME} or {between = [A, B]}"),
@@ -180,7 +180,7 @@ DRIVE_KEYS = [
     S.Key("joint", "str", doc="the driven joint: its coordinate is prescribed, and its velocity comes from the drive"),
     S.Key("coefficients", "list", check=S.numbers_list, doc="q(t) = c0 + c1 t + c2 t^2 + ..."),
     S.Key("configurations", "list", required=False, check=S.configuration_names,
-          doc="the configurations it drives in (default: every one)"),
+          doc="the configurations it drives in, each once (default: every one)"),
 ]
 TOP_KEYS = [
     S.Key("scene", "table", doc="[scene]: name, gravity, t_end, the initial configuration"),
