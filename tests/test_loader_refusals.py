@@ -52,8 +52,14 @@ def four_bar(folder: Path) -> Path:
     return builders.four_bar_latch(folder)
 
 
+def free_bar(folder: Path) -> Path:
+    """A bar (1 kg, 0.5 m) on a URDF planar joint P (x, y, theta) from the frame, falling from y = 1."""
+    doc = builders.base_doc("free_bar", "c", {"c": "bar.urdf"}, {"P": [0.0, 1.0, 0.0]}, {"P": [0.0, 0.0, 0.0]})
+    return builders.write_scene(folder, doc, {"bar.urdf": builders.free_bar_urdf(1.0, 0.5)})
+
+
 MECHANISMS = {"pendulum": pendulum, "bare_pendulum": bare_pendulum, "slider_crank": slider_crank,
-              "four_bar": four_bar}
+              "four_bar": four_bar, "free_bar": free_bar}
 
 
 # ---- the edits -----------------------------------------------------------------------------------
@@ -158,6 +164,27 @@ def stop_named_as_another_joint(doc):  # before: accepted; its hold 'A.hold' rea
     doc["transitions"][0]["name"] = "A"   # reaction guard of = "A" was told A "moves freely"
 
 
+def push_on_a_planar_joint(doc):  # before: accepted as a force along P.x alone (x = t^2/2 at 1 N, 1 kg)
+    doc["forces"] = [{"name": "push", "type": "torque", "on": {"joint": "P"}, "value": 1.0}]
+
+
+def drive_of_a_planar_joint(doc):  # before: accepted as a drive of P.x alone (x = t), y and theta free
+    doc["drives"] = [{"joint": "P", "coefficients": [0.0, 1.0]}]
+
+
+def reaction_on_a_stop_that_never_merges(doc):  # before: accepted; the guard could never fire
+    bump = copy.deepcopy(doc["transitions"][0])
+    bump["name"] = "bump"
+    del bump["merge_to"]
+    doc["transitions"].append(bump)
+    doc["transitions"].append({"name": "lift", "type": "release", "from": "rest", "to": "c1",
+                               "guard": {"type": "reaction", "of": "bump", "value": 0.0, "direction": "decreasing"}})
+
+
+def branch_of_a_tree(doc):  # before: accepted and ignored (a tree has one assembly: q as given)
+    doc["initial"]["branch"] = {"joint": "J1", "sign": "-"}
+
+
 def unnamed_force(doc):  # before: accepted; a series named ""
     doc["forces"][0]["name"] = ""
 
@@ -236,6 +263,17 @@ ROWS = [
     pytest.param("slider_crank", stop_named_as_another_joint,
                  ["transitions[0] (A).name: = 'A': also a joint of free.urdf, which this stop's merge does not lock "
                   "(it locks P)"], id="stop-named-as-a-joint-it-does-not-lock"),
+    pytest.param("free_bar", push_on_a_planar_joint,
+                 ["forces[0] (push).on.joint: = 'P': a planar joint has three coordinates (x, y, theta)",
+                  "it was read as P.x alone"], id="force-on-a-planar-joint"),
+    pytest.param("free_bar", drive_of_a_planar_joint,
+                 ["drives[0].joint: = 'P': a planar joint has three coordinates (x, y, theta)",
+                  "a drive prescribes one coordinate"], id="drive-of-a-planar-joint"),
+    pytest.param("pendulum", reaction_on_a_stop_that_never_merges,
+                 ["transitions[2] (lift).guard.of: = 'bump': a stop without merge_to never merges"],
+                 id="reaction-on-a-stop-that-never-merges"),
+    pytest.param("pendulum", branch_of_a_tree,
+                 ["initial.branch: configuration 'c1' has no loop (no cut_joints)"], id="branch-of-a-tree"),
     pytest.param("pendulum", unnamed_force,
                  ["forces[0].name: = '': must not be empty"], id="force-without-name"),
     pytest.param("pendulum", unnamed_transition,

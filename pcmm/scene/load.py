@@ -1027,6 +1027,15 @@ class _Builder:
                    f"({', '.join(f'{n}: {r}' for n, r in rows.items())}): no posture satisfies them all; keep "
                    f"fewer coordinates (a driven joint is kept by its drive: leave it out of independent)")
 
+    def _one_coordinate(self, where, name, config, advice) -> None:
+        """A force's ``on`` joint or a drive's joint is one coordinate: a planar joint's three
+        (x, y, theta) were read as its x alone, silently."""
+        j = config.info.joints.get(name)
+        if j is not None and j.type == "planar" and not any(x.startswith(f"{self.p.file}: {where}:")
+                                                            for x in self.p.items):
+            self.p.add(where, f"= {name!r}: a planar joint has three coordinates (x, y, theta) in configuration "
+                       f"'{config.name}', and this acts along one (it was read as {name}.x alone); {advice}")
+
     def _check_coordinate(self, where, name, config):
         """A joint, or one coordinate of a planar joint ("P.x", "P.y", "P.theta")."""
         joint, _, part = name.rpartition(".")
@@ -1086,6 +1095,9 @@ class _Builder:
                     self._check_link(f"{where}.b", f.points.b, cfg)
                 elif f.on.kind == "joint":
                     self._check_joint(f"{where}.on.joint", f.on.name, cfg)
+                    self._one_coordinate(f"{where}.on.joint", f.on.name, cfg,
+                                         f"act on its link instead (on = {{ link = NAME }}: a torque), or join the "
+                                         "body to the frame by one revolute or prismatic joint per coordinate")
                 else:
                     self._check_link(f"{where}.on.link", f.on.name, cfg)
                     if f.on.name == cfg.info.root and not any(x.startswith(f"{self.p.file}: {where}.on.link:")
@@ -1137,6 +1149,10 @@ class _Builder:
                 elif t.guard.of not in stops and t.guard.of not in joints:
                     self.p.add(f"{where}.guard.of", f"= {t.guard.of!r}: names neither a joint of the scene's URDFs "
                                f"nor a stop transition ({', '.join(sorted(stops)) or 'none'})")
+                elif t.guard.of in stops and t.guard.of not in joints and all(
+                        s.merge_to is None for s in scene.transitions if s.type == "stop" and s.name == t.guard.of):
+                    self.p.add(f"{where}.guard.of", f"= {t.guard.of!r}: a stop without merge_to never merges, so it "
+                               "holds nothing and this guard would never fire; give the stop a merge_to")
                 elif t.guard.of in cfg.info.movable_joints:
                     locked = [j for j in sorted(joints) if any(j in c.info.movable_joints for c in names.values())
                               and j not in cfg.info.movable_joints]
@@ -1176,10 +1192,18 @@ class _Builder:
             self._loops_keep_a_coordinate_per_row(scene, init_cfg)
         if scene.branch is not None and init_cfg is not None:
             self._check_measure("initial.branch", scene.branch.measure, init_cfg)
+            declared = ((self.raw.get("configurations") or {}).get(init_cfg.name) or {}).get("cut_joints")
+            if not init_cfg.cut_joints and not declared:  # (one declared but at fault is said on its own)
+                self.p.add("initial.branch", f"configuration '{init_cfg.name}' has no loop (no cut_joints), so it has "
+                           "one assembly, the posture [initial] q gives, and branch would be ignored; remove it, or "
+                           "give q the sign wanted")
         driven: dict[tuple[str, str], int] = {}  # (configuration, joint) -> the drive that prescribes it
         for i, d in enumerate(scene.drives):
             for cfg in self._configs_for(f"drives[{i}].configurations", d.configurations, scene):
                 self._check_joint(f"drives[{i}].joint", d.joint, cfg)
+                self._one_coordinate(f"drives[{i}].joint", d.joint, cfg,
+                                     "a drive prescribes one coordinate: give the body one revolute or prismatic "
+                                     "joint per coordinate to drive")
                 first = driven.setdefault((cfg.name, d.joint), i)
                 if first != i:
                     self.p.add(f"drives[{i}].joint", f"= {d.joint!r}: already driven by drives[{first}] in "
