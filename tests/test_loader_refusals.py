@@ -185,6 +185,10 @@ def branch_of_a_tree(doc):  # before: accepted and ignored (a tree has one assem
     doc["initial"]["branch"] = {"joint": "J1", "sign": "-"}
 
 
+def accumulation_on_a_latch(doc):  # before: accepted and ignored (a latch has no bounces)
+    doc["transitions"][0]["accumulation_speed"] = 0.01
+
+
 def unnamed_force(doc):  # before: accepted; a series named ""
     doc["forces"][0]["name"] = ""
 
@@ -274,6 +278,8 @@ ROWS = [
                  id="reaction-on-a-stop-that-never-merges"),
     pytest.param("pendulum", branch_of_a_tree,
                  ["initial.branch: configuration 'c1' has no loop (no cut_joints)"], id="branch-of-a-tree"),
+    pytest.param("four_bar", accumulation_on_a_latch,
+                 ["transitions[0] (latch).accumulation_speed: not used by a latch"], id="accumulation-on-a-latch"),
     pytest.param("pendulum", unnamed_force,
                  ["forces[0].name: = '': must not be empty"], id="force-without-name"),
     pytest.param("pendulum", unnamed_transition,

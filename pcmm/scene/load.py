@@ -704,6 +704,10 @@ class _Builder:
                 for k in ("restitution", "merge_to", "unmerge"):
                     if k in raw:
                         self.p.add(f"{where}.{k}", "not used by a latch (the merge is perfectly plastic, e = 0)")
+                for k in ("accumulation_speed", "accumulation_interval"):
+                    if k in raw:
+                        self.p.add(f"{where}.{k}", "not used by a latch (it locks at its first strike: there are "
+                                   "no bounces to accumulate)")
                 e = 0.0
             elif kind == "stop":
                 if t["to"] is not None:
