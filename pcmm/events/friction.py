@@ -105,8 +105,9 @@ class FrictionalImpulse:
 
     @property
     def slip_changed(self) -> bool:
-        """The slip stopped or reversed during the impact (where Newton's law may create energy)."""
-        return len({ph.mode for ph in self.phases}) > 1
+        """The slip stopped or reversed during the impact (where Newton's law may create energy); with no
+        slip (mu = infinity) a slip before the impact is stopped at once."""
+        return len({ph.mode for ph in self.phases}) > 1 or (math.isinf(self.mu) and self.slip_before != 0.0)
 
 
 def stick_ratio(W: np.ndarray) -> float:
