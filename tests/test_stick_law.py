@@ -232,3 +232,57 @@ def test_planted_faults_are_caught(make_scene, monkeypatch):
         pcmm.simulate(pcmm.load_scene(cart_scene(make_scene, "poisson", 0.5)))
     with pytest.raises(SimulationError, match=r"\(energetic law, phases stick\) creates energy"):
         pcmm.simulate(pcmm.load_scene(cart_scene(make_scene, "energetic", 1.0)))
+
+
+def test_a_stick_contact_takes_the_python_route_in_both_modes(make_scene, monkeypatch):
+    """The compiled impulse (pcmm/model/_impulse.hpp: ImpulsePlan, BouncePlan) takes frictionless contacts
+    only: a "stick" contact's plan says it is solved in Python (Routh's process), and the run with the
+    compiled evaluations on and off gives the same strike (the same law, impulse and v^+; the stepping
+    before it differs by round-off only)."""
+    from pcmm.events import impulse_compiled
+    from pcmm.events.impulse import _plan
+    from pcmm.model import compiled
+    from pcmm.model.mechanism import Mechanism
+    if not compiled.enabled():
+        pytest.skip(f"the compiled evaluations do not run here: {compiled.why_not()}")
+    path = cart_scene(make_scene, "poisson", 0.5)
+    scene = pcmm.load_scene(path)
+    cfg = Mechanism(scene)["c1"]
+    plan = _plan(cfg, scene.transitions[0].contact, ())
+    assert impulse_compiled.compiled_impulse(cfg, plan) is None
+    assert impulse_compiled.reason(cfg, plan) == "a frictional point contact (Routh's process) is solved in Python"
+    events = {}
+    for flag in ("1", "0"):
+        monkeypatch.setenv(compiled.ENV, flag)
+        events[flag] = pcmm.simulate(pcmm.load_scene(path)).events[0]
+    a, b = events["1"], events["0"]
+    assert a["friction"]["law"] == b["friction"]["law"] == "poisson"
+    for key in ("normal", "tangential"):
+        assert a["impulse"][key] == pytest.approx(b["impulse"][key], rel=1e-9)
+        assert a["friction"]["energy_lost"][key] == pytest.approx(b["friction"]["energy_lost"][key], rel=1e-9)
+    assert a["normal_velocity"]["after"] == pytest.approx(b["normal_velocity"]["after"], rel=1e-9)
+    assert a["normal_velocity"]["after"] == pytest.approx(0.176482, abs=1e-6)
+
+
+def test_contacts_closed_at_once_refuse_a_poisson_stick_law(make_scene):
+    """A bar dropped flat and drifting along x onto two stops under its ends: both close at once and take
+    one solve, Newton's law per contact (pcmm.events.simultaneous).  With "stick" and Poisson's law on one
+    of them that solve would silently give Newton's outcome; it is refused, naming the contact and the law.
+    With Newton's law on both the same drop runs."""
+    from builders import free_bar_urdf
+    Lb, h = 1.0, 0.05
+
+    def scene(law):
+        trs = [{"name": name, "type": "stop", "from": "c1", "restitution": 0.5, "cut": [],
+                "guard": {"type": "gap", "value": 0.0, "direction": "decreasing"},
+                "contact": {"a": "frame", "point_a": [x, 0.0], "b": "bar", "point_b": [x, 0.0], "normal": [0.0, 1.0],
+                            "friction": "stick", "restitution_law": law if name == "right" else "newton"}}
+               for name, x in (("left", -Lb / 2), ("right", Lb / 2))]
+        return make_scene({"flat.urdf": free_bar_urdf(1.0, Lb)}, q0={"P": [0.0, h, 0.0]}, v0={"P": [0.3, -1.0, 0.0]},
+                          gravity=(0.0, 0.0), t_end=0.07, transitions=trs)
+    with pytest.raises(SimulationError, match=r"contacts closed at once.*'right' names restitution_law = \"poisson\""
+                                              r" with friction and restitution > 0"):
+        pcmm.simulate(pcmm.load_scene(scene("poisson")))
+    ev = pcmm.simulate(pcmm.load_scene(scene("newton"))).events[0]
+    assert set(ev["simultaneous"]) == {"left", "right"}
+    assert ev["simultaneous"]["right"]["normal_velocity"]["after"] == pytest.approx(0.5, rel=1e-9)
