@@ -175,6 +175,10 @@ def test_energy_never_rises_over_drawn_contacts():
             P = stick_impulse(D, vt, vn, e, "newton").P
         except AmbiguousImpact:
             continue
+        if vn1 < 0:  # e = 0: the three laws give one impulse, D^-1 (-v_t^-, -v_n^-)
+            for law in LAWS:
+                np.testing.assert_allclose(stick_impulse(D, vt, vn, 0.0, law).P, np.linalg.solve(D, [-vt, -vn]),
+                                           rtol=1e-9, atol=1e-12)
         newton_gains += P @ (2 * np.array([vt, vn]) + D @ P) / 2 > 1e-9
     assert taken > 1000 and newton_gains > 50
 
