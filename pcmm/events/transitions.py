@@ -68,6 +68,7 @@ class Context:
     forced_speed: float | None = None  # given for the run (CLI, RunOptions): wins over every transition's
     forced_interval: float | None = None
     last_impact: dict[str, float] = field(default_factory=dict)
+    pinned_without_impact: bool = False  # a pin of a run without impact was said (:func:`pins.pin_strike`)
 
     def tolerances(self, tr: StopSpec) -> tuple[float, float]:
         """(speed, interval) for a stop: the run's explicit value, else the transition's, else the scene's."""
