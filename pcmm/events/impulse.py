@@ -493,8 +493,8 @@ def check_frictional_energy(fr: FrictionalImpulse, imp: Impulse, where: str) -> 
     the impact (Kane and Levinson; Stronge 1991): refused with the cause, not a silent gain."""
     gain = imp.ke_after - imp.ke_before - imp.drive_work
     if gain > 1e-9 * max(imp.ke_before, 1e-300):
-        cause = (f"Newton's kinematic restitution with friction creates energy here (slip {fr.phase_text} during "
-                 "the impact)" if fr.law == "newton" and fr.slip_changed else
+        cause = (f"Newton's kinematic restitution with friction creates energy here (the slip {fr.slip_before:.6g} m/s "
+                 f"stopped or reversed during the impact: phases {fr.phase_text})" if fr.law == "newton" and fr.slip_changed else
                  f"the frictional impact ({fr.law} law, phases {fr.phase_text}) creates energy")
         raise SimulationError(
             f"{where}: {cause}: kinetic energy {imp.ke_before:.9g} -> {imp.ke_after:.9g} J "
