@@ -189,6 +189,12 @@ def accumulation_on_a_latch(doc):  # before: accepted and ignored (a latch has n
     doc["transitions"][0]["accumulation_speed"] = 0.01
 
 
+def reaction_on_a_name_of_two(doc):  # before: read as cut joint C: "the cut joint needs contact = { normal }"
+    doc["transitions"][0]["name"] = "C"
+    doc["transitions"].append({"name": "let go", "type": "release", "from": "locked", "to": "free",
+                               "guard": {"type": "reaction", "of": "C", "value": 0.0, "direction": "decreasing"}})
+
+
 def unnamed_force(doc):  # before: accepted; a series named ""
     doc["forces"][0]["name"] = ""
 
@@ -280,6 +286,9 @@ ROWS = [
                  ["initial.branch: configuration 'c1' has no loop (no cut_joints)"], id="branch-of-a-tree"),
     pytest.param("four_bar", accumulation_on_a_latch,
                  ["transitions[0] (latch).accumulation_speed: not used by a latch"], id="accumulation-on-a-latch"),
+    pytest.param("slider_crank", reaction_on_a_name_of_two,
+                 ["transitions[1] (let go).guard.of: = 'C': names both a cut joint of 'locked' and a stop transition"],
+                 id="reaction-on-a-cut-joint-and-stop-of-one-name"),
     pytest.param("pendulum", unnamed_force,
                  ["forces[0].name: = '': must not be empty"], id="force-without-name"),
     pytest.param("pendulum", unnamed_transition,

@@ -1146,7 +1146,10 @@ class _Builder:
                 stops = {s.name for s in scene.transitions if s.type == "stop"}
                 joints = set().union(*(c.info.joints for c in names.values()))
                 own_cuts = {c.name: c for c in cfg.cut_joints}
-                if t.guard.of in own_cuts:  # a cut joint's holding force: along its contact normal
+                if t.guard.of in own_cuts and t.guard.of in stops:
+                    self.p.add(f"{where}.guard.of", f"= {t.guard.of!r}: names both a cut joint of '{t.source}' and a "
+                               "stop transition, whose forces differ; give the two different names")
+                elif t.guard.of in own_cuts:  # a cut joint's holding force: along its contact normal
                     if own_cuts[t.guard.of].normal is None:
                         self.p.add(f"{where}.guard.of", f"= {t.guard.of!r}: a reaction guard on a cut joint watches "
                                    "its normal force, so the cut joint needs contact = { normal = [x, y] }")
