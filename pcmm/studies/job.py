@@ -17,9 +17,14 @@ QUANTITIES = {
     "events": "number of events (impacts, merges, switches, releases)",
     "impacts": "number of events with an impulse",
     "first_impact_t": "time of the first impact, s",
-    "first_impulse": "normal impulse of the first impact, N s",
-    "peak_impulse": "largest |normal impulse| of the run, N s",
-    "total_impulse": "sum of |normal impulse| over the run, N s",
+    "first_impulse": "normal impulse P_n of the first impact (its normal part only; a pin's or a frictional "
+                     "contact's tangential part is in first_impulse_magnitude), N s",
+    "peak_impulse": "largest |normal impulse P_n| of the run (normal part only), N s",
+    "total_impulse": "sum of |normal impulse P_n| over the run (normal part only), N s",
+    "first_impulse_magnitude": "|P| = sqrt(P_n^2 + P_t^2) of the first impact's contact impulse, normal and "
+                               "tangential parts (= |first_impulse| without friction), N s",
+    "peak_impulse_magnitude": "largest |P| = sqrt(P_n^2 + P_t^2) of the run, N s",
+    "total_impulse_magnitude": "sum of |P| = sqrt(P_n^2 + P_t^2) over the run, N s",
     "kinetic_energy_lost": "sum over impacts of KE before - KE after, J",
     "energy_dissipated": "sum over impacts of KE before + drive work - KE after, J (a collision resolved by a "
                          "continuous contact law: the kinetic + potential energy lost over its duration); "
@@ -126,6 +131,13 @@ def contact_phase_losses(traj) -> dict[float, float]:
     return out
 
 
+def impulse_magnitude(impulse: dict) -> float:
+    """|P| of an event's contact impulse: its normal part ``P_n`` and, where the contact takes one
+    (a pin, a frictional point contact), its tangential part ``P_t``, sqrt(P_n^2 + P_t^2).  A
+    pinned rocking block's strike has P_t / P_n = 0.24: its |P| is 3 % above P_n."""
+    return math.hypot(float(impulse["normal"]), float(impulse.get("tangential") or 0.0))
+
+
 def quantities(summ: dict, phases: dict | None = None) -> dict:
     """The per-run quantities of :data:`QUANTITIES` from a run summary; ``phases``: the energy
     lost over each collision resolved by a continuous contact law (:func:`contact_phase_losses`),
@@ -135,6 +147,7 @@ def quantities(summ: dict, phases: dict | None = None) -> dict:
     events = summ["events"]
     impacts = [e for e in events if e.get("impact")]
     impulses = [abs(e["impulse"]["normal"]) for e in impacts]
+    magnitudes = [impulse_magnitude(e["impulse"]) for e in impacts]
     merges = [e for e in events if e.get("merge")]
     dissipated = [e["energy_dissipated"] if e.get("energy_dissipated") is not None else phases.get(e["t"])
                   for e in impacts]
@@ -146,6 +159,9 @@ def quantities(summ: dict, phases: dict | None = None) -> dict:
         "first_impulse": impacts[0]["impulse"]["normal"] if impacts else None,
         "peak_impulse": max(impulses) if impulses else 0.0,
         "total_impulse": math.fsum(impulses),
+        "first_impulse_magnitude": magnitudes[0] if impacts else None,
+        "peak_impulse_magnitude": max(magnitudes) if magnitudes else 0.0,
+        "total_impulse_magnitude": math.fsum(magnitudes),
         "kinetic_energy_lost": math.fsum(e["kinetic_energy_before"] - e["kinetic_energy_after"] for e in impacts),
         "energy_dissipated": None if None in dissipated else math.fsum(dissipated),
         "max_holding_force": max(holding) if holding else None,

@@ -1,0 +1,295 @@
+"""What a designer reads of a scene with pins and stick contacts, recomputed by another route
+(task h-audit3: no silent wrong number).
+
+Housner's rocking block (``tests/test_newcomer3_rocking.py``'s scene) is the reference: a single
+rigid body pinned at a corner, so every series has a Newton-Euler form written here without pcmm:
+
+* energies: T = m |v_c|^2 / 2 + I_c w^2 / 2, V = m g y_c (the block's origin is its centre);
+* the corner's stance force F (on the block, world axes) from the 5 x 5 KKT system of the body
+  pinned at r = corner - c: m a_c = F + m g, I_c alpha = r x F, a_c + alpha k x r - w^2 r = 0;
+* ``stats.holding``: the extremes of F_n = F_y and F_t = F_x over the recorded samples, and their times;
+* at each strike: KE- and KE+ are the series' values on both sides; the impulse on the block is the
+  change of its linear momentum (the released corner carries none), so |P| = m |v_c+ - v_c-|.
+
+Then the ``--dt`` CSV (every column by hand at every row; rows at the recorded ends and at each
+event, before and after; against runs stopped at a row's time), the run to T as the first part of
+the run to 2 T, the study table's impulse columns (normal part, and the new magnitude columns) by
+hand from Housner's closed form, the pinned leg's and the stick-Poisson cart's columns by their own
+hand models, and `pcmm run --out x.csv` (it wrote an NPZ named .csv) refused.
+"""
+from __future__ import annotations
+
+import csv
+import math
+
+import numpy as np
+import pytest
+
+import test_newcomer2_mechanisms as nm
+import test_newcomer3_rocking as rock
+import test_stick_law as stick
+
+import pcmm
+import pcmm.cli
+from pcmm.results.summary import summary
+from pcmm.studies.job import QUANTITIES, quantities
+from pcmm.studies.sweep import make_plan, parse_set, sweep
+
+M, B, H, G = rock.M, rock.B, rock.H, rock.G
+I_C = M * (4 * B * B + 4 * H * H) / 12
+R_HOUSNER = 1 - 1.5 * math.sin(rock.ALPHA) ** 2
+CORNER = {"on_right": (B, -H), "on_left": (-B, -H)}
+PIN = {"on_right": "right", "on_left": "left"}
+
+
+def write_block(folder, g=G):
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "block.urdf").write_text(rock.URDF)
+    text = rock.SCENE.replace("gravity = [0.0, -9.81]", f"gravity = [0.0, {-g!r}]")
+    assert text.count(f"gravity = [0.0, {-g!r}]") == 1
+    (folder / "rocking.toml").write_text(text)
+    return folder / "rocking.toml"
+
+
+@pytest.fixture(scope="module")
+def block(tmp_path_factory):
+    path = write_block(tmp_path_factory.mktemp("audit3_block"))
+    return path, pcmm.simulate(pcmm.load_scene(path))
+
+
+def stance_force(theta, w, configuration, g=G):
+    """The corner's force on the block (world axes), Newton-Euler's KKT solve."""
+    bx, by = CORNER[configuration]
+    c, s = math.cos(theta), math.sin(theta)
+    r = np.array([c * bx - s * by, s * bx + c * by])
+    A = np.array([[M, 0, 0, -1, 0], [0, M, 0, 0, -1], [0, 0, I_C, r[1], -r[0]],
+                  [1, 0, -r[1], 0, 0], [0, 1, r[0], 0, 0]], float)
+    return np.linalg.solve(A, [0.0, -M * g, 0.0, w * w * r[0], w * w * r[1]])[3:]
+
+
+def test_block_series_by_newton_euler(block):
+    _, traj = block
+    samples = {}
+    for s in traj.segments:
+        q, v = np.asarray(s.q), np.asarray(s.v)
+        ke = 0.5 * M * (v[:, 0] ** 2 + v[:, 1] ** 2) + 0.5 * I_C * v[:, 2] ** 2
+        assert np.abs(ke - s.kinetic).max() < 1e-15
+        assert np.abs(M * G * q[:, 1] - s.potential).max() < 1e-15
+        assert np.ptp(s.kinetic + s.potential) < 1e-12  # no dissipation between strikes
+        name = PIN[s.configuration]
+        F = np.array([stance_force(th, w, s.configuration) for th, w in zip(q[:, 2], v[:, 2])])
+        labels = list(s.constraint_labels)
+        assert labels == [f"{name}.fx", f"{name}.fy"]
+        assert np.abs(F - np.asarray(s.constraint_forces)).max() < 1e-13
+        # and through the whole run's series (NaN where the other corner is pinned)
+        got = samples.setdefault(name, [])
+        got += [(t, f) for t, f in zip(s.t, F)]
+    for name, rows in samples.items():
+        t = np.array([r[0] for r in rows])
+        F = np.array([r[1] for r in rows])
+        for i, part in ((0, "tangential"), (1, "normal")):
+            held = traj.stats["holding"][name][part]
+            assert held["min"] == pytest.approx(F[:, i].min(), abs=1e-13) and held["t_min"] == t[F[:, i].argmin()]
+            assert held["max"] == pytest.approx(F[:, i].max(), abs=1e-13) and held["t_max"] == t[F[:, i].argmax()]
+        assert F[:, 1].min() > 8.4  # compression throughout: the pin holds
+    fy = traj.series("constraint_forces", "right.fy")
+    on_right = np.array([c == "on_right" for c in traj.configuration_at()])
+    assert np.all(np.isnan(fy[~on_right])) and not np.any(np.isnan(fy[on_right]))
+
+
+def test_block_strikes_energy_and_momentum(block):
+    _, traj = block
+    segs = list(traj.segments)
+    assert len(traj.events) == 7
+    for e, before, after in zip(traj.events, segs[:-1], segs[1:]):
+        assert e["kinetic_energy_before"] == pytest.approx(before.kinetic[-1], abs=1e-15)
+        assert e["kinetic_energy_after"] == pytest.approx(after.kinetic[0], abs=1e-15)
+        lost = before.kinetic[-1] - after.kinetic[0]
+        assert e["energy_dissipated"] == pytest.approx(lost, abs=1e-15)
+        assert lost == pytest.approx((1 - R_HOUSNER ** 2) * before.kinetic[-1], rel=1e-9)
+        vm, vp = np.asarray(before.v[-1]), np.asarray(after.v[0])
+        P = M * (vp[:2] - vm[:2])  # the only impulse on the block: the new corner's
+        assert e["impulse"]["vector"] == pytest.approx(P.tolist(), abs=1e-12)
+        assert math.hypot(e["impulse"]["normal"], e["impulse"]["tangential"]) == pytest.approx(np.hypot(*P), rel=1e-12)
+        # its tangential share, by Housner: P = m w (h (1 - r), +-b (1 + r)) about the upright block
+        assert abs(P[0] / P[1]) == pytest.approx(H * (1 - R_HOUSNER) / (B * (1 + R_HOUSNER)), rel=1e-6)
+        # momenta about the scene's point (the origin): L = m v_c, H_O = I_c w + c x m v_c
+        mom = e["momentum"]
+        assert mom["about"] == [0.0, 0.0]
+        c = np.asarray(before.q[-1])[:2]
+        for v, key in ((vm, "before"), (vp, "after")):
+            assert mom[f"linear_{key}"] == pytest.approx((M * v[:2]).tolist(), abs=1e-13)
+            assert mom[f"angular_{key}"] == pytest.approx(I_C * v[2] + M * (c[0] * v[1] - c[1] * v[0]), abs=1e-13)
+        corner = np.asarray(e["anchor"][PIN[after.configuration]])
+        turn = (corner[0] * P[1] - corner[1] * P[0])  # the impulse's moment about the origin
+        assert mom["angular_after"] - mom["angular_before"] == pytest.approx(turn, abs=1e-13)
+
+
+def read_csv(path):
+    with open(path, newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def test_block_dt_csv_by_hand(block, tmp_path):
+    path, traj = block
+    out = tmp_path / "block.csv"
+    assert pcmm.cli.main(["run", str(path), "--dt", "0.01", "--csv", str(out), "--quiet"]) == 0
+    rows = read_csv(out)
+    head = list(rows[0])
+    assert head[:2] == ["t [s]", "configuration"]
+    for col in ("q_base.x [m]", "v_base.x [m/s in world axes]", "q_base.theta [rad]", "v_base.theta [rad/s]",
+                "constraint_right.fx [N]", "constraint_left.fy [N]", "kinetic_energy [J]", "potential_energy [J]"):
+        assert col in head
+    t = np.array([float(r["t [s]"]) for r in rows])
+    assert np.all(np.diff(t) >= 0)
+    # the grid, and every event twice: before in the old configuration, after in the new
+    for e in traj.events:
+        at = [r for r in rows if float(r["t [s]"]) == e["t"]]
+        assert [r["configuration"] for r in at] == [e["from"], e["to"]]
+        assert float(at[1]["kinetic_energy [J]"]) == pytest.approx(e["kinetic_energy_after"], abs=1e-15)
+    grid = np.round(np.arange(0, 2.0 + 1e-9, 0.01), 12)
+    assert set(grid) <= set(np.round(t, 12))
+    worst = 0.0
+    for r in rows:
+        f = {k: float(x) for k, x in r.items() if k != "configuration" and x != ""}
+        cfg = r["configuration"]
+        vx, vy, w = f["v_base.x [m/s in world axes]"], f["v_base.y [m/s in world axes]"], f["v_base.theta [rad/s]"]
+        th = f["q_base.theta [rad]"]
+        assert f["kinetic_energy [J]"] == pytest.approx(0.5 * M * (vx * vx + vy * vy) + 0.5 * I_C * w * w, abs=1e-14)
+        assert f["potential_energy [J]"] == pytest.approx(M * G * f["q_base.y [m]"], abs=1e-14)
+        F = stance_force(th, w, cfg)
+        name, other = PIN[cfg], PIN["on_left" if cfg == "on_right" else "on_right"]
+        assert (f[f"constraint_{name}.fx [N]"], f[f"constraint_{name}.fy [N]"]) == pytest.approx(tuple(F), abs=1e-12)
+        assert r[f"constraint_{other}.fx [N]"] == ""
+        bx, by = CORNER[cfg]  # the pinned corner stays on the floor between the samples too
+        worst = max(worst, abs(f["q_base.y [m]"] + math.sin(th) * bx + math.cos(th) * by))
+        # energy: the series' total is the last strike's
+        assert (f["theta_block [rad]"], f["x_block [m]"], f["y_block [m]"]) == (th, f["q_base.x [m]"], f["q_base.y [m]"])
+    assert worst < 1e-12
+    # the resampled rows are the dense solution: runs stopped at two rows' instants
+    scene = pcmm.load_scene(path)
+    for i in (57, 163):
+        r = rows[i]
+        end = pcmm.simulate(scene, pcmm.RunOptions(t_end=float(r["t [s]"]))).segments[-1]
+        assert end.configuration == r["configuration"]
+        got = [float(r[k]) for k in ("q_base.x [m]", "q_base.y [m]", "q_base.theta [rad]", "v_base.theta [rad/s]")]
+        want = [*np.asarray(end.q[-1]), float(np.asarray(end.v[-1])[2])]
+        assert got == pytest.approx(want, abs=1e-9)
+
+
+def test_block_run_to_t_is_the_first_part_of_the_run_to_2t(block):
+    path, long = block  # t_end = 2.0
+    short = pcmm.simulate(pcmm.load_scene(path), pcmm.RunOptions(t_end=1.0))
+    n = len(short.events)
+    assert n >= 2 and [e["t"] for e in short.events] == [e["t"] for e in long.events[:n]]
+    assert [e["impulse"] for e in short.events] == [e["impulse"] for e in long.events[:n]]
+    k = len(short.t) - 1  # the short run's last sample is its t_end, not a step of the long run
+    assert np.array_equal(short.t[:k], long.t[:k]) and short.t[k] == 1.0
+    for quantity, name in (("kinetic", None), ("potential", None), ("q", "base.theta"), ("constraint_forces", "left.fy")):
+        a, b = short.series(quantity, name)[:k], long.series(quantity, name)[:k]
+        assert np.array_equal(np.isnan(a), np.isnan(b)) and np.array_equal(a[~np.isnan(a)], b[~np.isnan(b)])
+    assert short.stats["holding"]["right"]["normal"]["max"] == long.stats["holding"]["right"]["normal"]["max"]
+
+
+def housner_impulses(g, strikes):
+    """(P_n, |P|) of the first ``strikes`` strikes, by hand: the first at the rate of the fall from
+    the tilt, each next one r times the last (P = m w (h (1 - r), b (1 + r)) in magnitude)."""
+    w = math.sqrt(2 * M * g * rock.R * (math.cos(rock.ALPHA - rock.TILT) - math.cos(rock.ALPHA)) / rock.I_O)
+    out = []
+    for _ in range(strikes):
+        Pn, Pt = M * w * B * (1 + R_HOUSNER), M * w * H * (1 - R_HOUSNER)
+        out.append((Pn, math.hypot(Pn, Pt)))
+        w *= R_HOUSNER
+    return out
+
+
+def test_study_impulse_columns_normal_and_magnitude_by_hand(tmp_path):
+    """A sweep of gravity (9.81, 6.0 m/s^2) over the block to 1 s: ``first_impulse`` etc. are the
+    normal parts P_n, and ``*_impulse_magnitude`` the 2-D |P| (2.9 % more here), both by
+    Housner's closed form; the energy columns equal the strikes' KE- - KE+."""
+    path = write_block(tmp_path / "base")
+    res = sweep(pcmm.load_scene(path), make_plan([parse_set("scene.gravity[1]=-9.81,-6.0")]), tmp_path / "t.csv",
+                pcmm.RunOptions(t_end=1.0), workers=1)
+    rows = read_csv(tmp_path / "t.csv")
+    assert res.status == {"complete": 2}
+    for row in rows:
+        g = -float(row["scene.gravity[1]"])
+        traj = pcmm.simulate(pcmm.load_scene(write_block(tmp_path / f"g{g}", g)), pcmm.RunOptions(t_end=1.0))
+        n = len(traj.events)
+        assert int(row["impacts"]) == n >= 2
+        hand = housner_impulses(g, n)
+        assert float(row["first_impulse"]) == pytest.approx(hand[0][0], rel=1e-8)
+        assert float(row["peak_impulse"]) == pytest.approx(hand[0][0], rel=1e-8)
+        assert float(row["total_impulse"]) == pytest.approx(math.fsum(p for p, _ in hand), rel=1e-8)
+        assert float(row["first_impulse_magnitude"]) == pytest.approx(hand[0][1], rel=1e-8)
+        assert float(row["peak_impulse_magnitude"]) == pytest.approx(hand[0][1], rel=1e-8)
+        assert float(row["total_impulse_magnitude"]) == pytest.approx(math.fsum(m for _, m in hand), rel=1e-8)
+        assert float(row["first_impulse_magnitude"]) / float(row["first_impulse"]) == pytest.approx(1.0291, abs=1e-4)
+        segs = list(traj.segments)
+        lost = math.fsum(b.kinetic[-1] - a.kinetic[0] for b, a in zip(segs[:-1], segs[1:]))
+        assert float(row["kinetic_energy_lost"]) == pytest.approx(lost, rel=1e-12)
+        assert float(row["energy_dissipated"]) == pytest.approx(lost, rel=1e-12)
+        # the corner's holding force is a pin's stance force, not a lock's: not in max_holding_force
+        assert row["max_holding_force"] == ""
+
+
+def test_the_help_names_the_normal_part_and_the_magnitude():
+    assert "normal part only" in QUANTITIES["peak_impulse"] and "normal part only" in QUANTITIES["total_impulse"]
+    assert "sqrt(P_n^2 + P_t^2)" in QUANTITIES["peak_impulse_magnitude"]
+
+
+def test_leg_pin_columns_by_its_lagrangian(tmp_path):
+    """The pinned leg (friction 0.6 but the pin takes any tangential impulse): first_impulse is the
+    foot's normal impulse, the magnitude the whole 2-D one, P = -J^-T M w- by its Lagrangian; all
+    the kinetic energy is lost; the stance force is the static J^-T dV/da (nothing moves)."""
+    scene = nm.leg_scene(tmp_path, 60.0, 60.0, -0.7)
+    traj = pcmm.simulate(scene, pcmm.RunOptions(t_end=0.6))
+    t, y = nm.leg_strike(60.0, 60.0, -0.7, 0.0)
+    P = nm.pin_impulse(*y)
+    assert abs(P[0] / P[1]) > 0.1  # a large tangential share
+    q = quantities(summary(traj, scene.initial_configuration))
+    ke = 0.5 * y[2:] @ nm.leg_mass(y[0], y[1]) @ y[2:]
+    assert q["impacts"] == 1 and q["first_impact_t"] == pytest.approx(t, abs=1e-9)
+    assert q["first_impulse"] == pytest.approx(P[1], rel=1e-8)
+    assert q["peak_impulse_magnitude"] == pytest.approx(float(np.hypot(*P)), rel=1e-8)
+    assert q["total_impulse_magnitude"] == q["first_impulse_magnitude"] == q["peak_impulse_magnitude"]
+    assert q["kinetic_energy_lost"] == pytest.approx(ke, rel=1e-8) and q["energy_dissipated"] == pytest.approx(ke, rel=1e-8)
+    stance = traj.segments[-1]
+    F = nm.stance_force(y[0], y[1])
+    cf = np.asarray(stance.constraint_forces)
+    assert cf[:, [stance.constraint_labels.index("foot.fx"), stance.constraint_labels.index("foot.fy")]] == \
+        pytest.approx(np.tile(F, (len(stance.t), 1)), abs=1e-6)
+
+
+def test_stick_poisson_cart_columns_by_hand(make_scene):
+    """``friction = "stick"`` with Poisson's law (e = 0.5): the row's normal impulse, |P| and both
+    energy columns against the no-slip impulse by hand (tests/test_stick_law.py's cart)."""
+    path = stick.cart_scene(make_scene, "poisson", 0.5)
+    scene = pcmm.load_scene(path)
+    traj = pcmm.simulate(scene)
+    ev, q, D, vm, (vt, vn) = stick.strike(traj)
+    P, _, lost_t, lost_n = stick.by_hand(D, vt, vn, 0.5, "poisson")
+    Mq = stick.mass_matrix(q)
+    vp = vm + np.linalg.solve(Mq, stick.tip_rows(q).T @ P)
+    lost = 0.5 * vm @ Mq @ vm - 0.5 * vp @ Mq @ vp
+    assert lost == pytest.approx(lost_t + lost_n, rel=1e-12)
+    row = quantities(summary(traj, scene.initial_configuration))
+    assert row["impacts"] == 1
+    assert row["first_impulse"] == pytest.approx(P[1], rel=1e-9)
+    assert row["first_impulse_magnitude"] == pytest.approx(float(np.hypot(*P)), rel=1e-9)
+    assert row["kinetic_energy_lost"] == pytest.approx(lost, rel=1e-9)
+    assert row["energy_dissipated"] == pytest.approx(lost, rel=1e-9)
+    segs = list(traj.segments)
+    assert segs[0].kinetic[-1] - segs[1].kinetic[0] == pytest.approx(lost, rel=1e-9)
+
+
+@pytest.mark.parametrize("flag,name,meant", [("--out", "x.csv", "--csv"), ("--csv", "x.npz", "--out"),
+                                             ("--out", "x.json", "--summary")])
+def test_run_output_named_for_another_format_is_refused(block, tmp_path, capsys, flag, name, meant):
+    """`pcmm run --out x.csv` wrote the NPZ trajectory into x.csv, silently (exit 0): a spreadsheet
+    then opens a zip file.  Now refused before the run, naming the flag that writes that format."""
+    path, _ = block
+    out = tmp_path / name
+    assert pcmm.cli.main(["run", str(path), "--t-end", "0.01", flag, str(out), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert f"{flag} {out}:" in err and f"give {meant} {out}" in err and not out.exists()
