@@ -120,7 +120,9 @@ def build_parser() -> argparse.ArgumentParser:
                    "(and at every event) on the integrator's dense output, s (default: at its steps)")
     r.add_argument("--force", action="store_true", help="overwrite existing output files")
     r.add_argument("--quiet", action="store_true", help="no progress bar, no event table (warnings still print, a guard that never fired among them)")
-    sw = sub.add_parser("sweep", help="run a design study: variations of a scene, one results row per run")
+    sw = sub.add_parser("sweep", help="run a design study: variations of a scene, one results row per run",
+                        formatter_class=argparse.RawDescriptionHelpFormatter)
+    _list_columns_in_help(sw)
     sw.add_argument("scene", type=Path)
     sw.add_argument("--set", dest="sets", action="append", default=[], metavar="PATH=VALUES",
                     help="a value path and its values: 0.2,0.5,0.8 or start:stop:count (a grid over every "
@@ -287,6 +289,24 @@ def _resolved(p: Path) -> Path:
         return p.resolve()
     except (OSError, RuntimeError, ValueError):
         return p.absolute()
+
+
+def _list_columns_in_help(parser) -> None:
+    """`pcmm sweep -h` ends with the table's columns and what each holds (which impulse, which
+    energy), read from :data:`pcmm.studies.job.QUANTITIES` when the help is shown: a plain run
+    does not import the studies."""
+    plain = parser.format_help
+
+    def format_help():
+        import textwrap
+        from .studies.job import QUANTITIES
+        lines = ["the table's columns: run, one per swept path, status, error, then:"]
+        for name, text in QUANTITIES.items():
+            lines += textwrap.wrap(f"{name}: {text}", 96, initial_indent="  ", subsequent_indent="      ")
+        lines.append("then one per --collect PATH, and check (the row's CRC-32); docs/studies.md says more")
+        parser.epilog = "\n".join(lines)
+        return plain()
+    parser.format_help = format_help
 
 
 #: the file formats of `pcmm run`'s outputs, by suffix: a file named for one written in another

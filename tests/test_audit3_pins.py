@@ -233,9 +233,18 @@ def test_study_impulse_columns_normal_and_magnitude_by_hand(tmp_path):
         assert row["max_holding_force"] == ""
 
 
-def test_the_help_names_the_normal_part_and_the_magnitude():
+def test_the_help_names_the_normal_part_and_the_magnitude(capsys):
+    """`pcmm sweep -h` listed no column: what `peak_impulse` holds was in docs/cli.md alone, which
+    said "of |P|" (it is |P_n|)."""
     assert "normal part only" in QUANTITIES["peak_impulse"] and "normal part only" in QUANTITIES["total_impulse"]
     assert "sqrt(P_n^2 + P_t^2)" in QUANTITIES["peak_impulse_magnitude"]
+    with pytest.raises(SystemExit):
+        pcmm.cli.main(["sweep", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    for name in QUANTITIES:
+        assert f" {name}: " in text
+    assert "peak_impulse: largest |normal impulse P_n| of the run (normal part only), N s" in text
+    assert "peak_impulse_magnitude: largest |P| = sqrt(P_n^2 + P_t^2) of the run, N s" in text
 
 
 def test_leg_pin_columns_by_its_lagrangian(tmp_path):

@@ -30,7 +30,8 @@ QUANTITIES = {
                          "continuous contact law: the kinetic + potential energy lost over its duration); "
                          "empty when a run's record cannot give it",
     "max_holding_force": "largest |holding force or moment| of any lock (stats.holding), N or N m; "
-                         "empty when nothing was locked",
+                         "empty when nothing was locked (a pinned point's stance force is not a lock's: "
+                         "collect stats.holding.NAME.normal.max for it)",
     "last_merge_t": "time of the run's last merge (a latch, or a stop's bounces accumulated into a lock), s; "
                     "empty when none",
     "configuration_final": "the configuration the run ends in",
