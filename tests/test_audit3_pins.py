@@ -31,6 +31,7 @@ import test_stick_law as stick
 
 import pcmm
 import pcmm.cli
+from builders import EXAMPLES
 from pcmm.results.summary import summary
 from pcmm.studies.job import QUANTITIES, quantities
 from pcmm.studies.sweep import make_plan, parse_set, sweep
@@ -302,3 +303,142 @@ def test_run_output_named_for_another_format_is_refused(block, tmp_path, capsys,
     assert pcmm.cli.main(["run", str(path), "--t-end", "0.01", flag, str(out), "--quiet"]) == 2
     err = capsys.readouterr().err
     assert f"{flag} {out}:" in err and f"give {meant} {out}" in err and not out.exists()
+
+
+# ---- the rimless wheel and the compass gait: their pinned feet by a Lagrangian of their own ------
+def rot(a):
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[c, -s], [s, c]])
+
+
+def cross_k(r):
+    return np.array([-r[1], r[0]])
+
+
+def pinned_force(masses, inertias, angles, rates, g):
+    """The pin's force on a mechanism of point masses hung from it by rigid arms: each mass at
+    anchor + sum_k R(angle_k) u_k.  Lagrange in the absolute angles (M a'' = Q_g - centripetal),
+    then F = sum m_i a_i - sum m_i g."""
+    n = len(angles)
+    Mq, Q, b = np.zeros((n, n)), np.zeros(n), np.zeros(n)
+    for m, terms in masses:
+        J, centripetal = np.zeros((2, n)), np.zeros(2)
+        for k, u in terms:
+            r = rot(angles[k]) @ u
+            J[:, k] += cross_k(r)
+            centripetal -= rates[k] ** 2 * r
+        Mq += m * J.T @ J
+        Q += m * J.T @ g
+        b += m * J.T @ centripetal
+    for k, inertia in inertias.items():
+        Mq[k, k] += inertia
+    acc = np.linalg.solve(Mq, Q - b)
+    F = np.zeros(2)
+    for m, terms in masses:
+        a = sum(acc[k] * cross_k(rot(angles[k]) @ u) - rates[k] ** 2 * (rot(angles[k]) @ u) for k, u in terms)
+        F += m * a - m * g
+    return F
+
+
+WHEEL_G = np.array([9.81 * math.sin(0.2), -9.81 * math.cos(0.2)])
+GAIT_G = np.array([9.81 * math.sin(0.0525), -9.81 * math.cos(0.0525)])
+
+
+def wheel_by_hand(configuration, q, v):
+    """(KE, PE, the foot's force, its cut joint) of McGeer's wheel (hub 1 kg, I = 0.05) on spoke k."""
+    k = int(configuration[len("spoke"):])
+    tip = np.array([math.sin(k * math.pi / 3), -math.cos(k * math.pi / 3)])
+    hub, vh, th, w = np.array([q["hub.x"], q["hub.y"]]), np.array([v["hub.x"], v["hub.y"]]), q["hub.theta"], v["hub.theta"]
+    F = pinned_force([(1.0, [(0, -tip)])], {0: 0.05}, [th], [w], WHEEL_G)
+    return 0.5 * vh @ vh + 0.5 * 0.05 * w * w, -float(WHEEL_G @ hub), F, f"foot{k}"
+
+
+def gait_by_hand(configuration, q, v):
+    """(KE, PE, the stance foot's force, its cut joint) of the compass gait: 10 kg at the hip, 5 kg
+    halfway down each 1 m leg (leg_a at psi_a = base.theta, leg_b at psi_b = psi_a + hip)."""
+    hip, vh = np.array([q["base.x"], q["base.y"]]), np.array([v["base.x"], v["base.y"]])
+    pa, wa = q["base.theta"], v["base.theta"]
+    pb, wb = pa + q["hip"], wa + v["hip"]
+    ra, rb = rot(pa) @ [0.0, -0.5], rot(pb) @ [0.0, -0.5]
+    va, vb = vh + wa * cross_k(ra), vh + wb * cross_k(rb)
+    ke = 0.5 * 10 * vh @ vh + 0.5 * 5 * va @ va + 0.5 * 5 * vb @ vb
+    pe = -float((10 * hip + 5 * (hip + ra) + 5 * (hip + rb)) @ GAIT_G)
+    up, half, down = np.array([0.0, 1.0]), np.array([0.0, 0.5]), np.array([0.0, -0.5])
+    s, w = (0, 1) if configuration == "stance_a" else (1, 0)  # the stance leg's angle, the swing leg's
+    F = pinned_force([(10, [(s, up)]), (5, [(s, half)]), (5, [(s, up), (w, down)])], {}, [pa, pb], [wa, wb], GAIT_G)
+    return ke, pe, F, "foot_a" if configuration == "stance_a" else "foot_b"
+
+
+WALKERS = {"rimless_wheel": (wheel_by_hand, 3.0, 3), "compass_gait": (gait_by_hand, 2.0, 2)}
+
+
+@pytest.fixture(scope="module", params=list(WALKERS))
+def walker(request, tmp_path_factory):
+    name = request.param
+    hand, t_end, strikes = WALKERS[name]
+    path = EXAMPLES / f"{name}.toml"
+    traj = pcmm.simulate(pcmm.load_scene(path), pcmm.RunOptions(t_end=t_end))
+    assert len(traj.events) == strikes
+    out = tmp_path_factory.mktemp(name) / "run.csv"
+    assert pcmm.cli.main(["run", str(path), "--t-end", str(t_end), "--dt", "0.01", "--csv", str(out), "--quiet"]) == 0
+    return name, path, hand, traj, read_csv(out)
+
+
+def test_walker_series_and_holding_by_hand(walker):
+    """Every recorded sample: the energies and the stance foot's force by the walker's own
+    Lagrangian; ``stats.holding``'s extremes are those of the hand's forces; each strike's KE- and
+    KE+ are the series' on both sides and its energy_dissipated their difference."""
+    _, _, hand, traj, _ = walker
+    forces = {}
+    for s in traj.segments:
+        q, v, cf, labels = np.asarray(s.q), np.asarray(s.v), np.asarray(s.constraint_forces), list(s.constraint_labels)
+        for i, t in enumerate(s.t):
+            ke, pe, F, foot = hand(s.configuration, dict(zip(s.coordinates, q[i])), dict(zip(s.coordinates, v[i])))
+            assert (s.kinetic[i], s.potential[i]) == pytest.approx((ke, pe), abs=1e-12)
+            got = cf[i, [labels.index(f"{foot}.fx"), labels.index(f"{foot}.fy")]]
+            assert got == pytest.approx(F, abs=1e-11 * max(1.0, abs(F[1])))
+            forces.setdefault(foot, []).append((t, F))
+    for foot, rows in forces.items():
+        t, F = np.array([r[0] for r in rows]), np.array([r[1] for r in rows])
+        for i, part in ((0, "tangential"), (1, "normal")):
+            held = traj.stats["holding"][foot][part]
+            assert (held["min"], held["max"]) == pytest.approx((F[:, i].min(), F[:, i].max()), abs=1e-10)
+            assert (held["t_min"], held["t_max"]) == (t[F[:, i].argmin()], t[F[:, i].argmax()])
+        assert F[:, 1].min() > 0  # compression: the pin holds
+    segs = list(traj.segments)
+    for e, before, after in zip(traj.events, segs[:-1], segs[1:]):
+        assert (e["kinetic_energy_before"], e["kinetic_energy_after"]) == \
+            pytest.approx((before.kinetic[-1], after.kinetic[0]), rel=1e-13)  # two routes: M(q) v, the series'
+        assert e["energy_dissipated"] == pytest.approx(before.kinetic[-1] - after.kinetic[0], rel=1e-12)
+
+
+def test_walker_dt_csv_by_hand(walker):
+    """The ``--dt 0.01`` CSV: every row's energies and stance force by hand from its own q, v; the
+    grid's instants and each strike twice (before, in the old stance; after, in the new)."""
+    _, _, hand, traj, rows = walker
+    for e in traj.events:
+        at = [r for r in rows if float(r["t [s]"]) == e["t"]]
+        assert [r["configuration"] for r in at] == [e["from"], e["to"]]
+    t = np.array([float(r["t [s]"]) for r in rows])
+    assert np.all(np.diff(t) >= 0) and set(np.round(np.arange(0, t[-1] + 1e-9, 0.01), 12)) <= set(np.round(t, 12))
+    for r in rows:
+        q = {k[2:].split(" [")[0]: float(x) for k, x in r.items() if k.startswith("q_")}
+        v = {k[2:].split(" [")[0]: float(x) for k, x in r.items() if k.startswith("v_")}
+        ke, pe, F, foot = hand(r["configuration"], q, v)
+        assert (float(r["kinetic_energy [J]"]), float(r["potential_energy [J]"])) == pytest.approx((ke, pe), abs=1e-12)
+        got = (float(r[f"constraint_{foot}.fx [N]"]), float(r[f"constraint_{foot}.fy [N]"]))
+        assert got == pytest.approx(tuple(F), abs=1e-11 * max(1.0, abs(F[1])))
+        others = [k for k in r if k.startswith("constraint_") and not k.startswith(f"constraint_{foot}.")]
+        assert all(r[k] == "" for k in others)
+
+
+def test_walker_run_to_t_is_the_first_part_of_the_run_to_2t(walker):
+    _, path, _, long, _ = walker
+    T = float(long.t[-1]) / 2
+    short = pcmm.simulate(pcmm.load_scene(path), pcmm.RunOptions(t_end=T))
+    n, k = len(short.events), len(short.t) - 1
+    assert n >= 1 and [e["t"] for e in short.events] == [e["t"] for e in long.events[:n]]
+    assert [e["impulse"] for e in short.events] == [e["impulse"] for e in long.events[:n]]
+    assert np.array_equal(short.t[:k], long.t[:k]) and short.t[k] == T
+    for quantity in ("kinetic", "potential"):
+        assert np.array_equal(short.series(quantity)[:k], long.series(quantity)[:k])
