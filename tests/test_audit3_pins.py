@@ -442,3 +442,39 @@ def test_walker_run_to_t_is_the_first_part_of_the_run_to_2t(walker):
     assert np.array_equal(short.t[:k], long.t[:k]) and short.t[k] == T
     for quantity in ("kinetic", "potential"):
         assert np.array_equal(short.series(quantity)[:k], long.series(quantity)[:k])
+
+
+def test_block_on_a_tilted_floor_projects_on_its_normal(tmp_path):
+    """The floor's normal n = (-sin 0.1, cos 0.1) (not the world's y): ``stats.holding``'s parts are
+    F . n and F . t with t = (n_y, -n_x), F by the KKT solve; the strike's P_n, P_t are P . n, P . t
+    with P = m (v_c+ - v_c-).  (Past 0.946 s the block, rocking on its lower corner, would need a
+    tensile pin and the run stops there, naming the cut joint.)"""
+    beta, th0 = 0.1, 0.1 - 0.2
+    n = np.array([-math.sin(beta), math.cos(beta)])
+    t_axis = np.array([n[1], -n[0]])
+    text = rock.SCENE.replace("normal = [0.0, 1.0]", f"normal = [{float(n[0])!r}, {float(n[1])!r}]").replace(
+        '"-(0.1*cos(-0.2) + 0.3*sin(-0.2))", "-(0.1*sin(-0.2) - 0.3*cos(-0.2))", -0.2]',
+        f'"-(0.1*cos({th0!r}) + 0.3*sin({th0!r}))", "-(0.1*sin({th0!r}) - 0.3*cos({th0!r}))", {th0!r}]')
+    assert text.count(f"normal = [{float(n[0])!r}, {float(n[1])!r}]") == 4 and "-0.2]" not in text
+    (tmp_path / "block.urdf").write_text(rock.URDF)
+    (tmp_path / "tilted.toml").write_text(text)
+    traj = pcmm.simulate(pcmm.load_scene(tmp_path / "tilted.toml"), pcmm.RunOptions(t_end=0.94))
+    assert [e["name"] for e in traj.events] == ["left strikes"]
+    parts = {}
+    for s in traj.segments:
+        q, v = np.asarray(s.q), np.asarray(s.v)
+        F = np.array([stance_force(th, w, s.configuration) for th, w in zip(q[:, 2], v[:, 2])])
+        name = PIN[s.configuration]
+        assert np.abs(F - np.asarray(s.constraint_forces)).max() < 1e-13  # NAME.fx, NAME.fy: world axes
+        parts.setdefault(name, []).extend(zip(F @ n, F @ t_axis))
+    for name, rows in parts.items():
+        a = np.array(rows)
+        held = traj.stats["holding"][name]
+        assert (held["normal"]["min"], held["normal"]["max"]) == pytest.approx((a[:, 0].min(), a[:, 0].max()), abs=1e-13)
+        assert (held["tangential"]["min"], held["tangential"]["max"]) == \
+            pytest.approx((a[:, 1].min(), a[:, 1].max()), abs=1e-13)
+    assert 0 < parts["left"][-1][0] < 0.3  # the normal force nearly gone where the run ends
+    e, (before, after) = traj.events[0], list(traj.segments)
+    P = M * (np.asarray(after.v[0])[:2] - np.asarray(before.v[-1])[:2])
+    assert (e["impulse"]["normal"], e["impulse"]["tangential"]) == pytest.approx((P @ n, P @ t_axis), abs=1e-13)
+    assert e["impulse"]["vector"] == pytest.approx(P.tolist(), abs=1e-13)
