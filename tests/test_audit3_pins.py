@@ -25,6 +25,7 @@ import math
 import numpy as np
 import pytest
 
+import oracle
 import test_newcomer2_mechanisms as nm
 import test_newcomer3_rocking as rock
 import test_stick_law as stick
@@ -478,3 +479,53 @@ def test_block_on_a_tilted_floor_projects_on_its_normal(tmp_path):
     P = M * (np.asarray(after.v[0])[:2] - np.asarray(before.v[-1])[:2])
     assert (e["impulse"]["normal"], e["impulse"]["tangential"]) == pytest.approx((P @ n, P @ t_axis), abs=1e-13)
     assert e["impulse"]["vector"] == pytest.approx(P.tolist(), abs=1e-13)
+
+
+def cart_by_hand(row: dict):
+    """(KE, the tip's height) of tests/test_stick_law.py's cart at a CSV row."""
+    q, v = np.array([float(row["q_X [m]"]), float(row["q_J1 [rad]"])]), \
+        np.array([float(row["v_X [m/s]"]), float(row["v_J1 [rad/s]"])])
+    return 0.5 * v @ stick.mass_matrix(q[1]) @ v, stick.L * math.sin(q[1])
+
+
+def test_stick_poisson_cart_sweep_csv_and_prefix(make_scene, tmp_path):
+    """The stick-Poisson stop (a bounce: no switch of configuration) in a sweep of its restitution
+    (0.3, 0.7): each row's impulse columns and energies by hand; the ``--dt`` CSV of the e = 0.7 run
+    has the bounce twice (KE- then KE+, both by hand) and its kinetic energy by hand at every row;
+    the run to 6 ms is the first part of the run to 12 ms."""
+    path = stick.cart_scene(make_scene, "poisson", 0.5)
+    out = tmp_path / "e.csv"
+    res = sweep(pcmm.load_scene(path), make_plan([parse_set("transitions.tip strikes floor.restitution=0.3,0.7")]),
+                out, pcmm.RunOptions(t_end=0.006), workers=1)
+    assert res.status == {"complete": 2}
+    for row in read_csv(out):
+        e = float(row["transitions.tip strikes floor.restitution"])
+        traj = pcmm.simulate(pcmm.load_scene(stick.cart_scene(make_scene, "poisson", e)))
+        ev, q, D, vm, (vt, vn) = stick.strike(traj)
+        P, vn_after, lost_t, lost_n = stick.by_hand(D, vt, vn, e, "poisson")
+        assert vn_after == pytest.approx(-e * (vn - D[0, 1] * vt / D[0, 0]), rel=1e-12)
+        assert int(row["impacts"]) == 1
+        assert float(row["first_impulse"]) == pytest.approx(P[1], rel=1e-9)
+        assert float(row["peak_impulse_magnitude"]) == pytest.approx(float(np.hypot(*P)), rel=1e-9)
+        assert float(row["kinetic_energy_lost"]) == pytest.approx(lost_t + lost_n, rel=1e-9)
+        assert float(row["energy_dissipated"]) == pytest.approx(lost_t + lost_n, rel=1e-9)
+    scene = stick.cart_scene(make_scene, "poisson", 0.7)
+    csv_path = tmp_path / "cart.csv"
+    assert pcmm.cli.main(["run", str(scene), "--dt", "0.001", "--csv", str(csv_path), "--quiet"]) == 0
+    rows = read_csv(csv_path)
+    traj = pcmm.simulate(pcmm.load_scene(scene))
+    ev = traj.events[0]
+    at = [r for r in rows if float(r["t [s]"]) == ev["t"]]
+    assert len(at) == 2 and {r["configuration"] for r in at} == {"c1"}
+    assert [cart_by_hand(r)[0] for r in at] == pytest.approx([ev["kinetic_energy_before"], ev["kinetic_energy_after"]],
+                                                             rel=1e-12)
+    for r in rows:
+        ke, tip = cart_by_hand(r)
+        assert float(r["kinetic_energy [J]"]) == pytest.approx(ke, rel=1e-12)
+        assert tip >= stick.L * math.sin(stick.Q0) - stick.GAP - 1e-12  # never below the floor
+    # a run this short takes its first step capped by t_end, so the steps (not the solution) differ:
+    # the bounce 1.5e-16 s apart; the oracle's prefix check holds it to the dense output
+    longer = pcmm.simulate(pcmm.load_scene(scene), pcmm.RunOptions(t_end=0.012))
+    assert longer.events[0]["t"] == pytest.approx(ev["t"], abs=1e-15)
+    (tmp_path / "prefix").mkdir()
+    assert oracle.check_prefix(scene, 0.006, 0.012, 0.001, tmp_path / "prefix") == []
