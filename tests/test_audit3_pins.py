@@ -431,6 +431,15 @@ def test_walker_dt_csv_by_hand(walker):
         assert got == pytest.approx(tuple(F), abs=1e-11 * max(1.0, abs(F[1])))
         others = [k for k in r if k.startswith("constraint_") and not k.startswith(f"constraint_{foot}.")]
         assert all(r[k] == "" for k in others)
+    # a resampled row between two steps is the solution there: the run stopped at its instant
+    _, path, _, _, _ = walker
+    for r in (rows[len(rows) // 3], rows[2 * len(rows) // 3]):
+        end = pcmm.simulate(pcmm.load_scene(path), pcmm.RunOptions(t_end=float(r["t [s]"]))).segments[-1]
+        assert end.configuration == r["configuration"]
+        for name, q, v in zip(end.coordinates, np.asarray(end.q[-1]), np.asarray(end.v[-1])):
+            (qk,) = [k for k in r if k.startswith(f"q_{name} [")]
+            (vk,) = [k for k in r if k.startswith(f"v_{name} [")]
+            assert (float(r[qk]), float(r[vk])) == pytest.approx((q, v), abs=1e-9)
 
 
 def test_walker_run_to_t_is_the_first_part_of_the_run_to_2t(walker):
