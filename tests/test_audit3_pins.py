@@ -245,8 +245,8 @@ def test_the_help_names_the_normal_part_and_the_magnitude(capsys):
     text = " ".join(capsys.readouterr().out.split())
     for name in QUANTITIES:
         assert f" {name}: " in text
-    assert "peak_impulse: largest |normal impulse P_n| of the run (normal part only), N s" in text
-    assert "peak_impulse_magnitude: largest |P| = sqrt(P_n^2 + P_t^2) of the run, N s" in text
+    assert "peak_impulse: largest |normal impulse P_n| at one contact over the run (normal part only;" in text
+    assert "peak_impulse_magnitude: largest |P| = sqrt(P_n^2 + P_t^2) at one contact over the run, N s" in text
 
 
 def test_leg_pin_columns_by_its_lagrangian(tmp_path):
@@ -538,3 +538,40 @@ def test_stick_poisson_cart_sweep_csv_and_prefix(make_scene, tmp_path):
     assert longer.events[0]["t"] == pytest.approx(ev["t"], abs=1e-15)
     (tmp_path / "prefix").mkdir()
     assert oracle.check_prefix(scene, 0.006, 0.012, 0.001, tmp_path / "prefix") == []
+
+
+def test_contacts_closed_at_once_count_each_contact(make_scene, tmp_path):
+    """A rod landing flat on both ends at once (tests/test_simultaneous.py: its end B approaching
+    at 3.06 m/s, A at 0.34 m/s; e = 0.5, both sliding at mu = mu_c / 2): one event, whose own
+    ``impulse`` is A's alone.  The table summed that one (1.2155 N s of the 3.3150 N s) and called
+    A's the peak while B took 2.0995 N s.  By the closed forms of the mode enumeration: the total
+    is P_nA + P_nB, the peak B's, the magnitudes sqrt(P_n^2 + (mu P_n)^2) per end."""
+    import test_simultaneous as ts
+    k, UA, UB, e = 3.0, -0.2 * ts.V, -1.8 * ts.V, 0.5
+    mu = 0.5 * ts.by_hand(k, UA, UB, e, None)[-1]
+    PtA, PnA, PtB, PnB, *_ = ts.by_hand(k, UA, UB, e, mu)
+    assert 0 < PnA < PnB and (PtA, PtB) == pytest.approx((-mu * PnA, -mu * PnB), rel=1e-15)
+    path = ts.rod_run(make_scene, k, UA, UB, e, mu)
+    res = sweep(pcmm.load_scene(path), make_plan([parse_set("transitions.A.restitution=0.5"),
+                                                  parse_set("transitions.B.restitution=0.5")]),
+                tmp_path / "rod.csv", None, workers=1)
+    assert res.status == {"complete": 1}
+    (row,) = read_csv(tmp_path / "rod.csv")
+    traj = pcmm.simulate(pcmm.load_scene(path))
+    (ev,) = traj.events
+    assert set(ev["simultaneous"]) == {"A", "B"} and ev["impulse"]["normal"] == pytest.approx(PnA, rel=1e-9)
+    assert row["impacts"] == "1"
+    assert float(row["first_impulse"]) == pytest.approx(PnA, rel=1e-9)  # the event's P: A's, the first contact
+    assert float(row["peak_impulse"]) == pytest.approx(PnB, rel=1e-9)
+    assert float(row["total_impulse"]) == pytest.approx(PnA + PnB, rel=1e-9)
+    assert float(row["peak_impulse_magnitude"]) == pytest.approx(math.hypot(PtB, PnB), rel=1e-9)
+    assert float(row["total_impulse_magnitude"]) == pytest.approx(math.hypot(PtA, PnA) + math.hypot(PtB, PnB), rel=1e-9)
+    # the energy columns: the whole rod's KE- - KE+, by hand from the impulses' changes of momentum
+    w0 = (UB - UA) / (2 * ts.A_)
+    inertia = ts.M * ts.A_ ** 2 / k
+    vg0 = np.array([ts.U, (UA + UB) / 2])  # G's velocity: the ends' normal velocities are v_gy -+ a w0
+    vg1 = vg0 + np.array([PtA + PtB, PnA + PnB]) / ts.M
+    w1 = w0 + ts.A_ * (PnB - PnA) / inertia
+    lost = 0.5 * ts.M * (vg0 @ vg0 - vg1 @ vg1) + 0.5 * inertia * (w0 * w0 - w1 * w1)
+    assert float(row["kinetic_energy_lost"]) == pytest.approx(lost, rel=1e-9)
+    assert float(row["energy_dissipated"]) == pytest.approx(lost, rel=1e-9)
