@@ -575,3 +575,21 @@ def test_contacts_closed_at_once_count_each_contact(make_scene, tmp_path):
     lost = 0.5 * ts.M * (vg0 @ vg0 - vg1 @ vg1) + 0.5 * inertia * (w0 * w0 - w1 * w1)
     assert float(row["kinetic_energy_lost"]) == pytest.approx(lost, rel=1e-9)
     assert float(row["energy_dissipated"]) == pytest.approx(lost, rel=1e-9)
+
+
+@pytest.mark.parametrize("both", [True, False])
+def test_event_table_names_the_other_contacts_closed_at_once(make_scene, both):
+    """`pcmm run`'s event table gives one row per event, whose vn and P are its first contact's: the
+    rod's row said A's 1.2155 N s and nothing of B's 2.0995 N s.  Now the row names B with its impulse
+    (by the closed forms), or says that B separates, with its speed away."""
+    import test_simultaneous as ts
+    from pcmm.results.summary import event_table
+    k, UA, UB, e = (3.0, -0.2 * ts.V, -1.8 * ts.V, 0.5) if both else (0.5, -1.8 * ts.V, -0.2 * ts.V, 0.5)
+    mu = 0.5 * ts.by_hand(k, UA, UB, e, None)[-1]
+    PtA, PnA, PtB, PnB, _, UA1, UB1, _ = ts.by_hand(k, UA, UB, e, mu)
+    (row,) = event_table(pcmm.simulate(pcmm.load_scene(ts.rod_run(make_scene, k, UA, UB, e, mu)))).splitlines()[2:]
+    if both:
+        assert f"at once: B P_n {PnB:.4e} P_t {PtB:.4e} N s (vn, P: A's alone)" in row
+        assert f" {PnA:.4e} " in row
+    else:
+        assert PnB == 0.0 and f"at once: B separates (vn+ {UB1:.4e} m/s) (vn, P: A's alone)" in row
