@@ -608,3 +608,47 @@ def test_holding_extremes_are_the_steps_and_the_solution_goes_further(name, foot
     dense = traj.resampled(1e-4).series("constraint_forces", f"{foot}.fy")
     above = (np.nanmax(dense) - held["max"]) / held["max"]
     assert gap[0] < above < gap[1]
+
+
+def test_a_table_from_before_the_magnitude_columns_resumes(tmp_path):
+    """A sweep table written before the three magnitude columns (the shipped
+    docs/figures/design_study/cycle_opt.csv, which examples/studies/cycle_design.py resumes) was
+    refused on --resume as "not this study's" columns.  Its rows are now read into the new columns
+    with those cells empty (their runs are not run again: nothing invents their values), the table
+    rewritten with valid checksums and the warning naming the columns; a row cut short is dropped
+    as before; any other difference of columns is still refused."""
+    from pcmm.studies.table import checksum
+    path = write_block(tmp_path / "base")
+    out = tmp_path / "t.csv"
+    plan = make_plan([parse_set("scene.gravity[1]=-9.81")])
+    sweep(pcmm.load_scene(path), plan, out, pcmm.RunOptions(t_end=0.5), workers=1)
+    (row,) = read_csv(out)
+    new_cols = ("first_impulse_magnitude", "peak_impulse_magnitude", "total_impulse_magnitude")
+    old_header = [c for c in row if c not in new_cols]
+    old_cells = [row[c] for c in old_header[:-1]]
+    cut = [c for c in old_cells]
+    out.write_text(",".join(old_header) + "\n" + ",".join([*old_cells, checksum(old_cells)]) + "\n")
+    res = sweep(pcmm.load_scene(path), make_plan([parse_set("scene.gravity[1]=-9.81,-6.0")]), out,
+                pcmm.RunOptions(t_end=0.5), workers=1, resume=True)
+    assert res.status == {"complete": 2} and res.ran == 1
+    assert res.dropped == ["written before the columns first_impulse_magnitude, peak_impulse_magnitude, "
+                           "total_impulse_magnitude: its 1 rows keep them empty (the table is rewritten with them; "
+                           "--force runs every row again)"]
+    old, new = read_csv(out)
+    assert {k: old[k] for k in old_header if k != "check"} == {k: row[k] for k in old_header if k != "check"}
+    assert [old[c] for c in new_cols] == ["", "", ""] and old["check"] == checksum(list(old.values())[:-1])
+    assert float(new["peak_impulse_magnitude"]) == pytest.approx(housner_impulses(6.0, 1)[0][1], rel=1e-8)
+    # resumed again: the table is this study's now, nothing to say
+    again = sweep(pcmm.load_scene(path), make_plan([parse_set("scene.gravity[1]=-9.81,-6.0")]), out,
+                  pcmm.RunOptions(t_end=0.5), workers=1, resume=True)
+    assert again.ran == 0 and again.dropped == []
+    # an old row cut short is dropped (and run again), as a current one is
+    cut[-1] = cut[-1][:-3]
+    out.write_text(",".join(old_header) + "\n" + ",".join([*cut, checksum(old_cells)]) + "\n")
+    res = sweep(pcmm.load_scene(path), plan, out, pcmm.RunOptions(t_end=0.5), workers=1, resume=True)
+    assert res.ran == 1 and any("cut short or altered" in why for why in res.dropped)
+    # any other difference (a swept path, a collected value, a column of its own): refused, naming the columns
+    for header in ([h for h in old_header if h != "scene.gravity[1]"], [*old_header[:-1], "stats.steps", "check"]):
+        out.write_text(",".join(header) + "\n")
+        with pytest.raises(pcmm.errors.UsageError, match="are not this study's"):
+            sweep(pcmm.load_scene(path), plan, out, pcmm.RunOptions(t_end=0.5), workers=1, resume=True)
