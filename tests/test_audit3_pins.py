@@ -652,3 +652,13 @@ def test_a_table_from_before_the_magnitude_columns_resumes(tmp_path):
         out.write_text(",".join(header) + "\n")
         with pytest.raises(pcmm.errors.UsageError, match="are not this study's"):
             sweep(pcmm.load_scene(path), plan, out, pcmm.RunOptions(t_end=0.5), workers=1, resume=True)
+
+
+def test_csv_link_position_is_the_frame_origin(walker):
+    """docs/cli.md: `x_<link>`, `y_<link>` are the link frame's origin, not its mass centre (the
+    compass gait's leg a: the hip; the wheel: the hub, its mass centre too)."""
+    name, _, _, _, rows = walker
+    link, joint = ("leg_a", "base") if name == "compass_gait" else ("wheel", "hub")
+    for r in rows[::25]:
+        assert (float(r[f"x_{link} [m]"]), float(r[f"y_{link} [m]"])) == \
+            pytest.approx((float(r[f"q_{joint}.x [m]"]), float(r[f"q_{joint}.y [m]"])), abs=1e-14)
