@@ -239,13 +239,17 @@ def test_the_help_names_the_normal_part_and_the_magnitude(capsys):
     """`pcmm sweep -h` listed no column: what `peak_impulse` holds was in docs/cli.md alone, which
     said "of |P|" (it is |P_n|)."""
     assert "normal part only" in QUANTITIES["peak_impulse"] and "normal part only" in QUANTITIES["total_impulse"]
+    # the figures' titles are the text before the first ';' (pcmm/studies/plots.py): whole phrases
+    for name, text in QUANTITIES.items():
+        title = text.split(";")[0]
+        assert title.count("(") == title.count(")"), name
     assert "sqrt(P_n^2 + P_t^2)" in QUANTITIES["peak_impulse_magnitude"]
     with pytest.raises(SystemExit):
         pcmm.cli.main(["sweep", "--help"])
     text = " ".join(capsys.readouterr().out.split())
     for name in QUANTITIES:
         assert f" {name}: " in text
-    assert "peak_impulse: largest |normal impulse P_n| at one contact over the run (normal part only;" in text
+    assert "peak_impulse: largest |normal impulse P_n| at one contact over the run, N s; the normal part only" in text
     assert "peak_impulse_magnitude: largest |P| = sqrt(P_n^2 + P_t^2) at one contact over the run, N s" in text
 
 

@@ -17,13 +17,13 @@ QUANTITIES = {
     "events": "number of events (impacts, merges, switches, releases)",
     "impacts": "number of events with an impulse",
     "first_impact_t": "time of the first impact, s",
-    "first_impulse": "normal impulse P_n of the first impact (its normal part only; a pin's or a frictional "
-                     "contact's tangential part is in first_impulse_magnitude; of contacts closed at once, "
-                     "the first one's, as the event's P), N s",
-    "peak_impulse": "largest |normal impulse P_n| at one contact over the run (normal part only; every "
-                    "contact of an impact closing several at once counts), N s",
-    "total_impulse": "sum of |normal impulse P_n| over the run's impacts and each one's contacts (normal part "
-                     "only), N s",
+    "first_impulse": "normal impulse P_n of the first impact, N s; its normal part only (a pin's or a frictional "
+                     "contact's tangential part is in first_impulse_magnitude; of contacts closed at once, the "
+                     "first one's, as the event's P)",
+    "peak_impulse": "largest |normal impulse P_n| at one contact over the run, N s; the normal part only, every "
+                    "contact of an impact closing several at once counted",
+    "total_impulse": "sum of |normal impulse P_n| over the run's impacts and their contacts, N s; the normal "
+                     "part only",
     "first_impulse_magnitude": "|P| = sqrt(P_n^2 + P_t^2) of the first impact's contact impulse, normal and "
                                "tangential parts (= |first_impulse| without friction), N s",
     "peak_impulse_magnitude": "largest |P| = sqrt(P_n^2 + P_t^2) at one contact over the run, N s",
