@@ -666,3 +666,34 @@ def test_csv_link_position_is_the_frame_origin(walker):
     for r in rows[::25]:
         assert (float(r[f"x_{link} [m]"]), float(r[f"y_{link} [m]"])) == \
             pytest.approx((float(r[f"q_{joint}.x [m]"]), float(r[f"q_{joint}.y [m]"])), abs=1e-14)
+
+
+def test_walker_strike_momenta_by_hand(walker):
+    """Each strike's ``momentum`` record: L and H about the origin recomputed from the recorded
+    velocities (point masses, the wheel's I = 0.05), and H about the new foot kept across the strike
+    (the only impulse acts there; the trailing foot leaves with none)."""
+    name, _, _, traj, _ = walker
+    segs = list(traj.segments)
+    for e, before, after in zip(traj.events, segs[:-1], segs[1:]):
+        mom = e["momentum"]
+        assert mom["about"] == [0.0, 0.0]
+        for seg, i, key in ((before, -1, "before"), (after, 0, "after")):
+            q = dict(zip(seg.coordinates, np.asarray(seg.q[i])))
+            v = dict(zip(seg.coordinates, np.asarray(seg.v[i])))
+            if name == "rimless_wheel":
+                bodies = [(1.0, np.array([q["hub.x"], q["hub.y"]]), np.array([v["hub.x"], v["hub.y"]]))]
+                spin = 0.05 * v["hub.theta"]
+            else:
+                hip, vh = np.array([q["base.x"], q["base.y"]]), np.array([v["base.x"], v["base.y"]])
+                ra, rb = rot(q["base.theta"]) @ [0.0, -0.5], rot(q["base.theta"] + q["hip"]) @ [0.0, -0.5]
+                bodies = [(10.0, hip, vh), (5.0, hip + ra, vh + v["base.theta"] * cross_k(ra)),
+                          (5.0, hip + rb, vh + (v["base.theta"] + v["hip"]) * cross_k(rb))]
+                spin = 0.0
+            L = sum(m * u for m, _, u in bodies)
+            H = spin + sum(m * (p[0] * u[1] - p[1] * u[0]) for m, p, u in bodies)
+            assert mom[f"linear_{key}"] == pytest.approx(L.tolist(), abs=1e-12)
+            assert mom[f"angular_{key}"] == pytest.approx(H, abs=1e-12)
+        (foot,) = e["anchor"].values()
+        about_foot = [mom[f"angular_{k}"] - (foot[0] * mom[f"linear_{k}"][1] - foot[1] * mom[f"linear_{k}"][0])
+                      for k in ("before", "after")]
+        assert about_foot[1] == pytest.approx(about_foot[0], abs=1e-12)
