@@ -1,0 +1,145 @@
+"""A new user's kneed walker (McGeer 1990, "passive walking with knees"; Hsu Chen 2007), modelled from
+README.md and the pages it links alone, checked against an independent numpy model.
+
+The walker (tests/reference_kneed_walker.py): a hip mass of 0.5 kg, thighs of 0.5 m and 0.5 kg,
+shanks of 0.5 m and 0.05 kg (rigid bars), on a slope of 0.0504 rad; the scene is written by
+tests/kneed_walker_scene.py (a planar base on thigh a, the hip, a knee in each leg; one configuration
+per phase and stance leg, derived from the free walker by locking knees). One step:
+
+1. swing (a_swing): leg a's knee locked and its foot pinned, leg b's knee free: 3 DOF;
+2. knee strike b (latch, a joint stop on knee_b): the knee locks, e = 0;
+3. heel strike b (pin): leg b's foot is pinned where it lands, leg a's foot lifts off.
+
+Checked against the reference, which shares no code with pcmm: the flights against solve_ivp
+(DOP853, rtol 1e-11) on Lagrange's equations in absolute angles, to 1e-8; each impact against the KKT
+solve M (v+ - v-) = A^T P, A v+ = 0 in floating coordinates, to 1e-10; and the momenta each impact
+conserves, computed body by body from the recorded states: the swing leg's about the hip and the whole
+walker's about the stance foot at the knee strike; the whole walker's about the new foot and the
+trailing leg's about the hip at the heel strike.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import pcmm
+import reference_kneed_walker as kw
+from kneed_walker_scene import write_walker
+
+W = kw.Walker()
+THETA0 = np.array([0.2, -0.2, -0.2])        # stance leg, swing thigh, swing shank (rad)
+OMEGA0 = np.array([-0.9, -0.25, -0.25])      # rad/s: found by a grid search on the reference (test docstring)
+SWING_LEG = {3, 4}                           # floating_bodies indices: thigh b, shank b
+TRAILING_LEG = {1, 2}                        # thigh a, shank a (the hip mass sits at the hip: no moment)
+
+
+@pytest.fixture(scope="module")
+def step(tmp_path_factory):
+    path = write_walker(tmp_path_factory.mktemp("walker"), W, THETA0, OMEGA0, t_end=0.6)
+    return pcmm.simulate(pcmm.load_scene(path))
+
+
+def floating(seg, i):
+    """The reference's floating (q, v) from a recorded sample: hip, then thigh a, shank a, thigh b, shank b."""
+    col = {name: k for k, name in enumerate(seg.links)}
+    order = [col[n] for n in ("thigh_a", "shank_a", "thigh_b", "shank_b")]
+    hip = np.asarray(seg.xy[i][col["thigh_a"]])
+    v_hip = np.asarray(seg.v[i][:2])                 # base.x', base.y': world axes (docs/planar_joints.md)
+    assert seg.coordinates[:2] == ["base.x", "base.y"]
+    return (np.concatenate([hip, np.asarray(seg.theta[i])[order]]),
+            np.concatenate([v_hip, np.asarray(seg.omega[i])[order]]))
+
+
+def knee_event(t, y):
+    return y[2] - y[1]
+
+
+knee_event.terminal, knee_event.direction = True, 1
+
+
+def heel_event(t, y):
+    """The swing foot's height above the slope (foot a at the origin), counted with the swing leg ahead."""
+    return W.leg * (np.cos(y[0]) - np.cos(y[1])) if y[1] > y[0] else 1.0
+
+
+heel_event.terminal, heel_event.direction = True, -1
+
+
+@pytest.fixture(scope="module")
+def reference():
+    """The whole step by the reference alone, from the scene's initial state."""
+    swing = kw.flight(W, W.swing_bodies(), THETA0, OMEGA0, 1.0, events=[knee_event])
+    t_knee, y = swing.t_events[0][0], swing.y_events[0][0]
+    q, v = kw.floating_state(W, "a", y[:3], y[3:])
+    v_knee, _ = kw.impact(W, q, v, [("foot", "a"), ("knee", "a"), ("knee", "b")])
+    locked = kw.flight(W, W.locked_bodies(), np.array([q[2], q[4]]), np.array([v_knee[2], v_knee[4]]), 1.0,
+                       events=[heel_event])
+    return {"swing": swing, "t_knee": t_knee, "locked": locked, "t_heel": t_knee + locked.t_events[0][0]}
+
+
+def test_the_step_is_a_knee_strike_then_a_heel_strike(step, reference):
+    kinds = [(e["name"], e["from"], e["to"]) for e in step.events]
+    assert kinds == [("knee strike b", "a_swing", "a_locked"), ("heel strike b", "a_locked", "b_strike")]
+    assert step.events[0]["t"] == pytest.approx(reference["t_knee"], abs=1e-9)
+    assert step.events[1]["t"] == pytest.approx(reference["t_heel"], abs=1e-9)
+    assert reference["t_knee"] == pytest.approx(0.48234161, abs=1e-8)
+    assert reference["t_heel"] == pytest.approx(0.52881967, abs=1e-8)
+
+
+def test_swing_and_locked_flights_follow_the_own_ode(step, reference):
+    swing, locked = step.segments[0], step.segments[1]
+    worst = 0.0
+    for i, t in enumerate(swing.t):
+        q, _ = floating(swing, i)
+        th = reference["swing"].sol(t)[:3]
+        qr, _ = kw.floating_state(W, "a", th, np.zeros(3))
+        worst = max(worst, np.max(np.abs(q - qr)))
+    for i, t in enumerate(locked.t):
+        q, _ = floating(locked, i)
+        th = reference["locked"].sol(t - reference["t_knee"])[:2]
+        qr, _ = kw.floating_state(W, "a", th, np.zeros(2))
+        worst = max(worst, np.max(np.abs(q - qr)))
+    assert len(swing.t) > 10 and worst < 1e-8
+
+
+def _impact_case(step, k, rows):
+    before, after = step.segments[k], step.segments[k + 1]
+    q, v = floating(before, -1)
+    q2, v2 = floating(after, 0)
+    assert np.max(np.abs(q2 - q)) < 1e-12                  # an impact moves nothing
+    v_ref, P = kw.impact(W, q, v, rows)
+    return q, v, v2, v_ref, P
+
+
+def test_knee_strike_against_the_kkt_solve_and_the_momenta(step):
+    q, v, v2, v_ref, P = _impact_case(step, 0, [("foot", "a"), ("knee", "a"), ("knee", "b")])
+    assert np.max(np.abs(v2 - v_ref)) < 1e-10
+    assert v2[5] - v2[4] == pytest.approx(0.0, abs=1e-12)  # the knee is locked: shank b turns with thigh b
+    hip, foot = q[:2], kw.foot_position(W, q, "a")
+    for which, about in ((SWING_LEG, hip), (None, foot)):
+        h0, h1 = (kw.angular_momentum(W, q, u, about, which) for u in (v, v2))
+        assert h1 == pytest.approx(h0, abs=1e-12)
+    ev = step.events[0]
+    assert ev["kinetic_energy_before"] == pytest.approx(kw.kinetic(W, q, v), abs=1e-12)
+    assert ev["kinetic_energy_after"] == pytest.approx(kw.kinetic(W, q, v_ref), abs=1e-12)
+    assert ev["kinetic_energy_after"] < ev["kinetic_energy_before"]
+    # the knee's moment impulse on shank b (the last row): pcmm reports it as the joint stop's moment
+    assert abs(ev["impulse"]["moment"]) == pytest.approx(abs(P[-1]), rel=1e-9)
+
+
+def test_heel_strike_against_the_kkt_solve_and_the_momenta(step):
+    q, v, v2, v_ref, P = _impact_case(step, 1, [("foot", "b"), ("knee", "a"), ("knee", "b")])
+    assert np.max(np.abs(v2 - v_ref)) < 1e-10
+    ev = step.events[1]
+    new_foot, old_foot, hip = kw.foot_position(W, q, "b"), kw.foot_position(W, q, "a"), q[:2]
+    assert new_foot[1] == pytest.approx(0.0, abs=1e-10) and ev["anchor"]["foot_b"] == pytest.approx(new_foot, abs=1e-10)
+    for which, about in ((None, new_foot), (TRAILING_LEG, hip)):
+        h0, h1 = (kw.angular_momentum(W, q, u, about, which) for u in (v, v2))
+        assert h1 == pytest.approx(h0, abs=1e-12)
+    # the old foot lifts off without an impulse: its normal velocity after, by the reference
+    u_old = kw.jacobian(W.foot("a"), q, 6, True) @ v_ref
+    assert u_old[1] > 0.0
+    assert ev["released"]["foot_a"]["normal_velocity_after"] == pytest.approx(u_old[1], abs=1e-10)
+    assert ev["released"]["foot_a"]["impulse"] == 0.0
+    assert ev["impulse"]["normal"] == pytest.approx(P[1], abs=1e-10)
+    assert ev["impulse"]["tangential"] == pytest.approx(P[0], abs=1e-10)
