@@ -143,3 +143,22 @@ def test_heel_strike_against_the_kkt_solve_and_the_momenta(step):
     assert ev["released"]["foot_a"]["impulse"] == 0.0
     assert ev["impulse"]["normal"] == pytest.approx(P[1], abs=1e-10)
     assert ev["impulse"]["tangential"] == pytest.approx(P[0], abs=1e-10)
+
+
+def test_a_pin_into_a_configuration_with_other_joints_is_refused_at_load(tmp_path):
+    """Stumble: the heel strike first went straight into the next swing phase (leg a's knee free).
+    `pcmm check` said "valid" and the run stopped only at the strike, 0.53 s in ("a pin keeps the tree
+    ..."); the loader now refuses it, naming the transition, both joint lists and the remedy."""
+    import tomllib
+
+    from builders import dump_toml
+
+    path = write_walker(tmp_path, W, THETA0, OMEGA0, t_end=0.6)
+    doc = tomllib.loads(path.read_text())
+    doc["transitions"][1]["to"] = "b_swing"          # heel strike b into leg b's stance with leg a's knee free
+    path.write_text(dump_toml(doc))
+    with pytest.raises(pcmm.SceneError) as err:
+        pcmm.load_scene(path)
+    text = str(err.value)
+    assert "transitions[1] (heel strike b).to: = 'b_swing'" in text
+    assert "['base', 'hip', 'knee_a']" in text and "'a_locked' ['base', 'hip']" in text and "`release`" in text
