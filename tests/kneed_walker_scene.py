@@ -50,9 +50,9 @@ def foot_pin(leg, w):
             "point_b": [0.0, -w.l_shank], "contact": {"normal": [0.0, 1.0], "friction": "stick"}}
 
 
-def initial_state(w, theta, omega):
-    """pcmm's q, v (a_swing: foot a pinned at the origin) from the reference's swing coordinates."""
-    q, v = kw.floating_state(w, "a", theta, omega)
+def initial_state(w, theta, omega, foot=(0.0, 0.0)):
+    """pcmm's q, v (a_swing: foot a pinned at ``foot``) from the reference's swing coordinates."""
+    q, v = kw.floating_state(w, "a", theta, omega, foot)
     x, y, ta, sa, tb, sb = q
     c, s = np.cos(ta), np.sin(ta)
     vb = [c * v[0] + s * v[1], -s * v[0] + c * v[1], v[2]]      # the planar joint's body-frame velocity
@@ -61,10 +61,10 @@ def initial_state(w, theta, omega):
 
 
 def write_walker(folder: Path, w: kw.Walker, theta, omega, t_end=1.2, release=None,
-                 solver=None) -> Path:
+                 solver=None, foot=(0.0, 0.0)) -> Path:
     folder.mkdir(parents=True, exist_ok=True)
     (folder / "kneed_walker.urdf").write_text(walker_urdf(w))
-    q0, v0 = initial_state(w, theta, omega)
+    q0, v0 = initial_state(w, theta, omega, foot)
     g = [f"9.81*sin({w.gamma!r})", f"-9.81*cos({w.gamma!r})"]
     configs = {
         "flight": {"urdf": "kneed_walker.urdf"},

@@ -162,3 +162,38 @@ def test_a_pin_into_a_configuration_with_other_joints_is_refused_at_load(tmp_pat
     text = str(err.value)
     assert "transitions[1] (heel strike b).to: = 'b_swing'" in text
     assert "['base', 'hip', 'knee_a']" in text and "'a_locked' ['base', 'hip']" in text and "`release`" in text
+
+
+def test_a_pinned_foot_stays_where_it_struck_across_a_latch_and_a_release(tmp_path, step):
+    """Silent-anchor defect: a configuration whose foot is pinned "where it is entered" was anchored
+    only by a pin (and a lift-off).  Entered by a latch or a release, it kept the anchor of its
+    previous entry, or the origin: the walker's knee strike stopped the run ("link 'thigh_a' ... differs
+    by 1 m") as soon as the stance foot was not at the world's origin, and leg a's knee could not be
+    unlocked after the heel strike at x = 0.397 m.  Now a pinned foot stays where it struck."""
+    shifted = pcmm.simulate(pcmm.load_scene(write_walker(tmp_path / "shifted", W, THETA0, OMEGA0, t_end=0.6,
+                                                         foot=(1.0, 0.0))))
+    # the same walk, one metre further down the slope: translation changes nothing but x
+    assert [e["name"] for e in shifted.events] == [e["name"] for e in step.events]
+    for a, b in zip(shifted.events, step.events):
+        assert a["t"] == pytest.approx(b["t"], abs=1e-12)
+        assert a["kinetic_energy_after"] == pytest.approx(b["kinetic_energy_after"], abs=1e-12)
+    assert shifted.events[1]["anchor"]["foot_b"] == pytest.approx(np.add(step.events[1]["anchor"]["foot_b"], [1.0, 0.0]),
+                                                                  abs=1e-12)
+    # leg a's knee unlocked 0.05 s after the heel strike (a timer): no impulse, foot b stays put
+    t_rel = 0.58
+    run = pcmm.simulate(pcmm.load_scene(write_walker(
+        tmp_path / "release", W, THETA0, OMEGA0, t_end=0.6,
+        release=lambda stance: {"type": "time", "at": t_rel})))
+    assert [e["name"] for e in run.events] == ["knee strike b", "heel strike b", "knee a unlocks"]
+    ev = run.events[2]
+    assert ev["t"] == t_rel and ev["kinetic_energy_after"] == pytest.approx(ev["kinetic_energy_before"], rel=1e-12)
+    before, after = run.segments[2], run.segments[3]
+    assert after.configuration == "b_swing"
+    q0, v0 = floating(before, -1)
+    q1, v1 = floating(after, 0)
+    assert np.max(np.abs(q1 - q0)) < 1e-12 and np.max(np.abs(v1 - v0)) < 1e-12
+    anchor = np.asarray(run.events[1]["anchor"]["foot_b"])
+    for seg in (before, after):
+        for i in range(len(seg.t)):
+            q, _ = floating(seg, i)
+            assert np.max(np.abs(kw.foot_position(W, q, "b") - anchor)) < 1e-9
