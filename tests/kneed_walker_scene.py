@@ -61,7 +61,7 @@ def initial_state(w, theta, omega, foot=(0.0, 0.0)):
 
 
 def write_walker(folder: Path, w: kw.Walker, theta, omega, t_end=1.2, release=None,
-                 solver=None, foot=(0.0, 0.0)) -> Path:
+                 solver=None, foot=(0.0, 0.0), hold_references=False) -> Path:
     folder.mkdir(parents=True, exist_ok=True)
     (folder / "kneed_walker.urdf").write_text(walker_urdf(w))
     q0, v0 = initial_state(w, theta, omega, foot)
@@ -76,6 +76,9 @@ def write_walker(folder: Path, w: kw.Walker, theta, omega, t_end=1.2, release=No
         "b_strike": {"from": "flight", "lock": {"knee_a": 0.0, "knee_b": 0.0}, "cut_joints": [foot_pin("b", w)]},
         "a_strike": {"from": "flight", "lock": {"knee_a": 0.0, "knee_b": 0.0}, "cut_joints": [foot_pin("a", w)]},
     }
+    if hold_references:  # each stance with its knee free (the other locked): where a stance knee's hold is solved
+        for leg, other in (("a", "b"), ("b", "a")):
+            configs[f"{leg}_knee_free"] = {"from": "flight", "lock": {f"knee_{other}": 0.0}, "cut_joints": [foot_pin(leg, w)]}
     transitions = []
     for stance, swing in (("a", "b"), ("b", "a")):
         transitions.append({

@@ -210,3 +210,37 @@ def angular_momentum(walker, q, v, about, which=None):
 
 def foot_position(walker, q, leg):
     return position(walker.foot(leg), q, q[:2])
+
+
+def _rows(walker, q, v, rows):
+    """The rows A and A' v of a set of constraints (floating coordinates)."""
+    A, Adv = [], []
+    for row in rows:
+        if row[0] == "foot":
+            c = walker.foot(row[1])
+            A.extend(jacobian(c, q, 6, True))
+            Adv.extend(sum(cj * v[j] ** 2 * (-d(q[j])) for j, cj in c.items()))
+        else:
+            t = 2 if row[1] == "a" else 4
+            r = np.zeros(6)
+            r[t], r[t + 1] = -1.0, 1.0
+            A.append(r)
+            Adv.append(0.0)
+    return np.array(A), np.array(Adv)
+
+
+def constrained_dynamics(walker, q, v, rows):
+    """(q'', multipliers) of M q'' + h = A^T lam, A q'' + A' v = 0 (floating): a foot row's multiplier is
+    the force on the foot (x, y), a knee row's the holding moment on the shank."""
+    bodies = walker.floating_bodies()
+    M = mass_matrix(bodies, q, True)
+    rhs = np.zeros(6)
+    for m, _, c, _ in bodies:
+        J = jacobian(c, q, 6, True)
+        centripetal = sum(cj * v[j] ** 2 * (-d(q[j])) for j, cj in c.items()) if c else 0.0
+        rhs += m * J.T @ (walker.g - centripetal)
+    A, Adv = _rows(walker, q, v, rows)
+    k = len(A)
+    K = np.block([[M, -A.T], [A, np.zeros((k, k))]])
+    sol = np.linalg.solve(K, np.concatenate([rhs, -Adv]))
+    return sol[:6], sol[6:]

@@ -197,3 +197,40 @@ def test_a_pinned_foot_stays_where_it_struck_across_a_latch_and_a_release(tmp_pa
         for i in range(len(seg.t)):
             q, _ = floating(seg, i)
             assert np.max(np.abs(kw.foot_position(W, q, "b") - anchor)) < 1e-9
+
+
+ROWS = {"a_swing": [("foot", "a"), ("knee", "a")], "a_locked": [("foot", "a"), ("knee", "a"), ("knee", "b")],
+        "b_strike": [("foot", "b"), ("knee", "a"), ("knee", "b")]}
+
+
+def test_the_knee_holding_moment_is_solved_with_the_stance_foot_that_holds(tmp_path):
+    """Silent wrong number: after the heel strike the latched knee b's holding moment ("knee_b.hold") was
+    solved in 'a_swing', the configuration with knee b free, whose foot a is pinned instead of foot b:
+    -0.028943 N m where the walker, standing on foot b, holds knee b with +0.005860 N m (the other sign:
+    a knee stop there would have to pull).  The holds are now solved only in a configuration with the same
+    cut joints; without one they are NaN, and the run's warnings say why."""
+    run = pcmm.simulate(pcmm.load_scene(write_walker(tmp_path / "refs", W, THETA0, OMEGA0, t_end=0.6,
+                                                     hold_references=True)))
+    assert run.stats["warnings"] == []
+    checked = 0
+    for seg in run.segments:
+        labels = list(seg.constraint_labels)
+        for i in range(len(seg.t)):
+            q, v = floating(seg, i)
+            _, lam = kw.constrained_dynamics(W, q, v, ROWS[seg.configuration])
+            forces = dict(zip(labels, seg.constraint_forces[i]))
+            foot = ROWS[seg.configuration][0][1]
+            assert forces[f"foot_{foot}.fx"] == pytest.approx(lam[0], abs=1e-9)
+            assert forces[f"foot_{foot}.fy"] == pytest.approx(lam[1], abs=1e-9)
+            if "knee_b.hold" in forces:     # knee b's row is the last one
+                assert forces["knee_b.hold"] == pytest.approx(lam[-1], abs=1e-9)
+                checked += 1
+    assert checked > 5
+    first = dict(zip(run.segments[2].constraint_labels, run.segments[2].constraint_forces[0]))
+    assert first["knee_b.hold"] == pytest.approx(0.00586032506, abs=1e-10)
+    # without a configuration to solve it in: NaN and a warning, never another mechanism's number
+    bare = pcmm.simulate(pcmm.load_scene(write_walker(tmp_path / "bare", W, THETA0, OMEGA0, t_end=0.6)))
+    seg = bare.segments[2]
+    assert np.all(np.isnan(np.asarray(seg.constraint_forces)[:, list(seg.constraint_labels).index("knee_b.hold")]))
+    (note,) = bare.stats["warnings"]
+    assert "'b_strike'" in note and "knee_b.hold cannot be solved here" in note and "cut joints (foot_b)" in note

@@ -118,6 +118,14 @@ class Holds:
         if not self.items or key in self._noted:
             return []
         self._noted.add(key)
+        if self.reference(cfg) is None:  # recorded as NaN (pcmm.run.recording.holding_forces); a guard stops
+            labels = [f"{h.label}.hold" for h in self.items]
+            cuts = ", ".join(s.name for s in cfg.spec.cut_joints)
+            return [f"t = {t:.9g} s, configuration '{cfg.name}': the holding force{'s' if len(labels) > 1 else ''} "
+                    f"{', '.join(labels)} cannot be solved here: no configuration of the scene has its joints plus "
+                    f"{', '.join(sorted(set().union(*(h.joints for h in self.items))))} free, its drives and its "
+                    f"cut joints ({cuts or 'none'}): NaN in the series, left out of stats.holding; add such a "
+                    "configuration to have them"]
         try:
             _, _, _, R, _, m, owners, _, _ = self._rows(cfg, t, q, v)
         except PcmmError:  # a hold that cannot be solved here says so where it is read
@@ -170,8 +178,12 @@ class Holds:
             need = set(cfg.joint_names).union(*(h.joints for h in self.items))
             drives = {(d.joint, d.coefficients) for d in self.scene.drives_in(cfg.name)}
             sources = {h.free_in for h in self.items}
+            # the same loops and pinned points: another cut joint (a foot pinned elsewhere, or none)
+            # is another mechanism, whose multipliers are not this one's holding forces
+            cuts = set(cfg.spec.cut_joints)
             fits = [(len(js), name not in sources, name) for name, js in self._joint_sets().items()
-                    if need <= js and {(d.joint, d.coefficients) for d in self.scene.drives_in(name)} == drives]
+                    if need <= js and {(d.joint, d.coefficients) for d in self.scene.drives_in(name)} == drives
+                    and set(self.scene.configurations[name].cut_joints) == cuts]
             self._refs[key] = min(fits)[2] if fits else None
         return self._refs[key]
 
@@ -260,10 +272,12 @@ class Holds:
         if ref is None:
             ref_name = self.reference(cfg)
             if ref_name is None:
+                cuts = ", ".join(s.name for s in cfg.spec.cut_joints)
                 raise SimulationError(
                     f"configuration '{cfg.name}': no configuration of the scene has its joints plus the locked "
-                    f"{', '.join(sorted(set().union(*(h.joints for h in self.items))))} free and its drives, "
-                    "so the holding forces cannot be computed")
+                    f"{', '.join(sorted(set().union(*(h.joints for h in self.items))))} free, its drives "
+                    f"and its cut joints ({cuts or 'none'}), so the holding forces cannot be computed; add one "
+                    f"(e.g. derived from the same URDF, locking only the joints '{cfg.name}' locks that are not held)")
             ref = self.mechanism[ref_name]
         qs, vs = np.zeros(ref.nv), np.zeros(ref.nv)
         for name in ref.joint_names:
