@@ -76,8 +76,9 @@ def write_walker(folder: Path, w: kw.Walker, theta, omega, t_end=1.2, release=No
         "b_strike": {"from": "flight", "lock": {"knee_a": 0.0, "knee_b": 0.0}, "cut_joints": [foot_pin("b", w)]},
         "a_strike": {"from": "flight", "lock": {"knee_a": 0.0, "knee_b": 0.0}, "cut_joints": [foot_pin("a", w)]},
     }
-    if hold_references:  # each stance with both knees free: where the knees' holding moments are solved
-        for leg in ("a", "b"):
+    if hold_references:  # where the knees' holding moments are solved: each stance with its knee free
+        for leg, other in (("a", "b"), ("b", "a")):  # (its swing knee locked), and with both knees free
+            configs[f"{leg}_knee_free"] = {"from": "flight", "lock": {f"knee_{other}": 0.0}, "cut_joints": [foot_pin(leg, w)]}
             configs[f"{leg}_knees_free"] = {"urdf": "kneed_walker.urdf", "cut_joints": [foot_pin(leg, w)]}
     transitions = []
     for stance, swing in (("a", "b"), ("b", "a")):

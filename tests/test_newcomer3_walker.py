@@ -207,8 +207,10 @@ def test_the_knee_holding_moment_is_solved_with_the_stance_foot_that_holds(tmp_p
     """Silent wrong number: after the heel strike the latched knee b's holding moment ("knee_b.hold") was
     solved in 'a_swing', the configuration with knee b free, whose foot a is pinned instead of foot b:
     -0.028943 N m where the walker, standing on foot b, holds knee b with +0.005860 N m (the other sign:
-    a knee stop there would have to pull).  The holds are now solved only in a configuration with the same
-    cut joints; without one they are NaN, and the run's warnings say why."""
+    a knee stop there would have to pull).  Given a configuration with foot b pinned and both knees free,
+    it was solved there, with the locked swing knee a free: +0.009727 N m.  The holds are now solved only
+    in a configuration with the same cut joints and exactly the held joints freed; without one they are
+    NaN, and the run's warnings say why."""
     run = pcmm.simulate(pcmm.load_scene(write_walker(tmp_path / "refs", W, THETA0, OMEGA0, t_end=0.6,
                                                      hold_references=True)))
     assert run.stats["warnings"] == []
@@ -234,3 +236,14 @@ def test_the_knee_holding_moment_is_solved_with_the_stance_foot_that_holds(tmp_p
     assert np.all(np.isnan(np.asarray(seg.constraint_forces)[:, list(seg.constraint_labels).index("knee_b.hold")]))
     (note,) = bare.stats["warnings"]
     assert "'b_strike'" in note and "knee_b.hold cannot be solved here" in note and "cut joints (foot_b)" in note
+    # a configuration with more joints free (both knees) is not the one to solve it in either
+    import tomllib
+
+    from builders import dump_toml
+
+    path = write_walker(tmp_path / "wider", W, THETA0, OMEGA0, t_end=0.6, hold_references=True)
+    doc = tomllib.loads(path.read_text())
+    del doc["configurations"]["a_knee_free"], doc["configurations"]["b_knee_free"]
+    path.write_text(dump_toml(doc))
+    seg = pcmm.simulate(pcmm.load_scene(path)).segments[2]
+    assert np.all(np.isnan(np.asarray(seg.constraint_forces)[:, list(seg.constraint_labels).index("knee_b.hold")]))

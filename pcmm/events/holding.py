@@ -169,9 +169,9 @@ class Holds:
         return sets
 
     def reference(self, cfg: Configuration) -> str | None:
-        """The configuration the holding forces are solved in: one whose movable joints include
-        ``cfg``'s and every held one, with ``cfg``'s drives; of those the fewest joints, then one
-        a hold was locked from.  Only its model (its joints, loops and drives) is used: the
+        """The configuration the holding forces are solved in: one whose movable joints are
+        ``cfg``'s and every held one, with ``cfg``'s drives and cut joints; of those one a hold was
+        locked from.  Only its model (its joints, loops and drives) is used: the
         forces are always ``cfg``'s own (:meth:`forces`), whatever the reference applies."""
         key = (cfg.name, tuple(h.label for h in self.items))  # asked at every sample and guard value
         if key not in self._refs:
@@ -181,8 +181,10 @@ class Holds:
             # the same loops and pinned points: another cut joint (a foot pinned elsewhere, or none)
             # is another mechanism, whose multipliers are not this one's holding forces
             cuts = set(cfg.spec.cut_joints)
+            # and exactly these joints free: a joint that ``cfg`` locks and no hold holds, free in the
+            # reference, would be solved as free (the walker's swing knee, locked, read as free)
             fits = [(len(js), name not in sources, name) for name, js in self._joint_sets().items()
-                    if need <= js and {(d.joint, d.coefficients) for d in self.scene.drives_in(name)} == drives
+                    if need == js and {(d.joint, d.coefficients) for d in self.scene.drives_in(name)} == drives
                     and set(self.scene.configurations[name].cut_joints) == cuts]
             self._refs[key] = min(fits)[2] if fits else None
         return self._refs[key]
