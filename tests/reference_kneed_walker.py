@@ -244,3 +244,41 @@ def constrained_dynamics(walker, q, v, rows):
     K = np.block([[M, -A.T], [A, np.zeros((k, k))]])
     sol = np.linalg.solve(K, np.concatenate([rhs, -Adv]))
     return sol[:6], sol[6:]
+
+
+# -- the step map on the section just after a heel strike (the new swing knee unlocked) -------------
+def _knee_extends(t, y):
+    return y[2] - y[1]
+
+
+_knee_extends.terminal, _knee_extends.direction = True, 1
+
+
+def step(walker, x, rtol=1e-11):
+    """One step from x = (phi_s, omega_s, omega_w) just after a heel strike (stance foot at the
+    origin, the swing leg straight, phi_w = -phi_s: both feet on the slope, the swing knee just
+    unlocked): swing with the knee free to the knee strike (knee angle back to 0, plastic), then with
+    the knee locked to the heel strike (the swing foot on the slope with the swing leg ahead, by 0.05
+    rad at least: the mid-stance scuff of the locked leg is not a strike), the strike solved with both
+    knees locked; the legs swap.  Returns (x+, t_knee, t_heel)."""
+    phs, ws, ww = x
+    swing = flight(walker, walker.swing_bodies(), np.array([phs, -phs, -phs]), np.array([ws, ww, ww]), 5.0,
+                   events=[_knee_extends], first_step=1e-6, rtol=rtol)
+    if swing.status != 1:
+        raise RuntimeError("no knee strike")
+    t_knee, y = swing.t_events[0][0], swing.y_events[0][0]
+    q, v = floating_state(walker, "a", y[:3], y[3:])
+    v, _ = impact(walker, q, v, [("foot", "a"), ("knee", "a"), ("knee", "b")])
+
+    def heel(t, y):
+        return walker.leg * (np.cos(y[0]) - np.cos(y[1])) if y[1] > y[0] + 0.05 else 1.0
+
+    heel.terminal, heel.direction = True, -1
+    locked = flight(walker, walker.locked_bodies(), np.array([q[2], q[4]]), np.array([v[2], v[4]]), 5.0,
+                    events=[heel], rtol=rtol)
+    if locked.status != 1:
+        raise RuntimeError("no heel strike")
+    y = locked.y_events[0][0]
+    q, v = floating_state(walker, "a", y[:2], y[2:])
+    v, _ = impact(walker, q, v, [("foot", "b"), ("knee", "a"), ("knee", "b")])
+    return np.array([q[4], v[4], v[2]]), t_knee, t_knee + locked.t_events[0][0]

@@ -247,3 +247,73 @@ def test_the_knee_holding_moment_is_solved_with_the_stance_foot_that_holds(tmp_p
     path.write_text(dump_toml(doc))
     seg = pcmm.simulate(pcmm.load_scene(path)).segments[2]
     assert np.all(np.isnan(np.asarray(seg.constraint_forces)[:, list(seg.constraint_labels).index("knee_b.hold")]))
+
+
+# -- a whole cycle: Chen's (2007) mass distribution, the thigh's centroid 0.325 m below the hip -----------
+CHEN = kw.Walker(c_thigh=0.325)
+
+
+@pytest.fixture(scope="module")
+def gait():
+    """The period-one gait of the reference's step map (fsolve; the start: the map iterated 25 times
+    from Chen's published initial state, rounded), and pcmm's two steps from it."""
+    from scipy.optimize import fsolve
+
+    x, info, ok, msg = fsolve(lambda z: kw.step(CHEN, z)[0] - z, [0.25380973, -1.11242228, -0.29885974],
+                              xtol=1e-13, full_output=True)
+    assert ok == 1, msg
+    _, t_knee, t_heel = kw.step(CHEN, x)
+    return x, t_knee, t_heel
+
+
+@pytest.fixture(scope="module")
+def cycle(gait, tmp_path_factory):
+    x = gait[0]
+    path = write_walker(tmp_path_factory.mktemp("cycle"), CHEN, np.array([x[0], -x[0], -x[0]]),
+                        np.array([x[1], x[2], x[2]]), t_end=1.3, hold_references=True,
+                        release=lambda stance: {"type": "time", "every": 1e-12})
+    return pcmm.simulate(pcmm.load_scene(path))
+
+
+def test_a_whole_cycle_against_the_reference_gait(gait, cycle):
+    x, t_knee, t_heel = gait
+    assert np.max(np.abs(kw.step(CHEN, x)[0] - x)) < 1e-11        # the gait is periodic (the reference's own check)
+    assert (t_knee, t_heel) == (pytest.approx(0.50734586, abs=1e-8), pytest.approx(0.63215593, abs=1e-8))
+    names = [e["name"] for e in cycle.events]
+    assert names == ["knee strike b", "heel strike b", "knee a unlocks", "knee strike a", "heel strike a", "knee b unlocks"]
+    times = [e["t"] for e in cycle.events]
+    expected = [t_knee, t_heel, t_heel, t_heel + t_knee, 2 * t_heel, 2 * t_heel]
+    assert max(abs(a - b) for a, b in zip(times, expected)) < 1e-8
+    assert times[2] - times[1] <= 2e-12 and times[5] - times[4] <= 2e-12   # the unlock's timer: 1e-12 s
+    # the unlocks: no impulse, every body's velocity continuous
+    for k in (2, 5):
+        ev = cycle.events[k]
+        assert ev["kinetic_energy_after"] == pytest.approx(ev["kinetic_energy_before"], rel=1e-12)
+    # the second step is the first with the legs swapped, one step length further
+    start, again = floating(cycle.segments[0], 0), floating(cycle.segments[-1], 0)
+    assert cycle.segments[-1].configuration == "a_swing"
+    step_length = 2 * CHEN.leg * np.sin(x[0])
+    assert np.max(np.abs(again[0] - start[0] - np.array([2 * step_length, 0, 0, 0, 0, 0]))) < 1e-8
+    assert np.max(np.abs(again[1] - start[1])) < 1e-8
+    mid = floating(cycle.segments[3], 0)                  # b_swing: leg b in stance, leg a's knee free
+    assert cycle.segments[3].configuration == "b_swing"
+    swap = [0, 1, 4, 5, 2, 3]
+    assert np.max(np.abs(mid[0][swap] - start[0] - np.array([step_length, 0, 0, 0, 0, 0]))) < 1e-8
+    assert np.max(np.abs(mid[1][swap] - start[1])) < 1e-8
+
+
+def test_each_heel_strike_of_the_cycle_conserves_the_two_momenta(cycle):
+    for k, new, old, trailing in ((1, "b", "a", TRAILING_LEG), (4, "a", "b", SWING_LEG)):
+        ev = cycle.events[k]
+        seg_before, = [s for s in cycle.segments if s.t[-1] == ev["t"] and s.configuration == ev["from"]]
+        seg_after, = [s for s in cycle.segments if s.t[0] == ev["t"] and s.configuration == ev["to"]]
+        q, v = floating(seg_before, -1)
+        _, v2 = floating(seg_after, 0)
+        v_ref, P = kw.impact(CHEN, q, v, [("foot", new), ("knee", "a"), ("knee", "b")])
+        assert np.max(np.abs(v2 - v_ref)) < 1e-10
+        foot, hip = kw.foot_position(CHEN, q, new), q[:2]
+        for which, about in ((None, foot), (trailing, hip)):
+            h0, h1 = (kw.angular_momentum(CHEN, q, u, about, which) for u in (v, v2))
+            assert h1 == pytest.approx(h0, abs=1e-12)
+        assert ev["released"][f"foot_{old}"]["impulse"] == 0.0
+        assert ev["released"][f"foot_{old}"]["normal_velocity_after"] > 0.0
