@@ -317,3 +317,33 @@ def test_each_heel_strike_of_the_cycle_conserves_the_two_momenta(cycle):
             assert h1 == pytest.approx(h0, abs=1e-12)
         assert ev["released"][f"foot_{old}"]["impulse"] == 0.0
         assert ev["released"][f"foot_{old}"]["normal_velocity_after"] > 0.0
+
+
+CYCLE_ROWS = {"a_swing": [("foot", "a"), ("knee", "a")], "b_swing": [("foot", "b"), ("knee", "b")],
+              "a_locked": [("foot", "a"), ("knee", "a"), ("knee", "b")], "b_locked": [("foot", "b"), ("knee", "a"), ("knee", "b")],
+              "a_strike": [("foot", "a"), ("knee", "a"), ("knee", "b")], "b_strike": [("foot", "b"), ("knee", "a"), ("knee", "b")]}
+
+
+def test_the_cycle_s_stance_forces_and_knee_holds_against_the_kkt_solve(cycle):
+    """Every recorded foot force and knee holding moment of the cycle against the reference's KKT solve.
+    The stance knee's moment changes sign during its stance (about -0.07 to +0.06 N m): positive, the
+    lock pulls the shank towards extension, which a hyperextension stop cannot; this walker's stance
+    knee needs a latch that holds both ways."""
+    worst, stance_knee = 0.0, []
+    for seg in cycle.segments:
+        rows = CYCLE_ROWS[seg.configuration]
+        labels = list(seg.constraint_labels)
+        for i in range(len(seg.t)):
+            q, v = floating(seg, i)
+            _, lam = kw.constrained_dynamics(CHEN, q, v, rows)
+            forces = dict(zip(labels, seg.constraint_forces[i]))
+            leg = rows[0][1]
+            worst = max(worst, abs(forces[f"foot_{leg}.fx"] - lam[0]), abs(forces[f"foot_{leg}.fy"] - lam[1]))
+            for k, row in enumerate(rows[1:], start=2):   # a foot takes multipliers 0 and 1, each knee one
+                label = f"knee_{row[1]}.hold"
+                if label in forces:
+                    worst = max(worst, abs(forces[label] - lam[k]))
+                    if row[1] == leg:
+                        stance_knee.append(forces[label])
+    assert worst < 1e-9
+    assert min(stance_knee) < -0.05 and max(stance_knee) > 0.05
