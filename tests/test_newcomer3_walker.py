@@ -347,3 +347,21 @@ def test_the_cycle_s_stance_forces_and_knee_holds_against_the_kkt_solve(cycle):
                         stance_knee.append(forces[label])
     assert worst < 1e-9
     assert min(stance_knee) < -0.05 and max(stance_knee) > 0.05
+
+
+def test_a_release_whose_holding_force_is_past_its_value_at_entry_is_named(tmp_path):
+    """Stumble: the trailing knee's unlock written as a reaction guard (its holding moment, tensile from
+    the heel strike on: +0.0271 N m) never fires, since a guard fires on a crossing only; the walker went
+    on to t_end with the knee locked and nothing said so.  The run's warnings now name the release, the
+    force and how far past it is."""
+    run = pcmm.simulate(pcmm.load_scene(write_walker(
+        tmp_path, W, THETA0, OMEGA0, t_end=0.7, hold_references=True,
+        release=lambda stance: {"type": "reaction", "of": f"knee_{stance}", "value": 0.0, "direction": "increasing"})))
+    assert [e["name"] for e in run.events] == ["knee strike b", "heel strike b"]
+    (note,) = run.stats["warnings"]
+    assert note.startswith("t = 0.528819673 s, configuration 'b_strike': the release 'knee a unlocks' watches")
+    # how far past: the reference's holding moment of knee a just after the heel strike
+    seg = run.segments[2]
+    q, v = floating(seg, 0)
+    _, lam = kw.constrained_dynamics(W, q, v, ROWS["b_strike"])
+    assert f"already {lam[2]:.6g} past that value" in note and lam[2] == pytest.approx(0.0271241, abs=1e-7)
