@@ -365,3 +365,36 @@ def test_a_release_whose_holding_force_is_past_its_value_at_entry_is_named(tmp_p
     q, v = floating(seg, 0)
     _, lam = kw.constrained_dynamics(W, q, v, ROWS["b_strike"])
     assert f"already {lam[2]:.6g} past that value" in note and lam[2] == pytest.approx(0.0271241, abs=1e-7)
+
+
+def test_a_knee_stop_let_go_on_the_stance_leg_keeps_the_stance_foot(tmp_path):
+    """The knee strike as a stop (e = 0) that merges and lets go where its holding force turns tensile
+    (the default unmerge): after the heel strike knee b is the stance knee, and the lock would have to
+    pull its shank straight (+0.00586 N m, the reference's KKT solve), so the merge is let go at once.
+    It was let go into 'a_swing', the first configuration with knee b free, whose foot a is pinned
+    (the foot that just lifted off): the run stopped ("the velocity after the switch violates the
+    constraints of 'a_swing': 'foot_a.fx' ..."). Now into the one with foot b pinned, and the foot stays."""
+    import tomllib
+
+    from builders import dump_toml
+
+    path = write_walker(tmp_path, W, THETA0, OMEGA0, t_end=0.6, hold_references=True)
+    doc = tomllib.loads(path.read_text())
+    knee = doc["transitions"][0]
+    knee.update(type="stop", restitution=0.0, merge_to=knee.pop("to"))
+    path.write_text(dump_toml(doc))
+    run = pcmm.simulate(pcmm.load_scene(path))
+    assert [(e["name"], e["to"]) for e in run.events] == [
+        ("knee strike b", "a_locked"), ("heel strike b", "b_strike"), ("knee strike b", "b_knee_free")]
+    ev = run.events[2]
+    assert ev["cause"] == "tensile holding force" and ev["t"] == run.events[1]["t"]
+    q, v = floating(run.segments[2], 0)
+    _, lam = kw.constrained_dynamics(W, q, v, ROWS["b_strike"])
+    assert lam[3] == pytest.approx(0.00586032506, abs=1e-10)       # knee b's lock would pull
+    anchor = np.asarray(run.events[1]["anchor"]["foot_b"])
+    seg = run.segments[-1]
+    assert seg.configuration == "b_knee_free"
+    for i in range(len(seg.t)):
+        qi, _ = floating(seg, i)
+        assert np.max(np.abs(kw.foot_position(W, qi, "b") - anchor)) < 1e-9
+    assert floating(seg, -1)[0][5] - floating(seg, -1)[0][4] < -1e-3   # the stance knee buckles

@@ -230,13 +230,15 @@ class Holds:
 
     def release_target(self, hold: Hold, cfg: Configuration) -> str:
         need = set(cfg.joint_names) | set(hold.joints)
+        cuts = set(cfg.spec.cut_joints)  # the same loops and pinned points (a walker's stance foot, not the other)
         for name, js in self._joint_sets().items():
-            if js == need:
+            if js == need and set(self.scene.configurations[name].cut_joints) == cuts:
                 return name
         raise SimulationError(
             f"configuration '{cfg.name}': the merge of '{hold.label}' is held by compression only "
             f"(unmerge), so pcmm must be able to release it here, into a configuration with the joints "
-            f"of '{cfg.name}' plus {', '.join(sorted(hold.joints))} free; the scene has none. Add it "
+            f"of '{cfg.name}' plus {', '.join(sorted(hold.joints))} free and its cut joints "
+            f"({', '.join(s.name for s in cfg.spec.cut_joints) or 'none'}); the scene has none. Add it "
             f"(a URDF, or a configuration derived by locking joints) or set unmerge = false on "
             f"'{hold.label}'")
 
