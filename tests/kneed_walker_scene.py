@@ -61,7 +61,7 @@ def initial_state(w, theta, omega, foot=(0.0, 0.0)):
 
 
 def write_walker(folder: Path, w: kw.Walker, theta, omega, t_end=1.2, release=None,
-                 solver=None, foot=(0.0, 0.0), hold_references=False) -> Path:
+                 solver=None, foot=(0.0, 0.0), hold_references=False, knee_cut=True) -> Path:
     folder.mkdir(parents=True, exist_ok=True)
     (folder / "kneed_walker.urdf").write_text(walker_urdf(w))
     q0, v0 = initial_state(w, theta, omega, foot)
@@ -84,7 +84,7 @@ def write_walker(folder: Path, w: kw.Walker, theta, omega, t_end=1.2, release=No
     for stance, swing in (("a", "b"), ("b", "a")):
         transitions.append({
             "name": f"knee strike {swing}", "type": "latch", "from": f"{stance}_swing", "to": f"{stance}_locked",
-            "cut": [f"knee_{swing}"],
+            "cut": [f"knee_{swing}"] if knee_cut else [],
             "guard": {"type": "coordinate", "measure": {"joint": f"knee_{swing}"}, "value": 0.0,
                       "direction": "increasing"},
             "contact": {"joint": f"knee_{swing}"}})

@@ -398,3 +398,26 @@ def test_a_knee_stop_let_go_on_the_stance_leg_keeps_the_stance_foot(tmp_path):
         qi, _ = floating(seg, i)
         assert np.max(np.abs(kw.foot_position(W, qi, "b") - anchor)) < 1e-9
     assert floating(seg, -1)[0][5] - floating(seg, -1)[0][4] < -1e-3   # the stance knee buckles
+
+
+def test_point_mass_segments_and_the_knee_s_cut(tmp_path):
+    """Stumble: Chen's walker has point-mass segments (no inertia).  Its knee strike stopped the run with
+    "configuration 'a_swing': the mass matrix is not positive definite (a link without mass or
+    inertia?)", though 'a_swing''s mass matrix is positive definite: the matrix at fault is the cut
+    system's, where cutting knee_b frees shank_b, a point mass with no inertia about its centroid.  The
+    message now says so and gives the remedy: for a joint stop, cut = [] (the same run); with it the
+    point-mass walker's knee strike matches the reference."""
+    points = kw.Walker(c_thigh=0.325, i_thigh=0.0, i_shank=0.0)
+    with pytest.raises(pcmm.SimulationError) as err:
+        pcmm.simulate(pcmm.load_scene(write_walker(tmp_path / "cut", points, THETA0, OMEGA0, t_end=0.6)))
+    text = str(err.value)
+    assert "transition 'knee strike b': cutting 'knee_b' (its `cut`) frees 'shank_b'" in text and "cut = []" in text
+    run = pcmm.simulate(pcmm.load_scene(write_walker(tmp_path / "nocut", points, THETA0, OMEGA0, t_end=0.6,
+                                                     knee_cut=False)))
+    swing = kw.flight(points, points.swing_bodies(), THETA0, OMEGA0, 1.0, events=[knee_event])
+    assert run.events[0]["name"] == "knee strike b"
+    assert run.events[0]["t"] == pytest.approx(swing.t_events[0][0], abs=1e-9)
+    q, v = floating(run.segments[0], -1)
+    _, v2 = floating(run.segments[1], 0)
+    v_ref, _ = kw.impact(points, q, v, [("foot", "a"), ("knee", "a"), ("knee", "b")])
+    assert np.max(np.abs(v2 - v_ref)) < 1e-10
