@@ -421,3 +421,13 @@ def test_point_mass_segments_and_the_knee_s_cut(tmp_path):
     _, v2 = floating(run.segments[1], 0)
     v_ref, _ = kw.impact(points, q, v, [("foot", "a"), ("knee", "a"), ("knee", "b")])
     assert np.max(np.abs(v2 - v_ref)) < 1e-10
+
+
+def test_the_differential_oracle_finds_nothing(tmp_path, step, cycle):
+    """The suite's own second route (tests/oracle.py: its own models, locks and KKT solves) on the step
+    and on the cycle.  On main it reported knee_b.hold recorded -0.028943 where it solves 0.005860."""
+    import oracle
+
+    path = write_walker(tmp_path / "refs", W, THETA0, OMEGA0, t_end=0.6, hold_references=True)
+    assert oracle.check_run(path) == []
+    assert oracle.check_run(cycle.scene, traj=cycle) == []
