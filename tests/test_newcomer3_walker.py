@@ -349,7 +349,7 @@ def test_the_cycle_s_stance_forces_and_knee_holds_against_the_kkt_solve(cycle):
     assert min(stance_knee) < -0.05 and max(stance_knee) > 0.05
 
 
-def test_a_release_whose_holding_force_is_past_its_value_at_entry_is_named(tmp_path):
+def test_a_release_whose_holding_force_is_past_its_value_at_entry_is_named(tmp_path, capsys):
     """Stumble: the trailing knee's unlock written as a reaction guard (its holding moment, tensile from
     the heel strike on: +0.0271 N m) never fires, since a guard fires on a crossing only; the walker went
     on to t_end with the knee locked and nothing said so.  The run's warnings now name the release, the
@@ -365,6 +365,13 @@ def test_a_release_whose_holding_force_is_past_its_value_at_entry_is_named(tmp_p
     q, v = floating(seg, 0)
     _, lam = kw.constrained_dynamics(W, q, v, ROWS["b_strike"])
     assert f"already {lam[2]:.6g} past that value" in note and lam[2] == pytest.approx(0.0271241, abs=1e-7)
+    # and `pcmm run` prints it (the run's warnings reached only the summary and traj.stats)
+    from pcmm.cli import main as cli_main
+
+    capsys.readouterr()
+    assert cli_main(["run", str(tmp_path / "kneed_walker.toml"), "--quiet"]) == 0
+    err = capsys.readouterr().err
+    assert f"pcmm: warning: {note}" in err
 
 
 def test_a_knee_stop_let_go_on_the_stance_leg_keeps_the_stance_foot(tmp_path):
