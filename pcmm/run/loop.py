@@ -191,6 +191,8 @@ def integrate_segment(run: RunState, progress):
     bounced, run.bounced = run.bounced, None
     leaving = []  # guards at their value whose contact does not approach (_pending): re-armed, not crossed
     pending = None if run.phase is not None else _pending(cfg, guards, t, y0, leaving)
+    if run.phase is None:
+        run.traj.stats["warnings"] += _releases_past_at_entry(cfg, guards, t, y0, run.traj.stats["warnings"])
     leaving = [i for i in leaving if guards[i].transition is not bounced]  # (that one is re-armed already)
     if pending is None and leaving:
         guards = left_at_value(cfg, guards, leaving, t)
@@ -541,6 +543,32 @@ def _on_state(guards: list, n: int, cache: GuardCache) -> list:
         return list(kept)
     out = [g.on_state(n) for g in guards]
     cache.keep_on_state(guards, n, out)
+    return out
+
+
+def _releases_past_at_entry(cfg: Configuration, guards, t, y0, said) -> list[str]:
+    """Warnings, once per configuration and release: a scene's release whose reaction guard (on a
+    lock's holding force) is already past its value where a segment of ``cfg`` starts.  A guard fires
+    on a crossing in its direction only, so such a release waits for the force to come back and cross
+    again, and may never fire; the run's closest approach describes the final configuration only (a
+    kneed walker's trailing knee, tensile from the heel strike on, stayed locked for the whole step
+    and nothing said so)."""
+    out = []
+    for g in guards:
+        tr = g.transition
+        if (g.action != "transition" or tr is None or tr.type != "release" or tr.guard.type != "reaction"
+                or any(s.name == tr.guard.of for s in cfg.spec.cut_joints)):
+            continue
+        key = f"configuration '{cfg.name}': the release '{tr.name}' watches"
+        if any(key in w for w in said):
+            continue
+        past = tr.guard.direction * g(t, y0)
+        if past > 0:
+            way = "increasing" if tr.guard.direction > 0 else "decreasing"
+            out.append(f"t = {t:.9g} s, {key} the holding force of '{tr.guard.of}' cross {tr.guard.value:.9g} "
+                       f"{way}, but it is already {past:.6g} past that value where the configuration is entered: "
+                       "a guard fires on a crossing in its direction only, so the release waits for the force to "
+                       "come back and cross again (it may never fire)")
     return out
 
 

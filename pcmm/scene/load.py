@@ -1182,6 +1182,13 @@ class _Builder:
                     self.p.add(f"{where}.to", f"= {t.target!r}: a pin's target holds the struck point by a revolute "
                                f"cut joint with a = the frame, point_a = \"entry\", b = {t.contact.b!r} and point_b = "
                                f"{list(t.contact.point_b)} (the contact's point_b); '{t.target}' has none")
+                src_joints, dst_joints = list(cfg.info.movable_joints), list(names[t.target].info.movable_joints)
+                if src_joints != dst_joints:  # the strike's impulse is solved on one tree (pins.pin_strike)
+                    self.p.add(f"{where}.to", f"= {t.target!r}: a pin keeps the tree and only adds the cut joint "
+                               f"that holds the struck point, but '{t.target}' has the movable joints {dst_joints} "
+                               f"and '{t.source}' {src_joints}: pin into a configuration with the same joints "
+                               f"(the same URDF, or the same locks), and free or lock joints after the strike with "
+                               f"a `release` or a `latch` from there")
                 if t.contact.a != cfg.info.root:
                     self.p.add(f"{where}.contact.a", f"= {t.contact.a!r}: a pin anchors b's point on the frame "
                                f"('{cfg.info.root}'); a point pinned to a moving link is not modelled yet")
