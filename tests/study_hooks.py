@@ -54,3 +54,28 @@ def echo(job):
     if job == "hang":
         time.sleep(3600)
     return job
+
+
+def hold_table():
+    """In a study's own process (not its workers; see :mod:`processes`): right after its results
+    table took the rows ``$PCMM_TEST_HOLD`` says (``ROWS:FOLDER``), write ``FOLDER/held`` with
+    that count and wait until ``FOLDER/go`` exists (at most 10 minutes: never a hang).  A signal
+    meanwhile is answered as anywhere in the study (the wait is a Python loop)."""
+    from pathlib import Path
+    import pcmm.studies.table as table
+    rows, _, folder = os.environ["PCMM_TEST_HOLD"].partition(":")
+    rows, folder = int(rows), Path(folder)
+    real, count = table.ResultsTable.append, [0]
+
+    def append(self, row):
+        out = real(self, row)
+        count[0] += 1
+        if count[0] == rows:
+            tmp = folder / "held.tmp"
+            tmp.write_text(str(count[0]))
+            tmp.replace(folder / "held")
+            end = time.monotonic() + 600
+            while not (folder / "go").exists() and time.monotonic() < end:
+                time.sleep(0.005)
+        return out
+    table.ResultsTable.append = append
