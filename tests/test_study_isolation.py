@@ -4,10 +4,7 @@ the sweep (kill -9 leaves no orphan); each worker builds a model once for all it
 from __future__ import annotations
 
 import csv
-import os
 import signal
-import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -17,10 +14,8 @@ import pcmm
 from pcmm.studies.sweep import Axis, make_plan, sweep
 
 from builders import EXAMPLES
-from processes import pause_at_lines
+from processes import Gate, held_cli
 
-ROOT = Path(__file__).resolve().parents[1]
-TESTS = Path(__file__).resolve().parent
 THREE_BAR = EXAMPLES / "three_bar.toml"
 
 
@@ -95,12 +90,10 @@ def _descendants(pid: int) -> list[int]:
 @pytest.mark.skipif(not Path("/proc/self/task").exists(), reason="needs Linux's /proc")
 @pytest.mark.slow  # a sweep killed in a subprocess
 def test_kill_9_of_the_sweep_leaves_no_worker_behind(tmp_path):
-    env = {**os.environ, "PYTHONPATH": f"{ROOT}{os.pathsep}{TESTS}"}
-    proc = subprocess.Popen([sys.executable, "-m", "pcmm.cli", "sweep", str(THREE_BAR), "--set",
-                             "forces.tau1.value=1.9:2.1:40", "--t-end", "3.0", "--out", "r.csv", "--workers", "2",
-                             "--quiet"], cwd=tmp_path, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-    out = tmp_path / "r.csv"
-    assert pause_at_lines(proc, out, 3) < 41  # the sweep stopped mid-way, its workers alive
+    gate = Gate(tmp_path / "gate", rows=2)
+    proc = held_cli(["sweep", str(THREE_BAR), "--set", "forces.tau1.value=1.9:2.1:40", "--t-end", "3.0", "--out",
+                     "r.csv", "--workers", "2", "--quiet"], gate, cwd=tmp_path)
+    assert gate.wait_held(proc) == 2  # the sweep waits mid-way (38 runs left), its workers alive
     kids = _descendants(proc.pid)
     assert len(kids) >= 2  # the two workers (and nothing of multiprocessing's)
     proc.send_signal(signal.SIGKILL)
