@@ -65,34 +65,3 @@ def held_cli(args, gate: Gate, **popen_kw):
     import subprocess
     return subprocess.Popen([sys.executable, "-c", _HELD_MAIN, *map(str, args)], env=gate.env(),
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, **popen_kw)
-
-
-import signal  # noqa: E402  (the stop-and-resume helpers below go once no test uses them)
-
-
-def lines(path: Path) -> int:
-    """The number of lines of ``path`` so far (0 before it exists)."""
-    try:
-        return len(path.read_text().splitlines())
-    except FileNotFoundError:
-        return 0
-
-
-def pause_at_lines(proc, path: Path, at_least: int, timeout: float = 120.0) -> int:
-    """Wait until ``path`` has ``at_least`` lines, stop ``proc`` there and return its line count.
-
-    Fails (naming the count) if the child ended first or the lines never came: the test could
-    not then be about a child in the middle of its work."""
-    t0 = time.monotonic()
-    while time.monotonic() - t0 < timeout and lines(path) < at_least and proc.poll() is None:
-        time.sleep(0.002)
-    os.kill(proc.pid, signal.SIGSTOP)
-    assert proc.poll() is None, f"the child ended before it was stopped ({lines(path)} lines in {path.name})"
-    got = lines(path)
-    assert got >= at_least, f"{path.name} had {got} lines after {timeout} s, waiting for {at_least}"
-    return got
-
-
-def resume(proc) -> None:
-    """Let a child stopped by :func:`pause_at_lines` go on."""
-    os.kill(proc.pid, signal.SIGCONT)
