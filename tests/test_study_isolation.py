@@ -109,7 +109,9 @@ def test_on_dask_a_crashing_and_a_hanging_run_are_rows_too_and_a_time_limit_coun
     """A run that kills its Dask worker is a crashed row, one that hangs a timeout row once it has
     run for its time limit (5 s), the others complete.  Then three runs of study_hooks.SLOW_S = 3 s
     on the two workers: the third waits 3 s for a worker, so it ends 6 s after its submission but
-    3 s after its start, and completes (a limit counted from submission stopped it at 5 s)."""
+    3 s after its start, and completes (a limit counted from submission stopped it at 5 s).  Each
+    slow run lasts 3 s on any machine (it runs, then waits out the rest): 2 s are left for Dask to
+    report it, and 1 s between a limit counted from the start and one counted from submission."""
     distributed = pytest.importorskip("distributed")
     import dask
     from distributed.diagnostics.plugin import WorkerPlugin
