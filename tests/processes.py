@@ -9,7 +9,8 @@ look at the table and the signal, and on a machine ten times faster the rest of 
 that gap.  So the child stops *itself*: started by :func:`held_cli`, a study's own process (not its
 workers) waits, right after its table took ``rows`` rows, until the test opens the gate
 (:func:`study_hooks.hold_table`); :meth:`Gate.wait_held` returns once it waits there, so whatever
-the test does next happens while the child is, for certain, in the middle of its work.
+the test does next happens while the child is, for certain, in the middle of its work.  Likewise a
+``pcmm run`` started by :func:`marked_cli` says when it has recorded its first segment.
 """
 from __future__ import annotations
 
@@ -24,8 +25,35 @@ ROOT = TESTS.parent
 #: the environment variable :func:`study_hooks.hold_table` reads: ``ROWS:FOLDER``
 HOLD_ENV = "PCMM_TEST_HOLD"
 
-#: ``pcmm`` (``python -m pcmm.cli``) with :func:`study_hooks.hold_table` installed first
-_HELD_MAIN = "import sys, study_hooks; study_hooks.hold_table(); from pcmm.cli import main; sys.exit(main(sys.argv[1:]))"
+#: the environment variable :func:`study_hooks.mark_recorded` reads: the marker file's path
+MARK_ENV = "PCMM_TEST_MARK"
+
+
+def child_env(**extra: str) -> dict:
+    """The environment of a child that imports pcmm from this tree and the suite's hooks."""
+    path = os.pathsep.join(p for p in (str(ROOT), str(TESTS), os.environ.get("PYTHONPATH")) if p)
+    return {**os.environ, "PYTHONPATH": path, **extra}
+
+
+def hooked_cli(hook: str, args, env: dict, **popen_kw):
+    """``python -m pcmm.cli ARGS`` with ``study_hooks.HOOK()`` called first (stdout and stderr
+    piped, as text)."""
+    import subprocess
+    main = f"import sys, study_hooks; study_hooks.{hook}(); from pcmm.cli import main; sys.exit(main(sys.argv[1:]))"
+    return subprocess.Popen([sys.executable, "-c", main, *map(str, args)], env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, **popen_kw)
+
+
+def wait_for_file(proc, path: Path, what: str, timeout: float = 300.0) -> None:
+    """Wait until ``path`` exists (the child's handshake); fails, with the child's error output,
+    if the child ended first."""
+    end = time.monotonic() + timeout
+    while not path.exists():
+        if proc.poll() is not None:
+            err = proc.stderr.read() if proc.stderr else ""
+            raise AssertionError(f"the child ended (status {proc.returncode}) before {what}: {err}")
+        assert time.monotonic() < end, f"the child did not reach {what} in {timeout} s"
+        time.sleep(0.01)
 
 
 class Gate:
@@ -37,23 +65,14 @@ class Gate:
         self.folder.mkdir(parents=True, exist_ok=True)
 
     def env(self) -> dict:
-        """The environment of a child that stops at this gate (it imports pcmm from this tree)."""
-        path = os.pathsep.join(p for p in (str(ROOT), str(TESTS), os.environ.get("PYTHONPATH")) if p)
-        return {**os.environ, "PYTHONPATH": path, HOLD_ENV: f"{self.rows}:{self.folder}"}
+        """The environment of a child that stops at this gate."""
+        return child_env(**{HOLD_ENV: f"{self.rows}:{self.folder}"})
 
     def wait_held(self, proc, timeout: float = 300.0) -> int:
-        """Wait until ``proc`` stopped at the gate; the rows its table had then.  Fails, with the
-        child's error output, if it ended first (it could not then be caught mid-way)."""
-        held = self.folder / "held"
-        end = time.monotonic() + timeout
-        while not held.exists():
-            if proc.poll() is not None:
-                err = proc.stderr.read() if proc.stderr else ""
-                raise AssertionError(f"the child ended (status {proc.returncode}) before its table had "
-                                     f"{self.rows} rows: {err}")
-            assert time.monotonic() < end, f"the child did not reach {self.rows} rows in {timeout} s"
-            time.sleep(0.01)
-        return int(held.read_text())
+        """Wait until ``proc`` stopped at the gate; the rows its table had then.  Fails if it
+        ended first (it could not then be caught mid-way)."""
+        wait_for_file(proc, self.folder / "held", f"its table had {self.rows} rows", timeout)
+        return int((self.folder / "held").read_text())
 
     def open(self) -> None:
         """Let the child go on."""
@@ -62,6 +81,11 @@ class Gate:
 
 def held_cli(args, gate: Gate, **popen_kw):
     """``python -m pcmm.cli ARGS`` that stops at ``gate`` (stdout and stderr piped, as text)."""
-    import subprocess
-    return subprocess.Popen([sys.executable, "-c", _HELD_MAIN, *map(str, args)], env=gate.env(),
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, **popen_kw)
+    return hooked_cli("hold_table", args, gate.env(), **popen_kw)
+
+
+def marked_cli(args, marker: Path, **popen_kw):
+    """``python -m pcmm.cli run ...`` that creates ``marker`` once it recorded its first segment:
+    a signal sent after :func:`wait_for_file` finds it lands in the run, past its start-up, for
+    certain (a wait for some seconds of CPU assumed how much start-up costs)."""
+    return hooked_cli("mark_recorded", args, child_env(**{MARK_ENV: str(marker)}), **popen_kw)

@@ -1,5 +1,7 @@
-"""Hooks run in a study's worker processes as they start (``sweep(..., worker_init="study_hooks:NAME")``):
-faults a run can suffer there, and a count of the Pinocchio models a worker builds."""
+"""Hooks run in the suite's child processes as they start: in a study's worker processes
+(``sweep(..., worker_init="study_hooks:NAME")``) faults a run can suffer there, and a count of the
+Pinocchio models a worker builds; in a ``pcmm`` command started by :mod:`processes`, handshakes
+with the test (a study that waits at a gate, a run that says it has begun)."""
 import os
 import time
 
@@ -87,3 +89,18 @@ def hold_table():
                 time.sleep(0.005)
         return out
     table.ResultsTable.append = append
+
+
+def mark_recorded():
+    """In a ``pcmm run`` process (see :mod:`processes`): create the file ``$PCMM_TEST_MARK`` once
+    the run has recorded its first segment (it has taken steps: a signal now stops the run itself)."""
+    from pathlib import Path
+    import pcmm.run.recording as recording
+    marker, real = Path(os.environ["PCMM_TEST_MARK"]), recording.record_samples
+
+    def record_samples(*args, **kwargs):
+        out = real(*args, **kwargs)
+        if not marker.exists():
+            marker.touch()
+        return out
+    recording.record_samples = record_samples
