@@ -57,12 +57,12 @@ class FaultyPlugin:
 
 def echo(job):
     """A run for :class:`pcmm.studies.pool.WorkerPool` tests: ``"abort"`` crashes the worker
-    (after 0.5 s), ``"hang"`` hangs it, anything else is its own row."""
+    (after 0.5 s), ``"hang"`` hangs it (:data:`HANG_S`), anything else is its own row."""
     if job == "abort":
         time.sleep(0.5)
         os.abort()
     if job == "hang":
-        time.sleep(3600)
+        time.sleep(HANG_S)
     return job
 
 
