@@ -120,7 +120,9 @@ def build_parser() -> argparse.ArgumentParser:
                    "(and at every event) on the integrator's dense output, s (default: at its steps)")
     r.add_argument("--force", action="store_true", help="overwrite existing output files")
     r.add_argument("--quiet", action="store_true", help="no progress bar, no event table (warnings still print, a guard that never fired among them)")
-    sw = sub.add_parser("sweep", help="run a design study: variations of a scene, one results row per run")
+    sw = sub.add_parser("sweep", help="run a design study: variations of a scene, one results row per run",
+                        formatter_class=argparse.RawDescriptionHelpFormatter)
+    _list_columns_in_help(sw)
     sw.add_argument("scene", type=Path)
     sw.add_argument("--set", dest="sets", action="append", default=[], metavar="PATH=VALUES",
                     help="a value path and its values: 0.2,0.5,0.8 or start:stop:count (a grid over every "
@@ -289,10 +291,50 @@ def _resolved(p: Path) -> Path:
         return p.absolute()
 
 
-def _check_outputs(paths, force, folders=()):
-    """Refuse, before anything runs: an output that exists (without --force), is a folder, lies
-    in a missing folder, or is named twice (one would silently replace the other)."""
+def _list_columns_in_help(parser) -> None:
+    """`pcmm sweep -h` ends with the table's columns and what each holds (which impulse, which
+    energy), read from :data:`pcmm.studies.job.QUANTITIES` when the help is shown: a plain run
+    does not import the studies."""
+    plain = parser.format_help
+
+    def format_help():
+        import textwrap
+        from .studies.job import QUANTITIES
+        lines = ["the table's columns: run, one per swept path, status, error, then:"]
+        for name, text in QUANTITIES.items():
+            lines += textwrap.wrap(f"{name}: {text}", 96, initial_indent="  ", subsequent_indent="      ")
+        lines.append("then one per --collect PATH, and check (the row's CRC-32); docs/studies.md says more")
+        parser.epilog = "\n".join(lines)
+        return plain()
+    parser.format_help = format_help
+
+
+#: the file formats of `pcmm run`'s outputs, by suffix: a file named for one written in another
+#: would be read wrongly by every tool that trusts its name (a spreadsheet opening an NPZ)
+_RUN_FORMATS = {".npz": ("--out", "the trajectory (NPZ)"), ".csv": ("--csv", "the samples as CSV"),
+                ".json": ("--summary", "the summary (JSON)"), ".html": ("--html", "the replay page (HTML)")}
+
+
+def _suffix_problems(paths) -> list[str]:
+    """`pcmm run --out x.csv` (it wrote an NPZ named .csv, silently) and the like: an output whose
+    suffix names another output's format.  Other suffixes are the user's choice."""
     problems = []
+    for flag, p in paths:
+        if p is None:
+            continue
+        meant = _RUN_FORMATS.get(Path(p).suffix.lower())
+        if meant is not None and meant[0] != flag:
+            own = next(s for s, (f, _) in _RUN_FORMATS.items() if f == flag)
+            problems.append(f"{flag} {p}: {flag} writes {_RUN_FORMATS[own][1]}, not a {Path(p).suffix} file; "
+                            f"for {meant[1]} give {meant[0]} {p}, or name this output *{own}")
+    return problems
+
+
+def _check_outputs(paths, force, folders=(), formats=False):
+    """Refuse, before anything runs: an output that exists (without --force), is a folder, lies
+    in a missing folder, or is named twice (one would silently replace the other); with
+    ``formats``, one named for another output's format (:func:`_suffix_problems`)."""
+    problems = _suffix_problems(paths) if formats else []
     seen: dict[Path, str] = {}
     for flag, p in paths:
         if p is None:
@@ -326,6 +368,19 @@ def _check_outputs(paths, force, folders=()):
                                 f"{', ...' if len(figures) > 4 else ''}); pass --force to overwrite them")
     if problems:
         raise UsageError(problems)
+
+
+def _run_warnings(traj) -> list[str]:
+    """The warnings the run itself found on its way, each ``t = ... s, configuration ...`` (redundant
+    rows, a hold no configuration can solve, a release already past its value where it is entered):
+    printed, since only the summary and ``traj.stats`` kept them (a kneed walker's trailing knee stayed
+    locked and the terminal said nothing).  The assembly's, which ``pcmm check`` printed before the
+    run, do not start so.  Read only where the stats are already settled or settle cleanly."""
+    try:
+        said = traj.stats.get("warnings") or []
+    except PcmmError:
+        return []
+    return [w for w in said if w.startswith("t = ")]
 
 
 def _check_geometry(scene):
@@ -518,7 +573,7 @@ def cmd_run(args, held=None) -> int:
         from .run.loop import simulate
         from .results.summary import event_table
         _check_outputs([("--out", args.out), ("--summary", args.summary), ("--csv", args.csv),
-                        ("--html", args.html)], args.force, folders=[("--plots", args.plots)])
+                        ("--html", args.html)], args.force, folders=[("--plots", args.plots)], formats=True)
         if args.no_comparison and args.plots is None:
             raise UsageError("--no-comparison: only with --plots (it leaves out the figures' comparison run)")
         scene = load_scene(args.scene)
@@ -560,6 +615,8 @@ def cmd_run(args, held=None) -> int:
     if failure is None and traj.stats.get("closest_approach"):
         _say_approach(traj.stats["closest_approach"], args.quiet)
     for w in (w for e in traj.events for w in e.get("warnings", ())):  # check printed the assembly's
+        _error(w, prefix="pcmm: warning: ")
+    for w in _run_warnings(traj):
         _error(w, prefix="pcmm: warning: ")
     if failure is not None:
         kept = "; ".join(f"{what} {path}" for what, path in written) or "nothing could be saved"

@@ -182,7 +182,7 @@ def test_a_bounce_re_arms_with_the_merges_guards_it_had(monkeypatch):
     kept = pcmm.simulate(scene, options)
     stays = 1 + sum(a["from"] != a["to"] for a in kept.events)
     assert len(calls) <= stays < len(kept.events) / 10
-    monkeypatch.setattr(loop, "_unmerge_guards", lambda cfg, holds, phase, kept, offsets=None: holds.unmerge_guards(cfg))
+    monkeypatch.setattr(loop, "_unmerge_guards", lambda cfg, holds, phase, cache, offsets=None: holds.unmerge_guards(cfg))
     calls.clear()
     rebuilt = pcmm.simulate(scene, options)
     assert len(calls) > len(kept.events)

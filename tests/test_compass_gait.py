@@ -84,6 +84,31 @@ def test_the_mid_stance_dip_is_there_and_ignored(run):
     assert low and max(low) < 0
 
 
+def test_a_run_ending_mid_step_reports_the_guard_as_it_reads_not_the_dip():
+    """Ended at t = 2 s (mid-step: the next strike is due at 2.2 s), the run reports where 'heel strike
+    b' came nearest since its last firing.  The plain gap crossed 0 upwards as the swing foot came out
+    of its mid-stance dip, which the guard's `when` ignores; the report used to call that a crossing
+    against the guard's direction and say "check `direction`" (a wrong diagnosis).  Read as the guard
+    reads it (outside the region it stays on its unfired side) there is no such crossing: the nearest
+    is where the legs pass each other (hip = 0, the two feet at one point on the slope)."""
+    from dataclasses import replace
+    from pcmm.model.mechanism import Mechanism
+    from pcmm.run.approach import guard_series
+    scene = pcmm.load_scene(EXAMPLE)
+    traj = pcmm.simulate(scene, pcmm.RunOptions(t_end=2.0))
+    rec, = [r for r in traj.stats["closest_approach"] if r["transition"] == "heel strike b"]
+    assert rec["crossed_against"] is None and rec["last_fired"] == pytest.approx(traj.events[0]["t"])
+    tr, = [t for t in scene.transitions if t.name == "heel strike b"]
+    seg, = [s for s in traj.segments if s.configuration == "stance_a" and s.t[0] > 1.0]
+    cfg = Mechanism(scene)["stance_a"]
+    plain = guard_series(cfg, replace(tr, guard=replace(tr.guard, when=None)), seg.q)
+    armed = guard_series(cfg, tr, seg.q)
+    assert plain.min() < -1e-3 and np.any((plain[:-1] < 0) & (plain[1:] > 0))  # the dip, and its way out
+    assert armed.min() >= -1e-12  # the guard as it reads: never past its value
+    hip = seg.q[np.argmin(armed), 3]
+    assert abs(hip) < 0.05 and rec["t"] == pytest.approx(seg.t[np.argmin(armed)], abs=0.05)
+
+
 def test_angular_momenta_conserved_at_every_strike(run):
     for ev in run.events:
         q = posture_at(run, ev)

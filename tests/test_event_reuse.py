@@ -40,23 +40,25 @@ CYCLE = __import__("pathlib").Path(__file__).resolve().parents[1] / "examples" /
 
 
 def test_rearm_list_taken_in_one_lookup_is_the_component_route(monkeypatch):
-    """``loop._guards``' one look-up (``kept[4]``) gives, at every segment of the cycle, the very guard
-    objects, in order, that its two kept sets give (the route before it: the same call on a copy of the
-    kept sets without ``kept[4]``), and it is taken at most bounces."""
+    """``loop._guards``' one look-up (``GuardCache.take_last``) gives, at every segment of the cycle, the
+    very guard objects, in order, that its two kept sets give (the route before it: the same call on a
+    copy of the cache without the last list and the earlier stays' sets), and it is taken at most bounces."""
+    from dataclasses import replace
+
     import pcmm
     from pcmm.run import loop
 
     original = loop._guards
     seen = {"calls": 0, "one_lookup": 0}
 
-    def both(scene, cfg, holds, t, phase, bounced, fired=(), kept=None):
-        before = list(kept[:4]) if kept is not None else None  # the kept sets of the route before kept[4]
-        entry = kept[4] if kept is not None and len(kept) > 4 else None
-        got = original(scene, cfg, holds, t, phase, bounced, fired, kept)
+    def both(scene, cfg, holds, t, phase, bounced, fired=(), cache=None):
+        before = replace(cache, last=None, made={}) if cache is not None else None  # the route before the last list
+        entry = cache.last if cache is not None else None
+        got = original(scene, cfg, holds, t, phase, bounced, fired, cache)
         want = original(scene, cfg, holds, t, phase, bounced, fired, before)
         assert len(got) == len(want), (t, cfg.name)
-        # (a call that builds rewrites kept[4]: left as it was, the one look-up was taken)
-        if entry is not None and kept[4] is entry:
+        # (a call that builds or takes a kept set replaces the last list: left as it was, the one look-up was taken)
+        if entry is not None and cache.last is entry:
             seen["one_lookup"] += 1
             assert all(a is b for a, b in zip(got, want)), (t, cfg.name)
         else:  # both routes built (or took) the guards: the same transitions, re-armed alike
@@ -78,45 +80,45 @@ def _run_record(traj):
 
 
 def test_guards_built_at_an_earlier_stay_give_the_run_built_afresh(monkeypatch):
-    """``loop._made_guards`` hands a stay the transitions' guards built at an earlier stay in the same
+    """``GuardCache.made_for`` hands a stay the transitions' guards built at an earlier stay in the same
     configuration for the same bounced stop and offsets: the cycle's run is the run that builds them
     at every stay, event by event and sample by sample, and the kept sets are taken at most stays."""
     import pcmm
-    from pcmm.run import loop
+    from pcmm.run.guard_cache import GuardCache
 
     taken = []
-    original = loop._made_guards
+    original = GuardCache.made_for
 
-    def counted(kept, key, guards=None):
-        got = original(kept, key, guards)
-        if guards is None and got is not None:
-            taken.append(key[0].name)
+    def counted(self, cfg, bounced, offsets):
+        got = original(self, cfg, bounced, offsets)
+        if got is not None:
+            taken.append(cfg.name)
         return got
 
-    monkeypatch.setattr(loop, "_made_guards", counted)
+    monkeypatch.setattr(GuardCache, "made_for", counted)
     kept_run = _run_record(pcmm.simulate(CYCLE))
     assert len(taken) >= 20  # (the cycle's periods: 'open''s two stops, each locked configuration's stop)
-    monkeypatch.setattr(loop, "_made_guards", lambda kept, key, guards=None: None)  # built at every stay
+    monkeypatch.setattr(GuardCache, "made_for", lambda self, cfg, bounced, offsets: None)  # built at every stay
     assert _run_record(pcmm.simulate(CYCLE)) == kept_run
 
 
 def test_made_guards_are_held_per_configuration_stop_and_offsets():
-    from pcmm.run import loop
+    from pcmm.run.guard_cache import MADE_GUARDS, GuardCache
 
     class C:
         name = "c"
     a, b, stop = C(), C(), object()
-    kept: list = []
+    cache = GuardCache()
     g = (object(),)
-    assert loop._made_guards(kept, (a, stop, ())) is None
-    loop._made_guards(kept, (a, stop, ()), g)
-    assert loop._made_guards(kept, (a, stop, ())) is g
-    assert loop._made_guards(kept, (b, stop, ())) is None  # another configuration
-    assert loop._made_guards(kept, (a, None, ())) is None  # another bounced stop (or none)
-    assert loop._made_guards(kept, (a, stop, (("L", 6.283185307179586),))) is None  # other offsets
-    for k in range(loop.MADE_GUARDS):  # bounded: a growing offset makes new keys
-        loop._made_guards(kept, (a, stop, (("L", float(k)),)), g)
-    assert len(kept[5]) <= loop.MADE_GUARDS
+    assert cache.made_for(a, stop, ()) is None
+    cache.keep_made(a, stop, (), g)
+    assert cache.made_for(a, stop, ()) is g
+    assert cache.made_for(b, stop, ()) is None  # another configuration
+    assert cache.made_for(a, None, ()) is None  # another bounced stop (or none)
+    assert cache.made_for(a, stop, (("L", 6.283185307179586),)) is None  # other offsets
+    for k in range(MADE_GUARDS):  # bounded: a growing offset makes new keys
+        cache.keep_made(a, stop, (("L", float(k)),), g)
+    assert len(cache.made) <= MADE_GUARDS
 
 
 def _context_ids(f, monkeypatch):

@@ -217,7 +217,9 @@ def test_a_cut_joint_given_twice_runs_as_once(tmp_path):
     """Two identical cut joints give four rows of rank 2 (the fuzz suite found it as a LinAlgError
     traceback; then it was refused as redundant): consistent, so the run goes on with two of them,
     named in the warnings, and ends where the parallelogram closed once does (its drive at 2 rad/s:
-    the same motion, to the integrators' round-off), the split of the load between the copies NaN."""
+    the same motion, to the integrators' round-off), the split of the load between the copies NaN.
+    The copy is named C2: one name given twice is refused at load (tests/test_loader_refusals.py;
+    at a stop, the two rows' impulses under one name came out NaN)."""
     import tomllib
 
     import builders
@@ -225,6 +227,7 @@ def test_a_cut_joint_given_twice_runs_as_once(tmp_path):
     path = builders.parallelogram(tmp_path / "twice", 1.0, 2.0)
     doc = tomllib.loads(path.read_text())
     doc["configurations"]["c"]["cut_joints"] *= 2
+    doc["configurations"]["c"]["cut_joints"][1] = {**doc["configurations"]["c"]["cut_joints"][1], "name": "C2"}
     path.write_text(builders.dump_toml(doc))
     twice = pcmm.simulate(pcmm.load_scene(path))
     assert twice.t[-1] == once.t[-1] == 1.0 and twice.events == once.events == []
@@ -233,3 +236,4 @@ def test_a_cut_joint_given_twice_runs_as_once(tmp_path):
         assert abs(twice.series("q", n)[-1] - once.series("q", n)[-1]) < 1e-11
         assert abs(twice.series("v", n)[-1] - once.series("v", n)[-1]) < 1e-11
     assert np.all(np.isnan(twice.series("constraint_forces", "C.fx")))
+    assert np.all(np.isnan(twice.series("constraint_forces", "C2.fx")))

@@ -82,6 +82,9 @@ def plain_columns(traj) -> dict:
     """The table's columns read off a run's own records, not through its summary."""
     impacts = [(e, b, a) for e, b, a in switches(traj) if jumps(b, a)]
     impulses = [abs(e["impulse"]["normal"]) for e, _, _ in impacts]
+    # |P| of the 2-D impulse: its world vector where the contact takes a tangential part, else |P_n|
+    sizes = [float(np.hypot(*e["impulse"]["vector"])) if "tangential" in e["impulse"] else abs(e["impulse"]["normal"])
+             for e, _, _ in impacts]
     holds = {lab for s in traj.segments for lab in s.constraint_labels if lab.endswith(".hold")}
     held = [float(np.nanmax(np.abs(traj.series("constraint_forces", lab)))) for lab in holds]
     stays = [s for s in traj.segments if s.t[-1] > s.t[0]]
@@ -95,6 +98,8 @@ def plain_columns(traj) -> dict:
             "first_impact_t": impacts[0][0]["t"] if impacts else None,
             "first_impulse": impacts[0][0]["impulse"]["normal"] if impacts else None,
             "peak_impulse": max(impulses, default=0.0), "total_impulse": math.fsum(impulses),
+            "first_impulse_magnitude": sizes[0] if impacts else None,
+            "peak_impulse_magnitude": max(sizes, default=0.0), "total_impulse_magnitude": math.fsum(sizes),
             "kinetic_energy_lost": lost, "energy_dissipated": lost + drive_work,
             "max_holding_force": max(held) if held else None,
             "last_merge_t": float(merges[-1]) if merges else None,
@@ -210,12 +215,14 @@ def leg_by_hand(rate: float, floor: float, t_end: float) -> dict:
         t = math.inf
     if t > t_end:
         return {"events": 0, "impacts": 0, "first_impact_t": None, "first_impulse": None, "peak_impulse": 0.0,
-                "total_impulse": 0.0, "kinetic_energy_lost": 0.0, "energy_dissipated": 0.0,
+                "total_impulse": 0.0, "first_impulse_magnitude": None, "peak_impulse_magnitude": 0.0,
+                "total_impulse_magnitude": 0.0, "kinetic_energy_lost": 0.0, "energy_dissipated": 0.0,
                 "max_holding_force": None, "last_merge_t": None, "configuration_final": "swing"}
     P = nm.pin_impulse(*y)
     ke = 0.5 * y[2:] @ nm.leg_mass(y[0], y[1]) @ y[2:]
     return {"events": 1, "impacts": 1, "first_impact_t": t, "first_impulse": P[1], "peak_impulse": P[1],
-            "total_impulse": P[1], "kinetic_energy_lost": ke, "energy_dissipated": ke, "max_holding_force": None,
+            "total_impulse": P[1], "first_impulse_magnitude": math.hypot(*P), "peak_impulse_magnitude": math.hypot(*P),
+            "total_impulse_magnitude": math.hypot(*P), "kinetic_energy_lost": ke, "energy_dissipated": ke, "max_holding_force": None,
             "last_merge_t": t, "configuration_final": "stance"}
 
 
@@ -312,9 +319,12 @@ def wheel_by_hand(gx: float, t_end: float) -> dict:
     wheel = RimlessWheel(gamma=math.atan2(gx, -gy), g=math.hypot(gx, gy))
     strikes = [s for s in wheel.strikes(1.5, n=4) if s[0] <= t_end]
     impulses = [wheel.strike_impulse(wm)["P"][1] for _, wm, _ in strikes]
+    sizes = [math.hypot(*wheel.strike_impulse(wm)["P"]) for _, wm, _ in strikes]
     lost = math.fsum(wheel.J * (wm ** 2 - wp ** 2) / 2 for _, wm, wp in strikes)
     return {"events": len(strikes), "impacts": len(strikes), "first_impact_t": strikes[0][0],
             "first_impulse": impulses[0], "peak_impulse": max(impulses), "total_impulse": math.fsum(impulses),
+            "first_impulse_magnitude": sizes[0], "peak_impulse_magnitude": max(sizes),
+            "total_impulse_magnitude": math.fsum(sizes),
             "kinetic_energy_lost": lost, "energy_dissipated": lost, "max_holding_force": None,
             "last_merge_t": strikes[-1][0], "configuration_final": f"spoke{len(strikes)}", "t_final": t_end}
 

@@ -121,21 +121,15 @@ def test_short_runs_are_queued_two_deep_and_a_crash_or_hang_loses_none_queued_be
     # that hangs go to another worker, and every run gives exactly one row
     import study_hooks
     from pcmm.studies import pool as pool_mod
-    from collections import Counter
-    deepest, given, lost = [0], [], []
-    real_give, real_kill = pool_mod._Worker.give, pool_mod._Worker.kill
+    deepest, given, ahead = [0], [], {}
+    real_give = pool_mod._Worker.give
 
     def give(self, fn, job):
         real_give(self, fn, job)
         deepest[0] = max(deepest[0], len(self.queue))
         given.append(job)
-
-    def kill(self):  # a worker lost with its queue: the run it ran, then those queued behind it
-        if self.queue:
-            lost.append(list(self.queue))
-        return real_kill(self)
+        ahead.setdefault(job, self.queue[-2] if len(self.queue) > 1 else None)  # at its first handing
     monkeypatch.setattr(pool_mod._Worker, "give", give)
-    monkeypatch.setattr(pool_mod._Worker, "kill", kill)
     jobs = [1, 2, "abort", 3, 4, "hang", 5, 6, 7, 8, 9, 10]
     pool = pool_mod.WorkerPool(2, 3.0, lambda job, status, message, seconds: (job, status))
     try:
@@ -145,12 +139,15 @@ def test_short_runs_are_queued_two_deep_and_a_crash_or_hang_loses_none_queued_be
     assert sorted(map(str, rows)) == sorted(map(str, [1, 2, 3, 4, 5, 6, 7, 8, 9, 10, ("abort", "crashed"),
                                                       ("hang", "timeout")]))
     assert deepest[0] == 2
-    # the two workers lost ran "abort" and "hang", each handed out once to be run; which run was
-    # queued behind each depends on the order the rows came (on a loaded machine one worker may
-    # answer two runs before the other is ready: then "hang" itself waits behind "abort", and is
-    # handed out again without having run).  Whatever that order, the runs handed out again are
-    # exactly those queued behind a lost worker: at most one per lost worker, the others once
-    assert sorted(str(q[0]) for q in lost) == ["abort", "hang"]
-    behind = Counter(j for q in lost for j in q[1:])
-    assert sum(behind.values()) <= 2 and set(given) == set(jobs)
-    assert Counter(given) - Counter(jobs) == behind
+    # "abort" (0.5 s) and "hang" are each handed out with a run queued behind them when the runs
+    # before them answer quickly; on a loaded machine a worker may not have had its second run
+    # yet.  Either way a run queued behind a lost worker is handed out again and only those: at
+    # most one per lost worker, every other run exactly once.  A worker is handed a run when it
+    # answers the one before, so a run is queued behind exactly the run ahead of it at its first
+    # handing; "hang" itself is handed again where it was queued behind "abort" (CI under load 6.5
+    # at 1544be0 saw that order, which the earlier form of this test took for a defect)
+    extra = len(given) - len(jobs)
+    assert 0 <= extra <= 2 and sorted(map(str, set(given))) == sorted(map(str, jobs))
+    again = [j for j in set(given) if given.count(j) > 1]
+    assert len(again) == extra and all(given.count(j) == 2 for j in again)
+    assert all(ahead[j] in ("abort", "hang") for j in again), {j: ahead[j] for j in again}

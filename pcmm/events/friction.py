@@ -23,15 +23,20 @@ p = (1 + e) p_c, or by Stronge's energetic law when the restitution work is -e^2
 compression work.  The three coincide while the slip direction does not change.
 
 The work of each part is exact per phase: ``W_n = integral v_n dp``, ``W_t = integral v_t dP_t``;
-they sum to KE^+ - KE^-, and W_t <= 0.  ``friction = "stick"`` is mu = infinity: the impulse is
-``W^-1 (-v_t^-, -(1 + e) v_n^-)`` (for a pin, e = 0: the paper's Eq. 29 with J = [J_t; J_n]),
-Newton's outcome whatever the law.  What each part did is Routh's process in the limit mu -> infinity
-(:func:`stuck_at_once`): the slip is stopped at p = 0+ by the tangential impulse -v_t^- / W_tt, so
-friction dissipates v_t^-^2 / (2 W_tt), and the point then sticks to the end of the impact.  (Not the
-proportional path's P_i (v_i^- + v_i^+) / 2, whose tangential part can be negative, as if friction fed
-energy in.)  Where that process does not end at the impulse taken (the slip's stop already separates
-the point, or a Poisson or Stronge law, which end it elsewhere) there is no such split:
-:attr:`FrictionalImpulse.no_split` says why.
+they sum to KE^+ - KE^-, and W_t <= 0.  ``friction = "stick"`` is mu = infinity, and the impulse
+is Routh's process in that limit (:func:`stick_impulse`): the slip is stopped at p = 0+ by the
+tangential impulse -v_t^- / W_tt, so friction dissipates v_t^-^2 / (2 W_tt), leaving the normal
+velocity v_n1 = v_n^- - W_nt v_t^- / W_tt, and the point then sticks to the end of the impact, which
+the law names: Newton's at v_n^+ = -e v_n^-, so P = W^-1 (-v_t^-, -(1 + e) v_n^-) (for a pin, e = 0:
+the paper's Eq. 29 with J = [J_t; J_n]); Poisson's and Stronge's both at v_n^+ = -e v_n1, so
+P = W^-1 (-v_t^-, -v_n^- - e v_n1), the limit of :func:`routh` as mu grows (a sweep of mu goes on
+smoothly into "stick").  The laws agree where v_t^- = 0 or W_nt = 0 (then v_n1 = v_n^-) and where
+e = 0.  (Not the proportional path's P_i (v_i^- + v_i^+) / 2 for the split, whose tangential part
+can be negative, as if friction fed energy in.)  Where stopping the slip already separates the point
+(v_n1 >= 0) there is no compression: Newton's stick impulse is still taken while it pushes
+(P_n >= 0), with no split (:attr:`FrictionalImpulse.no_split` says why); Poisson's and Stronge's
+are refused (:class:`AmbiguousImpact`): their limit is a slip stopped by a tangential impulse with
+no normal one, which no finite mu gives.
 
 **Painleve.**  A slide phase with ``dv_n/dp = W_nn - sigma mu W_nt <= 0`` means the normal impulse
 does not separate the sliding contact: the rigid-body law has no unique answer (Genot and
@@ -42,7 +47,7 @@ The reference this module must reproduce is ``routh()`` of ``tests/reference_rod
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -80,7 +85,10 @@ class FrictionalImpulse:
     phases: tuple[Phase, ...]
     mu: float  # math.inf for "stick"
     law: str
-    no_split: str | None = None  # why Routh's process gives no split of the works here ("stick" only)
+    no_split: str | None = None  # why Routh's process gives no split of the works here (Newton's "stick" only)
+    #: the 2 x 2 Delassus matrix W in (t, n) it was solved with, as (W_tt, W_tn, W_nn): what the
+    #: event's law check (:func:`law_normal_velocity`) reads
+    delassus: tuple[float, float, float] | None = field(default=None, compare=False)
 
     @property
     def P(self) -> np.ndarray:
@@ -97,8 +105,9 @@ class FrictionalImpulse:
 
     @property
     def slip_changed(self) -> bool:
-        """The slip stopped or reversed during the impact (where Newton's law may create energy)."""
-        return len({ph.mode for ph in self.phases}) > 1
+        """The slip stopped or reversed during the impact (where Newton's law may create energy); with no
+        slip (mu = infinity) a slip before the impact is stopped at once."""
+        return len({ph.mode for ph in self.phases}) > 1 or (math.isinf(self.mu) and self.slip_before != 0.0)
 
 
 def stick_ratio(W: np.ndarray) -> float:
@@ -150,10 +159,28 @@ def stuck_at_once(W: np.ndarray, vt: float, vn: float, e: float, law: str = "new
 
 
 def stick_impulse(W: np.ndarray, vt: float, vn: float, e: float, law: str = "newton") -> FrictionalImpulse:
-    """No slip (``friction = "stick"``): P = W^-1 (-v_t^-, -(1 + e) v_n^-), the velocity after
-    (0, -e v_n^-); refused (:class:`AmbiguousImpact`) where P_n < 0, a contact pulling.  The works are
-    Routh's process with mu -> infinity (:func:`stuck_at_once`, friction's
-    >= 0 dissipated) where it ends at P; where it does not, ``no_split`` says why and the works are None."""
+    """No slip (``friction = "stick"``, mu = infinity): Routh's process in that limit (module text).
+
+    Newton's law: P = W^-1 (-v_t^-, -(1 + e) v_n^-), the velocity after (0, -e v_n^-); refused
+    (:class:`AmbiguousImpact`) where P_n < 0, a contact pulling.  Its works are those of
+    :func:`stuck_at_once` where that process ends at P; where it does not (v_n1 >= 0), ``no_split``
+    says why and the works are None.
+
+    Poisson's and Stronge's laws: :func:`stuck_at_once` itself, P = W^-1 (-v_t^-, -v_n^- - e v_n1),
+    the velocity after (0, -e v_n1); refused where v_n1 >= 0 (stopping the slip separates the point:
+    no compression to restitute)."""
+    if law not in LAWS:
+        raise ValueError(f"restitution law {law!r}: one of {LAWS}")
+    if law != "newton":
+        vn1 = vn - W[1, 0] * vt / W[0, 0]
+        if not vn1 < 0:
+            raise AmbiguousImpact(
+                f"with no slip and the {law} law, stopping the slip ({vt:.6g} m/s, by the tangential impulse "
+                f"{-vt / W[0, 0]:.6g} N s) already moves the point away from the surface (normal velocity "
+                f"{vn1:.6g} m/s >= 0, from {vn:.6g}) before any compression: Routh's process as mu grows ends "
+                "with no normal impulse, the slip stopped by friction alone, which no contact gives; give the "
+                "contact a finite friction mu (Routh's process, in which it slides)")
+        return replace(stuck_at_once(W, vt, vn, e, law), delassus=_delassus(W))
     P = np.linalg.solve(W, np.array([-vt, -(1.0 + e) * vn]))
     if P[1] < -1e-12 * float(np.abs(P).max()):  # (-e v_n - v_n1) / (W_nn - W_nt^2 / W_tt): v_n1 > -e v_n
         vn1 = vn - W[1, 0] * vt / W[0, 0]
@@ -163,19 +190,35 @@ def stick_impulse(W: np.ndarray, vt: float, vn: float, e: float, law: str = "new
             f"surface (normal velocity {vn1:.6g} m/s, above Newton's -e v_n^- = {-e * vn:.6g} m/s); give the contact "
             "a finite friction mu (Routh's process, in which it slides)")
     v1 = np.array([vt, vn]) + W @ P
-    try:
+    try:  # where v_n1 < 0 it ends at P (v_n1 + (W_nn - W_nt^2 / W_tt) P_n = -e v_n^-): its works are P's
         fr = stuck_at_once(W, vt, vn, e, law)
     except AmbiguousImpact as exc:
-        why = f"Routh's process with no slip has no answer here: {exc}"
-    else:
-        if np.abs(fr.P - P).max() <= 1e-9 * max(float(np.abs(P).max()), 1e-300):
-            return FrictionalImpulse(float(P[0]), float(P[1]), vt, float(v1[0]), vn, float(v1[1]), fr.work_normal,
-                                     fr.work_tangential, fr.phases, math.inf, law)
-        why = (f"Routh's process with no slip and the {law} law ends at another impulse ({fr.P_t:.6g}, "
-               f"{fr.P_n:.6g}) N s, normal velocity after {fr.vn_after:.6g} m/s; the stick impulse "
-               f"({P[0]:.6g}, {P[1]:.6g}) N s is Newton's, W^-1 (-v_t, -(1 + e) v_n)")
-    return FrictionalImpulse(float(P[0]), float(P[1]), vt, float(v1[0]), vn, float(v1[1]), None, None,
-                             (Phase("stick", 0.0, float(P[1]), "impact ends"),), math.inf, law, why)
+        return FrictionalImpulse(float(P[0]), float(P[1]), vt, float(v1[0]), vn, float(v1[1]), None, None,
+                                 (Phase("stick", 0.0, float(P[1]), "impact ends"),), math.inf, law,
+                                 f"Routh's process with no slip has no answer here: {exc}", _delassus(W))
+    return FrictionalImpulse(float(P[0]), float(P[1]), vt, float(v1[0]), vn, float(v1[1]), fr.work_normal,
+                             fr.work_tangential, fr.phases, math.inf, law, delassus=_delassus(W))
+
+
+def _delassus(W: np.ndarray) -> tuple[float, float, float]:
+    return float(W[0, 0]), float(W[0, 1]), float(W[1, 1])
+
+
+def law_normal_velocity(fr: FrictionalImpulse, e: float) -> tuple[float, str] | None:
+    """The normal velocity after the impact ``fr`` that its restitution law names in closed form, and
+    the law's text: Newton's -e v_n^- (any mu: Routh's process ends there); with no slip (mu =
+    infinity) Poisson's and Stronge's -e v_n1, v_n1 = v_n^- - W_nt v_t^- / W_tt from the Delassus
+    matrix the impulse was solved with.  None where there is no closed form (Poisson's or Stronge's
+    with a finite mu: the end depends on the phases) or no Delassus matrix at hand."""
+    if fr.law == "newton":
+        return -e * fr.vn_before, f"Newton's restitution law (Eq. 21), e = {e:g}"
+    if not math.isinf(fr.mu) or fr.delassus is None:
+        return None
+    W_tt, W_tn, _ = fr.delassus
+    vn1 = fr.vn_before - W_tn * fr.slip_before / W_tt
+    name = "Poisson's" if fr.law == "poisson" else "Stronge's energetic"
+    return -e * vn1, (f"{name} restitution law with no slip (Routh's process as mu -> infinity: -e v_n1, e = {e:g}, "
+                      f"v_n1 = {vn1:.9g} m/s the normal velocity once the slip ({fr.slip_before:.9g} m/s) is stopped)")
 
 
 def routh(W: np.ndarray, vt: float, vn: float, mu: float, e: float, law: str = "newton",
@@ -248,4 +291,4 @@ def routh(W: np.ndarray, vt: float, vn: float, mu: float, e: float, law: str = "
     if mode == "stick":
         vt = 0.0
     return FrictionalImpulse(float(Pt), float(p), vt_minus, float(vt), vn_minus, float(vn), float(Wn), float(Wt),
-                             tuple(phases), float(mu), law)
+                             tuple(phases), float(mu), law, delassus=_delassus(W))

@@ -353,7 +353,19 @@ def solve_impulse_python(cfg: Configuration, t: float, q: np.ndarray, v: np.ndar
         J_n = (-contact.stop_sign * (frame_jacobian(cs.model, cs.data, plan.frame_b)[5]
                                      - frame_jacobian(cs.model, cs.data, plan.frame_a)[5]))[None, :]
     G = np.concatenate((cs.J_cut, cfg.coords.equality(t, cs.model, cs.data)))
-    W = _inverse_mass(M_f, cfg.name)
+    try:
+        W = _inverse_mass(M_f, cfg.name)
+    except SimulationError:
+        if not cut_joints:
+            raise
+        joints = cfg.spec.info.joints
+        freed = ", ".join(f"'{joints[j].child}'" for j in cut_joints if j in joints)
+        raise SimulationError(
+            f"t = {t:.9g} s, transition '{name}': cutting {', '.join(repr(j) for j in cut_joints)} (its `cut`) frees "
+            f"{freed}, and the cut system's mass matrix is not positive definite: a body the cut frees has no "
+            "inertia along one of its planar freedoms (a point mass, izz = 0, turns freely about its centroid). "
+            "Give it a rotational inertia, or, for a joint stop (contact = { joint = ... }), write cut = []: the "
+            "stop acts on the joint's own coordinate and the run is the same") from None
     G_all = G
     # redundant but consistent rows (a cut joint given twice, a drive on a joint a lock and a loop fix):
     # the impulse is the same on a maximal independent set of them; their impulsive forces along the
@@ -493,8 +505,8 @@ def check_frictional_energy(fr: FrictionalImpulse, imp: Impulse, where: str) -> 
     the impact (Kane and Levinson; Stronge 1991): refused with the cause, not a silent gain."""
     gain = imp.ke_after - imp.ke_before - imp.drive_work
     if gain > 1e-9 * max(imp.ke_before, 1e-300):
-        cause = (f"Newton's kinematic restitution with friction creates energy here (slip {fr.phase_text} during "
-                 "the impact)" if fr.law == "newton" and fr.slip_changed else
+        cause = (f"Newton's kinematic restitution with friction creates energy here (the slip {fr.slip_before:.6g} m/s "
+                 f"stopped or reversed during the impact: phases {fr.phase_text})" if fr.law == "newton" and fr.slip_changed else
                  f"the frictional impact ({fr.law} law, phases {fr.phase_text}) creates energy")
         raise SimulationError(
             f"{where}: {cause}: kinetic energy {imp.ke_before:.9g} -> {imp.ke_after:.9g} J "

@@ -368,7 +368,7 @@ def pin_strike(ctx, cfg: Configuration, tr: PinSpec, t, q, v, target: str | None
                               f"{abs(P_t) / P_n:.6g} (|P_t| / P_n, P_t = {P_t:.6g}, P_n = {P_n:.6g} N s) and the "
                               f"contact has mu = {mu:g}{split}; pcmm models no sliding contact")
     # entered like every switch: the target's constraints checked at the post-impact state (entry.enter)
-    entry = enter(cfg, dst, t, q, v_plus, what=f"pin '{tr.name}'")
+    entry = enter(cfg, dst, t, q, v_plus, what=f"pin '{tr.name}'", anchored=True)
     q_new, v_new = entry.q, entry.v
     # the stance that begins now: each point held by compression only must push, inside its cone
     # (the guards of the stance watch it from here on: PartitionedCoordinates.contact_guards)
@@ -427,6 +427,12 @@ def pin_strike(ctx, cfg: Configuration, tr: PinSpec, t, q, v, target: str | None
     for (s, nu, row) in unilateral:
         released[s.name] = {"normal_velocity_after": float(row @ v_plus), "impulse": 0.0}
     record["released"] = released
+    if not ctx.impact and not ctx.pinned_without_impact:  # the comparison run: said once, not silent
+        ctx.pinned_without_impact = True
+        record.setdefault("warnings", []).append(
+            f"{where}: a pin has no switch without impulse (b's point must stop where it lands), so this run "
+            "without impact takes the plastic impulse at every pin, as the run with impact does: the two runs "
+            "differ only through their other transitions")
     if redundant:
         record.setdefault("warnings", []).append(
             f"{where}: the constraints of '{target}' at the strike are redundant (two points pinned on one "

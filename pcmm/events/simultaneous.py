@@ -17,6 +17,10 @@ on the tangent, the velocity-level law of Stewart and Trinkle 1996 / Anitescu an
 * slide s:  u_n+ = -e min(u_n-, 0), P_t = -s mu P_n, P_n >= 0, s u_t+ >= 0 (it slips along s t after);
 * a frictionless contact holds with P_t = 0 instead of stick or slide; "stick" (mu = inf) never slides.
 
+Newton's law per contact only: a contact with friction, restitution > 0 and ``restitution_law``
+Poisson's or Stronge's (whose one-contact outcome, Routh's process, differs from Newton's) is
+refused here, naming it, rather than silently given Newton's outcome.
+
 The solve enumerates every combination of modes (4^k for k contacts: two or three contacts are
 what a planar mechanism meets), solves each combination's linear equations (least squares: the
 rows of two contacts on one body may be dependent) and keeps those that satisfy every
@@ -195,6 +199,16 @@ def simultaneous_impact(cfg, trs: list, t, q, v):
     D, u = J @ W_eff @ J.T, J @ v
     e = [float(s.restitution) for s in trs]
     mu = [s.contact.friction for s in trs]
+    other_law = [s for s, ei, mi in zip(trs, e, mu) if s.contact.restitution_law != "newton" and ei > 0
+                 and mi is not None and mi > 0]
+    if other_law:  # the laws differ only with friction and e > 0 (one contact: Routh's process, friction.py)
+        raise SimulationError(
+            f"{where}: the contacts closed at once are solved with Newton's restitution per contact (the velocity-level "
+            "law, module pcmm.events.simultaneous), but "
+            + ", ".join(f"'{s.name}' names restitution_law = \"{s.contact.restitution_law}\"" for s in other_law)
+            + " with friction and restitution > 0, whose outcome differs from Newton's and has no simultaneous "
+            "form here; use restitution_law = \"newton\" for these contacts, or move them so that they do not "
+            "close at the same instant")
     try:
         sol = solve_contacts(D, u, e, mu)
     except NoConsistentOutcome as exc:

@@ -48,6 +48,7 @@ from .records import (BounceRecord, adopt_compiled_bounce, bounce_record, by_lin
 from .guards import describe_guard, guard_value, make_guard
 from .entry import (VELOCITY_ROUNDOFF, Entry, bounce_projection, enter, enter_bounce, joints_from_poses,  # noqa: F401 - re-exported
                     map_state, pose_mismatches)
+from .friction import law_normal_velocity
 from .impulse import Impulse, no_impulse, solve_impulse
 from .pins import check_held_points_push, pin_strike
 from .simultaneous import closed_with, simultaneous_impact
@@ -67,6 +68,7 @@ class Context:
     forced_speed: float | None = None  # given for the run (CLI, RunOptions): wins over every transition's
     forced_interval: float | None = None
     last_impact: dict[str, float] = field(default_factory=dict)
+    pinned_without_impact: bool = False  # a pin of a run without impact was said (:func:`pins.pin_strike`)
 
     def tolerances(self, tr: StopSpec) -> tuple[float, float]:
         """(speed, interval) for a stop: the run's explicit value, else the transition's, else the scene's."""
@@ -134,25 +136,36 @@ RESTITUTION_ROUNDOFF = 1e-9
 
 
 def check_restitution(tr: TransitionSpec, t, imp: Impulse) -> None:
-    """A bounce obeys Newton's restitution law along its normal (Eq. 21): vn+ = -e vn-, to
-    round-off, with vn+ the normal speed of the velocity the run goes on with (``imp.v_after``, not
-    the law's formula).  A frictional contact's law is Routh's process (:mod:`pcmm.events.friction`)."""
-    if imp.friction is not None or imp.restitution is None:
+    """A bounce obeys its restitution law along its normal, to round-off, with vn+ the normal speed
+    of the velocity the run goes on with (``imp.v_after``, not the law's formula): frictionless,
+    Newton's vn+ = -e vn- (Eq. 21); a frictional contact, the end of Routh's process its law names
+    where that has a closed form (:func:`pcmm.events.friction.law_normal_velocity`: Newton's -e vn-
+    at any mu; Poisson's and Stronge's with no slip -e v_n1)."""
+    if imp.restitution is None:
         return
-    check_restitution_law(tr, t, imp.restitution, imp.vn_before, imp.vn_after, imp.v_before)
+    if imp.friction is None:
+        check_restitution_law(tr, t, imp.restitution, imp.vn_before, imp.vn_after, imp.v_before)
+        return
+    named = law_normal_velocity(imp.friction, imp.restitution)
+    if named is not None:
+        check_restitution_law(tr, t, imp.restitution, imp.vn_before, imp.vn_after, imp.v_before, *named)
 
 
-def check_restitution_law(tr: TransitionSpec, t, e: float, vn_before: float, vn_after: float, v_before) -> None:
-    """:func:`check_restitution` on the numbers themselves: ``vn_after = -e vn_before`` to round-off
-    (``v_before``: the velocity before, whose size scales the floor of a vanishing ``vn_before``)."""
-    off = abs(vn_after + e * vn_before)
+def check_restitution_law(tr: TransitionSpec, t, e: float, vn_before: float, vn_after: float, v_before,
+                          expected: float | None = None, law: str | None = None) -> None:
+    """:func:`check_restitution` on the numbers themselves: ``vn_after = expected`` to round-off
+    (by default Newton's -e vn_before; ``law`` its text), ``v_before`` the velocity before, whose size
+    scales the floor of a vanishing ``vn_before``."""
+    if expected is None:
+        expected, law = -e * vn_before, f"Newton's restitution law (Eq. 21), e = {e:g}"
+    off = abs(vn_after - expected)
     if off <= RESTITUTION_ROUNDOFF * abs(vn_before) or off <= RESTITUTION_ROUNDOFF * VELOCITY_ROUNDOFF * max(
             1.0, float(np.abs(v_before).max(initial=0.0))):
         return
     raise SimulationError(
-        f"t = {t:.9g} s, transition '{tr.name}': the bounce breaks Newton's restitution law (Eq. 21): normal "
-        f"velocity {vn_before:.9g} m/s before and {vn_after:.9g} after, where e = {e:g} "
-        f"gives {-e * vn_before:.9g} (off by {off:.3g}); the impulse solve is wrong here")
+        f"t = {t:.9g} s, transition '{tr.name}': the bounce breaks {law}: normal velocity {vn_before:.9g} m/s "
+        f"before and {vn_after:.9g} after, where the law gives {expected:.9g} (off by {off:.3g}); the impulse "
+        "solve is wrong here")
 
 
 def _contact_faults(cfg: Configuration, tr: TransitionSpec, q, otherwise: str) -> list[str]:

@@ -28,6 +28,22 @@ def summary(traj: Trajectory, initial_configuration: str | None = None) -> dict:
     }
 
 
+def _others_at_once(e: dict, num) -> str:
+    """The other contacts of an impact that closed several at once: the row's vn and P are its
+    first contact's alone (its ``simultaneous`` block holds each), so the others are named with
+    their own impulse, or their speed away where they separate."""
+    block = e.get("simultaneous") or {}
+    others = [(name, c) for name, c in block.items() if name != e["name"]]
+    if not others:
+        return ""
+    def one(name, c):
+        if c.get("mode") == "separate":
+            return f"{name} separates (vn+ {num(c['normal_velocity']['after']).strip()} m/s)"
+        return (f"{name} P_n {num(c['impulse']['normal']).strip()}"
+                + (f" P_t {num(c['impulse']['tangential']).strip()}" if c["impulse"].get("tangential") else "") + " N s")
+    return f"  at once: {', '.join(one(name, c) for name, c in others)} (vn, P: {e['name']}'s alone)"
+
+
 def event_table(traj: Trajectory) -> str:
     if not traj.events:
         return "no configuration transformation before t_end"
@@ -57,7 +73,7 @@ def event_table(traj: Trajectory) -> str:
             f"{(e['from'] + ' -> ' + e['to'])[:wc]:<{wc}} {num(e['normal_velocity']['before'])} "
             f"{num(e['normal_velocity']['after'])} {num(imp['normal'])} "
             f"{num(e['kinetic_energy_before'])} {num(e['kinetic_energy_after'])}"
-            + ("  merge" if e["merge"] else "") + note)
+            + ("  merge" if e["merge"] else "") + note + _others_at_once(e, num))
     # a long run: its first and last 20 events, and every transformation between them (a merge, a
     # latch, a release) with the bounces in between counted, not shown
     shown = [i for i, e in enumerate(traj.events)

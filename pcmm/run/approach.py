@@ -24,12 +24,24 @@ from ..scene.spec import Scene
 
 
 def guard_series(cfg: Configuration, tr, q: np.ndarray) -> np.ndarray:
-    """The guard's measure (or the contact gap) at each row of ``q`` (samples x nv)."""
+    """The guard's measure (or the contact gap) at each row of ``q`` (samples x nv), as the guard
+    reads it: a guard armed by a region (``when``) stays on its unfired side outside the region
+    (:func:`pcmm.events.guards.armed`: value - direction max(u, -d)), so a compass gait's swing foot
+    passing through the ground at mid-stance, which the `when` is there to ignore, is neither a
+    crossing against the guard's direction nor a closest approach."""
     if tr.guard.type == "coordinate":
         row, offset = cfg.measure_row(tr.guard.measure)
-        return q @ row + offset
-    zero = np.zeros(cfg.nv)
-    return np.array([contact_state(cfg, qi, zero, tr.contact)[1] for qi in q])
+        g = q @ row + offset
+    else:
+        zero = np.zeros(cfg.nv)
+        g = np.array([contact_state(cfg, qi, zero, tr.contact)[1] for qi in q])
+    if tr.guard.when is None:
+        return g
+    measure, side, bound = tr.guard.when
+    row, offset = cfg.measure_row(measure)
+    d = side * (q @ row + offset - bound)  # the signed distance into the region
+    direction, value = tr.guard.direction, tr.guard.value
+    return value - direction * np.maximum(-direction * (g - value), -d)
 
 
 def _refine(cfg: Configuration, tr, seg: SegmentRecord, lo: float, hi: float, t0: float, g0: float):

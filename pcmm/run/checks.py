@@ -525,9 +525,10 @@ def indeterminate_readers(scene: Scene, dst: Configuration, tr: TransitionSpec, 
            "or a joint fewer locked)")
     holds = {lab.strip("'")[:-len(".hold")] for lab in loose if lab.startswith("'") and lab.endswith(".hold'")}
     rows = {lab.split(".")[0] for lab in loose if not lab.startswith("'") and not lab.startswith("drives[")}
-    unmerge = tr.unmerge if tr.unmerge is not None else scene.solver.unmerge
+    own = getattr(tr, "unmerge", None)  # a stop's own; a latch has none (its merge is never undone by it)
+    unmerge = own if own is not None else scene.solver.unmerge
     if tr.type == "stop" and unmerge and tr.name in holds:
-        out.append(f"{here}.unmerge: = true ({'the stop' if tr.unmerge is not None else 'solver.unmerge'}'s): the "
+        out.append(f"{here}.unmerge: = true ({'the stop' if own is not None else 'solver.unmerge'}'s): the "
                    f"merge is undone where its holding force '{tr.name}.hold' turns tensile, {why}, or set "
                    "unmerge = false and release it by a time or coordinate guard")
     where = str(scene.path)

@@ -38,6 +38,7 @@ from ..signals import deferred, describe, exit_status
 from .actions import GUARD_ACTIONS, action_of
 from .approach import closest_approach
 from .audit import FlightAudit
+from .guard_cache import GuardCache
 from .recording import record as _record, recorded_steps
 from .stability import diagnose, fixed_step_instability, largest_velocity, unphysical_speed
 from .state import RunState
@@ -184,12 +185,14 @@ def integrate_segment(run: RunState, progress):
     y0 = cfg.coords.pack(t, run.q, run.v)
     # redundant rows the coordinates now solve without, holds they leave indeterminate: named once
     run.traj.stats["warnings"] += cfg.coords.take_notes() + run.holds.indeterminate_notes(cfg, t, run.q, run.v)
-    guards = _guards(run.scene, cfg, run.holds, t, run.phase, run.bounced, run.fired, run.kept_guards)
+    guards = _guards(run.scene, cfg, run.holds, t, run.phase, run.bounced, run.fired, run.guard_cache)
     # a flight between two impacts at the same contact: its energy is audited (pcmm.run.audit)
     flight = run.bounced is not None and run.phase is None and y0.size > 0
     bounced, run.bounced = run.bounced, None
     leaving = []  # guards at their value whose contact does not approach (_pending): re-armed, not crossed
     pending = None if run.phase is not None else _pending(cfg, guards, t, y0, leaving)
+    if run.phase is None:
+        run.traj.stats["warnings"] += _releases_past_at_entry(cfg, guards, t, y0, run.traj.stats["warnings"])
     leaving = [i for i in leaving if guards[i].transition is not bounced]  # (that one is re-armed already)
     if pending is None and leaving:
         guards = left_at_value(cfg, guards, leaving, t)
@@ -200,7 +203,7 @@ def integrate_segment(run: RunState, progress):
     elif flight:  # integrated with its work appended, as it always was: that component takes part in
         # the step-size control, and the accumulation's series were measured with it (the audit
         # itself measures the work by its own quadrature, pcmm.run.audit)
-        guards = _on_state(guards, y0.size, run.kept_guards)
+        guards = _on_state(guards, y0.size, run.guard_cache)
         y0, fun = _appended(y0), cfg.coords.rhs_with_power
     stepping = run.stepping = (fun, method_for(run.opts.method, cfg.coords.constrained), run.opts)  # for dense resampling
     # a flight keeps each step's dense output as taken, for its audit (measured when it ends, then dropped)
@@ -458,35 +461,28 @@ def _known_motion(cfg: Configuration, t, y0, guards, opts) -> Segment:
         raise
 
 
-def _guards(scene: Scene, cfg: Configuration, holds: Holds, t: float, phase, bounced, fired=(), kept=None) -> list:
+def _guards(scene: Scene, cfg: Configuration, holds: Holds, t: float, phase, bounced, fired=(),
+            cache: GuardCache | None = None) -> list:
     """Every guard watched in ``cfg`` from ``t``: its transitions' (the one that just bounced
     re-armed), one per merge held by compression only, and a loop's partition guard.  A time
     guard ``at = T`` is one instant of the run: once its transition has fired it is not watched
     again (re-entered at T itself it would fire again, for ever).
 
-    ``kept`` (a list, the run's): the transitions' guards of the last call and what they were
-    built for.  Where every transition of ``cfg`` watches a coordinate or a gap (functions of the
-    state alone, not of ``t``, the holds or the events so far), a call for the same configuration,
-    the same bounced stop and the same angle offsets (they move the measures:
-    :meth:`Configuration.continue_angles`) takes those guards again: a sequence of bounces at one
-    stop builds them once; and the merges' guards likewise (:func:`_unmerge_guards`).  ``kept[4]``: where
-    both were taken again, what they were and the guards made of them, so that the next call finding the
-    same configuration, bounced stop, offsets and holds, with neither kept set rebuilt since, takes that
-    list in one look-up (a bounce's re-arm: the same guards, with one call and one list fewer)."""
-    offsets = cfg.angle_offsets  # (a sorted tuple built per read: read once, for both kept sets below)
-    last = kept[4] if kept is not None and len(kept) > 4 else None
-    if last is not None and phase is None and last[0] is cfg and last[1] is bounced and last[2] == offsets \
-            and last[4] is kept[0] and last[5] is kept[1] and last[6] is kept[2]:
-        items = holds.items
-        if len(last[3]) == len(items) and all(a is b for a, b in zip(last[3], items)):
-            return last[7] + cfg.coords.guards()  # (a new list: the caller's own)
-    key = (cfg, bounced, offsets)
-    made = _made_guards(kept, key) if phase is None and kept is not None else None
-    if kept and kept[0] is not None and phase is None and kept[0][0] is cfg and kept[0][1] is bounced and kept[0][2] == offsets:
-        out = list(kept[1])
-    elif made is not None:  # built at an earlier stay in cfg, for the same bounced stop and offsets
-        kept[:2] = [key, made]
-        out = list(made)
+    ``cache`` (the run's :class:`~pcmm.run.guard_cache.GuardCache`; None: everything built): outside
+    a contact phase, the same configuration, bounced stop, angle offsets and holds as the last
+    segment take the last segment's list (a bounce's re-arm, one look-up); else the transitions'
+    guards kept for this configuration, bounced stop and offsets are taken again (where every
+    transition watches a coordinate or a gap: functions of the state alone, not of ``t``, the holds
+    or the events so far), else they are built; the merges' guards likewise
+    (:func:`_unmerge_guards`)."""
+    offsets = cfg.angle_offsets  # (a sorted tuple built per read: read once, for every look-up below)
+    if cache is not None and phase is None:
+        out = cache.take_last(cfg, bounced, offsets, holds.items)
+        if out is not None:
+            return out + cfg.coords.guards()
+    kept = cache.transitions_for(cfg, bounced, offsets) if cache is not None and phase is None else None
+    if kept is not None:
+        out = list(kept)
     else:
         out = []
         reusable = phase is None
@@ -499,71 +495,34 @@ def _guards(scene: Scene, cfg: Configuration, holds: Holds, t: float, phase, bou
             g = make_guard(cfg, tr, rearm=tr is bounced, context=holds if tr.guard.type == "reaction" else t)
             if g is not None:
                 out.append(g)
-        if kept is not None:
-            kept[:2] = [key, tuple(out)] if reusable else [None, ()]
-            if reusable:
-                _made_guards(kept, key, kept[1])
-    out += _unmerge_guards(cfg, holds, phase, kept, offsets)
-    if kept is not None:
-        while len(kept) < 5:
-            kept.append(None)
-        # both kept sets as taken or made now (phase None, transitions reusable): the list for the next call
-        both = phase is None and kept[0] is not None and kept[2] is not None
-        kept[4] = (cfg, bounced, offsets, tuple(holds.items), kept[0], kept[1], kept[2], out[:]) if both else None
+        if cache is not None:
+            cache.keep_transitions(cfg, bounced, offsets, tuple(out) if reusable else None)
+    out += _unmerge_guards(cfg, holds, phase, cache, offsets)
+    if cache is not None:  # the list for the next segment, where both kept sets stand for this one
+        cache.keep_last(cfg, bounced, offsets, holds.items, out)
     out += cfg.coords.guards()  # the coordinates' own: a loop's partition guard
     return out
 
 
-#: at most this many sets of transitions' guards kept per run (:func:`_made_guards`)
-MADE_GUARDS = 64
-
-
-def _made_guards(kept: list, key: tuple, guards: tuple | None = None):
-    """``kept[5]``: the transitions' guards :func:`_guards` built, by what they were built for (the
-    configuration and the bounced stop, the same objects, and the angle offsets), for the
-    configurations whose transitions all watch a coordinate or a gap.  A run that comes back to a
-    configuration for the same stop and offsets (a cycle's next period, a bounce at the other stop of
-    a configuration) takes them again instead of building them: they are functions of those alone,
-    as the kept set of the last call is.  With ``guards``, keeps them (at most :data:`MADE_GUARDS` sets:
-    an offset that grows with every turn of a link makes new keys); else the kept set or None."""
-    while len(kept) < 6:
-        kept.append(None)
-    if kept[5] is None:
-        kept[5] = {}
-    made = kept[5]
-    cfg, bounced, offsets = key
-    at = (id(cfg), id(bounced), offsets)
-    if guards is None:
-        entry = made.get(at)
-        return entry[2] if entry is not None and entry[0] is cfg and entry[1] is bounced else None
-    if len(made) >= MADE_GUARDS:
-        made.clear()
-    made[at] = (cfg, bounced, guards)  # (the objects held: their ids stay theirs while kept)
-    return guards
-
-
-def _unmerge_guards(cfg: Configuration, holds: Holds, phase, kept, offsets=None) -> list:
-    """The guards of the merges held by compression only (:meth:`Holds.unmerge_guards`).  ``kept[2]``:
-    those of the last call and what they were built for: the configuration (the same object), its
-    angle offsets and the holds (the same ``Hold`` objects), outside a contact phase.  A call that
-    finds them all the same takes those guards again: the run has stayed in ``cfg`` since (a bounce
-    does not switch), so nothing their holding-force evaluator was built from has changed (the
-    reference configuration changes only when the run enters it, the holds only by a lock, a
-    release or a switch), and a sequence of bounces builds them once.  ``offsets``: ``cfg.angle_offsets``
-    where the caller has read them."""
-    if kept is None:
+def _unmerge_guards(cfg: Configuration, holds: Holds, phase, cache: GuardCache | None, offsets=None) -> list:
+    """The guards of the merges held by compression only (:meth:`Holds.unmerge_guards`).  ``cache``:
+    outside a contact phase, the last segment's are taken again where it was in the same configuration
+    (the same object), with the same angle offsets and holds (the same ``Hold`` objects): the run has
+    stayed in ``cfg`` since (a bounce does not switch), so nothing their holding-force evaluator was
+    built from has changed (the reference configuration changes only when the run enters it, the holds
+    only by a lock, a release or a switch), and a sequence of bounces builds them once.  ``offsets``:
+    ``cfg.angle_offsets`` where the caller has read them."""
+    if cache is None:
         return holds.unmerge_guards(cfg)
     items = holds.items
-    last = kept[2] if len(kept) > 2 else None
     if offsets is None:
         offsets = cfg.angle_offsets
-    if (phase is None and last is not None and last[0] is cfg and last[1] == offsets
-            and len(last[2]) == len(items) and all(a is b for a, b in zip(last[2], items))):
-        return list(last[3])
+    if phase is None:
+        kept = cache.merges_for(cfg, offsets, items)
+        if kept is not None:
+            return list(kept)
     out = holds.unmerge_guards(cfg)
-    while len(kept) < 3:
-        kept.append(None)
-    kept[2] = (cfg, offsets, tuple(items), tuple(out)) if phase is None else None
+    cache.keep_merges(cfg, offsets, items, tuple(out) if phase is None else None)
     return out
 
 
@@ -575,17 +534,41 @@ def _appended(y0: np.ndarray) -> np.ndarray:
     return y
 
 
-def _on_state(guards: list, n: int, kept: list) -> list:
-    """Each guard read on the first ``n`` components of the state (:meth:`Guard.on_state`).  ``kept[3]``:
-    the guards of the last call, ``n`` and their copies: where the guards are the same objects (a
-    sequence of bounces re-arming with the kept guards, :func:`_guards`) their copies are taken again."""
-    last = kept[3] if len(kept) > 3 else None
-    if last is not None and last[1] == n and len(last[0]) == len(guards) and all(a is b for a, b in zip(last[0], guards)):
-        return list(last[2])
+def _on_state(guards: list, n: int, cache: GuardCache) -> list:
+    """Each guard read on the first ``n`` components of the state (:meth:`Guard.on_state`): where the
+    guards are the very objects of the last flight (a sequence of bounces re-arming with the kept
+    guards, :func:`_guards`), the copies ``cache`` kept of them are taken again."""
+    kept = cache.on_state_for(guards, n)
+    if kept is not None:
+        return list(kept)
     out = [g.on_state(n) for g in guards]
-    while len(kept) < 4:
-        kept.append(None)
-    kept[3] = (tuple(guards), n, tuple(out))
+    cache.keep_on_state(guards, n, out)
+    return out
+
+
+def _releases_past_at_entry(cfg: Configuration, guards, t, y0, said) -> list[str]:
+    """Warnings, once per configuration and release: a scene's release whose reaction guard (on a
+    lock's holding force) is already past its value where a segment of ``cfg`` starts.  A guard fires
+    on a crossing in its direction only, so such a release waits for the force to come back and cross
+    again, and may never fire; the run's closest approach describes the final configuration only (a
+    kneed walker's trailing knee, tensile from the heel strike on, stayed locked for the whole step
+    and nothing said so)."""
+    out = []
+    for g in guards:
+        tr = g.transition
+        if (g.action != "transition" or tr is None or tr.type != "release" or tr.guard.type != "reaction"
+                or any(s.name == tr.guard.of for s in cfg.spec.cut_joints)):
+            continue
+        key = f"configuration '{cfg.name}': the release '{tr.name}' watches"
+        if any(key in w for w in said):
+            continue
+        past = tr.guard.direction * g(t, y0)
+        if past > 0:
+            way = "increasing" if tr.guard.direction > 0 else "decreasing"
+            out.append(f"t = {t:.9g} s, {key} the holding force of '{tr.guard.of}' cross {tr.guard.value:.9g} "
+                       f"{way}, but it is already {past:.6g} past that value where the configuration is entered: "
+                       "a guard fires on a crossing in its direction only, so the release waits for the force to "
+                       "come back and cross again (it may never fire)")
     return out
 
 

@@ -14,6 +14,7 @@ from ..results.trajectory import Trajectory
 from ..scene.settings import RunOptions
 from ..scene.spec import Scene, TransitionSpec
 from .audit import FlightAudit
+from .guard_cache import GuardCache
 
 
 @dataclass
@@ -41,9 +42,9 @@ class RunState:
     stepping: tuple | None = None  # (rhs, method, options) of the segment being integrated
     impulse_integral: float = 0.0  # the contact phase's impulse so far (N s), at the segment's end
     store: object = None  # a StoreWriter (pcmm.results.store): the record streamed to a folder as it goes
-    # the last segment's transition guards and what they were built for (pcmm.run.loop._guards): a
+    # the guards kept from segment to segment by what they were built for (pcmm.run.loop._guards): a
     # bounce that follows a bounce at the same stop re-arms with them instead of building them again
-    kept_guards: list = field(default_factory=list)
+    guard_cache: GuardCache = field(default_factory=GuardCache)
 
     @property
     def stats(self):

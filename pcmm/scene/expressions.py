@@ -224,6 +224,8 @@ class _Parser:
                                   f"not {len(args)}")
         if name == "sqrt" and args[0] < 0:
             raise ExpressionError(self.text, pos, f"sqrt of a negative number ({args[0]:g})")
+        if name == "atan2" and args[0] == 0 and args[1] == 0:  # math.atan2 gives 0 (or +-pi): no direction
+            raise ExpressionError(self.text, pos, "atan2(0, 0): the zero vector has no angle")
         try:  # the arguments are finite; a function whose result overflows says so
             return self._finite(fn(*args), ("name", name, pos), f"{name}(...)")
         except (ValueError, OverflowError) as exc:

@@ -42,7 +42,7 @@ GUARD_TYPES = ("coordinate", "gap", "time", "reaction")
 CUT_JOINT_TYPES = {"revolute": 2, "prismatic": 2, "weld": 3}
 
 SCENE_KEYS = [
-    S.Key("name", "str", doc="a short name for the scene"),
+    S.Key("name", "str", check=S.name, doc="a short name for the scene"),
     S.Key("description", "str", required=False, default="", doc="free text describing the mechanism"),
     S.Key("gravity", "list", check=S.vector(2), doc="[gx, gy] in m/s^2, e.g. [0.0, -9.81]"),
     S.Key("t_end", "number", check=S.positive, doc="end time of the run in s"),
@@ -59,7 +59,7 @@ CONFIG_KEYS = [
           doc="closed loops: the joints cut from the URDF tree, each a table (see the cut_joints entries)"),
 ]
 CUT_JOINT_KEYS = [
-    S.Key("name", "str", doc="the cut joint's name; its constraint force on link b is the series NAME.fx, NAME.fy "
+    S.Key("name", "str", check=S.name, doc="the cut joint's name; its constraint force on link b is the series NAME.fx, NAME.fy "
           "(revolute; N, world axes), NAME.fn, NAME.mz (prismatic: across the axis, N, and the moment, N m) or "
           "NAME.fx, NAME.fy, NAME.mz (weld)"),
     S.Key("type", "str", check=S.one_of(*CUT_JOINT_TYPES), doc="revolute and prismatic: 2 constraint rows, weld: 3"),
@@ -83,7 +83,7 @@ PIN_CONTACT_KEYS = [
 INITIAL_KEYS = [
     S.Key("q", "table", doc="{joint = value, ...} for every movable joint"),
     S.Key("v", "table", doc="{joint = velocity, ...} for every movable joint"),
-    S.Key("independent", "list", required=False, default=[], check=S.names_list,
+    S.Key("independent", "list", required=False, default=[], check=S.distinct_names,
           doc="closed loops: joints whose given q and v are kept when the loop is assembled"),
     S.Key("branch", "table", required=False,
           doc='closed loops: { between = [A, B], sign = "+" } (or joint = J, link = L): the assembly whose '
@@ -95,7 +95,7 @@ MEASURE_KEYS = [
     S.Key("between", "list", required=False, check=S.names_list, doc="[A, B]: the relative angle theta_B - theta_A in rad"),
 ]
 FORCE_KEYS = [
-    S.Key("name", "str", doc="the element's name (its force is reported over time under it)"),
+    S.Key("name", "str", check=S.name, doc="the element's name (its force is reported over time under it)"),
     S.Key("type", "str", check=S.one_of(*FORCE_TYPES),
           doc="f = value - k (x - rest) - c x'; each type requires and allows the keys of the table below"),
     S.Key("on", "table", required=False, doc="{joint = NAME} or {link = NAME}"),
@@ -110,8 +110,8 @@ FORCE_KEYS = [
     S.Key("rest", "number", required=False, default=0.0, doc="the measure's value (rad or m) where the spring is relaxed"),
     S.Key("c", "number", required=False, default=0.0, check=S.non_negative,
           doc="damping >= 0 (a negative damper feeds energy in)"),
-    S.Key("configurations", "list", required=False, check=S.names_list,
-          doc="the configurations it acts in (default: every one)"),
+    S.Key("configurations", "list", required=False, check=S.configuration_names,
+          doc="the configurations it acts in, each once (default: every one)"),
 ]
 WHEN_KEYS = [
     S.Key("measure", "table", doc="{joint = NAME}, {link = NAME} or {between = [A, B]}"),
@@ -151,7 +151,7 @@ CONTACT_KEYS = [
 ]
 POINT_CONTACT = ("a", "point_a", "b", "point_b", "normal")
 TRANSITION_KEYS = [
-    S.Key("name", "str", doc="the transition's name, as its events and holding force (NAME.hold) are named"),
+    S.Key("name", "str", check=S.name, doc="the transition's name, as its events and holding force (NAME.hold) are named"),
     S.Key("type", "str", check=S.one_of(*TRANSITION_TYPES),
           doc="latch (locks on contact), stop (bounces with restitution), release (frees), pin (a point held where it strikes)"),
     S.Key("from", "str", doc="the configuration the guard is watched in"),
@@ -159,7 +159,7 @@ TRANSITION_KEYS = [
     S.Key("merge_to", "str", required=False,
           doc="stop: the configuration the bodies merge into when the bounces accumulate"),
     S.Key("restitution", "number", required=False, check=S.unit_interval, doc="stop: Newton's coefficient e (required there)"),
-    S.Key("cut", "list", required=False, check=S.names_list,
+    S.Key("cut", "list", required=False, check=S.distinct_names,
           doc="latch and stop, required there: the metamorphic joint(s) cut to solve the impulse; [] if none"),
     S.Key("guard", "table", doc="what fires the transition: { type, ... }, the keys of a guard"),
     S.Key("contact", "table", required=False,
@@ -179,8 +179,8 @@ TRANSITION_KEYS = [
 DRIVE_KEYS = [
     S.Key("joint", "str", doc="the driven joint: its coordinate is prescribed, and its velocity comes from the drive"),
     S.Key("coefficients", "list", check=S.numbers_list, doc="q(t) = c0 + c1 t + c2 t^2 + ..."),
-    S.Key("configurations", "list", required=False, check=S.names_list,
-          doc="the configurations it drives in (default: every one)"),
+    S.Key("configurations", "list", required=False, check=S.configuration_names,
+          doc="the configurations it drives in, each once (default: every one)"),
 ]
 TOP_KEYS = [
     S.Key("scene", "table", doc="[scene]: name, gravity, t_end, the initial configuration"),
@@ -266,6 +266,11 @@ def _repeated_key_hint(text: str, exc: Exception) -> str:
                                 f"{number}; TOML allows a key once per table)")
                     stack[-1].add(km.group(1))
     return ""
+
+
+def _same_link(link: str) -> str:
+    return (f"= {link!r}: a and b are the same link, so the cut joint closes no loop (it joins two different "
+            "links, or a link and the frame)")
 
 
 def measure_sign(force: ForceSpec, config: ConfigurationSpec) -> int | None:
@@ -449,6 +454,10 @@ class _Builder:
             if len(m["between"]) != 2:
                 self.p.add(f"{where}.between", f"= {S.show(m['between'])}: must name two links [A, B]")
                 return None
+            if m["between"][0] == m["between"][1]:
+                self.p.add(f"{where}.between", f"= {S.show(m['between'])}: names '{m['between'][0]}' twice; a link's "
+                           "angle relative to itself is 0 at all times: name two different links [A, B]")
+                return None
             return Measure("between", tuple(m["between"]))
         return Measure(kind, (m[kind],))
 
@@ -471,15 +480,22 @@ class _Builder:
             return None
         return Target(given[0], t[given[0]])
 
-    def _list_of_tables(self, items, keys, where):
+    def _list_of_tables(self, items, keys, where, unique: str | None = None):
         """Each table of an array of tables with its place: ``transitions[2] (O2 pin)``, the
-        index and, where the table names itself, the name (as every later message about it)."""
-        out = []
+        index and, where the table names itself, the name (as every later message about it).
+        With ``unique`` (why), a name given to an earlier table of the array is refused: the run
+        keys series, events and references by name, so the second would silently stand in for
+        the first (or both for one)."""
+        out, first = [], {}
         for i, item in enumerate(items or []):
             raw = item if isinstance(item, dict) else {}
             name = raw.get("name")
             place = f"{where}[{i}] ({name})" if isinstance(name, str) and name else f"{where}[{i}]"
             out.append((place, S.check_table(item, keys, place, self.p), raw))
+            if unique is not None and isinstance(name, str) and name.strip():
+                if name in first:
+                    self.p.add(f"{place}.name", f"= {name!r}: already the name of {first[name]}; {unique}")
+                first.setdefault(name, place)
         return out
 
     # -- the build
@@ -553,6 +569,8 @@ class _Builder:
                 if cj.anchor_at_entry and cj.a != info.root:
                     self.p.add(f"{where}.cut_joints[{k}].point_a", f"= 'entry': the anchor is fixed in the world, so "
                                f"link a must be the frame ('{info.root}', the URDF's root), not '{cj.a}'")
+                elif cj.anchor_at_entry and cj.b == cj.a:
+                    self.p.add(f"{where}.cut_joints[{k}].b", _same_link(cj.b))
         if derived:
             from .derive import derive_configurations
             out.update(derive_configurations(derived, out, self.p, self._cut_joints, declared=list(table)))
@@ -560,8 +578,15 @@ class _Builder:
 
     def _cut_joints(self, items, where) -> tuple[CutJointSpec, ...]:
         cuts = []
-        for cw, cj, _ in self._list_of_tables(items, CUT_JOINT_KEYS, f"{where}.cut_joints"):
+        for cw, cj, _ in self._list_of_tables(
+                items, CUT_JOINT_KEYS, f"{where}.cut_joints",
+                unique="the cut joints of one configuration need distinct names: their constraint forces "
+                       "(NAME.fx, NAME.fy, ...) and impulses are reported under them, and a transition's cut and a "
+                       "reaction guard's of name them (two of one name gave NaN impulses)"):
             if None in (cj["name"], cj["type"], cj["a"], cj["point_a"], cj["b"], cj["point_b"]):
+                continue
+            if cj["a"] == cj["b"] and cj["point_a"] != "entry":  # an entry anchor's a: the frame (said below)
+                self.p.add(f"{cw}.b", _same_link(cj["b"]))
                 continue
             if cj["type"] == "prismatic" and cj["axis"] is None:
                 self.p.add(f"{cw}.axis", "missing; a prismatic cut joint needs its sliding axis [x, y]")
@@ -586,9 +611,14 @@ class _Builder:
 
     def _forces(self, items) -> list[ForceSpec]:
         out = []
-        for where, f, raw in self._list_of_tables(items, FORCE_KEYS, "forces"):
+        for where, f, raw in self._list_of_tables(
+                items, FORCE_KEYS, "forces",
+                unique="each force element needs its own name: its force and energy are reported over time under "
+                       "it, and a second element of that name would overwrite the first's series"):
             if f["type"] is None or f["name"] is None:
                 continue
+            if "configurations" in raw and f["configurations"] is None:
+                continue  # its list is at fault (said): read as None it would act in every configuration
             if f["type"] == "point_spring":
                 out += self._point_spring(where, f, raw)
                 continue
@@ -649,7 +679,10 @@ class _Builder:
 
     def _transitions(self, items, configs) -> list[LatchSpec | StopSpec | ReleaseSpec]:
         out = []
-        for where, t, raw in self._list_of_tables(items, TRANSITION_KEYS, "transitions"):
+        for where, t, raw in self._list_of_tables(
+                items, TRANSITION_KEYS, "transitions",
+                unique="each transition needs its own name: its events, a stop's holding force (NAME.hold) and "
+                       "bounce interval, and a reaction guard's of are keyed by it"):
             if None in (t["name"], t["type"], t["from"], t["guard"]):
                 continue
             kind = t["type"]
@@ -664,9 +697,17 @@ class _Builder:
             if kind == "latch":
                 if t["to"] is None:
                     self.p.add(f"{where}.to", "missing; a latch names the configuration it switches to")
+                elif t["to"] == t["from"]:
+                    self.p.add(f"{where}.to", f"= {t['to']!r}: the configuration the latch is watched in (from), so "
+                               "nothing would lock and the latch would strike again at once; name the configuration "
+                               "in which the latched joint is fixed")
                 for k in ("restitution", "merge_to", "unmerge"):
                     if k in raw:
                         self.p.add(f"{where}.{k}", "not used by a latch (the merge is perfectly plastic, e = 0)")
+                for k in ("accumulation_speed", "accumulation_interval"):
+                    if k in raw:
+                        self.p.add(f"{where}.{k}", "not used by a latch (it locks at its first strike: there are "
+                                   "no bounces to accumulate)")
                 e = 0.0
             elif kind == "stop":
                 if t["to"] is not None:
@@ -674,6 +715,10 @@ class _Builder:
                                "name the merged configuration with merge_to")
                 if "restitution" not in raw:
                     self.p.add(f"{where}.restitution", "missing; a stop needs Newton's coefficient e in [0, 1]")
+                if t["merge_to"] is not None and t["merge_to"] == t["from"]:
+                    self.p.add(f"{where}.merge_to", f"= {t['merge_to']!r}: the configuration the stop is watched in "
+                               "(from), so the bodies would not merge (the last bounce made plastic, then free "
+                               "again); name the configuration in which they are merged")
             elif kind == "pin":
                 if t["to"] is None:
                     self.p.add(f"{where}.to", "missing; a pin names the configuration whose cut joint holds the "
@@ -748,12 +793,12 @@ class _Builder:
         # a key written but at fault (a broken expression, a wrong type) is given: its own problem
         # is reported, not a second one saying it is missing
         raw = table if isinstance(table, dict) else {}
-        given = {k for k in ("measure", "value", "direction", "at", "every", "of") if k in raw}
+        given = {k for k in ("measure", "value", "direction", "at", "every", "start", "of") if k in raw}
         failed = any(g.get(k) is None for k in given)
         needs = {"coordinate": {"measure", "value", "direction"}, "gap": {"value", "direction"},
                  "time": set(), "reaction": {"of", "value", "direction"}}.get(g["type"])
         allowed = {"coordinate": {"measure", "value", "direction"}, "gap": {"value", "direction"},
-                   "time": {"at", "every"}, "reaction": {"of", "value", "direction"}}.get(g["type"])
+                   "time": {"at", "every", "start"}, "reaction": {"of", "value", "direction"}}.get(g["type"])
         if needs is None:
             return None
         ok = not failed
@@ -765,6 +810,10 @@ class _Builder:
             ok = False
         if g["type"] == "time" and (("at" in given) == ("every" in given)):
             self.p.add(where, "a time guard takes either at (one instant) or every (a period, from start)")
+            ok = False
+        elif g["type"] == "time" and "start" in given and "every" not in given:
+            self.p.add(f"{where}.start", "only used with every (the first instant of a period); a time guard "
+                       "with at fires at that instant")
             ok = False
         if g["type"] == "gap" and kind == "release":
             self.p.add(f"{where}.type", "= 'gap': a release has no contact; use a coordinate, time or reaction guard")
@@ -847,9 +896,11 @@ class _Builder:
 
     def _drives(self, items) -> list[DriveSpec]:
         out = []
-        for where, d, _ in self._list_of_tables(items, DRIVE_KEYS, "drives"):
+        for where, d, raw in self._list_of_tables(items, DRIVE_KEYS, "drives"):
             if None in (d["joint"], d["coefficients"]):
                 continue
+            if "configurations" in raw and d["configurations"] is None:
+                continue  # its list is at fault (said): read as None it would drive in every configuration
             out.append(DriveSpec(d["joint"], tuple(float(x) for x in d["coefficients"]),
                                  tuple(d["configurations"]) if d["configurations"] else None))
         return out
@@ -934,7 +985,7 @@ class _Builder:
         joints on the tree paths of its two links that the paths do not share (a shared joint moves both
         links rigidly)."""
         rows = {cj.name: CUT_JOINT_TYPES[cj.type] for cj in cfg.cut_joints}
-        if not rows:
+        if not rows or len(rows) < len(cfg.cut_joints):  # no loop, or a cut joint's name given twice (said)
             return
         locked = set(cfg.derivation.lock) if cfg.derivation is not None else set()
         by_child = {j.child: j for j in cfg.info.joints.values()}
@@ -979,6 +1030,15 @@ class _Builder:
                    f"{sum(rows.values())} constraint rows of its cut joints "
                    f"({', '.join(f'{n}: {r}' for n, r in rows.items())}): no posture satisfies them all; keep "
                    f"fewer coordinates (a driven joint is kept by its drive: leave it out of independent)")
+
+    def _one_coordinate(self, where, name, config, advice) -> None:
+        """A force's ``on`` joint or a drive's joint is one coordinate: a planar joint's three
+        (x, y, theta) were read as its x alone, silently."""
+        j = config.info.joints.get(name)
+        if j is not None and j.type == "planar" and not any(x.startswith(f"{self.p.file}: {where}:")
+                                                            for x in self.p.items):
+            self.p.add(where, f"= {name!r}: a planar joint has three coordinates (x, y, theta) in configuration "
+                       f"'{config.name}', and this acts along one (it was read as {name}.x alone); {advice}")
 
     def _check_coordinate(self, where, name, config):
         """A joint, or one coordinate of a planar joint ("P.x", "P.y", "P.theta")."""
@@ -1039,8 +1099,17 @@ class _Builder:
                     self._check_link(f"{where}.b", f.points.b, cfg)
                 elif f.on.kind == "joint":
                     self._check_joint(f"{where}.on.joint", f.on.name, cfg)
+                    self._one_coordinate(f"{where}.on.joint", f.on.name, cfg,
+                                         f"act on its link instead (on = {{ link = NAME }}: a torque), or join the "
+                                         "body to the frame by one revolute or prismatic joint per coordinate")
                 else:
                     self._check_link(f"{where}.on.link", f.on.name, cfg)
+                    if f.on.name == cfg.info.root and not any(x.startswith(f"{self.p.file}: {where}.on.link:")
+                                                                for x in self.p.items):
+                        self.p.add(f"{where}.on.link", f"= {f.on.name!r}: the frame (the root of "
+                                   f"{cfg.info.path.name}) does not move, so a torque on it does nothing; name the "
+                                   "link it turns (on = { link = NAME }) or the joint it acts across "
+                                   "(on = { joint = NAME })")
                 if f.measure is not None:
                     self._check_measure(f"{where}.measure", f.measure, cfg)
                 if tail and len(self.p.items) > n0:
@@ -1057,6 +1126,14 @@ class _Builder:
             if t.source not in names:
                 continue
             cfg = names[t.source]
+            if t.type == "stop" and t.merge_to in names:
+                locks = [j for j in cfg.info.movable_joints if j not in names[t.merge_to].info.movable_joints]
+                owner = next((c for c in names.values() if t.name in c.info.joints), None)
+                if owner is not None and t.name not in locks:
+                    self.p.add(f"{where}.name", f"= {t.name!r}: also a joint of {owner.info.path.name}, which this "
+                               f"stop's merge does not lock (it locks {', '.join(locks) or 'none'}): its holding "
+                               f"force '{t.name}.hold' and a reaction guard's of = {t.name!r} would name both; "
+                               "rename the stop")
             for j in t.cut:
                 if any(c.name == j for c in cfg.cut_joints):
                     continue  # a loop's cut joint is already cut: its rows' impulse is what it carries
@@ -1069,13 +1146,20 @@ class _Builder:
                 stops = {s.name for s in scene.transitions if s.type == "stop"}
                 joints = set().union(*(c.info.joints for c in names.values()))
                 own_cuts = {c.name: c for c in cfg.cut_joints}
-                if t.guard.of in own_cuts:  # a cut joint's holding force: along its contact normal
+                if t.guard.of in own_cuts and t.guard.of in stops:
+                    self.p.add(f"{where}.guard.of", f"= {t.guard.of!r}: names both a cut joint of '{t.source}' and a "
+                               "stop transition, whose forces differ; give the two different names")
+                elif t.guard.of in own_cuts:  # a cut joint's holding force: along its contact normal
                     if own_cuts[t.guard.of].normal is None:
                         self.p.add(f"{where}.guard.of", f"= {t.guard.of!r}: a reaction guard on a cut joint watches "
                                    "its normal force, so the cut joint needs contact = { normal = [x, y] }")
                 elif t.guard.of not in stops and t.guard.of not in joints:
                     self.p.add(f"{where}.guard.of", f"= {t.guard.of!r}: names neither a joint of the scene's URDFs "
                                f"nor a stop transition ({', '.join(sorted(stops)) or 'none'})")
+                elif t.guard.of in stops and t.guard.of not in joints and all(
+                        s.merge_to is None for s in scene.transitions if s.type == "stop" and s.name == t.guard.of):
+                    self.p.add(f"{where}.guard.of", f"= {t.guard.of!r}: a stop without merge_to never merges, so it "
+                               "holds nothing and this guard would never fire; give the stop a merge_to")
                 elif t.guard.of in cfg.info.movable_joints:
                     locked = [j for j in sorted(joints) if any(j in c.info.movable_joints for c in names.values())
                               and j not in cfg.info.movable_joints]
@@ -1098,6 +1182,13 @@ class _Builder:
                     self.p.add(f"{where}.to", f"= {t.target!r}: a pin's target holds the struck point by a revolute "
                                f"cut joint with a = the frame, point_a = \"entry\", b = {t.contact.b!r} and point_b = "
                                f"{list(t.contact.point_b)} (the contact's point_b); '{t.target}' has none")
+                src_joints, dst_joints = list(cfg.info.movable_joints), list(names[t.target].info.movable_joints)
+                if src_joints != dst_joints:  # the strike's impulse is solved on one tree (pins.pin_strike)
+                    self.p.add(f"{where}.to", f"= {t.target!r}: a pin keeps the tree and only adds the cut joint "
+                               f"that holds the struck point, but '{t.target}' has the movable joints {dst_joints} "
+                               f"and '{t.source}' {src_joints}: pin into a configuration with the same joints "
+                               f"(the same URDF, or the same locks), and free or lock joints after the strike with "
+                               f"a `release` or a `latch` from there")
                 if t.contact.a != cfg.info.root:
                     self.p.add(f"{where}.contact.a", f"= {t.contact.a!r}: a pin anchors b's point on the frame "
                                f"('{cfg.info.root}'); a point pinned to a moving link is not modelled yet")
@@ -1115,9 +1206,25 @@ class _Builder:
             self._loops_keep_a_coordinate_per_row(scene, init_cfg)
         if scene.branch is not None and init_cfg is not None:
             self._check_measure("initial.branch", scene.branch.measure, init_cfg)
+            declared = ((self.raw.get("configurations") or {}).get(init_cfg.name) or {}).get("cut_joints")
+            if not init_cfg.cut_joints and not declared:  # (one declared but at fault is said on its own)
+                self.p.add("initial.branch", f"configuration '{init_cfg.name}' has no loop (no cut_joints), so it has "
+                           "one assembly, the posture [initial] q gives, and branch would be ignored; remove it, or "
+                           "give q the sign wanted")
+        driven: dict[tuple[str, str], int] = {}  # (configuration, joint) -> the drive that prescribes it
         for i, d in enumerate(scene.drives):
             for cfg in self._configs_for(f"drives[{i}].configurations", d.configurations, scene):
                 self._check_joint(f"drives[{i}].joint", d.joint, cfg)
+                self._one_coordinate(f"drives[{i}].joint", d.joint, cfg,
+                                     "a drive prescribes one coordinate: give the body one revolute or prismatic "
+                                     "joint per coordinate to drive")
+                first = driven.setdefault((cfg.name, d.joint), i)
+                if first != i:
+                    self.p.add(f"drives[{i}].joint", f"= {d.joint!r}: already driven by drives[{first}] in "
+                               f"configuration '{cfg.name}'; a coordinate follows one prescribed motion (two drives "
+                               "of one joint are two constraints on one coordinate); give each drive the "
+                               "configurations it acts in")
+                    break
         for cfg in names.values():
             base = names.get(cfg.derivation.base) if cfg.derivation is not None else None
             if base is not None and cfg.cut_joints == base.cut_joints:
@@ -1126,3 +1233,7 @@ class _Builder:
                 where = f"configurations.{cfg.name}.cut_joints[{k}]"
                 self._check_link(f"{where}.a", cj.a, cfg)
                 self._check_link(f"{where}.b", cj.b, cfg)
+                if cj.name in cfg.info.joints:
+                    self.p.add(f"{where} ({cj.name}).name", f"= {cj.name!r}: also a joint of {cfg.info.path.name}; "
+                               "a transition's cut and a reaction guard's of name either, so the two need "
+                               "different names")

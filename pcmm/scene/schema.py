@@ -238,3 +238,24 @@ def numbers_list(v):
 
 def names_list(v):
     return None if all(isinstance(x, str) for x in v) else "must be a list of names (strings)"
+
+
+def distinct_names(v):
+    """A list of names each given once: a name listed twice is a slip (a joint cut twice gave a
+    singular impulse solve), never a meaning."""
+    dup = sorted({x for x in v if isinstance(x, str) and v.count(x) > 1})
+    return names_list(v) or (f"names {', '.join(dup)} more than once" if dup else None)
+
+
+def configuration_names(v):
+    """The configurations an element acts in: distinct names, and at least one (an empty list
+    was read as "every configuration", the opposite of what it says)."""
+    if not v:
+        return ("an empty list names no configuration, so the element would act in none; leave configurations "
+                "out for every configuration, or remove the element")
+    return distinct_names(v)
+
+
+def name(v):
+    """The name of a scene element: what its events, series and messages are named by."""
+    return None if v.strip() else "must not be empty (the element's events, series and messages are named by it)"

@@ -35,13 +35,31 @@ _ITEM_KEY = {"drives": "joint"}
 def set_values(raw: dict, values: Mapping[str, Any], file: str | Path = "scene") -> dict:
     """A deep copy of the TOML document ``raw`` with ``values`` set by path."""
     out = copy.deepcopy(raw)
+    placed: dict[tuple, str] = {}  # the value each path resolved to -> the path
     for path, value in values.items():
         steps = resolve(out, path, file)
+        for where, other in placed.items():
+            # two paths to one value ("forces.tau3.value" and "forces[2].value"), or one inside the
+            # other's: the later would silently replace what the earlier set, and a sweep's table
+            # would list values that no run used
+            if where[:len(steps)] == tuple(steps) or tuple(steps[:len(where)]) == where:
+                raise SceneError(f"{file}: value paths {other!r} and {path!r} both set {_shown(steps)}"
+                                 f"{'' if len(where) == len(steps) else ' (one inside the other)'}: "
+                                 "each value may be set by one path only")
+        placed[tuple(steps)] = path
         node = out
         for s in steps[:-1]:
             node = node[s]
         node[steps[-1]] = plain(value)
     return out
+
+
+def _shown(steps: list) -> str:
+    """Resolved steps as the indexed path they are: ``forces[2].value``."""
+    text = ""
+    for s in steps:
+        text += f"[{s}]" if isinstance(s, int) else (f".{s}" if text else str(s))
+    return text
 
 
 def resolve(raw: dict, path: str, file: str | Path = "scene") -> list:

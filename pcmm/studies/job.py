@@ -17,15 +17,24 @@ QUANTITIES = {
     "events": "number of events (impacts, merges, switches, releases)",
     "impacts": "number of events with an impulse",
     "first_impact_t": "time of the first impact, s",
-    "first_impulse": "normal impulse of the first impact, N s",
-    "peak_impulse": "largest |normal impulse| of the run, N s",
-    "total_impulse": "sum of |normal impulse| over the run, N s",
+    "first_impulse": "normal impulse P_n of the first impact, N s; its normal part only (a pin's or a frictional "
+                     "contact's tangential part is in first_impulse_magnitude; of contacts closed at once, the "
+                     "first one's, as the event's P)",
+    "peak_impulse": "largest |normal impulse P_n| at one contact over the run, N s; the normal part only, every "
+                    "contact of an impact closing several at once counted",
+    "total_impulse": "sum of |normal impulse P_n| over the run's impacts and their contacts, N s; the normal "
+                     "part only",
+    "first_impulse_magnitude": "|P| = sqrt(P_n^2 + P_t^2) of the first impact's contact impulse, normal and "
+                               "tangential parts (= |first_impulse| without friction), N s",
+    "peak_impulse_magnitude": "largest |P| = sqrt(P_n^2 + P_t^2) at one contact over the run, N s",
+    "total_impulse_magnitude": "sum of |P| = sqrt(P_n^2 + P_t^2) over the run's impacts and their contacts, N s",
     "kinetic_energy_lost": "sum over impacts of KE before - KE after, J",
     "energy_dissipated": "sum over impacts of KE before + drive work - KE after, J (a collision resolved by a "
                          "continuous contact law: the kinetic + potential energy lost over its duration); "
                          "empty when a run's record cannot give it",
     "max_holding_force": "largest |holding force or moment| of any lock (stats.holding), N or N m; "
-                         "empty when nothing was locked",
+                         "empty when nothing was locked (a pinned point's stance force is not a lock's: "
+                         "collect stats.holding.NAME.normal.max for it)",
     "last_merge_t": "time of the run's last merge (a latch, or a stop's bounces accumulated into a lock), s; "
                     "empty when none",
     "configuration_final": "the configuration the run ends in",
@@ -126,6 +135,22 @@ def contact_phase_losses(traj) -> dict[float, float]:
     return out
 
 
+def impulse_magnitude(impulse: dict) -> float:
+    """|P| of an event's contact impulse: its normal part ``P_n`` and, where the contact takes one
+    (a pin, a frictional point contact), its tangential part ``P_t``, sqrt(P_n^2 + P_t^2).  A
+    pinned rocking block's strike has P_t / P_n = 0.24: its |P| is 3 % above P_n."""
+    return math.hypot(float(impulse["normal"]), float(impulse.get("tangential") or 0.0))
+
+
+def contact_impulses(event: dict) -> list[dict]:
+    """The impulse at each contact of an impact: the event's own, or, for contacts closed at once
+    (one complementarity solve), each contact's in its ``simultaneous`` block; the event's own
+    ``impulse`` is then the first contact's alone (a rod landing flat on both ends: the table's
+    total summed one end's and its peak could miss the larger end)."""
+    block = event.get("simultaneous")
+    return [c["impulse"] for c in block.values()] if block else [event["impulse"]]
+
+
 def quantities(summ: dict, phases: dict | None = None) -> dict:
     """The per-run quantities of :data:`QUANTITIES` from a run summary; ``phases``: the energy
     lost over each collision resolved by a continuous contact law (:func:`contact_phase_losses`),
@@ -134,7 +159,9 @@ def quantities(summ: dict, phases: dict | None = None) -> dict:
     phases = phases or {}
     events = summ["events"]
     impacts = [e for e in events if e.get("impact")]
-    impulses = [abs(e["impulse"]["normal"]) for e in impacts]
+    at_contacts = [p for e in impacts for p in contact_impulses(e)]
+    impulses = [abs(p["normal"]) for p in at_contacts]
+    magnitudes = [impulse_magnitude(p) for p in at_contacts]
     merges = [e for e in events if e.get("merge")]
     dissipated = [e["energy_dissipated"] if e.get("energy_dissipated") is not None else phases.get(e["t"])
                   for e in impacts]
@@ -146,6 +173,9 @@ def quantities(summ: dict, phases: dict | None = None) -> dict:
         "first_impulse": impacts[0]["impulse"]["normal"] if impacts else None,
         "peak_impulse": max(impulses) if impulses else 0.0,
         "total_impulse": math.fsum(impulses),
+        "first_impulse_magnitude": impulse_magnitude(impacts[0]["impulse"]) if impacts else None,
+        "peak_impulse_magnitude": max(magnitudes) if magnitudes else 0.0,
+        "total_impulse_magnitude": math.fsum(magnitudes),
         "kinetic_energy_lost": math.fsum(e["kinetic_energy_before"] - e["kinetic_energy_after"] for e in impacts),
         "energy_dissipated": None if None in dissipated else math.fsum(dissipated),
         "max_holding_force": max(holding) if holding else None,

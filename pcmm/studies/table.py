@@ -170,15 +170,41 @@ class ResultsTable:
                 raise _link_error(self.path) from None
             raise OutputError(self.path, exc) from None
 
+    def _from_older(self, rows: list[list[str]]) -> bool:
+        """A table a pcmm with fewer quantities wrote (before ``first_impulse_magnitude``, or
+        ``last_merge_t``): the same columns in the same order but for some of :data:`QUANTITIES`.  Its rows are
+        read into this study's columns, those cells empty (unknown, never a number they did not
+        compute), each row's checksum checked on its own cells first and written anew; the table is
+        rewritten, and the warning says which columns its rows lack.  ``False`` (rows untouched) for
+        any other difference."""
+        old, header = rows[0], self.header
+        missing = [c for c in header if c not in old]
+        if not missing or [c for c in header if c in old] != old or \
+                not set(missing) <= {spreadsheet_text(q) for q in QUANTITIES}:
+            return False
+        upgraded = [header]
+        for cells in rows[1:]:
+            if len(cells) != len(old) or checksum(cells[:-1]) != cells[-1]:
+                upgraded.append(cells)  # dropped below, as a cut or altered row is
+                continue
+            by_column = dict(zip(old, cells))
+            new = [by_column.get(c, "") for c in header[:-1]]
+            upgraded.append([*new, checksum(new)])
+        rows[:] = upgraded
+        self.dropped.append(f"written before the columns {', '.join(missing)}: its {len(upgraded) - 1} rows keep "
+                            "them empty (the table is rewritten with them; --force runs every row again)")
+        return True
+
     def _read(self, retry_failed: bool):
         """Read the table back; the rows to keep if any row was dropped (else ``None``)."""
         with open(self.path, newline="", encoding="utf-8", errors="replace") as f:
             rows = list(csv.reader(f))
+        upgraded = bool(rows) and rows[0] != self.header and self._from_older(rows)
         if not rows or rows[0] != self.header:
             have = rows[0] if rows else []
             raise UsageError(f"{self.path}: its columns ({', '.join(have) or 'none'}) are not this study's "
                              f"({', '.join(self.header)}); resume with the same --set paths and --collect")
-        kept, changed = [], False
+        kept, changed = [], upgraded
         for n, cells in enumerate(rows[1:], start=2):
             run = cells[0] if cells else "?"
             if len(cells) != len(self.cols) or checksum(cells[:-1]) != cells[-1]:
