@@ -271,7 +271,7 @@ def cycle(gait, tmp_path_factory):
     x = gait[0]
     path = write_walker(tmp_path_factory.mktemp("cycle"), CHEN, np.array([x[0], -x[0], -x[0]]),
                         np.array([x[1], x[2], x[2]]), t_end=1.3, hold_references=True,
-                        release=lambda stance: {"type": "time", "every": 1e-12})
+                        release=lambda stance: {"type": "entry"})
     return pcmm.simulate(pcmm.load_scene(path))
 
 
@@ -284,11 +284,14 @@ def test_a_whole_cycle_against_the_reference_gait(gait, cycle):
     times = [e["t"] for e in cycle.events]
     expected = [t_knee, t_heel, t_heel, t_heel + t_knee, 2 * t_heel, 2 * t_heel]
     assert max(abs(a - b) for a, b in zip(times, expected)) < 1e-8
-    assert times[2] - times[1] <= 2e-12 and times[5] - times[4] <= 2e-12   # the unlock's timer: 1e-12 s
-    # the unlocks: no impulse, every body's velocity continuous
+    # the unlocks fire on entering the strike's configuration: at the strike's instant itself, after it
+    assert times[2] == times[1] and times[5] == times[4]
+    # the unlocks: no impulse, every body's velocity continuous; nothing integrated in the strike's configuration
     for k in (2, 5):
         ev = cycle.events[k]
-        assert ev["kinetic_energy_after"] == pytest.approx(ev["kinetic_energy_before"], rel=1e-12)
+        assert ev["cause"] == "entry" and ev["kinetic_energy_after"] == pytest.approx(ev["kinetic_energy_before"], rel=1e-12)
+    struck = [s for s in cycle.segments if s.configuration in ("b_strike", "a_strike")]
+    assert [(s.t.size, s.t[0]) for s in struck] == [(1, times[1]), (1, times[4])]
     # the second step is the first with the legs swapped, one step length further
     start, again = floating(cycle.segments[0], 0), floating(cycle.segments[-1], 0)
     assert cycle.segments[-1].configuration == "a_swing"

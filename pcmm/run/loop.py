@@ -492,6 +492,8 @@ def _guards(scene: Scene, cfg: Configuration, holds: Holds, t: float, phase, bou
                 continue
             if tr.guard.type == "time" and tr.guard.at is not None and tr.name in fired:
                 continue
+            if tr.guard.type == "entry" and phase is not None:  # fired where the collision ends (_pending)
+                continue
             g = make_guard(cfg, tr, rearm=tr is bounced, context=holds if tr.guard.type == "reaction" else t)
             if g is not None:
                 out.append(g)
@@ -582,12 +584,17 @@ def _pending(cfg: Configuration, guards, t, y0, leaving=None):
     guards read at their crossing whose contact separates or rests pulled apart, before the first
     pending one (the segment watches them re-armed: :func:`pcmm.events.guards.left_at_value`).  A
     guard with no contact (a release's coordinate or gap guard) at its value is pending where its own
-    rate approaches its fired side, else listed leaving (:func:`_guard_approaches`)."""
+    rate approaches its fired side, else listed leaving (:func:`_guard_approaches`).  A release fired on
+    entry (``guard = { type = "entry" }``) is pending at the first segment of its configuration: its
+    event is kept at the entry instant, after the event that entered, and nothing is integrated in the
+    configuration (the loader refuses a cycle of them, :meth:`pcmm.scene.load._Builder._entry_guards`)."""
     state = None  # (q, v), when first needed
     for i, g in enumerate(guards):
         if g.action in ("unmerge", "lift-off") and g(t, y0) < 0:
             return i  # the merge or pin would have to pull from its first instant: the bodies separate now
         tr = g.transition
+        if g.action == "transition" and tr.guard.type == "entry":
+            return i
         if g.action != "transition" or tr.guard.type not in ("coordinate", "gap"):
             continue
         value = tr.guard.direction * g(t, y0)

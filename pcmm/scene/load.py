@@ -38,7 +38,7 @@ FORCE_TYPES = {
     "point_spring": ({"k", "rest"}, {"value", "k", "rest", "c"}),
 }
 TRANSITION_TYPES = ("latch", "stop", "release", "pin")
-GUARD_TYPES = ("coordinate", "gap", "time", "reaction")
+GUARD_TYPES = ("coordinate", "gap", "time", "reaction", "entry")
 CUT_JOINT_TYPES = {"revolute": 2, "prismatic": 2, "weld": 3}
 
 SCENE_KEYS = [
@@ -120,7 +120,8 @@ WHEN_KEYS = [
 ]
 GUARD_KEYS = [
     S.Key("type", "str", check=S.one_of(*GUARD_TYPES),
-          doc="coordinate (a measure), gap (a contact's gap), time, reaction (a lock's holding force)"),
+          doc="coordinate (a measure), gap (a contact's gap), time, reaction (a lock's holding force), "
+              "entry (a release: the instant its configuration is entered; no other key)"),
     S.Key("when", "table", required=False,
           doc="coordinate and gap guards: { measure, above | below }: a crossing counts only on that side"),
     S.Key("measure", "table", required=False, doc="coordinate guards: the measure watched, { joint }, { link } or { between }"),
@@ -796,9 +797,10 @@ class _Builder:
         given = {k for k in ("measure", "value", "direction", "at", "every", "start", "of") if k in raw}
         failed = any(g.get(k) is None for k in given)
         needs = {"coordinate": {"measure", "value", "direction"}, "gap": {"value", "direction"},
-                 "time": set(), "reaction": {"of", "value", "direction"}}.get(g["type"])
+                 "time": set(), "reaction": {"of", "value", "direction"}, "entry": set()}.get(g["type"])
         allowed = {"coordinate": {"measure", "value", "direction"}, "gap": {"value", "direction"},
-                   "time": {"at", "every", "start"}, "reaction": {"of", "value", "direction"}}.get(g["type"])
+                   "time": {"at", "every", "start"}, "reaction": {"of", "value", "direction"},
+                   "entry": set()}.get(g["type"])
         if needs is None:
             return None
         ok = not failed
@@ -806,7 +808,13 @@ class _Builder:
             self.p.add(f"{where}.{k}", f"missing; a {g['type']} guard needs {', '.join(sorted(needs))}")
             ok = False
         for k in sorted(given - allowed):
-            self.p.add(f"{where}.{k}", f"not used by a {g['type']} guard (it takes {', '.join(sorted(allowed))})")
+            self.p.add(f"{where}.{k}", f"not used by a {g['type']} guard (it takes "
+                       f"{', '.join(sorted(allowed)) or 'no other key: it fires the instant its configuration is entered'})")
+            ok = False
+        if g["type"] == "entry" and kind != "release":
+            self.p.add(f"{where}.type", f"= 'entry': only a release fires the instant its configuration is entered "
+                       f"(it carries no impulse); a {kind} strikes where its contact closes: use a coordinate or "
+                       "gap guard")
             ok = False
         if g["type"] == "time" and (("at" in given) == ("every" in given)):
             self.p.add(where, "a time guard takes either at (one instant) or every (a period, from start)")
@@ -1087,8 +1095,40 @@ class _Builder:
                 f"coordinate away from rest and feed{'s' if verb == 'drives' else ''} energy in, as k < 0 or c < 0 "
                 f"would; write between = {[b, a]!r}{rest}")
 
+    def _entry_guards(self, scene: Scene) -> None:
+        """Releases fired on entry (``guard = { type = "entry" }``): one per configuration (a second
+        would never fire: the first leaves at the entry instant), and no cycle of them (entering one
+        configuration of it would switch round it for ever without time passing)."""
+        entry = {}  # configuration -> (index, transition) of the release that leaves it on entry
+        for i, t in enumerate(scene.transitions):
+            if t.guard.type != "entry":
+                continue
+            if t.source in entry:
+                j, first = entry[t.source]
+                self.p.add(f"transitions[{i}] ({t.name}).guard.type",
+                           f"= 'entry': transitions[{j}] ({first.name}) already leaves '{t.source}' the instant it is "
+                           "entered, so this release would never fire; give one of them another guard")
+                continue
+            entry[t.source] = (i, t)
+        reported = set()
+        for start in entry:
+            path, at = [], start
+            while at in entry and at not in path:
+                path.append(at)
+                at = entry[at][1].target
+            if at not in path or at in reported:
+                continue
+            loop = path[path.index(at):]
+            reported.update(loop)
+            i, t = entry[at]
+            names = " -> ".join(f"'{c}' ({entry[c][1].name})" for c in loop) + f" -> '{at}'"
+            self.p.add(f"transitions[{i}] ({t.name}).guard.type",
+                       f"= 'entry': the releases fired on entry form a cycle, {names}: entering any of them the run "
+                       "would switch round it for ever at one instant; give one of them another guard")
+
     def _cross_check(self, scene: Scene) -> None:
         names = scene.configurations
+        self._entry_guards(scene)
         for i, f in enumerate(scene.forces):
             where = f"forces[{i}] ({f.name})"
             for cfg in self._configs_for(f"{where}.configurations", f.configurations, scene):

@@ -72,10 +72,12 @@ class GuardSpec:
     * ``gap``: the contact gap crosses ``value``;
     * ``time``: t reaches ``at``, or each ``start + k every`` for repeated cycles;
     * ``reaction``: the holding force/moment of the locked joint or merged stop ``of``
-      (a joint name, or the name of the stop transition that merged) crosses ``value``.
+      (a joint name, or the name of the stop transition that merged) crosses ``value``;
+    * ``entry``: a release fires the instant its configuration is entered (a separate event at
+      that instant, before anything is integrated in it).
     """
 
-    type: str  # "coordinate" | "gap" | "time" | "reaction"
+    type: str  # "coordinate" | "gap" | "time" | "reaction" | "entry"
     measure: Measure | None
     value: float
     direction: int  # +1 increasing, -1 decreasing
