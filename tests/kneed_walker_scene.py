@@ -60,6 +60,11 @@ def initial_state(w, theta, omega, foot=(0.0, 0.0)):
             {"base": [float(a) for a in vb], "hip": float(v[4] - v[2]), "knee_b": float(v[5] - v[4])})
 
 
+def unlock_on_entry(stance):
+    """The trailing knee's release after a heel strike: on entering the strike's configuration."""
+    return {"type": "entry"}
+
+
 def write_walker(folder: Path, w: kw.Walker, theta, omega, t_end=1.2, release=None,
                  solver=None, foot=(0.0, 0.0), hold_references=False, knee_cut=True) -> Path:
     folder.mkdir(parents=True, exist_ok=True)

@@ -24,7 +24,7 @@ import pytest
 
 import pcmm
 import reference_kneed_walker as kw
-from kneed_walker_scene import write_walker
+from kneed_walker_scene import unlock_on_entry, write_walker
 
 W = kw.Walker()
 THETA0 = np.array([0.2, -0.2, -0.2])        # stance leg, swing thigh, swing shank (rad)
@@ -271,7 +271,7 @@ def cycle(gait, tmp_path_factory):
     x = gait[0]
     path = write_walker(tmp_path_factory.mktemp("cycle"), CHEN, np.array([x[0], -x[0], -x[0]]),
                         np.array([x[1], x[2], x[2]]), t_end=1.3, hold_references=True,
-                        release=lambda stance: {"type": "entry"})
+                        release=unlock_on_entry)
     return pcmm.simulate(pcmm.load_scene(path))
 
 
