@@ -168,3 +168,21 @@ def test_a_cycle_of_entry_guards_is_refused_naming_it(tmp_path):
     text = _refused(tmp_path, [latch(), release(), release("a to b", "a", "b"), release("b to a", "b", "a")], configs)
     assert "the releases fired on entry form a cycle, 'a' (a to b) -> 'b' (b to a) -> 'a'" in text
     assert "'locked'" not in text.split("form a cycle")[1]  # the release out of 'locked' is no part of it
+
+
+def test_pcmm_check_follows_an_entry_release_to_the_configuration_it_frees(tmp_path):
+    """The kneed walker (tests/kneed_walker_scene.py): its heel strike enters 'b_strike', which its
+    unlock leaves on entry for 'b_swing', at the strike's posture.  pcmm check follows the release there,
+    so the second step's guards (b_swing's knee strike, b_locked's heel strike) are judged too; a timer
+    fixes no posture, and with it they were not."""
+    import reference_kneed_walker as kw
+    from kneed_walker_scene import unlock_on_entry, write_walker
+
+    theta, omega = np.array([0.2, -0.2, -0.2]), np.array([-0.9, -0.25, -0.25])
+    judged = {}
+    for name, unlock in (("entry", unlock_on_entry), ("timer", lambda stance: {"type": "time", "every": 1e-12})):
+        report = check_scene(pcmm.load_scene(write_walker(tmp_path / name, kw.Walker(), theta, omega, release=unlock)))
+        assert report.problems == []
+        judged[name] = set(report.reach)
+    assert judged["entry"] == {"knee strike b", "heel strike b", "knee strike a", "heel strike a"}
+    assert judged["timer"] == {"knee strike b", "heel strike b"}
