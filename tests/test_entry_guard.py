@@ -13,6 +13,7 @@ damper takes energy away.
 from __future__ import annotations
 
 import math
+import tomllib
 from pathlib import Path
 
 import numpy as np
@@ -23,7 +24,7 @@ import pcmm
 from pcmm.errors import SceneError
 from pcmm.run.checks import check_scene
 
-from builders import bar_xml, joint_xml, link_xml, robot_xml, scene_doc, write_scene
+from builders import bar_xml, dump_toml, joint_xml, link_xml, robot_xml, scene_doc, write_scene
 
 L1, L2, M1, M2 = 0.6, 0.35, 1.2, 0.5
 LATCH = 0.6     # the elbow angle J2 the latch locks at (increasing)
@@ -186,3 +187,19 @@ def test_pcmm_check_follows_an_entry_release_to_the_configuration_it_frees(tmp_p
         judged[name] = set(report.reach)
     assert judged["entry"] == {"knee strike b", "heel strike b", "knee strike a", "heel strike a"}
     assert judged["timer"] == {"knee strike b", "heel strike b"}
+
+
+def test_a_run_that_starts_in_the_configuration_releases_at_t_0(tmp_path):
+    """The run enters its initial configuration at t = 0: a release on entry fires there, with the
+    kinetic energy of the rigid arm, M11(LATCH) w1^2 / 2, and the elbow straightens after it."""
+    path = arm(tmp_path)
+    doc = tomllib.loads(path.read_text())
+    doc["scene"]["initial_configuration"] = "locked"
+    doc["configurations"]["locked"]["lock"] = {"J2": LATCH}
+    doc["initial"] = {"q": {"J1": 0.0}, "v": {"J1": 2.0}}
+    path.write_text(dump_toml(doc))
+    traj = pcmm.simulate(pcmm.load_scene(path))
+    [ev] = traj.events
+    assert (ev["name"], ev["t"], ev["cause"], ev["to"]) == ("elbow release", 0.0, "entry", "free")
+    assert ev["kinetic_energy_after"] == pytest.approx(0.5 * _mass(LATCH)[0, 0] * 4.0, rel=1e-12)
+    assert traj.series("q", "J2")[-1] < LATCH
