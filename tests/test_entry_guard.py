@@ -203,3 +203,19 @@ def test_a_run_that_starts_in_the_configuration_releases_at_t_0(tmp_path):
     assert (ev["name"], ev["t"], ev["cause"], ev["to"]) == ("elbow release", 0.0, "entry", "free")
     assert ev["kinetic_energy_after"] == pytest.approx(0.5 * _mass(LATCH)[0, 0] * 4.0, rel=1e-12)
     assert traj.series("q", "J2")[-1] < LATCH
+
+
+def test_a_release_on_entry_into_a_latch_pushed_closed_stops_the_run_naming_both(tmp_path):
+    """Not a cycle of entry guards (the loader cannot see it): a motor pushes the freed elbow straight
+    back into its latch, which closes at once with no impulse, and the release fires again on entry.
+    The run's zero-time-cycle check stops it after 64 switches, naming the latch and the release."""
+    path = arm(tmp_path)
+    doc = tomllib.loads(path.read_text())
+    doc["forces"].append({"name": "push", "type": "torque", "on": {"joint": "J2"}, "value": 1.0,
+                          "configurations": ["free"]})
+    path.write_text(dump_toml(doc))
+    with pytest.raises(pcmm.errors.SimulationError) as info:
+        pcmm.simulate(pcmm.load_scene(path))
+    text = str(info.value)
+    assert "switched configuration 64 times without time passing: 'elbow latch' (free -> locked), " \
+           "'elbow release' (locked -> free) keep firing" in text
