@@ -368,6 +368,7 @@ def test_a_release_whose_holding_force_is_past_its_value_at_entry_is_named(tmp_p
     q, v = floating(seg, 0)
     _, lam = kw.constrained_dynamics(W, q, v, ROWS["b_strike"])
     assert f"already {lam[2]:.6g} past that value" in note and lam[2] == pytest.approx(0.0271241, abs=1e-7)
+    assert note.endswith('a release meant at the instant the configuration is entered takes guard = { type = "entry" }')
     # and `pcmm run` prints it (the run's warnings reached only the summary and traj.stats)
     from pcmm.cli import main as cli_main
 

@@ -570,7 +570,8 @@ def _releases_past_at_entry(cfg: Configuration, guards, t, y0, said) -> list[str
             out.append(f"t = {t:.9g} s, {key} the holding force of '{tr.guard.of}' cross {tr.guard.value:.9g} "
                        f"{way}, but it is already {past:.6g} past that value where the configuration is entered: "
                        "a guard fires on a crossing in its direction only, so the release waits for the force to "
-                       "come back and cross again (it may never fire)")
+                       "come back and cross again (it may never fire); a release meant at the instant the "
+                       "configuration is entered takes guard = { type = \"entry\" }")
     return out
 
 
