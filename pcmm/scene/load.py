@@ -47,8 +47,9 @@ SCENE_KEYS = [
     S.Key("gravity", "list", check=S.vector(2), doc="[gx, gy] in m/s^2, e.g. [0.0, -9.81]"),
     S.Key("t_end", "number", check=S.positive, doc="end time of the run in s"),
     S.Key("initial_configuration", "str", doc="name of a [configurations.NAME] table"),
-    S.Key("momentum_point", "list", required=False, check=S.vector(2),
-          doc="[x, y]: the point the events' angular momenta are taken about (default: the first frame pivot)"),
+    S.Key("momentum_point", "list|str", required=False, check=S.vector_or(2, "contact"),
+          doc="[x, y]: the point the events' angular momenta are taken about, or \"contact\": each event's "
+              "contact point (default: the first frame pivot)"),
 ]
 CONFIG_KEYS = [
     S.Key("urdf", "str", required=False, doc="path of the configuration's URDF, relative to the scene file"),
@@ -267,6 +268,13 @@ def _repeated_key_hint(text: str, exc: Exception) -> str:
                                 f"{number}; TOML allows a key once per table)")
                     stack[-1].add(km.group(1))
     return ""
+
+
+def _momentum_point(value) -> tuple[float, float] | str | None:
+    """``[scene] momentum_point`` as the scene keeps it: (x, y), "contact", or None (the default)."""
+    if isinstance(value, str):
+        return value
+    return tuple(value) if value else None
 
 
 def _same_link(link: str) -> str:
@@ -530,7 +538,7 @@ class _Builder:
             forces=tuple(forces), transitions=tuple(transitions), drives=tuple(drives),
             solver=settings.solver_settings_type()(**{k: v for k, v in solver.items() if v is not None}),
             branch=self._branch(init.get("branch")),
-            momentum_point=tuple(sc["momentum_point"]) if sc.get("momentum_point") else None,
+            momentum_point=_momentum_point(sc.get("momentum_point")),
             source=self.raw, loader=with_values,
         )
         self._cross_check(scene)

@@ -274,7 +274,7 @@ class Scene:
     drives: tuple[DriveSpec, ...]
     solver: SolverSettings = field(default_factory=lambda: solver_settings_type()())
     branch: BranchSpec | None = None  # closed loops: the assembly to start on ([initial] branch)
-    momentum_point: tuple[float, float] | None = None  # momenta about this point (None: first frame pivot)
+    momentum_point: tuple[float, float] | str | None = None  # momenta about this point (None: first frame pivot; "contact": each event's contact point)
     #: the parsed TOML the scene was validated from (what :meth:`with_values` edits)
     source: dict | None = field(default=None, repr=False, compare=False)
     #: the loader that validated it, ``(scene, values) -> Scene``: it validates edited values
