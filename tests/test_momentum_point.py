@@ -1,0 +1,148 @@
+"""``[scene] momentum_point = "contact"``: each event's angular momentum about its own contact point,
+the quantity a strike on a floating mechanism conserves (pcmm.events.momentum).
+
+About a fixed point (the default, or ``[x, y]``) a pin strike's momentum block shows a change: the
+frame's impulse at the struck point has a moment there.  About the struck point it has none, so where
+the struck point takes the only impulse from the frame, H_O+ = H_O- (checked inside the run:
+:func:`pcmm.events.momentum.check_struck_point_momentum`).  By hand, for one body of mass m, inertia
+I about its centre of mass c (velocity v_c, rate w): H_O = I w + m (c - O) x v_c.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+import pcmm
+import test_double_support as ds
+import test_newcomer3_rocking as rock
+from builders import EXAMPLES
+from pcmm.errors import SceneError, SimulationError
+from pcmm.events import pins
+from pcmm.events.momentum import struck_point_only
+from pcmm.model.mechanism import Mechanism
+
+
+def _contact_scene(scene):
+    return scene.with_values({"scene.momentum_point": "contact"})
+
+
+def _h_by_hand(q, v_joint, p, m, inertia):
+    """I w + m (c - p) x v_c of one body on a planar joint (its centre of mass at the joint's origin):
+    q = [x, y, theta], v_joint = the joint's body-frame velocity [vx, vy, w]."""
+    x, y, th = q
+    c, s = math.cos(th), math.sin(th)
+    vc = np.array([c * v_joint[0] - s * v_joint[1], s * v_joint[0] + c * v_joint[1]])
+    r = np.array([x, y]) - np.asarray(p, float)
+    return inertia * v_joint[2] + m * float(r[0] * vc[1] - r[1] * vc[0])
+
+
+def _strike_states(traj):
+    """(event, q at the event) of every event (the segment it ends)."""
+    return [(e, np.asarray(seg.q[-1], float)) for e, seg in zip(traj.events, traj.segments)]
+
+
+@pytest.fixture(scope="module")
+def block(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("rocking_contact")
+    (folder / "block.urdf").write_text(rock.URDF)
+    (folder / "rocking.toml").write_text(rock.SCENE)
+    return pcmm.load_scene(folder / "rocking.toml")
+
+
+def test_rocking_block_about_each_struck_corner_is_conserved_and_is_housners(block):
+    traj = pcmm.simulate(_contact_scene(block))
+    assert len(traj.events) == 7
+    w_housner = rock._housner(7)[1]
+    i_cm = rock.M * (4 * rock.B ** 2 + 4 * rock.H ** 2) / 12  # 0.0333 kg m^2
+    for (e, q), w_hand in zip(_strike_states(traj), w_housner):
+        m = e["momentum"]
+        assert m["about"] == e["contact_point"]  # the struck corner, on the ground
+        assert abs(m["about"][0]) == pytest.approx(2 * rock.B if e["name"] == "left strikes" else 0.0, abs=1e-9)
+        assert m["about"][1] == pytest.approx(0.0, abs=1e-12)
+        before, after = m["angular_before"], m["angular_after"]
+        assert after == pytest.approx(before, rel=1e-12, abs=0)
+        # by hand from the event's own state, before and after
+        assert before == pytest.approx(_h_by_hand(q, e["v_before"]["base"], m["about"], rock.M, i_cm), rel=1e-12)
+        assert after == pytest.approx(_h_by_hand(q, e["v_after"]["base"], m["about"], rock.M, i_cm), rel=1e-12)
+        # and by Housner: upright at the strike, c - O = (+-b, h) from the new corner, so H = (I_cm + m (h^2 - b^2)) w
+        assert abs(before) == pytest.approx((i_cm + rock.M * (rock.H ** 2 - rock.B ** 2)) * w_hand, rel=1e-8)
+
+
+def test_rocking_block_about_a_fixed_point_is_unchanged_by_the_option(block):
+    """The default (the origin here: no pivot on the frame) and [x, y] give what they gave: H about
+    a fixed point changes at a strike by the moment there of the corner's impulse."""
+    short = pcmm.RunOptions(t_end=0.5)
+    default = pcmm.simulate(block, short).events[0]
+    fixed = pcmm.simulate(block.with_values({"scene.momentum_point": [0.5, 0.0]}), short).events[0]
+    assert default["momentum"]["about"] == [0.0, 0.0] and fixed["momentum"]["about"] == [0.5, 0.0]
+    for e in (default, fixed):
+        m = e["momentum"]
+        o, p = np.array(m["about"]), np.array(e["contact_point"])
+        dL = np.subtract(m["linear_after"], m["linear_before"])  # the corner's impulse, at p
+        moment = float((p - o)[0] * dL[1] - (p - o)[1] * dL[0])
+        assert abs(moment) > 0.01
+        assert m["angular_after"] - m["angular_before"] == pytest.approx(moment, rel=1e-9)
+
+
+def test_rimless_wheel_about_each_struck_tip_is_conserved_and_is_mcgeers():
+    scene = pcmm.load_scene(EXAMPLES / "rimless_wheel.toml")
+    traj = pcmm.simulate(_contact_scene(scene), pcmm.RunOptions(t_end=4.0))
+    assert len(traj.events) >= 3
+    r = 0.55 / 1.05  # (I + m l^2 cos 2 alpha) / (I + m l^2)
+    for e, q in _strike_states(traj):
+        m = e["momentum"]
+        assert m["about"] == e["contact_point"]
+        assert m["about"][1] == pytest.approx(0.0, abs=1e-9)  # the tip lands on the slope
+        before, after = m["angular_before"], m["angular_after"]
+        assert after == pytest.approx(before, rel=1e-12, abs=0)
+        assert before == pytest.approx(_h_by_hand(q, e["v_before"]["hub"], m["about"], 1.0, 0.05), rel=1e-12)
+        assert after == pytest.approx(_h_by_hand(q, e["v_after"]["hub"], m["about"], 1.0, 0.05), rel=1e-12)
+        # the spoke symmetric about the tip's normal: H- = (I + m l^2 cos 2 alpha) w-, H+ = (I + m l^2) w+
+        assert e["v_after"]["hub"][2] == pytest.approx(r * e["v_before"]["hub"][2], rel=1e-9)
+        assert after == pytest.approx(1.05 * e["v_after"]["hub"][2], rel=1e-9)
+
+
+def test_a_word_other_than_contact_is_refused_naming_the_field(block):
+    with pytest.raises(SceneError, match=r'scene\.momentum_point.*\'contct\'.*"contact"'):
+        block.with_values({"scene.momentum_point": "contct"})
+
+
+def test_a_wrong_strike_impulse_is_caught_by_the_conservation_check(block, monkeypatch):
+    """The check can fail: a solve that gives 1 % too much velocity after (still on the target's
+    constraints, which are homogeneous) breaks H about the struck corner, and the run says so."""
+    right = pins.impact_with_rows
+
+    def too_fast(*args):
+        v, lam, redundant = right(*args)
+        return 1.01 * v, lam, redundant
+    monkeypatch.setattr(pins, "impact_with_rows", too_fast)
+    with pytest.raises(SimulationError, match=r"'left strikes'.*angular momentum about the struck point"):
+        pcmm.simulate(block, pcmm.RunOptions(t_end=0.5))
+
+
+def test_a_foot_held_through_the_strike_takes_an_impulse_with_a_moment_about_the_struck_foot(make_scene):
+    """test_double_support's walker landing on B with A held (both feet push, 'double'): A's impulse
+    P_A has the moment (A - B) x P_A about B, so H about B is not conserved and is not checked there;
+    the block shows exactly that change.  Released A (no impulse): conserved about B."""
+    held = pcmm.load_scene(ds.walker(make_scene, -0.5, -4.0))
+    mech = Mechanism(held)
+    assert struck_point_only(mech["single_a"], mech["double"], "foot_b") == \
+        "the cut joint 'foot_a' holds a point to the frame through the strike"
+    traj = pcmm.simulate(_contact_scene(held))
+    q, w1, w2 = ds._strike_state(traj)
+    A, _, _, _, B, _, _ = ds._points(q)
+    P_A = ds.locked_impulse_at_A(q, w1, w2)
+    m = traj.events[0]["momentum"]
+    np.testing.assert_allclose(m["about"], B, rtol=0, atol=1e-9)
+    change = ds._cross(A - B, P_A)
+    assert abs(change) > 0.05
+    assert m["angular_after"] - m["angular_before"] == pytest.approx(change, rel=1e-8)
+
+    released = pcmm.load_scene(ds.walker(make_scene, -1.0, 0.0))
+    mech = Mechanism(released)
+    assert struck_point_only(mech["single_a"], mech["single_b"], "foot_b") is None
+    e = pcmm.simulate(_contact_scene(released)).events[0]
+    assert e["to"] == "single_b"
+    assert e["momentum"]["angular_after"] == pytest.approx(e["momentum"]["angular_before"], rel=1e-12, abs=0)
