@@ -146,3 +146,52 @@ def test_a_foot_held_through_the_strike_takes_an_impulse_with_a_moment_about_the
     e = pcmm.simulate(_contact_scene(released)).events[0]
     assert e["to"] == "single_b"
     assert e["momentum"]["angular_after"] == pytest.approx(e["momentum"]["angular_before"], rel=1e-12, abs=0)
+
+
+@pytest.fixture(scope="module")
+def kneed_step(tmp_path_factory):
+    """docs/kneed_walker.md's step (a knee strike, then a heel strike), momenta about each event's contact."""
+    import test_newcomer3_walker as nw
+    from kneed_walker_scene import write_walker
+    path = write_walker(tmp_path_factory.mktemp("walker_contact"), nw.W, nw.THETA0, nw.OMEGA0, t_end=0.6)
+    return _contact_scene(pcmm.load_scene(path)), pcmm.simulate(_contact_scene(pcmm.load_scene(path)))
+
+
+def test_the_kneed_walker_s_heel_strike_conserves_h_about_the_new_foot(kneed_step):
+    """The walker's stumble (docs/kneed_walker.md): about the origin its heel strike reads -1.43987 ->
+    -1.17544; about the new foot, as the reference walker computes it (tests/reference_kneed_walker.py)
+    from the recorded state, the same value before and after."""
+    import reference_kneed_walker as kw
+    import test_newcomer3_walker as nw
+    _, traj = kneed_step
+    heel = traj.events[1]
+    assert heel["name"] == "heel strike b"
+    q, v, v2, _, _ = nw._impact_case(traj, 1, [("foot", "b"), ("knee", "a"), ("knee", "b")])
+    foot = kw.foot_position(nw.W, q, "b")
+    m = heel["momentum"]
+    np.testing.assert_allclose(m["about"], foot, rtol=0, atol=1e-12)
+    assert m["angular_after"] == pytest.approx(m["angular_before"], rel=1e-12, abs=0)
+    assert m["angular_before"] == pytest.approx(kw.angular_momentum(nw.W, q, v, foot, None), rel=1e-10)
+    assert m["angular_after"] == pytest.approx(kw.angular_momentum(nw.W, q, v2, foot, None), rel=1e-10)
+    assert m["angular_before"] == pytest.approx(-1.30237005408214, rel=1e-9)  # docs/kneed_walker.md's figure
+
+
+def test_a_knee_strike_is_taken_about_the_knee_where_the_stance_foot_s_impulse_has_a_moment(kneed_step):
+    """A joint stop (the knee's latch) has no contact point: the record's contact_point, the knee's
+    position, is used.  The stance foot (pinned to the frame) takes the only external impulse, dL,
+    at the foot: about the knee H changes by exactly its moment (foot - knee) x dL, not zero."""
+    import reference_kneed_walker as kw
+    import test_newcomer3_walker as nw
+    _, traj = kneed_step
+    knee = traj.events[0]
+    assert knee["name"] == "knee strike b"
+    q = nw.floating(traj.segments[0], -1)[0]
+    m = knee["momentum"]
+    assert m["about"] == knee["contact_point"]
+    np.testing.assert_allclose(m["about"], kw.position({4: nw.W.l_thigh}, q, q[:2]), rtol=0, atol=1e-12)  # knee b
+    foot = kw.foot_position(nw.W, q, "a")
+    r = foot - np.asarray(m["about"])
+    dL = np.subtract(m["linear_after"], m["linear_before"])
+    moment = float(r[0] * dL[1] - r[1] * dL[0])
+    assert abs(moment) > 1e-3
+    assert m["angular_after"] - m["angular_before"] == pytest.approx(moment, rel=1e-9)
