@@ -14,12 +14,13 @@ import math
 import numpy as np
 import pytest
 
+import builders
 import pcmm
 import test_double_support as ds
 import test_newcomer3_rocking as rock
 from builders import EXAMPLES
 from pcmm.errors import SceneError, SimulationError
-from pcmm.events import pins
+from pcmm.events import pins, records
 from pcmm.events.momentum import struck_point_only
 from pcmm.model.mechanism import Mechanism
 
@@ -195,3 +196,33 @@ def test_a_knee_strike_is_taken_about_the_knee_where_the_stance_foot_s_impulse_h
     moment = float(r[0] * dL[1] - r[1] * dL[0])
     assert abs(moment) > 1e-3
     assert m["angular_after"] - m["angular_before"] == pytest.approx(moment, rel=1e-9)
+
+
+def test_a_bouncing_pendulum_about_each_contact_point_and_nothing_else_changes(tmp_path):
+    """A bar (m, L) on a pivot at the origin bouncing on a stop at its tip (builders.pendulum, e = 0.85):
+    about the tip, H = I_cm w + m (c - p) x v_c = m L^2 w / 12 - m L^2 w / 4 = -m L^2 w / 6 (the pivot's
+    impulse has a moment there: H+ = -e H-).  The bounces' fast record (its point fixed per stop) is
+    refused with the reason, and every other number of every event is the default run's."""
+    e, L, m, qs = 0.85, 0.6, 1.5, -0.3
+    scene = pcmm.load_scene(builders.pendulum(tmp_path, e, L=L, m=m, qs=qs, t_end=3.0))
+    records.BOUNCE_RECORD_REFUSED.clear()
+    contact = pcmm.simulate(_contact_scene(scene))
+    assert records.BOUNCE_RECORD_REFUSED[("c1", "stop")] == \
+        'the momenta are taken about each bounce\'s contact point (momentum_point = "contact")'
+    default = pcmm.simulate(scene)
+    bounces = [ev for ev in contact.events if ev["transition"] == "stop" and not ev["merge"]]
+    assert len(bounces) > 50
+    for ev in bounces:
+        mom = ev["momentum"]
+        np.testing.assert_allclose(mom["about"], [L * math.cos(qs), L * math.sin(qs)], rtol=0, atol=1e-9)
+        assert mom["about"] == ev["contact_point"]
+        w0, w1 = ev["v_before"]["J1"], ev["v_after"]["J1"]
+        assert mom["angular_before"] == pytest.approx(-m * L * L * w0 / 6, rel=1e-12)
+        assert mom["angular_after"] == pytest.approx(-m * L * L * w1 / 6, rel=1e-12)
+        assert mom["angular_after"] == pytest.approx(-e * mom["angular_before"], rel=1e-9)
+    assert len(contact.events) == len(default.events)
+    for a, b in zip(contact.events, default.events):
+        a, b = dict(a), dict(b)
+        assert b["momentum"]["about"] == [0.0, 0.0]  # the pivot
+        a.pop("momentum"), b.pop("momentum")
+        assert repr(a) == repr(b)
