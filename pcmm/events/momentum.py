@@ -49,7 +49,7 @@ def about_point(cfg: Configuration, contact_point=None) -> np.ndarray:
     ([x, y]; ``"contact"``: the event's ``contact_point``, where its record reports the contact),
     by default the first pivot on the frame (:func:`frame_pivot`)."""
     p = cfg.scene.momentum_point
-    if isinstance(p, str):  # "contact" (the loader refuses any other string)
+    if p == CONTACT:  # (the loader refuses any other string)
         if contact_point is None:
             raise ValueError("momentum_point = \"contact\" needs the event's contact point")
         return np.asarray(contact_point, float)[:2].copy()

@@ -20,7 +20,7 @@ from ..model.configuration import Configuration
 from ..errors import SimulationError
 from .contact import impact_kind
 from .impulse import Impulse
-from .momentum import about_point, external_impulses, momentum_record
+from .momentum import CONTACT, about_point, external_impulses, momentum_record
 from ..scene.spec import TransitionSpec
 
 
@@ -253,7 +253,7 @@ class RecordPlan:
         joint = tr.contact.joint
         self.stop = "point" if joint is None else cfg.spec.info.joints[joint].type == "prismatic" and "prismatic" \
             or "revolute"
-        o = None if isinstance(cfg.scene.momentum_point, str) else about_point(cfg)  # "contact": per bounce
+        o = None if cfg.scene.momentum_point == CONTACT else about_point(cfg)  # "contact": per bounce
         self.about = None if o is None else (o[0], o[1])  # (numpy floats: momentum_record's operations on them)
         self.roots: list = []  # [(joint, [x, y])] of the joints on the frame (external_impulses')
         self.root_rows = None  # their rows in a compiled solve's joint array (ArrayImpulse.arrays)
@@ -364,7 +364,7 @@ def _unplanned(cfg: Configuration, imp: Impulse, record: dict) -> str | None:
         return "the impulse was not solved compiled (no momenta at hand)"
     if imp.friction is not None:
         return "a frictional contact"
-    if isinstance(cfg.scene.momentum_point, str):
+    if cfg.scene.momentum_point == CONTACT:
         return 'the momenta are taken about each bounce\'s contact point (momentum_point = "contact")'
     if cfg._planar or len(cfg.joint_names) != cfg.nv:
         return "a planar joint"
