@@ -226,3 +226,22 @@ def test_a_bouncing_pendulum_about_each_contact_point_and_nothing_else_changes(t
         assert b["momentum"]["about"] == [0.0, 0.0]  # the pivot
         a.pop("momentum"), b.pop("momentum")
         assert repr(a) == repr(b)
+
+
+def test_the_check_runs_at_each_heel_strike_and_not_with_a_foot_held(tmp_path, make_scene, monkeypatch):
+    """The conservation check runs where it must hold (the kneed walker's heel strike, the default
+    momentum point) and not where a held foot takes an impulse (test_double_support's 'double')."""
+    import test_newcomer3_walker as nw
+    from kneed_walker_scene import write_walker
+    checked = []
+    real = pins.check_struck_point_momentum
+
+    def counted(cfg, tr, *args):
+        checked.append(tr.name)
+        return real(cfg, tr, *args)
+    monkeypatch.setattr(pins, "check_struck_point_momentum", counted)
+    pcmm.simulate(pcmm.load_scene(write_walker(tmp_path / "w", nw.W, nw.THETA0, nw.OMEGA0, t_end=0.6)))
+    assert checked == ["heel strike b"]
+    checked.clear()
+    traj = pcmm.simulate(pcmm.load_scene(ds.walker(make_scene, -0.5, -4.0)))
+    assert traj.events[0]["to"] == "double" and checked == []
