@@ -218,6 +218,32 @@ def holding_extremes(traj: "Trajectory", segments=None) -> dict:
     return out
 
 
+def merged_extremes(parts) -> dict:
+    """The extremes of a run from those of its parts (:func:`holding_extremes` of each chunk of a
+    store, in time order): the lowest minimum and highest maximum with their times (the earlier of
+    equal ones), the indeterminate samples summed, None where every part's is None."""
+    out: dict = {}
+
+    def merge(into, ext):
+        if ext.get("indeterminate_samples"):
+            into["indeterminate_samples"] = into.get("indeterminate_samples", 0) + ext["indeterminate_samples"]
+        if ext["min"] is not None and (into["min"] is None or ext["min"] < into["min"]):
+            into["min"], into["t_min"] = ext["min"], ext["t_min"]
+        if ext["max"] is not None and (into["max"] is None or ext["max"] > into["max"]):
+            into["max"], into["t_max"] = ext["max"], ext["t_max"]
+
+    blank = {"min": None, "t_min": None, "max": None, "t_max": None}
+    for part in parts:
+        for name, entry in part.items():
+            if "t_min" in entry:
+                merge(out.setdefault(name, dict(blank)), entry)
+            else:
+                kept = out.setdefault(name, {k: dict(blank) for k in entry})
+                for k, ext in entry.items():
+                    merge(kept.setdefault(k, dict(blank)), ext)
+    return out
+
+
 @dataclass
 class Trajectory:
     """The result of a run: one :class:`SegmentRecord` per stay in a configuration, the events
