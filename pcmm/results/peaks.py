@@ -56,8 +56,8 @@ def refine(segment, jobs: list) -> list:
     """The extremes between samples of ``segment`` (a record with dense output) for ``jobs``, each
     ``(i, sign, column)``: the sample index, +1 for a maximum or -1 for a minimum, and
     ``column(record) -> array`` the quantity at a record's samples.  Returns per job ``(value, t)``
-    of the extreme found in ``[t[i-1], t[i+1]]``, or None where the sample is the extreme (or the
-    dense output cannot be read there).
+    of the extreme found in ``[t[i-1], t[i+1]]``, or None where the sample is the extreme (or beyond
+    it by less than :data:`F_TOL`: round-off of a flat force, or the dense output cannot be read there).
 
     First a grid of :data:`GRID` points on each side of the sample; then, around the best point so
     far, the vertex of the parabola through it and its two neighbours with two points beside it
@@ -120,6 +120,6 @@ def refine(segment, jobs: list) -> list:
     for j, (i, sign, _) in enumerate(jobs):
         if pts[j]:
             tb = max(pts[j], key=pts[j].get)
-            if pts[j][tb] > sign * recorded[j]:
+            if pts[j][tb] > sign * recorded[j] + F_TOL * (1.0 + abs(recorded[j])):  # (not round-off of a flat force)
                 out[j] = (sign * pts[j][tb], tb)
     return out
