@@ -354,8 +354,10 @@ class StoreWriter:
         self.reader: StoreReader | None = None
         self.chunks = 0
         self._aside = None  # the thread that writes the chunks while the run goes on
-        #: each chunk's holding extremes, refined on its segments' dense output as it is written (read
-        #: back from the files, they have none): the run's ``stats["holding"]`` merges them
+        #: ``extremes_of(segments) -> dict``, given by the run: a chunk's holding extremes, refined on its
+        #: segments' dense output as it is written (read back from the files, they have none), kept in
+        #: :attr:`extremes` (the run's ``stats["holding"]`` merges them)
+        self.extremes_of = None
         self.extremes: list[dict] = []
 
     def aside(self, work):
@@ -379,9 +381,6 @@ class StoreWriter:
                                               "impact": traj.impact, "views": traj.views})
         self.reader = StoreReader(self.folder)
         traj.segments = _Stored(self.reader, "segments", SegmentLog())  # the run fills the tails
-        if hasattr(traj.stats, "defer"):  # the run's holding extremes: its chunks'
-            from .trajectory import merged_extremes
-            traj.stats.defer("holding", lambda: merged_extremes(self.extremes))
         traj.events = _Stored(self.reader, "events", EventLog())
 
     def pending(self, traj) -> tuple[list, list]:
@@ -402,8 +401,8 @@ class StoreWriter:
         if len(segs) or len(events):
             path = chunk_path(self.folder, self.chunks)
             derive_together(segs)
-            from .trajectory import holding_extremes
-            self.extremes.append(holding_extremes(traj, segs))  # while the segments have their dense output
+            if self.extremes_of is not None:  # while the segments have their dense output
+                self.extremes.append(self.extremes_of(segs))
             segs = list(segs)
             write_chunk(path, segs, events)
             self.chunks += 1
