@@ -95,3 +95,44 @@ def test_a_stored_run_has_the_same_extremes(tmp_path, monkeypatch):
     stored = pcmm.simulate(scene, pcmm.RunOptions(t_end=3.0), store=StoreWriter(tmp_path / "s", chunk_records=1))
     assert stored.stats["holding"] == kept
     assert read_store(tmp_path / "s")["stats"]["holding"] == kept  # (its end.json: JSON keeps floats exactly)
+
+
+def _two_peaks(t):
+    """A holding force with two peaks: 10 N at 1 s and 10.02 N at 2 s, each 0.05 s wide."""
+    t = np.asarray(t, float)
+    return 10.0 * np.exp(-((t - 1.0) / 0.05) ** 2) + 10.02 * np.exp(-((t - 2.0) / 0.05) ** 2)
+
+
+def _synthetic_run(times):
+    """A trajectory of one segment whose only series is the holding force ``_two_peaks`` of lock "x",
+    recorded at ``times`` and read on its 'dense output' (the function itself) anywhere."""
+    from pcmm.results.segment import SegmentRecord
+    from pcmm.results.trajectory import RunStats, Trajectory, holding_extremes
+
+    def series(ts):
+        n = len(ts)
+        return dict(q=np.zeros((n, 0)), v=np.zeros((n, 0)), theta=np.zeros((n, 0)), omega=np.zeros((n, 0)),
+                    xy=np.zeros((n, 0, 2)), kinetic=np.zeros(n), potential=np.zeros(n), forces=np.zeros((n, 0)),
+                    constraint_forces=_two_peaks(ts)[:, None])
+    times = np.asarray(times, float)
+    seg = SegmentRecord.deferred(lambda: series(times), times, resample=series, configuration="held",
+                                 coordinates=[], links=[], force_names=[], constraint_labels=["x.hold"])
+    traj = Trajectory(scene="synthetic", scene_name="synthetic", impact=True, segments=[seg])
+    traj.stats = RunStats({}, holding=lambda: holding_extremes(traj))
+    return traj
+
+
+def test_a_second_peak_the_samples_under_read_more_is_found(monkeypatch):
+    """Samples on the first peak's top (10 N at 1 s) but 0.01 s either side of the second's (9.627 N):
+    the true maximum is the second peak's 10.02 N, found because every local maximum sample within
+    5 % of the range of the largest is refined (pcmm.results.peaks.MARGIN); with the margin 0 only
+    the first would be, and the maximum would read 10 N."""
+    from pcmm.results import peaks
+    times = np.concatenate((np.linspace(0.0, 1.0, 11), [1.1, 1.5, 1.9, 1.99, 2.01, 2.1, 2.5, 3.0]))
+    samples = _two_peaks(times)
+    assert samples.max() == pytest.approx(10.0, abs=1e-12) and samples[times == 1.99] == pytest.approx(9.6271, abs=1e-4)
+    held = _synthetic_run(times).stats["holding"]["x.hold"]
+    assert held["max"] == pytest.approx(_two_peaks(2.0), abs=1e-9) and held["t_max"] == pytest.approx(2.0, abs=1e-4)
+    assert held["min"] == samples.min()  # the minimum is a sample's (the ends, far from both peaks)
+    monkeypatch.setattr(peaks, "MARGIN", 0.0)
+    assert _synthetic_run(times).stats["holding"]["x.hold"]["max"] == pytest.approx(10.0, abs=1e-9)
