@@ -15,8 +15,9 @@ between samples that falls short of its own local-extreme sample by more than a 
 the range would need steps far longer than the force's own time scale, which the integrator's
 error control does not take; the margin covers a second peak that the samples under-read more than
 the first (``tests/test_holding_peaks.py`` builds one).  Measured on the shipped examples, the
-samples under-read a peak by at most 0.43 % of the force's range (the rimless wheel's tangential
-force; the compass gait's normal force 0.015 %, Example 1's O3 hold 0.17 %), a tenth of the margin.
+samples under-read a peak by at most 0.17 % of the force's range over their whole runs (Example 1's
+O3 hold; the compass gait's normal force 0.085 %), 0.43 % on the rimless wheel's first stance alone
+(its tangential force, run to 0.7 s): a tenth of the margin or less.
 The search brackets a candidate sample by its two neighbouring steps (a segment's end by its one),
 so a peak in either interval is found; a peak is missed only where the force turns twice between
 two samples (a dip and a peak within one step), faster than the integrator's steps resolve.
