@@ -148,7 +148,7 @@ def derive_series(segments) -> int:
     return derive_together(segments, copies=0)
 
 
-def holding_extremes(traj: "Trajectory", segments=None) -> dict:
+def holding_extremes(traj: "Trajectory", segments=None, known=None) -> dict:
     """{lock: {min, t_min, max, t_max}} of every holding force or moment (constraint forces labelled
     ``<lock>.hold``): what a designer sizes a latch by; and beside them {cut joint: {"normal": {...},
     "tangential": {...}}} of every point held by compression only (a pinned foot's stance force,
@@ -160,18 +160,20 @@ def holding_extremes(traj: "Trajectory", segments=None) -> dict:
     read back) gives its samples' extremes.  A force the rows leave statically indeterminate (NaN:
     redundant rows, :func:`pcmm.model.rows.determinate`) is left out of the extremes and counted
     (``indeterminate_samples``); held indeterminate throughout, its extremes are None (no number is
-    any split's).  ``segments``: those to read (a store's chunk as it is written), else the run's."""
+    any split's).  ``segments``: those to read (a store's chunk as it is written), else the run's;
+    ``known``: the extremes of the run's earlier parts (:func:`merged_extremes` of the chunks written
+    before): a sample is refined only where it could reach beyond them too."""
     from .peaks import MARGIN, MOST, local_extremes, refine
     out: dict = {}
     derived = segments is not None
     segments = traj.segments if segments is None else segments
     candidates: dict = {}  # (ext's id) -> [(sign * value, segment index, sample index)]
-    columns: dict = {}  # (ext's id) -> (ext, column of a record)
+    columns: dict = {}  # (ext's id) -> (ext, column of a record, the earlier parts' extremes of it)
 
-    def consider(ext, col, t, si, column):
+    def consider(ext, col, t, si, column, before):
         _extend(ext, col, t)
         key = id(ext)
-        columns.setdefault(key, (ext, column))
+        columns.setdefault(key, (ext, column, before))
         for sign in (1.0, -1.0):
             kept = candidates.setdefault((key, sign), [])
             kept += [(sign * float(col[i]), si, int(i)) for i in local_extremes(col, sign)]
@@ -186,19 +188,24 @@ def holding_extremes(traj: "Trajectory", segments=None) -> dict:
             entry = out.setdefault(name, {part: {"min": math.inf, "t_min": None, "max": -math.inf, "t_max": None}
                                           for part in ("normal", "tangential")})
             for p, (part, col) in enumerate(zip(("normal", "tangential"), parts)):
-                consider(entry[part], col, s.t, si, lambda rec, name=name, p=p: stance_forces(traj, rec)[name][p])
+                consider(entry[part], col, s.t, si, lambda rec, name=name, p=p: stance_forces(traj, rec)[name][p],
+                         ((known or {}).get(name) or {}).get(part))
         for k, label in enumerate(s.constraint_labels):
             if not label.endswith(".hold"):
                 continue
             ext = out.setdefault(label, {"min": math.inf, "t_min": None, "max": -math.inf, "t_max": None})
             consider(ext, s.constraint_forces[:, k], s.t, si,
-                     lambda rec, label=label: rec.constraint_forces[:, rec.constraint_labels.index(label)])
+                     lambda rec, label=label: rec.constraint_forces[:, rec.constraint_labels.index(label)],
+                     (known or {}).get(label))
     jobs: dict = {}  # segment index -> [(sample index, sign, column, ext)]
     for (key, sign), kept in candidates.items():
-        ext, column = columns[key]
+        ext, column, before = columns[key]
         if ext["t_min"] is None:
             continue
-        top, span = (ext["max"] if sign > 0 else -ext["min"]), ext["max"] - ext["min"]
+        lo, hi = ext["min"], ext["max"]
+        if before and before.get("min") is not None:  # the run's extremes so far: beat those too
+            lo, hi = min(lo, before["min"]), max(hi, before["max"])
+        top, span = (hi if sign > 0 else -lo), hi - lo
         kept = sorted(c for c in kept if c[0] >= top - MARGIN * span)[::-1][:MOST]
         for _, si, i in kept:
             jobs.setdefault(si, []).append((i, sign, column, ext))

@@ -175,7 +175,7 @@ def start(scene: Scene, options: RunOptions, store=None) -> RunState:
         writer = store if isinstance(store, StoreWriter) else StoreWriter(store)
         writer.start(traj)  # the trajectory becomes the store's view
         # the holding extremes: each chunk's on its dense output as it is written (read back, it has none)
-        writer.extremes_of = lambda segments: holding_extremes(traj, segments)
+        writer.extremes_of = lambda segments: holding_extremes(traj, segments, merged_extremes(writer.extremes))
         traj.stats.defer("holding", lambda: merged_extremes(writer.extremes))
     return RunState(scene, opts, mech, ctx, traj, holds, audit, cfg, 0.0, q, v, store=writer)
 
