@@ -370,6 +370,19 @@ def _check_outputs(paths, force, folders=(), formats=False):
         raise UsageError(problems)
 
 
+def _run_warnings(traj) -> list[str]:
+    """The warnings the run itself found on its way, each ``t = ... s, configuration ...`` (redundant
+    rows, a hold no configuration can solve, a release already past its value where it is entered):
+    printed, since only the summary and ``traj.stats`` kept them (a kneed walker's trailing knee stayed
+    locked and the terminal said nothing).  The assembly's, which ``pcmm check`` printed before the
+    run, do not start so.  Read only where the stats are already settled or settle cleanly."""
+    try:
+        said = traj.stats.get("warnings") or []
+    except PcmmError:
+        return []
+    return [w for w in said if w.startswith("t = ")]
+
+
 def _check_geometry(scene):
     """The check-time consistency of the geometry (pcmm.checks): problems stop before any
     simulation, warnings are printed (also under --quiet, which silences progress and tables,
@@ -602,6 +615,8 @@ def cmd_run(args, held=None) -> int:
     if failure is None and traj.stats.get("closest_approach"):
         _say_approach(traj.stats["closest_approach"], args.quiet)
     for w in (w for e in traj.events for w in e.get("warnings", ())):  # check printed the assembly's
+        _error(w, prefix="pcmm: warning: ")
+    for w in _run_warnings(traj):
         _error(w, prefix="pcmm: warning: ")
     if failure is not None:
         kept = "; ".join(f"{what} {path}" for what, path in written) or "nothing could be saved"

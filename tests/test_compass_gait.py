@@ -84,6 +84,38 @@ def test_the_mid_stance_dip_is_there_and_ignored(run):
     assert low and max(low) < 0
 
 
+def test_a_run_ending_mid_step_reports_the_guard_where_it_can_fire_not_the_dip():
+    """Ended at t = 2 s (mid-step), the run reports 'heel strike b' where it can fire.  The plain gap
+    crossed 0 upwards as the swing foot came out of its mid-stance dip, which the guard's `when` (hip
+    above 0) ignores; the report used to call that a crossing against the guard's direction and say
+    "check `direction`" (a wrong diagnosis).  Inside the region (from the legs passing each other,
+    both feet at one point, gap 0) the foot only rose: "moved away", with the gap at the end."""
+    from pcmm.model.mechanism import Mechanism
+    from pcmm.run.approach import guard_series, in_region
+    scene = pcmm.load_scene(EXAMPLE)
+    traj = pcmm.simulate(scene, pcmm.RunOptions(t_end=2.0))
+    rec, = [r for r in traj.stats["closest_approach"] if r["transition"] == "heel strike b"]
+    tr, = [t for t in scene.transitions if t.name == "heel strike b"]
+    seg, = [s for s in traj.segments if s.configuration == "stance_a" and s.t[0] > 1.0]
+    cfg = Mechanism(scene)["stance_a"]
+    gap, region = guard_series(cfg, tr, seg.q), in_region(cfg, tr, seg.q)
+    assert gap.min() < -1e-3 and np.any((gap[:-1] < 0) & (gap[1:] > 0))  # the dip, and its way out
+    assert region[-1] and not region[0] and gap[region].min() > -1e-9  # in the region: on or above the slope
+    assert rec["crossed_against"] is None and rec["moved_away"]
+    assert rec["final"] == pytest.approx(gap[-1], abs=1e-12) and rec["t_final"] == 2.0
+    assert "check `direction`" not in pcmm.run.approach.describe([rec])
+
+
+def test_a_run_ending_before_the_region_says_the_guard_could_not_fire(run):
+    """The example ends at 9 s with the swing leg still behind (hip < 0): 'heel strike b' could not fire
+    since it last did, and the report says so (it gave the gap, 0.0037 m, as a near miss before)."""
+    rec, = [r for r in run.stats["closest_approach"] if r["transition"] == "heel strike b"]
+    assert rec["closest"] is None and rec["outside_when"] == "joint hip above 0"
+    assert rec["t_final"] == 9.0 and rec["t_from"] == pytest.approx(run.events[-1]["t"])
+    assert run.segments[-1].q[-1, 3] < 0  # the hip joint: the swing leg behind
+    assert "never entered its `when` region (joint hip above 0)" in pcmm.run.approach.describe([rec])
+
+
 def test_angular_momenta_conserved_at_every_strike(run):
     for ev in run.events:
         q = posture_at(run, ev)

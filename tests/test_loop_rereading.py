@@ -116,7 +116,7 @@ def test_lazy_series_read_from_a_second_thread_while_the_first_runs(tmp_path):
     expected = {(k, n): alone.series(k, n) for k, n in (("q", "D"), ("theta", "rocker"), ("constraint_forces", "C.fx"))}
     baseline = pcmm.simulate(pcmm.load_scene(path))  # to be read while the next run goes on
     read, errors = {}, []
-    started = threading.Event()
+    started, finished, paused_at = threading.Event(), threading.Event(), []
 
     def reader():
         started.wait()
@@ -126,15 +126,24 @@ def test_lazy_series_read_from_a_second_thread_while_the_first_runs(tmp_path):
             read["fine"] = baseline.resampled(0.01).series("q", "D")
         except Exception as exc:  # noqa: BLE001 - reported by the main thread
             errors.append(exc)
+        finally:
+            finished.set()
 
     def progress(t):
-        started.set()
+        # the reads happen while this run is mid-way, for certain: at its first report the run waits
+        # for them (before, a run done before the second thread got its turn passed without a race)
+        if not started.is_set():
+            paused_at.append(t)
+            started.set()
+            finished.wait(timeout=120)
 
     th = threading.Thread(target=reader)
     th.start()
     during = pcmm.simulate(pcmm.load_scene(path), progress=progress)
+    started.set()  # (a run that never reported: the reads after it, and paused_at says so)
     th.join()
     assert not errors, errors
+    assert paused_at and paused_at[0] < during.t[-1]  # read while the run was mid-way
     for (k, n), values in expected.items():
         np.testing.assert_array_equal(read[(k, n)], values)
         np.testing.assert_array_equal(during.series(k, n), values)

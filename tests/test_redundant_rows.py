@@ -216,7 +216,9 @@ def test_holding_rows_alone_redundant_say_the_reported_split_is_one_of_many(tmp_
     solved on 'free' with the drive's row e_X and the stop's normal row, which at J2 = 0 is
     n . d(tip)/d(X, J2) = (1, -L sin 0) = (1, 0) = e_X (by hand): 2 rows of rank 1, the wall's force and
     the drive's force trade at will. The check says any split would be one of many. (The run itself
-    reports none here: no configuration has J2 free with the drive, so its hold cannot be solved.)"""
+    reports none here: no configuration has J2 free with the drive, so its hold cannot be solved: NaN,
+    and the run's warnings say so; reading the series used to raise, and so did every read of a
+    run's stats where a pinned foot's stance forces share the segment: tests/test_newcomer3_walker.py.)"""
     urdf = robot_xml("cart", link_xml("frame"), joint_xml("X", "prismatic", "frame", "cart", axis=(1, 0, 0)),
                      solid_xml("cart", 1.0, 1e-3), joint_xml("J2", "revolute", "cart", "bar"), bar_xml("bar", 0.3, 0.5))
     tr = stop("tip hits wall", "free", 0.0, {"type": "gap", "value": 0.0, "direction": "decreasing"},
@@ -229,8 +231,9 @@ def test_holding_rows_alone_redundant_say_the_reported_split_is_one_of_many(tmp_
     report = check_scene(pcmm.load_scene(path))
     run = pcmm.simulate(pcmm.load_scene(path))
     assert [(e["t"], e["to"]) for e in run.events] == [(pytest.approx(0.2, abs=1e-9), "held")]  # x + 0.3 = 0.5 at 1 m/s
-    with pytest.raises(pcmm.SimulationError, match="so the holding forces cannot be computed"):
-        run.series("constraint_forces", "tip hits wall.hold")
+    assert np.all(np.isnan(run.series("constraint_forces", "tip hits wall.hold")[run.t > 0.2]))
+    [note] = [w for w in run.stats["warnings"] if "tip hits wall.hold cannot be solved here" in w]
+    assert "configuration 'held'" in note and "plus J2 free, its drives and its cut joints (none)" in note
     [w] = [w for w in report.warnings if "redundant" in w]
     assert "configuration 'free' has 2 constraint rows (drives[0] ('X'), 'tip hits wall.hold') of rank 1 on 2 " \
            "coordinates: 1 redundant but consistent" in w

@@ -119,12 +119,26 @@ def test_deferred_series_are_the_same_from_another_thread_and_after_pickling(tmp
     scene = pcmm.load_scene(EXAMPLES / "three_bar.toml")
     first, second = pcmm.simulate(scene), pcmm.simulate(scene)
     expected = second.series("theta", "link3").copy()
-    got = {}
-    reader = threading.Thread(target=lambda: got.update(theta=first.series("theta", "link3"),
-                                                        omega=first.series("omega", "link2")))
+    got, started, finished, paused_at = {}, threading.Event(), threading.Event(), []
+
+    def read():
+        started.wait()
+        try:
+            got.update(theta=first.series("theta", "link3"), omega=first.series("omega", "link2"))
+        finally:
+            finished.set()
+
+    def progress(t):  # the run waits for the reads at its first report: they happen mid-run for certain
+        if not started.is_set():
+            paused_at.append(t)
+            started.set()
+            finished.wait(timeout=120)
+    reader = threading.Thread(target=read)
     reader.start()
-    pcmm.simulate(scene)
+    during = pcmm.simulate(scene, progress=progress)
+    started.set()  # (a run that never reported: the reads after it, and paused_at says so)
     reader.join()
+    assert paused_at and paused_at[0] < during.t[-1] and np.array_equal(during.series("theta", "link3"), expected)
     assert np.array_equal(got["theta"], expected)
     third = pickle.loads(pickle.dumps(pcmm.simulate(scene)))
     assert np.array_equal(third.series("theta", "link3"), expected)

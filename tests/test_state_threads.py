@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import math
 import threading
-import time
 from pathlib import Path
 
 import numpy as np
@@ -101,12 +100,20 @@ def test_series_read_in_a_second_thread_while_the_run_goes_on(alone, monkeypatch
     path, ref, derived, resampled = alone
     logs: list = []  # the run's segment log, seen at its first segment (each added complete)
     add = SegmentLog.add
+    # The reader's turn, by handshake, not by a pause of the run: each segment added waits until
+    # a whole pass of the reader has read it (a sleep gave a thread starved on a loaded machine
+    # no turn, and the compiled run was done before it read); then the run goes on while the
+    # reader's next pass reads and resamples the finished segments again.
+    turn = threading.Condition()
+    covered = [0]  # the segments the reader's last whole pass read
 
     def spy(self, *args, **kwargs):
         add(self, *args, **kwargs)
         if not logs:
             logs.append(self)
-        time.sleep(0.005)  # the reader's turn (the run, compiled, is otherwise done before it reads)
+        if self is logs[0]:
+            with turn:
+                turn.wait_for(lambda: covered[0] >= len(self) or failed, timeout=120)
     monkeypatch.setattr(SegmentLog, "add", spy)
     done = threading.Event()
     read: dict[int, dict] = {}
@@ -121,8 +128,13 @@ def test_series_read_in_a_second_thread_while_the_run_goes_on(alone, monkeypatch
                     if i not in read:
                         read[i] = _series(rec)
                     again.append((i, _series(rec.resampled(_times(rec)))))
+                with turn:
+                    covered[0] = len(finished)
+                    turn.notify_all()
         except BaseException as exc:  # noqa: BLE001 - reported in the main thread
             failed.append(exc)
+            with turn:
+                turn.notify_all()
     second = threading.Thread(target=reader)
     second.start()
     try:
@@ -131,7 +143,7 @@ def test_series_read_in_a_second_thread_while_the_run_goes_on(alone, monkeypatch
         done.set()
         second.join()
     assert not failed, failed
-    assert len(read) >= len(ref.segments) // 2 and len(again) > len(ref.segments)  # the race was run
+    assert len(read) == len(ref.segments) and len(again) > len(ref.segments)  # every segment read mid-run
     assert len(traj.segments) == len(ref.segments)
     for i, series in read.items():
         for name in SERIES:

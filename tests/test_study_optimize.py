@@ -18,7 +18,7 @@ from pcmm.errors import UsageError
 from pcmm.studies.optimize import Constraint, optimize, parse_constraint, parse_vary
 from pcmm.studies.plan import Axis
 
-from processes import pause_at_lines
+from processes import Gate, held_cli
 from study_scenes import I_PIVOT, SWING, strike, torque_to_stop
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -103,9 +103,10 @@ def test_resume_after_kill_9_replays_the_table(scene, tmp_path):
     whole = _optimize_cli([*args[:-6], "--out", "whole.csv", *args[-4:]], tmp_path)
     assert whole.wait(timeout=300) == 0
     reference = read(tmp_path / "whole.csv")
-    proc = _optimize_cli(args, tmp_path)
+    gate = Gate(tmp_path / "gate", rows=5)
+    proc = held_cli(["optimize", *args], gate, cwd=tmp_path)
     out = tmp_path / "o.csv"
-    pause_at_lines(proc, out, 6)  # stopped mid-way: the kill comes before its end for certain
+    assert gate.wait_held(proc) == 5  # it waits mid-way: the kill comes before its end for certain
     proc.send_signal(signal.SIGKILL)
     proc.wait(timeout=30)
     assert proc.returncode == -signal.SIGKILL

@@ -22,7 +22,7 @@ from pcmm.studies.sweep import Axis, ResultsTable, columns, make_plan, sweep
 from pcmm.studies.table import cell, checksum
 
 from builders import EXAMPLES
-from processes import pause_at_lines, resume
+from processes import Gate, held_cli
 
 ROOT = Path(__file__).resolve().parents[1]
 STOP = EXAMPLES / "three_bar_stop.toml"
@@ -99,17 +99,19 @@ def _sweep_cli(args, cwd, **kw):
 @pytest.mark.slow  # two concurrent sweeps in subprocesses
 def test_two_resumes_at_once_give_each_run_once(tmp_path):
     # the probe: two --resume on one table gave 33 rows for 18 runs.  Each run goes to
-    # 1.0 s (past the stop's impact at 0.167 s): the 17 runs still keep the first sweep writing
-    # for several seconds after its first row, while the second starts (about 1 s to import)
+    # 1.0 s (past the stop's impact at 0.167 s); the first sweep waits after its first row (a
+    # gate, processes.py) while the second starts: the whole rest of a sweep once fitted in the
+    # second's start-up (CI at 57f9a16)
     args = [str(STOP), "--set", f"{PATH}=0.1:0.9:17", "--t-end", "1.0", "--out", "r.csv", "--workers", "1",
             "--quiet"]
-    first = _sweep_cli(args, tmp_path)
+    gate = Gate(tmp_path / "gate", rows=1)
+    first = held_cli(["sweep", *args], gate, cwd=tmp_path)
     out = tmp_path / "r.csv"
-    written = pause_at_lines(first, out, 2)  # the first sweep holds the table, stopped mid-way
+    assert gate.wait_held(first) == 1  # the first sweep holds the table, stopped mid-way (16 runs left)
     second = _sweep_cli([*args, "--resume"], tmp_path)
     err2 = second.communicate(timeout=120)[1]
-    assert written < 18  # the second one started while the first had runs left
-    resume(first)
+    assert len(read(out)) == 1  # the second one ran while the first had runs left
+    gate.open()
     first.communicate(timeout=120)
     assert first.returncode == 0
     assert second.returncode == 2 and "another pcmm sweep is writing this table" in err2
@@ -200,10 +202,11 @@ def test_a_read_only_folder_is_a_message_with_exit_4(tmp_path, capsys):
 def test_sigterm_exits_143(tmp_path):
     args = [str(STOP), "--set", f"{PATH}=0.1:0.9:9", "--t-end", "1.0", "--out", "r.csv", "--workers", "1",
             "--quiet"]
-    proc = _sweep_cli(args, tmp_path)
-    out = tmp_path / "r.csv"
-    assert pause_at_lines(proc, out, 2) < 10  # stopped mid-sweep; SIGTERM waits for it to go on
+    gate = Gate(tmp_path / "gate", rows=1)
+    proc = held_cli(["sweep", *args], gate, cwd=tmp_path)
+    assert gate.wait_held(proc) == 1  # stopped mid-sweep, 8 runs left
     proc.send_signal(signal.SIGTERM)
-    resume(proc)
+    gate.open()  # (a SIGTERM held until the wait ends stops it all the same)
     _, err = proc.communicate(timeout=60)
+    assert len(read(tmp_path / "r.csv")) < 9
     assert proc.returncode == 143 and "stopped by SIGTERM" in err and "--resume" in err

@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 
 import suite_checks
-from processes import pause_at_lines, resume
+from processes import Gate, held_cli
 
 import pcmm
 from pcmm.errors import SceneError, UsageError
@@ -185,15 +185,16 @@ def _spawn(args, tmp_path):
 @pytest.mark.parametrize("sig, workers", [(signal.SIGTERM, "1"), (signal.SIGINT, "2")])
 @pytest.mark.slow  # two 16-run sweeps in subprocesses, one signalled
 def test_killed_sweep_resumes_to_the_complete_table(tmp_path, sig, workers):
-    # 16 runs of about 0.1 s each on a quiet core (3 s of Example 1 since its right-hand side is
-    # compiled): the signal lands with most of them still to run
+    # 16 runs of Example 1 to 3 s; the sweep waits after its second row (a gate, processes.py)
+    # and the signal lands there, with 14 runs still to run, however fast they are
     args = [str(THREE_BAR), "--set", "forces.tau1.value=1.9:2.1:4", "--set", "forces.tau3.value=0.25:0.4:4",
             "--t-end", "3.0", "--out", "r.csv", "--workers", workers]
     out = tmp_path / "r.csv"
-    proc = _spawn(args, tmp_path)
-    pause_at_lines(proc, out, 3)  # two rows, the sweep stopped mid-way: the signal lands before its end
+    gate = Gate(tmp_path / "gate", rows=2)
+    proc = held_cli(["sweep", *args], gate, cwd=tmp_path, preexec_fn=suite_checks.default_signals)
+    assert gate.wait_held(proc) == 2
     proc.send_signal(sig)
-    resume(proc)
+    gate.open()  # (a signal held until the wait ends stops it all the same)
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == 128 + sig and "--resume" in err  # 143 for SIGTERM, 130 for Ctrl-C
     first = read(out)

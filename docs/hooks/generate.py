@@ -86,6 +86,8 @@ def _check_text(check) -> str:
         return "one of " + ", ".join(f"`{c}`" for c in cells["choices"])
     if qual.startswith("vector."):
         return f"[{cells['n']} numbers]"
+    if qual.startswith("vector_or."):
+        return f"[{cells['n']} numbers] or " + " or ".join(f'`"{w}"`' for w in cells["words"])
     if qual.startswith("nonzero_vector."):
         return f"[{cells['base'].__closure__[0].cell_contents} numbers], not zero"
     return ""

@@ -29,8 +29,25 @@ class Entry:
 VELOCITY_ROUNDOFF = 1e-9
 
 
+def anchor_entered(src: Configuration, dst: Configuration, q_map: np.ndarray) -> None:
+    """Anchor ``dst``'s cut joints anchored at entry (``point_a = "entry"``) as the run enters it at
+    ``q_map``: one that ``src`` holds too (the same name, anchored) keeps ``src``'s anchor (a foot pinned
+    where it struck stays there across a latch, a stop-merge or a release in its stance); any other is
+    anchored where its point is now.  (Before, only a pin and a lift-off set them: a latch or a release
+    into such a configuration kept the anchor of its previous entry, or the origin, and the switch's
+    projection moved the whole mechanism there.)"""
+    if not getattr(dst.coords, "constrained", False) or not dst.coords.closure.anchored:
+        return
+    keep = {}
+    if getattr(src.coords, "constrained", False):
+        held = src.coords.closure
+        keep = {s.name: held.anchors[k] for k, s in enumerate(held.specs) if k in held.anchors}
+    dst.kinematics(q_map)
+    dst.coords.closure.set_anchors(dst.data, keep)
+
+
 def enter(src: Configuration, dst: Configuration, t: float, q: np.ndarray, v: np.ndarray,
-          known: dict | None = None, what: str = "switch", reset: bool = False) -> Entry:
+          known: dict | None = None, what: str = "switch", reset: bool = False, anchored: bool = False) -> Entry:
     """The one way a run enters a configuration after a switch (every transition kind ends here).
 
     (q, v) of ``src`` (after the impulse, if any) are mapped onto ``dst`` by joint name; joints
@@ -44,6 +61,8 @@ def enter(src: Configuration, dst: Configuration, t: float, q: np.ndarray, v: np
       ``Phi_q v + Phi_t = 0`` to round-off (the impulse solved with ``src``'s rows and the contact
       normal alone cannot satisfy a row ``dst`` adds that they do not span).
 
+    Cut joints of ``dst`` anchored at entry are anchored first (:func:`anchor_entered`), unless the
+    caller has (``anchored``: a pin, which anchors the struck point and keeps the others itself).
     Only then is the state assembled onto ``dst`` (its Newton solve moves it by round-off).  A
     violated constraint stops the run with its name, the velocity it leaves and the time: a
     switch never silently replaces the velocity the impulse gave.  ``reset=True`` is the one
@@ -54,6 +73,8 @@ def enter(src: Configuration, dst: Configuration, t: float, q: np.ndarray, v: np
         q_map, v_map, dropped = q, v, {}
     else:
         q_map, v_map, dropped = map_state(src, dst, q, v, known)
+        if not anchored:
+            anchor_entered(src, dst, q_map)
     scale = max(1.0, float(np.abs(v).max())) if len(v) else 1.0  # (the method: numpy's np.max wrappers cost more than the reduction)
     if not reset:
         moving = {n: w for n, w in dropped.items() if abs(w) > VELOCITY_ROUNDOFF * scale}

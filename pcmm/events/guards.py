@@ -9,7 +9,9 @@ builder taking (configuration, transition) and returning the value and rate func
 * ``gap``: the contact gap reaches a value;
 * ``time``: t reaches an instant, or each instant of a period (repeated cycles);
 * ``reaction``: the holding force or moment of a locked joint or merged stop crosses a
-  value (:mod:`pcmm.holding`).
+  value (:mod:`pcmm.holding`);
+* ``entry``: the configuration is entered (a release fired at that instant: the run's loop
+  fires it before the segment is integrated, :func:`pcmm.run.loop._pending`).
 """
 from __future__ import annotations
 
@@ -171,6 +173,17 @@ def _time(cfg: Configuration, tr: TransitionSpec, ctx=None):
 _NO_ROW = np.zeros(0)
 
 
+def _entry(cfg: Configuration, tr: TransitionSpec, ctx=None):
+    """t - the instant the configuration was entered (``ctx``: the segment's start time): zero where
+    the segment starts, where the run's loop fires it (:func:`pcmm.run.loop._pending`); it is never
+    handed to an integrator, so no crossing of it is ever searched."""
+    instant = 0.0 if ctx is None else float(ctx)
+
+    def value(t, y):
+        return t - instant
+    return value, (lambda t, y, f: 1.0)
+
+
 def _cut_joint_force(cfg: Configuration, tr: TransitionSpec):
     """The normal force of a cut joint held by compression only (``of`` names it): n . F, with F its
     multipliers (the force on b, world axes) and n its contact normal, > 0 while it pushes."""
@@ -205,7 +218,7 @@ class _NotHeld(Exception):
     """A reaction guard whose joint or stop is not held in this configuration."""
 
 
-GUARD_BUILDERS = {"coordinate": _coordinate, "gap": _gap, "time": _time, "reaction": _reaction}
+GUARD_BUILDERS = {"coordinate": _coordinate, "gap": _gap, "time": _time, "reaction": _reaction, "entry": _entry}
 UNFIRED = np.finfo(float).tiny  # the least distance from zero of a re-armed guard before its apex
 
 
@@ -214,7 +227,8 @@ def describe_guard(tr: TransitionSpec) -> str:
     g = tr.guard
     what = {"coordinate": lambda: f"{g.measure} = {g.value:.9g}", "gap": lambda: f"contact gap = {g.value:.9g}",
             "time": lambda: f"t = {g.at:.9g} s" if g.at is not None else f"t = {g.start:.9g} + k {g.every:.9g} s",
-            "reaction": lambda: f"holding force of {g.of} = {g.value:.9g}"}[g.type]()
+            "reaction": lambda: f"holding force of {g.of} = {g.value:.9g}",
+            "entry": lambda: f"on entering '{tr.source}'"}[g.type]()
     return f"transition '{tr.name}': {what}"
 
 

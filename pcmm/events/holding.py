@@ -118,6 +118,14 @@ class Holds:
         if not self.items or key in self._noted:
             return []
         self._noted.add(key)
+        if self.reference(cfg) is None:  # recorded as NaN (pcmm.run.recording.holding_forces); a guard stops
+            labels = [f"{h.label}.hold" for h in self.items]
+            cuts = ", ".join(s.name for s in cfg.spec.cut_joints)
+            return [f"t = {t:.9g} s, configuration '{cfg.name}': the holding force{'s' if len(labels) > 1 else ''} "
+                    f"{', '.join(labels)} cannot be solved here: no configuration of the scene has its joints plus "
+                    f"{', '.join(sorted(set().union(*(h.joints for h in self.items))))} free, its drives and its "
+                    f"cut joints ({cuts or 'none'}): NaN in the series, left out of stats.holding; add such a "
+                    "configuration to have them"]
         try:
             _, _, _, R, _, m, owners, _, _ = self._rows(cfg, t, q, v)
         except PcmmError:  # a hold that cannot be solved here says so where it is read
@@ -161,17 +169,23 @@ class Holds:
         return sets
 
     def reference(self, cfg: Configuration) -> str | None:
-        """The configuration the holding forces are solved in: one whose movable joints include
-        ``cfg``'s and every held one, with ``cfg``'s drives; of those the fewest joints, then one
-        a hold was locked from.  Only its model (its joints, loops and drives) is used: the
+        """The configuration the holding forces are solved in: one whose movable joints are
+        ``cfg``'s and every held one, with ``cfg``'s drives and cut joints; of those one a hold was
+        locked from.  Only its model (its joints, loops and drives) is used: the
         forces are always ``cfg``'s own (:meth:`forces`), whatever the reference applies."""
         key = (cfg.name, tuple(h.label for h in self.items))  # asked at every sample and guard value
         if key not in self._refs:
             need = set(cfg.joint_names).union(*(h.joints for h in self.items))
             drives = {(d.joint, d.coefficients) for d in self.scene.drives_in(cfg.name)}
             sources = {h.free_in for h in self.items}
+            # the same loops and pinned points: another cut joint (a foot pinned elsewhere, or none)
+            # is another mechanism, whose multipliers are not this one's holding forces
+            cuts = set(cfg.spec.cut_joints)
+            # and exactly these joints free: a joint that ``cfg`` locks and no hold holds, free in the
+            # reference, would be solved as free (the walker's swing knee, locked, read as free)
             fits = [(len(js), name not in sources, name) for name, js in self._joint_sets().items()
-                    if need <= js and {(d.joint, d.coefficients) for d in self.scene.drives_in(name)} == drives]
+                    if need == js and {(d.joint, d.coefficients) for d in self.scene.drives_in(name)} == drives
+                    and set(self.scene.configurations[name].cut_joints) == cuts]
             self._refs[key] = min(fits)[2] if fits else None
         return self._refs[key]
 
@@ -216,13 +230,15 @@ class Holds:
 
     def release_target(self, hold: Hold, cfg: Configuration) -> str:
         need = set(cfg.joint_names) | set(hold.joints)
+        cuts = set(cfg.spec.cut_joints)  # the same loops and pinned points (a walker's stance foot, not the other)
         for name, js in self._joint_sets().items():
-            if js == need:
+            if js == need and set(self.scene.configurations[name].cut_joints) == cuts:
                 return name
         raise SimulationError(
             f"configuration '{cfg.name}': the merge of '{hold.label}' is held by compression only "
             f"(unmerge), so pcmm must be able to release it here, into a configuration with the joints "
-            f"of '{cfg.name}' plus {', '.join(sorted(hold.joints))} free; the scene has none. Add it "
+            f"of '{cfg.name}' plus {', '.join(sorted(hold.joints))} free and its cut joints "
+            f"({', '.join(s.name for s in cfg.spec.cut_joints) or 'none'}); the scene has none. Add it "
             f"(a URDF, or a configuration derived by locking joints) or set unmerge = false on "
             f"'{hold.label}'")
 
@@ -260,10 +276,12 @@ class Holds:
         if ref is None:
             ref_name = self.reference(cfg)
             if ref_name is None:
+                cuts = ", ".join(s.name for s in cfg.spec.cut_joints)
                 raise SimulationError(
                     f"configuration '{cfg.name}': no configuration of the scene has its joints plus the locked "
-                    f"{', '.join(sorted(set().union(*(h.joints for h in self.items))))} free and its drives, "
-                    "so the holding forces cannot be computed")
+                    f"{', '.join(sorted(set().union(*(h.joints for h in self.items))))} free, its drives "
+                    f"and its cut joints ({cuts or 'none'}), so the holding forces cannot be computed; add one "
+                    f"(e.g. derived from the same URDF, locking only the joints '{cfg.name}' locks that are not held)")
             ref = self.mechanism[ref_name]
         qs, vs = np.zeros(ref.nv), np.zeros(ref.nv)
         for name in ref.joint_names:

@@ -353,7 +353,19 @@ def solve_impulse_python(cfg: Configuration, t: float, q: np.ndarray, v: np.ndar
         J_n = (-contact.stop_sign * (frame_jacobian(cs.model, cs.data, plan.frame_b)[5]
                                      - frame_jacobian(cs.model, cs.data, plan.frame_a)[5]))[None, :]
     G = np.concatenate((cs.J_cut, cfg.coords.equality(t, cs.model, cs.data)))
-    W = _inverse_mass(M_f, cfg.name)
+    try:
+        W = _inverse_mass(M_f, cfg.name)
+    except SimulationError:
+        if not cut_joints:
+            raise
+        joints = cfg.spec.info.joints
+        freed = ", ".join(f"'{joints[j].child}'" for j in cut_joints if j in joints)
+        raise SimulationError(
+            f"t = {t:.9g} s, transition '{name}': cutting {', '.join(repr(j) for j in cut_joints)} (its `cut`) frees "
+            f"{freed}, and the cut system's mass matrix is not positive definite: a body the cut frees has no "
+            "inertia along one of its planar freedoms (a point mass, izz = 0, turns freely about its centroid). "
+            "Give it a rotational inertia, or, for a joint stop (contact = { joint = ... }), write cut = []: the "
+            "stop acts on the joint's own coordinate and the run is the same") from None
     G_all = G
     # redundant but consistent rows (a cut joint given twice, a drive on a joint a lock and a loop fix):
     # the impulse is the same on a maximal independent set of them; their impulsive forces along the

@@ -55,6 +55,7 @@ from ..scene.spec import PinSpec
 from .contact import contact_state
 from .entry import enter
 from .friction import AmbiguousImpact, routh
+from .momentum import check_struck_point_momentum, struck_point_only
 from .records import event_record
 from .impulse import Impulse, _inverse_mass, constraint_impulses, joint_impulses, loop_point_impulses, tangent_of
 
@@ -368,7 +369,7 @@ def pin_strike(ctx, cfg: Configuration, tr: PinSpec, t, q, v, target: str | None
                               f"{abs(P_t) / P_n:.6g} (|P_t| / P_n, P_t = {P_t:.6g}, P_n = {P_n:.6g} N s) and the "
                               f"contact has mu = {mu:g}{split}; pcmm models no sliding contact")
     # entered like every switch: the target's constraints checked at the post-impact state (entry.enter)
-    entry = enter(cfg, dst, t, q, v_plus, what=f"pin '{tr.name}'")
+    entry = enter(cfg, dst, t, q, v_plus, what=f"pin '{tr.name}'", anchored=True)
     q_new, v_new = entry.q, entry.v
     # the stance that begins now: each point held by compression only must push, inside its cone
     # (the guards of the stance watch it from here on: PartitionedCoordinates.contact_guards)
@@ -403,6 +404,8 @@ def pin_strike(ctx, cfg: Configuration, tr: PinSpec, t, q, v, target: str | None
                          for lab, mu_ in by_label.items() if lab.endswith(".drive"))
     imp.joint_impulses, imp.rnea_residual = joint_impulses(cfg, q, v_plus - v, loop)
     record = event_record(cfg, tr, t, target, True, imp, "pin", q=q)
+    if struck_point_only(cfg, dst, struck.name) is None:  # H about the struck point must be conserved
+        check_struck_point_momentum(cfg, tr, t, q, v, v_plus, pb)
     record["tangent"] = [float(tang[0]), float(tang[1])]
     record["impulse"]["tangential"] = P_t
     record["impulse"]["vector"] = [float(F[0]), float(F[1])]

@@ -20,7 +20,7 @@ from ..model.configuration import Configuration
 from ..errors import SimulationError
 from .contact import impact_kind
 from .impulse import Impulse
-from .momentum import about_point, external_impulses, momentum_record
+from .momentum import CONTACT, about_point, external_impulses, momentum_record
 from ..scene.spec import TransitionSpec
 
 
@@ -159,7 +159,7 @@ def event_record(cfg: Configuration, tr: TransitionSpec, t, target: str, merge: 
                   v=(imp.v_before, imp.v_after), ke=(imp.ke_before, imp.ke_after), restitution=imp.restitution,
                   impact=imp.impact, P=imp.P, normal=imp.normal, vn=(imp.vn_before, imp.vn_after))
     if q is not None:
-        common["momentum"] = momentum_record(cfg, q, imp.v_before, imp.v_after, imp.momenta)
+        common["momentum"] = momentum_record(cfg, q, imp.v_before, imp.v_after, imp.momenta, imp.point)
     if not imp.impact:
         record = event_dict(cfg, tr, t, **common)
         ke0, ke1 = imp.ke_before, imp.ke_after
@@ -253,8 +253,8 @@ class RecordPlan:
         joint = tr.contact.joint
         self.stop = "point" if joint is None else cfg.spec.info.joints[joint].type == "prismatic" and "prismatic" \
             or "revolute"
-        o = about_point(cfg)
-        self.about = (o[0], o[1])  # (numpy floats: momentum_record's operations on them)
+        o = None if cfg.scene.momentum_point == CONTACT else about_point(cfg)  # "contact": per bounce
+        self.about = None if o is None else (o[0], o[1])  # (numpy floats: momentum_record's operations on them)
         self.roots: list = []  # [(joint, [x, y])] of the joints on the frame (external_impulses')
         self.root_rows = None  # their rows in a compiled solve's joint array (ArrayImpulse.arrays)
         self.frame_contact = None  # the contact impulse on b (0) or on a (1) the frame applies, if any
@@ -364,6 +364,8 @@ def _unplanned(cfg: Configuration, imp: Impulse, record: dict) -> str | None:
         return "the impulse was not solved compiled (no momenta at hand)"
     if imp.friction is not None:
         return "a frictional contact"
+    if cfg.scene.momentum_point == CONTACT:
+        return 'the momenta are taken about each bounce\'s contact point (momentum_point = "contact")'
     if cfg._planar or len(cfg.joint_names) != cfg.nv:
         return "a planar joint"
     if getattr(cfg.coords, "constrained", False) and cfg.coords.closure.specs:

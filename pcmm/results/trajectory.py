@@ -770,6 +770,8 @@ def guard_text(g) -> str:
         return f"t = {g.at:g} s" if g.at is not None else f"t = {g.start:g} + k·{g.every:g} s"
     if g.type == "reaction":
         return f"reaction of {g.of} {arrow} {g.value:g}"
+    if g.type == "entry":
+        return "on entry"
     what = {"joint": lambda n: n[0], "link": lambda n: f"θ({n[0]})",
             "between": lambda n: f"θ({n[1]}) − θ({n[0]})"}.get(g.measure.kind, lambda n: ",".join(n))(
                 g.measure.names) if g.measure is not None else g.type

@@ -32,6 +32,18 @@ def guard_series(cfg: Configuration, tr, q: np.ndarray) -> np.ndarray:
     return np.array([contact_state(cfg, qi, zero, tr.contact)[1] for qi in q])
 
 
+def in_region(cfg: Configuration, tr, q: np.ndarray) -> np.ndarray | None:
+    """For a guard armed by a region (``when``), which rows of ``q`` lie in the region (where the
+    guard can fire, :func:`pcmm.events.guards.armed`); None for a guard without one.  Outside it the
+    guard stays on its unfired side whatever its measure does: a compass gait's swing foot passing
+    through the slope at mid-stance is neither a crossing nor an approach."""
+    if tr.guard.when is None:
+        return None
+    measure, side, bound = tr.guard.when
+    row, offset = cfg.measure_row(measure)
+    return side * (q @ row + offset - bound) >= 0
+
+
 def _refine(cfg: Configuration, tr, seg: SegmentRecord, lo: float, hi: float, t0: float, g0: float):
     """(t, g): the guard's closest approach to its value within [lo, hi] of ``seg`` on the dense
     output, or the recorded (t0, g0) when the segment has none (a loaded trajectory) or the
@@ -75,6 +87,12 @@ def closest_approach(scene: Scene, cfg: Configuration, traj: Trajectory) -> list
         after = t > max(fired) if fired else np.ones(t.size, bool)  # since it last fired
         if not after.any():
             continue
+        region = in_region(cfg, tr, q)
+        if region is not None:
+            if not (after & region).any():  # it could not fire since: say so, not a distance
+                out.append(_outside_region(tr, t, after, max(fired) if fired else None))
+                continue
+            after = after & region
         g = np.where(after, guard_series(cfg, tr, q), np.inf)
         d = np.abs(g - tr.guard.value)
         # after it fired, the guard starts at its value: its closest return towards the value
@@ -117,6 +135,19 @@ def _moved_away(tr, t: np.ndarray, g: np.ndarray, after: np.ndarray, owner: np.n
             "closest": None, "t": None, "distance": None, "last_fired": last_fired, "at_entry": False,
             "past": False, "crossed_against": _crossed_against(tr, t, g, owner), "moved_away": True,
             "final": float(g[k]), "t_final": float(t[k])}
+
+
+def _outside_region(tr, t: np.ndarray, after: np.ndarray, last_fired: float | None) -> dict:
+    """The record of a guard armed by a region (``when``) whose region the run did not enter since
+    it last fired (or at all): no closest approach to report, the guard could not fire."""
+    measure, side, bound = tr.guard.when
+    since = t[after]
+    return {"transition": tr.name, "guard": str(tr.guard.measure) if tr.guard.measure else "contact gap",
+            "value": tr.guard.value, "direction": "increasing" if tr.guard.direction > 0 else "decreasing",
+            "closest": None, "t": None, "distance": None, "last_fired": last_fired, "at_entry": False,
+            "past": False, "crossed_against": None,
+            "outside_when": f"{measure} {'above' if side > 0 else 'below'} {bound:.9g}",
+            "t_from": float(since[0]), "t_final": float(since[-1])}
 
 
 def _segments_in(traj: Trajectory, name: str, watched, fired_by: dict | None = None) -> list[SegmentRecord]:
@@ -347,6 +378,11 @@ def _describe_one(r: dict) -> str:
         return (f"guard of '{r['transition']}' ({r['guard']} {r['direction']} to {r['value']:.9g}) did not fire: "
                 f"the measure crossed {r['value']:.9g} {against} at t = {r['crossed_against']:.6g} s, against the "
                 f"guard's direction ({r['direction']}); check `direction`")
+    if r.get("outside_when"):
+        return (f"guard of '{r['transition']}' ({r['guard']} {r['direction']} to {r['value']:.9g}) did not fire"
+                + (" again" if r.get("last_fired") is not None else "")
+                + f": from t = {r['t_from']:.6g} s to {r['t_final']:.6g} s the run never entered its `when` region "
+                f"({r['outside_when']}), where alone it fires")
     if r.get("moved_away"):
         return (f"guard of '{r['transition']}' ({r['guard']} {r['direction']} to {r['value']:.9g}) did not fire "
                 f"again: since its last event at t = {r['last_fired']:.9g} s the measure moved away from its value "

@@ -607,15 +607,38 @@ def check_scene(scene: Scene, mechanism: Mechanism | None = None) -> CheckReport
         name = todo.pop(0)
         cfg = entered.get(name) or mech[name]
         for tr in scene.transitions_from(name):
+            here = f"{where}: transitions[{scene.transitions.index(tr)}] ({tr.name})"
+            if tr.guard.type == "entry":  # fired where the run enters: its target starts at that posture
+                _enter_on_entry(mech, report, cfg, tr, here, starts, entered, todo)
+                continue
             if tr.guard.type not in ("coordinate", "gap"):  # time and reaction guards fix no posture
                 continue
-            here = f"{where}: transitions[{scene.transitions.index(tr)}] ({tr.name})"
             n_warnings, n_problems = len(report.warnings), len(report.problems)
             how = _check_transition(scene, mech, report, cfg, tr, here, starts, entered, todo)
             if how:  # every finding at the posture says which posture it is
                 report.warnings[n_warnings:] = [f"{w} [{how}]" for w in report.warnings[n_warnings:]]
                 report.problems[n_problems:] = [f"{p} [{how}]" for p in report.problems[n_problems:]]
     return report
+
+
+def _enter_on_entry(mech: Mechanism, report: CheckReport, cfg: Configuration, tr: TransitionSpec, here: str,
+                    starts: dict, entered: dict, todo: list) -> None:
+    """A release fired on entry (``guard = { type = "entry" }``) leaves ``cfg`` at the posture the run
+    enters it at, so its target is judged from there, as the run reaches it (a pinned point anchored
+    where it is: where it struck)."""
+    if tr.target in starts:
+        return
+    q = starts[cfg.name][0]
+    try:
+        dst = mech.enter(tr.target, cfg, q)
+        entered.setdefault(tr.target, dst)
+        q_dst, _, _ = map_state(cfg, dst, q, np.zeros(cfg.nv))
+        anchor_where_entered(dst, q_dst)
+    except PcmmError as exc:
+        report.problems += [f"{here}.to: {p}" for p in exc.problems]
+        return
+    starts[tr.target] = (q_dst, None)  # the velocity after the switch is not known here
+    todo.append(tr.target)
 
 
 def _check_transition(scene: Scene, mech: Mechanism, report: CheckReport, cfg: Configuration, tr: TransitionSpec,

@@ -194,6 +194,8 @@ def integrate_segment(run: RunState, progress):
     bounced, run.bounced = run.bounced, None
     leaving = []  # guards at their value whose contact does not approach (_pending): re-armed, not crossed
     pending = None if run.phase is not None else _pending(cfg, guards, t, y0, leaving)
+    if run.phase is None:
+        run.traj.stats["warnings"] += _releases_past_at_entry(cfg, guards, t, y0, run.traj.stats["warnings"])
     leaving = [i for i in leaving if guards[i].transition is not bounced]  # (that one is re-armed already)
     if pending is None and leaving:
         guards = left_at_value(cfg, guards, leaving, t)
@@ -493,6 +495,8 @@ def _guards(scene: Scene, cfg: Configuration, holds: Holds, t: float, phase, bou
                 continue
             if tr.guard.type == "time" and tr.guard.at is not None and tr.name in fired:
                 continue
+            if tr.guard.type == "entry" and phase is not None:  # fired where the collision ends (_pending)
+                continue
             g = make_guard(cfg, tr, rearm=tr is bounced, context=holds if tr.guard.type == "reaction" else t)
             if g is not None:
                 out.append(g)
@@ -547,6 +551,33 @@ def _on_state(guards: list, n: int, cache: GuardCache) -> list:
     return out
 
 
+def _releases_past_at_entry(cfg: Configuration, guards, t, y0, said) -> list[str]:
+    """Warnings, once per configuration and release: a scene's release whose reaction guard (on a
+    lock's holding force) is already past its value where a segment of ``cfg`` starts.  A guard fires
+    on a crossing in its direction only, so such a release waits for the force to come back and cross
+    again, and may never fire; the run's closest approach describes the final configuration only (a
+    kneed walker's trailing knee, tensile from the heel strike on, stayed locked for the whole step
+    and nothing said so)."""
+    out = []
+    for g in guards:
+        tr = g.transition
+        if (g.action != "transition" or tr is None or tr.type != "release" or tr.guard.type != "reaction"
+                or any(s.name == tr.guard.of for s in cfg.spec.cut_joints)):
+            continue
+        key = f"configuration '{cfg.name}': the release '{tr.name}' watches"
+        if any(key in w for w in said):
+            continue
+        past = tr.guard.direction * g(t, y0)
+        if past > 0:
+            way = "increasing" if tr.guard.direction > 0 else "decreasing"
+            out.append(f"t = {t:.9g} s, {key} the holding force of '{tr.guard.of}' cross {tr.guard.value:.9g} "
+                       f"{way}, but it is already {past:.6g} past that value where the configuration is entered: "
+                       "a guard fires on a crossing in its direction only, so the release waits for the force to "
+                       "come back and cross again (it may never fire); a release meant at the instant the "
+                       "configuration is entered takes guard = { type = \"entry\" }")
+    return out
+
+
 def _pending(cfg: Configuration, guards, t, y0, leaving=None):
     """Index of a guard that is already at or past its crossing at the start of a segment
     while its contact still approaches: a contact that closed at the same instant as the
@@ -557,12 +588,17 @@ def _pending(cfg: Configuration, guards, t, y0, leaving=None):
     guards read at their crossing whose contact separates or rests pulled apart, before the first
     pending one (the segment watches them re-armed: :func:`pcmm.events.guards.left_at_value`).  A
     guard with no contact (a release's coordinate or gap guard) at its value is pending where its own
-    rate approaches its fired side, else listed leaving (:func:`_guard_approaches`)."""
+    rate approaches its fired side, else listed leaving (:func:`_guard_approaches`).  A release fired on
+    entry (``guard = { type = "entry" }``) is pending at the first segment of its configuration: its
+    event is kept at the entry instant, after the event that entered, and nothing is integrated in the
+    configuration (the loader refuses a cycle of them, :meth:`pcmm.scene.load._Builder._entry_guards`)."""
     state = None  # (q, v), when first needed
     for i, g in enumerate(guards):
         if g.action in ("unmerge", "lift-off") and g(t, y0) < 0:
             return i  # the merge or pin would have to pull from its first instant: the bodies separate now
         tr = g.transition
+        if g.action == "transition" and tr.guard.type == "entry":
+            return i
         if g.action != "transition" or tr.guard.type not in ("coordinate", "gap"):
             continue
         value = tr.guard.direction * g(t, y0)

@@ -267,6 +267,9 @@ def holding_forces(cfg: Configuration, holds: Holds, t, series: dict, applied=No
     assembly, and the series would then depend on what the run did after the segment.
     ``applied`` are the force elements the segment held with (:meth:`Holds.applied`)."""
     out = np.empty((len(t), len(holds.items)))
+    if (applied is None or applied.reference is None) and holds.items and holds.reference(cfg) is None:
+        out[:] = np.nan  # no configuration to solve them in (the run's warnings say so: Holds.indeterminate_notes)
+        return out
     for i in range(len(t)):
         q = series["q"][i]  # the series' rates are world-axes for a planar joint: back to Pinocchio's v
         out[i] = list(holds.forces(cfg, t[i], q, cfg.velocity(q, series["v"][i]), applied).values())

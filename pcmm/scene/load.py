@@ -38,7 +38,7 @@ FORCE_TYPES = {
     "point_spring": ({"k", "rest"}, {"value", "k", "rest", "c"}),
 }
 TRANSITION_TYPES = ("latch", "stop", "release", "pin")
-GUARD_TYPES = ("coordinate", "gap", "time", "reaction")
+GUARD_TYPES = ("coordinate", "gap", "time", "reaction", "entry")
 CUT_JOINT_TYPES = {"revolute": 2, "prismatic": 2, "weld": 3}
 
 SCENE_KEYS = [
@@ -47,8 +47,9 @@ SCENE_KEYS = [
     S.Key("gravity", "list", check=S.vector(2), doc="[gx, gy] in m/s^2, e.g. [0.0, -9.81]"),
     S.Key("t_end", "number", check=S.positive, doc="end time of the run in s"),
     S.Key("initial_configuration", "str", doc="name of a [configurations.NAME] table"),
-    S.Key("momentum_point", "list", required=False, check=S.vector(2),
-          doc="[x, y]: the point the events' angular momenta are taken about (default: the first frame pivot)"),
+    S.Key("momentum_point", "list|str", required=False, check=S.vector_or(2, "contact"),
+          doc="[x, y]: the point the events' angular momenta are taken about, or \"contact\": each event's "
+              "contact point (default: the first frame pivot)"),
 ]
 CONFIG_KEYS = [
     S.Key("urdf", "str", required=False, doc="path of the configuration's URDF, relative to the scene file"),
@@ -120,7 +121,8 @@ WHEN_KEYS = [
 ]
 GUARD_KEYS = [
     S.Key("type", "str", check=S.one_of(*GUARD_TYPES),
-          doc="coordinate (a measure), gap (a contact's gap), time, reaction (a lock's holding force)"),
+          doc="coordinate (a measure), gap (a contact's gap), time, reaction (a lock's holding force), "
+              "entry (a release: the instant its configuration is entered; no other key)"),
     S.Key("when", "table", required=False,
           doc="coordinate and gap guards: { measure, above | below }: a crossing counts only on that side"),
     S.Key("measure", "table", required=False, doc="coordinate guards: the measure watched, { joint }, { link } or { between }"),
@@ -266,6 +268,13 @@ def _repeated_key_hint(text: str, exc: Exception) -> str:
                                 f"{number}; TOML allows a key once per table)")
                     stack[-1].add(km.group(1))
     return ""
+
+
+def _momentum_point(value) -> tuple[float, float] | str | None:
+    """``[scene] momentum_point`` as the scene keeps it: (x, y), "contact", or None (the default)."""
+    if isinstance(value, str):
+        return value
+    return tuple(value) if value else None
 
 
 def _same_link(link: str) -> str:
@@ -529,7 +538,7 @@ class _Builder:
             forces=tuple(forces), transitions=tuple(transitions), drives=tuple(drives),
             solver=settings.solver_settings_type()(**{k: v for k, v in solver.items() if v is not None}),
             branch=self._branch(init.get("branch")),
-            momentum_point=tuple(sc["momentum_point"]) if sc.get("momentum_point") else None,
+            momentum_point=_momentum_point(sc.get("momentum_point")),
             source=self.raw, loader=with_values,
         )
         self._cross_check(scene)
@@ -796,9 +805,10 @@ class _Builder:
         given = {k for k in ("measure", "value", "direction", "at", "every", "start", "of") if k in raw}
         failed = any(g.get(k) is None for k in given)
         needs = {"coordinate": {"measure", "value", "direction"}, "gap": {"value", "direction"},
-                 "time": set(), "reaction": {"of", "value", "direction"}}.get(g["type"])
+                 "time": set(), "reaction": {"of", "value", "direction"}, "entry": set()}.get(g["type"])
         allowed = {"coordinate": {"measure", "value", "direction"}, "gap": {"value", "direction"},
-                   "time": {"at", "every", "start"}, "reaction": {"of", "value", "direction"}}.get(g["type"])
+                   "time": {"at", "every", "start"}, "reaction": {"of", "value", "direction"},
+                   "entry": set()}.get(g["type"])
         if needs is None:
             return None
         ok = not failed
@@ -806,7 +816,13 @@ class _Builder:
             self.p.add(f"{where}.{k}", f"missing; a {g['type']} guard needs {', '.join(sorted(needs))}")
             ok = False
         for k in sorted(given - allowed):
-            self.p.add(f"{where}.{k}", f"not used by a {g['type']} guard (it takes {', '.join(sorted(allowed))})")
+            self.p.add(f"{where}.{k}", f"not used by a {g['type']} guard (it takes "
+                       f"{', '.join(sorted(allowed)) or 'no other key: it fires the instant its configuration is entered'})")
+            ok = False
+        if g["type"] == "entry" and kind != "release":
+            self.p.add(f"{where}.type", f"= 'entry': only a release fires the instant its configuration is entered "
+                       f"(it carries no impulse); a {kind} strikes where its contact closes: use a coordinate or "
+                       "gap guard")
             ok = False
         if g["type"] == "time" and (("at" in given) == ("every" in given)):
             self.p.add(where, "a time guard takes either at (one instant) or every (a period, from start)")
@@ -1087,8 +1103,40 @@ class _Builder:
                 f"coordinate away from rest and feed{'s' if verb == 'drives' else ''} energy in, as k < 0 or c < 0 "
                 f"would; write between = {[b, a]!r}{rest}")
 
+    def _entry_guards(self, scene: Scene) -> None:
+        """Releases fired on entry (``guard = { type = "entry" }``): one per configuration (a second
+        would never fire: the first leaves at the entry instant), and no cycle of them (entering one
+        configuration of it would switch round it for ever without time passing)."""
+        entry = {}  # configuration -> (index, transition) of the release that leaves it on entry
+        for i, t in enumerate(scene.transitions):
+            if t.guard.type != "entry":
+                continue
+            if t.source in entry:
+                j, first = entry[t.source]
+                self.p.add(f"transitions[{i}] ({t.name}).guard.type",
+                           f"= 'entry': transitions[{j}] ({first.name}) already leaves '{t.source}' the instant it is "
+                           "entered, so this release would never fire; give one of them another guard")
+                continue
+            entry[t.source] = (i, t)
+        reported = set()
+        for start in entry:
+            path, at = [], start
+            while at in entry and at not in path:
+                path.append(at)
+                at = entry[at][1].target
+            if at not in path or at in reported:
+                continue
+            loop = path[path.index(at):]
+            reported.update(loop)
+            i, t = entry[at]
+            names = " -> ".join(f"'{c}' ({entry[c][1].name})" for c in loop) + f" -> '{at}'"
+            self.p.add(f"transitions[{i}] ({t.name}).guard.type",
+                       f"= 'entry': the releases fired on entry form a cycle, {names}: entering any of them the run "
+                       "would switch round it for ever at one instant; give one of them another guard")
+
     def _cross_check(self, scene: Scene) -> None:
         names = scene.configurations
+        self._entry_guards(scene)
         for i, f in enumerate(scene.forces):
             where = f"forces[{i}] ({f.name})"
             for cfg in self._configs_for(f"{where}.configurations", f.configurations, scene):
@@ -1182,6 +1230,13 @@ class _Builder:
                     self.p.add(f"{where}.to", f"= {t.target!r}: a pin's target holds the struck point by a revolute "
                                f"cut joint with a = the frame, point_a = \"entry\", b = {t.contact.b!r} and point_b = "
                                f"{list(t.contact.point_b)} (the contact's point_b); '{t.target}' has none")
+                src_joints, dst_joints = list(cfg.info.movable_joints), list(names[t.target].info.movable_joints)
+                if src_joints != dst_joints:  # the strike's impulse is solved on one tree (pins.pin_strike)
+                    self.p.add(f"{where}.to", f"= {t.target!r}: a pin keeps the tree and only adds the cut joint "
+                               f"that holds the struck point, but '{t.target}' has the movable joints {dst_joints} "
+                               f"and '{t.source}' {src_joints}: pin into a configuration with the same joints "
+                               f"(the same URDF, or the same locks), and free or lock joints after the strike with "
+                               f"a `release` or a `latch` from there")
                 if t.contact.a != cfg.info.root:
                     self.p.add(f"{where}.contact.a", f"= {t.contact.a!r}: a pin anchors b's point on the frame "
                                f"('{cfg.info.root}'); a point pinned to a moving link is not modelled yet")

@@ -212,6 +212,18 @@ def vector(n: int):
     return _numeric_check(check)
 
 
+def vector_or(n: int, *words: str):
+    """A list of ``n`` finite numbers, or one of the strings ``words``."""
+    base = vector(n)
+
+    def check(v):
+        if isinstance(v, str):
+            return None if v in words else (f"must be a list of {n} finite numbers or "
+                                            + " or ".join(repr(w).replace("'", '"') for w in words))
+        return base(v)
+    return _numeric_check(check)
+
+
 def nonzero_vector(n: int):
     base = vector(n)
 

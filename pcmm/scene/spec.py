@@ -72,10 +72,12 @@ class GuardSpec:
     * ``gap``: the contact gap crosses ``value``;
     * ``time``: t reaches ``at``, or each ``start + k every`` for repeated cycles;
     * ``reaction``: the holding force/moment of the locked joint or merged stop ``of``
-      (a joint name, or the name of the stop transition that merged) crosses ``value``.
+      (a joint name, or the name of the stop transition that merged) crosses ``value``;
+    * ``entry``: a release fires the instant its configuration is entered (a separate event at
+      that instant, before anything is integrated in it).
     """
 
-    type: str  # "coordinate" | "gap" | "time" | "reaction"
+    type: str  # "coordinate" | "gap" | "time" | "reaction" | "entry"
     measure: Measure | None
     value: float
     direction: int  # +1 increasing, -1 decreasing
@@ -272,7 +274,7 @@ class Scene:
     drives: tuple[DriveSpec, ...]
     solver: SolverSettings = field(default_factory=lambda: solver_settings_type()())
     branch: BranchSpec | None = None  # closed loops: the assembly to start on ([initial] branch)
-    momentum_point: tuple[float, float] | None = None  # momenta about this point (None: first frame pivot)
+    momentum_point: tuple[float, float] | str | None = None  # momenta about this point (None: first frame pivot; "contact": each event's contact point)
     #: the parsed TOML the scene was validated from (what :meth:`with_values` edits)
     source: dict | None = field(default=None, repr=False, compare=False)
     #: the loader that validated it, ``(scene, values) -> Scene``: it validates edited values
