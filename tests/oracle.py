@@ -861,8 +861,9 @@ def check_resampled_states(scene_path, t_end: float, dt: float, rel: float = 1e-
 def check_records(traj, folder: Path, stats: bool = True) -> list[str]:
     """The run's other records against its series: the CSV (one column per link quantity,
     coordinate, force element, constraint row and energy; empty where a segment lacks the name) and
-    ``stats["holding"]`` (each hold's extremes over the recorded samples, and their times; not for a
-    resampled trajectory, which keeps the run's stats)."""
+    ``stats["holding"]`` (each hold's extremes along the run, and their times: at or beyond the
+    samples' extremes, and each either a sample's or the force on the dense output at its time;
+    not for a resampled trajectory, which keeps the run's stats)."""
     problems = []
     header, rows = _csv_rows(traj.to_csv(folder / "records.csv"))
     table = [r for t in sorted(rows) for r in rows[t]]
@@ -903,11 +904,32 @@ def check_records(traj, folder: Path, stats: bool = True) -> list[str]:
             problems += _stance_extremes(traj, label, ext)
             continue
         series = traj.series("constraint_forces", label)
-        i_lo, i_hi = int(np.nanargmin(series)), int(np.nanargmax(series))
-        got = (ext["min"], ext["t_min"], ext["max"], ext["t_max"])
-        want = (series[i_lo], traj.t[i_lo], series[i_hi], traj.t[i_hi])
-        if not np.allclose(got, want, rtol=0, atol=0):
-            problems.append(f"stats holding {label}: {got}, the series' extremes {want}")
+        problems += _extreme_problems(traj, f"stats holding {label}", ext, series, label,
+                                      lambda rec, label=label: rec.constraint_forces[:, rec.constraint_labels.index(label)])
+    return problems
+
+
+def _extreme_problems(traj, what: str, ext: dict, series, label: str, of_record) -> list[str]:
+    """``ext`` ({min, t_min, max, t_max}) against ``series`` (over ``traj.t``): at or beyond its extremes
+    (by at most 2 % of their size: a peak between two steps), and each either a sample's value at its
+    time or ``of_record`` of the record at its time on the dense output of the segment holding it
+    (one recording ``label``)."""
+    lo, hi = float(np.nanmin(series)), float(np.nanmax(series))
+    scale = max(1.0, abs(lo), abs(hi))
+    problems = []
+    if not (lo - 0.02 * scale <= ext["min"] <= lo + 1e-12 * scale and hi - 1e-12 * scale <= ext["max"] <= hi + 0.02 * scale):
+        problems.append(f"{what}: ({ext['min']}, {ext['max']}), the series' extremes ({lo}, {hi})")
+    for key in ("min", "max"):
+        value, t = ext[key], ext[f"t_{key}"]
+        if np.any((traj.t == t) & (series == value)):
+            continue
+        segs = [s for s in traj.segments if s.t[0] <= t <= s.t[-1] and label in s.constraint_labels]
+        if not segs or segs[0].__dict__.get("_resample") is None:
+            problems.append(f"{what}: {key} {value} at t = {t}: no sample's, and no dense output to read it on")
+            continue
+        dense = float(np.asarray(of_record(segs[0].resampled(np.array([t]))))[0])
+        if not abs(dense - value) <= 1e-12 * scale:
+            problems.append(f"{what}: {key} {value} at t = {t}, the dense output's {dense}")
     return problems
 
 
@@ -922,10 +944,14 @@ def _stance_extremes(traj, name: str, ext: dict) -> list[str]:
     n0 = np.asarray(joint["normal"], float) / np.linalg.norm(joint["normal"])
     n = np.column_stack([np.cos(angle) * n0[0] - np.sin(angle) * n0[1], np.sin(angle) * n0[0] + np.cos(angle) * n0[1]])
     problems = []
-    for part, series in (("normal", np.sum(n * F, axis=1)), ("tangential", n[:, 1] * F[:, 0] - n[:, 0] * F[:, 1])):
-        i_lo, i_hi = int(np.nanargmin(series)), int(np.nanargmax(series))
-        got = (ext[part]["min"], ext[part]["t_min"], ext[part]["max"], ext[part]["t_max"])
-        want = (series[i_lo], traj.t[i_lo], series[i_hi], traj.t[i_hi])
-        if not np.allclose(got, want, rtol=1e-14, atol=1e-12):
-            problems.append(f"stats holding {name} ({part}): {got}, the series' extremes {want}")
+
+    def parts_of(rec):
+        a = rec.theta[:, rec.links.index(joint["a"])] if joint["a"] in rec.links else np.zeros(len(rec.t))
+        nx, ny = np.cos(a) * n0[0] - np.sin(a) * n0[1], np.sin(a) * n0[0] + np.cos(a) * n0[1]
+        f = rec.constraint_forces[:, [rec.constraint_labels.index(f"{name}.{x}") for x in ("fx", "fy")]]
+        return nx * f[:, 0] + ny * f[:, 1], ny * f[:, 0] - nx * f[:, 1]
+
+    for k, (part, series) in enumerate((("normal", np.sum(n * F, axis=1)), ("tangential", n[:, 1] * F[:, 0] - n[:, 0] * F[:, 1]))):
+        problems += _extreme_problems(traj, f"stats holding {name} ({part})", ext[part], series, f"{name}.fx",
+                                      lambda rec, k=k: parts_of(rec)[k])
     return problems

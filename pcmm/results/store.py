@@ -354,6 +354,11 @@ class StoreWriter:
         self.reader: StoreReader | None = None
         self.chunks = 0
         self._aside = None  # the thread that writes the chunks while the run goes on
+        #: ``extremes_of(segments) -> dict``, given by the run: a chunk's holding extremes, refined on its
+        #: segments' dense output as it is written (read back from the files, they have none), kept in
+        #: :attr:`extremes` (the run's ``stats["holding"]`` merges them)
+        self.extremes_of = None
+        self.extremes: list[dict] = []
 
     def aside(self, work):
         """``work()`` on a thread of its own, waited for: every evaluation of the series it derives
@@ -396,6 +401,8 @@ class StoreWriter:
         if len(segs) or len(events):
             path = chunk_path(self.folder, self.chunks)
             derive_together(segs)
+            if self.extremes_of is not None:  # while the segments have their dense output
+                self.extremes.append(self.extremes_of(segs))
             segs = list(segs)
             write_chunk(path, segs, events)
             self.chunks += 1

@@ -148,34 +148,106 @@ def derive_series(segments) -> int:
     return derive_together(segments, copies=0)
 
 
-def holding_extremes(traj: "Trajectory") -> dict:
-    """{lock: {min, t_min, max, t_max}} of every holding force or moment over the recorded
-    samples (constraint forces labelled ``<lock>.hold``): what a designer sizes a latch by; and
-    beside them {cut joint: {"normal": {...}, "tangential": {...}}} of every point held by
-    compression only (a pinned foot's stance force, :func:`stance_forces`), what a designer sizes
-    the contact's friction by.  A force the rows leave statically indeterminate (NaN: redundant
-    rows, :func:`pcmm.model.rows.determinate`) is left out of the extremes and counted
-    (``indeterminate_samples``); held indeterminate throughout, its extremes are None (no number
-    is any split's)."""
+def holding_extremes(traj: "Trajectory", segments=None, known=None) -> dict:
+    """{lock: {min, t_min, max, t_max}} of every holding force or moment (constraint forces labelled
+    ``<lock>.hold``): what a designer sizes a latch by; and beside them {cut joint: {"normal": {...},
+    "tangential": {...}}} of every point held by compression only (a pinned foot's stance force,
+    :func:`stance_forces`), what a designer sizes the contact's friction by.  The extremes are the
+    force's along the run, not its largest recorded sample: around the extreme sample (and every
+    local extreme sample near it, :mod:`pcmm.results.peaks`) the force is evaluated on the run's
+    dense output between the steps (the path of :meth:`Trajectory.resampled`) and its extreme there
+    taken, with its time; a trajectory without dense output (loaded from a file, a store's chunks
+    read back) gives its samples' extremes.  A force the rows leave statically indeterminate (NaN:
+    redundant rows, :func:`pcmm.model.rows.determinate`) is left out of the extremes and counted
+    (``indeterminate_samples``); held indeterminate throughout, its extremes are None (no number is
+    any split's).  ``segments``: those to read (a store's chunk as it is written), else the run's;
+    ``known``: the extremes of the run's earlier parts (:func:`merged_extremes` of the chunks written
+    before): a sample is refined only where it could reach beyond them too."""
+    from .peaks import MARGIN, MOST, local_extremes, refine
     out: dict = {}
-    derived = False
-    for s in traj.segments:
+    derived = segments is not None
+    segments = traj.segments if segments is None else segments
+    candidates: dict = {}  # (ext's id) -> [(sign * value, segment index, sample index)]
+    columns: dict = {}  # (ext's id) -> (ext, column of a record, the earlier parts' extremes of it)
+
+    def consider(ext, col, t, si, column, before):
+        _extend(ext, col, t)
+        key = id(ext)
+        columns.setdefault(key, (ext, column, before))
+        for sign in (1.0, -1.0):
+            kept = candidates.setdefault((key, sign), [])
+            kept += [(sign * float(col[i]), si, int(i)) for i in local_extremes(col, sign)]
+            if len(kept) > 8 * MOST:  # a long run: only the highest can be within the margin
+                kept.sort(reverse=True)
+                del kept[4 * MOST:]
+
+    for si, s in enumerate(segments):
         if not derived and (any(x.endswith(".hold") for x in s.constraint_labels) or _stance_joints(traj, s)):
             derived = traj._derive_grouped() >= 0  # the first series read: every run of one context at once
         for name, parts in stance_forces(traj, s).items():
             entry = out.setdefault(name, {part: {"min": math.inf, "t_min": None, "max": -math.inf, "t_max": None}
                                           for part in ("normal", "tangential")})
-            for part, col in zip(("normal", "tangential"), parts):
-                _extend(entry[part], col, s.t)
+            for p, (part, col) in enumerate(zip(("normal", "tangential"), parts)):
+                consider(entry[part], col, s.t, si, lambda rec, name=name, p=p: stance_forces(traj, rec)[name][p],
+                         ((known or {}).get(name) or {}).get(part))
         for k, label in enumerate(s.constraint_labels):
             if not label.endswith(".hold"):
                 continue
             ext = out.setdefault(label, {"min": math.inf, "t_min": None, "max": -math.inf, "t_max": None})
-            _extend(ext, s.constraint_forces[:, k], s.t)
+            consider(ext, s.constraint_forces[:, k], s.t, si,
+                     lambda rec, label=label: rec.constraint_forces[:, rec.constraint_labels.index(label)],
+                     (known or {}).get(label))
+    jobs: dict = {}  # segment index -> [(sample index, sign, column, ext)]
+    for (key, sign), kept in candidates.items():
+        ext, column, before = columns[key]
+        if ext["t_min"] is None:
+            continue
+        lo, hi = ext["min"], ext["max"]
+        if before and before.get("min") is not None:  # the run's extremes so far: beat those too
+            lo, hi = min(lo, before["min"]), max(hi, before["max"])
+        top, span = (hi if sign > 0 else -lo), hi - lo
+        kept = sorted(c for c in kept if c[0] >= top - MARGIN * span)[::-1][:MOST]
+        for _, si, i in kept:
+            jobs.setdefault(si, []).append((i, sign, column, ext))
+    for si, todo in sorted(jobs.items()):
+        for (i, sign, _, ext), found in zip(todo, refine(segments[si], [j[:3] for j in todo])):
+            if found is None:
+                continue
+            value, t = found
+            if sign > 0 and value > ext["max"]:
+                ext["max"], ext["t_max"] = value, t
+            elif sign < 0 and value < ext["min"]:
+                ext["min"], ext["t_min"] = value, t
     for entry in out.values():
         for ext in (entry,) if "t_min" in entry else entry.values():
             if ext["t_min"] is None:  # indeterminate at every sample
                 ext["min"] = ext["max"] = None
+    return out
+
+
+def merged_extremes(parts) -> dict:
+    """The extremes of a run from those of its parts (:func:`holding_extremes` of each chunk of a
+    store, in time order): the lowest minimum and highest maximum with their times (the earlier of
+    equal ones), the indeterminate samples summed, None where every part's is None."""
+    out: dict = {}
+
+    def merge(into, ext):
+        if ext.get("indeterminate_samples"):
+            into["indeterminate_samples"] = into.get("indeterminate_samples", 0) + ext["indeterminate_samples"]
+        if ext["min"] is not None and (into["min"] is None or ext["min"] < into["min"]):
+            into["min"], into["t_min"] = ext["min"], ext["t_min"]
+        if ext["max"] is not None and (into["max"] is None or ext["max"] > into["max"]):
+            into["max"], into["t_max"] = ext["max"], ext["t_max"]
+
+    blank = {"min": None, "t_min": None, "max": None, "t_max": None}
+    for part in parts:
+        for name, entry in part.items():
+            if "t_min" in entry:
+                merge(out.setdefault(name, dict(blank)), entry)
+            else:
+                kept = out.setdefault(name, {k: dict(blank) for k in entry})
+                for k, ext in entry.items():
+                    merge(kept.setdefault(k, dict(blank)), ext)
     return out
 
 

@@ -30,7 +30,7 @@ from ..model.mechanism import Mechanism
 from ..ode.integrators import EPS, INTEGRATORS, Segment, method_for
 from ..results.segment_log import SegmentLog
 from ..results.store import StoreWriter
-from ..results.trajectory import RunStats, Trajectory, holding_extremes, record_views
+from ..results.trajectory import RunStats, Trajectory, holding_extremes, merged_extremes, record_views
 from ..scene.load import load_scene
 from ..scene.settings import RunOptions, resolve
 from ..scene.spec import Scene
@@ -174,6 +174,9 @@ def start(scene: Scene, options: RunOptions, store=None) -> RunState:
     if store is not None:
         writer = store if isinstance(store, StoreWriter) else StoreWriter(store)
         writer.start(traj)  # the trajectory becomes the store's view
+        # the holding extremes: each chunk's on its dense output as it is written (read back, it has none)
+        writer.extremes_of = lambda segments: holding_extremes(traj, segments, merged_extremes(writer.extremes))
+        traj.stats.defer("holding", lambda: merged_extremes(writer.extremes))
     return RunState(scene, opts, mech, ctx, traj, holds, audit, cfg, 0.0, q, v, store=writer)
 
 
