@@ -1,0 +1,64 @@
+"""Defects found reviewing the changes since 57f9a16 (h-review3), one test per defect.
+
+Mechanism: the two-bar arm of tests/test_entry_guard.py (shoulder J1, elbow J2, 'locked' derived by
+locking J2), in scenes each with one table at fault before the one a cross-check refuses.
+"""
+from __future__ import annotations
+
+import pytest
+
+import pcmm
+from pcmm.errors import SceneError
+
+from builders import bar_xml, joint_xml, link_xml, robot_xml, scene_doc, write_scene
+from test_entry_guard import latch, release
+
+
+def _arm_urdf() -> str:
+    return robot_xml("arm", link_xml("frame"), joint_xml("J1", "revolute", "frame", "upper"),
+                     bar_xml("upper", 0.6, 1.2), joint_xml("J2", "revolute", "upper", "fore", xyz=(0.6, 0.0)),
+                     bar_xml("fore", 0.35, 0.5))
+
+
+def _problems(folder, configs=None, **tables) -> list[str]:
+    doc = scene_doc(configs or {"free": "arm.urdf", "locked": {"from": "free", "lock": ["J2"]}},
+                    {"J1": 0.0, "J2": 0.0}, {"J1": 0.0, "J2": 1.0}, gravity=(0.0, 0.0), t_end=0.1, **tables)
+    with pytest.raises(SceneError) as info:
+        pcmm.load_scene(write_scene(folder, doc, {"arm.urdf": _arm_urdf()}))
+    return [p.split("scene.toml: ", 1)[1] for p in info.value.problems]
+
+
+# -- a cross-check's message names the table at fault by its place in the file, not by its place
+#    among the tables that were built (a table at fault before it is not built)
+
+def test_an_entry_guard_refusal_names_the_transitions_at_their_place_in_the_file(tmp_path):
+    configs = {"free": "arm.urdf", "locked": {"from": "free", "lock": ["J2"]}, "also": "arm.urdf"}
+    broken = {"name": "broken", "type": "release", "to": "free", "guard": {"type": "time", "at": 0.1}}  # no from
+    problems = _problems(tmp_path, configs, transitions=[broken, latch(), release(), release("second", target="also")])
+    assert problems[0].startswith("transitions[0] (broken).from: missing")
+    assert problems[1].startswith("transitions[3] (second).guard.type: = 'entry': transitions[2] (elbow release) "
+                                  "already leaves 'locked'"), problems
+
+
+def test_a_transition_cross_check_names_its_place_in_the_file(tmp_path):
+    broken = {"name": "broken", "type": "release", "to": "free", "guard": {"type": "time", "at": 0.1}}
+    wrong = release("to nowhere", target="nowhere", guard={"type": "time", "at": 0.05})
+    problems = _problems(tmp_path, transitions=[broken, latch(), wrong])
+    assert any(p.startswith("transitions[2] (to nowhere).to: = 'nowhere': no such configuration") for p in problems), \
+        problems
+
+
+def test_a_force_cross_check_names_its_place_in_the_file(tmp_path):
+    broken = {"name": "broken", "type": "torque", "value": 1.0}  # no on
+    spring = {"name": "elbow spring", "type": "spring", "on": {"joint": "J9"}, "measure": {"joint": "J2"},
+              "k": 2.0}
+    problems = _problems(tmp_path, forces=[broken, spring])
+    assert problems[0].startswith("forces[0] (broken).on: missing")
+    assert any(p.startswith("forces[1] (elbow spring).on.joint") for p in problems), problems
+
+
+def test_a_drive_cross_check_names_its_place_in_the_file(tmp_path):
+    broken = {"joint": "J1"}  # no coefficients
+    problems = _problems(tmp_path, drives=[broken, {"joint": "J9", "coefficients": [0.0, 1.0]}])
+    assert problems[0].startswith("drives[0].coefficients: missing")
+    assert any(p.startswith("drives[1].joint") for p in problems), problems
