@@ -62,3 +62,34 @@ def test_a_drive_cross_check_names_its_place_in_the_file(tmp_path):
     problems = _problems(tmp_path, drives=[broken, {"joint": "J9", "coefficients": [0.0, 1.0]}])
     assert problems[0].startswith("drives[0].coefficients: missing")
     assert any(p.startswith("drives[1].joint") for p in problems), problems
+
+
+# -- a table from before the impulse magnitude columns: the warning counts the rows it keeps
+
+def test_an_older_table_s_warning_counts_only_the_rows_it_keeps(tmp_path):
+    """Of an older table's two rows, one altered: the upgrade warning says 1 row keeps the new columns
+    empty (it said 2, counting the row dropped as altered, which its own line reports)."""
+    from pcmm.studies.sweep import make_plan, parse_set, sweep
+    from pcmm.studies.table import checksum
+    from test_audit3_pins import read_csv, write_block
+
+    path = write_block(tmp_path / "base")
+    out = tmp_path / "t.csv"
+    plan = make_plan([parse_set("scene.gravity[1]=-9.81,-6.0")])
+    sweep(pcmm.load_scene(path), plan, out, pcmm.RunOptions(t_end=0.5), workers=1)
+    rows = read_csv(out)
+    new_cols = ("first_impulse_magnitude", "peak_impulse_magnitude", "total_impulse_magnitude")
+    old_header = [c for c in rows[0] if c not in new_cols]
+    lines = [",".join(old_header)]
+    for k, row in enumerate(rows):
+        cells = [row[c] for c in old_header[:-1]]
+        check = checksum(cells)
+        if k == 1:
+            cells[-1] += "0"  # altered after its checksum
+        lines.append(",".join([*cells, check]))
+    out.write_text("\n".join(lines) + "\n")
+    res = sweep(pcmm.load_scene(path), plan, out, pcmm.RunOptions(t_end=0.5), workers=1, resume=True)
+    assert res.ran == 1  # the altered row's run, again
+    assert res.dropped[0].startswith("written before the columns first_impulse_magnitude, peak_impulse_magnitude, "
+                                     "total_impulse_magnitude: its 1 rows keep them empty"), res.dropped
+    assert res.dropped[1].startswith("line 3 (run "), res.dropped
