@@ -93,3 +93,16 @@ def test_an_older_table_s_warning_counts_only_the_rows_it_keeps(tmp_path):
     assert res.dropped[0].startswith("written before the columns first_impulse_magnitude, peak_impulse_magnitude, "
                                      "total_impulse_magnitude: its 1 rows keep them empty"), res.dropped
     assert res.dropped[1].startswith("line 3 (run "), res.dropped
+
+
+# -- a spring whose measure runs against its coordinate, in two configurations: said once
+
+def test_a_reversed_measure_is_refused_once_not_once_per_configuration(tmp_path):
+    """between = [fore, upper] is -J2: the refusal names forces[0].measure once, though the spring acts in
+    'free' and 'also' (the guard meant to say it once compared the message without its file prefix, so
+    it never matched and the same line came twice)."""
+    spring = {"name": "elbow spring", "type": "spring", "on": {"joint": "J2"},
+              "measure": {"between": ["fore", "upper"]}, "k": 2.0, "configurations": ["free", "also"]}
+    problems = _problems(tmp_path, {"free": "arm.urdf", "also": "arm.urdf"}, forces=[spring])
+    assert [p.split(":")[0] for p in problems] == ["forces[0] (elbow spring).measure"], problems
+    assert "so its stiffness drives that coordinate away from rest and feeds energy in" in problems[0], problems

@@ -453,6 +453,10 @@ class _Builder:
             for spec in out[start:end]:
                 self.places[id(spec)] = where
 
+    def _said(self, where: str) -> bool:
+        """A problem of ``where`` is reported already (a check run once per configuration says it once)."""
+        return any(x.startswith(f"{self.p.file}: {where}:") for x in self.p.items)
+
     def _place(self, spec, fallback: str) -> str:
         """Where ``spec``'s table stands in the file (``fallback`` for a spec built elsewhere)."""
         return self.places.get(id(spec), fallback)
@@ -1062,8 +1066,7 @@ class _Builder:
         """A force's ``on`` joint or a drive's joint is one coordinate: a planar joint's three
         (x, y, theta) were read as its x alone, silently."""
         j = config.info.joints.get(name)
-        if j is not None and j.type == "planar" and not any(x.startswith(f"{self.p.file}: {where}:")
-                                                            for x in self.p.items):
+        if j is not None and j.type == "planar" and not self._said(where):
             self.p.add(where, f"= {name!r}: a planar joint has three coordinates (x, y, theta) in configuration "
                        f"'{config.name}', and this acts along one (it was read as {name}.x alone); {advice}")
 
@@ -1163,8 +1166,7 @@ class _Builder:
                                          "body to the frame by one revolute or prismatic joint per coordinate")
                 else:
                     self._check_link(f"{where}.on.link", f.on.name, cfg)
-                    if f.on.name == cfg.info.root and not any(x.startswith(f"{self.p.file}: {where}.on.link:")
-                                                                for x in self.p.items):
+                    if f.on.name == cfg.info.root and not self._said(f"{where}.on.link"):
                         self.p.add(f"{where}.on.link", f"= {f.on.name!r}: the frame (the root of "
                                    f"{cfg.info.path.name}) does not move, so a torque on it does nothing; name the "
                                    "link it turns (on = { link = NAME }) or the joint it acts across "
@@ -1174,7 +1176,7 @@ class _Builder:
                 if tail and len(self.p.items) > n0:
                     self.p.items[-1] += tail
                 elif len(self.p.items) == n0 and (f.k > 0 or f.c > 0) and measure_sign(f, cfg) == -1 \
-                        and not any(p.startswith(f"{where}.measure:") for p in self.p.items):
+                        and not self._said(f"{where}.measure"):
                     self.p.add(f"{where}.measure", self._negative_element(f, cfg))
         for i, t in enumerate(scene.transitions):
             where = self._place(t, f"transitions[{i}] ({t.name})")
