@@ -106,3 +106,32 @@ def test_a_reversed_measure_is_refused_once_not_once_per_configuration(tmp_path)
     problems = _problems(tmp_path, {"free": "arm.urdf", "also": "arm.urdf"}, forces=[spring])
     assert [p.split(":")[0] for p in problems] == ["forces[0] (elbow spring).measure"], problems
     assert "so its stiffness drives that coordinate away from rest and feeds energy in" in problems[0], problems
+
+
+# -- pcmm check judges a release on entry's target as it judges any other transition's
+
+def _arm_urdf_elbow_at(x: float) -> str:
+    return robot_xml("arm", link_xml("frame"), joint_xml("J1", "revolute", "frame", "upper"),
+                     bar_xml("upper", 0.6, 1.2), joint_xml("J2", "revolute", "upper", "fore", xyz=(x, 0.0)),
+                     bar_xml("fore", 0.35, 0.5))
+
+
+def test_pcmm_check_finds_a_release_on_entry_into_a_urdf_that_places_the_links_elsewhere(tmp_path):
+    """'locked' is left on entry for 'other', whose URDF has the elbow 0.1 m nearer the shoulder: the
+    forearm would jump 0.1 m at the switch (the run stops there, naming the link).  pcmm check judged
+    a coordinate or gap guard's target for that, but followed an entry release's target unjudged."""
+    from pcmm.run.checks import check_scene
+    from test_entry_guard import ENTRY
+
+    doc = scene_doc({"free": "arm.urdf", "locked": {"from": "free", "lock": ["J2"]}, "other": "other.urdf"},
+                    {"J1": 0.0, "J2": 0.0}, {"J1": 0.0, "J2": 5.0}, gravity=(0.0, 0.0), t_end=0.3,
+                    transitions=[latch(), release(target="other", guard=ENTRY)])
+    path = write_scene(tmp_path, doc, {"arm.urdf": _arm_urdf(), "other.urdf": _arm_urdf_elbow_at(0.5)})
+    scene = pcmm.load_scene(path)
+    report = check_scene(scene)
+    found = [p for p in report.problems if p.split(": ", 1)[1].startswith("transitions[1] (elbow release).to:")]
+    assert found and "fore" in found[0], report.problems
+    # the run agrees: it stops at the switch, naming the link that would move
+    with pytest.raises(pcmm.errors.SimulationError) as info:
+        pcmm.simulate(scene)
+    assert "fore" in str(info.value) and "'locked' -> 'other'" in str(info.value)
