@@ -1,10 +1,13 @@
 """Defects found reviewing the changes since 57f9a16 (h-review3), one test per defect.
 
 Mechanism: the two-bar arm of tests/test_entry_guard.py (shoulder J1, elbow J2, 'locked' derived by
-locking J2), in scenes each with one table at fault before the one a cross-check refuses.
+locking J2); the loader's cases put one table at fault before the one a cross-check refuses.
 """
 from __future__ import annotations
 
+import math
+
+import numpy as np
 import pytest
 
 import pcmm
@@ -135,3 +138,37 @@ def test_pcmm_check_finds_a_release_on_entry_into_a_urdf_that_places_the_links_e
     with pytest.raises(pcmm.errors.SimulationError) as info:
         pcmm.simulate(scene)
     assert "fore" in str(info.value) and "'locked' -> 'other'" in str(info.value)
+
+
+# -- a reaction guard left past its value by a bounce, not by the entry
+
+def test_a_hold_that_a_bounce_leaves_past_a_release_s_value_is_said_as_the_bounce(tmp_path):
+    """The arm of tests/test_entry_guard.py latches its elbow (into 'locked', omega by hand), then its
+    shoulder bounces at a joint stop (e = 0.5: omega -> -omega / 2).  With the elbow locked and no load
+    the elbow's holding moment is the forearm's centripetal one, M2 (L2/2) L1 sin(LATCH) omega^2 (by
+    hand: the elbow point's acceleration L1 omega^2 towards the shoulder, about J2), so the bounce
+    drops it to a quarter at once.  A release watching it decrease through a value between the two is
+    past it after the bounce without a crossing: the warning said "where the configuration is entered"
+    (it was entered 0.33 s earlier, by the latch) and advised an entry guard, which would let the elbow
+    go at the latch instead."""
+    from test_entry_guard import L1, L2, LATCH, M2, arm, by_hand
+    from builders import stop
+
+    e = 0.5
+    _, omega, _ = by_hand(0.2)
+    held = M2 * (L2 / 2) * L1 * math.sin(LATCH) * omega ** 2  # N m, before the bounce
+    value = 0.6 * held
+    shoulder = stop("shoulder stop", "locked", e, {"type": "coordinate", "measure": {"joint": "J1"}, "value": 0.3,
+                                                   "direction": "increasing"}, {"joint": "J1", "arm": L1})
+    let_go = release("elbow let go", guard={"type": "reaction", "of": "J2", "value": value, "direction": "decreasing"})
+    traj = pcmm.simulate(pcmm.load_scene(arm(tmp_path, [latch(), shoulder, let_go], t_end=0.7)))
+    assert [ev["name"] for ev in traj.events] == ["elbow latch", "shoulder stop"]  # the release never fires
+    hold = traj.series("constraint_forces", "J2.hold")
+    hold = hold[~np.isnan(hold)]  # (held in 'locked' only)
+    assert abs(hold[0]) == pytest.approx(held, rel=1e-9) and abs(hold[-1]) == pytest.approx(e * e * held, rel=1e-9)
+    (said,) = [w for w in traj.stats["warnings"] if "'elbow let go'" in w]
+    t_bounce = traj.events[1]["t"]
+    assert said.startswith(f"t = {t_bounce:.9g} s, configuration 'locked': the release 'elbow let go' watches the "
+                           f"holding force of 'J2' cross {value:.9g} decreasing, but the bounce at 'shoulder stop' left it "
+                           f"{value - e * e * held:.6g} past that value"), said
+    assert "entered" not in said and "type = \"entry\"" not in said
