@@ -609,7 +609,7 @@ def check_scene(scene: Scene, mechanism: Mechanism | None = None) -> CheckReport
         for tr in scene.transitions_from(name):
             here = f"{where}: transitions[{scene.transitions.index(tr)}] ({tr.name})"
             if tr.guard.type == "entry":  # fired where the run enters: its target starts at that posture
-                _enter_on_entry(mech, report, cfg, tr, here, starts, entered, todo)
+                _enter_on_entry(scene, mech, report, cfg, tr, here, starts, entered, todo)
                 continue
             if tr.guard.type not in ("coordinate", "gap"):  # time and reaction guards fix no posture
                 continue
@@ -621,24 +621,15 @@ def check_scene(scene: Scene, mechanism: Mechanism | None = None) -> CheckReport
     return report
 
 
-def _enter_on_entry(mech: Mechanism, report: CheckReport, cfg: Configuration, tr: TransitionSpec, here: str,
-                    starts: dict, entered: dict, todo: list) -> None:
+def _enter_on_entry(scene: Scene, mech: Mechanism, report: CheckReport, cfg: Configuration, tr: TransitionSpec,
+                    here: str, starts: dict, entered: dict, todo: list) -> None:
     """A release fired on entry (``guard = { type = "entry" }``) leaves ``cfg`` at the posture the run
-    enters it at, so its target is judged from there, as the run reaches it (a pinned point anchored
-    where it is: where it struck)."""
-    if tr.target in starts:
-        return
-    q = starts[cfg.name][0]
-    try:
-        dst = mech.enter(tr.target, cfg, q)
-        entered.setdefault(tr.target, dst)
-        q_dst, _, _ = map_state(cfg, dst, q, np.zeros(cfg.nv))
-        anchor_where_entered(dst, q_dst)
-    except PcmmError as exc:
-        report.problems += [f"{here}.to: {p}" for p in exc.problems]
-        return
-    starts[tr.target] = (q_dst, None)  # the velocity after the switch is not known here
-    todo.append(tr.target)
+    enters it at, so its target is judged from there as any transition's is at its guard's posture
+    (:func:`_check_target`: the links placed alike, the target's rows), and followed (a pinned point
+    anchored where it is: where it struck)."""
+    if tr.target is not None and tr.target in scene.configurations:
+        _check_target(scene, mech, report, cfg, tr, starts[cfg.name][0], here, None, starts, entered, todo,
+                      f"where '{cfg.name}' is entered")
 
 
 def _check_transition(scene: Scene, mech: Mechanism, report: CheckReport, cfg: Configuration, tr: TransitionSpec,
@@ -679,8 +670,19 @@ def _check_transition(scene: Scene, mech: Mechanism, report: CheckReport, cfg: C
     for f in contact_findings(cfg, tr, q, warnings=True):
         (report.warnings if f.warning else report.problems).append(f"{here}.{f.field}: {f.text}")
     target = tr.merge_to if tr.type == "stop" else tr.target
-    if target is None or target not in scene.configurations:
-        return how
+    if target is not None and target in scene.configurations:
+        _check_target(scene, mech, report, cfg, tr, q, here, stuck, starts, entered, todo,
+                      f"at the guard value ({tr.guard.measure} = {tr.guard.value:.12g})")
+    return how
+
+
+def _check_target(scene: Scene, mech: Mechanism, report: CheckReport, cfg: Configuration, tr: TransitionSpec,
+                  q: np.ndarray, here: str, stuck, starts: dict, entered: dict, todo: list, at: str) -> None:
+    """The checks of ``tr``'s target (its ``merge_to`` or ``to``) entered from ``cfg`` at the posture
+    ``q`` (``at`` says which): every shared link placed alike, the target's rows at the switch
+    (:func:`entry_redundancy`, not past a strike that stops the run: ``stuck``); then the target is
+    followed from there."""
+    target = tr.merge_to if tr.type == "stop" else tr.target
     key = "merge_to" if tr.type == "stop" else "to"
     try:
         dst = mech.enter(target, cfg, q)  # a derived target locks the values the guard gives
@@ -690,15 +692,14 @@ def _check_transition(scene: Scene, mech: Mechanism, report: CheckReport, cfg: C
         _, mismatches = pose_mismatches(cfg, dst, q, q_dst)
     except PcmmError as exc:
         report.problems += [f"{here}.{key}: {p}" for p in exc.problems]
-        return how
-    report.problems += [f"{here}.{key}: at the guard value ({tr.guard.measure} = {tr.guard.value:.12g}) "
-                        f"{m}; the two URDFs must place every shared link identically there "
+        return
+    report.problems += [f"{here}.{key}: {at} {m}; the two URDFs must place every shared link identically there "
                         "(check the fixed joint's origin in the merged configuration)" for m in mismatches]
     try:  # (not past a strike that stops the run: the target is never entered)
         rows, consistent, loose = (None, True, []) if stuck else entry_redundancy(scene, cfg, dst, tr, q, q_dst)
     except PcmmError as exc:
         report.problems += [f"{here}.{key}: {p}" for p in exc.problems]
-        return how
+        return
     if rows is not None:
         (report.warnings if consistent else report.problems).append(f"{here}.{key}: {rows}")
         if consistent:
@@ -706,4 +707,3 @@ def _check_transition(scene: Scene, mech: Mechanism, report: CheckReport, cfg: C
     if target not in starts:
         starts[target] = (q_dst, None)  # the velocity after the switch is not known here
         todo.append(target)
-    return how

@@ -195,7 +195,8 @@ def integrate_segment(run: RunState, progress):
     leaving = []  # guards at their value whose contact does not approach (_pending): re-armed, not crossed
     pending = None if run.phase is not None else _pending(cfg, guards, t, y0, leaving)
     if run.phase is None:
-        run.traj.stats["warnings"] += _releases_past_at_entry(cfg, guards, t, y0, run.traj.stats["warnings"])
+        run.traj.stats["warnings"] += _releases_past_at_entry(cfg, guards, t, y0, run.traj.stats["warnings"],
+                                                              bounced)
     leaving = [i for i in leaving if guards[i].transition is not bounced]  # (that one is re-armed already)
     if pending is None and leaving:
         guards = left_at_value(cfg, guards, leaving, t)
@@ -551,13 +552,15 @@ def _on_state(guards: list, n: int, cache: GuardCache) -> list:
     return out
 
 
-def _releases_past_at_entry(cfg: Configuration, guards, t, y0, said) -> list[str]:
+def _releases_past_at_entry(cfg: Configuration, guards, t, y0, said, bounced=None) -> list[str]:
     """Warnings, once per configuration and release: a scene's release whose reaction guard (on a
-    lock's holding force) is already past its value where a segment of ``cfg`` starts.  A guard fires
-    on a crossing in its direction only, so such a release waits for the force to come back and cross
-    again, and may never fire; the run's closest approach describes the final configuration only (a
-    kneed walker's trailing knee, tensile from the heel strike on, stayed locked for the whole step
-    and nothing said so)."""
+    lock's holding force) is already past its value where a segment of ``cfg`` starts: where the run
+    enters ``cfg``, or after a bounce in it (``bounced``, the stop: its impulse changes the velocities,
+    and so the holding force, at once, which is no crossing).  A guard fires on a crossing in its
+    direction only, so such a release waits for the force to come back and cross again, and may never
+    fire; the run's closest approach describes the final configuration only (a kneed walker's
+    trailing knee, tensile from the heel strike on, stayed locked for the whole step and nothing said
+    so)."""
     out = []
     for g in guards:
         tr = g.transition
@@ -570,11 +573,14 @@ def _releases_past_at_entry(cfg: Configuration, guards, t, y0, said) -> list[str
         past = tr.guard.direction * g(t, y0)
         if past > 0:
             way = "increasing" if tr.guard.direction > 0 else "decreasing"
+            where = (f"it is already {past:.6g} past that value where the configuration is entered" if bounced is None
+                     else f"the bounce at '{bounced.name}' left it {past:.6g} past that value (an impulse changes "
+                     "it at once, which is no crossing)")
+            advice = ("; a release meant at the instant the configuration is entered takes "
+                      "guard = { type = \"entry\" }" if bounced is None else "")
             out.append(f"t = {t:.9g} s, {key} the holding force of '{tr.guard.of}' cross {tr.guard.value:.9g} "
-                       f"{way}, but it is already {past:.6g} past that value where the configuration is entered: "
-                       "a guard fires on a crossing in its direction only, so the release waits for the force to "
-                       "come back and cross again (it may never fire); a release meant at the instant the "
-                       "configuration is entered takes guard = { type = \"entry\" }")
+                       f"{way}, but {where}: a guard fires on a crossing in its direction only, so the release "
+                       f"waits for the force to come back and cross again (it may never fire){advice}")
     return out
 
 

@@ -449,8 +449,25 @@ class _Builder:
         # configurations the file declares, valid or not: a reference to one whose own table is at
         # fault is not reported again as "no such configuration" (its own problem says it)
         self.declared: set[str] = set()
+        # id(spec) -> the place of its table in the file (``transitions[3] (name)``): a table at fault
+        # is not built, so a built spec's index among its kind's specs is not its place in the file
+        self.places: dict[int, str] = {}
 
     # -- helpers
+    def _placed(self, out: list, marks: list[tuple[int, str]]) -> None:
+        """Note the place of each spec of ``out`` (``marks``: (len(out), place) where each table's build
+        began), for the cross-checks' messages (:meth:`_place`)."""
+        for (start, where), (end, _) in zip(marks, marks[1:] + [(len(out), "")]):
+            for spec in out[start:end]:
+                self.places[id(spec)] = where
+
+    def _said(self, where: str) -> bool:
+        """A problem of ``where`` is reported already (a check run once per configuration says it once)."""
+        return any(x.startswith(f"{self.p.file}: {where}:") for x in self.p.items)
+
+    def _place(self, spec, fallback: str) -> str:
+        """Where ``spec``'s table stands in the file (``fallback`` for a spec built elsewhere)."""
+        return self.places.get(id(spec), fallback)
     def _measure(self, table, where) -> Measure | None:
         m = S.check_table(table, MEASURE_KEYS, where, self.p)
         given = [k for k in ("joint", "link", "between") if m.get(k) is not None]
@@ -619,11 +636,12 @@ class _Builder:
         return tuple(cuts)
 
     def _forces(self, items) -> list[ForceSpec]:
-        out = []
+        out, marks = [], []
         for where, f, raw in self._list_of_tables(
                 items, FORCE_KEYS, "forces",
                 unique="each force element needs its own name: its force and energy are reported over time under "
                        "it, and a second element of that name would overwrite the first's series"):
+            marks.append((len(out), where))
             if f["type"] is None or f["name"] is None:
                 continue
             if "configurations" in raw and f["configurations"] is None:
@@ -655,6 +673,7 @@ class _Builder:
             out.append(ForceSpec(f["name"], f["type"], on, measure, float(f["value"]), float(f["k"]),
                                  float(f["rest"]), float(f["c"]),
                                  tuple(f["configurations"]) if f["configurations"] else None))
+        self._placed(out, marks)
         return out
 
     def _point_spring(self, where, f, raw) -> list[ForceSpec]:
@@ -687,11 +706,12 @@ class _Builder:
                                     tuple(float(x) for x in f["point_b"])))]
 
     def _transitions(self, items, configs) -> list[LatchSpec | StopSpec | ReleaseSpec]:
-        out = []
+        out, marks = [], []
         for where, t, raw in self._list_of_tables(
                 items, TRANSITION_KEYS, "transitions",
                 unique="each transition needs its own name: its events, a stop's holding force (NAME.hold) and "
                        "bounce interval, and a reaction guard's of are keyed by it"):
+            marks.append((len(out), where))
             if None in (t["name"], t["type"], t["from"], t["guard"]):
                 continue
             kind = t["type"]
@@ -795,6 +815,7 @@ class _Builder:
                     accumulation_speed=t["accumulation_speed"], accumulation_interval=t["accumulation_interval"],
                     law=t["law"] or "impulse", stiffness=t["stiffness"], exponent=t["exponent"],
                     unmerge=t["unmerge"]))
+        self._placed(out, marks)
         return out
 
     def _guard(self, table, where, kind) -> GuardSpec | None:
@@ -911,14 +932,16 @@ class _Builder:
                            stop_value=float(value), stop_sign=sign * guard.direction)
 
     def _drives(self, items) -> list[DriveSpec]:
-        out = []
+        out, marks = [], []
         for where, d, raw in self._list_of_tables(items, DRIVE_KEYS, "drives"):
+            marks.append((len(out), where))
             if None in (d["joint"], d["coefficients"]):
                 continue
             if "configurations" in raw and d["configurations"] is None:
                 continue  # its list is at fault (said): read as None it would drive in every configuration
             out.append(DriveSpec(d["joint"], tuple(float(x) for x in d["coefficients"]),
                                  tuple(d["configurations"]) if d["configurations"] else None))
+        self._placed(out, marks)
         return out
 
     def _joint_values(self, table, where, config: ConfigurationSpec | None) -> dict[str, float]:
@@ -1027,7 +1050,7 @@ class _Builder:
                 kept[name] = "independent"
         for d in scene.drives:
             if d.joint in joints and (d.configurations is None or cfg.name in d.configurations):
-                kept.setdefault(d.joint, f"driven by drives[{scene.drives.index(d)}]")
+                kept.setdefault(d.joint, f"driven by {self._place(d, f'drives[{scene.drives.index(d)}]')}")
         free = total - len(kept)
         if sum(rows.values()) <= free:
             return
@@ -1051,8 +1074,7 @@ class _Builder:
         """A force's ``on`` joint or a drive's joint is one coordinate: a planar joint's three
         (x, y, theta) were read as its x alone, silently."""
         j = config.info.joints.get(name)
-        if j is not None and j.type == "planar" and not any(x.startswith(f"{self.p.file}: {where}:")
-                                                            for x in self.p.items):
+        if j is not None and j.type == "planar" and not self._said(where):
             self.p.add(where, f"= {name!r}: a planar joint has three coordinates (x, y, theta) in configuration "
                        f"'{config.name}', and this acts along one (it was read as {name}.x alone); {advice}")
 
@@ -1113,8 +1135,8 @@ class _Builder:
                 continue
             if t.source in entry:
                 j, first = entry[t.source]
-                self.p.add(f"transitions[{i}] ({t.name}).guard.type",
-                           f"= 'entry': transitions[{j}] ({first.name}) already leaves '{t.source}' the instant it is "
+                self.p.add(f"{self._place(t, f'transitions[{i}] ({t.name})')}.guard.type",
+                           f"= 'entry': {self._place(first, f'transitions[{j}] ({first.name})')} already leaves '{t.source}' the instant it is "
                            "entered, so this release would never fire; give one of them another guard")
                 continue
             entry[t.source] = (i, t)
@@ -1130,7 +1152,7 @@ class _Builder:
             reported.update(loop)
             i, t = entry[at]
             names = " -> ".join(f"'{c}' ({entry[c][1].name})" for c in loop) + f" -> '{at}'"
-            self.p.add(f"transitions[{i}] ({t.name}).guard.type",
+            self.p.add(f"{self._place(t, f'transitions[{i}] ({t.name})')}.guard.type",
                        f"= 'entry': the releases fired on entry form a cycle, {names}: entering any of them the run "
                        "would switch round it for ever at one instant; give one of them another guard")
 
@@ -1138,7 +1160,7 @@ class _Builder:
         names = scene.configurations
         self._entry_guards(scene)
         for i, f in enumerate(scene.forces):
-            where = f"forces[{i}] ({f.name})"
+            where = self._place(f, f"forces[{i}] ({f.name})")
             for cfg in self._configs_for(f"{where}.configurations", f.configurations, scene):
                 tail = "" if f.configurations else " (the force applies in every configuration unless it lists configurations)"
                 n0 = len(self.p.items)
@@ -1152,8 +1174,7 @@ class _Builder:
                                          "body to the frame by one revolute or prismatic joint per coordinate")
                 else:
                     self._check_link(f"{where}.on.link", f.on.name, cfg)
-                    if f.on.name == cfg.info.root and not any(x.startswith(f"{self.p.file}: {where}.on.link:")
-                                                                for x in self.p.items):
+                    if f.on.name == cfg.info.root and not self._said(f"{where}.on.link"):
                         self.p.add(f"{where}.on.link", f"= {f.on.name!r}: the frame (the root of "
                                    f"{cfg.info.path.name}) does not move, so a torque on it does nothing; name the "
                                    "link it turns (on = { link = NAME }) or the joint it acts across "
@@ -1163,10 +1184,10 @@ class _Builder:
                 if tail and len(self.p.items) > n0:
                     self.p.items[-1] += tail
                 elif len(self.p.items) == n0 and (f.k > 0 or f.c > 0) and measure_sign(f, cfg) == -1 \
-                        and not any(p.startswith(f"{where}.measure:") for p in self.p.items):
+                        and not self._said(f"{where}.measure"):
                     self.p.add(f"{where}.measure", self._negative_element(f, cfg))
         for i, t in enumerate(scene.transitions):
-            where = f"transitions[{i}] ({t.name})"
+            where = self._place(t, f"transitions[{i}] ({t.name})")
             for key, ref in (("from", t.source), ("to", getattr(t, "target", None)),
                              ("merge_to", getattr(t, "merge_to", None))):
                 if ref is not None and ref not in names and ref not in self.declared:
@@ -1259,16 +1280,17 @@ class _Builder:
                 self.p.add("initial.branch", f"configuration '{init_cfg.name}' has no loop (no cut_joints), so it has "
                            "one assembly, the posture [initial] q gives, and branch would be ignored; remove it, or "
                            "give q the sign wanted")
-        driven: dict[tuple[str, str], int] = {}  # (configuration, joint) -> the drive that prescribes it
+        driven: dict[tuple[str, str], str] = {}  # (configuration, joint) -> the drive that prescribes it
         for i, d in enumerate(scene.drives):
-            for cfg in self._configs_for(f"drives[{i}].configurations", d.configurations, scene):
-                self._check_joint(f"drives[{i}].joint", d.joint, cfg)
-                self._one_coordinate(f"drives[{i}].joint", d.joint, cfg,
+            dw = self._place(d, f"drives[{i}]")
+            for cfg in self._configs_for(f"{dw}.configurations", d.configurations, scene):
+                self._check_joint(f"{dw}.joint", d.joint, cfg)
+                self._one_coordinate(f"{dw}.joint", d.joint, cfg,
                                      "a drive prescribes one coordinate: give the body one revolute or prismatic "
                                      "joint per coordinate to drive")
-                first = driven.setdefault((cfg.name, d.joint), i)
-                if first != i:
-                    self.p.add(f"drives[{i}].joint", f"= {d.joint!r}: already driven by drives[{first}] in "
+                first = driven.setdefault((cfg.name, d.joint), dw)
+                if first != dw:
+                    self.p.add(f"{dw}.joint", f"= {d.joint!r}: already driven by {first} in "
                                f"configuration '{cfg.name}'; a coordinate follows one prescribed motion (two drives "
                                "of one joint are two constraints on one coordinate); give each drive the "
                                "configurations it acts in")

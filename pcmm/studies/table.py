@@ -182,16 +182,17 @@ class ResultsTable:
         if not missing or [c for c in header if c in old] != old or \
                 not set(missing) <= {spreadsheet_text(q) for q in QUANTITIES}:
             return False
-        upgraded = [header]
+        upgraded, whole = [header], 0
         for cells in rows[1:]:
             if len(cells) != len(old) or checksum(cells[:-1]) != cells[-1]:
-                upgraded.append(cells)  # dropped below, as a cut or altered row is
+                upgraded.append(cells)  # dropped below (and said there), as a cut or altered row is
                 continue
             by_column = dict(zip(old, cells))
             new = [by_column.get(c, "") for c in header[:-1]]
             upgraded.append([*new, checksum(new)])
+            whole += 1
         rows[:] = upgraded
-        self.dropped.append(f"written before the columns {', '.join(missing)}: its {len(upgraded) - 1} rows keep "
+        self.dropped.append(f"written before the columns {', '.join(missing)}: its {whole} rows keep "
                             "them empty (the table is rewritten with them; --force runs every row again)")
         return True
 
