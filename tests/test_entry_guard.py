@@ -154,7 +154,7 @@ def test_an_entry_guard_on_a_latch_is_refused(tmp_path):
 
 def test_an_entry_guard_with_other_keys_is_refused(tmp_path):
     text = _refused(tmp_path, [latch(), release(guard={"type": "entry", "at": 0.1})])
-    assert "transitions[1] (elbow release).guard.at: not used by a entry guard" in text
+    assert "transitions[1] (elbow release).guard.at: not used by an entry guard" in text
 
 
 def test_two_entry_guards_from_one_configuration_are_refused(tmp_path):

@@ -834,10 +834,12 @@ class _Builder:
             return None
         ok = not failed
         for k in sorted(needs - given):
-            self.p.add(f"{where}.{k}", f"missing; a {g['type']} guard needs {', '.join(sorted(needs))}")
+            self.p.add(f"{where}.{k}", f"missing; {'an' if g['type'][0] in 'aeiou' else 'a'} {g['type']} guard needs "
+                       f"{', '.join(sorted(needs))}")
             ok = False
         for k in sorted(given - allowed):
-            self.p.add(f"{where}.{k}", f"not used by a {g['type']} guard (it takes "
+            article = "an" if g["type"][0] in "aeiou" else "a"
+            self.p.add(f"{where}.{k}", f"not used by {article} {g['type']} guard (it takes "
                        f"{', '.join(sorted(allowed)) or 'no other key: it fires the instant its configuration is entered'})")
             ok = False
         if g["type"] == "entry" and kind != "release":
