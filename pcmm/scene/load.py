@@ -1172,7 +1172,7 @@ class _Builder:
                 elif f.on.kind == "joint":
                     self._check_joint(f"{where}.on.joint", f.on.name, cfg)
                     self._one_coordinate(f"{where}.on.joint", f.on.name, cfg,
-                                         f"act on its link instead (on = {{ link = NAME }}: a torque), or join the "
+                                         "act on its link instead (on = { link = NAME }: a torque), or join the "
                                          "body to the frame by one revolute or prismatic joint per coordinate")
                 else:
                     self._check_link(f"{where}.on.link", f.on.name, cfg)
