@@ -466,6 +466,17 @@ def four_bar_latch(folder: Path, torque: float = 0.6, t_end: float = 1.2) -> Pat
 
 
 # ---- planar geometry of hand derivations ------------------------------------------------------------
+def arm_mass_matrix(q2: float, m1: float, l1: float, m2: float, l2: float) -> np.ndarray:
+    """The mass matrix of two uniform bars (m1, l1 on J1 at the frame; m2, l2 on J2 at link 1's tip)
+    in (J1, J2), J1 absolute and J2 relative, by hand (Lagrange; centroids at mid-length)."""
+    I1, I2 = m1 * l1 * l1 / 12, m2 * l2 * l2 / 12
+    c = math.cos(q2)
+    m22 = I2 + m2 * (l2 / 2) ** 2
+    m12 = m22 + m2 * l1 * (l2 / 2) * c
+    m11 = I1 + m1 * (l1 / 2) ** 2 + I2 + m2 * (l1 * l1 + (l2 / 2) ** 2 + l1 * l2 * c)
+    return np.array([[m11, m12], [m12, m22]])
+
+
 def rot(theta: float) -> np.ndarray:
     c, s = math.cos(theta), math.sin(theta)
     return np.array([[c, -s], [s, c]])

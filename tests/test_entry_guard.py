@@ -24,7 +24,7 @@ import pcmm
 from pcmm.errors import SceneError
 from pcmm.run.checks import check_scene
 
-from builders import bar_xml, dump_toml, joint_xml, link_xml, robot_xml, scene_doc, write_scene
+from builders import arm_mass_matrix, bar_xml, dump_toml, joint_xml, link_xml, robot_xml, scene_doc, write_scene
 
 L1, L2, M1, M2 = 0.6, 0.35, 1.2, 0.5
 LATCH = 0.6     # the elbow angle J2 the latch locks at (increasing)
@@ -58,13 +58,8 @@ def arm(folder: Path, transitions=None, t_end: float = 0.8, configs=None) -> Pat
 
 
 def _mass(q2):
-    """The arm's mass matrix in (J1, J2) (J1 absolute, J2 relative), uniform bars."""
-    I1, I2 = M1 * L1 * L1 / 12, M2 * L2 * L2 / 12
-    c = math.cos(q2)
-    m22 = I2 + M2 * (L2 / 2) ** 2
-    m12 = m22 + M2 * L1 * (L2 / 2) * c
-    m11 = I1 + M1 * (L1 / 2) ** 2 + I2 + M2 * (L1 * L1 + (L2 / 2) ** 2 + L1 * L2 * c)
-    return np.array([[m11, m12], [m12, m22]])
+    """The arm's mass matrix in (J1, J2) (:func:`builders.arm_mass_matrix`, by hand)."""
+    return arm_mass_matrix(q2, M1, L1, M2, L2)
 
 
 def _free(t, y):

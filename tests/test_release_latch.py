@@ -27,7 +27,7 @@ from scipy.integrate import solve_ivp
 import pcmm
 from pcmm.run import loop
 
-from builders import Bar, bar_xml, chain_urdf, joint_xml, link_xml, robot_xml, scene_doc, write_scene
+from builders import Bar, arm_mass_matrix, bar_xml, chain_urdf, joint_xml, link_xml, robot_xml, scene_doc, write_scene
 
 # ---- a two-bar arm in a horizontal plane, its elbow latched and let go by a timer ------------------
 L1, L2, M1, M2 = 0.5, 0.4, 1.0, 0.6
@@ -62,13 +62,8 @@ def arm(folder: Path, t_end: float = 1.0, contact: str = "joint") -> Path:
 
 
 def _mass(q2):
-    """The arm's mass matrix in (J1, J2) (J1 absolute, J2 relative), bars' centroids at mid-length."""
-    I1, I2 = M1 * L1 * L1 / 12, M2 * L2 * L2 / 12
-    c = math.cos(q2)
-    m22 = I2 + M2 * (L2 / 2) ** 2
-    m12 = m22 + M2 * L1 * (L2 / 2) * c
-    m11 = I1 + M1 * (L1 / 2) ** 2 + I2 + M2 * (L1 * L1 + (L2 / 2) ** 2 + L1 * L2 * c)
-    return np.array([[m11, m12], [m12, m22]])
+    """The arm's mass matrix in (J1, J2) (:func:`builders.arm_mass_matrix`, by hand)."""
+    return arm_mass_matrix(q2, M1, L1, M2, L2)
 
 
 def _free(t, y):
