@@ -477,6 +477,15 @@ def arm_mass_matrix(q2: float, m1: float, l1: float, m2: float, l2: float) -> np
     return np.array([[m11, m12], [m12, m22]])
 
 
+def arm_free_rates(y, m1: float, l1: float, m2: float, l2: float, k: float = 0.0, c: float = 0.0) -> list:
+    """d/dt (q1, q2, w1, w2) of the free two-bar arm of :func:`arm_mass_matrix`, no gravity, with a
+    torsion spring k and a damper c on J2: M q'' + c(q, q') = (0, -k q2 - c q2') (Lagrange, by hand)."""
+    _, q2, w1, w2 = y
+    h = m2 * l1 * (l2 / 2) * math.sin(q2)
+    rhs = np.array([h * (2 * w1 * w2 + w2 * w2), -h * w1 * w1 - k * q2 - c * w2])
+    return [w1, w2, *np.linalg.solve(arm_mass_matrix(q2, m1, l1, m2, l2), rhs)]
+
+
 def rot(theta: float) -> np.ndarray:
     c, s = math.cos(theta), math.sin(theta)
     return np.array([[c, -s], [s, c]])

@@ -12,7 +12,6 @@ damper takes energy away.
 """
 from __future__ import annotations
 
-import math
 import tomllib
 from pathlib import Path
 
@@ -24,7 +23,7 @@ import pcmm
 from pcmm.errors import SceneError
 from pcmm.run.checks import check_scene
 
-from builders import arm_mass_matrix, bar_xml, dump_toml, joint_xml, link_xml, robot_xml, scene_doc, write_scene
+from builders import arm_free_rates, arm_mass_matrix, bar_xml, dump_toml, joint_xml, link_xml, robot_xml, scene_doc, write_scene
 
 L1, L2, M1, M2 = 0.6, 0.35, 1.2, 0.5
 LATCH = 0.6     # the elbow angle J2 the latch locks at (increasing)
@@ -63,11 +62,8 @@ def _mass(q2):
 
 
 def _free(t, y):
-    """M q'' + c(q, q') = (0, -C q2'): the free arm's equations (Lagrange, by hand)."""
-    _, q2, w1, w2 = y
-    h = M2 * L1 * (L2 / 2) * math.sin(q2)
-    rhs = np.array([h * (2 * w1 * w2 + w2 * w2), -h * w1 * w1 - C * w2])
-    return [w1, w2, *np.linalg.solve(_mass(q2), rhs)]
+    """The free arm's equations of motion (:func:`builders.arm_free_rates`, by hand)."""
+    return arm_free_rates(y, M1, L1, M2, L2, c=C)
 
 
 def by_hand(t_end):

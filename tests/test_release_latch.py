@@ -27,7 +27,7 @@ from scipy.integrate import solve_ivp
 import pcmm
 from pcmm.run import loop
 
-from builders import Bar, arm_mass_matrix, bar_xml, chain_urdf, joint_xml, link_xml, robot_xml, scene_doc, write_scene
+from builders import Bar, arm_free_rates, arm_mass_matrix, bar_xml, chain_urdf, joint_xml, link_xml, robot_xml, scene_doc, write_scene
 
 # ---- a two-bar arm in a horizontal plane, its elbow latched and let go by a timer ------------------
 L1, L2, M1, M2 = 0.5, 0.4, 1.0, 0.6
@@ -67,11 +67,8 @@ def _mass(q2):
 
 
 def _free(t, y):
-    """The free arm's equations of motion (Lagrange, by hand): M q'' + c(q, q') = (0, -K q2 - C q2')."""
-    _, q2, w1, w2 = y
-    h = M2 * L1 * (L2 / 2) * math.sin(q2)
-    rhs = np.array([h * (2 * w1 * w2 + w2 * w2), -h * w1 * w1 - K * q2 - C * w2])
-    return [w1, w2, *np.linalg.solve(_mass(q2), rhs)]
+    """The free arm's equations of motion (:func:`builders.arm_free_rates`, by hand)."""
+    return arm_free_rates(y, M1, L1, M2, L2, k=K, c=C)
 
 
 def by_hand(t_end: float):
