@@ -120,12 +120,9 @@ class Holds:
         self._noted.add(key)
         if self.reference(cfg) is None:  # recorded as NaN (pcmm.run.recording.holding_forces); a guard stops
             labels = [f"{h.label}.hold" for h in self.items]
-            cuts = ", ".join(s.name for s in cfg.spec.cut_joints)
             return [f"t = {t:.9g} s, configuration '{cfg.name}': the holding force{'s' if len(labels) > 1 else ''} "
-                    f"{', '.join(labels)} cannot be solved here: no configuration of the scene has its joints plus "
-                    f"{', '.join(sorted(set().union(*(h.joints for h in self.items))))} free, its drives and its "
-                    f"cut joints ({cuts or 'none'}): NaN in the series, left out of stats.holding; add such a "
-                    "configuration to have them"]
+                    f"{', '.join(labels)} cannot be solved here: {self._no_reference(cfg, '')}: NaN in the series, "
+                    "left out of stats.holding; add such a configuration to have them"]
         try:
             _, _, _, R, _, m, owners, _, _ = self._rows(cfg, t, q, v)
         except PcmmError:  # a hold that cannot be solved here says so where it is read
@@ -178,15 +175,13 @@ class Holds:
             need = set(cfg.joint_names).union(*(h.joints for h in self.items))
             drives = {(d.joint, d.coefficients) for d in self.scene.drives_in(cfg.name)}
             sources = {h.free_in for h in self.items}
-            # the same loops and pinned points: another cut joint (a foot pinned elsewhere, or none)
-            # is another mechanism, whose multipliers are not this one's holding forces
-            cuts = set(cfg.spec.cut_joints)
-            # and exactly these joints free: a joint that ``cfg`` locks and no hold holds, free in the
-            # reference, would be solved as free (the walker's swing knee, locked, read as free)
-            fits = [(len(js), name not in sources, name) for name, js in self._joint_sets().items()
+            # exactly these joints free (a joint that ``cfg`` locks and no hold holds, free in the
+            # reference, would be solved as free: the walker's swing knee, locked, read as free), the
+            # same drives and the same cut joints (:meth:`_same_cut_joints`)
+            fits = [(name not in sources, name) for name, js in self._joint_sets().items()
                     if need == js and {(d.joint, d.coefficients) for d in self.scene.drives_in(name)} == drives
-                    and set(self.scene.configurations[name].cut_joints) == cuts]
-            self._refs[key] = min(fits)[2] if fits else None
+                    and self._same_cut_joints(name, cfg)]
+            self._refs[key] = min(fits)[1] if fits else None
         return self._refs[key]
 
     def _forces_on(self, ref: Configuration, cfg: Configuration):
@@ -228,11 +223,22 @@ class Holds:
                     out.append(f)
         return out
 
+    def _no_reference(self, cfg: Configuration, held: str) -> str:
+        """Why :meth:`reference` finds none for ``cfg`` (``held``: the words before the held joints)."""
+        joints = ", ".join(sorted(set().union(*(h.joints for h in self.items))))
+        cuts = ", ".join(s.name for s in cfg.spec.cut_joints) or "none"
+        return (f"no configuration of the scene has its joints plus {held}{joints} free, its drives and its "
+                f"cut joints ({cuts})")
+
+    def _same_cut_joints(self, name: str, cfg: Configuration) -> bool:
+        """Configuration ``name`` has ``cfg``'s cut joints: the same loops and pinned points (another cut
+        joint, a foot pinned elsewhere or none, is another mechanism, whose multipliers are not this one's)."""
+        return set(self.scene.configurations[name].cut_joints) == set(cfg.spec.cut_joints)
+
     def release_target(self, hold: Hold, cfg: Configuration) -> str:
         need = set(cfg.joint_names) | set(hold.joints)
-        cuts = set(cfg.spec.cut_joints)  # the same loops and pinned points (a walker's stance foot, not the other)
-        for name, js in self._joint_sets().items():
-            if js == need and set(self.scene.configurations[name].cut_joints) == cuts:
+        for name, js in self._joint_sets().items():  # (a walker's stance foot, not the other)
+            if js == need and self._same_cut_joints(name, cfg):
                 return name
         raise SimulationError(
             f"configuration '{cfg.name}': the merge of '{hold.label}' is held by compression only "
@@ -276,12 +282,10 @@ class Holds:
         if ref is None:
             ref_name = self.reference(cfg)
             if ref_name is None:
-                cuts = ", ".join(s.name for s in cfg.spec.cut_joints)
                 raise SimulationError(
-                    f"configuration '{cfg.name}': no configuration of the scene has its joints plus the locked "
-                    f"{', '.join(sorted(set().union(*(h.joints for h in self.items))))} free, its drives "
-                    f"and its cut joints ({cuts or 'none'}), so the holding forces cannot be computed; add one "
-                    f"(e.g. derived from the same URDF, locking only the joints '{cfg.name}' locks that are not held)")
+                    f"configuration '{cfg.name}': {self._no_reference(cfg, 'the locked ')}, so the holding forces "
+                    f"cannot be computed; add one (e.g. derived from the same URDF, locking only the joints "
+                    f"'{cfg.name}' locks that are not held)")
             ref = self.mechanism[ref_name]
         qs, vs = np.zeros(ref.nv), np.zeros(ref.nv)
         for name in ref.joint_names:
