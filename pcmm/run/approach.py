@@ -110,15 +110,11 @@ def closest_approach(scene: Scene, cfg: Configuration, traj: Trajectory) -> list
         same = np.flatnonzero((owner == k) & after)  # the neighbours within the same segment
         lo, hi = t[max(i - 1, same[0])], t[min(i + 1, same[-1])]
         ti, gi = _refine(cfg, tr, segs[k], float(lo), float(hi), float(t[i]), float(g[i]))
-        out.append({"transition": tr.name, "guard": str(tr.guard.measure) if tr.guard.measure else "contact gap",
-                    "value": tr.guard.value, "direction": "increasing" if tr.guard.direction > 0 else "decreasing",
-                    "closest": gi, "t": ti, "distance": float(abs(gi - tr.guard.value)),
-                    "last_fired": max(fired) if fired else None,
-                    # nearest where the run entered the configuration (a release at a stop, say): it
-                    # started there and never came closer, which is no near miss
-                    "at_entry": ti == float(segs[k].t[0]) and _entered(traj, segs[k]),
-                    "past": _past(tr, gi),
-                    "crossed_against": _crossed_against(tr, t, g, owner)})
+        # at_entry: nearest where the run entered the configuration (a release at a stop, say): it
+        # started there and never came closer, which is no near miss
+        out.append(_record(tr, gi, ti, float(abs(gi - tr.guard.value)), max(fired) if fired else None,
+                           ti == float(segs[k].t[0]) and _entered(traj, segs[k]), _past(tr, gi),
+                           _crossed_against(tr, t, g, owner)))
     return out
 
 
@@ -130,11 +126,8 @@ def _moved_away(tr, t: np.ndarray, g: np.ndarray, after: np.ndarray, owner: np.n
     stop).  ``closest``, ``t`` and ``distance`` are None; ``final`` and ``t_final``: where the
     measure is at the run's last sample."""
     k = int(np.flatnonzero(after)[-1])
-    return {"transition": tr.name, "guard": str(tr.guard.measure) if tr.guard.measure else "contact gap",
-            "value": tr.guard.value, "direction": "increasing" if tr.guard.direction > 0 else "decreasing",
-            "closest": None, "t": None, "distance": None, "last_fired": last_fired, "at_entry": False,
-            "past": False, "crossed_against": _crossed_against(tr, t, g, owner), "moved_away": True,
-            "final": float(g[k]), "t_final": float(t[k])}
+    return _record(tr, None, None, None, last_fired, False, False, _crossed_against(tr, t, g, owner),
+                   moved_away=True, final=float(g[k]), t_final=float(t[k]))
 
 
 def _outside_region(tr, t: np.ndarray, after: np.ndarray, last_fired: float | None) -> dict:
@@ -142,12 +135,18 @@ def _outside_region(tr, t: np.ndarray, after: np.ndarray, last_fired: float | No
     it last fired (or at all): no closest approach to report, the guard could not fire."""
     measure, side, bound = tr.guard.when
     since = t[after]
+    return _record(tr, None, None, None, last_fired, False, False, None,
+                   outside_when=f"{measure} {'above' if side > 0 else 'below'} {bound:.9g}",
+                   t_from=float(since[0]), t_final=float(since[-1]))
+
+
+def _record(tr, closest, t, distance, last_fired, at_entry: bool, past: bool, crossed_against, **more) -> dict:
+    """The closest-approach record of a coordinate or gap guard (its keys in the summary's order;
+    ``more``: a record's own keys after them)."""
     return {"transition": tr.name, "guard": str(tr.guard.measure) if tr.guard.measure else "contact gap",
             "value": tr.guard.value, "direction": "increasing" if tr.guard.direction > 0 else "decreasing",
-            "closest": None, "t": None, "distance": None, "last_fired": last_fired, "at_entry": False,
-            "past": False, "crossed_against": None,
-            "outside_when": f"{measure} {'above' if side > 0 else 'below'} {bound:.9g}",
-            "t_from": float(since[0]), "t_final": float(since[-1])}
+            "closest": closest, "t": t, "distance": distance, "last_fired": last_fired, "at_entry": at_entry,
+            "past": past, "crossed_against": crossed_against, **more}
 
 
 def _segments_in(traj: Trajectory, name: str, watched, fired_by: dict | None = None) -> list[SegmentRecord]:
