@@ -195,7 +195,7 @@ def integrate_segment(run: RunState, progress):
     leaving = []  # guards at their value whose contact does not approach (_pending): re-armed, not crossed
     pending = None if run.phase is not None else _pending(cfg, guards, t, y0, leaving)
     if run.phase is None:
-        run.traj.stats["warnings"] += _releases_past_at_entry(cfg, guards, t, y0, run.traj.stats["warnings"],
+        run.traj.stats["warnings"] += _releases_past_at_entry(cfg, guards, t, y0, run.releases_said,
                                                               bounced)
     leaving = [i for i in leaving if guards[i].transition is not bounced]  # (that one is re-armed already)
     if pending is None and leaving:
@@ -552,7 +552,7 @@ def _on_state(guards: list, n: int, cache: GuardCache) -> list:
     return out
 
 
-def _releases_past_at_entry(cfg: Configuration, guards, t, y0, said, bounced=None) -> list[str]:
+def _releases_past_at_entry(cfg: Configuration, guards, t, y0, said: set, bounced=None) -> list[str]:
     """Warnings, once per configuration and release: a scene's release whose reaction guard (on a
     lock's holding force) is already past its value where a segment of ``cfg`` starts: where the run
     enters ``cfg``, or after a bounce in it (``bounced``, the stop: its impulse changes the velocities,
@@ -567,11 +567,12 @@ def _releases_past_at_entry(cfg: Configuration, guards, t, y0, said, bounced=Non
         if (g.action != "transition" or tr is None or tr.type != "release" or tr.guard.type != "reaction"
                 or any(s.name == tr.guard.of for s in cfg.spec.cut_joints)):
             continue
-        key = f"configuration '{cfg.name}': the release '{tr.name}' watches"
-        if any(key in w for w in said):
+        if (cfg.name, tr.name) in said:  # (``said``: the run's pairs said so far, added to here)
             continue
         past = tr.guard.direction * g(t, y0)
         if past > 0:
+            said.add((cfg.name, tr.name))
+            key = f"configuration '{cfg.name}': the release '{tr.name}' watches"
             way = "increasing" if tr.guard.direction > 0 else "decreasing"
             where = (f"it is already {past:.6g} past that value where the configuration is entered" if bounced is None
                      else f"the bounce at '{bounced.name}' left it {past:.6g} past that value (an impulse changes "

@@ -45,6 +45,9 @@ class RunState:
     # the guards kept from segment to segment by what they were built for (pcmm.run.loop._guards): a
     # bounce that follows a bounce at the same stop re-arms with them instead of building them again
     guard_cache: GuardCache = field(default_factory=GuardCache)
+    # (configuration, release) whose reaction guard was said to start past its value
+    # (pcmm.run.loop._releases_past_at_entry): each is said once
+    releases_said: set = field(default_factory=set)
 
     @property
     def stats(self):
